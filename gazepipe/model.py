@@ -1,0 +1,84 @@
+"""In-memory containers passed between readers, stages and writers.
+
+Readers in :mod:`gazepipe.io` return these; stages in :mod:`gazepipe.stages` take and return them (or plain
+numpy arrays); :mod:`gazepipe.schemas` turns them into Arrow tables and back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gazepipe.timebase import frame_times
+
+
+@dataclass
+class Markers:
+    """Marker trajectories of one capture, in the canonical form.
+
+    Attributes
+    ----------
+    labels : unique marker labels, in file order (duplicates already made unique: ``LABEL``, ``LABEL~2``).
+    xyz : (T, M, 3) float64 positions in millimetres, lab frame; NaN wherever ``valid`` is False.
+    valid : (T, M) bool, True where the sample was measured (or filled, after cleaning).
+    rate_hz : sampling rate in Hz (already snapped by :func:`gazepipe.timebase.snap_rate`).
+    first_frame : source frame number of row 0 (the C3D header's first frame; 1-based in most files).
+    units : the point units as found in the file (``None`` when the file does not say).
+    source_format : short name of the reader that produced it (``c3d``, ``vicon_csv``, ``qtm_tsv``, ``wide_csv``).
+    model_outputs : labels of points that are model outputs (angles, forces, …), kept out of ``xyz``.
+    warnings : one-line notes about the file (suspicious gap share, renamed labels, reader fallback, …).
+    """
+
+    labels: list[str]
+    xyz: np.ndarray
+    valid: np.ndarray
+    rate_hz: float
+    first_frame: int = 1
+    units: str | None = None
+    source_format: str = ""
+    model_outputs: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.xyz = np.asarray(self.xyz, dtype=np.float64)
+        self.valid = np.asarray(self.valid, dtype=bool)
+        if self.xyz.ndim != 3 or self.xyz.shape[2] != 3:
+            raise ValueError(f"xyz must be (T, M, 3), got {self.xyz.shape}")
+        if self.valid.shape != self.xyz.shape[:2]:
+            raise ValueError(f"valid must be {self.xyz.shape[:2]}, got {self.valid.shape}")
+        if len(self.labels) != self.xyz.shape[1]:
+            raise ValueError(f"{len(self.labels)} labels for {self.xyz.shape[1]} markers")
+        if len(set(self.labels)) != len(self.labels):
+            raise ValueError("marker labels must be unique")
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.xyz.shape[0])
+
+    @property
+    def n_markers(self) -> int:
+        return int(self.xyz.shape[1])
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Seconds since the first frame, (T,) float64."""
+        return frame_times(self.n_frames, self.rate_hz)
+
+    @property
+    def source_frame(self) -> np.ndarray:
+        """Source frame number of every row, (T,) int64."""
+        return self.first_frame + np.arange(self.n_frames, dtype=np.int64)
+
+    def index(self, label: str) -> int:
+        """Column of ``label`` (raises ``KeyError`` naming the label when absent)."""
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise KeyError(label) from None
+
+    def gap_fraction(self) -> np.ndarray:
+        """Share of invalid samples per marker, (M,) float64."""
+        if self.n_frames == 0:
+            return np.ones(self.n_markers)
+        return 1.0 - self.valid.mean(axis=0)
