@@ -82,3 +82,107 @@ class Markers:
         if self.n_frames == 0:
             return np.ones(self.n_markers)
         return 1.0 - self.valid.mean(axis=0)
+
+
+TAKE_KINDS = ("gaze_follow", "gaze_shift", "face", "neutral")
+KNOWN_POSES = ("standing", "sitting", "laying", "walking")
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One rigid body of the subject, from ``[segments.<name>]`` in markerset.toml."""
+
+    name: str
+    markers: tuple[str, ...]
+    parent: str | None = None
+
+
+@dataclass(frozen=True)
+class MarkerSet:
+    """The validated contents of markerset.toml (SPEC §1).
+
+    ``segments`` are ordered from the root of the chain to the head (file order); the root segment is the
+    first one without a parent. ``camera_rotation`` is a quaternion (w, x, y, z) or ``None``.
+    """
+
+    path: str
+    up_axis: str
+    units: str
+    root: str
+    target: str | None
+    clapper: tuple[str, ...]
+    segments: tuple[Segment, ...]
+    head_centre: str | None = None
+    eye_offset_mm: tuple[float, float, float] | None = None
+    lod_segments: tuple[str, ...] = ()
+    camera_rotation: tuple[float, float, float, float] | None = None
+
+    @property
+    def root_segment(self) -> Segment:
+        return next(s for s in self.segments if s.parent is None)
+
+    def segment(self, name: str) -> Segment:
+        return next(s for s in self.segments if s.name == name)
+
+    @property
+    def subject_markers(self) -> tuple[str, ...]:
+        """Markers on the subject: every segment marker, the root and the head centre (not target or clapper)."""
+        names: list[str] = [self.root]
+        for s in self.segments:
+            names.extend(s.markers)
+        if self.head_centre:
+            names.append(self.head_centre)
+        return tuple(dict.fromkeys(names))
+
+    @property
+    def all_markers(self) -> tuple[str, ...]:
+        names = list(self.subject_markers)
+        if self.target:
+            names.append(self.target)
+        names.extend(self.clapper)
+        return tuple(dict.fromkeys(names))
+
+
+@dataclass(frozen=True)
+class Take:
+    """One ``[[takes]]`` entry with every path resolved (absolute, inside the session folder)."""
+
+    id: str
+    kind: str
+    pose: str
+    mocap: str | None = None
+    video: str | None = None
+    eyes: str | None = None
+    tracked: str | None = None
+    clean: str | None = None
+    split: str | None = None
+    target_yaw_deg: float | None = None
+    target_pitch_deg: float | None = None
+    rate_hz: float | None = None
+    timecode_fps: float = 60.0
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        """Every input file of the take, in a fixed order."""
+        return tuple(p for p in (self.mocap, self.video, self.eyes, self.tracked, self.clean) if p)
+
+
+@dataclass(frozen=True)
+class Session:
+    """The validated contents of session.toml plus its markerset."""
+
+    root: str            # absolute path of the session folder
+    path: str            # absolute path of session.toml
+    id: str
+    subject: str
+    markerset: MarkerSet | None
+    takes: tuple[Take, ...]
+
+    def take(self, take_id: str) -> Take:
+        return next(t for t in self.takes if t.id == take_id)
+
+
+#: how each cleaned sample was obtained (the ``fill`` column of the cleaned markers table)
+FILL_CODES: dict[str, int] = {"measured": 0, "linear": 1, "pchip": 2, "rigid": 3, "pca": 4, "unfilled": 5}
+FILL_NAMES: tuple[str, ...] = tuple(FILL_CODES)
