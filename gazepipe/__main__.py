@@ -1,0 +1,3 @@
+from gazepipe.cli.main import main
+
+main()

@@ -1,0 +1,141 @@
+"""``gazepipe``: the command line (a thin layer over :mod:`gazepipe.pipeline`, :mod:`gazepipe.io`)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from gazepipe import __version__
+from gazepipe.cli.common import handle_errors, load_sessions, parse_params, run_options
+
+EPILOG = """\b
+Exit codes: 0 ok; 1 a take failed (the others finished); 2 usage or configuration
+error; 3 the QC gate failed; 75 another run holds the output folder's lock.
+"""
+
+
+@click.group(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="gazepipe")
+@click.option("--debug", is_flag=True, help="Show tracebacks for errors.")
+def cli(debug: bool) -> None:
+    """gazepipe turns capture sessions (mocap, head camera, eye tracking, face tracks) into clean,
+    synchronised, validated Parquet training sets.
+
+    \b
+    Typical use:
+      gazepipe run sample_data/session01 --out out/      # everything
+      gazepipe status out/                               # what ran, what failed, what is stale
+      gazepipe inspect capture.c3d                       # look inside one capture file
+    """
+
+
+def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dry_run: bool, executor: str,
+         jobs: int | None, scheduler: str | None, params: tuple[str, ...], params_file: str | None,
+         log_format: str, heartbeat: int) -> None:
+    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.pipeline.events import EventLog
+    from gazepipe.pipeline.runner import new_run_id
+
+    debug = bool(click.get_current_context().find_root().params.get("debug"))
+    loaded = load_sessions(sessions)
+    values = parse_params(params, params_file)
+    log = EventLog(log_format, run_id=new_run_id())
+    summary = run_pipeline(loaded, out, until=until, params=values, executor=executor, jobs=jobs,
+                           scheduler=scheduler, force=force, dry_run=dry_run, log=log, heartbeat_every=heartbeat)
+    if debug:
+        for o in summary.failed:
+            if o.traceback:
+                click.echo(o.traceback, err=True)
+    if not dry_run:
+        ran = summary.count("ok")
+        failed = len(summary.failed)
+        skipped = summary.count("skipped")
+        blocked = summary.count("blocked")
+        msg = f"done: {ran} units ran, {skipped} up to date, {failed} failed"
+        if blocked:
+            msg += f", {blocked} not run after a failure"
+        log.emit("error" if failed else "info", "run_end", msg, status="failed" if failed else "ok",
+                 ran=ran, skipped=skipped, failed=failed, blocked=blocked)
+    sys.exit(summary.exit_code)
+
+
+def _stage_command(name: str, until: str | None, summary: str) -> None:
+    @cli.command(name, help=summary, epilog=EPILOG)
+    @click.argument("sessions", nargs=-1, required=True, type=click.Path(exists=True))
+    @run_options
+    @handle_errors
+    def command(sessions, **kw):
+        _run(sessions, until, **kw)
+
+
+_stage_command("run", None, "Run every stage on every take of SESSIONS (folders or session.toml files). "
+               "Incremental: units whose inputs, parameters and code are unchanged are skipped.")
+_stage_command("ingest", "ingest", "Read every take's capture files into canonical per-take tables "
+               "(OUT/takes/<session>/<take>/markers_raw.parquet).")
+
+
+@cli.command(epilog=EPILOG)
+@click.argument("file", type=click.Path())
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a summary.")
+@click.option("--rate-hz", type=float, default=None, help="Rate for CSV files that do not carry one.")
+@handle_errors
+def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
+    """Summarise a capture file: format, rate, frames, first frame, units, markers and their gap share."""
+    from gazepipe.io.capture import inspect_capture
+
+    info = inspect_capture(file, rate_hz=rate_hz)
+    if as_json:
+        click.echo(json.dumps(info, indent=1, default=str))
+        return
+    click.echo(f"{info['path']}")
+    click.echo(f"  format {info['format']}, {info['frames']} frames at {info['rate_hz']:g} Hz, "
+               f"first frame {info['first_frame']}, units {info['units'] or 'not stated'}")
+    click.echo(f"  {len(info['markers'])} markers, {len(info['model_outputs'])} model outputs")
+    for m in info["markers"]:
+        click.echo(f"    {m['label']:<24} gaps {100 * m['gap_fraction']:6.2f} %")
+    for w in info["warnings"]:
+        click.echo(f"  warning: {w}")
+
+
+@cli.command(epilog=EPILOG)
+@click.argument("out", type=click.Path(exists=True, file_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@handle_errors
+def status(out: str, as_json: bool) -> None:
+    """What ran in OUT, what failed, and what is stale (inputs, parameters or code changed since)."""
+    from gazepipe.pipeline.status import collect_status
+
+    rows = collect_status(Path(out))
+    if as_json:
+        click.echo(json.dumps(rows, indent=1, default=str))
+        return
+    if not rows:
+        click.echo("nothing has run in this output folder yet")
+        return
+    for r in rows:
+        line = f"{r['session']}/{r['take']:<28} {r['stage']:<8} {r['state']:<7}"
+        if r.get("detail"):
+            line += f" {r['detail']}"
+        click.echo(line)
+    counts = {s: sum(r["state"] == s for r in rows) for s in ("ok", "failed", "stale", "pending")}
+    click.echo(", ".join(f"{n} {s}" for s, n in counts.items() if n))
+
+
+@cli.command("params")
+def params_cmd() -> None:
+    """List every stage parameter with its default (set them with --param or --params)."""
+    from gazepipe.pipeline.registry import default_params
+
+    for k, v in default_params().items():
+        click.echo(f"{k} = {json.dumps(v)}")
+
+
+def main() -> None:
+    cli(prog_name="gazepipe")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,38 @@
+"""Parquet reading and writing with schema checks and byte-stable output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from gazepipe.errors import InputError, SchemaError
+from gazepipe.schemas.base import check_table
+
+#: fixed writer options: same table → same bytes
+WRITE_OPTIONS = dict(compression="zstd", compression_level=3, use_dictionary=True, write_statistics=True,
+                     data_page_version="2.0", version="2.6")
+
+
+def write_table(table: pa.Table, path: str | Path, schema: pa.Schema | None = None) -> None:
+    """Write ``table`` to ``path`` (a plain write: callers make it atomic), after checking ``schema``."""
+    if schema is not None:
+        check_table(table, schema, path=str(path))
+    pq.write_table(table, str(path), **WRITE_OPTIONS)
+
+
+def read_table(path: str | Path, schema: pa.Schema | None = None) -> pa.Table:
+    """Read a Parquet file and check it against ``schema`` (when given)."""
+    try:
+        table = pq.read_table(str(path))
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(path, f"not a readable Parquet file ({exc})") from None
+    if schema is not None:
+        try:
+            check_table(table, schema, path=str(path))
+        except SchemaError:
+            raise
+    return table

@@ -1,0 +1,70 @@
+"""Atomic file writes: a temporary file under ``OUT/.gazepipe/tmp``, fsync, then rename into place.
+
+A reader never sees a half-written file at a final path: either the old bytes or the new ones.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+TMP_DIRNAME = "tmp"
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(final: str | Path, tmp_dir: str | Path) -> Iterator[Path]:
+    """Yield a temporary path to write; on success it is fsynced and renamed to ``final``.
+
+    ``tmp_dir`` must be on the same file system as ``final`` (it lives under the output folder). On any
+    exception the temporary file is removed and ``final`` is untouched.
+    """
+    final = Path(final)
+    tmp_dir = Path(tmp_dir)
+    tmp_dir.mkdir(parents=True, exist_ok=True)
+    tmp = tmp_dir / f"{final.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part"
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            fh.flush()
+            os.fsync(fh.fileno())
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, final)
+        _fsync_dir(final.parent)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def atomic_write_bytes(final: str | Path, data: bytes, tmp_dir: str | Path) -> None:
+    """Write ``data`` to ``final`` atomically."""
+    with atomic_path(final, tmp_dir) as tmp:
+        tmp.write_bytes(data)
+
+
+def clear_stale_temporaries(tmp_dir: str | Path) -> int:
+    """Delete temporary files left by a killed run (call only while holding the output lock)."""
+    n = 0
+    d = Path(tmp_dir)
+    if d.is_dir():
+        for p in d.iterdir():
+            if p.name.endswith(".part"):
+                with contextlib.suppress(OSError):
+                    p.unlink()
+                    n += 1
+    return n

@@ -1,0 +1,157 @@
+"""A whole run: lock the output folder, plan every unit, run the takes that have work, record the run."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from concurrent.futures import as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gazepipe.errors import GazepipeError
+from gazepipe.model import Session
+from gazepipe.pipeline import registry
+from gazepipe.pipeline.atomic import clear_stale_temporaries
+from gazepipe.pipeline.events import EventLog
+from gazepipe.pipeline.executors import make_executor
+from gazepipe.pipeline.hashing import HashCache
+from gazepipe.pipeline.lock import OutputLock
+from gazepipe.pipeline.runner import TakeJob, UnitOutcome, UnitPlan, new_run_id, plan_take, run_take_job
+from gazepipe.pipeline.state import OutLayout, read_json
+
+
+@dataclass
+class RunSummary:
+    run_id: str
+    outcomes: list[UnitOutcome] = field(default_factory=list)
+    plans: list[UnitPlan] = field(default_factory=list)
+
+    def count(self, status: str) -> int:
+        return sum(o.status == status for o in self.outcomes)
+
+    @property
+    def failed(self) -> list[UnitOutcome]:
+        return [o for o in self.outcomes if o.status == "failed"]
+
+    @property
+    def exit_code(self) -> int:
+        return 1 if self.failed else 0
+
+
+def plan_run(sessions: Sequence[Session], out: Path, *, until: str | None = None,
+             params: dict[str, Any] | None = None, force: bool = False,
+             hashes: HashCache | None = None) -> tuple[list[TakeJob], list[UnitOutcome], list[UnitPlan]]:
+    """Plan every take: jobs for takes with work, outcomes for takes that failed while planning, all plans."""
+    layout = OutLayout(Path(out))
+    stages = registry.upto(until) if until else registry.stages()
+    params = params or {}
+    hashes = hashes or HashCache(layout.hashes)
+    jobs, failures, plans = [], [], []
+    for session in sessions:
+        for take in session.takes:
+            try:
+                take_plans = plan_take(session, take, stages, params, layout, hashes, force)
+            except GazepipeError as exc:
+                exc.take = exc.take or take.id
+                failures.append(UnitOutcome(session.id, take.id, stages[0].name, "failed", error=exc.one_line()))
+                continue
+            plans.extend(take_plans)
+            if take_plans:
+                jobs.append(TakeJob(str(layout.root), session, take, take_plans, params))
+    return jobs, failures, plans
+
+
+def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | None = None,
+                 params: dict[str, Any] | None = None, executor: str = "process", jobs: int | None = None,
+                 scheduler: str | None = None, force: bool = False, dry_run: bool = False,
+                 log: EventLog | None = None, heartbeat_every: int = 10) -> RunSummary:
+    """Run the stages (up to ``until``) on every take of ``sessions`` into ``out``."""
+    layout = OutLayout(Path(out))
+    log = log or EventLog()
+    summary = RunSummary(run_id=log.run_id or new_run_id())
+    if dry_run:
+        hashes = HashCache(layout.hashes)
+        take_jobs, failures, plans = plan_run(sessions, layout.root, until=until, params=params, force=force,
+                                              hashes=hashes)
+        summary.plans = plans
+        summary.outcomes = failures
+        for p in plans:
+            what = "would run" if p.run else "up to date"
+            log.emit("info", "plan", f"{p.session}/{p.take} {p.stage}: {what}"
+                     + (f" ({p.reason})" if p.run else ""), session=p.session, take=p.take, stage=p.stage,
+                     status="run" if p.run else "skip", reason=p.reason)
+        for f in failures:
+            log.emit("error", "plan_failed", f.error, take=f.take, stage=f.stage, status="failed")
+        return summary
+
+    layout.state.mkdir(parents=True, exist_ok=True)
+    with OutputLock(layout.lock):
+        clear_stale_temporaries(layout.tmp)
+        _remember_sessions(layout, sessions)
+        hashes = HashCache(layout.hashes)
+        take_jobs, failures, plans = plan_run(sessions, layout.root, until=until, params=params, force=force,
+                                              hashes=hashes)
+        summary.plans = plans
+        summary.outcomes.extend(failures)
+        for f in failures:
+            log.emit("error", "unit", f.error, take=f.take, stage=f.stage, status="failed")
+        todo = [j for j in take_jobs if any(u.run for u in j.units)]
+        for j in take_jobs:
+            if j not in todo:
+                summary.outcomes.extend(UnitOutcome(u.session, u.take, u.stage, "skipped", reason=u.reason)
+                                        for u in j.units)
+        n_units = sum(u.run for j in todo for u in j.units)
+        if not todo:
+            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans)} units up to date",
+                     status="up_to_date", units=len(plans))
+        else:
+            log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
+                     f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
+            _execute(todo, summary, log, executor, jobs, scheduler, heartbeat_every)
+        hashes.save(layout.write_bytes)
+        layout.write_json(layout.runs() / f"{summary.run_id}.json", {
+            "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]})
+    return summary
+
+
+def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, executor: str, jobs: int | None,
+             scheduler: str | None, heartbeat_every: int) -> None:
+    n_workers = min(len(todo), jobs or os.cpu_count() or 1)
+    kind = "serial" if (executor == "process" and n_workers <= 1) else executor
+    done = 0
+    with make_executor(kind, n_workers, scheduler) as ex:
+        futures = {ex.submit(run_take_job, job): job for job in todo}
+        for fut in as_completed(futures):
+            job = futures[fut]
+            try:
+                outcomes = fut.result()
+            except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
+                outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
+                                        error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
+                            for u in job.units if u.run]
+            done += 1
+            summary.outcomes.extend(outcomes)
+            for o in outcomes:
+                if o.status == "ok":
+                    log.emit("info", "unit", f"[{done}/{len(todo)}] {o.session}/{o.take} {o.stage}: ok "
+                             f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
+                             status="ok", duration_s=round(o.duration_s, 4))
+                    for w in o.warnings:
+                        log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
+                elif o.status == "failed":
+                    log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
+                             status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
+                elif o.status == "blocked":
+                    log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
+                             take=o.take, stage=o.stage, status="blocked")
+            if heartbeat_every and done % heartbeat_every == 0 and done < len(todo):
+                log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
+
+
+def _remember_sessions(layout: OutLayout, sessions: Sequence[Session]) -> None:
+    known = read_json(layout.sessions) or {}
+    new = dict(known)
+    new.update({s.id: s.path for s in sessions})
+    if new != known:
+        layout.write_json(layout.sessions, new)

@@ -1,0 +1,55 @@
+"""Run events: readable lines on a terminal, JSON lines for batch jobs (``--log-format auto|text|json``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from typing import Any, TextIO
+
+LEVELS = ("debug", "info", "warning", "error")
+
+
+class EventLog:
+    """Writes one event per line to ``stream`` (stderr by default).
+
+    JSON lines carry ``time`` (UTC ISO 8601), ``level``, ``event``, ``run_id`` and the event's fields (``stage``,
+    ``take``, ``status``, ``duration_s`` …). Text lines are for people and omit the bookkeeping.
+    """
+
+    def __init__(self, fmt: str = "auto", stream: TextIO | None = None, run_id: str = "",
+                 quiet: bool = False) -> None:
+        self.stream = stream or sys.stderr
+        if fmt == "auto":
+            fmt = "text" if _isatty(self.stream) else "json"
+        self.fmt = fmt
+        self.run_id = run_id
+        self.quiet = quiet
+
+    @property
+    def interactive(self) -> bool:
+        return self.fmt == "text" and _isatty(self.stream)
+
+    def emit(self, level: str, event: str, message: str = "", **fields: Any) -> None:
+        if self.quiet and level in ("debug", "info"):
+            return
+        if self.fmt == "json":
+            rec = {"time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime()) + "Z", "level": level,
+                   "event": event, "run_id": self.run_id}
+            rec.update({k: v for k, v in fields.items() if v is not None})
+            if message:
+                rec["message"] = message
+            line = json.dumps(rec, default=str, sort_keys=False)
+        else:
+            if level == "debug":
+                return
+            prefix = {"warning": "warning: ", "error": "error: "}.get(level, "")
+            line = prefix + (message or event)
+        print(line, file=self.stream, flush=True)
+
+
+def _isatty(stream: TextIO) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False

@@ -1,0 +1,84 @@
+"""Executors behind one ``concurrent.futures`` interface: serial, local processes, Dask distributed.
+
+Each submits the same picklable job function; results are identical whatever runs them.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+
+from gazepipe.errors import ConfigError
+
+EXECUTORS = ("serial", "process", "dask")
+
+
+class SerialExecutor(Executor):
+    """Runs each job in the calling process when it is submitted."""
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # delivered through the future, as other executors do
+            fut.set_exception(exc)
+        return fut
+
+
+class DaskExecutor(Executor):
+    """A ``dask.distributed`` client as an executor: a local cluster, or an existing scheduler's address."""
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None) -> None:
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise ConfigError(None, "--executor dask needs the dask extra: pip install 'gazepipe[dask]'") from None
+        if scheduler:
+            self._cluster = None
+            try:
+                self._client = Client(scheduler, timeout="20s")
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(None, f"cannot reach Dask scheduler {scheduler} ({exc})") from None
+        else:
+            self._cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
+                                         processes=True, dashboard_address=None)
+            self._client = Client(self._cluster)
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        # pure=False: a job writes files; never let Dask dedupe or cache it
+        dfut = self._client.submit(fn, *args, pure=False, **kwargs)
+        fut: Future = Future()
+
+        def _done(df) -> None:
+            try:
+                fut.set_result(df.result())
+            except BaseException as exc:
+                fut.set_exception(exc)
+
+        dfut.add_done_callback(_done)
+        return fut
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
+def make_executor(kind: str, jobs: int | None = None, scheduler: str | None = None) -> Executor:
+    """Build the executor named ``kind`` (``serial``, ``process`` or ``dask``)."""
+    if scheduler and kind != "dask":
+        kind = "dask"
+    if kind == "serial" or (kind == "process" and (jobs or default_workers()) == 1):
+        return SerialExecutor()
+    if kind == "process":
+        # forkserver: workers do not inherit the parent's threads or locks
+        return ProcessPoolExecutor(max_workers=jobs or default_workers(),
+                                   mp_context=multiprocessing.get_context("forkserver"))
+    if kind == "dask":
+        return DaskExecutor(scheduler, jobs)
+    raise ConfigError(None, f"unknown executor '{kind}' (choose from {', '.join(EXECUTORS)})")

@@ -1,0 +1,68 @@
+"""Content hashes of input files, cached by (size, mtime, inode) so unchanged files are not re-read."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from gazepipe.errors import InputError
+
+
+def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def sha256_json(obj: Any) -> str:
+    """Hash of a JSON-able object in canonical form (sorted keys, no spaces)."""
+    raw = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(raw.encode()).hexdigest()
+
+
+class HashCache:
+    """sha256 of files keyed by absolute path, trusted while size, mtime (ns) and inode are unchanged.
+
+    The cache is a JSON file; :meth:`save` writes it back only when something changed.
+    """
+
+    def __init__(self, path: str | Path | None = None) -> None:
+        self.path = Path(path) if path else None
+        self._entries: dict[str, list] = {}
+        self._dirty = False
+        if self.path and self.path.is_file():
+            try:
+                self._entries = json.loads(self.path.read_text())
+            except (OSError, ValueError):
+                self._entries = {}
+
+    def hash(self, path: str | Path) -> str:
+        p = os.path.abspath(path)
+        try:
+            st = os.stat(p)
+        except FileNotFoundError:
+            raise InputError(p, "file not found") from None
+        except OSError as exc:
+            raise InputError(p, f"cannot read ({exc.strerror})") from None
+        key = [st.st_size, st.st_mtime_ns, st.st_ino]
+        entry = self._entries.get(p)
+        if entry and entry[:3] == key:
+            return entry[3]
+        try:
+            digest = sha256_file(p)
+        except OSError as exc:
+            raise InputError(p, f"cannot read ({exc.strerror})") from None
+        self._entries[p] = [*key, digest]
+        self._dirty = True
+        return digest
+
+    def save(self, write_bytes) -> None:
+        """Persist through ``write_bytes(path, data)`` (an atomic writer) when anything changed."""
+        if self.path and self._dirty:
+            write_bytes(self.path, json.dumps(self._entries, sort_keys=True).encode())
+            self._dirty = False

@@ -1,0 +1,227 @@
+"""Plan and run units of work (one stage on one take): fingerprints, skip-when-up-to-date, failures kept apart.
+
+Planning happens in the calling process and only stats files (the hash cache avoids re-reading unchanged
+inputs), so a run with nothing to do costs little. Each take with work becomes one job — its stages in order —
+submitted to an executor; a job writes its outputs atomically and records every unit as it finishes, so a run
+killed at any moment loses only the unit in progress.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import traceback
+import uuid
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from gazepipe import __version__
+from gazepipe.errors import GazepipeError, InputError, SchemaError
+from gazepipe.io.parquet import read_table, write_table
+from gazepipe.model import Session, Take
+from gazepipe.pipeline import registry
+from gazepipe.pipeline.atomic import atomic_path
+from gazepipe.pipeline.hashing import HashCache, sha256_json
+from gazepipe.pipeline.registry import Stage, UnitContext
+from gazepipe.pipeline.state import OutLayout, read_json
+from gazepipe.schemas import expected_schema
+
+
+@dataclass
+class UnitPlan:
+    """One unit: its fingerprint, whether it must run, and why."""
+
+    session: str
+    take: str
+    stage: str
+    fingerprint: str
+    components: dict[str, Any]
+    run: bool
+    reason: str
+
+
+@dataclass
+class UnitOutcome:
+    session: str
+    take: str
+    stage: str
+    status: str                 # ok | failed | skipped (up to date) | blocked (an upstream unit failed)
+    reason: str = ""
+    error: str = ""
+    traceback: str = ""
+    duration_s: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class TakeJob:
+    """A take's units in stage order; picklable, so any executor can run it."""
+
+    out: str
+    session: Session
+    take: Take
+    units: list[UnitPlan]
+    params: dict[str, Any]
+
+
+# --------------------------------------------------------------------------------------------- planning
+
+def stage_params(stage: Stage, params: dict[str, Any]) -> dict[str, Any]:
+    """The values of the parameters ``stage`` uses (defaults overridden by ``params``)."""
+    return {k: params.get(f"{stage.name}.{k}", v) for k, v in stage.params.items()}
+
+
+def _take_config(session: Session, take: Take) -> dict[str, Any]:
+    """The take's settings with paths relative to the session folder (moving the folder changes nothing)."""
+    cfg = asdict(take)
+    for k, v in cfg.items():
+        if isinstance(v, str) and os.path.isabs(v):
+            cfg[k] = os.path.relpath(v, session.root)
+    return cfg
+
+
+def plan_take(session: Session, take: Take, stages: Sequence[Stage], params: dict[str, Any],
+              layout: OutLayout, hashes: HashCache, force: bool = False) -> list[UnitPlan]:
+    """Fingerprint every applicable stage of ``take`` and decide whether it must run."""
+    plans: list[UnitPlan] = []
+    fps: dict[str, str] = {}
+    running: set[str] = set()
+    for st in stages:
+        if not st.applies(session, take):
+            continue
+        sources = {os.path.relpath(p, session.root): hashes.hash(p) for p in st.sources(session, take)}
+        comp = {
+            "stage": st.name, "version": st.version, "params": stage_params(st, params),
+            "take": _take_config(session, take), "sources": sources,
+            "upstream": {u: fps[u] for u in st.requires if u in fps},
+        }
+        fp = sha256_json(comp)
+        fps[st.name] = fp
+        reason = _why(st, comp, fp, layout.record(session.id, take.id, st.name),
+                      [layout.table(session.id, take.id, o) for o in st.outputs], running, force)
+        if reason:
+            running.add(st.name)
+        plans.append(UnitPlan(session.id, take.id, st.name, fp, comp, bool(reason), reason or "up to date"))
+    return plans
+
+
+def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: list[Path],
+         running: set[str], force: bool) -> str:
+    """Why a unit must run, or '' when it is up to date."""
+    if force:
+        return "--force"
+    rec = read_json(record_path)
+    if not isinstance(rec, dict) or "fingerprint" not in rec:
+        return "never ran"
+    if rec.get("status") != "ok":
+        return "failed last time"
+    if rec["fingerprint"] == fp:
+        sizes = rec.get("outputs", {})
+        for p in outputs:
+            try:
+                if p.stat().st_size != sizes.get(p.name):
+                    return f"output {p.name} changed on disk"
+            except FileNotFoundError:
+                return f"output {p.name} missing"
+        return ""
+    old = rec.get("components", {})
+    if old.get("version") != comp["version"]:
+        return f"stage version {old.get('version')} -> {comp['version']}"
+    changed = [k for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
+    if changed:
+        return "parameters changed: " + ", ".join(f"{st.name}.{k}" for k in changed)
+    files = [k for k in comp["sources"] if old.get("sources", {}).get(k) != comp["sources"][k]]
+    if files:
+        return "input changed: " + ", ".join(files)
+    if old.get("take") != comp["take"]:
+        return "take settings changed"
+    ups = [u for u in comp["upstream"] if u in running or old.get("upstream", {}).get(u) != comp["upstream"][u]]
+    if ups:
+        return "upstream re-runs: " + ", ".join(ups)
+    return "fingerprint changed"
+
+
+# -------------------------------------------------------------------------------------------- execution
+
+def _loader(layout: OutLayout):
+    def load(session_id: str, take_id: str, name: str) -> pa.Table:
+        path = layout.table(session_id, take_id, name)
+        table = read_table(path)
+        schema = expected_schema(name, table)
+        if schema is not None:
+            from gazepipe.schemas.base import check_table
+            check_table(table, schema, path=str(path))
+        return table
+    return load
+
+
+def run_take_job(job: TakeJob) -> list[UnitOutcome]:
+    """Run a take's units in order; record each; a failure blocks the units that depend on it."""
+    layout = OutLayout(Path(job.out))
+    outcomes: list[UnitOutcome] = []
+    failed: set[str] = set()
+    for plan in job.units:
+        st = registry.get(plan.stage)
+        if any(u in failed for u in st.requires):
+            failed.add(st.name)
+            outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "blocked",
+                                        reason="an upstream stage failed"))
+            continue
+        if not plan.run:
+            outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "skipped", reason=plan.reason))
+            continue
+        out = _run_unit(st, plan, job, layout)
+        if out.status == "failed":
+            failed.add(st.name)
+        outcomes.append(out)
+    return outcomes
+
+
+def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> UnitOutcome:
+    t0 = time.perf_counter()
+    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout))
+    record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
+                              "fingerprint": plan.fingerprint, "components": plan.components,
+                              "gazepipe_version": __version__}
+    outcome = UnitOutcome(plan.session, plan.take, plan.stage, "ok", reason=plan.reason)
+    try:
+        result = st.run(ctx)
+        missing = [o for o in st.outputs if o not in result.tables]
+        if missing:
+            raise RuntimeError(f"stage {st.name} produced no {missing}")
+        sizes = {}
+        for name, (table, schema) in sorted(result.tables.items()):
+            final = layout.table(plan.session, plan.take, name)
+            with atomic_path(final, layout.tmp) as tmp:
+                write_table(table, tmp, schema)
+            sizes[final.name] = final.stat().st_size
+        record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings)
+        outcome.warnings = list(result.warnings)
+    except GazepipeError as exc:
+        if exc.take is None:
+            exc.take = plan.take
+        outcome.status, outcome.error = "failed", exc.one_line()
+        if isinstance(exc, SchemaError | InputError):
+            outcome.traceback = traceback.format_exc()
+    except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
+        outcome.status = "failed"
+        outcome.error = f"take {plan.take}: stage {st.name}: internal error: {type(exc).__name__}: {exc}"
+        outcome.traceback = traceback.format_exc()
+    if outcome.status == "failed":
+        record.update(status="failed", error=outcome.error)
+        for name in st.outputs:  # a failed unit leaves no output that disagrees with its inputs
+            with contextlib.suppress(FileNotFoundError):
+                layout.table(plan.session, plan.take, name).unlink()
+    outcome.duration_s = time.perf_counter() - t0
+    record["duration_s"] = round(outcome.duration_s, 4)
+    layout.write_json(layout.record(plan.session, plan.take, plan.stage), record)
+    return outcome
+
+
+def new_run_id() -> str:
+    return time.strftime("%Y%m%dT%H%M%S", time.gmtime()) + "-" + uuid.uuid4().hex[:6]

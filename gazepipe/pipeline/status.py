@@ -1,0 +1,54 @@
+"""`gazepipe status`: the state of every unit in an output folder, compared with its inputs now."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from gazepipe.errors import GazepipeError
+from gazepipe.pipeline.engine import plan_run
+from gazepipe.pipeline.hashing import HashCache
+from gazepipe.pipeline.state import OutLayout, all_records, read_json
+
+
+def collect_status(out: Path) -> list[dict[str, Any]]:
+    """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration."""
+    from gazepipe.io.session_toml import load_session
+
+    layout = OutLayout(out)
+    records = {(r.get("session"), r.get("take"), r.get("stage")): r for r in all_records(layout)}
+    rows: list[dict[str, Any]] = []
+    seen: set[tuple] = set()
+    sessions = []
+    for sid, path in sorted((read_json(layout.sessions) or {}).items()):
+        try:
+            sessions.append(load_session(path))
+        except GazepipeError as exc:
+            rows.append({"session": sid, "take": "-", "stage": "-", "state": "stale",
+                         "detail": f"session cannot be read now: {exc.one_line()}"})
+    _, failures, plans = plan_run(sessions, out, hashes=HashCache(layout.hashes))
+    for f in failures:
+        rows.append({"session": f.session, "take": f.take, "stage": f.stage, "state": "failed", "detail": f.error})
+        seen.add((f.session, f.take, f.stage))
+    for p in plans:
+        key = (p.session, p.take, p.stage)
+        seen.add(key)
+        rec = records.get(key)
+        row = {"session": p.session, "take": p.take, "stage": p.stage}
+        if rec is None:
+            row.update(state="pending", detail="never ran")
+        elif rec.get("status") == "failed":
+            row.update(state="failed", detail=rec.get("error", ""))
+        elif p.run:
+            row.update(state="stale", detail=p.reason)
+        else:
+            row.update(state="ok", detail="")
+        if rec is not None:
+            row["duration_s"] = rec.get("duration_s")
+        rows.append(row)
+    for key, rec in sorted(records.items(), key=lambda kv: tuple(map(str, kv[0]))):
+        if key not in seen:
+            rows.append({"session": key[0], "take": key[1], "stage": key[2],
+                         "state": "failed" if rec.get("status") == "failed" else "ok",
+                         "detail": "no longer in its session", "duration_s": rec.get("duration_s")})
+    return rows

@@ -1,0 +1,99 @@
+"""The canonical per-take markers tables (``markers_raw`` from ingest, ``markers`` from clean).
+
+Long format, marker-major: one row per (marker, frame), all frames of the first marker first, so a column
+reshapes to (M, T) without a sort. ``frame`` is the 0-based row of the take's capture file (kept through
+cropping), ``source_frame`` the file's own frame number, ``time_s`` seconds since the file's first frame.
+Positions are millimetres in the lab frame (``markers`` tables: after root stabilisation, see ``meta``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from gazepipe.model import FILL_NAMES, Markers
+from gazepipe.schemas.base import attach_meta, read_meta, with_identity
+
+SCHEMA_VERSION = 1
+
+_COMMON = [
+    pa.field("marker", pa.dictionary(pa.int32(), pa.string()), nullable=False),
+    pa.field("frame", pa.int32(), nullable=False),
+    pa.field("source_frame", pa.int64(), nullable=False),
+    pa.field("time_s", pa.float64(), nullable=False),
+    pa.field("x", pa.float64()),
+    pa.field("y", pa.float64()),
+    pa.field("z", pa.float64()),
+    pa.field("valid", pa.bool_(), nullable=False),
+]
+
+MARKERS_RAW = with_identity(pa.schema(_COMMON), "markers_raw", SCHEMA_VERSION)
+MARKERS_CLEAN = with_identity(
+    pa.schema([*_COMMON, pa.field("fill", pa.dictionary(pa.int8(), pa.string()), nullable=False)]),
+    "markers", SCHEMA_VERSION)
+
+
+def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill_code: np.ndarray | None = None,
+                     meta: dict[str, Any] | None = None) -> pa.Table:
+    """Arrow table of ``markers``.
+
+    Parameters
+    ----------
+    frames : (T,) original 0-based frame index of each row (default ``0..T-1``); used after cropping.
+    fill_code : (T, M) int8 codes of :data:`gazepipe.model.FILL_CODES`; given → a ``markers`` table, else
+        ``markers_raw``.
+    meta : extra table-level facts stored with the rate, labels and source information.
+    """
+    T, M = markers.valid.shape
+    frames = np.arange(T, dtype=np.int32) if frames is None else np.asarray(frames, dtype=np.int32)
+    pos = np.ascontiguousarray(markers.xyz.transpose(1, 0, 2)).reshape(M * T, 3)
+    valid = markers.valid.T.reshape(-1)
+    pos_masked = [pa.array(pos[:, k], mask=~valid) for k in range(3)]
+    marker_idx = np.repeat(np.arange(M, dtype=np.int32), T)
+    cols: dict[str, pa.Array] = {
+        "marker": pa.DictionaryArray.from_arrays(pa.array(marker_idx), pa.array(markers.labels, pa.string())),
+        "frame": pa.array(np.tile(frames, M)),
+        "source_frame": pa.array(np.tile(frames.astype(np.int64) + markers.first_frame, M)),
+        "time_s": pa.array(np.tile(frames / markers.rate_hz, M)),
+        "x": pos_masked[0], "y": pos_masked[1], "z": pos_masked[2],
+        "valid": pa.array(valid),
+    }
+    schema = MARKERS_RAW
+    if fill_code is not None:
+        codes = np.asarray(fill_code, dtype=np.int8).T.reshape(-1)
+        cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes), pa.array(FILL_NAMES, pa.string()))
+        schema = MARKERS_CLEAN
+    table = pa.Table.from_pydict(cols, schema=schema)
+    info = {
+        "labels": list(markers.labels), "rate_hz": markers.rate_hz, "first_frame": int(markers.first_frame),
+        "units_found": markers.units, "source_format": markers.source_format,
+        "model_outputs": list(markers.model_outputs), "warnings": list(markers.warnings),
+        "n_frames": int(T),
+    }
+    info.update(meta or {})
+    return attach_meta(table, info)
+
+
+def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray | None, dict[str, Any]]:
+    """Inverse of :func:`markers_to_table`: ``(markers, frames, fill_code or None, meta)``."""
+    meta = read_meta(table)
+    labels = list(meta["labels"])
+    M = len(labels)
+    n = table.num_rows
+    T = n // M if M else 0
+    frames = table.column("frame").to_numpy()[:T].astype(np.int64)
+    xyz = np.stack([table.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], axis=-1)
+    xyz = xyz.astype(np.float64).reshape(M, T, 3).transpose(1, 0, 2)
+    valid = table.column("valid").to_numpy(zero_copy_only=False).reshape(M, T).T
+    xyz = np.where(valid[..., None], xyz, np.nan)
+    fill = None
+    if "fill" in table.column_names:
+        fill = table.column("fill").combine_chunks().indices.to_numpy(zero_copy_only=False)
+        fill = fill.astype(np.int8).reshape(M, T).T
+    markers = Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=float(meta["rate_hz"]),
+                      first_frame=int(meta["first_frame"]), units=meta.get("units_found"),
+                      source_format=meta.get("source_format", ""), model_outputs=list(meta.get("model_outputs", [])),
+                      warnings=list(meta.get("warnings", [])))
+    return markers, frames, fill, meta
