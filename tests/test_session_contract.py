@@ -294,6 +294,8 @@ CASES = [
     ("target_empty", _set("M.target", ""), M, "target", ["bad marker name"]),
     ("target_missing", _set("M.target", _DELETE), M, "target", ["missing", "gaze_follow"]),
     ("target_on_segment", _set("M.target", "HTOP"), M, "target", ["also on segment", "head"]),
+    ("target_is_root", _set("M.target", "SACR"), M, "target", ["also the root marker"]),
+    ("clapper_is_head_centre", _set("M.head_centre", "CLAP2"), M, "clapper[1]", ["also the head centre"]),
     ("clapper_one", _set("M.clapper", ["CLAP1"]), M, "clapper", ["two marker names"]),
     ("clapper_missing", _set("M.clapper", _DELETE), M, "clapper", ["missing", "video"]),
     ("head_centre", _set("M.head_centre", 1), M, "head_centre", ["marker name"]),
@@ -337,6 +339,9 @@ def test_each_problem_is_one_error(tmp_path, mutation, file, key, words):
     assert text.startswith(f"{fpath}: ") or text.startswith(f"take {err.take}: {fpath}: "), text
     for w in words:
         assert w.lower() in text.lower(), text
+    if key.startswith("takes[") and "." in key and not key.endswith(".id"):
+        take_id = sdoc["takes"][int(key[6:key.index("]")])]["id"]
+        assert err.take == take_id and text.startswith(f"take {take_id}: ")
     with pytest.raises(ConfigError) as info:
         load_session(root)
     assert str(info.value) == text

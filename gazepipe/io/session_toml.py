@@ -97,9 +97,10 @@ class _Collector:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.errors: list[ConfigError] = []
+        self.take: str | None = None  # the take id problems are attributed to, while reading a take
 
     def add(self, key: str | None, problem: str, take: str | None = None) -> None:
-        self.errors.append(ConfigError(self.path, problem, key=key, take=take))
+        self.errors.append(ConfigError(self.path, problem, key=key, take=take or self.take))
 
     def unknown_keys(self, table: dict, known: Sequence[str], prefix: str, what: str = "key") -> None:
         for name in table:
@@ -257,13 +258,18 @@ def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
     segments = _segments(doc, col)
     seg_names = [s.name for s in segments]
 
+    # the target and the clapper are not on the subject: they must not share a name with its markers
     seen: dict[str, str] = {}
     for s in segments:
         for m in s.markers:
-            seen.setdefault(m, s.name)
+            seen.setdefault(m, f"on segment {s.name!r}")
+    if root is not None:
+        seen.setdefault(root, "the root marker")
+    if head_centre is not None:
+        seen.setdefault(head_centre, "the head centre")
     for name, key in ((target, "target"), *((c, f"clapper[{i}]") for i, c in enumerate(clapper))):
         if name is not None and name in seen:
-            col.add(key, f"marker {name!r} is also on segment {seen[name]!r}")
+            col.add(key, f"marker {name!r} is also {seen[name]}")
     if target is not None and target in clapper:
         col.add("target", f"marker {target!r} is also a clapper marker")
 
@@ -510,6 +516,17 @@ def _take(raw: Any, i: int, root: Path, col: _Collector, ids: dict[str, int], d_
         return None
     n_before = len(col.errors)
     tid = col.word(t, "id", f"{key}.id", "take id", required=True)
+    col.take = tid
+    try:
+        return _take_fields(t, i, tid, root, col, ids, n_before, d_pose, d_split, d_rate, d_tc)
+    finally:
+        col.take = None
+
+
+def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: _Collector, ids: dict[str, int],
+                 n_before: int, d_pose: str | None, d_split: str | None, d_rate: float | None,
+                 d_tc: float | None) -> Take | None:
+    key = f"takes[{i}]"
     if tid is not None:
         if tid in ids:
             col.add(f"{key}.id", f"duplicate take id {tid!r} (also takes[{ids[tid]}])", tid)
