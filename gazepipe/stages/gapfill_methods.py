@@ -1,0 +1,244 @@
+"""The gap-filling methods used by :mod:`gazepipe.stages.gapfill`.
+
+Each method predicts one marker's positions (mm, lab frame) over a half-open frame interval ``[a, b)`` from the
+samples that are *known* for that marker (a boolean mask, so that validation can hide extra samples) and, for the
+rigid and PCA methods, from the other markers measured in those frames. A method returns ``None`` when it cannot
+predict every frame of the interval (no cluster, too few visible markers, no data on one side, ...).
+
+Rigid and PCA predictions are corrected so they meet the known samples next to the interval: the mismatch at the
+frame before ``a`` and at frame ``b`` is blended linearly across the interval (constant when only one side is
+known). This removes the slowly varying bias of a reference shape or a linear model and is usually far more
+accurate than the raw prediction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+#: known samples used on each side of an interval by the interpolating methods
+_N_ANCHORS = 3
+
+
+def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int, kind: str) -> np.ndarray | None:
+    """Linear or PCHIP interpolation of one marker over frames ``[a, b)``.
+
+    Parameters
+    ----------
+    xyz_m : (T, 3) positions of the marker, mm.
+    known_m : (T,) bool, samples that may be used.
+    kind : ``"linear"`` or ``"pchip"``.
+
+    Returns ``None`` unless known samples exist on both sides (never extrapolates in time).
+    """
+    before = np.flatnonzero(known_m[:a])
+    after = np.flatnonzero(known_m[b:]) + b
+    if before.size == 0 or after.size == 0:
+        return None
+    t = np.arange(a, b, dtype=np.float64)
+    if kind == "linear":
+        t0, t1 = before[-1], after[0]
+        w = ((t - t0) / (t1 - t0))[:, None]
+        return (1.0 - w) * xyz_m[t0] + w * xyz_m[t1]
+    anchors = np.concatenate([before[-_N_ANCHORS:], after[:_N_ANCHORS]])
+    return PchipInterpolator(anchors.astype(np.float64), xyz_m[anchors], axis=0)(t)
+
+
+def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
+                  lo: int, hi: int) -> np.ndarray | None:
+    """Blend the mismatch at the known frames ``a - 1`` and ``b`` linearly across ``[a, b)``.
+
+    ``pred`` covers frames ``[lo, hi)`` with ``lo <= a - 1`` where possible and ``hi >= b + 1`` where possible;
+    NaN rows are frames the method could not predict. Returns the ``[a, b)`` part, or ``None`` when any frame
+    of it is NaN.
+    """
+    core = pred[a - lo:b - lo]
+    if np.isnan(core).any():
+        return None
+    res_l = res_r = None
+    if a - 1 >= lo and known_m[a - 1] and not np.isnan(pred[a - 1 - lo]).any():
+        res_l = xyz_m[a - 1] - pred[a - 1 - lo]
+    if b < hi and known_m[b] and not np.isnan(pred[b - lo]).any():
+        res_r = xyz_m[b] - pred[b - lo]
+    if res_l is None and res_r is None:
+        return core
+    if res_l is None:
+        return core + res_r
+    if res_r is None:
+        return core + res_l
+    w = ((np.arange(a, b) - (a - 1)) / (b - (a - 1)))[:, None]
+    return core + (1.0 - w) * res_l + w * res_r
+
+
+def kabsch(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares rigid transforms (Kabsch / Söderkvist–Wedin) from one reference to many frames.
+
+    Parameters
+    ----------
+    ref : (K, 3) reference positions.
+    cur : (n, K, 3) positions in n frames.
+
+    Returns
+    -------
+    R : (n, 3, 3) rotations, ref_centroid : (3,), cur_centroid : (n, 3); ``cur ≈ R @ (ref - c_ref) + c_cur``.
+    """
+    c_ref = ref.mean(axis=0)
+    c_cur = cur.mean(axis=1)
+    h = np.einsum("ki,nkj->nij", ref - c_ref, cur - c_cur[:, None, :])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", u, vt)))
+    d[d == 0] = 1.0
+    vt = vt.copy()
+    vt[:, 2, :] *= d[:, None]
+    r = np.einsum("nji,nkj->nik", vt, u)  # V · diag(1, 1, d) · Uᵀ
+    return r, c_ref, c_cur
+
+
+def _non_collinear(pts: np.ndarray, min_spread_mm: float = 5.0) -> bool:
+    """True when ``pts`` (K, 3) span a plane: the second singular value of the centred set is big enough."""
+    if pts.shape[0] < 3:
+        return False
+    s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+    return bool(s[1] > max(min_spread_mm, 0.05 * s[0]))
+
+
+def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
+               a: int, b: int) -> np.ndarray | None:
+    """Rigid-cluster fill of marker ``m`` over frames ``[a, b)``.
+
+    In every frame the cluster's other markers that are measured there (at least three, not collinear) are
+    fitted to their positions in two reference frames: the nearest frames before and after the interval where
+    ``m`` is known and those markers are measured. The two predictions are blended by time across the interval
+    (one reference only at the ends of the take), then corrected to meet the known samples at both edges.
+    """
+    n_t = xyz.shape[0]
+    others = np.array([j for j in cluster if j != m], dtype=np.int64)
+    if others.size < 3:
+        return None
+    lo, hi = max(a - 1, 0), min(b + 1, n_t)
+    vis = valid[lo:hi][:, others]
+    pred = np.full((hi - lo, 3), np.nan)
+    patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    for p_idx, pattern in enumerate(patterns):
+        if pattern.sum() < 3:
+            continue
+        sub = others[pattern]
+        rows = np.flatnonzero(inverse == p_idx)
+        frames = rows + lo
+        complete = known_m & valid[:, sub].all(axis=1)
+        cand_before = np.flatnonzero(complete[:a])
+        cand_after = np.flatnonzero(complete[b:]) + b
+        refs = []
+        if cand_before.size:
+            refs.append(int(cand_before[-1]))
+        if cand_after.size:
+            refs.append(int(cand_after[0]))
+        refs = [r for r in refs if _non_collinear(xyz[r, sub])]
+        if not refs:
+            continue
+        cur = xyz[frames][:, sub]
+        preds = []
+        for r in refs:
+            rot, c_ref, c_cur = kabsch(xyz[r, sub], cur)
+            preds.append(np.einsum("nij,j->ni", rot, xyz[r, m] - c_ref) + c_cur)
+        if len(preds) == 1:
+            pred[rows] = preds[0]
+        else:
+            w = np.clip((frames - refs[0]) / (refs[1] - refs[0]), 0.0, 1.0)[:, None]
+            pred[rows] = (1.0 - w) * preds[0] + w * preds[1]
+    return _edge_correct(pred, xyz[:, m], known_m, a, b, lo, hi)
+
+
+class PcaModel:
+    """Gløersen & Federolf (2016) style PCA model of all markers' coordinates for one target marker.
+
+    Fitted on the frames where the target and every predictor are measured (optionally only within a time
+    window around the gap). Coordinates are centred on the training mean and each marker's columns are weighted
+    by ``exp(-d² / (2 σ²))`` with ``d`` its mean distance to the target (σ = ``sigma_scale`` × the median
+    distance), so nearby markers dominate the components, as in the paper's distance weighting. The components
+    that explain ``var_frac`` of the weighted variance are kept. The target's coordinates in a frame are
+    reconstructed from the component scores fitted (least squares) to the predictors measured in that frame.
+    """
+
+    def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
+                 *, sigma_scale: float = 2.0, var_frac: float = 0.999) -> None:
+        self.m = m
+        self.predictors = predictors
+        cols = np.concatenate([predictors, [m]])
+        x = xyz[train][:, cols].reshape(train.size, -1)
+        self.mean = x.mean(axis=0)
+        d = np.linalg.norm(xyz[train][:, predictors] - xyz[train][:, [m]], axis=2).mean(axis=0)
+        sigma = sigma_scale * max(float(np.median(d)), 1.0)
+        w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
+        self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
+        z = (x - self.mean) * self.w
+        gram = z.T @ z
+        evals, evecs = np.linalg.eigh(gram)
+        order = np.argsort(evals)[::-1]
+        evals = np.clip(evals[order], 0.0, None)
+        evecs = evecs[:, order]
+        total = evals.sum()
+        frac = np.cumsum(evals) / total if total > 0 else np.ones_like(evals)
+        k = int(np.searchsorted(frac, var_frac) + 1)
+        k = min(k, 3 * predictors.size - 1) if predictors.size > 1 else 1
+        self.v = evecs[:, :max(k, 1)]
+
+    def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """Target positions (n, 3) in ``frames``; NaN rows where no predictor is measured."""
+        n_p = self.predictors.size
+        out = np.full((frames.size, 3), np.nan)
+        vis = valid[frames][:, self.predictors]
+        patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for p_idx, pattern in enumerate(patterns):
+            if not pattern.any():
+                continue
+            rows = np.flatnonzero(inverse == p_idx)
+            kcols = np.flatnonzero(np.repeat(pattern, 3))
+            x = xyz[frames[rows]][:, self.predictors].reshape(rows.size, -1)[:, kcols]
+            z = (x - self.mean[kcols]) * self.w[kcols]
+            scores = np.linalg.lstsq(self.v[kcols], z.T, rcond=1e-8)[0]
+            zm = (self.v[3 * n_p:] @ scores).T
+            out[rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:]
+        return out
+
+
+def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
+            *, window: tuple[int, int] | None = None, min_train: int = 20, max_predictors: int = 12,
+            **kw: float) -> PcaModel | None:
+    """PCA model for marker ``m`` whose predictors are the markers measured in every frame of ``[a, b)``.
+
+    Only the ``max_predictors`` markers nearest to ``m`` (mean distance over the window) are used: the distance
+    weighting makes far markers contribute next to nothing, and the model stays small and fast. Training frames: ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When
+    fewer than ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
+    """
+    n_t, n_m = valid.shape
+    lo, hi = (0, n_t) if window is None else window
+    others = np.array([j for j in range(n_m) if j != m], dtype=np.int64)
+    preds = others[valid[a:b][:, others].all(axis=0)]
+    rows = known_m[lo:hi]
+    vw = valid[lo:hi]
+    if preds.size > max_predictors:
+        both = vw[:, preds] & rows[:, None]
+        d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, preds] - xyz[lo:hi][:, [m]]), axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_d = np.where(both, d, 0.0).sum(axis=0) / both.sum(axis=0)
+        mean_d[~np.isfinite(mean_d)] = np.inf
+        preds = np.sort(preds[np.argsort(mean_d, kind="stable")[:max_predictors]])
+    while preds.size:
+        ok = rows & vw[:, preds].all(axis=1)
+        if ok.sum() >= min_train:
+            return PcaModel(xyz, valid, m, preds, np.flatnonzero(ok) + lo, **kw)
+        counts = (vw[:, preds] & rows[:, None]).sum(axis=0)
+        preds = np.delete(preds, int(np.argmin(counts)))
+    return None
+
+
+def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray,
+             a: int, b: int) -> np.ndarray | None:
+    """PCA reconstruction of the model's marker over ``[a, b)``, corrected to meet the known edge samples."""
+    n_t = xyz.shape[0]
+    lo, hi = max(a - 1, 0), min(b + 1, n_t)
+    pred = model.predict(xyz, valid, np.arange(lo, hi))
+    return _edge_correct(pred, xyz[:, model.m], known_m, a, b, lo, hi)
