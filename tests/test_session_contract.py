@@ -285,6 +285,7 @@ CASES = [
     ("subject_missing", _set("S.session.subject", _DELETE), S, "session.subject", ["missing"]),
     ("no_markerset", _set("S.session.markerset", _DELETE), S, "session.markerset", ["missing", "mocap"]),
     ("markerset_out", _set("S.session.markerset", "../ms.toml"), S, "session.markerset", ["escapes"]),
+    ("takes_empty", _set("S.takes", []), S, "takes", ["no [[takes]]"]),
     ("takes_str", _set("S.takes", "x"), S, "takes", ["array of tables"]),
     ("take_not_table", _set("S.takes.3", 7), S, "takes[3]", ["must be a table"]),
     ("up_axis", _set("M.up_axis", "x"), M, "up_axis", ["\"y\" or \"z\""]),

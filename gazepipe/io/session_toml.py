@@ -456,7 +456,7 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
 
     takes: list[Take] = []
     raw_takes = doc.get("takes")
-    if raw_takes is None:
+    if raw_takes is None or raw_takes == []:
         col.add("takes", "no [[takes]] in the session")
         raw_takes = []
     elif not isinstance(raw_takes, list):
