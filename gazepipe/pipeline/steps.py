@@ -23,12 +23,23 @@ def _markerset_file(session: Session) -> list[str]:
 
 # ------------------------------------------------------------------------------------------------ ingest
 
+def _required_markers(ms, take: Take) -> list[str]:
+    """Markers a take of this kind cannot do without: the subject's, the target when the subject follows it,
+    the clapper when a video must be synchronised."""
+    names = list(ms.subject_markers)
+    if take.kind == "gaze_follow" and ms.target:
+        names.append(ms.target)
+    if take.video and ms.clapper:
+        names.extend(ms.clapper)
+    return names
+
+
 def run_ingest(ctx: UnitContext) -> UnitResult:
     take, ms = ctx.take, ctx.session.markerset
     markers = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
     meta: dict = {}
     if ms is not None:
-        mapping = check_capture_labels(ms, markers.labels, take.mocap, take.id)
+        mapping = check_capture_labels(ms, markers.labels, take.mocap, take.id, required=_required_markers(ms, take))
         renamed = {markers.labels[i]: name for name, i in mapping.items() if markers.labels[i] != name}
         if renamed:
             labels = [renamed.get(lab, lab) for lab in markers.labels]

@@ -1,0 +1,144 @@
+"""The engine: incremental runs, dry runs, failures kept to their take, lock, executors, kill safety."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from click.testing import CliRunner
+
+from gazepipe.cli.main import cli
+from gazepipe.schemas.markers import table_to_markers
+from tests.conftest import make_tiny_session, tiny_motion, write_wide_csv
+
+
+def run_cli(*args: str) -> tuple[int, str, str]:
+    res = CliRunner().invoke(cli, list(args), catch_exceptions=False)
+    return res.exit_code, res.stdout, res.stderr
+
+
+def events(stderr: str) -> list[dict]:
+    return [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
+
+
+def output_digests(out: Path) -> dict[str, str]:
+    """sha256 of every file under OUT except the run state."""
+    return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(out.rglob("*")) if p.is_file() and ".gazepipe" not in p.parts}
+
+
+def test_ingest_writes_canonical_tables_that_match_the_input(tiny_session, tmp_path):
+    out = tmp_path / "out"
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    assert code == 0, err
+    table = pq.read_table(out / "takes" / "tiny" / "t1" / "markers_raw.parquet")
+    markers, frames, fill, meta = table_to_markers(table)
+    labels, xyz = tiny_motion(1)
+    assert markers.labels == labels
+    assert np.allclose(markers.xyz, xyz, atol=1e-4)          # the CSV keeps 4 decimals
+    assert frames.tolist() == list(range(90))
+    assert meta["rate_hz"] == pytest.approx(30.0)
+    assert table.column("source_frame").to_pylist()[:2] == [1, 2]
+
+
+def test_second_run_does_nothing_and_says_so(tiny_session, tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")[0] == 0
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*.parquet")}
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    assert code == 0
+    ev = events(err)
+    assert any(e["event"] == "nothing_to_do" for e in ev)
+    assert not any(e["event"] == "unit" and e.get("status") == "ok" for e in ev)
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.parquet")} == before
+
+
+def test_changing_one_take_reruns_only_that_take(tiny_session, tmp_path):
+    out = tmp_path / "out"
+    run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    labels, xyz = tiny_motion(1)
+    write_wide_csv(tiny_session / "mocap" / "t1.csv", labels, xyz + 1.0, 30.0)
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--dry-run")
+    plan = {e["take"]: e for e in events(err) if e["event"] == "plan"}
+    assert plan["t1"]["status"] == "run" and "input changed: mocap/t1.csv" in plan["t1"]["reason"]
+    assert plan["t0"]["status"] == "skip" and plan["t2"]["status"] == "skip"
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    ran = [e["take"] for e in events(err) if e["event"] == "unit" and e.get("status") == "ok"]
+    assert ran == ["t1"]
+
+
+def test_bad_take_fails_alone_with_one_line(tiny_session, tmp_path):
+    out = tmp_path / "out"
+    (tiny_session / "mocap" / "t2.csv").write_bytes(b"\x00\xff garbage, not a capture\n" * 3)
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial",
+                           "--log-format", "text")
+    assert code == 1
+    assert "Traceback" not in err
+    bad = [line for line in err.splitlines() if line.startswith("error:") and "t2" in line]
+    assert len(bad) == 1 and "t2.csv" in bad[0]
+    assert (out / "takes" / "tiny" / "t0" / "markers_raw.parquet").is_file()
+    assert (out / "takes" / "tiny" / "t1" / "markers_raw.parquet").is_file()
+    assert not (out / "takes" / "tiny" / "t2" / "markers_raw.parquet").exists()
+    code, stdout, _ = run_cli("status", str(out))
+    assert "failed" in stdout and "t2" in stdout
+
+
+def test_config_error_exits_2_naming_file_and_key(tiny_session, tmp_path):
+    text = (tiny_session / "session.toml").read_text().replace('kind = "gaze_follow"', 'kind = "gaze_folow"', 1)
+    (tiny_session / "session.toml").write_text(text)
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(tmp_path / "o"))
+    assert code == 2
+    line = err.strip().splitlines()[-1]
+    assert "session.toml" in line and "takes[0].kind" in line and "Traceback" not in err
+
+
+def test_lock_makes_a_second_run_exit_75(tiny_session, tmp_path):
+    from gazepipe.pipeline.lock import OutputLock
+    from gazepipe.pipeline.state import OutLayout
+
+    out = tmp_path / "out"
+    layout = OutLayout(out)
+    with OutputLock(layout.lock):
+        code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out))
+    assert code == 75 and "another gazepipe run" in err
+
+
+def test_process_and_serial_executors_give_identical_bytes(tmp_path):
+    session = make_tiny_session(tmp_path / "s", n_takes=4)
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert run_cli("ingest", str(session), "--out", str(a), "--executor", "serial")[0] == 0
+    assert run_cli("ingest", str(session), "--out", str(b), "--executor", "process", "-j", "2")[0] == 0
+    da, db = output_digests(a), output_digests(b)
+    assert da and da == db
+
+
+def test_sigkill_midway_then_rerun_gives_identical_outputs(tmp_path):
+    session = make_tiny_session(tmp_path / "s", n_takes=12)
+    ref = tmp_path / "ref"
+    assert run_cli("ingest", str(session), "--out", str(ref), "--executor", "serial")[0] == 0
+    expected = output_digests(ref)
+    rng = np.random.default_rng(7)
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    for trial in range(3):
+        out = tmp_path / f"k{trial}"
+        proc = subprocess.Popen([sys.executable, "-m", "gazepipe", "ingest", str(session), "--out", str(out),
+                                 "--executor", "serial"], env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        time.sleep(float(rng.uniform(0.3, 1.5)))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        for p in out.rglob("*.parquet"):   # whatever is visible is whole
+            pq.read_table(p)
+        res = subprocess.run([sys.executable, "-m", "gazepipe", "ingest", str(session), "--out", str(out),
+                              "--executor", "serial"], env=env, capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        assert output_digests(out) == expected
