@@ -1,0 +1,388 @@
+"""The ``clean`` stage (SPEC §3.2, Pejsa 5.2.2.1): spikes, gap filling, root stabilisation, optional
+low-pass, rest-period cropping.
+
+Pure functions on :class:`~gazepipe.model.Markers`; no file I/O. Positions stay on lab axes (the character
+frame is the ``frames`` stage's business); after stabilisation the root marker sits at the lab origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import ndimage, signal
+
+from gazepipe.errors import StageError
+from gazepipe.model import FILL_CODES, Markers, MarkerSet
+from gazepipe.stages.rotations import up_vector
+
+UNFILLED = FILL_CODES["unfilled"]
+
+
+@dataclass(frozen=True)
+class CleanParams:
+    """Parameters of :func:`clean_markers` (every threshold of SPEC §3.2).
+
+    Attributes
+    ----------
+    max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
+    remove_spikes : run spike removal before gap filling.
+    spike_options : extra keyword arguments for :func:`gazepipe.stages.gapfill.remove_spikes` (its thresholds,
+        e.g. an acceleration limit); empty means that function's defaults.
+    fill_options : extra keyword arguments for :func:`gazepipe.stages.gapfill.fill_gaps`.
+    lowpass_hz : cutoff (Hz, −3 dB of the whole zero-phase filter) of the optional low-pass; ``None`` = off.
+    lowpass_order : Butterworth order of *one* pass (2: the forward–backward pair is a 4th-order zero-phase
+        filter with a monotone response and no ringing on gaze saccade onsets, Winter's choice for marker data).
+    rest_speed_mm_s : a frame is "still" when the subject's mean marker speed is below this (Pejsa: 6 mm/s).
+    rest_merge_s : rests separated by less than this merge (Pejsa: 1/6 s).
+    rest_min_s : rests shorter than this do not count.
+    rest_filter_hz : −3 dB frequency (Hz) of the Gaussian low-pass applied only to the positions used for
+        speeds (σ = √(ln 2) / (2π f)). Stabilised positions carry the root marker's noise too, so 0.5 mm of
+        marker noise gives a mean speed of ~21 mm/s at 30 Hz on raw data and still ~12 mm/s after a 6 Hz
+        Butterworth: above the 6 mm/s threshold, no rest would ever be found. 1.25 Hz keeps the noise floor's
+        99.9th percentile near 4 mm/s at 30 Hz (2 mm/s at 120 Hz). A Gaussian rather than a Butterworth
+        because the threshold is ~1 % of a gaze shift's peak speed: Butterworth ringing ahead of a fast
+        movement crosses it and moves rest bounds by up to 0.3–0.5 s, the Gaussian's tail only by about
+        0.1 s (≈ −3…+4 frames at 30 Hz against the noise-free speed's crossing; measured by tests/test_clean.py).
+    remove_heading : also rotate every frame about the lab vertical so the root segment's left direction
+        (its first marker minus its second, horizontal part) points along lab +X.
+    """
+
+    max_gap_s: float = 1.0
+    remove_spikes: bool = True
+    spike_options: dict = field(default_factory=dict)
+    fill_options: dict = field(default_factory=dict)
+    lowpass_hz: float | None = None
+    lowpass_order: int = 2
+    rest_speed_mm_s: float = 6.0
+    rest_merge_s: float = 1.0 / 6.0
+    rest_min_s: float = 0.25
+    rest_filter_hz: float = 1.25
+    remove_heading: bool = False
+
+
+@dataclass
+class CleanResult:
+    """Output of :func:`clean_markers`.
+
+    Attributes
+    ----------
+    markers : cleaned, stabilised, cropped markers (mm, lab axes, root at the origin); ``first_frame`` is the
+        source frame number of the first kept row.
+    frames : (N,) int64 row indices of the kept rows in the uncropped take (``crop[0] .. crop[1]-1``).
+    fill_code : (N, M) int8 :data:`~gazepipe.model.FILL_CODES` of every kept sample.
+    crop : (start, stop) half-open, in rows of the uncropped take.
+    rests : rest periods (start, stop) half-open, in rows of the uncropped take.
+    speed_mm_s : (T,) mean subject-marker speed of the uncropped take (NaN where unknown).
+    neutral : the cleaned (uncropped) frames of the first rest period, for neutral calibration
+        (``None`` when no rest was found).
+    qc : JSON-ready record (see :func:`clean_markers`).
+    """
+
+    markers: Markers
+    frames: np.ndarray
+    fill_code: np.ndarray
+    crop: tuple[int, int]
+    rests: list[tuple[int, int]]
+    speed_mm_s: np.ndarray
+    neutral: Markers | None
+    qc: dict
+
+
+# --------------------------------------------------------------------------------------------- filtering
+
+def double_pass_correction(order: int, passes: int = 2) -> float:
+    """Cutoff correction C of a Butterworth filter of ``order`` run ``passes`` times.
+
+    One pass has |H|² = 1 / (1 + (ω/ω_d)^(2n)); p passes have |H|^(2p). Asking the cascade for −3 dB
+    (|H|^(2p) = 1/2) at ω_c gives ω_c/ω_d = (2^(1/p) − 1)^(1/(2n)) = C, so the single pass is designed at
+    ω_d = ω_c / C. For n = 2, p = 2: C = (√2 − 1)^(1/4) ≈ 0.802.
+    """
+    return float((2.0 ** (1.0 / passes) - 1.0) ** (1.0 / (2.0 * order)))
+
+
+def zero_phase_sos(cutoff_hz: float, rate_hz: float, order: int = 2) -> np.ndarray:
+    """Second-order sections of one pass of a Butterworth low-pass whose forward–backward (sosfiltfilt)
+    response is −3 dB at ``cutoff_hz``.
+
+    The correction C of :func:`double_pass_correction` applies to the analogue prototype, so it is applied
+    to the pre-warped frequency: tan(π f_d / fs) = tan(π f_c / fs) / C, which makes the digital double pass
+    exactly −3 dB at f_c (the bilinear transform maps the prototype's ω to tan(π f / fs)).
+    """
+    if not 0.0 < cutoff_hz < rate_hz / 2.0:
+        raise ValueError(f"low-pass cutoff {cutoff_hz} Hz must lie in (0, {rate_hz / 2.0}) Hz")
+    c = double_pass_correction(order)
+    wd = np.arctan(np.tan(np.pi * cutoff_hz / rate_hz) / c) / np.pi * 2.0  # fraction of Nyquist
+    return signal.butter(order, wd, btype="low", output="sos")
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Half-open (start, stop) runs of True in a 1-D bool array."""
+    m = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    d = np.flatnonzero(np.diff(m.astype(np.int8)))
+    return list(zip(d[0::2].tolist(), d[1::2].tolist(), strict=True))
+
+
+def lowpass_runs(xyz: np.ndarray, valid: np.ndarray, sos: np.ndarray,
+                 padtype: str = "odd") -> tuple[np.ndarray, int]:
+    """Zero-phase filter every marker's runs of valid samples separately (never across a gap).
+
+    Parameters
+    ----------
+    xyz : (T, M, 3) positions; valid : (T, M) bool.
+    sos : one pass of the filter (see :func:`zero_phase_sos`).
+    padtype : edge extension of ``scipy.signal.sosfiltfilt`` (``odd`` keeps trends; ``even`` keeps a still
+        edge still).
+
+    Returns the filtered copy and the number of runs too short for the filter's padding (left unfiltered).
+    """
+    out = xyz.copy()
+    padlen = 3 * (2 * len(sos) + 1)
+    short = 0
+    for m in range(xyz.shape[1]):
+        for a, b in _runs(valid[:, m]):
+            if b - a <= padlen:
+                short += 1
+                continue
+            out[a:b, m] = signal.sosfiltfilt(sos, xyz[a:b, m], axis=0, padtype=padtype, padlen=padlen)
+    return out, short
+
+
+# --------------------------------------------------------------------------------------------- rests
+
+def gaussian_runs(xyz: np.ndarray, valid: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    """Gaussian low-pass (−3 dB at ``cutoff_hz``, σ = √(ln 2)/(2π f) s) of every marker's runs of valid samples
+    separately (never across a gap; edges reflected so a still edge stays still)."""
+    sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * cutoff_hz) * rate_hz   # in samples
+    out = xyz.copy()
+    for m in range(xyz.shape[1]):
+        for a, b in _runs(valid[:, m]):
+            out[a:b, m] = ndimage.gaussian_filter1d(xyz[a:b, m], sigma, axis=0, mode="reflect", truncate=4.0)
+    return out
+
+
+def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
+    """Per-frame mean over markers of the speed (mm/s) by central differences, (T,); NaN where no marker has
+    a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
+    """
+    pos = xyz if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
+    pos = np.where(valid[..., None], pos, np.nan)
+    vel = np.full_like(pos, np.nan)
+    if len(pos) >= 3:
+        vel[1:-1] = (pos[2:] - pos[:-2]) * (rate_hz / 2.0)
+    if len(pos) >= 2:  # one-sided at the ends
+        vel[0] = (pos[1] - pos[0]) * rate_hz
+        vel[-1] = (pos[-1] - pos[-2]) * rate_hz
+    speed = np.linalg.norm(vel, axis=2)
+    n = np.sum(np.isfinite(speed), axis=1)
+    total = np.nansum(speed, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,
+                 min_s: float) -> list[tuple[int, int]]:
+    """Rest periods (start, stop), half-open rows, from a per-frame speed (Pejsa 5.2.2.1 steps 2–3).
+
+    Still = speed below ``threshold`` (NaN is not still); still runs separated by fewer than
+    ``merge_s · rate`` frames merge; merged rests shorter than ``min_s · rate`` frames are dropped.
+    """
+    still = np.nan_to_num(speed, nan=np.inf) < threshold
+    runs = _runs(still)
+    merged: list[list[int]] = []
+    for a, b in runs:
+        if merged and (a - merged[-1][1]) < merge_s * rate_hz:
+            merged[-1][1] = b
+        else:
+            merged.append([a, b])
+    return [(a, b) for a, b in merged if (b - a) >= min_s * rate_hz - 1e-9]
+
+
+def crop_bounds(rests: list[tuple[int, int]], speed: np.ndarray, kind: str,
+                tolerance: int = 0) -> tuple[tuple[int, int], list[str]]:
+    """Crop (start, stop) for a take of ``kind`` and its QC warnings; raises ``ValueError`` with a short
+    phrase when the rests the kind needs are missing.
+
+    ``gaze_shift``: [end of the first rest, end of the second rest). ``neutral``: everything. Other kinds:
+    without the leading rest (one that starts at most ``tolerance`` frames after the first frame with a known
+    speed) and the trailing rest (likewise before the last).
+    """
+    n = len(speed)
+    warnings: list[str] = []
+    if kind == "neutral":
+        return (0, n), warnings
+    if kind == "gaze_shift":
+        if len(rests) < 2:
+            raise ValueError(f"found {len(rests)} rest period(s), a gaze_shift take needs two "
+                             "(the wait before the cue and the fixation on the target)")
+        if len(rests) > 2:
+            warnings.append(f"{len(rests)} rest periods; cropped between the first two")
+        return (rests[0][1], rests[1][1]), warnings
+    known = np.flatnonzero(np.isfinite(speed))
+    if len(known) == 0:
+        raise ValueError("no frame with a known marker speed")
+    first, last = int(known[0]), int(known[-1])
+    start, stop = 0, n
+    if rests and rests[0][0] <= first + tolerance:
+        start = rests[0][1]
+    else:
+        warnings.append("no leading rest period; kept from the first frame")
+    if rests and rests[-1][1] > last - tolerance:
+        stop = rests[-1][0]
+    else:
+        warnings.append("no trailing rest period; kept to the last frame")
+    if stop <= start:
+        raise ValueError("the whole take is at rest: no motion to keep")
+    return (start, stop), warnings
+
+
+# --------------------------------------------------------------------------------------------- steps
+
+def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
+              left_pair: tuple[int, int] | None = None) -> np.ndarray:
+    """Translate every frame so marker ``root`` is at the origin; frames where it is NaN become all NaN.
+
+    With ``up`` and ``left_pair`` (the root segment's first and second marker), also rotate each frame about
+    ``up`` so the horizontal part of (first − second) points along lab +X (frames where that is undefined
+    become NaN).
+    """
+    out = xyz - xyz[:, root : root + 1, :]
+    if up is None or left_pair is None:
+        return out
+    from scipy.spatial.transform import Rotation
+
+    left = out[:, left_pair[0]] - out[:, left_pair[1]]
+    left = left - (left @ up)[:, None] * up
+    ex = np.zeros(3)
+    ex[int(np.argmax(np.abs(up) < 0.5))] = 1.0  # lab X (or Y when X is vertical)
+    ey = np.cross(up, ex)
+    ang = np.arctan2(left @ ey, left @ ex)           # heading of "left" about up, from ex
+    ok = np.isfinite(ang) & (np.linalg.norm(left, axis=1) > 1e-9)
+    res = np.full_like(out, np.nan)
+    if ok.any():
+        rot = Rotation.from_rotvec(-ang[ok, None] * up[None, :])
+        pts = out[ok]
+        res[ok] = np.einsum("nij,nkj->nki", rot.as_matrix(), pts)
+    return res
+
+
+def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str]) -> dict:
+    out: dict = {}
+    for m, lab in enumerate(labels):
+        gaps = _runs(~valid_in[:, m])
+        counts = {name: int(np.sum(fill_code[:, m] == code)) for name, code in FILL_CODES.items()}
+        unfilled_runs = _runs(fill_code[:, m] == UNFILLED)
+        out[lab] = {
+            "gaps": len(gaps),
+            "longest_gap_frames": max((b - a for a, b in gaps), default=0),
+            "samples": {k: v for k, v in counts.items() if k != "unfilled"},
+            "unfilled": counts["unfilled"],
+            "unfilled_runs": len(unfilled_runs),
+        }
+    return out
+
+
+def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code)."""
+    xyz = markers.xyz
+    valid = markers.valid.copy()
+    qc["spikes_removed"] = 0
+    if params.remove_spikes:
+        from gazepipe.stages.gapfill import remove_spikes
+
+        valid, n = remove_spikes(np.where(valid[..., None], xyz, np.nan), valid, markers.rate_hz,
+                                 **params.spike_options)
+        qc["spikes_removed"] = int(n)
+    xyz = np.where(valid[..., None], xyz, np.nan)
+    if valid.all():  # nothing to fill
+        return xyz, np.zeros(valid.shape, dtype=np.int8)
+    from gazepipe.stages.gapfill import fill_gaps
+
+    pos = {lab: i for i, lab in enumerate(markers.labels)}
+    clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
+    clusters = [c for c in clusters if len(c) >= 2]
+    res = fill_gaps(xyz, valid, markers.rate_hz, clusters=clusters, max_gap_s=params.max_gap_s,
+                    **params.fill_options)
+    qc["fill"] = res.qc
+    code = np.asarray(res.fill_code, dtype=np.int8)
+    out = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
+    return out, code
+
+
+def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
+                  *, path: str | None = None, take: str | None = None) -> CleanResult:
+    """Clean one take's markers (SPEC §3.2).
+
+    Steps: spike removal → gap filling (clusters = the markerset's segments) → root stabilisation (lab axes,
+    optional heading removal; frames without the root marker become unfilled) → optional zero-phase
+    low-pass per run of valid samples → rest detection on the subject's markers → cropping by ``kind``.
+
+    Raises :class:`~gazepipe.errors.StageError` (one line, naming ``path``/``take``) when the root marker is
+    missing or the rest periods the kind needs are not found.
+
+    ``qc`` holds: ``markers`` (per marker: gaps, longest gap in frames, samples per fill method, unfilled),
+    ``spikes_removed``, ``fill`` (the filler's own record), ``root_missing_frames``, ``lowpass`` (cutoff,
+    runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
+    ``warnings`` and ``failures`` (lists of one-line strings).
+    """
+    params = params or CleanParams()
+    qc: dict = {"warnings": [], "failures": []}
+    labels = list(markers.labels)
+    if markerset.root not in labels:
+        raise StageError(path, f"root marker {markerset.root!r} is not in the capture", take=take)
+    root = labels.index(markerset.root)
+    rate = float(markers.rate_hz)
+
+    xyz, code = _fill(markers, markerset, params, qc)
+    qc["markers"] = _marker_qc(code, markers.valid, labels)
+
+    # 3. stabilisation
+    up = left_pair = None
+    if params.remove_heading:
+        rs = markerset.root_segment
+        if len(rs.markers) < 2 or any(n not in labels for n in rs.markers[:2]):
+            raise StageError(path, f"heading removal needs the root segment {rs.name!r}'s first two markers",
+                             take=take)
+        up = up_vector(markerset.up_axis)
+        left_pair = (labels.index(rs.markers[0]), labels.index(rs.markers[1]))
+    xyz = stabilise(xyz, root, up, left_pair)
+    lost = ~np.isfinite(xyz).all(axis=2) & (code != UNFILLED)
+    code = np.where(lost, UNFILLED, code).astype(np.int8)
+    valid = code != UNFILLED
+    xyz[~valid] = np.nan
+    qc["root_missing_frames"] = int(np.sum(~valid[:, root]))
+
+    # 4. optional low-pass
+    if params.lowpass_hz is not None:
+        sos = zero_phase_sos(params.lowpass_hz, rate, params.lowpass_order)
+        xyz, short = lowpass_runs(xyz, valid, sos)
+        qc["lowpass"] = {"cutoff_hz": float(params.lowpass_hz), "order_per_pass": params.lowpass_order,
+                         "runs_unfiltered": int(short)}
+        if short:
+            qc["warnings"].append(f"{short} run(s) of valid samples too short to low-pass, left unfiltered")
+
+    # 5. rests and crop
+    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
+    speed = mean_speed(xyz[:, subj], valid[:, subj], rate, params.rest_filter_hz)
+    rests = rest_periods(speed, rate, params.rest_speed_mm_s, params.rest_merge_s, params.rest_min_s)
+    qc["rests"] = [[a, b] for a, b in rests]
+    try:
+        (start, stop), warns = crop_bounds(rests, speed, kind, int(params.rest_merge_s * rate))
+    except ValueError as e:
+        raise StageError(path, f"clean: {e}", take=take) from None
+    qc["warnings"].extend(warns)
+    qc["crop"] = [int(start), int(stop)]
+    qc["kept_frames"] = int(stop - start)
+
+    def _slice(a: int, b: int) -> Markers:
+        return replace(markers, xyz=xyz[a:b].copy(), valid=valid[a:b].copy(),
+                       first_frame=int(markers.first_frame) + a, warnings=list(markers.warnings))
+
+    neutral = _slice(*rests[0]) if rests else None
+    return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
+                       fill_code=code[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
+                       speed_mm_s=speed, neutral=neutral, qc=qc)
+
+
+__all__ = ["CleanParams", "CleanResult", "clean_markers", "crop_bounds", "double_pass_correction", "gaussian_runs",
+           "lowpass_runs", "mean_speed", "rest_periods", "stabilise", "zero_phase_sos"]

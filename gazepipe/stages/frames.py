@@ -1,0 +1,244 @@
+"""The ``frames`` stage (SPEC §2, §3.3, Pejsa 5.2.2.2): segment orientations in the character frame.
+
+Per frame: the character frame (origin the root marker; +X left = horizontal part of the root segment's first
+minus second marker, +Y the lab vertical, +Z forward = left × up), each segment's orientation from its markers
+calibrated so that the neutral pose is the identity, parent-relative rotations, the 6-number form, the eyes'
+centre and the unit direction from it to the target. Pure functions; no file I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from gazepipe.errors import StageError
+from gazepipe.model import Markers, MarkerSet
+from gazepipe.stages.rotations import (
+    frame_from_points,
+    heading_frames,
+    kabsch,
+    six_from_matrix,
+    to_wxyz,
+    up_vector,
+)
+
+
+@dataclass(frozen=True)
+class FramesParams:
+    """Parameters of :func:`compute_frames`.
+
+    Attributes
+    ----------
+    min_neutral_frames : fewest neutral frames (with every marker of a segment and a character frame) needed to
+        calibrate a segment; fewer is a stage failure.
+    head_segment : name of the head segment (for ``eye_offset_mm``); ``None`` = the segment named ``head``,
+        else the last segment of the chain.
+    """
+
+    min_neutral_frames: int = 3
+    head_segment: str | None = None
+
+
+@dataclass
+class Joints:
+    """Per-frame segment orientations of one take (output of :func:`compute_frames`).
+
+    Attributes
+    ----------
+    segments : segment names, root of the chain first (markerset order).
+    parents : (S,) index of each segment's parent in ``segments`` (−1 for a root).
+    quat : (N, S, 4) w, x, y, z global rotation of each segment in the character frame (identity in neutral).
+    quat_local : (N, S, 4) w, x, y, z parent-relative rotation (parent⁻¹ · global; global for a root).
+    six : (N, S, 6) 6-number form of ``quat``: forward R·ẑ, then up R·ŷ.
+    head_centre : (N, 3) mm, eyes' centre in the character frame.
+    target_dir : (N, 3) unit vector from the head centre to the target marker, character frame (NaN where
+        the target is unfilled or the markerset has none).
+    char_origin : (N, 3) mm, the character frame's origin (the root marker) in lab coordinates.
+    char_rot : (N, 4) w, x, y, z lab-from-character rotation.
+    valid : (N,) bool, True where the character frame and every segment are defined.
+    rate_hz, first_frame : as in the input :class:`~gazepipe.model.Markers` (source frame of row 0).
+    qc : JSON-ready record (neutral frames used per segment, invalid frames, warnings).
+    All arrays are float64 and NaN where undefined.
+    """
+
+    segments: list[str]
+    parents: np.ndarray
+    quat: np.ndarray
+    quat_local: np.ndarray
+    six: np.ndarray
+    head_centre: np.ndarray
+    target_dir: np.ndarray
+    char_origin: np.ndarray
+    char_rot: np.ndarray
+    valid: np.ndarray
+    rate_hz: float
+    first_frame: int = 1
+    qc: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.quat.shape[0])
+
+    @property
+    def source_frame(self) -> np.ndarray:
+        return self.first_frame + np.arange(self.n_frames, dtype=np.int64)
+
+
+def _col(markers: Markers, name: str, path: str | None, take: str | None, what: str) -> np.ndarray:
+    try:
+        return markers.xyz[:, markers.index(name)]
+    except KeyError:
+        raise StageError(path, f"{what} marker {name!r} is not in the capture", take=take) from None
+
+
+def character_frame(markers: Markers, markerset: MarkerSet, *, path: str | None = None,
+                    take: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Origin (T, 3) mm and lab-from-character matrices (T, 3, 3) per frame (NaN where undefined, SPEC §2)."""
+    rs = markerset.root_segment
+    if len(rs.markers) < 2:
+        raise StageError(path, f"root segment {rs.name!r} needs at least two markers for the heading", take=take)
+    origin = _col(markers, markerset.root, path, take, "root")
+    left = _col(markers, rs.markers[0], path, take, "root segment") - _col(markers, rs.markers[1], path, take,
+                                                                             "root segment")
+    return origin, heading_frames(left, up_vector(markerset.up_axis))
+
+
+def _to_char(p: np.ndarray, origin: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Lab points p (T, ..., 3) into character coordinates: Cᵀ (p − origin)."""
+    d = p - origin.reshape(origin.shape[0], *([1] * (p.ndim - 2)), 3)
+    if p.ndim == 2:
+        return np.einsum("tji,tj->ti", c, d)
+    return np.einsum("tji,tkj->tki", c, d)
+
+
+def _marker_frames(pts: np.ndarray, ref: np.ndarray | None) -> np.ndarray:
+    """Raw lab-from-marker frames (T, 3, 3) of one segment's markers pts (T, K, 3); NaN where any is missing.
+
+    Three markers: Gram–Schmidt on the triangle; more: Kabsch fit to ``ref`` (K, 3).
+    """
+    out = np.full((pts.shape[0], 3, 3), np.nan)
+    ok = np.isfinite(pts).all(axis=(1, 2))
+    if not ok.any():
+        return out
+    if pts.shape[1] == 3 or ref is None:
+        out[ok] = frame_from_points(pts[ok, 0], pts[ok, 1], pts[ok, 2])
+    else:
+        out[ok] = kabsch(ref, pts[ok])
+    return out
+
+
+def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | None,
+                   params: FramesParams | None = None, *, path: str | None = None,
+                   take: str | None = None) -> Joints:
+    """Segment orientations, head centre and target direction per frame (SPEC §3.3).
+
+    Parameters
+    ----------
+    markers : cleaned (stabilised, cropped) markers of the take, mm, lab axes.
+    markerset : the session's markerset.
+    neutral : markers in the neutral pose, same labels (the ``neutral`` take's cleaned markers, or the take's
+        first rest period: :attr:`gazepipe.stages.clean.CleanResult.neutral`). Each segment's calibration is
+        the mean (``Rotation.mean``) of its marker frame in the character frame over these frames, so the
+        neutral pose maps to the identity.
+    params : :class:`FramesParams`.
+
+    Raises :class:`~gazepipe.errors.StageError` when a marker is missing, a segment has fewer than three
+    markers, or the neutral pose is absent or too short to calibrate a segment.
+    """
+    params = params or FramesParams()
+    if neutral is None:
+        raise StageError(path, "frames: no neutral pose to calibrate the segments "
+                         "(no neutral take and no rest period)", take=take)
+    segs = markerset.segments
+    names = [s.name for s in segs]
+    parents = np.array([names.index(s.parent) if s.parent in names else -1 for s in segs], dtype=np.int64)
+    n, ns = markers.n_frames, len(segs)
+    qc: dict = {"warnings": [], "neutral_frames": {}}
+
+    origin, cmat = character_frame(markers, markerset, path=path, take=take)
+    n_origin, n_cmat = character_frame(neutral, markerset, path=path, take=take)
+    has_char = np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
+    n_has_char = np.isfinite(n_cmat).all(axis=(1, 2)) & np.isfinite(n_origin).all(axis=1)
+    rc = Rotation.from_matrix(np.where(has_char[:, None, None], cmat, np.eye(3)))
+
+    gmat = np.full((n, ns, 3, 3), np.nan)
+    for j, s in enumerate(segs):
+        if len(s.markers) < 3:
+            raise StageError(path, f"frames: segment {s.name!r} has {len(s.markers)} markers, needs three",
+                             take=take)
+        pts = np.stack([_col(markers, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
+        npts = np.stack([_col(neutral, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
+        nok = n_has_char & np.isfinite(npts).all(axis=(1, 2))
+        qc["neutral_frames"][s.name] = int(nok.sum())
+        if nok.sum() < params.min_neutral_frames:
+            raise StageError(path, f"frames: only {int(nok.sum())} neutral frame(s) with every marker of "
+                             f"segment {s.name!r}; need {params.min_neutral_frames}", take=take)
+        # reference cluster for rigid fits: the neutral cluster's mean shape in character coordinates
+        ref = _to_char(npts[nok], n_origin[nok], n_cmat[nok]).mean(axis=0)
+        n_raw = _marker_frames(npts[nok], ref)
+        n_glob = Rotation.from_matrix(n_cmat[nok]).inv() * Rotation.from_matrix(n_raw)
+        calib = n_glob.mean().inv()   # right-multiplied: neutral mean → identity
+        raw = _marker_frames(pts, ref)
+        ok = has_char & np.isfinite(raw).all(axis=(1, 2))
+        if ok.any():
+            g = rc[ok].inv() * Rotation.from_matrix(raw[ok]) * calib
+            gmat[ok, j] = g.as_matrix()
+
+    valid = has_char & np.isfinite(gmat).all(axis=(1, 2, 3))
+    quat = np.full((n, ns, 4), np.nan)
+    quat_local = np.full((n, ns, 4), np.nan)
+    for j in range(ns):
+        ok = np.isfinite(gmat[:, j]).all(axis=(1, 2))
+        if not ok.any():
+            continue
+        g = Rotation.from_matrix(gmat[ok, j])
+        quat[ok, j] = to_wxyz(g)
+        p = parents[j]
+        if p < 0:
+            quat_local[ok, j] = quat[ok, j]
+            continue
+        okp = ok & np.isfinite(gmat[:, p]).all(axis=(1, 2))
+        if okp.any():
+            loc = Rotation.from_matrix(gmat[okp, p]).inv() * Rotation.from_matrix(gmat[okp, j])
+            quat_local[okp, j] = to_wxyz(loc)
+    six = six_from_matrix(gmat)
+
+    head_centre = _head_centre(markers, markerset, params, origin, cmat, gmat, names, qc, path, take)
+    target_dir = np.full((n, 3), np.nan)
+    if markerset.target and markerset.target in markers.labels:
+        tgt = _to_char(markers.xyz[:, markers.index(markerset.target)], origin, cmat)
+        d = tgt - head_centre
+        with np.errstate(invalid="ignore", divide="ignore"):
+            target_dir = d / np.linalg.norm(d, axis=1, keepdims=True)
+    elif markerset.target:
+        qc["warnings"].append(f"target marker {markerset.target!r} is not in the capture")
+
+    char_rot = np.full((n, 4), np.nan)
+    if has_char.any():
+        char_rot[has_char] = to_wxyz(rc[has_char])
+    qc["invalid_frames"] = int(np.sum(~valid))
+    return Joints(segments=names, parents=parents, quat=quat, quat_local=quat_local, six=six,
+                  head_centre=head_centre, target_dir=target_dir,
+                  char_origin=np.where(has_char[:, None], origin, np.nan), char_rot=char_rot, valid=valid,
+                  rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame), qc=qc)
+
+
+def _head_centre(markers: Markers, markerset: MarkerSet, params: FramesParams, origin: np.ndarray,
+                 cmat: np.ndarray, gmat: np.ndarray, names: list[str], qc: dict, path: str | None,
+                 take: str | None) -> np.ndarray:
+    """Eyes' centre (T, 3) mm in the character frame: the head-centre marker, else the head markers'
+    centroid plus ``eye_offset_mm`` in the head segment's axes."""
+    if markerset.head_centre:
+        return _to_char(_col(markers, markerset.head_centre, path, take, "head centre"), origin, cmat)
+    head = params.head_segment or ("head" if "head" in names else names[-1])
+    j = names.index(head)
+    pts = np.stack([_col(markers, m, path, take, f"segment {head!r}") for m in markerset.segment(head).markers],
+                   axis=1)
+    centre = _to_char(pts, origin, cmat).mean(axis=1)
+    if markerset.eye_offset_mm is None:
+        qc["warnings"].append("no head_centre marker and no eye_offset_mm: eyes' centre = head markers' centroid")
+        return centre
+    off = np.asarray(markerset.eye_offset_mm, dtype=np.float64)
+    return centre + np.einsum("tij,j->ti", gmat[:, j], off)

@@ -1,0 +1,119 @@
+"""Rotation helpers shared by the stages (SPEC §2).
+
+Conventions: quaternions are ``w, x, y, z`` (scipy's own order is ``x, y, z, w``; the conversion lives only
+here); the 6-number form of a rotation R is its forward vector R·ẑ followed by its up vector R·ŷ (Klein 6.1).
+Everything is batched over a leading axis of frames; no Python loops over frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+_EPS = 1e-12
+
+
+def to_wxyz(rot: Rotation) -> np.ndarray:
+    """Quaternions ``w, x, y, z`` of ``rot``, canonical (w ≥ 0), shape (N, 4) or (4,)."""
+    return rot.as_quat(canonical=True, scalar_first=True)
+
+
+def from_wxyz(q: np.ndarray) -> Rotation:
+    """Rotation from quaternions ``w, x, y, z`` (normalised on the way), shape (..., 4)."""
+    return Rotation.from_quat(np.asarray(q, dtype=np.float64), scalar_first=True)
+
+
+def six_from_matrix(m: np.ndarray) -> np.ndarray:
+    """6-number form of rotation matrices (..., 3, 3): forward R·ẑ then up R·ŷ, shape (..., 6)."""
+    m = np.asarray(m, dtype=np.float64)
+    return np.concatenate([m[..., :, 2], m[..., :, 1]], axis=-1)
+
+
+def six_from_rotation(rot: Rotation) -> np.ndarray:
+    """6-number form (forward R·ẑ, then up R·ŷ) of ``rot``, shape (N, 6) or (6,)."""
+    return six_from_matrix(rot.as_matrix())
+
+
+def matrix_from_six(six: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from the 6-number form (forward, up), not necessarily orthonormal.
+
+    Gram–Schmidt: forward is kept (normalised), up is made orthogonal to it, left = up × forward.
+    """
+    six = np.asarray(six, dtype=np.float64)
+    fwd = six[..., 0:3]
+    up = six[..., 3:6]
+    z = fwd / np.linalg.norm(fwd, axis=-1, keepdims=True)
+    y = up - np.sum(up * z, axis=-1, keepdims=True) * z
+    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=-1)
+
+
+def rotation_from_six(six: np.ndarray) -> Rotation:
+    """Rotation from the 6-number form (see :func:`matrix_from_six`)."""
+    return Rotation.from_matrix(matrix_from_six(six))
+
+
+def frame_from_points(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+    """Orthonormal frames (N, 3, 3) from three points per frame, (N, 3) each, by Gram–Schmidt.
+
+    Columns: e1 along the edge p1 − p0, e3 along the plane normal (p1 − p0) × (p2 − p0), e2 = e3 × e1.
+    Degenerate (collinear or coincident) points give NaN.
+    """
+    a = np.asarray(p1, dtype=np.float64) - p0
+    b = np.asarray(p2, dtype=np.float64) - p0
+    n = np.cross(a, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e1 = a / np.linalg.norm(a, axis=-1, keepdims=True)
+        nn = np.linalg.norm(n, axis=-1, keepdims=True)
+        e3 = np.where(nn > _EPS, n / nn, np.nan)
+    e2 = np.cross(e3, e1)
+    return np.stack([e1, e2, e3], axis=-1)
+
+
+def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Least-squares rotations (N, 3, 3) with pts[n] − centroid ≈ R[n] · (ref − centroid(ref)).
+
+    Parameters
+    ----------
+    ref : (K, 3) reference cluster (any origin).
+    pts : (N, K, 3) observed clusters, same marker order; every marker must be finite.
+
+    Batched SVD over frames (Kabsch; the sign correction keeps det R = +1).
+    """
+    ref = np.asarray(ref, dtype=np.float64)
+    pts = np.asarray(pts, dtype=np.float64)
+    a = ref - ref.mean(axis=0)
+    b = pts - pts.mean(axis=1, keepdims=True)
+    h = np.einsum("ki,nkj->nij", a, b)          # cross-covariance, (N, 3, 3)
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
+    d[d == 0] = 1.0
+    corr = np.ones((len(pts), 3))
+    corr[:, 2] = d
+    return np.einsum("nji,nj,nkj->nik", vt, corr, u)
+
+
+def up_vector(up_axis: str) -> np.ndarray:
+    """Unit lab vertical for ``up_axis`` ``"y"`` or ``"z"`` (a leading ``-`` flips it)."""
+    ax = up_axis.strip().lower()
+    sign = -1.0 if ax.startswith("-") else 1.0
+    ax = ax.lstrip("+-")
+    v = np.zeros(3)
+    v["xyz".index(ax)] = sign
+    return v
+
+
+def heading_frames(left_raw: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Lab-from-character rotation matrices (N, 3, 3) from a raw left vector per frame (N, 3).
+
+    Columns: +X left = horizontal part of ``left_raw`` (normalised), +Y = ``up``, +Z forward = left × up.
+    Frames where the left vector has no horizontal part (or is NaN) give NaN.
+    """
+    left = left_raw - (left_raw @ up)[:, None] * up
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nl = np.linalg.norm(left, axis=1, keepdims=True)
+        left = np.where(nl > _EPS, left / nl, np.nan)
+    upb = np.broadcast_to(up, left.shape)
+    fwd = np.cross(left, upb)
+    return np.stack([left, upb, fwd], axis=-1)

@@ -1,0 +1,264 @@
+"""Tests of the frames stage and the rotation helpers on synthetic rigid clusters with known rotations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gazepipe.errors import StageError
+from gazepipe.model import Markers, MarkerSet, Segment
+from gazepipe.stages.frames import FramesParams, character_frame, compute_frames
+from gazepipe.stages.rotations import (
+    from_wxyz,
+    kabsch,
+    matrix_from_six,
+    rotation_from_six,
+    six_from_rotation,
+    to_wxyz,
+)
+
+RATE = 120.0
+# body geometry in the character frame of the neutral pose (mm; +X left, +Y up, +Z forward)
+CENTRES = {"pelvis": [0, 100, 0], "spine": [0, 350, -20], "head": [0, 750, 0]}
+OFFSETS = {
+    "pelvis": [[120, 0, -40], [-120, 0, -40], [0, 30, -110]],          # left, right, back
+    "spine": [[60, 0, -90], [-60, 0, -90], [0, 110, -100]],
+    "head": [[70, 60, 60], [-70, 60, 60], [70, 60, -80], [-70, 60, -80], [0, 130, 0]],  # Pejsa's hat
+}
+NAMES = {"pelvis": ["PEL1", "PEL2", "PEL3"], "spine": ["SPN1", "SPN2", "SPN3"],
+         "head": ["HFL", "HFR", "HBL", "HBR", "HTOP"]}
+HEADC_OFF = np.array([0.0, -40.0, 95.0])      # eyes' centre relative to the head segment's centre
+TARGET_CHAR = np.array([600.0, 900.0, 1800.0])
+
+
+def markerset(up: str = "z", headc: bool = True, eye_offset=None) -> MarkerSet:
+    segs = (Segment("pelvis", tuple(NAMES["pelvis"])), Segment("spine", tuple(NAMES["spine"]), "pelvis"),
+            Segment("head", tuple(NAMES["head"]), "spine"))
+    return MarkerSet(path="markerset.toml", up_axis=up, units="mm", root="SACR", target="POLE", clapper=(),
+                     segments=segs, head_centre="HEADC" if headc else None, eye_offset_mm=eye_offset)
+
+
+def lab_from_char0(up: str) -> np.ndarray:
+    """Columns = character axes in lab at heading 0: z-up: left = +y, up = +z, forward = +x."""
+    if up == "z":
+        return np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]], dtype=float)
+    return np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)  # y-up: left +x, up +y, forward +z
+
+
+def build(n: int, rots: dict[str, Rotation], heading: np.ndarray, origin: np.ndarray, up: str = "z",
+          noise: float = 0.0, seed: int = 0) -> tuple[Markers, dict]:
+    """Markers of the rigid model with segment rotations ``rots`` (character frame), heading angle (rad, about
+    the vertical) and lab origin per frame. Returns the markers and truth (character-frame quantities)."""
+    rng = np.random.default_rng(seed)
+    c0 = lab_from_char0(up)
+    upv = c0[:, 1]
+    cmat = Rotation.from_rotvec(heading[:, None] * upv[None, :]).as_matrix() @ c0   # (n, 3, 3)
+    labels, char_pts = ["SACR"], [np.zeros((n, 3))]
+    for seg in ("pelvis", "spine", "head"):
+        r = rots[seg].as_matrix()
+        for name, off in zip(NAMES[seg], OFFSETS[seg], strict=True):
+            labels.append(name)
+            char_pts.append(np.asarray(CENTRES[seg]) + r @ np.asarray(off, dtype=float))
+    rh = rots["head"].as_matrix()
+    headc = np.asarray(CENTRES["head"]) + rh @ HEADC_OFF
+    labels += ["HEADC", "POLE"]
+    char_pts += [headc, np.broadcast_to(TARGET_CHAR, (n, 3))]
+    char = np.stack(char_pts, axis=1)                                   # (n, M, 3)
+    lab = origin[:, None, :] + np.einsum("tij,tmj->tmi", cmat, char)
+    lab = lab + rng.normal(0.0, noise, lab.shape)
+    mk = Markers(labels=labels, xyz=lab, valid=np.ones(lab.shape[:2], bool), rate_hz=RATE)
+    d = TARGET_CHAR - headc
+    truth = {"headc": headc, "target_dir": d / np.linalg.norm(d, axis=1, keepdims=True), "cmat": cmat}
+    return mk, truth
+
+
+def random_rots(n: int, seed: int) -> dict[str, Rotation]:
+    """Smooth, large rotations per segment; the root only pitches and rolls (its heading is the frame's)."""
+    t = np.arange(n) / RATE
+    rng = np.random.default_rng(seed)
+    ph = rng.uniform(0, 2 * np.pi, 9)
+    pel = Rotation.from_euler("ZX", np.stack([0.15 * np.sin(1.1 * t + ph[0]), 0.25 * np.sin(0.7 * t + ph[1])], 1))
+    spine = Rotation.from_rotvec(np.stack([0.4 * np.sin(0.9 * t + ph[2]), 0.6 * np.sin(0.5 * t + ph[3]),
+                                           0.3 * np.sin(1.3 * t + ph[4])], 1))
+    head = Rotation.from_rotvec(np.stack([0.5 * np.sin(1.7 * t + ph[5]), 1.2 * np.sin(0.8 * t + ph[6]),
+                                          0.3 * np.sin(1.9 * t + ph[7])], 1))
+    return {"pelvis": pel, "spine": spine, "head": head}
+
+
+def ident(n: int) -> dict[str, Rotation]:
+    return {k: Rotation.identity(n) for k in ("pelvis", "spine", "head")}
+
+
+def angles_deg(q_wxyz: np.ndarray, truth: Rotation) -> np.ndarray:
+    return np.degrees((from_wxyz(q_wxyz) * truth.inv()).magnitude())
+
+
+@pytest.fixture(scope="module")
+def take():
+    n = 600
+    t = np.arange(n) / RATE
+    rots = random_rots(n, 1)
+    heading = 0.8 * np.sin(0.3 * t) + 0.5
+    origin = np.stack([200 * np.sin(0.2 * t), 100 * t, 5 * np.cos(t)], 1) + [1000, -500, 950]
+    mk, truth = build(n, rots, heading, origin, noise=0.5, seed=2)
+    nn = 60
+    neutral, _ = build(nn, ident(nn), np.full(nn, -1.1), np.tile([300.0, 200, 940], (nn, 1)), noise=0.5, seed=3)
+    return mk, neutral, rots, truth
+
+
+def test_orientations_recovered(take):
+    mk, neutral, rots, _ = take
+    j = compute_frames(mk, markerset(), neutral)
+    assert j.valid.all()
+    for s, name in enumerate(j.segments):
+        err = angles_deg(j.quat[:, s], rots[name])
+        # 0.5 mm noise on clusters of ~120–240 mm: a few tenths of a degree expected
+        assert np.median(err) < 1.0, name
+        assert np.percentile(err, 99) < 3.0, name
+
+
+def test_identity_in_neutral(take):
+    _, neutral, _, _ = take
+    j = compute_frames(neutral, markerset(), neutral)
+    for s in range(len(j.segments)):
+        r = from_wxyz(j.quat[:, s])
+        assert r.mean().magnitude() < 1e-9               # calibration maps the neutral mean exactly to identity
+        assert np.median(r.magnitude()) < np.radians(1.0)
+
+
+def test_neutral_heading_and_position_do_not_matter(take):
+    mk, neutral, rots, _ = take
+    nn = 60
+    other, _ = build(nn, ident(nn), np.full(nn, 2.0), np.tile([-800.0, 40, 900], (nn, 1)), noise=0.5, seed=4)
+    a = compute_frames(mk, markerset(), neutral)
+    b = compute_frames(mk, markerset(), other)
+    diff = np.degrees((from_wxyz(a.quat.reshape(-1, 4)) * from_wxyz(b.quat.reshape(-1, 4)).inv()).magnitude())
+    assert np.median(diff) < 0.5
+
+
+def test_six_number_form(take):
+    mk, neutral, _, _ = take
+    j = compute_frames(mk, markerset(), neutral)
+    r = from_wxyz(j.quat.reshape(-1, 4))
+    six = j.six.reshape(-1, 6)
+    np.testing.assert_allclose(six[:, :3], r.apply([0.0, 0.0, 1.0]), atol=1e-12)   # forward first
+    np.testing.assert_allclose(six[:, 3:], r.apply([0.0, 1.0, 0.0]), atol=1e-12)   # then up
+    back = rotation_from_six(six)
+    assert np.max((back * r.inv()).magnitude()) < 1e-9
+
+
+def test_six_helpers_known_rotation():
+    r = Rotation.from_euler("y", 90, degrees=True)   # yaw 90° toward +X (left): forward ẑ → x̂
+    np.testing.assert_allclose(six_from_rotation(r), [1, 0, 0, 0, 1, 0], atol=1e-12)
+    # non-orthogonal input is orthonormalised, forward kept
+    m = matrix_from_six(np.array([0.0, 0.0, 2.0, 0.3, 1.0, 0.5]))
+    np.testing.assert_allclose(m @ m.T, np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(m[:, 2], [0, 0, 1], atol=1e-12)
+    assert np.linalg.det(m) == pytest.approx(1.0)
+
+
+def test_quaternion_order_and_sign():
+    r = Rotation.from_rotvec([0.0, 0.0, np.pi / 2])
+    q = to_wxyz(r)
+    np.testing.assert_allclose(q, [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], atol=1e-12)
+    assert to_wxyz(Rotation.from_quat([0, 0, 0, -1]))[0] == 1.0   # canonical w ≥ 0
+
+
+def test_local_is_parent_inverse_times_global(take):
+    mk, neutral, rots, _ = take
+    j = compute_frames(mk, markerset(), neutral)
+    for s, p in enumerate(j.parents):
+        g = from_wxyz(j.quat[:, s])
+        loc = from_wxyz(j.quat_local[:, s])
+        expect = g if p < 0 else from_wxyz(j.quat[:, p]).inv() * g
+        assert np.max((loc * expect.inv()).magnitude()) < 1e-9
+    # and against the truth
+    truth = rots["spine"].inv() * rots["head"]
+    assert np.median(angles_deg(j.quat_local[:, 2], truth)) < 1.0
+
+
+@pytest.mark.parametrize("up", ["z", "y"])
+def test_character_axes(up):
+    """Subject facing lab +x (z-up) or +z (y-up): a marker on the subject's left gets +X, above +Y, ahead +Z."""
+    n = 4
+    mk, truth = build(n, ident(n), np.zeros(n), np.tile([10.0, 20, 30], (n, 1)), up=up)
+    origin, c = character_frame(mk, markerset(up))
+    np.testing.assert_allclose(origin, mk.xyz[:, 0])
+    c0 = lab_from_char0(up)
+    np.testing.assert_allclose(c, np.broadcast_to(c0, c.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(c), 1.0)
+    left_lab, up_lab, fwd_lab = ([0, 1, 0], [0, 0, 1], [1, 0, 0]) if up == "z" else ([1, 0, 0], [0, 1, 0], [0, 0, 1])
+    for lab_dir, axis in ((left_lab, 0), (up_lab, 1), (fwd_lab, 2)):
+        p = origin + 100.0 * np.asarray(lab_dir, float)
+        local = np.einsum("tji,tj->ti", c, p - origin)
+        assert np.all(local[:, axis] > 99.9)
+    # PEL1 is the subject's left marker by construction: +X
+    pel1 = np.einsum("tji,tj->ti", c, mk.xyz[:, mk.index("PEL1")] - origin)
+    assert np.all(pel1[:, 0] > 0)
+
+
+def test_target_direction_and_head_centre(take):
+    mk, neutral, _, truth = take
+    j = compute_frames(mk, markerset(), neutral)
+    np.testing.assert_allclose(np.linalg.norm(j.target_dir, axis=1), 1.0)
+    err = np.degrees(np.arccos(np.clip(np.sum(j.target_dir * truth["target_dir"], 1), -1, 1)))
+    assert np.median(err) < 1.0
+    assert np.median(np.linalg.norm(j.head_centre - truth["headc"], axis=1)) < 2.0
+
+
+def test_head_centre_from_eye_offset(take):
+    """Without HEADC: head markers' centroid + eye_offset in head axes."""
+    mk, neutral, _, truth = take
+    off = HEADC_OFF - np.mean(OFFSETS["head"], axis=0)        # relative to the head markers' centroid
+    j = compute_frames(mk, markerset(headc=False, eye_offset=tuple(off)), neutral)
+    assert np.median(np.linalg.norm(j.head_centre - truth["headc"], axis=1)) < 2.0
+
+
+def test_target_unfilled_is_nan_and_char_missing_invalid(take):
+    mk, neutral, _, _ = take
+    xyz = mk.xyz.copy()
+    xyz[10:20, mk.index("POLE")] = np.nan
+    xyz[30:35, mk.index("SACR")] = np.nan
+    xyz[50, mk.index("SPN2")] = np.nan
+    m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    j = compute_frames(m2, markerset(), neutral)
+    assert np.isnan(j.target_dir[10:20]).all() and np.isfinite(j.target_dir[20:30]).all()
+    assert not j.valid[30:35].any() and not j.valid[50]
+    assert j.valid.sum() == len(j.valid) - 6
+    assert np.isnan(j.quat[30:35]).all() and np.isnan(j.char_rot[30:35]).all()
+    assert np.isnan(j.quat[50, 1]).all() and np.isfinite(j.quat[50, [0, 2]]).all()
+    assert np.isnan(j.quat_local[50, 2]).all()      # head local needs the spine
+
+
+def test_char_rot_maps_character_to_lab(take):
+    mk, neutral, _, truth = take
+    j = compute_frames(mk, markerset(), neutral)
+    np.testing.assert_allclose(from_wxyz(j.char_rot).as_matrix(), truth["cmat"], atol=0.02)
+
+
+def test_kabsch_recovers_rotation():
+    rng = np.random.default_rng(7)
+    ref = rng.normal(0, 80, (6, 3))
+    r = Rotation.random(50, random_state=8)
+    pts = np.einsum("nij,kj->nki", r.as_matrix(), ref) + rng.normal(0, 500, (50, 1, 3))
+    got = Rotation.from_matrix(kabsch(ref, pts))
+    assert np.max((got * r.inv()).magnitude()) < 1e-9
+    # a reflected cluster still gives a proper rotation
+    assert np.allclose(np.linalg.det(kabsch(ref, -pts)), 1.0)
+
+
+def test_no_neutral_fails(take):
+    mk, _, _, _ = take
+    with pytest.raises(StageError, match="neutral"):
+        compute_frames(mk, markerset(), None, take="t1")
+    short = Markers(labels=mk.labels, xyz=mk.xyz[:2], valid=mk.valid[:2], rate_hz=RATE)
+    with pytest.raises(StageError, match="neutral frame"):
+        compute_frames(mk, markerset(), short, FramesParams(min_neutral_frames=3))
+
+
+def test_deterministic(take):
+    mk, neutral, _, _ = take
+    a = compute_frames(mk, markerset(), neutral)
+    b = compute_frames(mk, markerset(), neutral)
+    assert a.quat.tobytes() == b.quat.tobytes() and a.six.tobytes() == b.six.tobytes()
