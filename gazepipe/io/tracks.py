@@ -1,0 +1,233 @@
+"""Containers for eye, face and video tracks, and the numeric-CSV reading they share.
+
+:class:`EyeTrack` comes from :func:`gazepipe.io.openface.read_openface`, :class:`FaceTrack` from
+:func:`gazepipe.io.livelinkface.read_livelinkface`, :class:`VideoProbe` from :func:`gazepipe.io.video.probe_video`.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from gazepipe.errors import InputError
+
+
+@dataclass
+class EyeTrack:
+    """Per-frame eye tracking of one video (OpenFace), on the video clock.
+
+    Attributes
+    ----------
+    time_s : (N,) float64 seconds, the video's timestamps as written by OpenFace.
+    frame : (N,) int64 video frame numbers as written (1-based in OpenFace).
+    success : (N,) bool, OpenFace's tracking success; rows with False are kept, their values are junk.
+    confidence : (N,) float64 in [0, 1].
+    gaze_left, gaze_right : (N, 3) float64 unit gaze vectors of the subject's own left / right eye, camera
+        axes (x right, y down, z forward; looking into the camera is about (0, 0, -1)). NaN where the file's
+        vector has zero length.
+    blink : (N,) bool, or ``None`` when the file has no AU45 column.
+    face_id : the face kept when the file holds several, else ``None``.
+    layout : ``"openface2"`` (has ``face_id`` or ``gaze_angle_*``) or ``"openface_legacy"``.
+    warnings : one-line notes about the file.
+    """
+
+    time_s: np.ndarray
+    frame: np.ndarray
+    success: np.ndarray
+    confidence: np.ndarray
+    gaze_left: np.ndarray
+    gaze_right: np.ndarray
+    blink: np.ndarray | None
+    face_id: int | None = None
+    layout: str = ""
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.time_s.shape[0])
+
+
+@dataclass
+class FaceTrack:
+    """Per-frame ARKit blendshapes and head/eye rotations of one Live Link Face take.
+
+    Attributes
+    ----------
+    timecode : (N,) str, the timecodes as written (``HH:MM:SS:FF.fff``).
+    tc_frame : (N,) int64 timecode frames since midnight at ``timecode_fps`` (a take that crosses midnight keeps
+        counting past 24 h).
+    tc_subframe : (N,) float64 fraction of a timecode frame, in [0, 1).
+    time_s : (N,) float64 seconds since the first row, from the timecode.
+    timecode_fps : frames per second the timecode's FF field counts.
+    rate_hz : capture rate in Hz.
+    frame_index : (N,) int64 capture frame of every row, 0 at the first row; gaps are dropped frames.
+    values : (N, 52) float32 blendshape coefficients, columns in :data:`gazepipe.arkit.ARKIT_NAMES` order.
+    head : (N, 3) float64 head yaw, pitch, roll in radians; NaN when head tracking was off or absent.
+    eyes : (N, 6) float64 left eye yaw, pitch, roll, right eye yaw, pitch, roll, radians (face's own
+        left/right); NaN when absent.
+    dropped_frames : capture frames missing between rows.
+    blendshape_count : the file's ``BlendShapeCount`` when constant, else ``None``.
+    warnings : one-line notes about the file.
+    """
+
+    timecode: np.ndarray
+    tc_frame: np.ndarray
+    tc_subframe: np.ndarray
+    time_s: np.ndarray
+    timecode_fps: float
+    rate_hz: float
+    frame_index: np.ndarray
+    values: np.ndarray
+    head: np.ndarray
+    eyes: np.ndarray
+    dropped_frames: int = 0
+    blendshape_count: int | None = None
+    warnings: list[str] = field(default_factory=list)
+    names: tuple[str, ...] = ARKIT_NAMES
+    head_names: tuple[str, ...] = HEAD_NAMES
+    eye_names: tuple[str, ...] = EYE_NAMES
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.time_s.shape[0])
+
+    @property
+    def timecode_s(self) -> np.ndarray:
+        """(N,) float64 seconds since midnight of the first row's day (for matching two takes' rows)."""
+        return (self.tc_frame.astype(np.float64) + self.tc_subframe) / float(self.timecode_fps)
+
+
+@dataclass
+class VideoProbe:
+    """What a video holds, from its container, without decoding pictures.
+
+    Attributes
+    ----------
+    n_frames : frames actually found by reading the stream.
+    nominal_fps : the container's declared frame rate (can differ from the real one).
+    timestamps_s : (n_frames,) float64 presentation time of every frame in seconds, 0 at the stream start.
+    width, height : picture size in pixels.
+    header_frames : the frame count the container declares (may be an estimate).
+    timestamp_source : ``"packets"`` (undecoded packets' timestamps), ``"decoded"`` (grabbed frames) or
+        ``"nominal"`` (frame index / nominal fps, when the container has no usable timestamps).
+    warnings : one-line notes (frame count mismatch, missing timestamps, …).
+    """
+
+    n_frames: int
+    nominal_fps: float
+    timestamps_s: np.ndarray
+    width: int
+    height: int
+    header_frames: int
+    timestamp_source: str = "packets"
+    warnings: list[str] = field(default_factory=list)
+
+
+def read_header(path: Path) -> list[str]:
+    """Column names of a CSV file's first line, stripped of spaces (InputError when unreadable or empty)."""
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            first = f.readline()
+    except FileNotFoundError:
+        raise InputError(path, "no such file") from None
+    except IsADirectoryError:
+        raise InputError(path, "is a folder, not a file") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not a text CSV file") from None
+    except OSError as e:
+        raise InputError(path, f"cannot read: {e.strerror or e}") from None
+    if not first.strip():
+        raise InputError(path, "empty file (no header line)")
+    return [c.strip() for c in next(csv.reader([first]))]
+
+
+def read_columns(path: str | Path, required: list[str], optional: list[str] = (), *,
+                 text: tuple[str, ...] = (), what: str = "CSV") -> tuple[dict[str, np.ndarray], list[str]]:
+    """Read named columns of a numeric CSV whose names and values may be padded with spaces.
+
+    Columns are found by name after stripping spaces, never by position. Numeric columns come back as float64,
+    ``text`` columns as str. A row that is incomplete only because the file ends early (the last row) is dropped
+    with a warning; any other empty or non-numeric cell is an :class:`InputError` naming the column and row.
+
+    Parameters
+    ----------
+    path : the file.
+    required : column names that must be present.
+    optional : column names read when present.
+    text : names (among ``required``/``optional``) read as strings.
+    what : the kind of file, for messages.
+
+    Returns
+    -------
+    columns : name -> (N,) array, for every required column and the optional ones present.
+    warnings : one-line notes.
+    """
+    path = Path(path)
+    header = read_header(path)
+    pos: dict[str, int] = {}
+    for i, name in enumerate(header):
+        if name in required or name in optional:
+            if name in pos:
+                raise InputError(path, f"{what}: column appears twice", key=name)
+            pos[name] = i
+    missing = [c for c in required if c not in pos]
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise InputError(path, f"{what}: missing required column{more}", key=missing[0])
+    order = sorted(pos, key=pos.get)
+    dtypes = {pos[c]: (str if c in text else np.float64) for c in order}
+    kw = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
+              keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
+    try:
+        df = pd.read_csv(path, dtype=dtypes, **kw)
+    except pd.errors.EmptyDataError:
+        raise InputError(path, f"{what}: no data rows") from None
+    except ValueError as e:
+        if isinstance(e, pd.errors.ParserError):
+            raise InputError(path, f"{what}: malformed CSV: {str(e).splitlines()[0]}") from None
+        raise _junk_error(path, what, order, pos, text, kw) from None
+    except UnicodeDecodeError:
+        raise InputError(path, f"{what}: not a text CSV file") from None
+    if len(df) == 0:
+        raise InputError(path, f"{what}: no data rows")
+    cols = {c: df[pos[c]].to_numpy() for c in order}
+    warnings: list[str] = []
+    bad = np.zeros(len(df), dtype=bool)
+    for c in order:
+        v = cols[c]
+        bad |= pd.isna(v) if c in text else np.isnan(v)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        if rows.size == 1 and rows[0] == len(df) - 1 and len(df) > 1:
+            warnings.append("last row is incomplete (file cut short?); dropped")
+            cols = {c: v[:-1] for c, v in cols.items()}
+        else:
+            r = int(rows[0])
+            col = next(c for c in order if (pd.isna(cols[c][r]) if c in text else np.isnan(cols[c][r])))
+            raise InputError(path, f"{what}: empty or NaN cell in data row {r + 1}", key=col)
+    for c in text:
+        if c in cols:
+            cols[c] = np.asarray([s.strip() for s in cols[c]], dtype=str)
+    return cols, warnings
+
+
+def _junk_error(path: Path, what: str, order: list[str], pos: dict[str, int], text: tuple[str, ...],
+                kw: dict) -> InputError:
+    """The InputError for the first non-numeric cell (slow path, only after a failed fast parse)."""
+    df = pd.read_csv(path, dtype=str, **kw)
+    for c in order:
+        if c in text:
+            continue
+        raw = df[pos[c]]
+        num = pd.to_numeric(raw.str.strip(), errors="coerce")
+        bad = np.flatnonzero(num.isna().to_numpy() & raw.notna().to_numpy())
+        if bad.size:
+            r = int(bad[0])
+            cell = str(raw.iloc[r]).strip()[:20]
+            return InputError(path, f"{what}: non-numeric value {cell!r} in data row {r + 1}", key=c)
+    return InputError(path, f"{what}: unreadable numeric data")
