@@ -1,0 +1,116 @@
+"""Video probe and windowed decoding, on small videos written with this OpenCV build."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from gazepipe.errors import InputError
+from gazepipe.io.video import probe_video, read_frames
+
+W, H, N, FPS = 64, 48, 30, 30.0
+
+
+def _level(i: np.ndarray | int) -> np.ndarray | int:
+    """Grey level written into frame i: distinct per frame, far from 0 and 255."""
+    return 20 + 7 * np.asarray(i)
+
+
+def _write(path: Path, fourcc: str, fps: float = FPS, n: int = N) -> Path:
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, (W, H))
+    assert w.isOpened(), f"this OpenCV build cannot write {fourcc}"
+    for i in range(n):
+        img = np.full((H, W, 3), _level(i), np.uint8)
+        img[:, : W // 4, 2] = 200  # a red stripe, to tell colour from grey
+        w.write(img)
+    w.release()
+    return path
+
+
+def _decode_all(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Independent reference: decode every frame in order; (times in s, grey frames)."""
+    cap = cv2.VideoCapture(str(path))
+    ts, frames = [], []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        ts.append(cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
+        frames.append(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    cap.release()
+    return np.asarray(ts), np.stack(frames)
+
+
+@pytest.fixture(scope="module", params=[("MJPG", "avi"), ("mp4v", "mp4")])
+def video(request, tmp_path_factory) -> Path:
+    cc, ext = request.param
+    return _write(tmp_path_factory.mktemp("vid") / f"v.{ext}", cc)
+
+
+def test_probe(video):
+    pr = probe_video(video)
+    assert (pr.n_frames, pr.width, pr.height) == (N, W, H)
+    assert pr.nominal_fps == pytest.approx(FPS)
+    assert pr.timestamp_source == "packets"
+    np.testing.assert_allclose(pr.timestamps_s, _decode_all(video)[0], atol=1e-9)
+    np.testing.assert_allclose(pr.timestamps_s, np.arange(N) / FPS, atol=1e-6)
+    assert pr.warnings == []
+
+
+def test_probe_ntsc_rate(tmp_path):
+    p = _write(tmp_path / "ntsc.avi", "MJPG", fps=30000 / 1001, n=12)
+    pr = probe_video(p)
+    np.testing.assert_allclose(pr.timestamps_s, np.arange(12) * 1001 / 30000, atol=1e-6)
+
+
+def test_read_window_decodes_the_right_frames(video):
+    pr = probe_video(video)
+    _, every = _decode_all(video)
+    for kw in ({}, {"timestamps_s": pr.timestamps_s}):
+        ts, fr = read_frames(video, 17, 27, **kw)
+        assert fr.shape == (10, H, W) and fr.dtype == np.uint8
+        np.testing.assert_allclose(ts, pr.timestamps_s[17:27], atol=1e-9)
+        # the same pixels as decoding the whole video in order
+        np.testing.assert_array_equal(fr, every[17:27])
+        # and the grey level identifies the frame written (neighbours are 7 levels apart; lossy codecs move it
+        # by up to 3)
+        levels = fr[:, :, W // 2:].reshape(10, -1).mean(axis=1)
+        np.testing.assert_array_equal(np.rint((levels - _level(0)) / 7), np.arange(17, 27))
+
+
+def test_read_window_falls_back_to_grabbing_when_seek_disagrees(video):
+    pr = probe_video(video)
+    _, every = _decode_all(video)
+    # timestamps that no seek can match force the frame-by-frame walk; the frames must still be right
+    ts, fr = read_frames(video, 11, 14, timestamps_s=pr.timestamps_s + 1.0)
+    np.testing.assert_array_equal(fr, every[11:14])
+    np.testing.assert_allclose(ts, pr.timestamps_s[11:14], atol=1e-9)
+
+
+def test_read_window_colour_scale_and_clipping(video):
+    ts, fr = read_frames(video, 0, 3, gray=False)
+    assert fr.shape == (3, H, W, 3)
+    assert fr[0, :, : W // 4 - 2, 2].mean() > 150  # the red stripe is in the red channel (BGR)
+    ts, fr = read_frames(video, 5, 7, scale=0.5)
+    assert fr.shape == (2, H // 2, W // 2)
+    ts, fr = read_frames(video, N - 3, N + 10)  # stop past the end is clipped
+    assert fr.shape[0] == 3
+    with pytest.raises(InputError):
+        read_frames(video, N + 5, N + 10)
+    with pytest.raises(ValueError):
+        read_frames(video, 5, 5)
+
+
+def test_bad_videos(tmp_path):
+    (tmp_path / "empty.mp4").write_bytes(b"")
+    (tmp_path / "text.mp4").write_text("this is not a video\n" * 50)
+    (tmp_path / "dir.mp4").mkdir()
+    for p in [tmp_path / "missing.mp4", tmp_path / "empty.mp4", tmp_path / "text.mp4", tmp_path / "dir.mp4"]:
+        for call in (lambda q: probe_video(q), lambda q: read_frames(q, 0, 2)):
+            with pytest.raises(InputError) as ei:
+                call(p)
+            msg = str(ei.value)
+            assert "\n" not in msg and str(p) in msg, msg
