@@ -1,0 +1,94 @@
+"""One entry point for marker capture files, and the summary behind ``gazepipe inspect``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from gazepipe.errors import InputError
+from gazepipe.io.c3d import duplicate_trajectories, read_c3d_info
+from gazepipe.io.marker_csv import VICON_BLOCKS, read_qtm_tsv, read_vicon_csv, read_wide_csv
+from gazepipe.model import Markers
+
+FORMATS = ("c3d", "vicon_csv", "qtm_tsv", "wide_csv")
+
+
+def sniff_format(path: str | Path) -> str:
+    """Name the format of a capture file from its first bytes, falling back on its extension.
+
+    Returns one of :data:`FORMATS`; raises InputError when the file is missing or not a marker file.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except FileNotFoundError:
+        raise InputError(p, "file not found") from None
+    except OSError as e:
+        raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+    ext = p.suffix.lower()
+    if ext == ".c3d" or (len(head) >= 2 and head[1] == 0x50 and b"\x00" in head):
+        return "c3d"
+    text = head.decode("latin-1").lstrip("\ufeff\xef\xbb\xbf")
+    first_cells = [ln.split(",", 1)[0].split("\t", 1)[0].strip() for ln in text.splitlines()[:20]]
+    if any(c in VICON_BLOCKS for c in first_cells[:1]) or "Trajectories" in first_cells:
+        return "vicon_csv"
+    if any(c in ("NO_OF_FRAMES", "MARKER_NAMES", "FREQUENCY") for c in first_cells):
+        return "qtm_tsv"
+    if ext in (".csv", ".txt"):
+        return "wide_csv"
+    if ext == ".tsv":
+        return "qtm_tsv"
+    raise InputError(p, f"unknown capture format (extension {ext or 'none'!r}; expected .c3d, .csv or .tsv)")
+
+
+def _read(path: Path, rate_hz: float | None, default_units: str) -> tuple[Markers, dict[str, Any]]:
+    fmt = sniff_format(path)
+    if fmt == "c3d":
+        m, info = read_c3d_info(path, default_units=default_units)
+        if rate_hz is not None and abs(float(rate_hz) - m.rate_hz) > 5e-4 * m.rate_hz:
+            m.warnings.append(f"file rate {m.rate_hz:g} Hz used, not the given {float(rate_hz):g} Hz")
+        return m, info
+    reader = {"vicon_csv": read_vicon_csv, "qtm_tsv": read_qtm_tsv, "wide_csv": read_wide_csv}[fmt]
+    m = reader(path, rate_hz=rate_hz, default_units=default_units)
+    return m, {"reader": "pandas", "units": m.units}
+
+
+def read_markers(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
+    """Read any accepted marker capture (.c3d, Vicon/wide .csv, QTM .tsv) into canonical Markers (mm).
+
+    ``rate_hz`` serves files that carry no rate; ``default_units`` files that do not name their units.
+    Every failure is an InputError naming the file.
+    """
+    return _read(Path(path), rate_hz, default_units)[0]
+
+
+def inspect_capture(path: str | Path, *, rate_hz: float | None = None) -> dict[str, Any]:
+    """Summarise a capture file (what ``gazepipe inspect`` prints).
+
+    Keys: path, format, reader, rate_hz, frames, first_frame, duration_s, units (as found, None if absent),
+    n_markers, markers (list of {label, gap_fraction}), model_outputs, duplicates (groups of labels with
+    bit-identical trajectories), warnings; for C3D also processor, storage and analog_channels.
+    """
+    p = Path(path)
+    m, info = _read(p, rate_hz, "mm")
+    gaps = m.gap_fraction()
+    out: dict[str, Any] = {
+        "path": str(p),
+        "format": m.source_format,
+        "reader": info.get("reader"),
+        "rate_hz": m.rate_hz,
+        "frames": m.n_frames,
+        "first_frame": m.first_frame,
+        "duration_s": m.n_frames / m.rate_hz,
+        "units": info.get("units"),
+        "n_markers": m.n_markers,
+        "markers": [{"label": lab, "gap_fraction": float(g)} for lab, g in zip(m.labels, gaps, strict=True)],
+        "model_outputs": list(m.model_outputs),
+        "duplicates": duplicate_trajectories(m),
+        "warnings": list(m.warnings),
+    }
+    for key in ("processor", "storage", "analog_channels"):
+        if key in info:
+            out[key] = info[key]
+    return out

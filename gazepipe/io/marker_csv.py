@@ -1,0 +1,391 @@
+"""Marker trajectories from text exports: Vicon Nexus CSV, Qualisys QTM TSV and a plain wide CSV.
+
+Layouts read here:
+
+* Vicon Nexus "Trajectories" block (other blocks such as ``Devices`` or ``Model Outputs`` may come before or
+  after it, separated by a blank line)::
+
+      Trajectories
+      100
+      ,,Subj:LASI,,,Subj:RASI,,,
+      Frame,Sub Frame,X,Y,Z,X,Y,Z
+      ,,mm,mm,mm,mm,mm,mm
+      1,0,12.5,-3.25,1001.0,,,
+
+  Empty cells are gaps. Columns other than X/Y/Z under a marker (velocities ``X'`` …) are ignored.
+* Qualisys QTM TSV export: ``KEY<TAB>value…`` header lines (``NO_OF_FRAMES``, ``FREQUENCY``,
+  ``MARKER_NAMES`` …), optionally a ``Frame<TAB>Time<TAB>M1 X…`` column row, then data rows with or without
+  the Frame and Time columns. QTM writes missing samples as empty cells or, in older versions, as 0: an
+  exact (0, 0, 0) sample in a marker that is elsewhere non-zero is a gap (the C3D rule of SPEC §1).
+* Wide CSV: ``frame``, ``time`` (seconds), then ``<marker>_x``, ``<marker>_y``, ``<marker>_z``; empty cells
+  are gaps. :func:`write_wide_csv` writes it.
+
+The rate comes from the file; the ``rate_hz`` argument is used when the file has none (a file rate that
+disagrees with ``rate_hz`` is kept and noted in ``Markers.warnings``).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from gazepipe.errors import InputError
+from gazepipe.io.c3d import make_unique
+from gazepipe.model import Markers
+from gazepipe.timebase import snap_rate, unit_scale_to_mm
+
+VICON_BLOCKS = ("Trajectories", "Devices", "Model Outputs", "Joints", "Segments", "Global Angle")
+
+_PARSE_ERRORS = (ValueError, KeyError, IndexError, TypeError, OverflowError, UnicodeDecodeError,
+                 csv.Error, pd.errors.ParserError, pd.errors.EmptyDataError)
+
+
+class _Bad(Exception):
+    """A format problem found while parsing (message: short phrase)."""
+
+
+def _read_text(path: Path) -> str:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except OSError as e:
+        raise InputError(path, f"cannot read file ({e.strerror or e})") from None
+    if b"\x00" in raw:
+        raise InputError(path, "binary data in a text export (NUL bytes)")
+    for enc in ("utf-8-sig", "latin-1"):
+        try:
+            return raw.decode(enc)
+        except UnicodeDecodeError:
+            continue
+    raise InputError(path, "cannot decode text")  # pragma: no cover  (latin-1 decodes any bytes)
+
+
+def _numbers(block: str, sep: str, n_cols: int) -> np.ndarray:
+    """Parse a block of numeric rows into a (rows, n_cols) float64 array; empty cells are NaN."""
+    if not block.strip():
+        return np.zeros((0, n_cols))
+    df = pd.read_csv(io.StringIO(block), sep=sep, header=None, dtype=str, keep_default_na=False,
+                     skip_blank_lines=True, engine="c", names=range(max(n_cols, 1)), index_col=False,
+                     on_bad_lines="error")
+    if df.shape[1] > n_cols:
+        df = df.iloc[:, :n_cols]
+    df = df.fillna("").apply(lambda c: c.str.strip())
+    num = df.apply(pd.to_numeric, errors="coerce")
+    bad = num.isna() & (df != "") & ~df.isin(["NaN", "nan", "NAN", "-nan"])
+    if bad.to_numpy().any():
+        r, c = np.argwhere(bad.to_numpy())[0]
+        raise _Bad(f"non-numeric value {df.iat[r, c][:20]!r} in data row {r + 1}, column {c + 1}")
+    return num.to_numpy(dtype=np.float64)
+
+
+def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str]) -> float:
+    if file_rate is not None and not (math.isfinite(file_rate) and file_rate > 0):
+        file_rate = None
+    if rate_hz is not None and not (math.isfinite(float(rate_hz)) and float(rate_hz) > 0):
+        raise _Bad(f"rate_hz must be a positive number, got {rate_hz!r}")
+    if file_rate is None and rate_hz is None:
+        raise _Bad("no frame rate in the file and none given (rate_hz)")
+    if file_rate is None:
+        return snap_rate(float(rate_hz))
+    rate = snap_rate(file_rate)
+    if rate_hz is not None and abs(snap_rate(float(rate_hz)) - rate) > 5e-4 * rate:
+        notes.append(f"file rate {rate:g} Hz used, not the given {float(rate_hz):g} Hz")
+    return rate
+
+
+def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int, units: str | None,
+            default_units: str, fmt: str, notes: list[str], zero_gaps: bool = False) -> Markers:
+    """Unique labels, gap mask (any non-finite coordinate), conversion to mm."""
+    labels, renamed = make_unique(labels)
+    if renamed:
+        shown = ", ".join(f"{old!r} -> {new}" for _, old, new in renamed[:12])
+        notes.append(f"{len(renamed)} empty or duplicate labels renamed: {shown}"
+                     + (" …" if len(renamed) > 12 else ""))
+    try:
+        to_mm = unit_scale_to_mm(units, default_units)
+    except KeyError:
+        raise _Bad(f"unknown units {units!r}") from None
+    valid = np.isfinite(xyz).all(axis=2)
+    if zero_gaps:
+        zero = valid & (xyz == 0).all(axis=2)
+        valid &= ~(zero & (valid & ~zero).any(axis=0)[None, :])
+    xyz = np.where(valid[..., None], xyz * to_mm, np.nan)
+    if valid.size and not valid.any():
+        notes.append("every marker sample is invalid (100 % gaps)")
+    return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=rate, first_frame=int(first_frame),
+                   units=units, source_format=fmt, warnings=notes)
+
+
+def _first_frame(frames: np.ndarray) -> int:
+    if frames.size and np.isfinite(frames[0]) and abs(frames[0]) < 2**31:
+        return int(frames[0])
+    return 1
+
+
+def _guard(path: Path, fn, *args, **kwargs) -> Markers:
+    try:
+        return fn(*args, **kwargs)
+    except InputError:
+        raise
+    except _Bad as e:
+        raise InputError(path, str(e)) from None
+    except _PARSE_ERRORS as e:
+        raise InputError(path, f"malformed file ({type(e).__name__}: {e})") from None
+
+
+# ---------------------------------------------------------------------------------------------- Vicon
+
+def strip_subject_prefix(labels: list[str], wanted: list[str] | tuple[str, ...] | None = None) -> list[str]:
+    """Drop the ``Subject:`` prefix of Vicon marker names.
+
+    With ``wanted`` (the markerset's names), a label is stripped only when it is not itself wanted and its
+    part after the last ``:`` is. Without it every prefix is stripped. A strip that would make two labels
+    equal is not done.
+    """
+    wanted_set = set(wanted) if wanted is not None else None
+    out = []
+    for lab in labels:
+        short = lab.rsplit(":", 1)[-1]
+        if short != lab and (wanted_set is None or (lab not in wanted_set and short in wanted_set)):
+            out.append(short)
+        else:
+            out.append(lab)
+    counts: dict[str, int] = {}
+    for lab in out:
+        counts[lab] = counts.get(lab, 0) + 1
+    return [new if counts[new] == 1 else old for old, new in zip(labels, out, strict=True)]
+
+
+def _parse_vicon(path: Path, text: str, rate_hz: float | None, strip_prefix: bool | list[str],
+                 default_units: str) -> Markers:
+    lines = text.splitlines()
+    start = next((i for i, ln in enumerate(lines[:10000])
+                  if ln.split(",", 1)[0].strip() == "Trajectories"), None)
+    if start is None:
+        raise _Bad("no 'Trajectories' block (export trajectories from Nexus)")
+    if start + 4 >= len(lines):
+        raise _Bad("'Trajectories' block truncated before its data")
+    rate_cell = lines[start + 1].split(",", 1)[0].strip()
+    try:
+        file_rate = float(rate_cell) if rate_cell else None
+    except ValueError:
+        raise _Bad(f"rate line reads {rate_cell[:20]!r}, not a number") from None
+    names = [c.strip() for c in next(csv.reader([lines[start + 2]]))]
+    comps = [c.strip() for c in next(csv.reader([lines[start + 3]]))]
+    units_row = [c.strip() for c in next(csv.reader([lines[start + 4]]))]
+    if len(comps) < 2 or comps[0].lower() != "frame":
+        raise _Bad("the row after the marker names does not start with 'Frame'")
+    starts = [i for i, n in enumerate(names) if n and i >= 1]
+    labels, cols = [], []
+    for k, c0 in enumerate(starts):
+        c1 = starts[k + 1] if k + 1 < len(starts) else max(len(comps), len(names))
+        span = {comps[c]: c for c in range(c0, min(c1, len(comps)))}
+        if not all(a in span for a in ("X", "Y", "Z")):
+            raise _Bad(f"marker {names[c0]!r} lacks X/Y/Z columns")
+        labels.append(names[c0])
+        cols.append([span["X"], span["Y"], span["Z"]])
+    if not labels:
+        raise _Bad("no marker names in the 'Trajectories' block")
+    found_units = {units_row[c] for cc in cols for c in cc if c < len(units_row) and units_row[c]}
+    if len(found_units) > 1:
+        raise _Bad(f"mixed units {sorted(found_units)}")
+    units = found_units.pop() if found_units else None
+
+    # data rows run to the first blank line (the next block) or the end of the file
+    stop = next((i for i in range(start + 5, len(lines)) if not lines[i].strip(", \t")), len(lines))
+    n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
+    arr = _numbers("\n".join(lines[start + 5: stop]), ",", n_cols)
+    xyz = arr[:, np.asarray(cols)] if arr.shape[0] else np.zeros((0, len(labels), 3))
+    if xyz.shape[0] == 0:
+        raise _Bad("no data rows in the 'Trajectories' block")
+    notes: list[str] = []
+    rate = _resolve_rate(file_rate, rate_hz, notes)
+    if strip_prefix is True:
+        labels = strip_subject_prefix(labels)
+    elif isinstance(strip_prefix, list | tuple):
+        labels = strip_subject_prefix(labels, strip_prefix)
+    return _finish(labels, xyz, rate=rate, first_frame=_first_frame(arr[:, 0]), units=units,
+                   default_units=default_units, fmt="vicon_csv", notes=notes)
+
+
+def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
+                   strip_prefix: bool | list[str] = False, default_units: str = "mm") -> Markers:
+    """Read the "Trajectories" block of a Vicon Nexus CSV export.
+
+    Parameters
+    ----------
+    path : the .csv file.
+    rate_hz : rate used when the file's rate line is empty.
+    strip_prefix : False keeps ``Subject:Marker`` names; True strips every prefix; a list of wanted names
+        strips a prefix only where that yields a wanted name (see :func:`strip_subject_prefix`).
+    default_units : used when the units row is empty.
+
+    Returns
+    -------
+    Markers in mm (NaN at gaps); ``first_frame`` is the first row's Frame number.
+    """
+    p = Path(path)
+    return _guard(p, _parse_vicon, p, _read_text(p), rate_hz, strip_prefix, default_units)
+
+
+# ------------------------------------------------------------------------------------------------ QTM
+
+_QTM_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
+
+
+def _parse_qtm(path: Path, text: str, rate_hz: float | None, default_units: str) -> Markers:
+    lines = text.splitlines()
+    header: dict[str, list[str]] = {}
+    i = 0
+    while i < len(lines) and i < 100000:
+        cells = lines[i].rstrip("\r\n").split("\t")
+        key = cells[0].strip()
+        if not _QTM_KEY.match(key):
+            break
+        header.setdefault(key, [c.strip() for c in cells[1:]])
+        i += 1
+    if "MARKER_NAMES" not in header:
+        raise _Bad("no MARKER_NAMES line (not a QTM 3D TSV export)")
+    labels = [n for n in header["MARKER_NAMES"]]
+    while labels and labels[-1] == "":
+        labels.pop()
+    if not labels:
+        raise _Bad("MARKER_NAMES lists no markers")
+    m = len(labels)
+    declared = header.get("NO_OF_MARKERS", [""])[0]
+    if declared and declared.isdigit() and int(declared) != m:
+        raise _Bad(f"NO_OF_MARKERS says {declared} but MARKER_NAMES lists {m}")
+    freq = header.get("FREQUENCY", [""])[0]
+    try:
+        file_rate = float(freq) if freq else None
+    except ValueError:
+        raise _Bad(f"FREQUENCY reads {freq[:20]!r}, not a number") from None
+
+    while i < len(lines) and not lines[i].strip():
+        i += 1
+    col_names: list[str] | None = None
+    if i < len(lines) and lines[i].split("\t", 1)[0].strip().lower() in ("frame", "time"):
+        col_names = [c.strip() for c in lines[i].split("\t")]
+        i += 1
+    body = "\n".join(lines[i:])
+    first_row = next((ln for ln in lines[i:] if ln.strip()), "")
+    n_cells = len(first_row.rstrip("\r\n").split("\t"))
+    if col_names is not None:
+        lead = [c.lower() for c in col_names[:2]]
+        n_lead = 2 if lead == ["frame", "time"] else 1
+        n_cols = max(len(col_names), n_lead + 3 * m)
+    else:
+        n_lead = n_cells - 3 * m if n_cells - 3 * m in (0, 1, 2) else (n_cells - 3 * m - 1
+                                                                       if n_cells - 3 * m == 3 else -1)
+        if n_lead < 0:
+            raise _Bad(f"data rows have {n_cells} columns, expected {3 * m} (+ Frame, Time)")
+        n_cols = max(n_cells, n_lead + 3 * m)
+    arr = _numbers(body, "\t", n_cols)
+    if arr.shape[0] == 0:
+        raise _Bad("no data rows")
+    xyz = arr[:, n_lead: n_lead + 3 * m].reshape(-1, m, 3)
+    n_frames = header.get("NO_OF_FRAMES", [""])[0]
+    notes: list[str] = []
+    if n_frames.isdigit() and int(n_frames) != xyz.shape[0]:
+        notes.append(f"NO_OF_FRAMES says {n_frames} but the file has {xyz.shape[0]} data rows")
+    rate = _resolve_rate(file_rate, rate_hz, notes)
+    first = _first_frame(arr[:, 0]) if n_lead >= 1 and (col_names is None or col_names[0].lower() == "frame") \
+        else 1
+    return _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
+                   fmt="qtm_tsv", notes=notes, zero_gaps=True)
+
+
+def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
+    """Read a Qualisys QTM 3D TSV export (mm unless ``default_units`` says otherwise; QTM writes mm)."""
+    p = Path(path)
+    return _guard(p, _parse_qtm, p, _read_text(p), rate_hz, default_units)
+
+
+# ----------------------------------------------------------------------------------------- wide CSV
+
+def rate_from_times(t: np.ndarray) -> tuple[float, bool]:
+    """Rate (Hz) implied by a time column in seconds, and whether the steps are even.
+
+    The mean step gives the rate; one within 0.05 % of a whole number is taken as that number (times
+    written with few decimals), then :func:`snap_rate` applies.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 2 or not np.isfinite(t).all():
+        raise _Bad("the time column needs at least two finite values")
+    d = np.diff(t)
+    if (d <= 0).any():
+        raise _Bad("the time column is not strictly increasing")
+    r = (t.size - 1) / (t[-1] - t[0])
+    ri = round(r)
+    if ri >= 1 and abs(r - ri) <= 5e-4 * r:
+        r = float(ri)
+    even = bool(np.all(np.abs(d * r - 1.0) < 0.5))
+    return snap_rate(r), even
+
+
+def _parse_wide(path: Path, text: str, rate_hz: float | None, default_units: str) -> Markers:
+    if not text.strip():
+        raise _Bad("empty file")
+    head = next(csv.reader([text.split("\n", 1)[0]]))
+    cols = [c.strip() for c in head]
+    low = [c.lower() for c in cols]
+    labels: list[str] = []
+    where: dict[str, dict[str, int]] = {}
+    for j, c in enumerate(cols):
+        mt = re.match(r"^(.*)_([xyzXYZ])$", c)
+        if mt and mt.group(1):
+            name = mt.group(1)
+            if name not in where:
+                where[name] = {}
+                labels.append(name)
+            if mt.group(2).lower() in where[name]:
+                raise _Bad(f"column {c!r} appears twice")
+            where[name][mt.group(2).lower()] = j
+    if not labels:
+        raise _Bad("no <marker>_x/_y/_z columns in the header")
+    for name in labels:
+        if set(where[name]) != {"x", "y", "z"}:
+            raise _Bad(f"marker {name!r} lacks one of its _x/_y/_z columns")
+    body = text.split("\n", 1)[1] if "\n" in text else ""
+    arr = _numbers(body, ",", len(cols))
+    if arr.shape[0] == 0:
+        raise _Bad("no data rows")
+    idx = np.array([[where[n]["x"], where[n]["y"], where[n]["z"]] for n in labels])
+    xyz = arr[:, idx]
+    notes: list[str] = []
+    file_rate = None
+    if "time" in low and arr.shape[0] >= 2:
+        file_rate, even = rate_from_times(arr[:, low.index("time")])
+        if not even:
+            notes.append("uneven steps in the time column")
+    rate = _resolve_rate(file_rate, rate_hz, notes)
+    first = _first_frame(arr[:, low.index("frame")]) if "frame" in low else 1
+    return _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
+                   fmt="wide_csv", notes=notes)
+
+
+def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
+    """Read a wide marker CSV (``frame``, ``time``, ``<marker>_x/_y/_z``); rate from ``time`` or ``rate_hz``."""
+    p = Path(path)
+    return _guard(p, _parse_wide, p, _read_text(p), rate_hz, default_units)
+
+
+def write_wide_csv(path: str | Path, markers: Markers) -> None:
+    """Write markers as a wide CSV: ``frame`` (source frame), ``time`` (s), ``<label>_x/_y/_z`` in mm.
+
+    Gaps are empty cells. Floats are written in shortest round-trip form, so a read gives the same values.
+    """
+    t, m = markers.valid.shape
+    xyz = np.where(markers.valid[..., None], markers.xyz, np.nan).reshape(t, 3 * m)
+    columns = [f"{lab}_{a}" for lab in markers.labels for a in "xyz"]
+    df = pd.DataFrame(xyz, columns=columns)
+    df.insert(0, "time", markers.time_s)
+    df.insert(0, "frame", markers.source_frame)
+    df.to_csv(Path(path), index=False, na_rep="", lineterminator="\n")

@@ -1,0 +1,196 @@
+"""Vicon Nexus CSV, QTM TSV and wide CSV readers; wide CSV round trip; format dispatch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gazepipe.errors import InputError
+from gazepipe.io.capture import inspect_capture, read_markers, sniff_format
+from gazepipe.io.marker_csv import (
+    read_qtm_tsv,
+    read_vicon_csv,
+    read_wide_csv,
+    strip_subject_prefix,
+    write_wide_csv,
+)
+from gazepipe.model import Markers
+
+# A Nexus 2.x export with a Devices block before the trajectories and a Model Outputs block after them.
+VICON = """Devices
+1000
+,,Imported AMTI OR6 Series Force Plate #1 - Force,,
+Frame,Sub Frame,Fx,Fy,Fz
+,,N,N,N
+1,0,0.1,0.2,0.3
+
+Trajectories
+100
+,,Ann:LASI,,,Ann:RASI,,,Ann:HEADC,,
+Frame,Sub Frame,X,Y,Z,X,Y,Z,X,Y,Z
+,,mm,mm,mm,mm,mm,mm,mm,mm,mm
+12,0,101.5,-20.25,950,,,,0,0,1600
+13,0,102.5,-20.5,951,230.125,25,948.5,0.5,0,1601
+14,0,103.5,-20.75,952,231.125,25.5,949,1,0,1602
+
+Model Outputs
+100
+,,Ann:LHipAngles,,
+Frame,Sub Frame,X,Y,Z
+,,deg,deg,deg
+12,0,1,2,3
+"""
+
+# QTM 2019 3D export: header keys, a Frame/Time column row, empty cells and 0.000 for missing markers.
+QTM = """NO_OF_FRAMES\t3
+NO_OF_CAMERAS\t8
+NO_OF_MARKERS\t2
+FREQUENCY\t120
+NO_OF_ANALOG\t0
+ANALOG_FREQUENCY\t0
+DESCRIPTION\t--
+TIME_STAMP\t2019-11-28, 13:43:42.715\t1476252.89504471
+DATA_INCLUDED\t3D
+MARKER_NAMES\tHFL\tHFR
+TRAJECTORY_TYPES\tMeasured\tMeasured
+Frame\tTime\tHFL X\tHFL Y\tHFL Z\tHFR X\tHFR Y\tHFR Z
+1\t0.00000\t10.000\t20.000\t1700.000\t0.000\t0.000\t0.000
+2\t0.00833\t10.500\t20.500\t1700.500\t60.000\t20.000\t1699.000
+3\t0.01667\t\t\t\t61.000\t21.000\t1698.000
+"""
+
+# Older QTM export: no Frame/Time row, data rows carry only the coordinates.
+QTM_OLD = """NO_OF_FRAMES\t2
+NO_OF_CAMERAS\t6
+NO_OF_MARKERS\t1
+FREQUENCY\t100
+NO_OF_ANALOG\t0
+ANALOG_FREQUENCY\t0
+DESCRIPTION\t--
+TIME_STAMP\t2006-03-07, 11:12:03
+DATA_INCLUDED\t3D
+MARKER_NAMES\tTOP
+1.5\t2.5\t3.5
+1.25\t2.25\t3.25
+"""
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_vicon_csv_reads_trajectories_block(tmp_path):
+    m = read_vicon_csv(_write(tmp_path, "t.csv", VICON))
+    assert m.labels == ["Ann:LASI", "Ann:RASI", "Ann:HEADC"]
+    assert m.rate_hz == 100.0 and m.first_frame == 12 and m.n_frames == 3
+    assert m.units == "mm" and m.source_format == "vicon_csv"
+    assert m.valid.tolist() == [[True, False, True], [True, True, True], [True, True, True]]
+    np.testing.assert_array_equal(m.xyz[1, 1], [230.125, 25, 948.5])
+    np.testing.assert_array_equal(m.xyz[0, 0], [101.5, -20.25, 950])
+    assert np.isnan(m.xyz[0, 1]).all()
+    # an explicit 0 in a Vicon export is a coordinate, not a gap (Nexus leaves gaps empty)
+    np.testing.assert_array_equal(m.xyz[0, 2], [0, 0, 1600])
+
+
+def test_vicon_prefix_stripping(tmp_path):
+    p = _write(tmp_path, "t.csv", VICON)
+    assert read_vicon_csv(p, strip_prefix=True).labels == ["LASI", "RASI", "HEADC"]
+    assert read_vicon_csv(p, strip_prefix=["LASI", "HEADC"]).labels == ["LASI", "Ann:RASI", "HEADC"]
+    # two subjects with the same marker name: stripping would merge them, so it is not done
+    assert strip_subject_prefix(["A:X", "B:X", "A:Y"]) == ["A:X", "B:X", "Y"]
+
+
+def test_vicon_units_in_metres_are_converted(tmp_path):
+    text = VICON.replace(",,mm,mm,mm,mm,mm,mm,mm,mm,mm", ",,m,m,m,m,m,m,m,m,m")
+    m = read_vicon_csv(_write(tmp_path, "t.csv", text))
+    assert m.units == "m"
+    np.testing.assert_allclose(m.xyz[0, 0], [101500, -20250, 950000])
+
+
+def test_vicon_rate_from_argument_when_missing(tmp_path):
+    text = VICON.replace("Trajectories\n100\n", "Trajectories\n\n".replace("\n\n", "\n,\n"))
+    p = _write(tmp_path, "t.csv", text)
+    with pytest.raises(InputError, match="rate"):
+        read_vicon_csv(p)
+    assert read_vicon_csv(p, rate_hz=59.94).rate_hz == pytest.approx(60000 / 1001, abs=0)
+
+
+def test_qtm_tsv_reads_with_frame_time_columns(tmp_path):
+    m = read_qtm_tsv(_write(tmp_path, "t.tsv", QTM))
+    assert m.labels == ["HFL", "HFR"] and m.rate_hz == 120.0 and m.first_frame == 1 and m.n_frames == 3
+    # HFR at (0, 0, 0) while elsewhere non-zero: QTM's missing-marker zero; empty HFL cells: a gap
+    assert m.valid.tolist() == [[True, False], [True, True], [False, True]]
+    np.testing.assert_array_equal(m.xyz[1, 1], [60, 20, 1699])
+    np.testing.assert_array_equal(m.xyz[0, 0], [10, 20, 1700])
+
+
+def test_qtm_tsv_old_layout_without_frame_column(tmp_path):
+    m = read_qtm_tsv(_write(tmp_path, "old.tsv", QTM_OLD))
+    assert m.labels == ["TOP"] and m.rate_hz == 100.0 and m.n_frames == 2 and m.first_frame == 1
+    np.testing.assert_array_equal(m.xyz[:, 0], [[1.5, 2.5, 3.5], [1.25, 2.25, 3.25]])
+
+
+def test_qtm_marker_count_mismatch_is_an_error(tmp_path):
+    p = _write(tmp_path, "bad.tsv", QTM.replace("NO_OF_MARKERS\t2", "NO_OF_MARKERS\t3"))
+    with pytest.raises(InputError, match="NO_OF_MARKERS") as e:
+        read_qtm_tsv(p)
+    assert str(p) in str(e.value) and "\n" not in str(e.value)
+
+
+def _markers(rate=240.0, first=330, t=50, m=4, seed=0):
+    rng = np.random.default_rng(seed)
+    xyz = rng.normal(0, 500, (t, m, 3))
+    valid = rng.random((t, m)) > 0.2
+    xyz[~valid] = np.nan
+    labels = [f"M{i}" for i in range(m - 1)] + ["Head:HTOP"]
+    return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=rate, first_frame=first, units="mm")
+
+
+@pytest.mark.parametrize("rate", [240.0, 30000 / 1001, 100.0])
+def test_wide_csv_round_trip(tmp_path, rate):
+    src = _markers(rate=rate)
+    p = tmp_path / "w.csv"
+    write_wide_csv(p, src)
+    back = read_wide_csv(p)
+    assert back.labels == src.labels and back.first_frame == src.first_frame
+    assert back.rate_hz == rate
+    np.testing.assert_array_equal(back.valid, src.valid)
+    np.testing.assert_array_equal(back.xyz, src.xyz)  # shortest round-trip floats: exact
+    write_wide_csv(tmp_path / "w2.csv", back)
+    assert (tmp_path / "w2.csv").read_bytes() == p.read_bytes()
+
+
+def test_wide_csv_without_time_needs_rate(tmp_path):
+    p = _write(tmp_path, "w.csv", "frame,A_x,A_y,A_z\n5,1,2,3\n6,,,\n")
+    with pytest.raises(InputError, match="rate"):
+        read_wide_csv(p)
+    m = read_wide_csv(p, rate_hz=50)
+    assert m.first_frame == 5 and m.rate_hz == 50 and m.valid[:, 0].tolist() == [True, False]
+
+
+def test_wide_csv_garbage_cell_is_an_error(tmp_path):
+    p = _write(tmp_path, "w.csv", "frame,time,A_x,A_y,A_z\n1,0,1,2,3\n2,0.01,1,oops,3\n")
+    with pytest.raises(InputError, match="oops"):
+        read_wide_csv(p)
+
+
+def test_dispatch_and_inspect(tmp_path):
+    v = _write(tmp_path, "v.csv", VICON)
+    q = _write(tmp_path, "q.tsv", QTM)
+    w = tmp_path / "w.csv"
+    write_wide_csv(w, _markers())
+    assert [sniff_format(x) for x in (v, q, w)] == ["vicon_csv", "qtm_tsv", "wide_csv"]
+    assert read_markers(v).source_format == "vicon_csv"
+    assert read_markers(q).source_format == "qtm_tsv"
+    assert read_markers(w).source_format == "wide_csv"
+    info = inspect_capture(q)
+    assert info["frames"] == 3 and info["n_markers"] == 2 and info["rate_hz"] == 120.0
+    assert [d["label"] for d in info["markers"]] == ["HFL", "HFR"]
+    assert [d["gap_fraction"] for d in info["markers"]] == pytest.approx([1 / 3, 1 / 3])
+    assert info["units"] is None and info["format"] == "qtm_tsv"
+    with pytest.raises(InputError, match="not found"):
+        read_markers(tmp_path / "missing.csv")
+    with pytest.raises(InputError, match="unknown capture format"):
+        read_markers(_write(tmp_path, "x.bin", "hello"))
