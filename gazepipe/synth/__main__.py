@@ -1,0 +1,21 @@
+"""``python -m gazepipe.synth OUT_DIR [--seed N]``: write a sample session."""
+
+from __future__ import annotations
+
+import argparse
+
+from gazepipe.synth.session import generate_session
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m gazepipe.synth", description=__doc__)
+    p.add_argument("out_dir")
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args(argv)
+    out = generate_session(a.out_dir, seed=a.seed)
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,172 @@
+"""From a take's motion to marker trajectories: forward kinematics, eye directions, noise and occlusions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from gazepipe.synth.motion import EYE_LIMIT_DEG, FORWARD, HEAD, TakeMotion
+from gazepipe.synth.skeleton import (
+    CLAPPER_MARKERS,
+    HALF_IPD_MM,
+    JOINTS_MM,
+    ROOT_MARKER,
+    SEGMENT_MARKERS,
+    SEGMENTS,
+    TARGET_MARKER,
+    Placement,
+    head_centre_offset,
+    subject_marker_layout,
+)
+
+
+@dataclass
+class Kinematics:
+    """Noise-free kinematics of a take.
+
+    ``q_char0[k]``: segment k's rotation relative to the neutral pose in the initial character axes (T stack);
+    the lab rotation is ``h_lab * q_char0[k]``. Eye directions are unit vectors in the initial character axes
+    (``eye_in_head``: head axes). Positions are lab millimetres.
+    """
+
+    labels: list[str]
+    markers_true: np.ndarray          # (T, M, 3)
+    h_lab: Rotation
+    q_char0: list[Rotation]
+    joints_lab: np.ndarray            # (T, S, 3)
+    eye_dir_char0: np.ndarray         # (T, 3) cyclopean gaze
+    eye_in_head: np.ndarray           # (T, 3)
+    eye_left_char0: np.ndarray        # (T, 3)
+    eye_right_char0: np.ndarray       # (T, 3)
+
+
+def clamp_cone(v: np.ndarray, limit_rad: float) -> np.ndarray:
+    """Rotate each unit vector (T, 3) toward +Z so that it lies within ``limit_rad`` of +Z."""
+    cr = np.cross(np.broadcast_to(FORWARD, v.shape), v)
+    sn = np.linalg.norm(cr, axis=1)
+    ang = np.arctan2(sn, v[:, 2])
+    axis = np.where(sn[:, None] > 1e-12, cr / np.maximum(sn, 1e-12)[:, None], np.array([1.0, 0.0, 0.0]))
+    clamped = Rotation.from_rotvec(axis * np.minimum(ang, limit_rad)[:, None]).apply(FORWARD)
+    return np.where((ang > limit_rad)[:, None], clamped, v)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def build_kinematics(motion: TakeMotion, placement: Placement) -> Kinematics:
+    """Forward kinematics of the chain, every marker's noise-free position, and the eyes."""
+    h = placement.h_lab
+    n = len(motion.time_s)
+    q = []
+    acc = Rotation.identity(n)
+    for loc in motion.local:
+        acc = acc * loc
+        q.append(acc)
+    joints = np.empty((n, len(SEGMENTS), 3))
+    joints[:, 0] = motion.floor_lab + h.apply(JOINTS_MM[0])
+    for k in range(1, len(SEGMENTS)):
+        joints[:, k] = joints[:, k - 1] + (h * q[k - 1]).apply(JOINTS_MM[k] - JOINTS_MM[k - 1])
+
+    labels, seg, off = subject_marker_layout()
+    cols = []
+    for m in range(len(labels)):
+        cols.append(joints[:, seg[m]] + (h * q[seg[m]]).apply(off[m]))
+    if motion.target_lab is not None:
+        labels.append(TARGET_MARKER)
+        cols.append(motion.target_lab)
+    if motion.clapper_lab is not None:
+        labels.extend(CLAPPER_MARKERS)
+        cols.extend([motion.clapper_lab[:, 0], motion.clapper_lab[:, 1]])
+    markers = np.stack(cols, axis=1)
+
+    head_lab = h * q[HEAD]
+    hc = joints[:, HEAD] + head_lab.apply(head_centre_offset())
+    limit = np.deg2rad(EYE_LIMIT_DEG)
+    if motion.gaze_dir_char is not None:
+        want = motion.gaze_dir_char
+    else:
+        want = _unit(h.inv().apply(motion.fixation_lab - hc))
+    in_head = clamp_cone(q[HEAD].inv().apply(want), limit)
+    eyes = []
+    for side in (1.0, -1.0):     # +X of the head is the subject's left
+        pos = hc + head_lab.apply([side * HALF_IPD_MM, 0.0, 0.0])
+        d = _unit(h.inv().apply(motion.fixation_lab - pos))
+        eyes.append(q[HEAD].apply(clamp_cone(q[HEAD].inv().apply(d), limit)))
+    return Kinematics(labels=labels, markers_true=markers, h_lab=h, q_char0=q, joints_lab=joints,
+                      eye_dir_char0=q[HEAD].apply(in_head), eye_in_head=in_head,
+                      eye_left_char0=eyes[0], eye_right_char0=eyes[1])
+
+
+#: gap length classes in frames (inclusive bounds) and how many of each a long take gets
+GAP_CLASSES: tuple[tuple[int, int, int], ...] = ((1, 5, 8), (6, 15, 6), (16, 30, 4), (31, 90, 3), (31, 120, 2))
+ROOT_MARKERS = (ROOT_MARKER, *SEGMENT_MARKERS["pelvis"])
+MAX_ROOT_GAP = 3
+
+
+def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
+              clapper_busy: np.ndarray | None) -> np.ndarray:
+    """Occlusion mask (T, M) bool, True where a sample is missing.
+
+    Gaps of every length class, sometimes on several markers of one segment at once, one at the very start
+    and one at the very end (long takes). The root marker and the pelvis markers only get gaps of at most
+    ``MAX_ROOT_GAP`` frames; the clapper never loses a sample while it is in use.
+    """
+    mask = np.zeros((n, len(labels)), dtype=bool)
+    idx = {lab: i for i, lab in enumerate(labels)}
+    free = [lab for lab in labels if lab not in ROOT_MARKERS]
+    root = [lab for lab in labels if lab in ROOT_MARKERS]
+
+    def place(cols: list[int], length: int, start: int | None = None) -> None:
+        length = min(length, n - 1)
+        for _ in range(100):
+            s = int(rng.integers(0, n - length + 1)) if start is None else start
+            if clapper_busy is not None and any(labels[c] in CLAPPER_MARKERS for c in cols) \
+                    and clapper_busy[s:s + length].any():
+                if start is not None:
+                    return
+                continue
+            mask[s:s + length, cols] = True
+            return
+
+    if kind == "gaze_follow" or n > 600:
+        scale = max(1.0, n / 1400.0)
+        for lo, hi, count in GAP_CLASSES:
+            for _ in range(int(round(count * scale))):
+                place([idx[str(rng.choice(free))]], int(rng.integers(lo, hi + 1)))
+        for _ in range(int(round(3 * scale))):
+            place([idx[str(rng.choice(root))]], int(rng.integers(1, MAX_ROOT_GAP + 1)))
+        for seg in ("head", "chest", "spine3"):
+            names = list(SEGMENT_MARKERS[seg])
+            pick = rng.choice(len(names), size=2, replace=False)
+            place([idx[names[i]] for i in sorted(pick)], int(rng.integers(6, 40)))
+        place([idx[str(rng.choice(free))]], int(rng.integers(3, 20)), start=0)
+        length = int(rng.integers(3, 20))
+        place([idx[str(rng.choice(free))]], length, start=n - length)
+    elif kind == "gaze_shift":
+        place([idx[str(rng.choice(free))]], int(rng.integers(1, 6)))
+        place([idx[str(rng.choice(free))]], int(rng.integers(6, 16)))
+        if rng.random() < 0.5:
+            place([idx[str(rng.choice(free))]], int(rng.integers(16, 31)))
+        if rng.random() < 0.4:
+            length = int(rng.integers(2, 10))
+            start = 0 if rng.random() < 0.5 else n - length
+            place([idx[str(rng.choice(free))]], length, start=start)
+    else:
+        for _ in range(2):
+            place([idx[str(rng.choice(free))]], int(rng.integers(1, 6)))
+    return mask
+
+
+def gap_runs(mask: np.ndarray) -> np.ndarray:
+    """Every run of True per column of a (T, M) mask as rows (marker, start, stop), stop exclusive, int64."""
+    rows = []
+    pad = np.zeros((1, mask.shape[1]), dtype=np.int8)
+    d = np.diff(np.vstack([pad, mask.astype(np.int8), pad]), axis=0)
+    for m in range(mask.shape[1]):
+        starts = np.flatnonzero(d[:, m] == 1)
+        stops = np.flatnonzero(d[:, m] == -1)
+        rows.extend((m, a, b) for a, b in zip(starts, stops, strict=True))
+    return np.array(rows, dtype=np.int64).reshape(-1, 3)

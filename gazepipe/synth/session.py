@@ -1,0 +1,222 @@
+"""Write a whole synthetic capture session (SPEC §1) with its ground truth beside it."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from gazepipe.synth.markers import Kinematics, build_kinematics, gap_runs, make_gaps
+from gazepipe.synth.motion import TakeMotion, follow_motion, neutral_motion, shift_motion
+from gazepipe.synth.skeleton import (
+    CLAPPER_MARKERS,
+    HEAD_CENTRE_MARKER,
+    ROOT_MARKER,
+    SEGMENT_MARKERS,
+    SEGMENTS,
+    TARGET_MARKER,
+    Placement,
+    camera_to_head,
+    eye_offset_mm,
+)
+from gazepipe.synth.truth import quat_wxyz, take_truth, write_npz
+
+MOCAP_RATE_HZ = 30000.0 / 1001.0
+GENERATOR_VERSION = 1
+
+#: the gaze_shift targets of the sample session (a part of Pejsa's 36° x 12° grid)
+DEFAULT_SHIFTS: tuple[tuple[float, float], ...] = (
+    (36.0, 12.0), (-36.0, 0.0), (72.0, 0.0), (-72.0, 12.0), (0.0, 12.0), (36.0, -12.0), (-72.0, -12.0),
+    (72.0, 12.0), (-36.0, -12.0),
+)
+
+
+@dataclass(frozen=True)
+class SynthConfig:
+    """What to generate.
+
+    ``follow_poses``: one gaze_follow take per entry (pose names; unknown poses move like ``standing``);
+    ``follow_duration_s``: approximate length of each; ``shift_targets``: (yaw, pitch) degrees per gaze_shift
+    take; ``neutral_s``: length of the neutral take (0: none); ``noise_mm``: marker noise sigma.
+    """
+
+    follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
+    follow_duration_s: float = 45.0
+    shift_targets: tuple[tuple[float, float], ...] = DEFAULT_SHIFTS
+    neutral_s: float = 4.0
+    noise_mm: float = 0.5
+    gaps: bool = True
+    session_id: str = "session01"
+    subject: str = "p01"
+    placement: Placement = field(default_factory=Placement)
+
+
+@dataclass
+class TakeRecord:
+    """Everything known about one generated take; handed to every modality writer."""
+
+    id: str
+    kind: str
+    pose: str
+    index: int
+    rate_hz: float
+    motion: TakeMotion
+    kinematics: Kinematics
+    truth_arrays: dict[str, np.ndarray]
+    truth_scalars: dict[str, Any]
+    rng: np.random.Generator          # a stream of its own, for the writer's noise
+    entries: dict[str, Any] = field(default_factory=dict)   # the take's session.toml keys
+
+
+class ModalityWriter(Protocol):
+    """Writes one more file of a take (video, eyes CSV, face CSVs …).
+
+    Called once per take after the mocap file and truth exist; returns session.toml keys to add to the take
+    (paths relative to the session folder), e.g. ``{"video": "video/<take>.mp4"}``, and may add entries to
+    ``take.truth_scalars``.
+    """
+
+    def __call__(self, session_dir: Path, take: TakeRecord) -> dict[str, Any]: ...
+
+
+def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:
+    """C3D with float storage, POINT:UNITS mm, first frame 1; NaN samples are written as gaps
+    (residual −1, coordinates 0)."""
+    import ezc3d
+
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [rate_hz]
+    c["parameters"]["POINT"]["LABELS"]["value"] = tuple(labels)
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    pts = np.ones((4, len(labels), xyz.shape[0]))
+    pts[:3] = np.transpose(xyz, (2, 1, 0))
+    c["data"]["points"] = pts
+    c.write(str(path))
+
+
+def markerset_toml(cam_known: bool = False) -> str:
+    """markerset.toml text (SPEC §1). The camera rotation is left out: the pipeline estimates it."""
+    off = eye_offset_mm()
+    lines = [
+        "schema = 1",
+        'up_axis = "z"',
+        'units = "mm"',
+        f'root = "{ROOT_MARKER}"',
+        f'target = "{TARGET_MARKER}"',
+        f'clapper = ["{CLAPPER_MARKERS[0]}", "{CLAPPER_MARKERS[1]}"]',
+        f'head_centre = "{HEAD_CENTRE_MARKER}"',
+        f"eye_offset_mm = [{off[0]:.1f}, {off[1]:.1f}, {off[2]:.1f}]",
+        "",
+    ]
+    for k, name in enumerate(SEGMENTS):
+        lines.append(f"[segments.{name}]")
+        lines.append("markers = [" + ", ".join(f'"{m}"' for m in SEGMENT_MARKERS[name]) + "]")
+        if k:
+            lines.append(f'parent = "{SEGMENTS[k - 1]}"')
+        lines.append("")
+    lines += ["[lod]", 'segments = ["pelvis", "chest", "head"]', ""]
+    return "\n".join(lines)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def session_toml(cfg: SynthConfig, takes: list[TakeRecord]) -> str:
+    lines = ["schema = 1", "", "[session]", f'id = "{cfg.session_id}"', f'subject = "{cfg.subject}"',
+             'markerset = "markerset.toml"', ""]
+    for t in takes:
+        lines.append("[[takes]]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in t.entries.items())
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _take_plan(cfg: SynthConfig) -> list[tuple[str, str, str, tuple[float, float] | None]]:
+    plan: list[tuple[str, str, str, tuple[float, float] | None]] = []
+    if cfg.neutral_s > 0:
+        plan.append(("neutral", "neutral", "standing", None))
+    counts: dict[str, int] = {}
+    for pose in cfg.follow_poses:
+        counts[pose] = counts.get(pose, 0) + 1
+        plan.append((f"follow_{pose}_{counts[pose]:02d}", "gaze_follow", pose, None))
+    for yaw, pitch in cfg.shift_targets:
+        ys = "m" if yaw < 0 else ""
+        ps = "m" if pitch < 0 else ""
+        plan.append((f"shift_y{ys}{abs(yaw):03.0f}_p{ps}{abs(pitch):02.0f}", "gaze_shift", "standing",
+                     (float(yaw), float(pitch))))
+    return plan
+
+
+def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | None = None,
+                     writers: tuple[ModalityWriter, ...] | list[ModalityWriter] = ()) -> Path:
+    """Generate a session folder: session.toml, markerset.toml, mocap/*.c3d and truth/ (npz per take,
+    truth.json, README.md). Same seed and config give byte-identical files. Returns the folder."""
+    cfg = config or SynthConfig()
+    out = Path(out_dir)
+    (out / "mocap").mkdir(parents=True, exist_ok=True)
+    (out / "truth").mkdir(exist_ok=True)
+    rate = MOCAP_RATE_HZ
+    cam = camera_to_head()
+    records: list[TakeRecord] = []
+    meta_takes: dict[str, Any] = {}
+    for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
+        r_motion, r_noise, r_gaps, r_writer = (np.random.default_rng(s) for s in
+                                               np.random.SeedSequence([seed, index]).spawn(4))
+        if kind == "gaze_follow":
+            motion = follow_motion(r_motion, rate, cfg.placement, pose, cfg.follow_duration_s)
+        elif kind == "gaze_shift":
+            assert target is not None
+            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target)
+        else:
+            motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
+        kin = build_kinematics(motion, cfg.placement)
+        n, m = kin.markers_true.shape[:2]
+        mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
+                else np.zeros((n, m), dtype=bool))
+        noisy = kin.markers_true + r_noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
+        noisy[mask] = np.nan
+        mocap_rel = f"mocap/{take_id}.c3d"
+        write_c3d(out / mocap_rel, kin.labels, noisy, rate)
+        arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
+        scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
+        entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
+        if target is not None:
+            entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
+        rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, entries)
+        for w in writers:
+            rec.entries.update(w(out, rec))
+        write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
+        meta_takes[take_id] = rec.truth_scalars
+        records.append(rec)
+
+    (out / "markerset.toml").write_text(markerset_toml())
+    (out / "session.toml").write_text(session_toml(cfg, records))
+    meta = {
+        "generator_version": GENERATOR_VERSION,
+        "seed": int(seed),
+        "rate_hz": rate,
+        "noise_mm": cfg.noise_mm,
+        "subject_floor_lab_mm": list(cfg.placement.floor_mm),
+        "heading_deg": cfg.placement.heading_deg,
+        "char_to_lab_quat": quat_wxyz(cfg.placement.h_lab)[0].tolist(),
+        "camera_to_head_quat": quat_wxyz(cam)[0].tolist(),
+        "eye_offset_mm": eye_offset_mm().tolist(),
+        "segments": list(SEGMENTS),
+        "takes": meta_takes,
+    }
+    (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    from gazepipe.synth.readme import TRUTH_README
+    (out / "truth" / "README.md").write_text(TRUTH_README)
+    return out

@@ -1,0 +1,259 @@
+"""The synthetic session generator: files per SPEC §1, determinism, and self-consistent ground truth."""
+
+from __future__ import annotations
+
+import struct
+import tomllib
+from pathlib import Path
+
+import c3d
+import ezc3d
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gazepipe.synth import SynthConfig, generate_session, load_truth
+
+RATE = 30000.0 / 1001.0
+SMALL = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=16.0,
+                    shift_targets=((36.0, 12.0), (-72.0, 0.0), (72.0, -12.0)), neutral_s=2.0)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return generate_session(tmp_path_factory.mktemp("synth") / "s", seed=7, config=SMALL)
+
+
+@pytest.fixture(scope="module")
+def takes(session: Path) -> list[dict]:
+    return tomllib.loads((session / "session.toml").read_text())["takes"]
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _rot(q_wxyz: np.ndarray) -> Rotation:
+    return Rotation.from_quat(np.asarray(q_wxyz, dtype=float)[..., [1, 2, 3, 0]])
+
+
+def _char_frame(x: np.ndarray, labels: list[str]) -> Rotation:
+    """SPEC §2 character frame written out independently: columns left, up, forward in the Z-up lab."""
+    left = x[:, labels.index("PEL_L")] - x[:, labels.index("PEL_R")]
+    left = left.astype(float)
+    left[:, 2] = 0.0
+    left /= np.linalg.norm(left, axis=1, keepdims=True)
+    up = np.zeros_like(left)
+    up[:, 2] = 1.0
+    return Rotation.from_matrix(np.stack([left, up, np.cross(left, up)], axis=2))
+
+
+def _tri_frame(p: np.ndarray) -> Rotation:
+    """Gram–Schmidt frame of a marker triangle (T, 3, 3) (SPEC §3.3, three markers)."""
+    e1 = p[:, 1] - p[:, 0]
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    nrm = np.cross(e1, p[:, 2] - p[:, 0])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return Rotation.from_matrix(np.stack([e1, np.cross(nrm, e1), nrm], axis=2))
+
+
+def test_same_seed_gives_identical_bytes(session: Path, tmp_path: Path) -> None:
+    again = generate_session(tmp_path / "again", seed=7, config=SMALL)
+    a, b = _files(session), _files(again)
+    assert sorted(a) == sorted(b)
+    assert [k for k in a if a[k] != b[k]] == []
+    other = _files(generate_session(tmp_path / "other", seed=8, config=SMALL))
+    assert other["mocap/follow_standing_01.c3d"] != a["mocap/follow_standing_01.c3d"]
+
+
+def test_tomls_parse_and_reference_existing_files(session: Path, takes: list[dict]) -> None:
+    doc = tomllib.loads((session / "session.toml").read_text())
+    assert doc["schema"] == 1
+    ms = tomllib.loads((session / doc["session"]["markerset"]).read_text())
+    assert ms["up_axis"] == "z" and ms["root"] == "SACR" and ms["target"] == "POLE"
+    assert ms["clapper"] == ["CLAP1", "CLAP2"] and ms["head_centre"] == "HEADC"
+    names = list(ms["segments"])
+    assert names[0] == "pelvis" and names[-1] == "head" and len(names) == 10
+    assert "parent" not in ms["segments"]["pelvis"]
+    assert [ms["segments"][n]["parent"] for n in names[1:]] == names[:-1]
+    assert ms["segments"]["pelvis"]["markers"][:2] == ["PEL_L", "PEL_R"]
+    assert set(ms["lod"]["segments"]) <= set(names)
+    assert "camera" not in ms
+    kinds = [t["kind"] for t in takes]
+    assert kinds.count("gaze_follow") == 2 and kinds.count("gaze_shift") == 3 and kinds.count("neutral") == 1
+    assert len({t["id"] for t in takes}) == len(takes)
+    for t in takes:
+        assert (session / t["mocap"]).is_file()
+        assert (session / "truth" / f"{t['id']}.npz").is_file()
+        if t["kind"] == "gaze_shift":
+            assert set(t["target"]) == {"yaw_deg", "pitch_deg"}
+    seg_markers = {m for s in ms["segments"].values() for m in s["markers"]}
+    labels = load_truth(session, "follow_standing_01")["labels"]
+    assert seg_markers | {"SACR", "HEADC", "POLE", "CLAP1", "CLAP2"} == set(labels)
+
+
+def test_c3d_reads_back_as_noisy_truth_with_gaps(session: Path, takes: list[dict]) -> None:
+    for t in takes:
+        path = session / t["mocap"]
+        truth = load_truth(session, t["id"])
+        c = ezc3d.c3d(str(path))
+        assert abs(c["parameters"]["POINT"]["RATE"]["value"][0] - RATE) < 1e-3
+        assert c["parameters"]["POINT"]["UNITS"]["value"] == ["mm"]
+        assert c["parameters"]["POINT"]["SCALE"]["value"][0] < 0          # float storage
+        assert list(c["parameters"]["POINT"]["LABELS"]["value"]) == truth["labels"]
+        assert struct.unpack("<H", path.read_bytes()[6:8])[0] == 1          # header: first frame 1
+        xyz = np.transpose(c["data"]["points"][:3], (2, 1, 0))
+        gap = truth["gap_mask"]
+        assert xyz.shape == truth["markers_true"].shape
+        assert np.array_equal(np.isnan(xyz).any(axis=2), gap)       # ezc3d turns residual −1 into NaN
+        with open(path, "rb") as fh:                                   # raw samples: 0, 0, 0 and residual −1
+            raw = np.stack([p for _, p, _ in c3d.Reader(fh).read_frames()])
+        assert np.array_equal(raw[:, :, 3] < 0, gap)
+        assert np.all(raw[:, :, :3][gap] == 0.0)
+        err = (xyz - truth["markers_true"])[~gap]
+        assert np.all(np.abs(err) < 3.5)
+        assert 0.4 < err.std() < 0.6
+        # the gap list is the run-length form of the mask
+        rebuilt = np.zeros_like(gap)
+        for m, a, b in truth["gaps"]:
+            rebuilt[a:b, m] = True
+        assert np.array_equal(rebuilt, gap)
+
+
+def test_gaps_obey_the_rules(session: Path, takes: list[dict]) -> None:
+    lengths = []
+    for t in takes:
+        tr = load_truth(session, t["id"])
+        labels, gaps = tr["labels"], tr["gaps"]
+        n = tr["gap_mask"].shape[0]
+        for m, a, b in gaps:
+            if labels[m] in ("SACR", "PEL_L", "PEL_R", "PEL_B"):
+                assert b - a <= 3
+            if labels[m].startswith("CLAP"):
+                for tc in tr["clap_times_s"]:
+                    assert b / RATE < tc - 1.0 or a / RATE > tc + 0.5
+        if t["kind"] == "gaze_follow":
+            lengths.extend((gaps[:, 2] - gaps[:, 1]).tolist())
+            assert (gaps[:, 1] == 0).any() and (gaps[:, 2] == n).any()
+    lengths = np.array(lengths)
+    for lo, hi in ((1, 5), (6, 15), (16, 30), (31, 90)):
+        assert ((lengths >= lo) & (lengths <= hi)).any()
+    assert (lengths > RATE).any()
+
+
+def test_clusters_are_rigid_and_not_mirrored(session: Path) -> None:
+    ms = tomllib.loads((session / "markerset.toml").read_text())
+    tr = load_truth(session, "follow_standing_01")
+    x, labels = tr["markers_true"].astype(float), tr["labels"]
+    for name, seg in ms["segments"].items():
+        cols = [labels.index(m) for m in seg["markers"]]
+        p = x[:, cols]
+        d = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=3)
+        assert np.abs(d - d[0]).max() < 2e-3
+        if len(cols) == 3 and name != "pelvis":      # spine and neck triangles: 60–120 mm sides
+            sides = d[0][np.triu_indices(3, 1)]
+            assert sides.min() >= 59.0 and sides.max() <= 121.0
+    c = _char_frame(x, labels)
+    assert np.allclose(np.linalg.det(c.as_matrix()), 1.0)
+    # neutral heading: forward is the lab +Y turned 35° about +Z, so the lab frame is not the character frame
+    fwd = c[0].apply([0.0, 0.0, 1.0])
+    assert np.allclose(fwd, [-np.sin(np.deg2rad(35)), np.cos(np.deg2rad(35)), 0.0], atol=1e-5)
+    # the subject's left markers are on +X of the character frame, the head above the pelvis
+    rel = c[0].inv().apply(x[0] - x[0, labels.index("SACR")])
+    assert rel[labels.index("HFL"), 0] > 0 > rel[labels.index("HFR"), 0]
+    assert rel[labels.index("HEADC"), 1] > 500.0 and rel[labels.index("HEADC"), 2] > 100.0
+
+
+def test_segment_rotations_match_the_markers(session: Path, takes: list[dict]) -> None:
+    ms = tomllib.loads((session / "markerset.toml").read_text())
+    for t in takes:
+        tr = load_truth(session, t["id"])
+        x, labels = tr["markers_true"].astype(float), tr["labels"]
+        c = _char_frame(x, labels)
+        q = tr["seg_quat_char"]
+        r0 = tr["rest_periods"][0]
+        assert r0[0] == 0
+        still = min(r0[1], int(tr["scalars"]["design"].get("rest1_s", 1e9) * RATE))
+        for k, name in enumerate(tr["segments"]):
+            rot = _rot(q[:, k])
+            assert rot[:still].magnitude().max() < 1e-6          # identity in the neutral pose, first rest
+            assert rot[:r0[1]].magnitude().max() < np.deg2rad(0.5)   # the rest's tail: barely moving
+            cols = [labels.index(m) for m in ms["segments"][name]["markers"][:3]]
+            m = _tri_frame(x[:, cols])
+            calib = c.inv() * m * m[0].inv() * c[0]
+            assert (calib * rot.inv()).magnitude().max() < 1e-4
+            parent = ms["segments"][name].get("parent")
+            if parent:
+                loc = _rot(q[:, tr["segments"].index(parent)]).inv() * rot
+                assert (loc * _rot(tr["seg_quat_local"][:, k]).inv()).magnitude().max() < 1e-5
+        hc = c.inv().apply(x[:, labels.index("HEADC")] - x[:, labels.index("SACR")])
+        assert np.abs(hc - tr["head_centre_char"]).max() < 1e-2
+        head = _rot(q[:, tr["segments"].index("head")])
+        assert np.abs(head.apply(tr["eye_dir_head"]) - tr["eye_dir_char"]).max() < 1e-5
+
+
+def test_follow_targets_and_eyes(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_follow"):
+        tr = load_truth(session, t["id"])
+        x, labels = tr["markers_true"].astype(float), tr["labels"]
+        c = _char_frame(x, labels)
+        v = c.inv().apply(x[:, labels.index("POLE")] - x[:, labels.index("HEADC")])
+        assert np.abs(v / np.linalg.norm(v, axis=1, keepdims=True) - tr["target_dir_char"]).max() < 1e-5
+        assert np.min(np.linalg.norm(v, axis=1)) > 790.0
+        # still at the end, fixating the pole: eye and target directions agree
+        last = tr["rest_periods"][-1]
+        cos = np.sum(tr["eye_dir_char"][last[0]:] * tr["target_dir_char"][last[0]:], axis=1)
+        assert np.rad2deg(np.arccos(np.clip(cos.min(), -1, 1))) < 0.5
+        # while moving, the eyes lag the target by a human reaction time: some error, but bounded on average
+        a, b = tr["crop"]
+        ang = np.rad2deg(np.arccos(np.clip(np.sum(tr["eye_dir_char"][a:b] * tr["target_dir_char"][a:b], 1), -1, 1)))
+        assert 0.5 < np.median(ang) < 20.0
+        assert len(tr["clap_times_s"]) == 2
+
+
+def test_claps_close_fast_and_stay_shut(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_follow"):
+        tr = load_truth(session, t["id"])
+        x, labels = tr["markers_true"].astype(float), tr["labels"]
+        d = np.linalg.norm(x[:, labels.index("CLAP1")] - x[:, labels.index("CLAP2")], axis=1)
+        rests = tr["rest_periods"]
+        tc1, tc2 = tr["clap_times_s"]
+        assert rests[0, 0] / RATE < tc1 < rests[0, 1] / RATE - 0.5
+        assert rests[-1, 0] / RATE < tc2 < rests[-1, 1] / RATE - 0.5
+        for tc in (tc1, tc2):
+            after = int(np.ceil(tc * RATE))
+            shut = d[after:after + int(0.5 * RATE)]
+            assert np.allclose(shut, shut[0], atol=1e-3) and 20.0 < shut[0] < 30.0
+            assert d[after - 1] > shut[0]                   # the frame before contact is still open
+            assert d[int(np.floor((tc - 0.1) * RATE))] > 60.0    # 100 ms before, it is well open
+            assert 120.0 < d[int((tc - 0.4) * RATE)] < 180.0     # opened wide before closing
+
+
+def test_shift_eyes_reach_the_requested_direction(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_shift"):
+        tr = load_truth(session, t["id"])
+        yaw, pitch = np.deg2rad(t["target"]["yaw_deg"]), np.deg2rad(t["target"]["pitch_deg"])
+        c = _char_frame(tr["markers_true"].astype(float), tr["labels"])
+        c0, c1 = tr["crop"]
+        assert c1 == len(c) and 0 < c0 < c1
+        want = Rotation.from_euler("YX", [yaw, -pitch]).apply([0.0, 0.0, 1.0])
+        got = (c[c0].inv() * c[c1 - 1]).apply(tr["eye_dir_char"][c1 - 1])
+        assert np.abs(got - want).max() < 1e-5
+        assert np.sign(got[0]) == np.sign(yaw)        # positive yaw is toward the character's left (+X)
+        s = tr["scalars"]
+        assert 0.3 < s["l_s"] < 2.0 and 0.0 < s["t_beta_frac"] < 1.0 and 0.0 < s["beta"] < 0.4
+        # P+ of the eyes composed with the head's displacement gives the requested change
+        head = tr["segments"].index("head")
+        q = _rot(tr["seg_quat_char"][:, head])
+        fix = c[c0].inv() * c                       # per-frame character frame -> frame fixed at c0
+        d_head = (fix[c1 - 1] * q[c1 - 1]) * (fix[c0] * q[c0]).inv()
+        eyes = _rot(s["p_plus"]["eyes"])
+        assert np.abs((d_head * eyes).apply([0, 0, 1.0]) - want).max() < 1e-5
+        assert s["design"]["onset_s"] == sorted(s["design"]["onset_s"], reverse=True)
+
+
+def test_neutral_take_is_still(session: Path) -> None:
+    tr = load_truth(session, "neutral")
+    assert tr["rest_periods"].tolist() == [[0, tr["gap_mask"].shape[0]]]
+    assert _rot(tr["seg_quat_char"].reshape(-1, 4)).magnitude().max() < 1e-5
+    assert np.ptp(tr["markers_true"], axis=0).max() < 1e-3
