@@ -228,3 +228,10 @@ def test_bad_input_is_one_line_input_error(tmp_path):
         assert str(path) in msg, msg
         if column:
             assert column in msg, msg
+
+
+def test_zero_timestamp_steps_are_reported(tmp_path):
+    cols = _frame_rows(6)
+    cols["timestamp"] = np.zeros(6)
+    tr = read_openface(_write(tmp_path / "z.csv", cols))
+    assert any("5 timestamp step(s) of zero" in w for w in tr.warnings)

@@ -58,8 +58,7 @@ def parse_timecodes(timecode: np.ndarray, timecode_fps: float, *, path: str | Pa
         r = int(np.flatnonzero(out)[0])
         raise InputError(path, f"{_WHAT}: timecode {s.iloc[r]!r} in data row {r + 1} is out of range "
                                f"(FF counts {nominal} frames a second)", key=key)
-    frac = parts[4].fillna("0")
-    subframe = frac.str.len().rpow(10.0).rdiv(frac.astype(np.int64)).to_numpy(dtype=np.float64)
+    subframe = ("0." + parts[4].fillna("0")).astype(np.float64).to_numpy()
     tc_frame = ((hh * 60 + mm) * 60 + ss) * nominal + ff
     warnings: list[str] = []
     if tc_frame.size > 1:

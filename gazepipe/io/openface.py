@@ -79,6 +79,10 @@ def read_openface(path: str | Path) -> EyeTrack:
         r = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 2
         raise InputError(path, f"{what}: timestamps go backwards at data row {r}", key="timestamp")
 
+    flat = int(np.count_nonzero(np.diff(time_s) == 0))
+    if flat:
+        warnings.append(f"{flat} timestamp step(s) of zero (image sequence or broken video clock?)")
+
     success = cols["success"] >= 0.5
     n_fail = int((~success).sum())
     if n_fail:

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -146,7 +147,7 @@ def read_header(path: Path) -> list[str]:
     return [c.strip() for c in next(csv.reader([first]))]
 
 
-def read_columns(path: str | Path, required: list[str], optional: list[str] = (), *,
+def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[str] = (), *,
                  text: tuple[str, ...] = (), what: str = "CSV") -> tuple[dict[str, np.ndarray], list[str]]:
     """Read named columns of a numeric CSV whose names and values may be padded with spaces.
 
