@@ -35,6 +35,12 @@ class UnitContext:
     params: dict[str, Any]
     out_dir: Path
     loader: Callable[[str, str, str], pa.Table]
+    all_params: dict[str, Any] = field(default_factory=dict)
+
+    def params_of(self, stage: str) -> dict[str, Any]:
+        """Another stage's parameter values (defaults overridden), for a stage that repeats its work."""
+        st = get(stage)
+        return {k: self.all_params.get(f"{stage}.{k}", v) for k, v in st.params.items()}
 
     def load(self, table: str, take_id: str | None = None) -> pa.Table:
         """Read an upstream table of this take (or of ``take_id`` in the same session), schema-checked."""

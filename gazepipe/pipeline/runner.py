@@ -184,7 +184,8 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
 
 def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> UnitOutcome:
     t0 = time.perf_counter()
-    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout))
+    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout),
+                      job.params)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
                               "fingerprint": plan.fingerprint, "components": plan.components,
                               "gazepipe_version": __version__}

@@ -6,11 +6,18 @@ files it reads (through :mod:`gazepipe.io`), which upstream tables it loads and 
 
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
+
 from gazepipe.io.capture import read_markers
 from gazepipe.io.session_toml import check_capture_labels
-from gazepipe.model import Session, Take
+from gazepipe.model import Markers, Session, Take
 from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register
-from gazepipe.schemas.markers import MARKERS_RAW, markers_to_table
+from gazepipe.schemas.joints import joints_schema, joints_to_table
+from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
+from gazepipe.stages.clean import CleanParams, clean_markers
+from gazepipe.stages.frames import FramesParams, compute_frames
 
 
 def _has_mocap(session: Session, take: Take) -> bool:
@@ -34,18 +41,24 @@ def _required_markers(ms, take: Take) -> list[str]:
     return names
 
 
+def _renamed(labels: list[str], mapping: dict[str, int]) -> list[str]:
+    """Capture labels with the markerset's names where they differ only by a Vicon ``Subject:`` prefix."""
+    new = list(labels)
+    for name, i in mapping.items():
+        new[i] = name
+    return new if len(set(new)) == len(new) else list(labels)
+
+
 def run_ingest(ctx: UnitContext) -> UnitResult:
     take, ms = ctx.take, ctx.session.markerset
     markers = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
     meta: dict = {}
     if ms is not None:
         mapping = check_capture_labels(ms, markers.labels, take.mocap, take.id, required=_required_markers(ms, take))
-        renamed = {markers.labels[i]: name for name, i in mapping.items() if markers.labels[i] != name}
-        if renamed:
-            labels = [renamed.get(lab, lab) for lab in markers.labels]
-            if len(set(labels)) == len(labels):
-                markers.labels = labels
-                meta["renamed_labels"] = renamed
+        labels = _renamed(markers.labels, mapping)
+        if labels != markers.labels:
+            meta["renamed_labels"] = {a: b for a, b in zip(markers.labels, labels, strict=True) if a != b}
+            markers.labels = labels
     gap = markers.gap_fraction()
     qc = {
         "frames": markers.n_frames, "rate_hz": markers.rate_hz, "first_frame": markers.first_frame,
@@ -63,4 +76,108 @@ register(Stage(
     sources=lambda s, t: [t.mocap, *_markerset_file(s)],
     run=run_ingest,
     help="read the take's capture files into canonical tables",
+))
+
+
+# ------------------------------------------------------------------------------------------------- clean
+
+def _params_of(cls) -> dict:
+    """A stage's parameter defaults from its parameters dataclass (tuples as lists, JSON-able)."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        v = getattr(cls(), f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def _build(cls, values: dict):
+    kw = {}
+    for f in dataclasses.fields(cls):
+        if f.name in values:
+            v = values[f.name]
+            kw[f.name] = tuple(v) if isinstance(v, list) else v
+    return cls(**kw)
+
+
+def _subject_take(session: Session, take: Take) -> bool:
+    return take.mocap is not None and session.markerset is not None and take.kind != "face"
+
+
+def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tuple[Markers, np.ndarray, dict]:
+    markers, frames, _, meta = table_to_markers(ctx.load(name, take_id))
+    return markers, frames, meta
+
+
+def run_clean(ctx: UnitContext) -> UnitResult:
+    raw, _, _ = _load_markers(ctx, "markers_raw")
+    res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
+                        path=ctx.take.mocap, take=ctx.take.id)
+    kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)
+    meta = {"crop": list(res.crop), "rests": [list(r) for r in res.rests], "stabilised": True}
+    tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, meta=meta),
+                          MARKERS_CLEAN)}
+    if res.neutral is not None:
+        a, b = res.rests[0]
+        neutral = dataclasses.replace(res.neutral, first_frame=raw.first_frame)
+        tables["neutral"] = (markers_to_table(neutral, frames=np.arange(a, b), meta={"rest": [a, b]}), MARKERS_RAW)
+    else:
+        empty = dataclasses.replace(raw, xyz=raw.xyz[:0], valid=raw.valid[:0])
+        tables["neutral"] = (markers_to_table(empty, meta={"rest": None}), MARKERS_RAW)
+    qc = dict(res.qc)
+    return UnitResult(tables=tables, qc=qc, warnings=list(qc.get("warnings", [])))
+
+
+register(Stage(
+    name="clean", version="1", requires=("ingest",), params=_params_of(CleanParams),
+    outputs=("markers", "neutral"), applies=_subject_take,
+    sources=lambda s, t: _markerset_file(s),
+    run=run_clean,
+    help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
+))
+
+
+# ------------------------------------------------------------------------------------------------ frames
+
+def _neutral_take(session: Session) -> Take | None:
+    return next((t for t in session.takes if t.kind == "neutral" and t.mocap), None)
+
+
+def _frames_take(session: Session, take: Take) -> bool:
+    return _subject_take(session, take) and take.kind in ("gaze_follow", "gaze_shift")
+
+
+def run_frames(ctx: UnitContext) -> UnitResult:
+    ms = ctx.session.markerset
+    markers, frames, _ = _load_markers(ctx, "markers")
+    markers = dataclasses.replace(markers, first_frame=markers.first_frame)
+    neutral_take = _neutral_take(ctx.session)
+    if neutral_take is not None:
+        # the neutral take is cleaned here again (it is short) so takes never wait on each other
+        raw = read_markers(neutral_take.mocap, rate_hz=neutral_take.rate_hz, default_units=ms.units)
+        mapping = check_capture_labels(ms, raw.labels, neutral_take.mocap, neutral_take.id,
+                                       required=_required_markers(ms, neutral_take))
+        raw.labels = _renamed(raw.labels, mapping)
+        clean_params = _build(CleanParams, ctx.params_of("clean"))
+        neutral = clean_markers(raw, ms, "neutral", clean_params, path=neutral_take.mocap,
+                                take=neutral_take.id).markers
+        source = f"neutral take {neutral_take.id}"
+    else:
+        neutral, nframes, nmeta = _load_markers(ctx, "neutral")
+        neutral = None if neutral.n_frames == 0 else neutral
+        source = f"first rest period {nmeta.get('rest')}"
+    joints = compute_frames(markers, ms, neutral, _build(FramesParams, ctx.params), path=ctx.take.mocap,
+                            take=ctx.take.id)
+    qc = dict(joints.qc)
+    qc["neutral_source"] = source
+    table = joints_to_table(joints, frames, meta={"neutral_source": source})
+    return UnitResult(tables={"joints": (table, joints_schema(len(joints.segments)))}, qc=qc,
+                      warnings=list(qc.get("warnings", [])))
+
+
+register(Stage(
+    name="frames", version="1", requires=("clean",), params=_params_of(FramesParams),
+    outputs=("joints",), applies=_frames_take,
+    sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
+    run=run_frames,
+    help="segment orientations in the character frame, head centre, target direction",
 ))
