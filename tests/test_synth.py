@@ -257,3 +257,89 @@ def test_neutral_take_is_still(session: Path) -> None:
     assert tr["rest_periods"].tolist() == [[0, tr["gap_mask"].shape[0]]]
     assert _rot(tr["seg_quat_char"].reshape(-1, 4)).magnitude().max() < 1e-5
     assert np.ptp(tr["markers_true"], axis=0).max() < 1e-3
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.rad2deg(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+
+
+def test_follow_eyes_lead_the_head(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_follow"):
+        tr = load_truth(session, t["id"])
+        a, b = tr["crop"]
+        head_fwd = _rot(tr["seg_quat_char"][a:b, tr["segments"].index("head")]).apply([0.0, 0.0, 1.0])
+        eye_err = _angle_deg(tr["eye_dir_char"][a:b], tr["target_dir_char"][a:b])
+        head_err = _angle_deg(head_fwd, tr["target_dir_char"][a:b])
+        assert np.median(eye_err) < 0.5 * np.median(head_err)
+        # eyes stay inside their 45° range in the head
+        assert _angle_deg(tr["eye_dir_head"], np.array([0.0, 0.0, 1.0])).max() < 45.0 + 1e-3
+        # per-eye directions converge on the fixation point: the left eye (+X) looks a little to the right
+        head = _rot(tr["seg_quat_char"][:, tr["segments"].index("head")]).inv()
+        left_x = head.apply(tr["eye_left_dir_char"])[:, 0]
+        right_x = head.apply(tr["eye_right_dir_char"])[:, 0]
+        assert np.median(left_x - tr["eye_dir_head"][:, 0]) < 0 < np.median(right_x - tr["eye_dir_head"][:, 0])
+        assert np.all(_angle_deg(tr["eye_left_dir_char"], tr["eye_dir_char"]) < 5.0)
+
+
+def test_rests_follow_the_spec_rule(session: Path, takes: list[dict]) -> None:
+    """Rests recomputed here with a plain loop over frames (SPEC §3.2 on noise-free positions)."""
+    for t in takes[:3]:
+        tr = load_truth(session, t["id"])
+        subj = [i for i, lab in enumerate(tr["labels"]) if lab != "POLE" and not lab.startswith("CLAP")]
+        x = tr["markers_true"][:, subj].astype(float)
+        v = np.gradient(x, axis=0) * RATE
+        still = np.linalg.norm(v, axis=2).mean(axis=1) < 6.0
+        runs: list[list[int]] = []
+        for i, s in enumerate(still):
+            if s and runs and runs[-1][1] == i:
+                runs[-1][1] = i + 1
+            elif s:
+                runs.append([i, i + 1])
+        merged: list[list[int]] = []
+        for r in runs:
+            if merged and (r[0] - merged[-1][1]) < RATE / 6.0:
+                merged[-1][1] = r[1]
+            else:
+                merged.append(r)
+        expect = [r for r in merged if r[1] - r[0] >= 0.25 * RATE]
+        assert tr["rest_periods"].tolist() == expect
+        if t["kind"] == "gaze_follow":
+            assert tr["crop"].tolist() == [expect[0][1], expect[-1][0]]
+
+
+def test_shift_cascade_is_measurable(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_shift" and abs(t["target"]["yaw_deg"]) > 60):
+        sf = load_truth(session, t["id"])["scalars"]["start_frac"]
+        assert 0.0 < sf["chest"] < sf["pelvis"] < 1.0
+
+
+def test_modality_writers_plug_in(tmp_path: Path) -> None:
+    seen = []
+
+    def eyes_writer(session_dir: Path, take) -> dict:
+        if take.kind != "gaze_follow":
+            return {}
+        rel = f"eyes/{take.id}.csv"
+        (session_dir / "eyes").mkdir(exist_ok=True)
+        (session_dir / rel).write_text("frame\n")
+        seen.append((take.id, take.truth_arrays["eye_dir_head"].shape, take.camera_to_head.as_quat().shape))
+        take.truth_scalars["eyes_rows"] = 1
+        return {"eyes": rel}
+
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=12.0, shift_targets=(), neutral_s=0.0)
+    out = generate_session(tmp_path / "w", seed=1, config=cfg, writers=[eyes_writer])
+    (take,) = tomllib.loads((out / "session.toml").read_text())["takes"]
+    assert take["eyes"] == "eyes/follow_standing_01.csv" and (out / take["eyes"]).is_file()
+    assert load_truth(out, take["id"])["scalars"]["eyes_rows"] == 1
+    assert seen[0][2] == (4,)
+
+
+def test_module_entry_writes_the_default_session(tmp_path: Path) -> None:
+    from gazepipe.synth.__main__ import main
+
+    assert main([str(tmp_path / "s"), "--seed", "3"]) == 0
+    doc = tomllib.loads((tmp_path / "s" / "session.toml").read_text())
+    kinds = [t["kind"] for t in doc["takes"]]
+    assert kinds.count("gaze_follow") == 3 and kinds.count("gaze_shift") >= 8 and "neutral" in kinds
+    assert sum(t["target"]["yaw_deg"] < 0 for t in doc["takes"] if "target" in t) >= 3
+    assert load_truth(tmp_path / "s", "neutral")["session"]["seed"] == 3

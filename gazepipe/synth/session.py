@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from gazepipe.synth.markers import Kinematics, build_kinematics, gap_runs, make_gaps
 from gazepipe.synth.motion import TakeMotion, follow_motion, neutral_motion, shift_motion
@@ -54,6 +55,20 @@ class SynthConfig:
     placement: Placement = field(default_factory=Placement)
 
 
+#: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
+KLEIN_POSE_SECONDS: dict[str, float] = {"standing": 633.33, "sitting": 633.33, "laying": 280.0, "walking": 480.0}
+
+
+def klein_config(scale: float = 1.0, take_s: float = 60.0, seed_session: str = "klein") -> SynthConfig:
+    """A gaze_follow corpus the size of Klein's (Table 1) times ``scale``: per pose, enough ``take_s`` takes to
+    cover its share. Poses without a motion profile of their own (laying, walking) move like standing."""
+    poses: list[str] = []
+    for pose, secs in KLEIN_POSE_SECONDS.items():
+        poses.extend([pose] * max(1, int(round(secs * scale / take_s))))
+    return SynthConfig(follow_poses=tuple(poses), follow_duration_s=take_s, shift_targets=(), neutral_s=4.0,
+                       session_id=seed_session)
+
+
 @dataclass
 class TakeRecord:
     """Everything known about one generated take; handed to every modality writer."""
@@ -68,6 +83,7 @@ class TakeRecord:
     truth_arrays: dict[str, np.ndarray]
     truth_scalars: dict[str, Any]
     rng: np.random.Generator          # a stream of its own, for the writer's noise
+    camera_to_head: Rotation          # true head-camera rotation, v_head = R · v_cam
     entries: dict[str, Any] = field(default_factory=dict)   # the take's session.toml keys
 
 
@@ -194,7 +210,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
         if target is not None:
             entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
-        rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, entries)
+        rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, cam, entries)
         for w in writers:
             rec.entries.update(w(out, rec))
         write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
