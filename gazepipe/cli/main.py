@@ -10,6 +10,7 @@ import click
 
 from gazepipe import __version__
 from gazepipe.cli.common import handle_errors, load_sessions, parse_params, run_options
+from gazepipe.errors import ConfigError
 
 EPILOG = """\b
 Exit codes: 0 ok; 1 a take failed (the others finished); 2 usage or configuration
@@ -75,6 +76,72 @@ _stage_command("run", None, "Run every stage on every take of SESSIONS (folders 
                "Incremental: units whose inputs, parameters and code are unchanged are skipped.")
 _stage_command("ingest", "ingest", "Read every take's capture files into canonical per-take tables "
                "(OUT/takes/<session>/<take>/markers_raw.parquet).")
+_stage_command("clean", "frames", "Ingest, then clean the markers (spikes, gap filling, stabilisation, rest "
+               "cropping) and compute segment frames (markers.parquet, joints.parquet).")
+
+
+@cli.command(epilog=EPILOG)
+@click.argument("out", type=click.Path(exists=True, file_okay=False))
+@click.argument("take")
+@click.option("--session", default=None, help="Session id (needed only when OUT holds several sessions).")
+@click.option("--to", "dest", required=True, type=click.Path(dir_okay=False),
+              help="File to write: .c3d or .csv (a plain wide CSV).")
+@click.option("--table", type=click.Choice(["markers", "markers_raw"]), default="markers", show_default=True,
+              help="Cleaned (stabilised, cropped) or raw markers.")
+@handle_errors
+def export(out: str, take: str, session: str | None, dest: str, table: str) -> None:
+    """Export a take's markers to C3D or CSV to look at them in your usual viewer.
+
+    Unfilled samples are written as gaps (C3D residual -1, empty CSV cells).
+    """
+    from gazepipe.io.export import export_markers
+
+    path, n = export_markers(Path(out), take, session, Path(dest), table)
+    click.echo(f"wrote {path} ({n} frames)")
+
+
+@cli.command(epilog=EPILOG)
+@click.argument("src", metavar="IN", type=click.Path())
+@click.argument("dest", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--max-gap-s", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              help="Longest gap to fill, in seconds; longer gaps stay gaps.")
+@click.option("--rate-hz", type=float, default=None, help="Rate for CSV files that do not carry one.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+@handle_errors
+def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: bool) -> None:
+    """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
+
+    Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
+    fill, chosen by hiding known samples next to it. OUT is written in the input's format (.c3d in, .c3d out;
+    a text export in, a wide .csv out) with the gaps it could not fill left as gaps.
+
+    \b
+      gazepipe fill walk.c3d walk_filled.c3d
+      gazepipe fill trial.csv trial_filled.csv --max-gap-s 0.5 --json
+    """
+    from gazepipe.io.capture import read_markers
+    from gazepipe.io.export import write_markers
+    from gazepipe.pipeline.atomic import atomic_path
+    from gazepipe.stages.standalone_fill import fill_capture
+
+    src_p, dest_p = Path(src), Path(dest)
+    want = ".c3d" if src_p.suffix.lower() == ".c3d" else ".csv"
+    if dest_p.suffix.lower() != want:
+        raise ConfigError(dest, f"OUT must be a {want} file like IN (the filler writes the input's format)")
+    markers = read_markers(src_p, rate_hz=rate_hz)
+    filled, summary = fill_capture(markers, max_gap_s=max_gap_s)
+    with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
+        write_markers(tmp, filled)
+    summary = {"input": str(src_p), "output": str(dest_p), **summary}
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    s, g = summary["samples"], summary["gaps"]
+    click.echo(f"{dest_p}: {g['filled']} of {g['total']} gaps filled "
+               f"({', '.join(f'{s[k]} {k}' for k in ('rigid', 'pca', 'pchip', 'linear'))} samples); "
+               f"{g['unfilled']} gaps ({s['unfilled']} samples) left as gaps")
+    if summary["clusters"]:
+        click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 
 
 @cli.command(epilog=EPILOG)

@@ -28,16 +28,17 @@ def _fsync_dir(path: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_path(final: str | Path, tmp_dir: str | Path) -> Iterator[Path]:
+def atomic_path(final: str | Path, tmp_dir: str | Path, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path to write; on success it is fsynced and renamed to ``final``.
 
     ``tmp_dir`` must be on the same file system as ``final`` (it lives under the output folder). On any
-    exception the temporary file is removed and ``final`` is untouched.
+    exception the temporary file is removed and ``final`` is untouched. ``suffix`` ends the temporary name, for
+    writers that look at the extension.
     """
     final = Path(final)
     tmp_dir = Path(tmp_dir)
     tmp_dir.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_dir / f"{final.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part"
+    tmp = tmp_dir / f".{final.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part{suffix}"
     try:
         yield tmp
         with open(tmp, "rb+") as fh:
@@ -63,7 +64,7 @@ def clear_stale_temporaries(tmp_dir: str | Path) -> int:
     d = Path(tmp_dir)
     if d.is_dir():
         for p in d.iterdir():
-            if p.name.endswith(".part"):
+            if ".part" in p.name:
                 with contextlib.suppress(OSError):
                     p.unlink()
                     n += 1

@@ -11,12 +11,16 @@ import dataclasses
 import numpy as np
 
 from gazepipe.io.capture import read_markers
+from gazepipe.io.livelinkface import read_livelinkface
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
 from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register
+from gazepipe.schemas.face_table import face_to_table
 from gazepipe.schemas.joints import joints_schema, joints_to_table
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
+from gazepipe.schemas.tracks import face_schema
 from gazepipe.stages.clean import CleanParams, clean_markers
+from gazepipe.stages.face import align_face
 from gazepipe.stages.frames import FramesParams, compute_frames
 
 
@@ -180,4 +184,31 @@ register(Stage(
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,
     help="segment orientations in the character frame, head centre, target direction",
+))
+
+
+# -------------------------------------------------------------------------------------------------- face
+
+def _face_take(session: Session, take: Take) -> bool:
+    return take.kind == "face" and take.tracked is not None and take.clean is not None
+
+
+def run_face(ctx: UnitContext) -> UnitResult:
+    take = ctx.take
+    tracked = read_livelinkface(take.tracked, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
+    clean = read_livelinkface(take.clean, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
+    aligned = align_face(tracked, clean, k=int(ctx.params["k"]))
+    qc = dict(aligned.qc)
+    warnings = [f"tracked: {w}" for w in tracked.warnings] + [f"clean: {w}" for w in clean.warnings]
+    qc["warnings"] = warnings
+    table = face_to_table(aligned, meta={"rate_hz": tracked.rate_hz, "timecode_fps": take.timecode_fps})
+    return UnitResult(tables={"face": (table, face_schema(aligned.k))}, qc=qc, warnings=warnings)
+
+
+register(Stage(
+    name="face", version="1", requires=(), params={"k": 1},
+    outputs=("face",), applies=_face_take,
+    sources=lambda s, t: [t.tracked, t.clean],
+    run=run_face,
+    help="tracked and clean Live Link Face tracks aligned on timecode, dt and derivatives",
 ))
