@@ -307,6 +307,21 @@ def test_rests_follow_the_spec_rule(session: Path, takes: list[dict]) -> None:
             assert tr["crop"].tolist() == [expect[0][1], expect[-1][0]]
 
 
+def test_shift_overshoot_rule_recovers_the_design(session: Path, takes: list[dict]) -> None:
+    for t in (t for t in takes if t["kind"] == "gaze_shift"):
+        s = load_truth(session, t["id"])["scalars"]
+        d, loc = s["design"], s["overshoot_head_local"]
+        c0 = s["crop"][0]
+        # the crop starts after the head began to move: the displacement counts from there
+        u = (c0 / RATE - d["onset_s"][-1]) / d["duration_s"] / d["u_beta"]
+        u = min(max(u, 0.0), 1.0)
+        p0 = (1.0 + d["beta"]) * u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
+        assert 0.0 <= p0 < 0.3
+        assert loc["beta"] == pytest.approx(d["beta"] / (1.0 - p0), abs=0.01)
+        assert loc["t_beta_frac"] * s["l_s"] + c0 / RATE == pytest.approx(d["t_beta_s"], abs=1.0 / RATE)
+        assert 0.0 <= s["beta"] <= d["beta"] + 0.01      # the head's global overshoot is damped by the chain
+
+
 def test_shift_cascade_is_measurable(session: Path, takes: list[dict]) -> None:
     for t in (t for t in takes if t["kind"] == "gaze_shift" and abs(t["target"]["yaw_deg"]) > 60):
         sf = load_truth(session, t["id"])["scalars"]["start_frac"]

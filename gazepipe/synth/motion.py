@@ -258,7 +258,6 @@ def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement,
     The eyes start first (saccade), then head, neck3 … neck1, chest, spine4 … spine1, pelvis, each after a
     known delay; every segment follows the same overshooting profile of duration ``D``.
     """
-    prof = _profile(pose)
     h = placement.h_lab
     floor = floor_point(placement, pose)
     eye_lab = floor + h.apply(neutral_eye_char())
@@ -270,14 +269,14 @@ def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement,
     body_pitch = 0.7 * pitch
     if abs(yaw_deg) <= 40.0:
         yaw_share = np.array([0.02, 0.03, 0.03, 0.03, 0.03, 0.06, 0.10, 0.10, 0.10, 0.50])
-    else:
-        yaw_share = np.asarray(prof["yaw_share"], dtype=float)
+    else:       # a large turn brings the hips and the chest round (Pejsa 5.1.1: the spine matters above 40°)
+        yaw_share = np.array([0.12, 0.03, 0.03, 0.03, 0.03, 0.10, 0.08, 0.08, 0.08, 0.42])
     pitch_share = np.array([0.0, 0.02, 0.02, 0.02, 0.02, 0.05, 0.10, 0.10, 0.10, 0.57])
     fin_yaw = yaw_share * body_yaw
     fin_pitch = pitch_share * body_pitch
 
     head_onset = float(rng.uniform(0.05, 0.1))
-    cascade = np.array([0.32, 0.27, 0.24, 0.21, 0.18, 0.15, 0.09, 0.06, 0.03, 0.0])
+    cascade = np.array([0.42, 0.38, 0.34, 0.30, 0.26, 0.22, 0.15, 0.10, 0.05, 0.0])
     onset = head_onset + cascade
     dur = 0.5 + 0.006 * amp + float(rng.uniform(0.0, 0.1))
     beta = 0.08 + 0.0012 * amp + float(rng.uniform(0.0, 0.05))

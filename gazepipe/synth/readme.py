@@ -81,7 +81,9 @@ yaw/pitch for gaze_shift), and for gaze_shift takes the SPEC 3.6 gaze_map quanti
   frames (t_beta_frame = the first frame with velocity <= 0); `beta` = theta(t_beta) / theta(last) - 1 with theta
   interpolated likewise. No sign change: t_beta_frac = 1, beta = 0. The design's beta (in `design`) is the
   overshoot of each segment's own profile; the measured head beta is smaller because the chain segments
-  overshoot at other times.
+  overshoot at other times. `overshoot_head_local` gives the same rule applied to the head's parent-relative
+  rotation instead (it recovers the design's t_beta_s to within a frame, and its beta once the part of the
+  rise before the crop's first frame is taken out: beta / (1 - profile(c0))).
 * `p_plus[segment]`: parent-relative displacement L(last) L(c0)^-1 over the crop (last = crop stop - 1), w,x,y,z;
   `p_plus.eyes` = D_head^T Ry(yaw) Rx(-pitch), so the eyes' global displacement equals the requested change.
 

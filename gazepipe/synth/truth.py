@@ -98,6 +98,29 @@ def _angular_speed(r: Rotation, rate_hz: float) -> np.ndarray:
     return w
 
 
+def _overshoot(rot: Rotation, c0: int, c1: int, rate_hz: float, l_s: float) -> tuple[float, float, int]:
+    """SPEC §3.6 overshoot of a rotation stack over the crop [c0, c1): (t_β as a fraction of l, β, frame).
+
+    θ(t) = rotvec(R(t)·R(c0)⁻¹) · n, n the unit axis of the final displacement; velocity by central
+    differences; the first + to − sign change inside the crop whose mean velocity over ``OVERSHOOT_WINDOW_S``
+    before is > 0 and after is < 0, placed by linear interpolation; β = θ(t_β)/θ(last) − 1.
+    Returns (1, 0, −1) when there is none.
+    """
+    last = c1 - 1
+    disp = rot * rot[c0].inv()
+    axis = disp[last].as_rotvec()
+    theta = disp.as_rotvec() @ (axis / max(np.linalg.norm(axis), 1e-12))
+    omega = np.gradient(theta) * rate_hz
+    win = max(1, int(round(OVERSHOOT_WINDOW_S * rate_hz)))
+    for i in range(max(c0 + 1, win), min(c1, len(omega) - win)):
+        if omega[i - 1] > 0 >= omega[i] and omega[i - win:i].mean() > 0 and omega[i:i + win].mean() < 0:
+            frac = omega[i - 1] / (omega[i - 1] - omega[i])
+            tc = (i - 1 + frac - c0) / rate_hz
+            th = theta[i - 1] + frac * (theta[i] - theta[i - 1])
+            return float(tc / l_s), float(th / theta[last] - 1.0), int(i)
+    return 1.0, 0.0, -1
+
+
 def gaze_map_truth(seg_fixed: list[Rotation], crop: tuple[int, int], rests: np.ndarray, rate_hz: float,
                    yaw_deg: float, pitch_deg: float) -> dict[str, Any]:
     """SPEC §3.6 gaze_map quantities from segment rotations in the character frame fixed at the crop's first
@@ -116,21 +139,12 @@ def gaze_map_truth(seg_fixed: list[Rotation], crop: tuple[int, int], rests: np.n
     eyes = d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg))
     p_plus.append(quat_wxyz(eyes)[0])
 
-    disp = seg_fixed[HEAD] * seg_fixed[HEAD][c0].inv()
-    axis = disp[last].as_rotvec()
-    theta = disp.as_rotvec() @ (axis / max(np.linalg.norm(axis), 1e-12))
-    omega = np.gradient(theta) * rate_hz
-    win = max(1, int(round(OVERSHOOT_WINDOW_S * rate_hz)))
-    t_beta, beta, t_beta_frame = 1.0, 0.0, -1
-    for i in range(max(c0 + 1, win), min(c1, len(omega) - win)):
-        if omega[i - 1] > 0 >= omega[i] and omega[i - win:i].mean() > 0 and omega[i:i + win].mean() < 0:
-            frac = omega[i - 1] / (omega[i - 1] - omega[i])
-            tc = (i - 1 + frac - c0) / rate_hz
-            th = theta[i - 1] + frac * (theta[i] - theta[i - 1])
-            t_beta, beta, t_beta_frame = tc / l_s, float(th / theta[last] - 1.0), i
-            break
+    t_beta, beta, t_beta_frame = _overshoot(seg_fixed[HEAD], c0, c1, rate_hz, l_s)
+    local_head = _overshoot(loc[HEAD], c0, c1, rate_hz, l_s)
     return {"l_s": l_s, "start_frac": dict(zip(SEGMENTS, start, strict=True)), "t_beta_frac": float(t_beta),
             "t_beta_frame": int(t_beta_frame), "beta": beta,
+            "overshoot_head_local": {"t_beta_frac": local_head[0], "beta": local_head[1],
+                                     "t_beta_frame": local_head[2]},
             "p_plus": {name: q.tolist() for name, q in zip((*SEGMENTS, "eyes"), p_plus, strict=True)}}
 
 
