@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy import signal
@@ -313,3 +315,92 @@ def test_deterministic():
     a = clean_markers(mk, markerset(), "gaze_shift", CleanParams(remove_spikes=False, lowpass_hz=8.0))
     b = clean_markers(mk, markerset(), "gaze_shift", CleanParams(remove_spikes=False, lowpass_hz=8.0))
     assert a.markers.xyz.tobytes() == b.markers.xyz.tobytes() and a.crop == b.crop
+
+
+# ------------------------------------------------------------------------------------------------ gaps, spikes
+
+def test_gaps_filled_and_root_gap_unfilled():
+    rate = 60.0
+    mk, _ = take(rate, [(120, 200, 200.0)], 400, seed=10)
+    truth = mk.xyz.copy()
+    xyz, valid = mk.xyz.copy(), mk.valid.copy()
+    hfl, root = mk.index("HFL"), mk.index("SACR")
+    valid[150:160, hfl] = False                     # short gap: filled
+    valid[300:380, root] = False                    # 80 frames > max_gap_s = 1 s: stays a gap
+    xyz[~valid] = np.nan
+    gapped = Markers(labels=mk.labels, xyz=xyz, valid=valid, rate_hz=rate)
+    res = clean_markers(gapped, markerset(), "neutral", P)
+    code = res.fill_code
+    assert np.all((code[150:160, hfl] >= 1) & (code[150:160, hfl] <= 4))
+    # filled samples close to the truth (stabilised)
+    err = np.linalg.norm(res.markers.xyz[150:160, hfl] - (truth[150:160, hfl] - truth[150:160, root]), axis=1)
+    assert err.max() < 10.0
+    # no root marker → the whole frame is unfilled and NaN
+    assert (code[300:380] == 5).all() and np.isnan(res.markers.xyz[300:380]).all()
+    assert not res.markers.valid[300:380].any() and res.markers.valid[:300].all()
+    assert res.qc["root_missing_frames"] == 80
+    q = res.qc["markers"]
+    assert q["HFL"]["gaps"] == 1 and q["HFL"]["longest_gap_frames"] == 10 and q["HFL"]["unfilled"] == 0
+    assert sum(q["HFL"]["samples"].values()) == 400
+    assert q["SACR"]["unfilled"] == 80 and q["SACR"]["longest_gap_s"] == pytest.approx(80 / rate)
+    assert sorted(g["marker"] for g in res.qc["gaps"]) == ["HFL", "SACR"]
+
+
+def test_lowpass_in_clean_respects_unfilled_gaps():
+    rate = 60.0
+    mk, _ = take(rate, [(120, 200, 200.0)], 400, seed=11)
+    xyz, valid = mk.xyz.copy(), mk.valid.copy()
+    m = mk.index("HTOP")
+    valid[250:330, m] = False                       # longer than 1 s: unfilled
+    xyz[~valid] = np.nan
+    res = clean_markers(Markers(labels=mk.labels, xyz=xyz, valid=valid, rate_hz=rate), markerset(), "neutral",
+                        CleanParams(remove_spikes=False, lowpass_hz=6.0))
+    out = res.markers.xyz[:, m]
+    assert np.isnan(out[250:330]).all() and np.isfinite(out[:250]).all() and np.isfinite(out[330:]).all()
+    # the run after the gap equals filtering that run alone
+    stab = xyz[:, m] - xyz[:, mk.index("SACR")]
+    sos = zero_phase_sos(6.0, rate)
+    np.testing.assert_allclose(out[330:], signal.sosfiltfilt(sos, stab[330:], axis=0, padlen=9), atol=1e-9)
+
+
+def test_spike_removed_and_filled():
+    rate = 60.0
+    mk, _ = take(rate, [(120, 200, 200.0)], 400, seed=12)
+    xyz = mk.xyz.copy()
+    m = mk.index("HTOP")
+    clean_value = xyz[300, m] - xyz[300, mk.index("SACR")]
+    xyz[300, m] += [400.0, -300.0, 200.0]           # a ghost marker swap for one frame
+    res = clean_markers(Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=rate), markerset(), "neutral",
+                        CleanParams())
+    assert res.qc["spikes_removed"] >= 1 and res.qc["markers"]["HTOP"]["spikes_removed"] >= 1
+    assert res.fill_code[300, m] != 0
+    assert np.linalg.norm(res.markers.xyz[300, m] - clean_value) < 5.0
+
+
+# ------------------------------------------------------------------------------------------------ sample session
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+
+
+@pytest.fixture(scope="module")
+def sample_session(tmp_path_factory):
+    """The sample session with its ground truth (generated when sample_data/ does not hold it)."""
+    if (SAMPLE / "truth" / "truth.json").exists():
+        return SAMPLE
+    synth = pytest.importorskip("gazepipe.synth.session")
+    return synth.generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0)
+
+
+def test_sample_gaze_shift_crop_bounds(sample_session):
+    """Every gaze_shift take's crop within 2 frames of the truth (rests of the noise-free markers)."""
+    from gazepipe.io.capture import read_markers
+    from gazepipe.io.session_toml import load_session
+    from gazepipe.synth.truth import load_truth
+
+    ses = load_session(sample_session / "session.toml")
+    shifts = [t for t in ses.takes if t.kind == "gaze_shift"]
+    assert shifts
+    for t in shifts:
+        truth = load_truth(sample_session, t.id)["crop"]
+        res = clean_markers(read_markers(t.mocap), ses.markerset, t.kind, CleanParams(), take=t.id)
+        assert abs(res.crop[0] - truth[0]) <= 2 and abs(res.crop[1] - truth[1]) <= 2, (t.id, res.crop, truth)

@@ -7,13 +7,14 @@ frame is the ``frames`` stage's business); after stabilisation the root marker s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage, signal
 
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
+from gazepipe.stages.gapfill import G_MM_S2, METHODS, fill_gaps, remove_spikes
 from gazepipe.stages.rotations import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
@@ -27,37 +28,41 @@ class CleanParams:
     ----------
     max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
     remove_spikes : run spike removal before gap filling.
-    spike_options : extra keyword arguments for :func:`gazepipe.stages.gapfill.remove_spikes` (its thresholds,
-        e.g. an acceleration limit); empty means that function's defaults.
-    fill_options : extra keyword arguments for :func:`gazepipe.stages.gapfill.fill_gaps`.
+    spike_max_accel_mm_s2, spike_min_step_mm, spike_max_piece_s : thresholds of
+        :func:`gazepipe.stages.gapfill.remove_spikes` (a second difference above
+        max(accel / rate², min_step) is implausible; pieces cut off by such breaks shorter than max_piece_s
+        become gaps). Defaults: 50 g, 100 mm, 0.5 s.
+    fill_methods : candidate gap-filling methods, best chosen per gap (:func:`gazepipe.stages.gapfill.fill_gaps`).
     lowpass_hz : cutoff (Hz, −3 dB of the whole zero-phase filter) of the optional low-pass; ``None`` = off.
     lowpass_order : Butterworth order of *one* pass (2: the forward–backward pair is a 4th-order zero-phase
-        filter with a monotone response and no ringing on gaze saccade onsets, Winter's choice for marker data).
+        filter with a monotone magnitude response and little overshoot, Winter's usual choice for marker data).
     rest_speed_mm_s : a frame is "still" when the subject's mean marker speed is below this (Pejsa: 6 mm/s).
     rest_merge_s : rests separated by less than this merge (Pejsa: 1/6 s).
     rest_min_s : rests shorter than this do not count.
     rest_filter_hz : −3 dB frequency (Hz) of the Gaussian low-pass applied only to the positions used for
-        speeds (σ = √(ln 2) / (2π f)). Stabilised positions carry the root marker's noise too, so 0.5 mm of
-        marker noise gives a mean speed of ~21 mm/s at 30 Hz on raw data and still ~12 mm/s after a 6 Hz
-        Butterworth: above the 6 mm/s threshold, no rest would ever be found. 1.25 Hz keeps the noise floor's
-        99.9th percentile near 4 mm/s at 30 Hz (2 mm/s at 120 Hz). A Gaussian rather than a Butterworth
-        because the threshold is ~1 % of a gaze shift's peak speed: Butterworth ringing ahead of a fast
-        movement crosses it and moves rest bounds by up to 0.3–0.5 s, the Gaussian's tail only by about
-        0.1 s (≈ −3…+4 frames at 30 Hz against the noise-free speed's crossing; measured by tests/test_clean.py).
+        speeds (σ = √(ln 2) / (2π f)). Marker noise of 0.5 mm gives a mean speed of ~20 mm/s at 30 Hz on
+        raw positions and still ~10 mm/s after a 6 Hz low-pass: above the 6 mm/s threshold, so no rest would
+        ever be found. At 1.75 Hz the noise floor's 99.9th percentile is ~4 mm/s at 30 Hz (~2 mm/s at 120 Hz).
+        A Gaussian rather than a Butterworth because the threshold is ~1 % of a gaze shift's peak speed:
+        Butterworth ringing ahead of a fast movement crosses it and moves rest bounds by up to 0.5 s; the
+        Gaussian's smear moves them by ~2 frames at 30 Hz (≤ 0.1 s at any rate) against the noise-free
+        speed's crossing. Measured by tests/test_clean.py.
     remove_heading : also rotate every frame about the lab vertical so the root segment's left direction
         (its first marker minus its second, horizontal part) points along lab +X.
     """
 
     max_gap_s: float = 1.0
     remove_spikes: bool = True
-    spike_options: dict = field(default_factory=dict)
-    fill_options: dict = field(default_factory=dict)
+    spike_max_accel_mm_s2: float = 50.0 * G_MM_S2
+    spike_min_step_mm: float = 100.0
+    spike_max_piece_s: float = 0.5
+    fill_methods: tuple[str, ...] = METHODS
     lowpass_hz: float | None = None
     lowpass_order: int = 2
     rest_speed_mm_s: float = 6.0
     rest_merge_s: float = 1.0 / 6.0
     rest_min_s: float = 0.25
-    rest_filter_hz: float = 1.25
+    rest_filter_hz: float = 1.75
     remove_heading: bool = False
 
 
@@ -266,47 +271,68 @@ def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
     return res
 
 
-def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str]) -> dict:
+def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], rate_hz: float,
+               spikes: np.ndarray) -> dict:
+    """Per-marker QC from the gaps (after spike removal) and the fill codes."""
     out: dict = {}
     for m, lab in enumerate(labels):
         gaps = _runs(~valid_in[:, m])
+        longest = max((b - a for a, b in gaps), default=0)
         counts = {name: int(np.sum(fill_code[:, m] == code)) for name, code in FILL_CODES.items()}
-        unfilled_runs = _runs(fill_code[:, m] == UNFILLED)
         out[lab] = {
             "gaps": len(gaps),
-            "longest_gap_frames": max((b - a for a, b in gaps), default=0),
+            "longest_gap_frames": int(longest),
+            "longest_gap_s": longest / rate_hz,
+            "spikes_removed": int(spikes[m]),
             "samples": {k: v for k, v in counts.items() if k != "unfilled"},
             "unfilled": counts["unfilled"],
-            "unfilled_runs": len(unfilled_runs),
         }
     return out
 
 
-def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Spikes → gaps, then gap filling. Returns (xyz, fill_code)."""
-    xyz = markers.xyz
-    valid = markers.valid.copy()
-    qc["spikes_removed"] = 0
+def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
+          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal)."""
+    valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
+    xyz = np.where(valid[..., None], markers.xyz, np.nan)
+    spikes = np.zeros(markers.n_markers, dtype=np.int64)
     if params.remove_spikes:
-        from gazepipe.stages.gapfill import remove_spikes
-
-        valid, n = remove_spikes(np.where(valid[..., None], xyz, np.nan), valid, markers.rate_hz,
-                                 **params.spike_options)
-        qc["spikes_removed"] = int(n)
-    xyz = np.where(valid[..., None], xyz, np.nan)
+        valid, spikes = remove_spikes(xyz, valid, markers.rate_hz, max_accel_mm_s2=params.spike_max_accel_mm_s2,
+                                      min_step_mm=params.spike_min_step_mm, max_piece_s=params.spike_max_piece_s)
+        xyz = np.where(valid[..., None], xyz, np.nan)
+    qc["spikes_removed"] = int(spikes.sum())
+    qc["gaps"] = []
     if valid.all():  # nothing to fill
-        return xyz, np.zeros(valid.shape, dtype=np.int8)
-    from gazepipe.stages.gapfill import fill_gaps
+        code = np.zeros(valid.shape, dtype=np.int8)
+    else:
+        pos = {lab: i for i, lab in enumerate(markers.labels)}
+        clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
+        res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
+                        max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods))
+        code = np.asarray(res.fill_code, dtype=np.int8)
+        xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
+        qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
+                       "method": g.method,
+                       "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()}}
+                      for g in res.gaps]
+    qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
+    return xyz, code, valid
 
-    pos = {lab: i for i, lab in enumerate(markers.labels)}
-    clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
-    clusters = [c for c in clusters if len(c) >= 2]
-    res = fill_gaps(xyz, valid, markers.rate_hz, clusters=clusters, max_gap_s=params.max_gap_s,
-                    **params.fill_options)
-    qc["fill"] = res.qc
-    code = np.asarray(res.fill_code, dtype=np.int8)
-    out = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
-    return out, code
+
+def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
+                    subj: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Subject positions for rest speeds: relative to the mean of the root marker and the root segment's
+    markers rather than to the root marker alone.
+
+    Both remove the body's translation (Pejsa's reason to stabilise first), but every stabilised marker carries
+    the root marker's noise; the mean of four markers has half of it, which lowers the speed noise floor by
+    about a third and lets the speed filter be lighter (closer rest bounds). Frames where one of those markers
+    is unfilled have no rest speed.
+    """
+    ref = [labels.index(n) for n in (markerset.root, *markerset.root_segment.markers) if n in labels]
+    offset = xyz[:, ref].mean(axis=1, keepdims=True)          # NaN where any of them is unfilled
+    pos = xyz[:, subj] - offset
+    return pos, valid[:, subj] & np.isfinite(pos).all(axis=2)
 
 
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
@@ -320,8 +346,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     Raises :class:`~gazepipe.errors.StageError` (one line, naming ``path``/``take``) when the root marker is
     missing or the rest periods the kind needs are not found.
 
-    ``qc`` holds: ``markers`` (per marker: gaps, longest gap in frames, samples per fill method, unfilled),
-    ``spikes_removed``, ``fill`` (the filler's own record), ``root_missing_frames``, ``lowpass`` (cutoff,
+    ``qc`` holds: ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
+    removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
+    marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
     runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
     ``warnings`` and ``failures`` (lists of one-line strings).
     """
@@ -333,8 +360,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code = _fill(markers, markerset, params, qc)
-    qc["markers"] = _marker_qc(code, markers.valid, labels)
+    xyz, code, _ = _fill(markers, markerset, params, qc)
 
     # 3. stabilisation
     up = left_pair = None
@@ -363,7 +389,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
 
     # 5. rests and crop
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    speed = mean_speed(xyz[:, subj], valid[:, subj], rate, params.rest_filter_hz)
+    speed = mean_speed(*_rest_positions(xyz, valid, labels, markerset, subj), rate, params.rest_filter_hz)
     rests = rest_periods(speed, rate, params.rest_speed_mm_s, params.rest_merge_s, params.rest_min_s)
     qc["rests"] = [[a, b] for a, b in rests]
     try:
