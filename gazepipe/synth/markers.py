@@ -142,6 +142,9 @@ def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
             names = list(SEGMENT_MARKERS[seg])
             pick = rng.choice(len(names), size=2, replace=False)
             place([idx[names[i]] for i in sorted(pick)], int(rng.integers(6, 40)))
+        for _ in range(int(round(2 * scale))):      # something passes in front: markers of several segments
+            pick = rng.choice(len(free), size=4, replace=False)
+            place([idx[free[i]] for i in sorted(pick)], int(rng.integers(5, 25)))
         place([idx[str(rng.choice(free))]], int(rng.integers(3, 20)), start=0)
         length = int(rng.integers(3, 20))
         place([idx[str(rng.choice(free))]], length, start=n - length)

@@ -216,12 +216,16 @@ def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement
     fix = p0 + _saccades(rng, t, seen, a0 + reaction, rate_hz)
     attention = p0 + second_order(seen, rate_hz, 3.5, 1.0)
     v = h.inv().apply(attention - eye_lab)
-    yaw = np.unwrap(np.arctan2(v[:, 0], v[:, 2]))
+    # a target passing behind the subject flips the wanted yaw from about +180° to -180°: the body cannot turn
+    # through its back, so it swings round through the front, over about a second (Klein 6: "the long path")
+    yaw_u = np.unwrap(np.arctan2(v[:, 0], v[:, 2]))
+    turns = np.round(yaw_u / (2.0 * np.pi))
+    yaw = yaw_u - 2.0 * np.pi * second_order(turns, rate_hz, 0.6, 1.0)
     pitch = np.arctan2(v[:, 1], np.hypot(v[:, 0], v[:, 2]))
 
     ymax = np.deg2rad(float(prof["body_yaw_max"]))
     pmax = np.deg2rad(float(prof["body_pitch_max"]))
-    body_yaw = ymax * np.tanh(0.8 * yaw / ymax)
+    body_yaw = ymax * np.tanh(0.85 * yaw / ymax)
     body_pitch = pmax * np.tanh(0.6 * pitch / pmax)
     head_extra = 0.05
     body_yaw = second_order(delayed(body_yaw, t, head_extra), rate_hz, 1.1, 0.5)

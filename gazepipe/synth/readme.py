@@ -107,8 +107,10 @@ noisy files with its low-pass may differ by a frame or two at each bound. Short 
   2 m straight ahead at eye height. The subject sees the target with a reaction delay (0.18-0.23 s); the eyes
   pursue it at 85 % gain with catch-up saccades every 0.2-0.45 s (about 50 ms each); the body's share of the
   gaze change goes through an underdamped second-order response (overshoot) with later onsets down the chain
-  (head, neck3..neck1, chest, spine4..spine1, pelvis); small smooth sway. Settle, then 2.3-2.8 s neutral rest.
-  Pose limits differ (sitting: no pelvis rotation, smaller body range).
+  (head, neck3..neck1, chest, spine4..spine1, pelvis), shares decreasing down the chain; small smooth sway.
+  When the pole passes behind the subject the body swings round through the front over about a second.
+  Settle, then 2.3-2.8 s neutral rest. Pose limits differ (standing: body up to 130 degrees of yaw; sitting:
+  no pelvis rotation, 85 degrees). Poses without a profile of their own (laying, walking) move like standing.
 * Clapper: CLAP1/CLAP2 on the two arms, held about 0.5 m in front of the face; opens to 150 mm, closes with an
   accelerating motion in 60-100 ms to the shut distance of 25 mm (the markers sit on the arms) and stays shut.
   One clap in the leading rest, one in the trailing rest; `clap_times_s` is the instant the closing ends, exact
@@ -117,7 +119,8 @@ noisy files with its low-pass may differ by a frame or two at each bound. Short 
   0.05-0.1 s later and the other segments after known delays (`design.onset_s`), each following the same
   profile: a quintic rise to (1 + beta) of its final rotation at u_beta, then a quintic settle to the final
   rotation; then 1.3-1.6 s of rest. Small yaw shifts move the neck and the head most.
-* Occlusion gaps: lengths 1-5, 6-15, 16-30, 31-90 and 31-120 frames, some on two markers of one segment at once,
+* Occlusion gaps: lengths 1-5, 6-15, 16-30, 31-90 and 31-120 frames, some on two markers of one segment at once
+  or on four markers of different segments at once,
   one at the very start and one at the very end of each gaze_follow take; SACR and the pelvis markers only get
   gaps of at most 3 frames; the clapper has no gap from 1.2 s before to 0.6 s after a clap.
 """

@@ -131,8 +131,8 @@ def camera_to_head(tilt_up_deg: float = 20.0, yaw_deg: float = 5.0) -> Rotation:
 #: rotation limits and how the body shares a gaze change while following a target, per pose (degrees; shares
 #: of the body's part, root to head: decreasing down the chain; sitting keeps the pelvis still)
 POSE_PROFILES: dict[str, dict[str, object]] = {
-    "standing": {"floor_drop_mm": 0.0, "body_yaw_max": 115.0, "body_pitch_max": 40.0,
+    "standing": {"floor_drop_mm": 0.0, "body_yaw_max": 130.0, "body_pitch_max": 40.0,
                  "yaw_share": (0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.08, 0.09, 0.10, 0.40)},
-    "sitting": {"floor_drop_mm": 450.0, "body_yaw_max": 75.0, "body_pitch_max": 35.0,
+    "sitting": {"floor_drop_mm": 450.0, "body_yaw_max": 85.0, "body_pitch_max": 35.0,
                 "yaw_share": (0.0, 0.02, 0.02, 0.03, 0.03, 0.05, 0.09, 0.10, 0.10, 0.56)},
 }
