@@ -324,8 +324,13 @@ def test_shift_overshoot_rule_recovers_the_design(session: Path, takes: list[dic
 
 def test_shift_cascade_is_measurable(session: Path, takes: list[dict]) -> None:
     for t in (t for t in takes if t["kind"] == "gaze_shift" and abs(t["target"]["yaw_deg"]) > 60):
-        sf = load_truth(session, t["id"])["scalars"]["start_frac"]
+        s = load_truth(session, t["id"])["scalars"]
+        sf, onset = s["start_frac"], s["design"]["onset_s"]
         assert 0.0 < sf["chest"] < sf["pelvis"] < 1.0
+        for name in ("chest", "pelvis"):      # the 18°/s rule fires after the segment's designed onset
+            start = s["crop"][0] / RATE + sf[name] * s["l_s"]
+            k = load_truth(session, t["id"])["segments"].index(name)
+            assert onset[k] < start < onset[k] + 0.5
 
 
 def test_modality_writers_plug_in(tmp_path: Path) -> None:
