@@ -140,8 +140,13 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     valid_m = valid[:, m]
     wins = _validation_windows(valid_m, s, e) if validate else []
     known = valid_m.copy()
+    # the hidden stretches also get the gap's occlusion pattern: a marker missing in the gap's i-th frame is
+    # treated as missing in each stretch's i-th frame, so rigid and PCA are validated with the donors they
+    # will really have
+    valid_v = valid.copy()
     for a, b in wins:
         known[a:b] = False
+        valid_v[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
     xyz_m = xyz[:, m]
     model = None
     if "pca" in methods:
@@ -149,30 +154,48 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         if pca_window is not None:
             win = (max(0, s - pca_window), min(n_t, e + pca_window))
         model = fit_pca(xyz, valid, m, known, s, e, window=win)
-    preds: dict[str, np.ndarray] = {}
-    errors: dict[str, float] = {}
-    for meth in methods:
-        def run(a: int, b: int, known_m: np.ndarray, meth: str = meth) -> np.ndarray | None:
-            if meth in ("linear", "pchip"):
-                return interp_fill(xyz_m, known_m, a, b, meth)
-            if meth == "rigid":
-                return None if not cluster else rigid_fill(xyz, valid, m, cluster, known_m, a, b)
-            if meth == "pca":
-                return None if model is None else pca_fill(model, xyz, valid, known_m, a, b)
-            raise ValueError(f"unknown gap-filling method {meth!r}")
+    def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
+        vis = valid_v if partial else valid
+        if meth in ("linear", "pchip"):
+            return interp_fill(xyz_m, known_m, a, b, meth)
+        if meth == "rigid":
+            return None if not cluster else rigid_fill(xyz, vis, m, cluster, known_m, a, b, partial)
+        if meth == "pca":
+            return None if model is None else pca_fill(model, xyz, vis, known_m, a, b, partial)
+        raise ValueError(f"unknown gap-filling method {meth!r}")
 
-        p = run(s, e, valid_m)
-        if p is None:
-            continue
-        preds[meth] = p
-        errs = []
-        for a, b in wins:
-            q = run(a, b, known)
-            if q is None:
-                errs = []
-                break
-            errs.append(np.linalg.norm(q - xyz_m[a:b], axis=1))
-        errors[meth] = float(np.concatenate(errs).mean()) if errs else float("nan")
+    if model is not None and wins and len(model.ks) > 1:
+        # number of PCA components: the one that predicts the hidden stretches best
+        scores = []
+        for k in model.ks:
+            model.k = k
+            e_k = [pca_fill(model, xyz, valid_v, known, a, b, True) for a, b in wins]
+            e_k = [np.linalg.norm(q - xyz_m[a:b], axis=1) for q, (a, b) in zip(e_k, wins, strict=True)
+                   if q is not None]
+            e_k = np.concatenate(e_k) if e_k else np.array([np.nan])
+            scores.append(np.nanmean(e_k) if np.isfinite(e_k).any() else np.inf)
+        model.k = model.ks[int(np.argmin(scores))]
+    preds: dict[str, np.ndarray] = {}
+    for meth in methods:
+        p = run(meth, s, e, valid_m, False)
+        if p is not None:
+            preds[meth] = p
+    # validation: every applicable method predicts the hidden stretches (frames it cannot predict are NaN);
+    # methods are compared on the frames all of them could predict, else each on its own frames
+    errs = {meth: [] for meth in preds}
+    for a, b in wins:
+        for meth in preds:
+            q = run(meth, a, b, known, True)
+            errs[meth].append(np.full(b - a, np.nan) if q is None else np.linalg.norm(q - xyz_m[a:b], axis=1))
+    errors: dict[str, float] = {}
+    if wins and preds:
+        err = np.array([np.concatenate(errs[meth]) for meth in preds])
+        common = np.isfinite(err).all(axis=0)
+        for i, meth in enumerate(preds):
+            row = err[i, common] if common.any() else err[i, np.isfinite(err[i])]
+            errors[meth] = float(row.mean()) if row.size else float("nan")
+    else:
+        errors = {meth: float("nan") for meth in preds}
     return preds, errors
 
 
@@ -240,7 +263,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 records.append(GapRecord(m, s, e, "unfilled"))
                 continue
             preds, errors = predict_gap(src, valid, m, s, e, methods, cluster_of.get(m),
-                                        validate=validation and len(methods) > 1, pca_window=pca_window)
+                                        validate=validation, pca_window=pca_window)
             best = choose(errors, methods)
             full_errors = {k: errors.get(k, float("nan")) for k in methods}
             if best is None:

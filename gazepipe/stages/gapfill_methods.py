@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
+from scipy.spatial.transform import Rotation
 
 #: known samples used on each side of an interval by the interpolating methods
 _N_ANCHORS = 3
@@ -45,15 +46,16 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int, kind: st
 
 
 def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
-                  lo: int, hi: int) -> np.ndarray | None:
+                  lo: int, hi: int, partial: bool = False) -> np.ndarray | None:
     """Blend the mismatch at the known frames ``a - 1`` and ``b`` linearly across ``[a, b)``.
 
     ``pred`` covers frames ``[lo, hi)`` with ``lo <= a - 1`` where possible and ``hi >= b + 1`` where possible;
     NaN rows are frames the method could not predict. Returns the ``[a, b)`` part, or ``None`` when any frame
-    of it is NaN.
+    of it is NaN (unless ``partial``: then NaN rows stay NaN and ``None`` means no frame at all).
     """
     core = pred[a - lo:b - lo]
-    if np.isnan(core).any():
+    bad = np.isnan(core).any(axis=1)
+    if bad.all() or (bad.any() and not partial):
         return None
     res_l = res_r = None
     if a - 1 >= lo and known_m[a - 1] and not np.isnan(pred[a - 1 - lo]).any():
@@ -94,6 +96,25 @@ def kabsch(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
     return r, c_ref, c_cur
 
 
+def min_rotation(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rigid transforms from two reference points to two points per frame: the smallest rotation taking the
+    reference axis onto each frame's axis (the twist about the axis is not observable and is taken as none).
+
+    ref : (2, 3); cur : (n, 2, 3). Returns ``(R, c_ref, c_cur)`` like :func:`kabsch`.
+    """
+    c_ref = ref.mean(axis=0)
+    c_cur = cur.mean(axis=1)
+    u = ref[1] - ref[0]
+    u = u / np.linalg.norm(u)
+    v = cur[:, 1] - cur[:, 0]
+    v = v / np.linalg.norm(v, axis=1, keepdims=True)
+    cross = np.cross(u, v)
+    sin = np.linalg.norm(cross, axis=1)
+    ang = np.arctan2(sin, v @ u)
+    axis = np.where(sin[:, None] > 1e-12, cross / np.maximum(sin, 1e-12)[:, None], 0.0)
+    return Rotation.from_rotvec(axis * ang[:, None]).as_matrix(), c_ref, c_cur
+
+
 def _non_collinear(pts: np.ndarray, min_spread_mm: float = 5.0) -> bool:
     """True when ``pts`` (K, 3) span a plane: the second singular value of the centred set is big enough."""
     if pts.shape[0] < 3:
@@ -103,17 +124,19 @@ def _non_collinear(pts: np.ndarray, min_spread_mm: float = 5.0) -> bool:
 
 
 def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
-               a: int, b: int) -> np.ndarray | None:
+               a: int, b: int, partial: bool = False) -> np.ndarray | None:
     """Rigid-cluster fill of marker ``m`` over frames ``[a, b)``.
 
-    In every frame the cluster's other markers that are measured there (at least three, not collinear) are
-    fitted to their positions in two reference frames: the nearest frames before and after the interval where
+    In every frame the cluster's other markers that are measured there (at least three, not collinear; or, as
+    a weaker fallback, two: then the twist about their axis is taken from the reference) are fitted to their
+    positions in two reference frames: the nearest frames before and after the interval where
     ``m`` is known and those markers are measured. The two predictions are blended by time across the interval
     (one reference only at the ends of the take), then corrected to meet the known samples at both edges.
+    With ``partial``, frames that cannot be predicted are NaN instead of making the result ``None``.
     """
     n_t = xyz.shape[0]
     others = np.array([j for j in cluster if j != m], dtype=np.int64)
-    if others.size < 3:
+    if others.size < 2:
         return None
     lo, hi = max(a - 1, 0), min(b + 1, n_t)
     vis = valid[lo:hi][:, others]
@@ -121,7 +144,7 @@ def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], k
     patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     for p_idx, pattern in enumerate(patterns):
-        if pattern.sum() < 3:
+        if pattern.sum() < 2:
             continue
         sub = others[pattern]
         rows = np.flatnonzero(inverse == p_idx)
@@ -134,20 +157,22 @@ def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], k
             refs.append(int(cand_before[-1]))
         if cand_after.size:
             refs.append(int(cand_after[0]))
-        refs = [r for r in refs if _non_collinear(xyz[r, sub])]
+        two = sub.size == 2
+        refs = [r for r in refs if (np.linalg.norm(xyz[r, sub[1]] - xyz[r, sub[0]]) > 5.0 if two
+                                    else _non_collinear(xyz[r, sub]))]
         if not refs:
             continue
         cur = xyz[frames][:, sub]
         preds = []
         for r in refs:
-            rot, c_ref, c_cur = kabsch(xyz[r, sub], cur)
+            rot, c_ref, c_cur = (min_rotation if two else kabsch)(xyz[r, sub], cur)
             preds.append(np.einsum("nij,j->ni", rot, xyz[r, m] - c_ref) + c_cur)
         if len(preds) == 1:
             pred[rows] = preds[0]
         else:
             w = np.clip((frames - refs[0]) / (refs[1] - refs[0]), 0.0, 1.0)[:, None]
             pred[rows] = (1.0 - w) * preds[0] + w * preds[1]
-    return _edge_correct(pred, xyz[:, m], known_m, a, b, lo, hi)
+    return _edge_correct(pred, xyz[:, m], known_m, a, b, lo, hi, partial)
 
 
 class PcaModel:
@@ -156,13 +181,15 @@ class PcaModel:
     Fitted on the frames where the target and every predictor are measured (optionally only within a time
     window around the gap). Coordinates are centred on the training mean and each marker's columns are weighted
     by ``exp(-d² / (2 σ²))`` with ``d`` its mean distance to the target (σ = ``sigma_scale`` × the median
-    distance), so nearby markers dominate the components, as in the paper's distance weighting. The components
-    that explain ``var_frac`` of the weighted variance are kept. The target's coordinates in a frame are
-    reconstructed from the component scores fitted (least squares) to the predictors measured in that frame.
+    distance), so nearby markers dominate the components, as in the paper's distance weighting. The target's
+    coordinates in a frame are reconstructed from the scores of the first ``k`` components fitted (least
+    squares) to the predictors measured in that frame. Candidate ``k`` (``self.ks``) are the numbers of
+    components explaining each of ``var_fracs`` of the weighted variance; the caller picks one (by validation).
     """
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
-                 *, sigma_scale: float = 2.0, var_frac: float = 0.999) -> None:
+                 *, sigma_scale: float = 2.0,
+                 var_fracs: tuple[float, ...] = (0.999, 0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
         cols = np.concatenate([predictors, [m]])
@@ -180,12 +207,18 @@ class PcaModel:
         evecs = evecs[:, order]
         total = evals.sum()
         frac = np.cumsum(evals) / total if total > 0 else np.ones_like(evals)
-        k = int(np.searchsorted(frac, var_frac) + 1)
-        k = min(k, 3 * predictors.size - 1) if predictors.size > 1 else 1
-        self.v = evecs[:, :max(k, 1)]
+        k_max = max(3 * predictors.size - 1, 1)
+        self.ks = sorted({min(int(np.searchsorted(frac, f) + 1), k_max) for f in var_fracs})
+        self.k = self.ks[len(self.ks) // 2]
+        self.v_all = evecs[:, :max(self.ks)]
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.v_all[:, :self.k]
 
     def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """Target positions (n, 3) in ``frames``; NaN rows where no predictor is measured."""
+        """Target positions (n, 3) in ``frames`` from the first ``self.k`` components; NaN rows where no
+        predictor is measured."""
         n_p = self.predictors.size
         out = np.full((frames.size, 3), np.nan)
         vis = valid[frames][:, self.predictors]
@@ -196,6 +229,8 @@ class PcaModel:
                 continue
             rows = np.flatnonzero(inverse == p_idx)
             kcols = np.flatnonzero(np.repeat(pattern, 3))
+            if kcols.size < self.k:
+                continue
             x = xyz[frames[rows]][:, self.predictors].reshape(rows.size, -1)[:, kcols]
             z = (x - self.mean[kcols]) * self.w[kcols]
             scores = np.linalg.lstsq(self.v[kcols], z.T, rcond=1e-8)[0]
@@ -236,9 +271,10 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
 
 
 def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray,
-             a: int, b: int) -> np.ndarray | None:
-    """PCA reconstruction of the model's marker over ``[a, b)``, corrected to meet the known edge samples."""
+             a: int, b: int, partial: bool = False) -> np.ndarray | None:
+    """PCA reconstruction of the model's marker over ``[a, b)``, corrected to meet the known edge samples.
+    With ``partial``, frames without any measured predictor are NaN instead of making the result ``None``."""
     n_t = xyz.shape[0]
     lo, hi = max(a - 1, 0), min(b + 1, n_t)
     pred = model.predict(xyz, valid, np.arange(lo, hi))
-    return _edge_correct(pred, xyz[:, model.m], known_m, a, b, lo, hi)
+    return _edge_correct(pred, xyz[:, model.m], known_m, a, b, lo, hi, partial)

@@ -1,0 +1,328 @@
+"""Gap-filling accuracy and speed (Gløersen & Federolf 2016 protocol).
+
+From complete marker data, hide samples in realistic occlusion patterns (several neighbouring markers at once,
+gap lengths in bins of 1–5, 6–15, 16–30 and 31–90 frames, capped at ``max_gap_s``), fill, and report the error of
+the hidden samples only (mean and 95th percentile, mm) per bin for every method forced on every gap, for the
+per-gap choice of :func:`gazepipe.stages.gapfill.fill_gaps`, for the best method in hindsight per gap, and for
+kineticstoolkit's cubic fill when it is installed.
+
+Data: the sample session's truth (``sample_data/session01``, with 0.5 mm noise added to the input and errors
+measured against the noise-free truth), and the gap-free stretches of two real C3D files: Walking_Hybrid_2
+(trajectories de-duplicated; rigid clusters found from the data) and ART-Human (whole ART triplets hidden).
+
+Usage: ``PYTHONPATH=. python bench/bench_gapfill.py [--trials N] [--seed S]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gazepipe.model import FILL_CODES
+from gazepipe.stages.gapfill import METHODS, fill_gaps, find_gaps, find_rigid_clusters, remove_spikes
+
+ROOT = Path(__file__).resolve().parents[1]
+CORPUS = Path("/work/shared/corpus/c3d")
+BINS = ((1, 5), (6, 15), (16, 30), (31, 90))
+MAX_GAP_S = 1.0
+LONG_S = 0.25
+
+
+# ----------------------------------------------------------------------------------------------- data
+def read_c3d(path: Path) -> tuple[list[str], np.ndarray, np.ndarray, float]:
+    """Labels, xyz (T, M, 3) mm, valid (T, M), rate: through gazepipe's reader when it exists, else ezc3d."""
+    try:
+        from gazepipe.io.capture import read_markers  # type: ignore[import-not-found]
+    except ImportError:
+        read_markers = None
+    if read_markers is not None:
+        mk = read_markers(path)
+        return list(mk.labels), mk.xyz, mk.valid, float(mk.rate_hz)
+    import ezc3d
+
+    c = ezc3d.c3d(str(path))
+    pts = c["data"]["points"]
+    xyz = np.ascontiguousarray(pts[:3].transpose(2, 1, 0), dtype=np.float64)
+    res = c["data"]["meta_points"]["residuals"][0].T
+    valid = (res >= 0) & ~np.all(xyz == 0, axis=2) & np.isfinite(xyz).all(axis=2)
+    labels = list(c["parameters"]["POINT"]["LABELS"]["value"])[: xyz.shape[1]]
+    return labels, np.where(valid[..., None], xyz, np.nan), valid, float(c["parameters"]["POINT"]["RATE"]["value"][0])
+
+
+def dedupe(xyz: np.ndarray, valid: np.ndarray) -> list[int]:
+    """Columns to keep: the first of every set of bit-identical trajectories."""
+    keep: list[int] = []
+    for m in range(xyz.shape[1]):
+        if not any(np.array_equal(valid[:, m], valid[:, k]) and
+                   np.array_equal(xyz[valid[:, m], m], xyz[valid[:, k], k]) for k in keep):
+            keep.append(m)
+    return keep
+
+
+def gap_free_window(valid: np.ndarray, min_share: float = 0.75) -> tuple[int, int, np.ndarray]:
+    """The frame window and markers maximising (markers fully measured) × (frames), with at least
+    ``min_share`` of the markers."""
+    n_t, n_m = valid.shape
+    best = (0, 0, 0, np.zeros(n_m, bool))
+    for frac in np.linspace(1.0, 0.3, 15):
+        w = int(n_t * frac)
+        for t0 in range(0, n_t - w + 1, max(1, n_t // 100)):
+            ok = valid[t0:t0 + w].all(axis=0)
+            if ok.sum() >= min_share * n_m and ok.sum() * w > best[0]:
+                best = (int(ok.sum() * w), t0, t0 + w, ok)
+    return best[1], best[2], best[3]
+
+
+def real_dataset(name: str) -> dict | None:
+    path = CORPUS / f"{name}.c3d"
+    if not path.exists():
+        print(f"[{name}] not found at {path}: skipped")
+        return None
+    labels, xyz, valid, rate = read_c3d(path)
+    keep = dedupe(xyz, valid)
+    n_dup = xyz.shape[1] - len(keep)
+    labels = [labels[k] for k in keep]
+    xyz, valid = xyz[:, keep], valid[:, keep]
+    valid, n_spk = remove_spikes(xyz, valid, rate)
+    t0, t1, ok = gap_free_window(valid)
+    cols = np.flatnonzero(ok)
+    truth = xyz[t0:t1][:, cols]
+    labels = [labels[c] for c in cols]
+    note = (f"{len(keep)} distinct of {len(keep) + n_dup} trajectories, {int(n_spk.sum())} spike samples removed, "
+            f"gap-free window frames [{t0}, {t1}) with {cols.size} markers")
+    if name.startswith("ART"):
+        # ART bodies: origin X and XY, XZ 20 mm along its axes; hide whole triplets
+        groups: dict[str, list[int]] = {}
+        for i, lab in enumerate(labels):
+            base = lab[:-1] if lab.endswith(("Y", "Z")) and lab[:-1] in labels else lab
+            groups.setdefault(base, []).append(i)
+        hide_groups = [g for g in groups.values()]
+    else:
+        hide_groups = [[i] for i in range(len(labels))]
+    clusters = find_rigid_clusters(truth, np.ones(truth.shape[:2], bool))
+    return {"name": name, "truth": truth, "input": truth, "rate": rate, "labels": labels,
+            "groups": hide_groups, "clusters": clusters, "note": note}
+
+
+def session_datasets() -> list[dict]:
+    sess = ROOT / "sample_data" / "session01"
+    try:
+        from gazepipe.synth import load_truth
+    except ImportError:
+        load_truth = None
+    if load_truth is None or not (sess / "truth").is_dir():
+        print(f"[sample session] {sess} or gazepipe.synth.load_truth absent: skipped")
+        return []
+    clusters_by_label: list[list[str]] = []
+    try:
+        from gazepipe.io.session_toml import load_markerset
+
+        ms = load_markerset(sess / "markerset.toml")
+        clusters_by_label = [list(s.markers) for s in ms.segments]
+    except Exception as exc:  # the benchmark still runs without segment clusters
+        print(f"[sample session] markerset not loaded ({exc}); rigid clusters from the data")
+    out = []
+    rng = np.random.default_rng(7)
+    for f in sorted((sess / "truth").glob("*.npz")):
+        tr = load_truth(sess, f.stem)
+        truth = np.asarray(tr["markers_true"], dtype=np.float64)
+        rate = float(1.0 / np.median(np.diff(tr["time_s"])))
+        labels = list(tr["labels"])
+        if clusters_by_label:
+            clusters = [[labels.index(x) for x in c if x in labels] for c in clusters_by_label]
+            clusters = [c for c in clusters if len(c) >= 3]
+        else:
+            clusters = find_rigid_clusters(truth, np.ones(truth.shape[:2], bool))
+        noisy = truth + rng.normal(0.0, 0.5, truth.shape)
+        out.append({"name": f"session01/{f.stem}", "truth": truth, "input": noisy, "rate": rate,
+                    "labels": labels, "groups": [[i] for i in range(len(labels))], "clusters": clusters,
+                    "note": f"{truth.shape[0]} frames at {rate:.2f} Hz, {truth.shape[1]} markers, 0.5 mm noise"})
+    return out
+
+
+# ------------------------------------------------------------------------------------------ occlusions
+def occlude(rng: np.random.Generator, n_t: int, groups: list[list[int]], centres: np.ndarray, lo: int, hi: int,
+            n_events: int, pattern: str = "random") -> np.ndarray:
+    """valid (T, M) with ``n_events`` occlusions: a random group and, half the time, 1–2 more groups (random
+    ones as in Gløersen & Federolf's protocol, or with ``pattern="neighbours"`` its nearest ones, which hides
+    segment mates together), each hidden for a length drawn in [lo, hi] with a jittered start around a common
+    time; gaps never touch the take's ends and keep 3 frames from any other gap of the same marker."""
+    n_m = sum(len(g) for g in groups)
+    valid = np.ones((n_t, n_m), bool)
+    gc = np.array([centres[g].mean(axis=0) for g in groups])
+    n_placed = 0
+    for _ in range(n_events * 20):
+        if n_placed >= n_events:
+            break
+        g0 = int(rng.integers(len(groups)))
+        n_more = int(rng.integers(1, 3)) if rng.random() < 0.5 else 0
+        if pattern == "neighbours":
+            near = np.argsort(np.linalg.norm(gc - gc[g0], axis=1), kind="stable")[1:1 + n_more]
+        else:
+            near = rng.choice(np.delete(np.arange(len(groups)), g0), size=n_more, replace=False)
+        t_c = int(rng.integers(0, n_t))
+        placed = []
+        for g in [g0, *near.tolist()]:
+            length = int(rng.integers(lo, hi + 1))
+            s = t_c + int(rng.integers(-length // 2, length // 2 + 1)) - length // 2
+            s = min(max(s, 5), n_t - 5 - length)
+            if s < 5:
+                continue
+            cols = groups[g]
+            if not valid[max(0, s - 3):s + length + 3, cols].all():
+                continue
+            placed.append((s, length, cols))
+        for s, length, cols in placed:
+            valid[s:s + length, cols] = False
+        n_placed += bool(placed)
+    return valid
+
+
+def find_all(valid: np.ndarray) -> list[tuple[int, int, int]]:
+    return [(m, s, e) for m in range(valid.shape[1]) for s, e in find_gaps(valid[:, m])]
+
+
+# -------------------------------------------------------------------------------------------- peers
+def ktk_fill(xyz: np.ndarray, rate: float) -> np.ndarray | None:
+    try:
+        import kineticstoolkit as ktk
+    except ImportError:
+        return None
+    n_t, n_m, _ = xyz.shape
+    ts = ktk.TimeSeries(time=np.arange(n_t) / rate)
+    for m in range(n_m):
+        ts.data[f"m{m}"] = np.concatenate([xyz[:, m], np.ones((n_t, 1))], axis=1)
+    out = ts.fill_missing_samples(0, method="cubic")
+    return np.stack([out.data[f"m{m}"][:, :3] for m in range(n_m)], axis=1)
+
+
+# -------------------------------------------------------------------------------------------- bench
+def run(ds: dict, trials: int, seed: int, pattern: str = "random") -> dict:
+    rng = np.random.default_rng(seed)
+    truth, inp, rate = ds["truth"], ds["input"], ds["rate"]
+    n_t = truth.shape[0]
+    max_len = int(MAX_GAP_S * rate)
+    cols = ("choice", "hindsight", *METHODS, "ktk")
+    per_bin = {b: {c: [] for c in cols} for b in BINS}
+    cover = {b: {c: [0, 0] for c in METHODS} for b in BINS}
+    # choice-vs-method on the gaps a method could fill: [sum choice err, sum method err]
+    paired = {b: {c: [0.0, 0.0] for c in METHODS} for b in BINS}
+    long_gaps = {c: [] for c in cols}
+    changed = 0
+    t_fill = t_ktk = 0.0
+    n_calls = 0
+    centres = truth.mean(axis=0)
+    for lo, hi in BINS:
+        hi_c = min(hi, max_len)
+        if lo > hi_c:
+            continue
+        for _ in range(trials):
+            valid = occlude(rng, n_t, ds["groups"], centres, lo, hi_c, n_events=6, pattern=pattern)
+            x = np.where(valid[..., None], inp, np.nan)
+            t0 = time.perf_counter()
+            res = fill_gaps(x, valid, rate, clusters=ds["clusters"], max_gap_s=MAX_GAP_S)
+            t_fill += time.perf_counter() - t0
+            n_calls += 1
+            changed += int(((res.xyz != x) & valid[..., None]).sum())
+            forced = {m: fill_gaps(x, valid, rate, clusters=ds["clusters"], max_gap_s=MAX_GAP_S, methods=(m,))
+                      for m in METHODS}
+            t0 = time.perf_counter()
+            kx = ktk_fill(x, rate)
+            t_ktk += time.perf_counter() - t0
+            for m, s, e in find_all(valid):
+                sl = np.s_[s:e, m]
+                err = {"choice": np.linalg.norm(res.xyz[sl] - truth[sl], axis=1)}
+                for meth, r in forced.items():
+                    cover[(lo, hi)][meth][1] += 1
+                    if (r.fill_code[sl] == FILL_CODES["unfilled"]).any():
+                        continue
+                    cover[(lo, hi)][meth][0] += 1
+                    err[meth] = np.linalg.norm(r.xyz[sl] - truth[sl], axis=1)
+                    paired[(lo, hi)][meth][0] += err["choice"].sum()
+                    paired[(lo, hi)][meth][1] += err[meth].sum()
+                if kx is not None:
+                    err["ktk"] = np.linalg.norm(kx[sl] - truth[sl], axis=1)
+                meths = [k for k in METHODS if k in err]
+                if meths:
+                    err["hindsight"] = err[min(meths, key=lambda k: err[k].mean())]
+                for k, v in err.items():
+                    per_bin[(lo, hi)][k].append(v)
+                    if (e - s) / rate > LONG_S:
+                        long_gaps[k].append(v)
+    return {"per_bin": per_bin, "cover": cover, "paired": paired, "long": long_gaps, "changed": changed,
+            "t_fill": t_fill / max(n_calls, 1), "t_ktk": t_ktk / max(n_calls, 1), "pattern": pattern}
+
+
+def fmt(v: list[np.ndarray]) -> str:
+    if not v:
+        return "      —      "
+    a = np.concatenate(v)
+    a = a[np.isfinite(a)]
+    return f"{a.mean():6.2f}/{np.percentile(a, 95):6.2f}"
+
+
+def mean(v: list[np.ndarray]) -> float:
+    return float(np.concatenate(v).mean()) if v else float("nan")
+
+
+def report(ds: dict, out: dict, has_ktk: bool) -> None:
+    print(f"\n== {ds['name']}: {ds['note']}; {len(ds['clusters'])} rigid clusters; occlusion: {out['pattern']}")
+    cols = ["choice", "hindsight", *METHODS] + (["ktk"] if has_ktk else [])
+    head = "bin (frames)  n_gaps " + " ".join(f"{c:>13s}" for c in cols) + "  choice/hind  choice/ktk  worst choice/method"
+    print("mean/p95 error (mm) of hidden samples; methods forced on every gap they can fill (coverage in %)")
+    print(head)
+    rows = [(f"{lo}-{hi}", out["per_bin"][(lo, hi)], (lo, hi)) for lo, hi in BINS]
+    rows.append((f">{LONG_S:g} s", out["long"], None))
+    for name, d, key in rows:
+        if not d["choice"]:
+            continue
+        cells = " ".join(f"{fmt(d[c]):>13s}" for c in cols)
+        r_h = mean(d["choice"]) / mean(d["hindsight"])
+        r_k = mean(d["ktk"]) / mean(d["choice"]) if has_ktk and d["ktk"] else float("nan")
+        worst = ""
+        if key is not None:
+            ratios = {m: p[0] / p[1] for m, p in out["paired"][key].items() if p[1] > 0}
+            wm = max(ratios, key=ratios.get)
+            worst = f"{ratios[wm]:.2f} ({wm})"
+        print(f"{name:>12s} {len(d['choice']):7d} {cells}  {r_h:10.2f}  {('ktk ' + format(r_k, '.1f') + 'x lower'):>11s}  {worst}")
+    cov = " ".join(f"{m} {100 * sum(out['cover'][b][m][0] for b in BINS) / max(1, sum(out['cover'][b][m][1] for b in BINS)):.0f}%"
+                   for m in METHODS)
+    print(f"coverage: {cov}; measured samples changed: {out['changed']}; "
+          f"time per take: fill_gaps {out['t_fill'] * 1000:.0f} ms"
+          + (f", kineticstoolkit cubic {out['t_ktk'] * 1000:.0f} ms" if has_ktk else ""))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=8, help="occlusion patterns per bin and take")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pattern", choices=("random", "neighbours"), default="random",
+                    help="which markers are hidden together with the first one of an occlusion")
+    args = ap.parse_args(argv)
+    try:
+        import kineticstoolkit  # noqa: F401
+
+        has_ktk = True
+    except ImportError:
+        has_ktk = False
+        print("kineticstoolkit not installed: its column is skipped")
+    datasets = session_datasets()
+    for name in ("Walking_Hybrid_2", "ART-Human_2persons_integer"):
+        ds = real_dataset(name)
+        if ds is not None:
+            datasets.append(ds)
+    for i, ds in enumerate(datasets):
+        t0 = time.perf_counter()
+        out = run(ds, args.trials, args.seed + i, args.pattern)
+        report(ds, out, has_ktk)
+        print(f"({time.perf_counter() - t0:.0f} s)")
+        sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
