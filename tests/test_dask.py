@@ -1,0 +1,36 @@
+"""The Dask executor gives byte-identical outputs to the serial one (in-process cluster and worker processes)."""
+
+from __future__ import annotations
+
+import pytest
+from click.testing import CliRunner
+
+from gazepipe.cli.main import cli
+from tests.conftest import SAMPLE, make_tiny_session
+from tests.test_pipeline import output_digests
+
+distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
+
+
+def _run(*args: str) -> None:
+    res = CliRunner().invoke(cli, list(args), catch_exceptions=False)
+    assert res.exit_code == 0, res.stderr
+
+
+def test_in_process_cluster_matches_serial(tmp_path):
+    session = make_tiny_session(tmp_path / "s", n_takes=4)
+    serial, dask_out = tmp_path / "serial", tmp_path / "dask"
+    _run("ingest", str(session), "--out", str(serial), "--executor", "serial")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        _run("ingest", str(session), "--out", str(dask_out), "--scheduler", cluster.scheduler_address)
+    assert output_digests(serial) and output_digests(serial) == output_digests(dask_out)
+
+
+def test_local_multiprocess_cluster_matches_serial(tmp_path):
+    serial, dask_out = tmp_path / "serial", tmp_path / "dask"
+    _run("clean", str(SAMPLE), "--out", str(serial), "--executor", "serial")
+    _run("clean", str(SAMPLE), "--out", str(dask_out), "--executor", "dask", "-j", "2")
+    digests = output_digests(serial)
+    assert any(k.endswith("joints.parquet") for k in digests)
+    assert digests == output_digests(dask_out)
