@@ -1,0 +1,675 @@
+"""The ``eyes`` stage (SPEC §3.5, Klein 5.2 and 9): OpenFace gaze into the character frame.
+
+Steps, all pure functions on arrays:
+
+1. :func:`gate` on the video clock: a sample is valid when ``success`` and ``confidence >= min_confidence`` and
+   not a blink and both gaze vectors exist; invalid runs of at most ``max_eye_gap_s`` between two valid samples
+   are filled by slerp (per eye); longer runs and runs at either end stay invalid.
+2. :func:`cyclopean`: the normalised mean of both eyes (OpenFace cannot resolve vergence, Klein 5.2).
+3. Resampling onto the mocap frames through the clock map t_mocap = offset + ratio · t_video: directions by
+   slerp between the two neighbouring video samples, confidence the minimum of the two, valid only when both are
+   valid; no extrapolation.
+4. :func:`camera_to_character`: v_head = R · v_cam with R the camera rotation, then v_char = R_head · v_head.
+5. :func:`estimate_camera_rotation` when R is not configured: least-squares rotation between the OpenFace gaze
+   and the direction from the eyes' centre to the target, in head axes, over fixation frames.
+
+Axes. OpenFace's camera: x right, y down, z forward (out of the lens). The head segment: X the subject's left,
+Y up, Z forward (out of the face). A head-mounted camera in front of the face looks back at it, so:
+
+- camera z (away from the lens, into the face) is head −Z: a subject looking into the lens gives (0, 0, −1) in
+  camera axes and must give head forward (0, 0, 1);
+- camera x (image right) is the subject's left, head +X (the image's left shows the subject's right eye, which
+  is why OpenFace's ``gaze_0`` is the right eye);
+- camera y (image down) is head −Y.
+
+So R = diag(1, −1, −1): the 180° rotation about the head's Y axis (diag(−1, 1, −1), turning the camera round to
+face the subject) composed with the 180° rotation about the optical axis that flips x and y (diag(−1, −1, 1),
+image axes "right, down" to "left, up"): Ry(180°) · Rz(180°) = diag(1, −1, −1) = Rx(180°), quaternion
+(w, x, y, z) = (0, 1, 0, 0), :data:`CAMERA_FACING_FACE`. A real mount adds its tilt and turn: R = R_mount · that.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, uniform_filter1d
+from scipy.spatial.transform import Rotation
+
+from gazepipe.errors import StageError
+from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.timebase import snap_rate
+
+__all__ = [
+    "CAMERA_FACING_FACE",
+    "GATE_REASONS",
+    "CameraEstimate",
+    "EyesParams",
+    "EyesResult",
+    "Gated",
+    "angle_between",
+    "camera_to_character",
+    "camera_to_head",
+    "cyclopean",
+    "estimate_camera_rotation",
+    "eyes_take",
+    "fixation_frames",
+    "gate",
+    "head_to_character",
+    "slerp_vectors",
+]
+
+#: camera → head rotation (w, x, y, z) of a camera straight in front of the face looking back at it
+CAMERA_FACING_FACE = np.array([0.0, 1.0, 0.0, 0.0])
+
+#: why a video sample is gated out, by code (first failing rule in this order wins)
+GATE_REASONS = ("valid", "success", "confidence", "blink", "no_gaze")
+
+_EPS = 1e-12
+_TIME_TOL_S = 1e-9
+
+
+@dataclass(frozen=True)
+class EyesParams:
+    """Parameters of the eyes stage (SPEC §3.5); speeds in degrees per second, times in seconds.
+
+    Attributes
+    ----------
+    min_confidence : OpenFace confidence at or above which a sample can be valid.
+    max_eye_gap_s : longest invalid run (between two valid samples) filled by slerp.
+    head_segment : the head segment's name in the joints; ``None`` = ``"head"``, else the last segment.
+    smooth_s : moving-average window of the directions used to measure angular speeds (fixation frames only).
+    fixation_window_s : a fixation frame needs low speeds over this centred window.
+    max_target_speed_deg_s : highest angular speed of the target (head axes) in a fixation window; faster is a
+        target move.
+    max_gaze_speed_deg_s : highest angular speed of the gaze (camera axes) in a fixation window (saccades and the
+        eye catching up are far faster; the vestibulo-ocular reflex during slow head turns is slower).
+    settle_s : frames this soon after a target move are no fixation (the eyes react about 0.2 s late).
+    keep_percentile : after each fit, frames whose error is above this percentile are left out of the next fit.
+    refit_iterations : number of trimmed re-fits after the first fit.
+    min_fixation_frames : fewest fixation frames needed to estimate the camera rotation.
+    min_target_spread_deg : below this RMS spread of the target directions the estimate is poorly conditioned
+        (a warning in QC).
+    """
+
+    min_confidence: float = 0.8
+    max_eye_gap_s: float = 0.1
+    head_segment: str | None = None
+    smooth_s: float = 0.1
+    fixation_window_s: float = 0.3
+    max_target_speed_deg_s: float = 20.0
+    max_gaze_speed_deg_s: float = 40.0
+    settle_s: float = 0.5
+    keep_percentile: float = 75.0
+    refit_iterations: int = 3
+    min_fixation_frames: int = 30
+    min_target_spread_deg: float = 5.0
+
+
+@dataclass
+class Gated:
+    """Gated and gap-filled eye samples on the video clock (output of :func:`gate`).
+
+    Attributes
+    ----------
+    time_s : (N,) float64 video-clock seconds.
+    video_frame : (N,) int64 video frame index of each row (missing rows show as jumps).
+    gaze_left, gaze_right : (N, 3) unit vectors, camera axes, subject's own eyes; NaN where invalid.
+    gaze : (N, 3) cyclopean direction, camera axes; NaN where invalid.
+    valid : (N,) bool, measured or filled.
+    filled : (N,) bool, filled by slerp.
+    reason : (N,) uint8 index into :data:`GATE_REASONS` (why the raw sample failed the gate; 0 = it passed).
+    confidence : (N,) float64: OpenFace's where measured, the minimum of the two bracketing samples where filled,
+        OpenFace's (possibly junk) elsewhere.
+    rate_hz : video frame rate, from the frame numbers and timestamps.
+    max_gap_frames : longest run of missing video frames that is filled (from ``max_eye_gap_s``).
+    qc : JSON-ready record.
+    """
+
+    time_s: np.ndarray
+    video_frame: np.ndarray
+    gaze_left: np.ndarray
+    gaze_right: np.ndarray
+    gaze: np.ndarray
+    valid: np.ndarray
+    filled: np.ndarray
+    reason: np.ndarray
+    confidence: np.ndarray
+    rate_hz: float
+    max_gap_frames: int
+    qc: dict = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time_s.shape[0])
+
+
+class CameraEstimate(NamedTuple):
+    """Result of :func:`estimate_camera_rotation`.
+
+    quat : (4,) w, x, y, z rotation from camera axes to head axes (v_head = R · v_cam).
+    residual_deg : median angle between the rotated gaze and the target direction over the fixation frames.
+    n_used : frames in the final (trimmed) fit.
+    """
+
+    quat: np.ndarray
+    residual_deg: float
+    n_used: int
+
+
+@dataclass
+class EyesResult:
+    """Eye direction per mocap frame (output of :func:`eyes_take`).
+
+    Attributes
+    ----------
+    eye_dir_char : (N, 3) unit cyclopean gaze direction in the character frame; NaN where not ``valid``.
+    eye_dir_head : (N, 3) the same in the head segment's axes; NaN where the eye data are invalid.
+    valid : (N,) bool: both neighbouring video samples valid (measured or filled), the frame covered by the video,
+        and a head rotation present.
+    confidence : (N,) float64 minimum of the two neighbouring video samples' confidence; NaN without coverage.
+    covered : (N,) bool, the frame lies within the video's time span.
+    camera_rotation : (4,) w, x, y, z camera → head rotation used.
+    camera_source : ``"configured"`` or ``"estimated"``.
+    gated : the video-clock :class:`Gated` samples.
+    qc : JSON-ready record.
+    """
+
+    eye_dir_char: np.ndarray
+    eye_dir_head: np.ndarray
+    valid: np.ndarray
+    confidence: np.ndarray
+    covered: np.ndarray
+    camera_rotation: np.ndarray
+    camera_source: str
+    gated: Gated
+    qc: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.valid.shape[0])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# vector helpers
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in radians between vectors (..., 3), robust near 0 and π; NaN where either is NaN."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > _EPS, v / n, np.nan)
+
+
+def slerp_vectors(p: np.ndarray, q: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Spherical interpolation of unit vectors: the point a fraction ``f`` along the great arc from p to q.
+
+    Parameters
+    ----------
+    p, q : (N, 3) unit vectors (finite).
+    f : (N,) fractions (0 gives p, 1 gives q).
+
+    The arc is the rotation about p × q by f times the angle between them; antipodal pairs (no unique arc) and
+    identical vectors give p.
+    """
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    f = np.asarray(f, dtype=np.float64)
+    if p.shape[0] == 0:
+        return np.empty((0, 3))
+    axis = np.cross(p, q)
+    s = np.linalg.norm(axis, axis=1)
+    ang = np.arctan2(s, np.sum(p * q, axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where((s > _EPS)[:, None], axis / s[:, None], 0.0)
+    return Rotation.from_rotvec(axis * (f * ang)[:, None]).apply(p)
+
+
+def cyclopean(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """The cyclopean gaze direction: the normalised mean of both eyes' unit vectors, (N, 3).
+
+    Any axes (camera axes in this stage). NaN where either eye is NaN or the mean vanishes.
+    """
+    return _unit(np.asarray(left, dtype=np.float64) + np.asarray(right, dtype=np.float64))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# gating
+
+
+def _video_frames(t: np.ndarray, frame: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Video frame index per row and the frame period in seconds.
+
+    With frame numbers, the period is the time span over the frame span (rate snapped to N·1000/1001 where it
+    is one); without, the median positive time step, and indices follow from the timestamps.
+    """
+    n = t.shape[0]
+    if frame is not None and n >= 2 and frame[-1] > frame[0] and t[-1] > t[0]:
+        rate = snap_rate((frame[-1] - frame[0]) / (t[-1] - t[0]))
+        return np.asarray(frame, dtype=np.int64), 1.0 / rate
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return np.arange(n, dtype=np.int64), float("nan")
+    dt = 1.0 / snap_rate(1.0 / float(np.median(steps)))
+    return np.round((t - t[0]) / dt).astype(np.int64), dt
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop (exclusive) rows of the runs of True in a 1-D mask."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def gate(eye: Any, *, min_confidence: float = 0.8, max_eye_gap_s: float = 0.1) -> Gated:
+    """Gate OpenFace samples and fill short invalid runs by slerp, on the video clock (SPEC §3.5).
+
+    Parameters
+    ----------
+    eye : an :class:`~gazepipe.io.tracks.EyeTrack` or any object with ``time_s`` (N,), ``success`` (N,),
+        ``confidence`` (N,), ``gaze_left``/``gaze_right`` (N, 3) unit camera-axes vectors, ``blink`` (N,) or
+        ``None``, and optionally ``frame`` (N,) video frame numbers.
+    min_confidence : a sample needs ``confidence >= min_confidence``.
+    max_eye_gap_s : invalid runs lasting at most this long (n missing video frames last n / rate) between two
+        valid samples are filled; the two bracketing samples are slerped per eye at the filled rows' times.
+        Runs touching either end are never filled (no extrapolation).
+
+    Returns
+    -------
+    :class:`Gated`. QC: ``gated_share`` (raw samples failing the gate), ``gated_by`` (share per reason, the first
+    failing rule in the order success, confidence, blink, no gaze vector), ``filled_samples``,
+    ``invalid_share`` (after filling), ``longest_invalid_run_s`` (after filling, missing video frames included),
+    ``missing_video_frames``.
+    """
+    t = np.asarray(eye.time_s, dtype=np.float64)
+    n = t.shape[0]
+    success = np.asarray(eye.success, dtype=bool)
+    conf = np.asarray(eye.confidence, dtype=np.float64)
+    left = np.asarray(eye.gaze_left, dtype=np.float64).reshape(n, 3)
+    right = np.asarray(eye.gaze_right, dtype=np.float64).reshape(n, 3)
+    blink_raw = getattr(eye, "blink", None)
+    blink = np.zeros(n, dtype=bool) if blink_raw is None else np.asarray(blink_raw, dtype=bool)
+    frame_raw = getattr(eye, "frame", None)
+    fidx, dt = _video_frames(t, None if frame_raw is None else np.asarray(frame_raw))
+
+    finite = np.isfinite(left).all(axis=1) & np.isfinite(right).all(axis=1)
+    reason = np.zeros(n, dtype=np.uint8)
+    # lowest priority first, so the first failing rule in GATE_REASONS order is what remains
+    reason[~finite] = 4
+    reason[blink] = 3
+    reason[~(conf >= min_confidence)] = 2   # NaN confidence fails too
+    reason[~success] = 1
+    measured = reason == 0
+
+    max_gap_frames = int(np.floor(max_eye_gap_s / dt + 1e-6)) if np.isfinite(dt) else 0
+    idx = np.arange(n)
+    prev = np.maximum.accumulate(np.where(measured, idx, -1)) if n else idx
+    nxt = np.minimum.accumulate(np.where(measured, idx, n)[::-1])[::-1] if n else idx
+    bracketed = ~measured & (prev >= 0) & (nxt < n)
+    a = np.clip(prev, 0, max(n - 1, 0))
+    b = np.clip(nxt, 0, max(n - 1, 0))
+    filled = bracketed & (fidx[b] - fidx[a] - 1 <= max_gap_frames) if n else bracketed
+
+    out_l = np.where(measured[:, None], left, np.nan)
+    out_r = np.where(measured[:, None], right, np.nan)
+    confidence = conf.copy()
+    if filled.any():
+        fa, fb = a[filled], b[filled]
+        span = t[fb] - t[fa]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = np.where(span > 0, (t[filled] - t[fa]) / span, 0.0)
+        frac = np.clip(frac, 0.0, 1.0)
+        out_l[filled] = slerp_vectors(left[fa], left[fb], frac)
+        out_r[filled] = slerp_vectors(right[fa], right[fb], frac)
+        confidence[filled] = np.minimum(conf[fa], conf[fb])
+    valid = measured | filled
+    gaze = cyclopean(out_l, out_r)
+
+    qc = _gate_qc(n, reason, filled, valid, fidx, dt, blink_raw is None)
+    qc.update(min_confidence=float(min_confidence), max_eye_gap_s=float(max_eye_gap_s))
+    return Gated(time_s=t, video_frame=fidx, gaze_left=out_l, gaze_right=out_r, gaze=gaze, valid=valid,
+                 filled=filled, reason=reason, confidence=confidence, rate_hz=float(1.0 / dt),
+                 max_gap_frames=max_gap_frames, qc=qc)
+
+
+def _gate_qc(n: int, reason: np.ndarray, filled: np.ndarray, valid: np.ndarray, fidx: np.ndarray, dt: float,
+             no_blink: bool) -> dict:
+    share = (lambda k: float(k) / n) if n else (lambda k: 0.0)
+    # longest invalid stretch in video frames: runs of invalid rows plus the missing frames around them,
+    # and missing frames between two valid rows
+    longest = 0
+    missing = 0
+    if n:
+        hop = np.diff(fidx) - 1
+        missing = int(np.maximum(hop, 0).sum())
+        starts, stops = _runs(~valid)
+        if starts.size:
+            before = np.where(starts > 0, fidx[np.maximum(starts - 1, 0)], fidx[starts] - 1)
+            after = np.where(stops < n, fidx[np.minimum(stops, n - 1)], fidx[stops - 1] + 1)
+            longest = int(np.max(after - before - 1))
+        gaps_between_valid = hop[valid[:-1] & valid[1:]]
+        if gaps_between_valid.size:
+            longest = max(longest, int(gaps_between_valid.max()))
+    qc = {
+        "samples": int(n),
+        "video_rate_hz": float(1.0 / dt) if np.isfinite(dt) else None,
+        "gated_share": share(np.count_nonzero(reason)),
+        "gated_by": {name: share(np.count_nonzero(reason == i)) for i, name in enumerate(GATE_REASONS) if i},
+        "filled_samples": int(np.count_nonzero(filled)),
+        "invalid_share": share(np.count_nonzero(~valid)),
+        "longest_invalid_run_s": float(longest * dt) if np.isfinite(dt) else 0.0,
+        "missing_video_frames": missing,
+        "warnings": [],
+    }
+    if no_blink:
+        qc["warnings"].append("no blink information (no AU45 column): blinks are not masked")
+    return qc
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# axes
+
+
+def camera_to_head(gaze_cam: np.ndarray, r_cam_to_head: np.ndarray) -> np.ndarray:
+    """Directions (N, 3) from camera axes to head axes: v_head = R · v_cam (R as w, x, y, z); NaN stays NaN."""
+    v = np.asarray(gaze_cam, dtype=np.float64)
+    return from_wxyz(r_cam_to_head).as_matrix().dot(v.T).T if v.size else v.reshape(-1, 3).copy()
+
+
+def head_to_character(v_head: np.ndarray, head_rot_char: np.ndarray) -> np.ndarray:
+    """Directions (N, 3) from head axes to the character frame: v_char = R_head · v_head per frame.
+
+    ``head_rot_char`` (N, 4) w, x, y, z is the head segment's rotation in the character frame; rows where it or
+    the vector is not finite give NaN.
+    """
+    v = np.asarray(v_head, dtype=np.float64)
+    q = np.asarray(head_rot_char, dtype=np.float64)
+    out = np.full(v.shape, np.nan)
+    ok = np.isfinite(v).all(axis=1) & np.isfinite(q).all(axis=1)
+    if ok.any():
+        out[ok] = from_wxyz(q[ok]).apply(v[ok])
+    return out
+
+
+def camera_to_character(gaze_cam: np.ndarray, r_cam_to_head: np.ndarray, head_rot_char: np.ndarray) -> np.ndarray:
+    """Directions (N, 3) from camera axes into the character frame: v_char = R_head · R · v_cam.
+
+    Parameters
+    ----------
+    gaze_cam : (N, 3) unit vectors in OpenFace camera axes (x right, y down, z forward).
+    r_cam_to_head : (4,) w, x, y, z camera → head rotation (see the module docstring for the worked example of
+        a camera in front of the face: :data:`CAMERA_FACING_FACE`).
+    head_rot_char : (N, 4) w, x, y, z head rotation in the character frame.
+    """
+    return head_to_character(camera_to_head(gaze_cam, r_cam_to_head), head_rot_char)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# camera rotation estimate
+
+
+def _smooth_dirs(v: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving average of unit vectors over k frames, renormalised; NaN if any in the window is NaN."""
+    if k <= 1:
+        return v
+    ok = np.isfinite(v).all(axis=1)
+    vz = np.where(ok[:, None], v, 0.0)
+    s = uniform_filter1d(vz, k, axis=0, mode="constant", cval=0.0)
+    cnt = uniform_filter1d(ok.astype(np.float64), k, mode="constant", cval=0.0)
+    return np.where((cnt > 1.0 - 1e-9)[:, None], _unit(s), np.nan)
+
+
+def _angular_speed(v: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Angular speed in degrees per second of a direction series, central differences; NaN at the ends."""
+    out = np.full(v.shape[0], np.nan)
+    if v.shape[0] >= 3:
+        out[1:-1] = np.rad2deg(angle_between(v[2:], v[:-2])) * rate_hz / 2.0
+    return out
+
+
+def _odd(x: float) -> int:
+    k = max(1, int(round(x)))
+    return k if k % 2 else k + 1
+
+
+def fixation_frames(gaze_cam: np.ndarray, target_dir_head: np.ndarray, rate_hz: float,
+                    params: EyesParams | None = None) -> np.ndarray:
+    """Frames (N,) bool where the subject plausibly fixates the target (for the camera-rotation fit).
+
+    Both directions are smoothed over ``smooth_s``; a frame qualifies when, over the centred
+    ``fixation_window_s``, the target's angular speed in head axes stays below ``max_target_speed_deg_s`` and the
+    gaze's below ``max_gaze_speed_deg_s``, and no target move (a frame above the target speed limit) happened in
+    the last ``settle_s`` (the eyes start about 0.2 s after the target, then saccade; until they arrive both can
+    be still and apart).
+    """
+    p = params or EyesParams()
+    g = np.asarray(gaze_cam, dtype=np.float64)
+    tdir = np.asarray(target_dir_head, dtype=np.float64)
+    n = g.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    k = _odd(p.smooth_s * rate_hz)
+    sg = _angular_speed(_smooth_dirs(g, k), rate_hz)
+    st = _angular_speed(_smooth_dirs(tdir, k), rate_hz)
+    w = _odd(p.fixation_window_s * rate_hz)
+    sg_w = maximum_filter1d(np.where(np.isfinite(sg), sg, np.inf), w, mode="nearest")
+    st_w = maximum_filter1d(np.where(np.isfinite(st), st, np.inf), w, mode="nearest")
+    idx = np.arange(n)
+    moving = np.isfinite(st) & (st > p.max_target_speed_deg_s)
+    last_move = np.maximum.accumulate(np.where(moving, idx, -n - 1))
+    settled = (idx - last_move) > p.settle_s * rate_hz
+    return (sg_w <= p.max_gaze_speed_deg_s) & (st_w <= p.max_target_speed_deg_s) & settled
+
+
+def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
+                             weights: np.ndarray | None = None, *, rate_hz: float | None = None,
+                             params: EyesParams | None = None) -> CameraEstimate:
+    """Least-squares camera → head rotation from gaze and target directions while the subject fixates.
+
+    Parameters
+    ----------
+    gaze_cam : (N, 3) unit gaze vectors in camera axes, per mocap frame (NaN where invalid).
+    target_dir_head : (N, 3) unit vectors from the eyes' centre (head centre, never the head markers' centroid:
+        SPEC §3.5) to the target, in head axes.
+    weights : (N,) non-negative weights or a bool mask; zero / False leaves a frame out. Default: all ones.
+    rate_hz : the frames' rate; when given, frames are further restricted to :func:`fixation_frames`.
+    params : :class:`EyesParams` (fixation rules, trimming, minimum frames).
+
+    Returns
+    -------
+    :class:`CameraEstimate` (quaternion w, x, y, z with target ≈ R · gaze; the median residual angle in degrees
+    over all candidate frames under the final rotation; the frames in the final fit).
+
+    Method: ``Rotation.align_vectors`` (weighted Wahba / Kabsch) on the candidates, then ``refit_iterations``
+    times: keep the candidates whose error is at most the ``keep_percentile`` percentile and re-fit. This drops
+    frames where the eyes had not yet arrived, blinks that slipped through, and OpenFace outliers.
+
+    Raises
+    ------
+    ValueError : fewer than ``min_fixation_frames`` candidate frames.
+    """
+    p = params or EyesParams()
+    g = np.asarray(gaze_cam, dtype=np.float64)
+    tdir = np.asarray(target_dir_head, dtype=np.float64)
+    w = np.ones(g.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
+    cand = np.isfinite(g).all(axis=1) & np.isfinite(tdir).all(axis=1) & np.isfinite(w) & (w > 0)
+    if rate_hz is not None:
+        cand &= fixation_frames(g, tdir, rate_hz, p)
+    n_cand = int(np.count_nonzero(cand))
+    if n_cand < max(p.min_fixation_frames, 3):
+        raise ValueError(f"only {n_cand} fixation frame(s) with valid gaze and target; need "
+                         f"{max(p.min_fixation_frames, 3)}")
+    gi, ti, wi = g[cand], tdir[cand], w[cand]
+    keep = np.ones(n_cand, dtype=bool)
+    rot = Rotation.identity()
+    for it in range(p.refit_iterations + 1):
+        rot, _ = Rotation.align_vectors(ti[keep], gi[keep], weights=wi[keep])
+        if it == p.refit_iterations:
+            break
+        err = angle_between(rot.apply(gi), ti)
+        new = err <= np.percentile(err, p.keep_percentile)
+        if np.count_nonzero(new) < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+    err = angle_between(rot.apply(gi), ti)
+    return CameraEstimate(quat=to_wxyz(rot), residual_deg=float(np.rad2deg(np.median(err))),
+                          n_used=int(np.count_nonzero(keep)))
+
+
+def _target_spread_deg(v: np.ndarray) -> float:
+    """RMS angle of directions (N, 3) from their normalised mean, degrees."""
+    m = _unit(v.mean(axis=0))
+    return float(np.rad2deg(np.sqrt(np.mean(angle_between(v, m[None, :]) ** 2))))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# composition
+
+
+def _clock(clock: Any) -> tuple[float, float]:
+    if clock is None:
+        return 0.0, 1.0
+    return float(clock.offset_s), float(clock.ratio)
+
+
+def _resample(g: Gated, mocap_time_s: np.ndarray, offset_s: float, ratio: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gated samples onto mocap times: (gaze (M, 3), valid (M,), confidence (M,), covered (M,)).
+
+    Same contract as the sync stage's resampling: directions by slerp between the two neighbouring video
+    samples, confidence the minimum of the two, valid the AND of the two, no extrapolation past either end.
+    Two valid neighbours further apart than a fillable gap (missing video rows) do not make a valid frame.
+    """
+    m = mocap_time_s.shape[0]
+    gaze = np.full((m, 3), np.nan)
+    valid = np.zeros(m, dtype=bool)
+    conf = np.full(m, np.nan)
+    n = g.n_samples
+    if n < 2 or m == 0:
+        return gaze, valid, conf, np.zeros(m, dtype=bool)
+    tv = offset_s + ratio * g.time_s
+    covered = (mocap_time_s >= tv[0] - _TIME_TOL_S) & (mocap_time_s <= tv[-1] + _TIME_TOL_S)
+    i0 = np.clip(np.searchsorted(tv, mocap_time_s, side="right") - 1, 0, n - 2)
+    i1 = i0 + 1
+    span = tv[i1] - tv[i0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.clip(np.where(span > 0, (mocap_time_s - tv[i0]) / span, 0.0), 0.0, 1.0)
+    near = (g.video_frame[i1] - g.video_frame[i0] - 1) <= g.max_gap_frames
+    valid = covered & g.valid[i0] & g.valid[i1] & near
+    conf = np.where(covered, np.minimum(g.confidence[i0], g.confidence[i1]), np.nan)
+    if valid.any():
+        gaze[valid] = slerp_vectors(g.gaze[i0[valid]], g.gaze[i1[valid]], frac[valid])
+    return gaze, valid, conf, covered
+
+
+def _head_index(names: list[str], head_segment: str | None, path: Any, take: str | None) -> int:
+    if head_segment is not None:
+        if head_segment not in names:
+            raise StageError(path, f"eyes: head segment {head_segment!r} is not in the joints", take=take)
+        return names.index(head_segment)
+    return names.index("head") if "head" in names else len(names) - 1
+
+
+def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None, *,
+              camera_rotation: np.ndarray | None = None, params: EyesParams | None = None,
+              path: Any = None, take: str | None = None) -> EyesResult:
+    """Eye direction per mocap frame of one take (SPEC §3.5).
+
+    Parameters
+    ----------
+    eye : the take's :class:`~gazepipe.io.tracks.EyeTrack` (video clock).
+    joints : the take's :class:`~gazepipe.stages.frames.Joints` (``segments``, ``quat`` (N, S, 4) in the
+        character frame, ``target_dir`` (N, 3) from the eyes' centre, ``rate_hz``).
+    mocap_time_s : (N,) mocap-clock seconds of the joints' rows (0 at the mocap file's first frame).
+    clock : the sync stage's clock map (attributes ``offset_s``, ``ratio``: t_mocap = offset + ratio · t_video);
+        ``None`` when both clocks are the same.
+    camera_rotation : (4,) w, x, y, z camera → head rotation from the markerset's ``[camera]``; ``None``
+        estimates it from the take's fixation frames (:func:`estimate_camera_rotation`).
+    params : :class:`EyesParams`.
+    path, take : for error messages.
+
+    Returns
+    -------
+    :class:`EyesResult`. A video sample that failed the gate and was not filled never contributes to a valid
+    frame. QC adds to the gate's record: frames, valid frames, frames without video coverage, frames without a
+    head rotation, the camera rotation and its source, its residual angle (median over fixation frames, also for
+    a configured rotation, as a check) and the fixation frames used.
+
+    Raises
+    ------
+    StageError : the head segment is missing, the time array does not match the joints, or the camera rotation
+        has to be estimated and the take has too few fixation frames.
+    """
+    p = params or EyesParams()
+    g = gate(eye, min_confidence=p.min_confidence, max_eye_gap_s=p.max_eye_gap_s)
+    mt = np.asarray(mocap_time_s, dtype=np.float64)
+    quat_all = np.asarray(joints.quat, dtype=np.float64)
+    n = quat_all.shape[0]
+    if mt.shape != (n,):
+        raise StageError(path, f"eyes: {mt.shape[0] if mt.ndim == 1 else mt.shape} mocap times for {n} "
+                         f"joint frames", take=take)
+    head_q = quat_all[:, _head_index(list(joints.segments), p.head_segment, path, take)]
+    head_ok = np.isfinite(head_q).all(axis=1)
+    offset_s, ratio = _clock(clock)
+    gaze_cam, eye_valid, conf, covered = _resample(g, mt, offset_s, ratio)
+
+    qc = dict(g.qc)
+    qc["warnings"] = list(g.qc["warnings"])
+    if clock is None:
+        qc["warnings"].append("no clock map: video and mocap clocks taken as the same")
+
+    # target direction in head axes, for the estimate and for checking a configured rotation
+    tdir_char = np.asarray(getattr(joints, "target_dir", np.full((n, 3), np.nan)), dtype=np.float64)
+    tdir_head = np.full((n, 3), np.nan)
+    t_ok = head_ok & np.isfinite(tdir_char).all(axis=1)
+    if t_ok.any():
+        tdir_head[t_ok] = from_wxyz(head_q[t_ok]).inv().apply(tdir_char[t_ok])
+    fix = eye_valid & t_ok & fixation_frames(gaze_cam, tdir_head, float(joints.rate_hz), p)
+
+    residual: float | None = None
+    if camera_rotation is None:
+        try:
+            est = estimate_camera_rotation(gaze_cam, tdir_head, fix, params=p)
+        except ValueError as e:
+            raise StageError(path, f"eyes: cannot estimate the camera rotation: {e}", take=take) from None
+        r_cam, source, residual, n_used = est.quat, "estimated", est.residual_deg, est.n_used
+    else:
+        r_cam = to_wxyz(from_wxyz(np.asarray(camera_rotation, dtype=np.float64)))
+        source, n_used = "configured", 0
+        if np.count_nonzero(fix) >= 3:
+            err = angle_between(camera_to_head(gaze_cam[fix], r_cam), tdir_head[fix])
+            residual, n_used = float(np.rad2deg(np.median(err))), int(np.count_nonzero(fix))
+    spread = _target_spread_deg(tdir_head[fix]) if np.count_nonzero(fix) >= 3 else None
+    if source == "estimated" and spread is not None and spread < p.min_target_spread_deg:
+        qc["warnings"].append(f"target directions over the fixation frames spread only {spread:.1f} deg: "
+                              "the camera rotation is poorly determined")
+
+    eye_dir_head = np.where(eye_valid[:, None], camera_to_head(gaze_cam, r_cam), np.nan)
+    eye_dir_char = head_to_character(eye_dir_head, head_q)
+    valid = eye_valid & head_ok
+    eye_dir_char[~valid] = np.nan
+
+    qc.update({
+        "frames": int(n),
+        "valid_frames": int(np.count_nonzero(valid)),
+        "valid_share": float(np.count_nonzero(valid) / n) if n else 0.0,
+        "frames_without_coverage": int(np.count_nonzero(~covered)),
+        "frames_without_head": int(np.count_nonzero(covered & ~head_ok)),
+        "clock_offset_s": offset_s,
+        "clock_ratio": ratio,
+        "camera_rotation": [float(x) for x in r_cam],
+        "camera_rotation_source": source,
+        "camera_residual_deg": residual,
+        "camera_fixation_frames": int(np.count_nonzero(fix)),
+        "camera_frames_used": int(n_used),
+        "camera_target_spread_deg": spread,
+    })
+    return EyesResult(eye_dir_char=eye_dir_char, eye_dir_head=eye_dir_head, valid=valid, confidence=conf,
+                      covered=covered, camera_rotation=r_cam, camera_source=source, gated=g, qc=qc)
