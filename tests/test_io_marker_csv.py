@@ -194,3 +194,20 @@ def test_dispatch_and_inspect(tmp_path):
         read_markers(tmp_path / "missing.csv")
     with pytest.raises(InputError, match="unknown capture format"):
         read_markers(_write(tmp_path, "x.bin", "hello"))
+
+
+def test_crlf_and_trailing_separators(tmp_path):
+    crlf = read_vicon_csv(_write(tmp_path, "crlf.csv", VICON.replace("\n", "\r\n")))
+    ref = read_vicon_csv(_write(tmp_path, "lf.csv", VICON))
+    assert crlf.labels == ref.labels
+    np.testing.assert_array_equal(crlf.xyz, ref.xyz)
+    # QTM rows ending in a tab: an empty trailing cell, not an extra column
+    tabbed = "\n".join(ln + "\t" if ln[:1].isdigit() else ln for ln in QTM.splitlines()) + "\n"
+    np.testing.assert_array_equal(read_qtm_tsv(_write(tmp_path, "tab.tsv", tabbed)).xyz,
+                                  read_qtm_tsv(_write(tmp_path, "q.tsv", QTM)).xyz)
+
+
+def test_row_with_extra_values_is_an_error(tmp_path):
+    p = _write(tmp_path, "w.csv", "frame,time,A_x,A_y,A_z\n1,0,1,2,3\n2,0.01,1,2,3,99\n")
+    with pytest.raises(InputError, match="does not fit 5 columns"):
+        read_wide_csv(p)

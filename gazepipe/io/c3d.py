@@ -21,6 +21,7 @@ infinite), when the residual word read as an unsigned 16-bit integer is 0xFFFF, 
 
 from __future__ import annotations
 
+import hashlib
 import math
 import struct
 import warnings
@@ -446,20 +447,28 @@ def _read_pyc3d(path: Path, lay: Layout) -> np.ndarray | None:
 
 
 def _duplicates(xyz: np.ndarray, valid: np.ndarray) -> list[list[int]]:
-    """Groups (of 2 or more) of columns whose coordinates and validity are bit-identical."""
-    if xyz.shape[1] < 2 or xyz.shape[0] == 0:
-        return []
-    filled = np.where(valid[..., None], xyz, 0.0)
-    cols = np.concatenate([filled.transpose(1, 0, 2).reshape(xyz.shape[1], -1).view(np.uint64),
-                           valid.T.astype(np.uint64)], axis=1)
-    _, inverse, counts = np.unique(cols, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    """Groups (of 2 or more) of columns whose coordinates and validity are bit-identical.
+
+    Columns are bucketed by a digest of their bytes, then compared exactly; never-valid columns are skipped
+    (every empty marker would match every other).
+    """
+    buckets: dict[bytes, list[int]] = {}
+    for k in range(xyz.shape[1]):
+        if not valid[:, k].any():
+            continue
+        col = np.where(valid[:, k, None], xyz[:, k], 0.0)
+        key = hashlib.blake2b(col.tobytes() + valid[:, k].tobytes(), digest_size=16).digest()
+        buckets.setdefault(key, []).append(k)
     groups = []
-    for g in np.flatnonzero(counts > 1):
-        members = np.flatnonzero(inverse == g)
-        if valid[:, members[0]].any():
-            groups.append([int(m) for m in members])
-    groups.sort(key=lambda m: m[0])
+    for members in buckets.values():
+        while len(members) > 1:
+            first = members[0]
+            same = [k for k in members if np.array_equal(valid[:, k], valid[:, first])
+                    and np.array_equal(xyz[valid[:, first], k], xyz[valid[:, first], first])]
+            if len(same) > 1:
+                groups.append(same)
+            members = [k for k in members if k not in same]
+    groups.sort(key=lambda g: g[0])
     return groups
 
 

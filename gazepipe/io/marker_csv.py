@@ -30,10 +30,13 @@ import csv
 import io
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.csv as pa_csv
 
 from gazepipe.errors import InputError
 from gazepipe.io.c3d import make_unique
@@ -50,7 +53,7 @@ class _Bad(Exception):
     """A format problem found while parsing (message: short phrase)."""
 
 
-def _read_text(path: Path) -> str:
+def _read_raw(path: Path) -> bytes:
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
@@ -59,23 +62,65 @@ def _read_text(path: Path) -> str:
         raise InputError(path, f"cannot read file ({e.strerror or e})") from None
     if b"\x00" in raw:
         raise InputError(path, "binary data in a text export (NUL bytes)")
-    for enc in ("utf-8-sig", "latin-1"):
-        try:
-            return raw.decode(enc)
-        except UnicodeDecodeError:
-            continue
-    raise InputError(path, "cannot decode text")  # pragma: no cover  (latin-1 decodes any bytes)
+    return raw
 
 
-def _numbers(block: str, sep: str, n_cols: int) -> np.ndarray:
-    """Parse a block of numeric rows into a (rows, n_cols) float64 array; empty cells are NaN."""
+def _text(b: bytes) -> str:
+    try:
+        return b.decode("utf-8")
+    except UnicodeDecodeError:
+        return b.decode("latin-1")
+
+
+class _Lines:
+    """Line access over the raw bytes from a start offset: header lines are decoded one at a time, the
+    (large) data part stays bytes and goes to pandas as it is."""
+
+    def __init__(self, raw: bytes, start: int = 0) -> None:
+        if start == 0 and raw.startswith(b"\xef\xbb\xbf"):
+            start = 3
+        self.raw = raw
+        self.starts = [start]
+
+    def offset(self, i: int) -> int:
+        """Byte offset where line ``i`` starts (the file size past the last line)."""
+        while len(self.starts) <= i:
+            last = self.starts[-1]
+            nl = self.raw.find(b"\n", last) if last < len(self.raw) else -1
+            self.starts.append(len(self.raw) if nl < 0 else nl + 1)
+        return self.starts[i]
+
+    def __getitem__(self, i: int) -> str | None:
+        a, b = self.offset(i), self.offset(i + 1)
+        if a >= len(self.raw):
+            return None
+        return _text(self.raw[a:b]).rstrip("\r\n")
+
+
+def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
+    """Parse numeric rows (bytes) into a (rows, n_cols) float64 array; empty cells are NaN."""
     if not block.strip():
         return np.zeros((0, n_cols))
-    df = pd.read_csv(io.StringIO(block), sep=sep, header=None, dtype=str, keep_default_na=False,
-                     skip_blank_lines=True, engine="c", names=range(max(n_cols, 1)), index_col=False,
-                     on_bad_lines="error")
-    if df.shape[1] > n_cols:
-        df = df.iloc[:, :n_cols]
+    kw = dict(sep=sep, header=None, keep_default_na=False, skip_blank_lines=True, engine="c",
+              names=range(max(n_cols, 1)), index_col=False, on_bad_lines="error", encoding="latin-1")
+    with warnings.catch_warnings():
+        # pandas only warns when a row has more cells than there are names: the row is malformed unless
+        # the extra cells are empty (trailing separators), which are then dropped and the block re-read
+        warnings.simplefilter("error", pd.errors.ParserWarning)
+        for attempt in range(2):
+            try:
+                try:  # fast path: every cell a number or empty
+                    fast = pd.read_csv(io.BytesIO(block), dtype=np.float64, na_values=["", "NaN", "nan"], **kw)
+                    return fast.to_numpy(dtype=np.float64)[:, :n_cols]
+                except ValueError:
+                    pass
+                df = pd.read_csv(io.BytesIO(block), dtype=str, **kw)
+                break
+            except (pd.errors.ParserWarning, pd.errors.ParserError) as e:
+                if attempt:
+                    detail = " ".join(str(e).split())[:120]
+                    raise _Bad(f"a data row does not fit {n_cols} columns ({detail})") from None
+                block = re.sub(rb"[" + re.escape(sep.encode()) + rb" \r]+$", b"", block, flags=re.M)
     df = df.fillna("").apply(lambda c: c.str.strip())
     num = df.apply(pd.to_numeric, errors="coerce")
     bad = num.isna() & (df != "") & ~df.isin(["NaN", "nan", "NAN", "-nan"])
@@ -163,23 +208,26 @@ def strip_subject_prefix(labels: list[str], wanted: list[str] | tuple[str, ...] 
     return [new if counts[new] == 1 else old for old, new in zip(labels, out, strict=True)]
 
 
-def _parse_vicon(path: Path, text: str, rate_hz: float | None, strip_prefix: bool | list[str],
+_TRAJ_LINE = re.compile(rb"(?m)^[ \t]*Trajectories[ \t]*(?:,[^\r\n]*)?\r?$")
+_BLANK_LINE = re.compile(rb"(?m)^[ \t,\r]*$")
+
+
+def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bool | list[str],
                  default_units: str) -> Markers:
-    lines = text.splitlines()
-    start = next((i for i, ln in enumerate(lines[:10000])
-                  if ln.split(",", 1)[0].strip() == "Trajectories"), None)
-    if start is None:
+    found = _TRAJ_LINE.search(raw)
+    if found is None:
         raise _Bad("no 'Trajectories' block (export trajectories from Nexus)")
-    if start + 4 >= len(lines):
+    lines = _Lines(raw, found.start())
+    if lines[4] is None:
         raise _Bad("'Trajectories' block truncated before its data")
-    rate_cell = lines[start + 1].split(",", 1)[0].strip()
+    rate_cell = lines[1].split(",", 1)[0].strip()
     try:
         file_rate = float(rate_cell) if rate_cell else None
     except ValueError:
         raise _Bad(f"rate line reads {rate_cell[:20]!r}, not a number") from None
-    names = [c.strip() for c in next(csv.reader([lines[start + 2]]))]
-    comps = [c.strip() for c in next(csv.reader([lines[start + 3]]))]
-    units_row = [c.strip() for c in next(csv.reader([lines[start + 4]]))]
+    names = [c.strip() for c in next(csv.reader([lines[2]]), [])]
+    comps = [c.strip() for c in next(csv.reader([lines[3]]), [])]
+    units_row = [c.strip() for c in next(csv.reader([lines[4]]), [])]
     if len(comps) < 2 or comps[0].lower() != "frame":
         raise _Bad("the row after the marker names does not start with 'Frame'")
     starts = [i for i, n in enumerate(names) if n and i >= 1]
@@ -199,9 +247,11 @@ def _parse_vicon(path: Path, text: str, rate_hz: float | None, strip_prefix: boo
     units = found_units.pop() if found_units else None
 
     # data rows run to the first blank line (the next block) or the end of the file
-    stop = next((i for i in range(start + 5, len(lines)) if not lines[i].strip(", \t")), len(lines))
+    data_start = lines.offset(5)
+    blank = _BLANK_LINE.search(raw, data_start)
+    stop = blank.start() if blank is not None else len(raw)
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
-    arr = _numbers("\n".join(lines[start + 5: stop]), ",", n_cols)
+    arr = _numbers(raw[data_start:stop], ",", n_cols)
     xyz = arr[:, np.asarray(cols)] if arr.shape[0] else np.zeros((0, len(labels), 3))
     if xyz.shape[0] == 0:
         raise _Bad("no data rows in the 'Trajectories' block")
@@ -232,7 +282,7 @@ def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
     Markers in mm (NaN at gaps); ``first_frame`` is the first row's Frame number.
     """
     p = Path(path)
-    return _guard(p, _parse_vicon, p, _read_text(p), rate_hz, strip_prefix, default_units)
+    return _guard(p, _parse_vicon, p, _read_raw(p), rate_hz, strip_prefix, default_units)
 
 
 # ------------------------------------------------------------------------------------------------ QTM
@@ -240,12 +290,12 @@ def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
 _QTM_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
 
 
-def _parse_qtm(path: Path, text: str, rate_hz: float | None, default_units: str) -> Markers:
-    lines = text.splitlines()
+def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> Markers:
+    lines = _Lines(raw)
     header: dict[str, list[str]] = {}
     i = 0
-    while i < len(lines) and i < 100000:
-        cells = lines[i].rstrip("\r\n").split("\t")
+    while lines[i] is not None and i < 10000:
+        cells = lines[i].split("\t")
         key = cells[0].strip()
         if not _QTM_KEY.match(key):
             break
@@ -268,15 +318,15 @@ def _parse_qtm(path: Path, text: str, rate_hz: float | None, default_units: str)
     except ValueError:
         raise _Bad(f"FREQUENCY reads {freq[:20]!r}, not a number") from None
 
-    while i < len(lines) and not lines[i].strip():
+    while lines[i] is not None and not lines[i].strip():
         i += 1
     col_names: list[str] | None = None
-    if i < len(lines) and lines[i].split("\t", 1)[0].strip().lower() in ("frame", "time"):
+    if lines[i] is not None and lines[i].split("\t", 1)[0].strip().lower() in ("frame", "time"):
         col_names = [c.strip() for c in lines[i].split("\t")]
         i += 1
-    body = "\n".join(lines[i:])
-    first_row = next((ln for ln in lines[i:] if ln.strip()), "")
-    n_cells = len(first_row.rstrip("\r\n").split("\t"))
+    body = raw[lines.offset(i):]
+    first_row = lines[i] or ""
+    n_cells = len(first_row.rstrip(" \t").split("\t"))
     if col_names is not None:
         lead = [c.lower() for c in col_names[:2]]
         n_lead = 2 if lead == ["frame", "time"] else 1
@@ -305,7 +355,7 @@ def _parse_qtm(path: Path, text: str, rate_hz: float | None, default_units: str)
 def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
     """Read a Qualisys QTM 3D TSV export (mm unless ``default_units`` says otherwise; QTM writes mm)."""
     p = Path(path)
-    return _guard(p, _parse_qtm, p, _read_text(p), rate_hz, default_units)
+    return _guard(p, _parse_qtm, p, _read_raw(p), rate_hz, default_units)
 
 
 # ----------------------------------------------------------------------------------------- wide CSV
@@ -330,10 +380,11 @@ def rate_from_times(t: np.ndarray) -> tuple[float, bool]:
     return snap_rate(r), even
 
 
-def _parse_wide(path: Path, text: str, rate_hz: float | None, default_units: str) -> Markers:
-    if not text.strip():
-        raise _Bad("empty file")
-    head = next(csv.reader([text.split("\n", 1)[0]]))
+def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> Markers:
+    lines = _Lines(raw)
+    if lines[0] is None or not lines[0].strip():
+        raise _Bad("empty file or empty header line")
+    head = next(csv.reader([lines[0]]), [])
     cols = [c.strip() for c in head]
     low = [c.lower() for c in cols]
     labels: list[str] = []
@@ -353,8 +404,7 @@ def _parse_wide(path: Path, text: str, rate_hz: float | None, default_units: str
     for name in labels:
         if set(where[name]) != {"x", "y", "z"}:
             raise _Bad(f"marker {name!r} lacks one of its _x/_y/_z columns")
-    body = text.split("\n", 1)[1] if "\n" in text else ""
-    arr = _numbers(body, ",", len(cols))
+    arr = _numbers(raw[lines.offset(1):], ",", len(cols))
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
     idx = np.array([[where[n]["x"], where[n]["y"], where[n]["z"]] for n in labels])
@@ -374,7 +424,7 @@ def _parse_wide(path: Path, text: str, rate_hz: float | None, default_units: str
 def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
     """Read a wide marker CSV (``frame``, ``time``, ``<marker>_x/_y/_z``); rate from ``time`` or ``rate_hz``."""
     p = Path(path)
-    return _guard(p, _parse_wide, p, _read_text(p), rate_hz, default_units)
+    return _guard(p, _parse_wide, p, _read_raw(p), rate_hz, default_units)
 
 
 def write_wide_csv(path: str | Path, markers: Markers) -> None:
@@ -384,8 +434,12 @@ def write_wide_csv(path: str | Path, markers: Markers) -> None:
     """
     t, m = markers.valid.shape
     xyz = np.where(markers.valid[..., None], markers.xyz, np.nan).reshape(t, 3 * m)
-    columns = [f"{lab}_{a}" for lab in markers.labels for a in "xyz"]
-    df = pd.DataFrame(xyz, columns=columns)
-    df.insert(0, "time", markers.time_s)
-    df.insert(0, "frame", markers.source_frame)
-    df.to_csv(Path(path), index=False, na_rep="", lineterminator="\n")
+    columns = ["frame", "time"] + [f"{lab}_{a}" for lab in markers.labels for a in "xyz"]
+    arrays = [pa.array(markers.source_frame), pa.array(markers.time_s)]
+    arrays += [pa.array(xyz[:, j], from_pandas=True) for j in range(3 * m)]
+    table = pa.table(arrays, names=[f"c{j}" for j in range(len(columns))])
+    head = io.StringIO()
+    csv.writer(head, lineterminator="\n").writerow(columns)
+    with open(Path(path), "wb") as fh:
+        fh.write(head.getvalue().encode("utf-8"))
+        pa_csv.write_csv(table, fh, pa_csv.WriteOptions(include_header=False, quoting_style="needed"))
