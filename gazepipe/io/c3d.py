@@ -5,7 +5,8 @@ Reading happens in three steps:
 1. :func:`parse_c3d_meta` decodes the header and the parameter section with bounded, pure-Python code and
    checks that the data section the header describes fits in the file. Nothing else touches a file that
    fails this step, so ezc3d (C++) never sees a truncated or malformed header or parameter section: on
-   mutated files ezc3d was seen to hang in its parameter parser and to read truncated files without error.
+   mutated files ezc3d was seen to hang (a description overrunning its record), to crash with SIGSEGV
+   (ANALOG:SCALE or ANALOG:OFFSET missing or short) and to read truncated files without error.
 2. The point block is decoded with numpy straight from the validated layout (``_decode_points``). This
    always provides the fourth word of every sample (residual and camera byte), which ezc3d does not
    return faithfully (it decodes integer residual words from the camera byte and hides 65535.0 words).
@@ -72,6 +73,7 @@ class Layout:
     analog_channels: int
     data_offset: int        # byte offset of the first frame
     ezc3d_safe: bool        # parameters agree with the header the way ezc3d needs
+    notes: tuple[str, ...] = ()  # layout findings worth a warning
 
     @property
     def word_bytes(self) -> int:
@@ -201,32 +203,45 @@ class C3DMeta:
             n_frames = max(n_frames, end - start + 1)
         if n_frames < 0:
             raise MetaError(f"last frame {last} before first frame {first}")
-        analog_words = int(h["analog_words"])
         data_offset = (int(h["data_start"]) - 1) * 512
         if data_offset < 512:
             raise MetaError(f"data section starts at block {int(h['data_start'])}")
         is_float = scale < 0
         word = 4 if is_float else 2
-        needed = n_frames * (4 * n_points + analog_words) * word
-        if data_offset + needed > file_size:
-            raise MetaError(f"truncated: {n_frames} frames need {data_offset + needed} bytes, "
-                            f"the file has {file_size}")
         a_used = self.get_number("ANALOG", "USED", unsigned=True)
         a_used = int(a_used) if a_used is not None else 0
         a_rate = self.get_number("ANALOG", "RATE")
+        ratio = (a_rate / rate) if a_rate is not None and math.isfinite(a_rate) and a_rate > 0 else 0.0
+        per_frame = round(ratio) if abs(ratio - round(ratio)) <= 1e-6 else 0
+        notes: list[str] = []
+
+        def spare(aw: int) -> int:
+            return file_size - data_offset - n_frames * (4 * n_points + aw) * word
+
+        # the header's analog word count decides the frame size, unless it leaves whole blocks unread (or
+        # runs past the end) while the ANALOG parameters fill the file exactly (the last block padded)
+        analog_words = int(h["analog_words"])
+        from_params = a_used * per_frame
+        if from_params != analog_words and not 0 <= spare(analog_words) < 512 and 0 <= spare(from_params) < 512:
+            notes.append(f"header says {analog_words} analog words per frame, ANALOG:USED/RATE say "
+                         f"{from_params}: the file size agrees with the parameters")
+            analog_words = from_params
+        if spare(analog_words) < 0:
+            raise MetaError(f"truncated: {n_frames} frames need {file_size - spare(analog_words)} bytes, "
+                            f"the file has {file_size}")
+        if spare(analog_words) >= 512:
+            notes.append(f"{spare(analog_words)} bytes after the data section")
         ezc3d_safe = self.processor != "mips" and not self.irregular and used is not None
-        if a_used or analog_words:
-            ratio = (a_rate / rate) if a_rate is not None and math.isfinite(a_rate) and a_rate > 0 else 0.0
-            per_frame = round(ratio)
-            if per_frame < 1 or abs(ratio - per_frame) > 1e-6 or a_used * per_frame != analog_words:
-                ezc3d_safe = False  # ezc3d derives the analog block from ANALOG:RATE and would misalign frames
+        if (a_used or analog_words) and (per_frame < 1 or a_used * per_frame != analog_words):
+            ezc3d_safe = False  # ezc3d derives the analog block from ANALOG:RATE and would misalign frames
         param_rate = self.get_number("POINT", "RATE")
         if param_rate is None or not math.isclose(param_rate, h["rate"], rel_tol=1e-6):
             ezc3d_safe = False
         ezc3d_safe = ezc3d_safe and self._ezc3d_params_ok(n_points, a_used)
         return Layout(processor=self.processor, is_float=is_float, scale=float(scale), n_points=n_points,
                       n_frames=n_frames, first_frame=first, rate_hz=float(rate), analog_words=analog_words,
-                      analog_channels=a_used, data_offset=data_offset, ezc3d_safe=ezc3d_safe)
+                      analog_channels=a_used, data_offset=data_offset, ezc3d_safe=ezc3d_safe,
+                      notes=tuple(notes))
 
 
 def _floats(raw: bytes, processor: str) -> np.ndarray:
@@ -501,6 +516,8 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
         raise InputError(p, f"not a readable C3D file: {e}") from None
     if lay.n_frames <= 0:
         raise InputError(p, "C3D file has no frames")
+    if lay.n_points <= 0:
+        raise InputError(p, "C3D file has no 3D points")
     try:
         return _assemble(p, data, meta, lay, default_units)
     except InputError:
@@ -510,7 +527,7 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
 
 
 def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
-    notes: list[str] = []
+    notes: list[str] = list(lay.notes)
     own_xyz, word4 = _decode_points(data, lay)
     gap = gap_mask(own_xyz, word4, lay.is_float)
 
@@ -561,6 +578,10 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
     valid = ~gap[:, marker_idx]
     out = xyz[:, marker_idx, :] * to_mm
     out[~valid] = np.nan
+    at_origin = valid.any(axis=0) & ~(valid[..., None] & (out != 0)).any(axis=(0, 2))
+    if at_origin.any():
+        notes.append(_list_note("markers at exactly (0, 0, 0) in every valid sample (never seen?)",
+                                [labels[i] for i in np.flatnonzero(at_origin)]))
     if valid.size and not valid.any():
         notes.append("every marker sample is invalid (100 % gaps)")
     elif valid.size and valid.all():
