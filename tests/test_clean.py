@@ -382,13 +382,26 @@ def test_spike_removed_and_filled():
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
 
 
-@pytest.fixture(scope="module")
-def sample_session(tmp_path_factory):
-    """The sample session with its ground truth (generated when sample_data/ does not hold it)."""
-    if (SAMPLE / "truth" / "truth.json").exists():
+def _sample_root(tmp_path_factory) -> Path:
+    """sample_data/session01 when complete (session, truth, every mocap file), else the same generated anew."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads((SAMPLE / "session.toml").read_text())
+        complete = (SAMPLE / "truth" / "truth.json").exists() and all(
+            (SAMPLE / t["mocap"]).exists() for t in doc["takes"] if "mocap" in t)
+    except (OSError, KeyError, tomllib.TOMLDecodeError):
+        complete = False
+    if complete:
         return SAMPLE
     synth = pytest.importorskip("gazepipe.synth.session")
     return synth.generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0)
+
+
+@pytest.fixture(scope="module")
+def sample_session(tmp_path_factory):
+    """The sample session with its ground truth."""
+    return _sample_root(tmp_path_factory)
 
 
 def test_sample_gaze_shift_crop_bounds(sample_session):

@@ -80,7 +80,8 @@ class CleanResult:
     rests : rest periods (start, stop) half-open, in rows of the uncropped take.
     speed_mm_s : (T,) mean subject-marker speed of the uncropped take (NaN where unknown).
     neutral : the cleaned (uncropped) frames of the first rest period, for neutral calibration
-        (``None`` when no rest was found).
+        (``None`` when no rest was found; for a take of kind ``neutral`` without a rest, the whole take, with a
+        QC warning). Give the ``neutral`` take's (else the take's own) to :func:`~gazepipe.stages.frames.compute_frames`.
     qc : JSON-ready record (see :func:`clean_markers`).
     """
 
@@ -350,7 +351,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
     marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
     runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
-    ``warnings`` and ``failures`` (lists of one-line strings).
+    ``warnings`` and ``failures`` (lists of one-line strings; ``failures`` stays empty here because a failure
+    raises instead).
     """
     params = params or CleanParams()
     qc: dict = {"warnings": [], "failures": []}
@@ -405,6 +407,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
                        first_frame=int(markers.first_frame) + a, warnings=list(markers.warnings))
 
     neutral = _slice(*rests[0]) if rests else None
+    if kind == "neutral" and neutral is None and markers.n_frames:
+        neutral = _slice(0, markers.n_frames)
+        qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
     return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
                        fill_code=code[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
                        speed_mm_s=speed, neutral=neutral, qc=qc)
