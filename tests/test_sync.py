@@ -1,0 +1,334 @@
+"""sync stage: clapper claps on both clocks, the clock map and resampling, against synthetic ground truth.
+
+The clapper model (used for the mocap curves and for the videos alike): shut, opened over 0.3 s, held open,
+then closed with constant acceleration over ``closing_s`` so that the arms hit each other at full speed at the
+contact instant, and stay shut. Videos are rendered from the same model on the mocap clock, sampled at
+t_mocap = offset + ratio · t_video for every frame's timestamp, with motion blur over a half-frame exposure
+centred on the timestamp, sensor noise and a slowly moving distractor, and written with OpenCV.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from gazepipe.errors import StageError
+from gazepipe.io.video import probe_video, read_frames
+from gazepipe.stages.sync import (
+    Clap,
+    ClockMap,
+    VideoClap,
+    clock_map,
+    mocap_claps,
+    resample_to_mocap,
+    sync_take,
+    video_claps,
+)
+
+OPEN_MM, SHUT_MM = 150.0, 25.0
+W, H, FPS = 160, 120, 60.0
+
+
+# ----------------------------------------------------------------------------------------- generators
+def clapper_distance(t: np.ndarray, contacts: np.ndarray, closing_s: np.ndarray) -> np.ndarray:
+    """Distance (mm) between the clapper markers at mocap times t, for claps at ``contacts``."""
+    d = np.full(t.shape, SHUT_MM)
+    for tc, tcl in zip(contacts, closing_s, strict=True):
+        t_open = tc - tcl - 0.6
+        x = np.clip((t - t_open) / 0.3, 0.0, 1.0)
+        opening = x * x * (3.0 - 2.0 * x)
+        u = np.clip((t - (tc - tcl)) / tcl, 0.0, 1.0)
+        inside = (t >= t_open) & (t < tc)
+        d = np.where(inside, SHUT_MM + (OPEN_MM - SHUT_MM) * opening * (1.0 - u * u), d)
+    return d
+
+
+def clapper_markers(rng: np.random.Generator, n: int, rate: float, contacts, closing_s, noise_mm: float):
+    """Two clapper markers (n, 3) mm with Gaussian noise per coordinate, carried slowly around."""
+    t = np.arange(n) / rate
+    d = clapper_distance(t, np.asarray(contacts), np.asarray(closing_s))
+    centre = np.column_stack([300 * np.sin(0.2 * t), 200 * np.cos(0.15 * t), 1500 + 50 * np.sin(0.3 * t)])
+    axis = np.array([0.2, 0.3, 0.93])
+    axis /= np.linalg.norm(axis)
+    a = centre + rng.normal(0, noise_mm, (n, 3))
+    b = centre + d[:, None] * axis + rng.normal(0, noise_mm, (n, 3))
+    return a, b, np.ones(n, bool), np.ones(n, bool)
+
+
+def write_clapper_video(path: Path, n_frames: int, contacts_mocap, closing_s, *, offset: float, ratio: float,
+                        seed: int = 0, fourcc: str = "mp4v") -> Path:
+    """A 160x120 video labelled 60 fps whose clapper closes at ``contacts_mocap`` (mocap clock) given
+    t_mocap = offset + ratio · t_video; returns the path."""
+    rng = np.random.default_rng(seed)
+    px_per_mm, arm_h, shut_bottom = 0.4, 40.0, 85.0
+    ns, exposure = 8, 0.5 / FPS
+    sub = (np.arange(ns) + 0.5) / ns - 0.5
+    yy = np.arange(H, dtype=np.float64)
+    bg = cv2.GaussianBlur(rng.uniform(30, 90, (H, W)), (0, 0), 3.0)
+    bg[86:96, 30:130] = 200.0  # the lower arm
+    noise = rng.normal(0, 1.5, (64, H, W)).astype(np.float32)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), FPS, (W, H))
+    assert writer.isOpened()
+    contacts_mocap, closing_s = np.asarray(contacts_mocap), np.asarray(closing_s)
+    for c0 in range(0, n_frames, 256):
+        idx = np.arange(c0, min(c0 + 256, n_frames))
+        tm = offset + ratio * (idx[:, None] / FPS + sub[None, :] * exposure)  # (F, ns) mocap times
+        d = clapper_distance(tm, contacts_mocap, closing_s)
+        bottom = shut_bottom - (d - SHUT_MM) * px_per_mm
+        top = bottom - arm_h
+        cover = np.clip(np.minimum(yy + 1, bottom[..., None]) - np.maximum(yy, top[..., None]), 0, 1).mean(1)
+        img = np.repeat(bg[None].astype(np.float32), idx.size, axis=0)
+        img[:, :, 30:130] += (230.0 - img[:, :, 30:130]) * cover[:, :, None]
+        # a slow distractor (a dark blob drifting across the left edge) and sensor noise (from a pool)
+        cx = 12 + 8 * np.sin(idx / FPS * 0.7)
+        bx = np.exp(-((np.arange(W)[None, :] - cx[:, None]) ** 2) / 50)
+        by = np.exp(-((yy - 60) ** 2) / 50)
+        img -= 40 * by[None, :, None] * bx[:, None, :]
+        img += noise[rng.integers(0, len(noise), idx.size)]
+        for fr in np.clip(np.rint(img), 0, 255).astype(np.uint8):
+            writer.write(cv2.cvtColor(fr, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    return path
+
+
+class CountingReader:
+    """``read_window`` over a file through gazepipe.io.video.read_frames, recording what was asked for."""
+
+    def __init__(self, path: Path, timestamps: np.ndarray) -> None:
+        self.path, self.ts = path, timestamps
+        self.calls: list[tuple[int, int]] = []
+        self.frames = 0
+
+    def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        self.calls.append((start, stop))
+        t, fr = read_frames(self.path, start, stop, timestamps_s=self.ts)
+        self.frames += len(fr)
+        return t, fr
+
+
+# ----------------------------------------------------------------------------------------- mocap claps
+@pytest.mark.parametrize("rate,closing", [(29.97, (0.10, 0.20)), (59.94, (0.06, 0.12)), (120.0, (0.06, 0.12)),
+                                          (240.0, (0.06, 0.12))])
+def test_mocap_clap_instants(rate, closing):
+    """Contact instants within 1/10 frame (95th percentile; median 1/20, worst 1/5) with 0.5 mm marker noise,
+    for closings over three frames or more. At 240 Hz the marker noise, not the frame, sets the limit: there
+    the same bounds hold for frames of 1/120 s."""
+    rng = np.random.default_rng(int(rate * 100))
+    errs = []
+    for _ in range(20):
+        n = int(30 * rate)
+        contacts = [rng.uniform(1.5, 3.0), rng.uniform(24.0, 28.0)]
+        cl = rng.uniform(*closing, size=2)
+        a, b, va, vb = clapper_markers(rng, n, rate, contacts, cl, noise_mm=0.5)
+        found = mocap_claps(a, b, va, vb, rate)
+        assert len(found) == 2
+        errs.extend((np.array([c.time_s for c in found]) - contacts) * rate)
+        assert all(c.confidence > 0.9 for c in found)
+        assert all(abs(c.shut_mm - SHUT_MM) < 1.0 and abs(c.open_mm - OPEN_MM) < 3.0 for c in found)
+    errs = np.abs(errs) * min(1.0, 120.0 / rate)
+    assert np.median(errs) <= 0.05
+    assert np.percentile(errs, 95) <= 0.1
+    assert errs.max() <= 0.2, errs.max()
+
+
+def test_mocap_no_clap_and_gaps():
+    rng = np.random.default_rng(3)
+    rate, n = 100.0, 2000
+    # the clapper carried shut all along: no clap
+    a, b, va, vb = clapper_markers(rng, n, rate, [], [], noise_mm=0.5)
+    assert mocap_claps(a, b, va, vb, rate) == []
+    # opened and closed slowly (2 s): a movement, not a clap
+    t = np.arange(n) / rate
+    d = SHUT_MM + (OPEN_MM - SHUT_MM) * np.clip(np.sin(np.pi * (t - 5) / 8), 0, 1)
+    b2 = a + d[:, None] * np.array([0.0, 0.0, 1.0])
+    assert mocap_claps(a, b2, va, vb, rate) == []
+    # a clap whose markers are hidden around the contact is not reported; the other one is
+    a, b, va, vb = clapper_markers(rng, n, rate, [2.0, 15.0], [0.08, 0.08], noise_mm=0.5)
+    va[190:215] = False
+    found = mocap_claps(a, b, va, vb, rate)
+    assert len(found) == 1 and abs(found[0].time_s - 15.0) < 0.1 / rate
+
+
+def test_mocap_confidence_falls_with_noise():
+    rate = 59.94
+    conf = []
+    for noise in (0.3, 3.0, 8.0):
+        rng = np.random.default_rng(5)
+        a, b, va, vb = clapper_markers(rng, 1200, rate, [3.0, 15.0], [0.08, 0.08], noise_mm=noise)
+        found = mocap_claps(a, b, va, vb, rate)
+        conf.append(min([c.confidence for c in found], default=0.0))
+    assert conf[0] == 1.0 and conf[0] > conf[1] > conf[2]
+
+
+# ----------------------------------------------------------------------------------------- video claps
+OFFSET, RATIO = 3.217, 60.0 / 59.94  # the camera's "60 fps" is 59.94 real frames per second
+
+
+@pytest.fixture(scope="module")
+def many_claps(tmp_path_factory):
+    """40 s of video with a clap every ~4.4 s at random sub-frame instants, and the truth (video clock)."""
+    rng = np.random.default_rng(11)
+    contacts = OFFSET + RATIO * (np.arange(9) * 4.4 + 2.0 + rng.uniform(0, 1 / FPS, 9))
+    closing = rng.uniform(0.06, 0.12, 9)
+    path = write_clapper_video(tmp_path_factory.mktemp("v") / "many.mp4", int(40 * FPS), contacts, closing,
+                               offset=OFFSET, ratio=RATIO, seed=1)
+    return path, (contacts - OFFSET) / RATIO
+
+
+@pytest.fixture(scope="module")
+def two_claps(tmp_path_factory):
+    """60 s of video with a clap near the start and one near the end, and their mocap-clock instants."""
+    rng = np.random.default_rng(12)
+    contacts = OFFSET + RATIO * np.array([2.3, 57.1]) + rng.uniform(0, 1 / FPS, 2)
+    closing = np.array([0.07, 0.1])
+    path = write_clapper_video(tmp_path_factory.mktemp("v") / "two.mp4", int(60 * FPS), contacts, closing,
+                               offset=OFFSET, ratio=RATIO, seed=2)
+    return path, contacts, closing
+
+
+def test_video_clap_instants(many_claps):
+    path, truth = many_claps
+    probe = probe_video(path)
+    rng = np.random.default_rng(4)
+    approx = truth + rng.uniform(-0.7, 0.7, truth.size)  # a rough prior
+    reader = CountingReader(path, probe.timestamps_s)
+    found = video_claps(probe.timestamps_s, reader, approx.tolist(), window_s=1.0)
+    assert all(v is not None and v.confidence > 0.5 for v in found)
+    err = np.abs(np.array([v.time_s for v in found]) - truth) * FPS
+    assert np.median(err) <= 0.25, err
+    assert err.max() <= 1.0, err
+
+
+def test_only_windows_are_decoded(many_claps):
+    path, truth = many_claps
+    probe = probe_video(path)
+    reader = CountingReader(path, probe.timestamps_s)
+    window_s, post_s = 0.8, 0.3
+    video_claps(probe.timestamps_s, reader, [float(truth[2])], window_s=window_s, post_s=post_s, chunk=30)
+    expected = (2 * window_s + post_s) * FPS + 2
+    assert reader.frames <= expected and reader.frames < probe.n_frames / 10
+    starts = [c[0] for c in reader.calls]
+    assert min(starts) >= (truth[2] - window_s) * FPS - 2
+    assert all(stop - start <= 30 for start, stop in reader.calls)
+
+
+def _mocap_for(contacts, closing, duration_s=70.0, rate=29.97, seed=0):
+    rng = np.random.default_rng(seed)
+    return (*clapper_markers(rng, int(duration_s * rate), rate, contacts, closing, noise_mm=0.5), rate)
+
+
+@pytest.mark.parametrize("prior", [True, False])
+def test_sync_take_offset_and_ratio(two_claps, prior):
+    path, contacts, closing = two_claps
+    probe = probe_video(path)
+    a, b, va, vb, rate = _mocap_for(contacts, closing)
+    reader = CountingReader(path, probe.timestamps_s)
+    res = sync_take(a, b, va, vb, rate, probe.timestamps_s, reader,
+                    offset_guess_s=OFFSET + 0.6 if prior else None)
+    truth_first = contacts[0] - (contacts[0] - OFFSET) / RATIO
+    assert res.clock.n_claps == 2
+    assert abs(res.clock.offset_at_first_clap_s - truth_first) <= 0.005
+    assert abs(res.clock.offset_s - OFFSET) <= 0.005
+    assert abs(res.clock.ratio - RATIO) <= 1e-4
+    assert res.qc["drift_ppm"] == pytest.approx((RATIO - 1) * 1e6, abs=100)
+    # the video starts after the mocap: the frames before offset have no video
+    last = OFFSET + RATIO * probe.timestamps_s[-1]
+    assert res.frames_without_video == pytest.approx(OFFSET * rate + (70 - last) * rate, abs=2)
+    assert reader.frames < probe.n_frames / 2  # at most the bounded search portions, never the whole video
+    if prior:
+        assert reader.frames <= 2 * (2 * 1.5 + 0.3) * FPS + 4
+
+
+def test_sync_take_errors(two_claps, tmp_path):
+    path, contacts, closing = two_claps
+    probe = probe_video(path)
+    rng = np.random.default_rng(0)
+    a, b, va, vb = clapper_markers(rng, 3000, 29.97, [], [], noise_mm=0.5)
+    with pytest.raises(StageError) as e:
+        sync_take(a, b, va, vb, 29.97, probe.timestamps_s, CountingReader(path, probe.timestamps_s),
+                  mocap_path="mocap/t1.c3d", take="t1")
+    assert "mocap/t1.c3d" in str(e.value) and "no clap" in str(e.value) and "\n" not in str(e.value)
+    # a video without a clap (the clapper stays shut)
+    still = write_clapper_video(tmp_path / "still.mp4", 600, [], [], offset=0.0, ratio=1.0)
+    pr = probe_video(still)
+    a, b, va, vb, rate = _mocap_for(contacts, closing)
+    with pytest.raises(StageError) as e:
+        sync_take(a, b, va, vb, rate, pr.timestamps_s, CountingReader(still, pr.timestamps_s),
+                  video_path="video/t1.mp4", take="t1")
+    assert "video/t1.mp4" in str(e.value) and "no clap found in the video" in str(e.value)
+
+
+# ----------------------------------------------------------------------------------------- clock map
+def _clap(t: float) -> Clap:
+    return Clap(time_s=t, frame=t * 30, confidence=1.0, closing_speed_mm_s=1e3, open_mm=150, shut_mm=25,
+                margin_mm=1)
+
+
+def _vclap(t: float) -> VideoClap:
+    return VideoClap(time_s=t, frame=t * 60, confidence=1.0, peak=10, still=1, window=(0, 1))
+
+
+def test_clock_map():
+    one = clock_map([_clap(5.0)], [_vclap(2.0)])
+    assert (one.offset_s, one.ratio, one.n_claps) == (3.0, 1.0, 1)
+    off, ratio = 1.25, 1.001
+    tv = np.array([2.0, 300.0])
+    two = clock_map([_clap(off + ratio * t) for t in tv], [_vclap(t) for t in tv])
+    assert two.offset_s == pytest.approx(off, abs=1e-9) and two.ratio == pytest.approx(ratio, rel=1e-12)
+    assert two.offset_at_first_clap_s == pytest.approx(off + (ratio - 1) * 2.0, abs=1e-9)
+    assert two.drift_ppm == pytest.approx(1000.0) and two.drift_ms(600.0) == pytest.approx(600.0)
+    # a missing video clap is skipped
+    three = clock_map([_clap(off + ratio * t) for t in (2.0, 100.0, 300.0)], [_vclap(2.0), None, _vclap(300.0)])
+    assert three.n_claps == 2 and three.ratio == pytest.approx(ratio, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------------------- resampling
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def test_resample_directions_by_slerp():
+    rng = np.random.default_rng(8)
+    tv = np.arange(200) / 60.0
+    dirs = _unit(rng.normal(size=(200, 3)) + np.array([0, 0, 3.0]))
+    clock = ClockMap(offset_s=0.4, ratio=1.001, n_claps=2)
+    tm = np.arange(120) / 29.97
+    out, covered = resample_to_mocap(tv, dirs, "direction", tm, clock)
+    tvm = clock.to_mocap(tv)
+    assert covered.tolist() == ((tm >= tvm[0]) & (tm <= tvm[-1])).tolist()
+    assert np.all(np.isnan(out[~covered]))
+    i = np.searchsorted(tvm, tm[covered], side="right") - 1
+    u = (tm[covered] - tvm[i]) / (tvm[i + 1] - tvm[i])
+    a, b, r = dirs[i], dirs[i + 1], out[covered]
+    ang = lambda x, y: np.arccos(np.clip(np.einsum("ij,ij->i", x, y), -1, 1))  # noqa: E731
+    np.testing.assert_allclose(np.linalg.norm(r, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(ang(a, r), u * ang(a, b), atol=1e-9)  # constant angular speed
+    np.testing.assert_allclose(ang(r, b), (1 - u) * ang(a, b), atol=1e-9)  # on the great circle
+    # a sample hit exactly is returned as is
+    ex, _ = resample_to_mocap(tv, dirs, "direction", clock.to_mocap(tv[[5, 17]]), clock)
+    np.testing.assert_allclose(ex, dirs[[5, 17]], atol=1e-12)
+
+
+def test_resample_scalars_confidence_bools_no_extrapolation():
+    tv = np.array([0.0, 1.0, 2.0, 3.0])
+    clock = ClockMap(offset_s=10.0, ratio=1.0, n_claps=1)
+    tm = np.array([9.5, 10.0, 10.25, 11.5, 13.0, 13.5])
+    vals = np.array([0.0, 4.0, 8.0, 2.0])
+    out, cov = resample_to_mocap(tv, vals, "scalar", tm, clock)
+    assert cov.tolist() == [False, True, True, True, True, False]
+    np.testing.assert_allclose(out[1:5], [0.0, 1.0, 6.0, 2.0])
+    assert np.isnan(out[0]) and np.isnan(out[5])
+    conf = np.array([0.9, 0.5, 0.8, 0.95])
+    c, _ = resample_to_mocap(tv, conf, "confidence", tm, clock)
+    np.testing.assert_allclose(c[1:5], [0.9, 0.5, 0.5, 0.95])
+    c2, _ = resample_to_mocap(tv, conf, "confidence", np.array([10.5, 11.5, 12.9]), clock)
+    np.testing.assert_allclose(c2, [0.5, 0.5, 0.8])
+    ok = np.array([True, False, True, True])
+    v, _ = resample_to_mocap(tv, ok, "bool", np.array([9.9, 10.0, 10.5, 11.5, 12.5, 13.0, 13.1]), clock)
+    assert v.tolist() == [False, True, False, False, True, True, False]
+    # (N, D) scalars interpolate per column
+    m, _ = resample_to_mocap(tv, np.column_stack([vals, -vals]), "scalar", np.array([10.25]), clock)
+    np.testing.assert_allclose(m, [[1.0, -1.0]])
