@@ -169,6 +169,8 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         neutral, nframes, nmeta = _load_markers(ctx, "neutral")
         neutral = None if neutral.n_frames == 0 else neutral
         source = f"first rest period {nmeta.get('rest')}"
+    if ctx.take.kind != "gaze_follow":  # only gaze_follow takes track the target marker
+        ms = dataclasses.replace(ms, target=None)
     joints = compute_frames(markers, ms, neutral, _build(FramesParams, ctx.params), path=ctx.take.mocap,
                             take=ctx.take.id)
     qc = dict(joints.qc)
