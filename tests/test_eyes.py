@@ -9,6 +9,7 @@ rate error against the mocap clock.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -74,15 +75,24 @@ class Scene:
 
 
 def make_scene(seed: int = 0, *, duration_s: float = 40.0, noise_deg: float = 2.5, offset_s: float = 0.7,
-               ratio: float = 1.0004) -> Scene:
-    """A synthetic take with its truth (see the module docstring); every random choice comes from ``seed``."""
+               ratio: float = 1.0004, centre_error_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
+               pursuit: bool = False) -> Scene:
+    """A synthetic take with its truth (see the module docstring); every random choice comes from ``seed``.
+
+    The target jumps between goals (an eased 0.35 s move, then still), or with ``pursuit`` keeps moving from
+    goal to goal at constant speed (as Klein's pole does), so the eyes' delay matters on every frame.
+
+    ``centre_error_mm`` (head axes) displaces the point the joints' target direction is measured from, as when
+    the head markers' centroid stands in for the eyes' centre.
+    """
     rng = np.random.default_rng(seed)
     cam = true_camera_rotation()
     # target goals in the character frame, mm; the eyes' centre sways a little around (0, 1600, 0)
-    jumps = np.cumsum(rng.uniform(1.2, 2.5, 64))
-    yaw = rng.uniform(-50, 50, 65)
-    pitch = rng.uniform(-20, 20, 65)
-    dist = rng.uniform(1500, 3000, 65)
+    n_goals = int(duration_s / 1.2) + 2
+    jumps = np.cumsum(rng.uniform(1.2, 2.5, n_goals - 1))
+    yaw = rng.uniform(-50, 50, n_goals)
+    pitch = rng.uniform(-20, 20, n_goals)
+    dist = rng.uniform(1500, 3000, n_goals)
     goal_dir = Rotation.from_euler("YX", np.stack([yaw, -pitch], 1), degrees=True).apply([0.0, 0.0, 1.0])
     phase = rng.uniform(0, 2 * np.pi, 4)
 
@@ -93,8 +103,12 @@ def make_scene(seed: int = 0, *, duration_s: float = 40.0, noise_deg: float = 2.
         k = np.searchsorted(jumps, t)                      # goal index: before jumps[k]
         prev = np.clip(k - 1, 0, None)
         since = t - jumps[prev]
-        u = np.clip(since / 0.35, 0.0, 1.0)
-        u = np.where(k == 0, 1.0, u * u * (3 - 2 * u))     # eased 0.35 s move from goal k-1 to goal k
+        if pursuit:                                        # constant speed from goal k-1 to goal k
+            leg = jumps[np.clip(k, 0, len(jumps) - 1)] - jumps[prev]
+            u = np.where(k == 0, 1.0, np.clip(since / np.where(leg > 0, leg, 1.0), 0.0, 1.0))
+        else:                                              # eased 0.35 s move from goal k-1 to goal k
+            u = np.clip(since / 0.35, 0.0, 1.0)
+            u = np.where(k == 0, 1.0, u * u * (3 - 2 * u))
         p0 = goal_dir[prev] * dist[prev, None]
         p1 = goal_dir[k] * dist[k, None]
         return (1 - u)[:, None] * p0 + u[:, None] * p1 + np.array([0.0, 1600.0, 0.0])
@@ -110,7 +124,7 @@ def make_scene(seed: int = 0, *, duration_s: float = 40.0, noise_deg: float = 2.
     tm = np.arange(n) / MOCAP_HZ
     rh = head(tm)
     c = centre(tm)
-    tdir = _unit(target(tm) - c)
+    tdir = _unit(target(tm) - c - rh.apply(np.asarray(centre_error_mm, dtype=np.float64)))
     eye_char = _unit(target(tm - LAG_S) - c)
     head_q = to_wxyz(rh)
     head_missing = np.zeros(n, dtype=bool)
@@ -318,6 +332,18 @@ def test_estimated_camera_rotation_within_one_degree():
         assert res.qc["camera_frames_used"] >= 100
 
 
+def test_pursuit_needs_and_finds_the_eye_lag():
+    """A target that never stops: the eyes trail it by 0.2 s; pairing gaze with the current target biases the
+    camera rotation by degrees, pairing it with the target 0.2 s earlier does not."""
+    sc = make_scene(11, noise_deg=2.5, pursuit=True)
+    res = eyes_take(sc.eye, sc.joints, sc.mocap_time_s, sc.clock)
+    err = _deg((from_wxyz(res.camera_rotation) * sc.cam.inv()).magnitude())
+    assert err < 1.0
+    assert res.qc["eye_lag_s"] == pytest.approx(LAG_S, abs=1.5 / MOCAP_HZ)
+    no_lag = eyes_take(sc.eye, sc.joints, sc.mocap_time_s, sc.clock, params=EyesParams(max_lag_s=0.0))
+    assert _deg((from_wxyz(no_lag.camera_rotation) * sc.cam.inv()).magnitude()) > err + 0.5
+
+
 def test_estimate_camera_rotation_direct_with_outliers():
     rng = np.random.default_rng(7)
     cam = true_camera_rotation()
@@ -431,3 +457,43 @@ def test_params_are_honoured():
     raw, filled = expected_gate(sc.eye, 0.8, 12)
     assert np.array_equal(loose.valid, raw | filled)
     assert EyesParams().min_confidence == 0.8 and EyesParams().max_eye_gap_s == 0.1
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+
+
+@pytest.mark.skipif(not (SAMPLE / "truth" / "truth.json").exists(), reason="sample session not generated")
+@pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
+def test_against_the_sample_sessions_truth(take):
+    """The sample generator's eyes (pursuit with catch-up saccades, a 45° eye limit, a body that turns) seen
+    through its true camera rotation, at 60 Hz on a shifted video clock, with noise and blinks."""
+    from gazepipe.synth import load_truth
+
+    tr = load_truth(SAMPLE, take)
+    cam = from_wxyz(np.asarray(tr["session"]["camera_to_head_quat"]))
+    tm = tr["time_s"]
+    eye_head = tr["eye_dir_head"].astype(np.float64)
+    clock = SimpleNamespace(offset_s=0.4, ratio=0.9997)
+    tv = np.arange(int((tm[-1] - 0.9) / clock.ratio * VIDEO_HZ)) / VIDEO_HZ
+    pos = np.interp(clock.offset_s + clock.ratio * tv, tm, np.arange(tm.size))
+    i0 = np.minimum(pos.astype(np.int64), tm.size - 2)
+    true_cam = cam.inv().apply(slerp_vectors(eye_head[i0], eye_head[i0 + 1], pos - i0))
+    rng = np.random.default_rng(21)
+    m = tv.size
+    left, right = _tangent_noise(rng, true_cam, 2.5), _tangent_noise(rng, true_cam, 2.5)
+    blink = np.zeros(m, dtype=bool)
+    for s in rng.integers(0, m - 10, 12):
+        blink[s:s + 8] = True
+    left[blink] = right[blink] = _unit(np.array([0.7, 0.7, 0.1]))   # junk: away from the face, far off any truth
+    eye = EyeTrack(time_s=tv, frame=np.arange(1, m + 1), success=np.ones(m, bool), confidence=np.full(m, 0.9),
+                   gaze_left=left, gaze_right=right, blink=blink)
+    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
+                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=tr["scalars"]["rate_hz"],
+                             char_rot=tr["char_quat_lab"])
+    res = eyes_take(eye, joints, tm, clock)
+    assert _deg((from_wxyz(res.camera_rotation) * cam.inv()).magnitude()) < 1.0
+    v = res.valid
+    assert v.mean() > 0.8
+    err = _deg(angle_between(res.eye_dir_char[v], tr["eye_dir_char"][v].astype(np.float64)))
+    assert np.median(err) < 2.0
+    assert err.max() < 12.0

@@ -10,8 +10,11 @@ Steps, all pure functions on arrays:
    slerp between the two neighbouring video samples, confidence the minimum of the two, valid only when both are
    valid; no extrapolation.
 4. :func:`camera_to_character`: v_head = R · v_cam with R the camera rotation, then v_char = R_head · v_head.
-5. :func:`estimate_camera_rotation` when R is not configured: least-squares rotation between the OpenFace gaze
-   and the direction from the eyes' centre to the target, in head axes, over fixation frames.
+5. When R is not configured, :func:`estimate_camera_rotation_lagged`: least-squares rotation between the
+   OpenFace gaze and the direction from the eyes' centre to the target in head axes, over frames where the gaze
+   rests on the target, robustly trimmed (:func:`estimate_camera_rotation`). The eyes trail a moving target by
+   about 0.2 s, so the gaze at t is paired with the target at t − lag and the lag is fitted too; pairing with
+   the current target biases R by degrees whenever the target keeps moving.
 
 Axes. OpenFace's camera: x right, y down, z forward (out of the lens). The head segment: X the subject's left,
 Y up, Z forward (out of the face). A head-mounted camera in front of the face looks back at it, so:
@@ -34,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d, uniform_filter1d
+from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
@@ -53,6 +56,7 @@ __all__ = [
     "camera_to_head",
     "cyclopean",
     "estimate_camera_rotation",
+    "estimate_camera_rotation_lagged",
     "eyes_take",
     "fixation_frames",
     "gate",
@@ -79,13 +83,17 @@ class EyesParams:
     min_confidence : OpenFace confidence at or above which a sample can be valid.
     max_eye_gap_s : longest invalid run (between two valid samples) filled by slerp.
     head_segment : the head segment's name in the joints; ``None`` = ``"head"``, else the last segment.
-    smooth_s : moving-average window of the directions used to measure angular speeds (fixation frames only).
-    fixation_window_s : a fixation frame needs low speeds over this centred window.
-    max_target_speed_deg_s : highest angular speed of the target (head axes) in a fixation window; faster is a
-        target move.
-    max_gaze_speed_deg_s : highest angular speed of the gaze (camera axes) in a fixation window (saccades and the
-        eye catching up are far faster; the vestibulo-ocular reflex during slow head turns is slower).
-    settle_s : frames this soon after a target move are no fixation (the eyes react about 0.2 s late).
+    smooth_s : moving-average window of the directions whose central differences give angular speeds (used
+        only to choose the frames of the camera-rotation fit).
+    max_target_speed_deg_s : fastest the target may move (lab axes when the joints give the character frame's
+        orientation, else character axes; after the lag) for a frame to enter the fit: during pursuit the eyes
+        trail a moving target, more the faster it goes.
+    max_gaze_speed_deg_s : fastest the gaze may move in camera axes (saccades are far faster; pursuit and the
+        vestibulo-ocular reflex during head turns are slower).
+    settle_s : frames this soon after a faster target move stay out (the eyes land after the catch-up saccade).
+    max_eccentricity_deg : frames whose target lies further than this from the head's forward axis stay out (the
+        eyes rotate at most about 45-50 degrees in the head; beyond that they do not reach the target).
+    max_lag_s : longest eye-behind-target delay searched; the eyes follow a target about 0.2 s late.
     keep_percentile : after each fit, frames whose error is above this percentile are left out of the next fit.
     refit_iterations : number of trimmed re-fits after the first fit.
     min_fixation_frames : fewest fixation frames needed to estimate the camera rotation.
@@ -96,11 +104,12 @@ class EyesParams:
     min_confidence: float = 0.8
     max_eye_gap_s: float = 0.1
     head_segment: str | None = None
-    smooth_s: float = 0.1
-    fixation_window_s: float = 0.3
-    max_target_speed_deg_s: float = 20.0
-    max_gaze_speed_deg_s: float = 40.0
-    settle_s: float = 0.5
+    smooth_s: float = 0.2
+    max_target_speed_deg_s: float = 30.0
+    max_gaze_speed_deg_s: float = 60.0
+    settle_s: float = 0.15
+    max_eccentricity_deg: float = 50.0
+    max_lag_s: float = 0.5
     keep_percentile: float = 75.0
     refit_iterations: int = 3
     min_fixation_frames: int = 30
@@ -440,38 +449,38 @@ def _odd(x: float) -> int:
 
 
 def fixation_frames(gaze_cam: np.ndarray, target_dir_head: np.ndarray, rate_hz: float,
-                    params: EyesParams | None = None) -> np.ndarray:
-    """Frames (N,) bool where the subject plausibly fixates the target (for the camera-rotation fit).
+                    params: EyesParams | None = None, *, target_dir_world: np.ndarray | None = None) -> np.ndarray:
+    """Frames (N,) bool where the gaze plausibly rests on the target (for the camera-rotation fit).
 
-    Both directions are smoothed over ``smooth_s``; a frame qualifies when, over the centred
-    ``fixation_window_s``, the target's angular speed in head axes stays below ``max_target_speed_deg_s`` and the
-    gaze's below ``max_gaze_speed_deg_s``, and no target move (a frame above the target speed limit) happened in
-    the last ``settle_s`` (the eyes start about 0.2 s after the target, then saccade; until they arrive both can
-    be still and apart).
+    Speeds come from directions smoothed over ``smooth_s``. A frame qualifies when the gaze (camera axes) moves
+    slower than ``max_gaze_speed_deg_s`` (no saccade), the target (``target_dir_world``, else head axes) slower
+    than ``max_target_speed_deg_s`` and not faster at any time in the last ``settle_s``, and the target lies
+    within ``max_eccentricity_deg`` of the head's forward axis (+Z).
     """
     p = params or EyesParams()
     g = np.asarray(gaze_cam, dtype=np.float64)
-    tdir = np.asarray(target_dir_head, dtype=np.float64)
+    th = np.asarray(target_dir_head, dtype=np.float64)
+    tw = th if target_dir_world is None else np.asarray(target_dir_world, dtype=np.float64)
     n = g.shape[0]
     if n == 0:
         return np.zeros(0, dtype=bool)
     k = _odd(p.smooth_s * rate_hz)
     sg = _angular_speed(_smooth_dirs(g, k), rate_hz)
-    st = _angular_speed(_smooth_dirs(tdir, k), rate_hz)
-    w = _odd(p.fixation_window_s * rate_hz)
-    sg_w = maximum_filter1d(np.where(np.isfinite(sg), sg, np.inf), w, mode="nearest")
-    st_w = maximum_filter1d(np.where(np.isfinite(st), st, np.inf), w, mode="nearest")
+    st = _angular_speed(_smooth_dirs(tw, k), rate_hz)
     idx = np.arange(n)
-    moving = np.isfinite(st) & (st > p.max_target_speed_deg_s)
+    moving = ~(st <= p.max_target_speed_deg_s)            # NaN counts as moving
     last_move = np.maximum.accumulate(np.where(moving, idx, -n - 1))
     settled = (idx - last_move) > p.settle_s * rate_hz
-    return (sg_w <= p.max_gaze_speed_deg_s) & (st_w <= p.max_target_speed_deg_s) & settled
+    with np.errstate(invalid="ignore"):
+        central = th[:, 2] >= np.cos(np.deg2rad(p.max_eccentricity_deg))
+    return (sg <= p.max_gaze_speed_deg_s) & settled & central
 
 
 def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
                              weights: np.ndarray | None = None, *, rate_hz: float | None = None,
-                             params: EyesParams | None = None) -> CameraEstimate:
-    """Least-squares camera → head rotation from gaze and target directions while the subject fixates.
+                             params: EyesParams | None = None,
+                             target_dir_world: np.ndarray | None = None) -> CameraEstimate:
+    """Least-squares camera → head rotation from gaze and target directions while the gaze rests on the target.
 
     Parameters
     ----------
@@ -481,6 +490,8 @@ def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
     weights : (N,) non-negative weights or a bool mask; zero / False leaves a frame out. Default: all ones.
     rate_hz : the frames' rate; when given, frames are further restricted to :func:`fixation_frames`.
     params : :class:`EyesParams` (fixation rules, trimming, minimum frames).
+    target_dir_world : (N, 3) the target direction in lab or character axes, for the target-speed rule of
+        :func:`fixation_frames` (default: head axes).
 
     Returns
     -------
@@ -501,11 +512,11 @@ def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
     w = np.ones(g.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
     cand = np.isfinite(g).all(axis=1) & np.isfinite(tdir).all(axis=1) & np.isfinite(w) & (w > 0)
     if rate_hz is not None:
-        cand &= fixation_frames(g, tdir, rate_hz, p)
+        cand &= fixation_frames(g, tdir, rate_hz, p, target_dir_world=target_dir_world)
     n_cand = int(np.count_nonzero(cand))
-    if n_cand < max(p.min_fixation_frames, 3):
-        raise ValueError(f"only {n_cand} fixation frame(s) with valid gaze and target; need "
-                         f"{max(p.min_fixation_frames, 3)}")
+    need = max(p.min_fixation_frames, 3)
+    if n_cand < need:
+        raise ValueError(f"only {n_cand} fixation frame(s) with valid gaze and target; need {need}")
     gi, ti, wi = g[cand], tdir[cand], w[cand]
     keep = np.ones(n_cand, dtype=bool)
     rot = Rotation.identity()
@@ -521,6 +532,116 @@ def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
     err = angle_between(rot.apply(gi), ti)
     return CameraEstimate(quat=to_wxyz(rot), residual_deg=float(np.rad2deg(np.median(err))),
                           n_used=int(np.count_nonzero(keep)))
+
+
+def _delayed(v: np.ndarray, shift_frames: float) -> np.ndarray:
+    """Directions (N, 3) as they were ``shift_frames`` frames earlier (fractional: interpolated between the two
+    frames and renormalised); NaN before the first frame."""
+    n = v.shape[0]
+    pos = np.arange(n) - shift_frames
+    i0 = np.floor(pos).astype(np.int64)
+    f = (pos - i0)[:, None]
+    ok = (i0 >= 0) & (i0 < n)
+    i0c = np.clip(i0, 0, n - 1)
+    i1c = np.clip(i0 + 1, 0, n - 1)
+    out = _unit((1.0 - f) * v[i0c] + f * v[i1c]) if f.any() else v[i0c].copy()
+    out[~ok] = np.nan
+    return out
+
+
+@dataclass
+class _LagFit:
+    lag_s: float
+    residual_deg: float
+    estimate: CameraEstimate | None
+    frames: np.ndarray
+
+
+def _lag_search(score, rate_hz: float, max_lag_s: float) -> _LagFit:
+    """Best of ``score(shift_frames) -> _LagFit | None`` over whole frames 0..max_lag, then quarter frames
+    around the best whole frame."""
+    kmax = max(0, int(np.floor(max_lag_s * rate_hz + 1e-9)))
+    fits = [f for k in range(kmax + 1) if (f := score(float(k))) is not None]
+    if not fits:
+        return score(0.0, raise_errors=True)   # re-run the zero lag to raise its error
+    best = min(fits, key=lambda f: f.residual_deg)
+    k0 = best.lag_s * rate_hz
+    for d in (-0.75, -0.5, -0.25, 0.25, 0.5, 0.75):
+        if 0.0 <= k0 + d <= kmax and (f := score(k0 + d)) is not None and f.residual_deg < best.residual_deg:
+            best = f
+    return best
+
+
+def _world_targets(head_q: np.ndarray, target_dir_char: np.ndarray, char_rot: np.ndarray | None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: world-from-head rotations as (N, 3, 3) matrices (NaN where undefined) and the target direction
+    in world axes (lab when ``char_rot`` is given and finite, else character axes)."""
+    n = head_q.shape[0]
+    w_head = np.full((n, 3, 3), np.nan)
+    tw = np.full((n, 3), np.nan)
+    use_lab = char_rot is not None and np.isfinite(char_rot).all(axis=1).any()
+    c_ok = np.isfinite(char_rot).all(axis=1) if use_lab else np.ones(n, dtype=bool)
+    ok = np.isfinite(head_q).all(axis=1) & c_ok
+    if ok.any():
+        r = from_wxyz(head_q[ok])
+        if use_lab:
+            r = from_wxyz(char_rot[ok]) * r
+        w_head[ok] = r.as_matrix()
+    okt = c_ok & np.isfinite(target_dir_char).all(axis=1)
+    if okt.any():
+        tw[okt] = from_wxyz(char_rot[okt]).apply(target_dir_char[okt]) if use_lab else target_dir_char[okt]
+    return w_head, tw
+
+
+def estimate_camera_rotation_lagged(gaze_cam: np.ndarray, head_rot_char: np.ndarray, target_dir_char: np.ndarray,
+                                    rate_hz: float, weights: np.ndarray | None = None, *,
+                                    char_rot: np.ndarray | None = None, params: EyesParams | None = None
+                                    ) -> tuple[CameraEstimate, float]:
+    """Camera → head rotation and the eyes' delay behind the target, fitted together.
+
+    The eyes follow a moving target about 0.2 s late (Klein's subjects follow a pole that keeps moving), so the
+    gaze at time t is paired with the target direction at t − lag, carried in world axes (lab, through
+    ``char_rot``, where the eyes hold still while the head turns; else character axes) and rotated into the head
+    axes at t. For each lag from 0 to ``max_lag_s`` (whole frames, then quarter frames around the best) the
+    robust fit of :func:`estimate_camera_rotation` runs on that lag's fixation frames; the lag with the smallest
+    median residual wins.
+
+    Parameters
+    ----------
+    gaze_cam : (N, 3) unit gaze in camera axes per mocap frame, NaN where invalid.
+    head_rot_char : (N, 4) w, x, y, z head rotation in the character frame.
+    target_dir_char : (N, 3) unit direction from the eyes' centre to the target, character frame.
+    rate_hz : mocap rate.
+    weights : (N,) weights or mask (e.g. the eye validity).
+    char_rot : (N, 4) w, x, y, z lab-from-character rotation, optional.
+
+    Returns
+    -------
+    (:class:`CameraEstimate`, lag in seconds).
+
+    Raises
+    ------
+    ValueError : no lag gives ``min_fixation_frames`` frames.
+    """
+    p = params or EyesParams()
+    g = np.asarray(gaze_cam, dtype=np.float64)
+    w_head, tw = _world_targets(np.asarray(head_rot_char, dtype=np.float64),
+                                np.asarray(target_dir_char, dtype=np.float64),
+                                None if char_rot is None else np.asarray(char_rot, dtype=np.float64))
+
+    def score(shift: float, raise_errors: bool = False) -> _LagFit | None:
+        twl = _delayed(tw, shift)
+        th = np.einsum("nji,nj->ni", w_head, twl)         # head-from-world = transpose
+        try:
+            est = estimate_camera_rotation(g, th, weights, rate_hz=rate_hz, params=p, target_dir_world=twl)
+        except ValueError:
+            if raise_errors:
+                raise
+            return None
+        return _LagFit(shift / rate_hz, est.residual_deg, est, th)
+
+    best = _lag_search(score, rate_hz, p.max_lag_s)
+    return best.estimate, best.lag_s
 
 
 def _target_spread_deg(v: np.ndarray) -> float:
@@ -567,6 +688,33 @@ def _resample(g: Gated, mocap_time_s: np.ndarray, offset_s: float, ratio: float
     if valid.any():
         gaze[valid] = slerp_vectors(g.gaze[i0[valid]], g.gaze[i1[valid]], frac[valid])
     return gaze, valid, conf, covered
+
+
+def _check_rotation(gaze_cam: np.ndarray, r_cam: np.ndarray, head_q: np.ndarray, tdir_char: np.ndarray,
+                    char_rot: np.ndarray | None, weights: np.ndarray, rate_hz: float, p: EyesParams
+                    ) -> tuple[float | None, float | None, int]:
+    """Median residual (degrees), eye lag (s) and frames of a configured rotation over the fixation frames
+    (the lag searched as in :func:`estimate_camera_rotation_lagged`); ``None`` when too few frames."""
+    w_head, tw = _world_targets(head_q, tdir_char, char_rot)
+    v_head = camera_to_head(gaze_cam, r_cam)
+
+    def score(shift: float, raise_errors: bool = False) -> _LagFit | None:
+        twl = _delayed(tw, shift)
+        th = np.einsum("nji,nj->ni", w_head, twl)
+        ok = (np.asarray(weights, dtype=bool) & np.isfinite(v_head).all(axis=1) & np.isfinite(th).all(axis=1)
+              & fixation_frames(gaze_cam, th, rate_hz, p, target_dir_world=twl))
+        if np.count_nonzero(ok) < max(p.min_fixation_frames, 3):
+            if raise_errors:
+                raise ValueError("too few fixation frames")
+            return None
+        res = float(np.rad2deg(np.median(angle_between(v_head[ok], th[ok]))))
+        return _LagFit(shift / rate_hz, res, None, ok)
+
+    try:
+        best = _lag_search(score, rate_hz, p.max_lag_s)
+    except ValueError:
+        return None, None, 0
+    return best.residual_deg, best.lag_s, int(np.count_nonzero(best.frames))
 
 
 def _head_index(names: list[str], head_segment: str | None, path: Any, take: str | None) -> int:
@@ -625,30 +773,29 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     if clock is None:
         qc["warnings"].append("no clock map: video and mocap clocks taken as the same")
 
-    # target direction in head axes, for the estimate and for checking a configured rotation
+    # the camera rotation: configured, or fitted together with the eyes' delay behind the target
+    rate = float(joints.rate_hz)
     tdir_char = np.asarray(getattr(joints, "target_dir", np.full((n, 3), np.nan)), dtype=np.float64)
-    tdir_head = np.full((n, 3), np.nan)
-    t_ok = head_ok & np.isfinite(tdir_char).all(axis=1)
-    if t_ok.any():
-        tdir_head[t_ok] = from_wxyz(head_q[t_ok]).inv().apply(tdir_char[t_ok])
-    fix = eye_valid & t_ok & fixation_frames(gaze_cam, tdir_head, float(joints.rate_hz), p)
-
+    char_rot = getattr(joints, "char_rot", None)
+    char_rot = None if char_rot is None else np.asarray(char_rot, dtype=np.float64)
+    lag: float | None = None
     residual: float | None = None
     if camera_rotation is None:
         try:
-            est = estimate_camera_rotation(gaze_cam, tdir_head, fix, params=p)
+            est, lag = estimate_camera_rotation_lagged(gaze_cam, head_q, tdir_char, rate, eye_valid,
+                                                       char_rot=char_rot, params=p)
         except ValueError as e:
             raise StageError(path, f"eyes: cannot estimate the camera rotation: {e}", take=take) from None
         r_cam, source, residual, n_used = est.quat, "estimated", est.residual_deg, est.n_used
     else:
         r_cam = to_wxyz(from_wxyz(np.asarray(camera_rotation, dtype=np.float64)))
-        source, n_used = "configured", 0
-        if np.count_nonzero(fix) >= 3:
-            err = angle_between(camera_to_head(gaze_cam[fix], r_cam), tdir_head[fix])
-            residual, n_used = float(np.rad2deg(np.median(err))), int(np.count_nonzero(fix))
-    spread = _target_spread_deg(tdir_head[fix]) if np.count_nonzero(fix) >= 3 else None
+        source = "configured"
+        residual, lag, n_used = _check_rotation(gaze_cam, r_cam, head_q, tdir_char, char_rot, eye_valid, rate, p)
+    tdir_head = np.einsum("nji,nj->ni", _world_targets(head_q, tdir_char, None)[0], tdir_char)
+    seen = eye_valid & np.isfinite(tdir_head).all(axis=1)
+    spread = _target_spread_deg(tdir_head[seen]) if np.count_nonzero(seen) >= 3 else None
     if source == "estimated" and spread is not None and spread < p.min_target_spread_deg:
-        qc["warnings"].append(f"target directions over the fixation frames spread only {spread:.1f} deg: "
+        qc["warnings"].append(f"target directions spread only {spread:.1f} deg in head axes: "
                               "the camera rotation is poorly determined")
 
     eye_dir_head = np.where(eye_valid[:, None], camera_to_head(gaze_cam, r_cam), np.nan)
@@ -667,8 +814,8 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
         "camera_rotation": [float(x) for x in r_cam],
         "camera_rotation_source": source,
         "camera_residual_deg": residual,
-        "camera_fixation_frames": int(np.count_nonzero(fix)),
         "camera_frames_used": int(n_used),
+        "eye_lag_s": lag,
         "camera_target_spread_deg": spread,
     })
     return EyesResult(eye_dir_char=eye_dir_char, eye_dir_head=eye_dir_head, valid=valid, confidence=conf,
