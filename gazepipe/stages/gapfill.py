@@ -157,24 +157,34 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
         vis = valid_v if partial else valid
         if meth in ("linear", "pchip"):
-            return interp_fill(xyz_m, known_m, a, b, meth)
+            if partial:
+                return interp_wins[meth].get((a, b))
+            return interp_fill(xyz_m, known_m, [(a, b)], meth)[0]
         if meth == "rigid":
             return None if not cluster else rigid_fill(xyz, vis, m, cluster, known_m, a, b, partial)
         if meth == "pca":
-            return None if model is None else pca_fill(model, xyz, vis, known_m, a, b, partial)
+            if model is None:
+                return None
+            if partial and (a, b) in pca_wins:
+                return pca_wins[(a, b)]
+            return pca_fill(model, xyz, vis, known_m, a, b, partial)[0]
         raise ValueError(f"unknown gap-filling method {meth!r}")
 
-    if model is not None and wins and len(model.ks) > 1:
+    pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
+    if model is not None and wins:
         # number of PCA components: the one that predicts the hidden stretches best
+        per_win = [pca_fill(model, xyz, valid_v, known, a, b, True, model.ks) for a, b in wins]
         scores = []
-        for k in model.ks:
-            model.k = k
-            e_k = [pca_fill(model, xyz, valid_v, known, a, b, True) for a, b in wins]
-            e_k = [np.linalg.norm(q - xyz_m[a:b], axis=1) for q, (a, b) in zip(e_k, wins, strict=True)
-                   if q is not None]
+        for i in range(len(model.ks)):
+            e_k = [np.linalg.norm(q[i] - xyz_m[a:b], axis=1) for q, (a, b) in zip(per_win, wins, strict=True)
+                   if q[i] is not None]
             e_k = np.concatenate(e_k) if e_k else np.array([np.nan])
             scores.append(np.nanmean(e_k) if np.isfinite(e_k).any() else np.inf)
-        model.k = model.ks[int(np.argmin(scores))]
+        best = int(np.argmin(scores))
+        model.k = model.ks[best]
+        pca_wins = {w: q[best] for w, q in zip(wins, per_win, strict=True)}
+    interp_wins = {meth: dict(zip(wins, interp_fill(xyz_m, known, wins, meth), strict=True))
+                   for meth in ("linear", "pchip") if meth in methods and wins}
     preds: dict[str, np.ndarray] = {}
     for meth in methods:
         p = run(meth, s, e, valid_m, False)

@@ -15,14 +15,16 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
+from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
 #: known samples used on each side of an interval by the interpolating methods
 _N_ANCHORS = 3
 
 
-def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int, kind: str) -> np.ndarray | None:
-    """Linear or PCHIP interpolation of one marker over frames ``[a, b)``.
+def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[int, int]],
+                kind: str) -> list[np.ndarray | None]:
+    """Linear or PCHIP interpolation of one marker over each frame interval ``[a, b)`` of ``intervals``.
 
     Parameters
     ----------
@@ -30,19 +32,37 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int, kind: st
     known_m : (T,) bool, samples that may be used.
     kind : ``"linear"`` or ``"pchip"``.
 
-    Returns ``None`` unless known samples exist on both sides (never extrapolates in time).
+    An interval gets ``None`` unless known samples exist on both sides (never extrapolates in time).
+    PCHIP is local (each knot's slope depends on its neighbours only), so one interpolant through the
+    ``_N_ANCHORS`` known samples on each side of every interval serves all of them.
     """
-    before = np.flatnonzero(known_m[:a])
-    after = np.flatnonzero(known_m[b:]) + b
-    if before.size == 0 or after.size == 0:
-        return None
-    t = np.arange(a, b, dtype=np.float64)
-    if kind == "linear":
-        t0, t1 = before[-1], after[0]
-        w = ((t - t0) / (t1 - t0))[:, None]
-        return (1.0 - w) * xyz_m[t0] + w * xyz_m[t1]
-    anchors = np.concatenate([before[-_N_ANCHORS:], after[:_N_ANCHORS]])
-    return PchipInterpolator(anchors.astype(np.float64), xyz_m[anchors], axis=0)(t)
+    known_idx = np.flatnonzero(known_m)
+    out: list[np.ndarray | None] = []
+    anchors: list[np.ndarray] = []
+    ok: list[bool] = []
+    for a, b in intervals:
+        i0 = np.searchsorted(known_idx, a)  # first known sample at or after a
+        i1 = np.searchsorted(known_idx, b)  # first known sample at or after b
+        good = i0 > 0 and i1 < known_idx.size and i0 == i1
+        ok.append(bool(good))
+        if good:
+            anchors.append(known_idx[max(0, i0 - _N_ANCHORS):i1 + _N_ANCHORS])
+    if kind == "pchip" and anchors:
+        knots = np.unique(np.concatenate(anchors))
+        interp = PchipInterpolator(knots.astype(np.float64), xyz_m[knots], axis=0)
+    for (a, b), good in zip(intervals, ok, strict=True):
+        if not good:
+            out.append(None)
+            continue
+        t = np.arange(a, b, dtype=np.float64)
+        if kind == "linear":
+            i = np.searchsorted(known_idx, a)
+            t0, t1 = known_idx[i - 1], known_idx[i]
+            w = ((t - t0) / (t1 - t0))[:, None]
+            out.append((1.0 - w) * xyz_m[t0] + w * xyz_m[t1])
+        else:
+            out.append(interp(t))
+    return out
 
 
 def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
@@ -115,6 +135,17 @@ def min_rotation(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return Rotation.from_rotvec(axis * ang[:, None]).as_matrix(), c_ref, c_cur
 
 
+def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Distinct rows of a (n, k) bool array with the row indices having each: ``[(pattern, rows), ...]``."""
+    if vis.shape[0] == 0:
+        return []
+    if (vis == vis[0]).all():
+        return [(vis[0], np.arange(vis.shape[0]))]
+    patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
+
+
 def _non_collinear(pts: np.ndarray, min_spread_mm: float = 5.0) -> bool:
     """True when ``pts`` (K, 3) span a plane: the second singular value of the centred set is big enough."""
     if pts.shape[0] < 3:
@@ -141,13 +172,10 @@ def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], k
     lo, hi = max(a - 1, 0), min(b + 1, n_t)
     vis = valid[lo:hi][:, others]
     pred = np.full((hi - lo, 3), np.nan)
-    patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    for p_idx, pattern in enumerate(patterns):
+    for pattern, rows in row_patterns(vis):
         if pattern.sum() < 2:
             continue
         sub = others[pattern]
-        rows = np.flatnonzero(inverse == p_idx)
         frames = rows + lo
         complete = known_m & valid[:, sub].all(axis=1)
         cand_before = np.flatnonzero(complete[:a])
@@ -189,7 +217,7 @@ class PcaModel:
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0,
-                 var_fracs: tuple[float, ...] = (0.999, 0.9999, 0.99999, 0.999999)) -> None:
+                 var_fracs: tuple[float, ...] = (0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
         cols = np.concatenate([predictors, [m]])
@@ -212,30 +240,31 @@ class PcaModel:
         self.k = self.ks[len(self.ks) // 2]
         self.v_all = evecs[:, :max(self.ks)]
 
-    @property
-    def v(self) -> np.ndarray:
-        return self.v_all[:, :self.k]
-
-    def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray) -> np.ndarray:
-        """Target positions (n, 3) in ``frames`` from the first ``self.k`` components; NaN rows where no
-        predictor is measured."""
+    def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray,
+                ks: list[int] | None = None) -> np.ndarray:
+        """Target positions (len(ks), n, 3) in ``frames`` from the first ``k`` components for each ``k`` in
+        ``ks`` (default ``[self.k]``); NaN rows where too few predictors are measured."""
+        ks = [self.k] if ks is None else ks
         n_p = self.predictors.size
-        out = np.full((frames.size, 3), np.nan)
+        out = np.full((len(ks), frames.size, 3), np.nan)
         vis = valid[frames][:, self.predictors]
-        patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        for p_idx, pattern in enumerate(patterns):
+        x_all = xyz[frames][:, self.predictors].reshape(frames.size, -1)
+        for pattern, rows in row_patterns(vis):
             if not pattern.any():
                 continue
-            rows = np.flatnonzero(inverse == p_idx)
             kcols = np.flatnonzero(np.repeat(pattern, 3))
-            if kcols.size < self.k:
-                continue
-            x = xyz[frames[rows]][:, self.predictors].reshape(rows.size, -1)[:, kcols]
-            z = (x - self.mean[kcols]) * self.w[kcols]
-            scores = np.linalg.lstsq(self.v[kcols], z.T, rcond=1e-8)[0]
-            zm = (self.v[3 * n_p:] @ scores).T
-            out[rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:]
+            z = ((x_all[rows][:, kcols] - self.mean[kcols]) * self.w[kcols]).T
+            k_top = min(max(ks), kcols.size)
+            # least squares for every k at once: the first k columns of A = QR are Q[:, :k] R[:k, :k]
+            q, r = np.linalg.qr(self.v_all[kcols, :k_top])
+            qz = q.T @ z
+            diag = np.abs(np.diag(r))
+            for i, k in enumerate(ks):
+                if k > k_top or diag[:k].min() < 1e-8 * max(diag.max(), 1e-300):
+                    continue
+                scores = solve_triangular(r[:k, :k], qz[:k])
+                zm = (self.v_all[3 * n_p:, :k] @ scores).T
+                out[i, rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:]
         return out
 
 
@@ -255,8 +284,9 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
     rows = known_m[lo:hi]
     vw = valid[lo:hi]
     if preds.size > max_predictors:
-        both = vw[:, preds] & rows[:, None]
-        d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, preds] - xyz[lo:hi][:, [m]]), axis=2)
+        step = max(1, (hi - lo) // 200)  # a few hundred frames are plenty for a mean distance
+        both = vw[::step][:, preds] & rows[::step, None]
+        d = np.linalg.norm(np.nan_to_num(xyz[lo:hi:step][:, preds] - xyz[lo:hi:step][:, [m]]), axis=2)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_d = np.where(both, d, 0.0).sum(axis=0) / both.sum(axis=0)
         mean_d[~np.isfinite(mean_d)] = np.inf
@@ -271,10 +301,11 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
 
 
 def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray,
-             a: int, b: int, partial: bool = False) -> np.ndarray | None:
-    """PCA reconstruction of the model's marker over ``[a, b)``, corrected to meet the known edge samples.
-    With ``partial``, frames without any measured predictor are NaN instead of making the result ``None``."""
+             a: int, b: int, partial: bool = False, ks: list[int] | None = None) -> list[np.ndarray | None]:
+    """PCA reconstruction of the model's marker over ``[a, b)`` for each component count in ``ks`` (default
+    the model's ``k``), each corrected to meet the known edge samples. With ``partial``, frames without enough
+    measured predictors are NaN instead of making that result ``None``."""
     n_t = xyz.shape[0]
     lo, hi = max(a - 1, 0), min(b + 1, n_t)
-    pred = model.predict(xyz, valid, np.arange(lo, hi))
-    return _edge_correct(pred, xyz[:, model.m], known_m, a, b, lo, hi, partial)
+    preds = model.predict(xyz, valid, np.arange(lo, hi), ks)
+    return [_edge_correct(p, xyz[:, model.m], known_m, a, b, lo, hi, partial) for p in preds]
