@@ -462,11 +462,10 @@ def test_params_are_honoured():
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
 
 
-@pytest.mark.skipif(not (SAMPLE / "truth" / "truth.json").exists(), reason="sample session not generated")
-@pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
-def test_against_the_sample_sessions_truth(take):
-    """The sample generator's eyes (pursuit with catch-up saccades, a 45° eye limit, a body that turns) seen
-    through its true camera rotation, at 60 Hz on a shifted video clock, with noise and blinks."""
+def sample_scene(take: str, seed: int = 21, noise_deg: float = 2.5) -> tuple[Scene, np.ndarray]:
+    """The sample generator's eyes for ``take`` (pursuit with catch-up saccades, a 45° eye limit, a body that
+    turns) seen through its true camera rotation, at 60 Hz on a shifted video clock, with per-eye noise and
+    blinks with junk gaze; joints from the truth. Returns the scene and the truth's eye_dir_char."""
     from gazepipe.synth import load_truth
 
     tr = load_truth(SAMPLE, take)
@@ -478,9 +477,9 @@ def test_against_the_sample_sessions_truth(take):
     pos = np.interp(clock.offset_s + clock.ratio * tv, tm, np.arange(tm.size))
     i0 = np.minimum(pos.astype(np.int64), tm.size - 2)
     true_cam = cam.inv().apply(slerp_vectors(eye_head[i0], eye_head[i0 + 1], pos - i0))
-    rng = np.random.default_rng(21)
+    rng = np.random.default_rng(seed)
     m = tv.size
-    left, right = _tangent_noise(rng, true_cam, 2.5), _tangent_noise(rng, true_cam, 2.5)
+    left, right = _tangent_noise(rng, true_cam, noise_deg), _tangent_noise(rng, true_cam, noise_deg)
     blink = np.zeros(m, dtype=bool)
     for s in rng.integers(0, m - 10, 12):
         blink[s:s + 8] = True
@@ -490,10 +489,22 @@ def test_against_the_sample_sessions_truth(take):
     joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
                              target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=tr["scalars"]["rate_hz"],
                              char_rot=tr["char_quat_lab"])
-    res = eyes_take(eye, joints, tm, clock)
-    assert _deg((from_wxyz(res.camera_rotation) * cam.inv()).magnitude()) < 1.0
+    head = from_wxyz(joints.quat[:, -1])
+    truth_char = tr["eye_dir_char"].astype(np.float64)
+    sc = Scene(eye=eye, joints=joints, mocap_time_s=tm, clock=clock, cam=cam, eye_dir_char=truth_char,
+               eye_dir_head=eye_head, video_eye_cam=true_cam, head_missing=np.zeros(tm.size, dtype=bool))
+    assert np.allclose(head.apply(eye_head), truth_char, atol=1e-4)   # the truth's own consistency
+    return sc, truth_char
+
+
+@pytest.mark.skipif(not (SAMPLE / "truth" / "truth.json").exists(), reason="sample session not generated")
+@pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
+def test_against_the_sample_sessions_truth(take):
+    sc, truth_char = sample_scene(take)
+    res = eyes_take(sc.eye, sc.joints, sc.mocap_time_s, sc.clock)
+    assert _deg((from_wxyz(res.camera_rotation) * sc.cam.inv()).magnitude()) < 1.0
     v = res.valid
     assert v.mean() > 0.8
-    err = _deg(angle_between(res.eye_dir_char[v], tr["eye_dir_char"][v].astype(np.float64)))
+    err = _deg(angle_between(res.eye_dir_char[v], truth_char[v]))
     assert np.median(err) < 2.0
     assert err.max() < 12.0
