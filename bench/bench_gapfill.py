@@ -108,7 +108,7 @@ def real_dataset(name: str) -> dict | None:
             "groups": hide_groups, "clusters": clusters, "note": note}
 
 
-def session_datasets() -> list[dict]:
+def session_datasets(n_takes: int = 0) -> list[dict]:
     sess = ROOT / "sample_data" / "session01"
     try:
         from gazepipe.synth import load_truth
@@ -127,7 +127,10 @@ def session_datasets() -> list[dict]:
         print(f"[sample session] markerset not loaded ({exc}); rigid clusters from the data")
     out = []
     rng = np.random.default_rng(7)
-    for f in sorted((sess / "truth").glob("*.npz")):
+    files = sorted((sess / "truth").glob("*.npz"))
+    if n_takes:
+        files = files[::max(1, len(files) // n_takes)][:n_takes]
+    for f in files:
         tr = load_truth(sess, f.stem)
         truth = np.asarray(tr["markers_true"], dtype=np.float64)
         rate = float(1.0 / np.median(np.diff(tr["time_s"])))
@@ -298,8 +301,10 @@ def report(ds: dict, out: dict, has_ktk: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=8, help="occlusion patterns per bin and take")
+    ap.add_argument("--trials", type=int, default=6, help="occlusion patterns per bin and take")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--data", choices=("all", "session", "real"), default="all")
+    ap.add_argument("--takes", type=int, default=4, help="sample-session takes to use (0: all)")
     ap.add_argument("--pattern", choices=("random", "neighbours"), default="random",
                     help="which markers are hidden together with the first one of an occlusion")
     args = ap.parse_args(argv)
@@ -310,8 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         has_ktk = False
         print("kineticstoolkit not installed: its column is skipped")
-    datasets = session_datasets()
-    for name in ("Walking_Hybrid_2", "ART-Human_2persons_integer"):
+    datasets = session_datasets(args.takes) if args.data in ("all", "session") else []
+    for name in ("Walking_Hybrid_2", "ART-Human_2persons_integer") if args.data in ("all", "real") else ():
         ds = real_dataset(name)
         if ds is not None:
             datasets.append(ds)

@@ -217,7 +217,7 @@ class PcaModel:
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0,
-                 var_fracs: tuple[float, ...] = (0.9999, 0.99999, 0.999999)) -> None:
+                 var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
         cols = np.concatenate([predictors, [m]])
