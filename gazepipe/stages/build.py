@@ -1,0 +1,421 @@
+"""The ``build`` stage (SPEC §3.6, §4): the training datasets ``gaze_rnn``, ``gaze_rnn_lod``, ``gaze_map`` and
+``face_clean`` from every take's per-take tables.
+
+:func:`build_dataset` is pure: per-take Arrow tables in, per-take dataset tables and the ``dataset.json``
+object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
+
+- take-disjoint splits (:mod:`gazepipe.stages.splits`): a take's rows, mirrored copies included, all go to
+  its split;
+- a mirrored copy of every row (``mirrored`` = True; SPEC §2), after the take's original rows;
+- normalisation statistics (mean and population standard deviation per feature element) over the training
+  rows only, mirrored training rows included, overall and per pose; at least one training take is required.
+
+A take that cannot give rows (no eyes for gaze_rnn, missing rests for gaze_map, …) is left out and listed
+under ``skipped`` in dataset.json with the reason; the other takes still build.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from gazepipe import __version__
+from gazepipe.errors import GazepipeError, StageError
+from gazepipe.model import SPLITS, MarkerSet, Take
+from gazepipe.schemas.base import attach_meta, check_table, read_meta
+from gazepipe.schemas.datasets import (
+    DATASETS,
+    IDENTIFIER_NAMES,
+    SCHEMA_VERSION,
+    dataset_schema,
+    feature_columns,
+)
+from gazepipe.schemas.joints import joints_arrays, list_to_numpy
+from gazepipe.stages.build_face import face_columns, face_rows, mirror_face_rows
+from gazepipe.stages.build_gaze import (
+    TakeRows,
+    align_eyes,
+    gaze_map_names,
+    gaze_map_row,
+    mirror_gaze_map,
+    mirror_signs,
+    rnn_feature_names,
+    rnn_rows,
+)
+from gazepipe.stages.splits import assign_split, check_fractions
+
+KINDS = {"gaze_rnn": "gaze_follow", "gaze_rnn_lod": "gaze_follow", "gaze_map": "gaze_shift", "face_clean": "face"}
+
+
+@dataclass(frozen=True)
+class BuildParams:
+    """Parameters of :func:`build_dataset`.
+
+    Attributes
+    ----------
+    train_frac, val_frac : shares of the hashed takes (not pinned by ``split``) that go to train and val; the
+        rest goes to test. With few takes a split can be empty; it is reported, not forced.
+    split_salt : prefix of the hashed take id; change it to draw another deterministic split.
+    mirror : add a mirrored copy of every row (Klein 6.2).
+    rnn_window, rnn_stride : frames per training sequence and step between sequences for gaze_rnn trainers
+        (Klein 6.2: 120 frames = 4 s), written to dataset.json.
+    face_window, face_stride : the same for face_clean (Berson 4.1: 200-frame chunks, overlap 150).
+    start_speed_deg_s : gaze_map start-time threshold on parent-relative angular speed (Pejsa: 18°/s).
+    overshoot_window_s : gaze_map overshoot confirmation window each side (s).
+    head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
+    """
+
+    train_frac: float = 0.8
+    val_frac: float = 0.1
+    split_salt: str = ""
+    mirror: bool = True
+    rnn_window: int = 120
+    rnn_stride: int = 30
+    face_window: int = 200
+    face_stride: int = 50
+    start_speed_deg_s: float = 18.0
+    overshoot_window_s: float = 0.1
+    head_segment: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class TakeTables:
+    """One take's inputs to the build.
+
+    Attributes
+    ----------
+    session, subject : the session id and subject.
+    take : the take's entry in session.toml (kind, pose, split pin, requested yaw/pitch).
+    joints : the ``joints`` table (gaze_follow and gaze_shift takes).
+    eyes : the ``eyes`` table (gaze_follow takes with eye tracking).
+    face : the ``face`` table (face takes).
+    markerset : the session's markerset (``lod_segments`` for gaze_rnn_lod).
+    meta : extra facts: ``rests`` (list of [start, stop) frames of the uncropped take, from the clean stage;
+        needed by gaze_map) and ``rate_hz`` (default: the joints table's).
+    hashes : content hashes of the inputs by table name; computed from the tables when absent.
+    """
+
+    session: str
+    subject: str
+    take: Take
+    joints: pa.Table | None = None
+    eyes: pa.Table | None = None
+    face: pa.Table | None = None
+    markerset: MarkerSet | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    hashes: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def key(self) -> tuple[str, str, str]:
+        return (self.subject, self.take.pose, self.take.id)
+
+
+@dataclass
+class BuiltDataset:
+    """A built dataset: per-take tables keyed by (subject, pose, take), the dataset.json object, the schema."""
+
+    name: str
+    tables: dict[tuple[str, str, str], pa.Table]
+    info: dict[str, Any]
+    schema: pa.Schema
+
+
+def table_hash(table: pa.Table) -> str:
+    """sha256 of a table's Arrow IPC stream (schema, metadata and data)."""
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, table.schema) as writer:
+        writer.write_table(table)
+    return hashlib.sha256(sink.getvalue().to_pybytes()).hexdigest()
+
+
+def _where(name: str) -> str:
+    return f"datasets/{name}"
+
+
+# --------------------------------------------------------------------------------------------- per take
+
+@dataclass
+class _Context:
+    name: str
+    params: BuildParams
+    segments: list[str] | None = None
+    names: dict[str, list[str]] | None = None
+    sizes: dict[str, int] | None = None
+    fps: set = field(default_factory=set)
+
+
+def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
+    lod = ctx.name == "gaze_rnn_lod"
+    if tt.joints is None:
+        raise StageError(None, "no joints table", take=tt.take.id)
+    j = joints_arrays(tt.joints)
+    segs = list(j["segments"])
+    if lod:
+        want = list(tt.markerset.lod_segments) if tt.markerset else []
+        if not want:
+            raise StageError(None, "the markerset has no [lod] segments", take=tt.take.id)
+        missing = [s for s in want if s not in segs]
+        if missing:
+            raise StageError(None, f"[lod] segments {missing} are not in the joints table", take=tt.take.id)
+    else:
+        want = segs
+    if ctx.segments is None:
+        ctx.segments = want
+        ctx.names = rnn_feature_names(want, with_eyes=not lod)
+        ctx.sizes = {"n_in": len(ctx.names["x"]), "n_out": len(ctx.names["y"])}
+    elif want != ctx.segments:
+        raise StageError(None, f"segments {want} differ from the dataset's {ctx.segments}", take=tt.take.id)
+    eyes = None
+    if not lod:
+        if tt.eyes is None:
+            raise StageError(None, "no eyes table (eye tracking is needed for gaze_rnn)", take=tt.take.id)
+        e = tt.eyes
+        eyes = align_eyes(np.asarray(j["frame"]), e.column("frame").to_numpy(), e.column("valid").to_numpy(),
+                          list_to_numpy(e.column("eye_dir_char"), 3))
+    ctx.fps.add(float(tt.meta.get("rate_hz", j["meta"].get("rate_hz"))))
+    return rnn_rows(j, [segs.index(s) for s in want], eyes)
+
+
+def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
+    take = tt.take
+    if tt.joints is None:
+        raise StageError(None, "no joints table", take=take.id)
+    if take.target_yaw_deg is None or take.target_pitch_deg is None:
+        raise StageError(None, "no requested target yaw/pitch", take=take.id)
+    if "rests" not in tt.meta:
+        raise StageError(None, "no rest periods given", take=take.id)
+    j = joints_arrays(tt.joints)
+    segs = list(j["segments"])
+    if ctx.segments is None:
+        ctx.segments = segs
+        ctx.names = gaze_map_names(segs)
+        ctx.sizes = {"n_segments": len(segs)}
+    elif segs != ctx.segments:
+        raise StageError(None, f"segments {segs} differ from the dataset's {ctx.segments}", take=take.id)
+    p = ctx.params
+    head_name = p.head_segment or ("head" if "head" in segs else segs[-1])
+    if head_name not in segs:
+        raise StageError(None, f"head segment {head_name!r} is not in the joints table", take=take.id)
+    rate = float(tt.meta.get("rate_hz", j["meta"].get("rate_hz")))
+    ctx.fps.add(rate)
+    return gaze_map_row(j, tt.meta["rests"], rate, float(take.target_yaw_deg), float(take.target_pitch_deg),
+                        head=segs.index(head_name), start_speed_deg_s=p.start_speed_deg_s,
+                        overshoot_window_s=p.overshoot_window_s, take=take.id)
+
+
+def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
+    if tt.face is None:
+        raise StageError(None, "no face table", take=tt.take.id)
+    meta = read_meta(tt.face)
+    k = int(meta.get("k", 1))
+    channels = list(meta.get("names", []))
+    if ctx.sizes is None:
+        ctx.sizes = {"k": k, "n_channels": len(channels)}
+        ctx.segments = channels
+        ctx.names = {c: [f"{c}.{n}" for n in channels] for c in face_columns(k)}
+    elif {"k": k, "n_channels": len(channels)} != ctx.sizes or channels != ctx.segments:
+        raise StageError(None, f"face channels or derivative order (k={k}) differ from the dataset's",
+                         take=tt.take.id)
+    if "rate_hz" in meta:
+        ctx.fps.add(float(meta["rate_hz"]))
+    return face_rows(tt.face, k)
+
+
+def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
+    if name == "gaze_map":
+        return mirror_gaze_map(rows.features)
+    if name == "face_clean":
+        return mirror_face_rows(rows.features, ctx.segments)
+    return {c: rows.features[c] * mirror_signs(ctx.names[c]) for c in ("x", "y")}
+
+
+# -------------------------------------------------------------------------------------------- assembly
+
+def _column(values: np.ndarray, ftype: pa.DataType) -> pa.Array:
+    if pa.types.is_fixed_size_list(ftype):
+        flat = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+        return pa.FixedSizeListArray.from_arrays(pa.array(flat, pa.float32()), ftype.list_size)
+    return pa.array(np.ascontiguousarray(values).reshape(-1), ftype)
+
+
+def _take_table(tt: TakeTables, split: str, rows: TakeRows, mirrored: dict[str, np.ndarray] | None,
+                schema: pa.Schema, sizes: dict[str, int]) -> pa.Table:
+    parts = [rows.features] + ([mirrored] if mirrored is not None else [])
+    n = rows.n_rows * len(parts)
+    ident: dict[str, Any] = {
+        "subject": tt.subject, "session": tt.session, "take": tt.take.id, "pose": tt.take.pose, "split": split,
+    }
+    cols: list[pa.Array] = []
+    for f in schema:
+        if f.name in ident:
+            cols.append(pa.array([ident[f.name]] * n, pa.string()))
+        elif f.name == "mirrored":
+            cols.append(pa.array(np.repeat(np.arange(len(parts)) == 1, rows.n_rows)))
+        elif f.name in ("segment", "frame", "time_s"):
+            cols.append(pa.array(np.tile(getattr(rows, f.name), len(parts)), f.type))
+        else:
+            cols.append(_column(np.concatenate([p[f.name] for p in parts]), f.type))
+    table = pa.Table.from_arrays(cols, schema=schema)
+    table = attach_meta(table, {"dataset": schema.metadata[b"gazepipe.table"].decode(), "sizes": sizes})
+    check_table(table, schema, path=f"take {tt.take.id}")
+    return table
+
+
+def feature_values(table: pa.Table, column: str) -> np.ndarray:
+    """A feature column as an (N, D) array of its stored dtype (D = 1 for a scalar column)."""
+    ftype = table.schema.field(column).type
+    if pa.types.is_fixed_size_list(ftype):
+        return list_to_numpy(table.column(column), ftype.list_size)
+    return table.column(column).to_numpy().reshape(-1, 1)
+
+
+def _stats(tables: list[tuple[str, pa.Table]], columns: list[str]) -> dict[str, Any]:
+    """Mean and population std per feature element over ``tables`` (pose, table), overall and per pose."""
+    def summary(ts: list[pa.Table]) -> dict[str, Any]:
+        out: dict[str, Any] = {"rows": int(sum(t.num_rows for t in ts))}
+        for c in columns:
+            v = np.concatenate([feature_values(t, c) for t in ts]).astype(np.float64)
+            out[c] = {"mean": [float(x) for x in v.mean(axis=0)], "std": [float(x) for x in v.std(axis=0)]}
+        return out
+
+    poses = sorted({p for p, _ in tables})
+    return {"overall": summary([t for _, t in tables]),
+            "per_pose": {p: summary([t for q, t in tables if q == p]) for p in poses}}
+
+
+def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None = None) -> BuiltDataset:
+    """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables.
+
+    Takes of other kinds are ignored; a take that cannot give rows is skipped and listed in
+    ``info["skipped"]``. Raises :class:`StageError` for an unknown dataset, two takes with the same
+    (subject, pose, take id), no usable take, or no training take (statistics need one).
+    """
+    params = params or BuildParams()
+    if name not in DATASETS:
+        raise StageError(_where(name), f"unknown dataset (known: {', '.join(DATASETS)})")
+    check_fractions(params.train_frac, params.val_frac)
+    kind = KINDS[name]
+    mine = sorted((t for t in takes if t.take.kind == kind), key=lambda t: (t.key, t.session))
+    if not mine:
+        raise StageError(_where(name), f"no {kind} takes to build from")
+    seen: dict[tuple[str, str, str], str] = {}
+    for t in mine:
+        if t.key in seen:
+            raise StageError(_where(name), f"take {t.take.id!r} of subject {t.subject!r} appears in sessions "
+                                           f"{seen[t.key]!r} and {t.session!r}; take ids must be unique per subject")
+        seen[t.key] = t.session
+
+    ctx = _Context(name=name, params=params)
+    build = {"gaze_rnn": _rnn, "gaze_rnn_lod": _rnn, "gaze_map": _gaze_map, "face_clean": _face}[name]
+    built: list[tuple[TakeTables, str, TakeRows]] = []
+    skipped: list[dict[str, str]] = []
+    for t in mine:
+        try:
+            rows = build(t, ctx)
+        except GazepipeError as exc:
+            skipped.append({"session": t.session, "take": t.take.id, "reason": exc.problem})
+            continue
+        if rows.n_rows == 0:
+            skipped.append({"session": t.session, "take": t.take.id, "reason": "no usable frames"})
+            continue
+        split = assign_split(t.take.id, t.take.split, params.train_frac, params.val_frac, params.split_salt)
+        built.append((t, split, rows))
+    if not built:
+        reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in skipped[:3])
+        raise StageError(_where(name), f"no take gave rows ({reasons})")
+
+    schema = dataset_schema(name, ctx.sizes)
+    tables: dict[tuple[str, str, str], pa.Table] = {}
+    for t, split, rows in built:
+        mirrored = _mirror(name, rows, ctx) if params.mirror else None
+        tables[t.key] = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
+
+    train = [(t.take.pose, tables[t.key]) for t, s, _ in built if s == "train"]
+    if not train:
+        raise StageError(_where(name), f"no training take among {len(built)} (splits: "
+                                       f"{', '.join(sorted({s for _, s, _ in built}))}); statistics need at least "
+                                       "one: pin a take with split = \"train\" or change the split fractions")
+    columns = feature_columns(schema)
+    info = _info(name, params, ctx, built, tables, skipped, columns, schema, train)
+    return BuiltDataset(name=name, tables=tables, info=info, schema=schema)
+
+
+def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: dict, skipped: list,
+          columns: list[str], schema: pa.Schema, train: list) -> dict[str, Any]:
+    by_split: dict[str, dict[str, Any]] = {s: {"takes": 0, "rows": 0} for s in SPLITS}
+    by_pose: dict[str, dict[str, int]] = {}
+    split_takes: dict[str, list[str]] = {s: [] for s in SPLITS}
+    per_take: dict[str, Any] = {}
+    inputs: dict[str, dict[str, str]] = {}
+    for t, split, rows in built:
+        n = tables[t.key].num_rows
+        by_split[split]["takes"] += 1
+        by_split[split]["rows"] += n
+        bp = by_pose.setdefault(t.take.pose, {"takes": 0, "rows": 0})
+        bp["takes"] += 1
+        bp["rows"] += n
+        tid = f"{t.session}/{t.take.id}"
+        split_takes[split].append(tid)
+        per_take[tid] = {"split": split, "rows": n, **rows.qc}
+    for t in sorted({id(t): t for t, _, _ in built}.values(), key=lambda t: (t.session, t.take.id)):
+        hashes = dict(t.hashes)
+        for tname in ("joints", "eyes", "face"):
+            tab = getattr(t, tname)
+            if tab is not None and tname not in hashes:
+                hashes[tname] = table_hash(tab)
+        if "rests" in t.meta and name == "gaze_map":
+            hashes.setdefault("rests", hashlib.sha256(repr(t.meta["rests"]).encode()).hexdigest())
+        inputs[f"{t.session}/{t.take.id}"] = dict(sorted(hashes.items()))
+    warnings = [f"split {s!r} is empty" for s in SPLITS if by_split[s]["takes"] == 0]
+    fps = sorted(ctx.fps)
+    if len(fps) > 1:
+        warnings.append(f"takes have different frame rates {fps}; fps is the lowest")
+    window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
+                      "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
+                      "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
+    stats = _stats(train, columns)
+    stats["rows_used"] = "training rows only, mirrored copies included"
+    stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
+    return {
+        "name": name,
+        "version": __version__,
+        "schema_version": SCHEMA_VERSION,
+        "identifiers": list(IDENTIFIER_NAMES),
+        "features": {c: list(ctx.names[c]) for c in columns},
+        "sizes": dict(ctx.sizes),
+        "units": _UNITS[name],
+        "fps": fps[0] if fps else None,
+        "window": window,
+        "stride": stride,
+        "splits": {"train_frac": params.train_frac, "val_frac": params.val_frac, "salt": params.split_salt,
+                   "takes": split_takes},
+        "stats": stats,
+        "counts": {"takes": len(built), "rows": int(sum(t.num_rows for t in tables.values())),
+                   "mirrored": bool(params.mirror), "by_split": by_split,
+                   "by_pose": dict(sorted(by_pose.items())), "skipped": len(skipped), "per_take": per_take},
+        "inputs": inputs,
+        "params": params.to_dict(),
+        "skipped": skipped,
+        "warnings": warnings,
+    }
+
+
+_UNITS: dict[str, dict[str, str]] = {
+    "gaze_rnn": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
+                 "time_s": "s"},
+    "gaze_rnn_lod": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
+                     "time_s": "s"},
+    "gaze_map": {"yaw_deg": "deg", "pitch_deg": "deg", "duration_s": "s", "start_times": "fraction of duration",
+                 "overshoot_time": "fraction of duration", "overshoot": "fraction of the final displacement",
+                 "p_plus": "quaternion w, x, y, z", "time_s": "s"},
+    "face_clean": {"tracked": "blendshape coefficient", "clean": "blendshape coefficient", "dt_s": "s",
+                   "tracked_dK": "1/s^K", "clean_dK": "1/s^K", "time_s": "s"},
+}

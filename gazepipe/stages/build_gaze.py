@@ -1,0 +1,265 @@
+"""Rows of the gaze datasets (SPEC §3.6): ``gaze_rnn`` / ``gaze_rnn_lod`` (Klein 6.1, 7) and ``gaze_map``
+(Pejsa 5.1, 5.2.2.2). Pure functions on per-take arrays; :mod:`gazepipe.stages.build` assembles the tables.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from gazepipe.errors import StageError
+from gazepipe.stages.rotations import from_wxyz, to_wxyz
+
+
+@dataclass
+class TakeRows:
+    """Rows of one take before mirroring: identifiers and float32 feature arrays (N, D) or (N,)."""
+
+    segment: np.ndarray
+    frame: np.ndarray
+    time_s: np.ndarray
+    features: dict[str, np.ndarray]
+    qc: dict = field(default_factory=dict)
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.frame.shape[0])
+
+
+# ------------------------------------------------------------------------------------------------ gaze_rnn
+
+def _xyz(prefix: str) -> list[str]:
+    return [f"{prefix}.{a}" for a in "xyz"]
+
+
+def rnn_feature_names(segments: list[str], with_eyes: bool) -> dict[str, list[str]]:
+    """Names of the ``x`` and ``y`` elements: target direction, each segment's forward then up vector, then the
+    eye direction (``x``: rotations and eyes of the previous frame; ``y``: of the current frame)."""
+    rot = [n for s in segments for n in (*_xyz(f"{s}.fwd"), *_xyz(f"{s}.up"))]
+    eyes = _xyz("eye_dir") if with_eyes else []
+    return {"x": [*_xyz("target_dir"), *rot, *eyes], "y": [*rot, *eyes]}
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def align_eyes(frames: np.ndarray, eye_frame: np.ndarray, eye_valid: np.ndarray,
+               eye_dir: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eye validity (N,) and unit direction (N, 3) on the joints rows ``frames``, matched by frame number
+    (a joints frame without an eyes row is invalid)."""
+    order = np.argsort(eye_frame, kind="stable")
+    ef = np.asarray(eye_frame)[order]
+    pos = np.clip(np.searchsorted(ef, frames), 0, max(len(ef) - 1, 0))
+    ok = np.zeros(len(frames), dtype=bool)
+    d = np.full((len(frames), 3), np.nan)
+    if len(ef):
+        hit = ef[pos] == frames
+        src = order[pos[hit]]
+        ok[hit] = np.asarray(eye_valid, dtype=bool)[src]
+        d[hit] = _unit(np.asarray(eye_dir, dtype=np.float64)[src])
+    ok &= np.isfinite(d).all(axis=1)
+    return ok, d
+
+
+def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarray] | None) -> TakeRows:
+    """``gaze_rnn`` rows of one gaze_follow take (Klein 6.1).
+
+    A frame is usable when the joints are valid, the target direction is defined, the kept segments'
+    rotations are finite and (with ``eyes``) the eyes are valid. Consecutive usable frames (consecutive frame
+    numbers) form a segment; an unusable frame, an invalid-eyes frame included, ends it. The first frame of a
+    segment only provides the previous pose of the second: every segment of n frames gives n − 1 rows, the row
+    of frame t holding x = (target_dir[t], 6-number rotations[t−1], eye_dir[t−1]) and y = (rotations[t],
+    eye_dir[t]). Segment ids count 0, 1, … per take.
+
+    Parameters
+    ----------
+    joints : :func:`gazepipe.schemas.joints.joints_arrays` of the take (character frame of each frame).
+    seg_idx : indices of the segments to keep, in output order.
+    eyes : (valid (N,), unit direction (N, 3)) on the joints rows (:func:`align_eyes`), or ``None`` for the
+        LOD dataset, which has no eyes and does not need them valid.
+    """
+    frame = np.asarray(joints["frame"], dtype=np.int64)
+    six = np.asarray(joints["six"], dtype=np.float64)[:, seg_idx].reshape(len(frame), -1)
+    target = _unit(np.asarray(joints["target_dir"], dtype=np.float64))
+    ok = np.asarray(joints["valid"], dtype=bool) & np.isfinite(target).all(axis=1) & np.isfinite(six).all(axis=1)
+    parts_prev, parts_cur = [six], [six]
+    if eyes is not None:
+        eye_ok, eye_dir = eyes
+        ok &= eye_ok
+        parts_prev.append(eye_dir)
+        parts_cur.append(eye_dir)
+    row = np.zeros(len(frame), dtype=bool)
+    if len(frame) > 1:
+        row[1:] = ok[1:] & ok[:-1] & (np.diff(frame) == 1)
+    starts = row & ~np.concatenate([[False], row[:-1]])
+    seg = np.cumsum(starts) - 1
+    t = np.flatnonzero(row)
+    prev = np.concatenate(parts_prev, axis=1)[t - 1]
+    cur = np.concatenate(parts_cur, axis=1)[t]
+    x = np.concatenate([target[t], prev], axis=1).astype(np.float32)
+    y = cur.astype(np.float32)
+    lengths = np.bincount(seg[t], minlength=int(starts.sum())) if len(t) else np.zeros(0, dtype=np.int64)
+    qc = {"frames": int(len(frame)), "usable_frames": int(ok.sum()), "rows": int(len(t)),
+          "segments": int(starts.sum()), "longest_segment_rows": int(lengths.max()) if len(lengths) else 0}
+    return TakeRows(segment=seg[t].astype(np.int32), frame=frame[t].astype(np.int32),
+                    time_s=np.asarray(joints["time_s"], dtype=np.float64)[t], features={"x": x, "y": y}, qc=qc)
+
+
+def mirror_signs(names: list[str]) -> np.ndarray:
+    """Mirror (SPEC §2) of vectors in the character frame: −1 on every X component (``….x``), else +1.
+
+    Every ``gaze_rnn`` feature is a direction or the forward/up vector of a rotation (M·R·M negates the X of
+    both), so mirroring is an exact sign flip per element; the chain's segments have no left/right partners.
+    """
+    return np.where([n.endswith(".x") for n in names], -1.0, 1.0).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------ gaze_map
+
+def gaze_rotation(yaw_rad: float, pitch_rad: float) -> Rotation:
+    """Ry(yaw)·Rx(−pitch): yaw positive toward the character's left, pitch positive up (SPEC §2)."""
+    return Rotation.from_rotvec([0.0, yaw_rad, 0.0]) * Rotation.from_rotvec([-pitch_rad, 0.0, 0.0])
+
+
+def angular_speed(r: Rotation, rate_hz: float) -> np.ndarray:
+    """|ω| (rad/s) of a rotation sequence by central differences, (T,).
+
+    The first and last frames have no central difference; they take their neighbour's value rather than a
+    one-sided difference, which carries twice the noise (on 30 Hz marker data, enough to cross 18°/s alone).
+    """
+    n = len(r)
+    w = np.zeros(n)
+    if n < 3:
+        if n == 2:
+            w[:] = np.linalg.norm((r[1] * r[0].inv()).as_rotvec()) * rate_hz
+        return w
+    w[1:-1] = np.linalg.norm((r[2:] * r[:-2].inv()).as_rotvec(), axis=1) * rate_hz / 2.0
+    w[0], w[-1] = w[1], w[-2]
+    return w
+
+
+def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, float, int]:
+    """Overshoot of a displacement sequence D(t) (D(0) = identity): (t_β in s from the first frame, β, frame).
+
+    θ(t) = rotvec(D(t))·n with n the unit axis of D(last); ω = dθ/dt by central differences. t_β is the first
+    frame j where ω changes sign from + to − and the mean ω over the ``window_s`` before j is > 0 and after it
+    < 0 (Pejsa 5.2.2.2), placed between j − 1 and j by linear interpolation; β = θ(t_β)/θ(last) − 1. With no
+    such change: (duration, 0, −1).
+    """
+    n = len(disp)
+    rv = disp.as_rotvec()
+    final = rv[-1]
+    norm = float(np.linalg.norm(final))
+    end = (n - 1) / rate_hz
+    if n < 3 or norm < 1e-9:
+        return end, 0.0, -1
+    theta = rv @ (final / norm)
+    omega = np.gradient(theta) * rate_hz
+    m = max(1, int(round(window_s * rate_hz)))
+    cs = np.concatenate([[0.0], np.cumsum(omega)])
+    i = np.arange(max(1, m), n - m)
+    if not len(i):
+        return end, 0.0, -1
+    before = (cs[i] - cs[i - m]) / m
+    after = (cs[i + m] - cs[i]) / m
+    hit = i[(omega[i - 1] > 0) & (omega[i] <= 0) & (before > 0) & (after < 0)]
+    if not len(hit):
+        return end, 0.0, -1
+    j = int(hit[0])
+    frac = omega[j - 1] / (omega[j - 1] - omega[j])
+    th = theta[j - 1] + frac * (theta[j] - theta[j - 1])
+    return (j - 1 + frac) / rate_hz, float(th / theta[-1] - 1.0), j
+
+
+def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
+    """Element names of the gaze_map feature columns."""
+    return {"yaw_deg": ["yaw_deg"], "pitch_deg": ["pitch_deg"], "duration_s": ["duration_s"],
+            "start_times": list(segments), "overshoot_time": ["overshoot_time"], "overshoot": ["overshoot"],
+            "p_plus": [f"{s}.{c}" for s in (*segments, "eyes") for c in "wxyz"]}
+
+
+def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
+                 head: int, start_speed_deg_s: float = 18.0, overshoot_window_s: float = 0.1,
+                 path: str | None = None, take: str | None = None) -> TakeRows:
+    """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6).
+
+    Rotations are taken in the character frame held fixed at the crop's first frame: G(t) = C(0)ᵀ·C(t)·Q(t)
+    (C lab-from-character, Q the segment's rotation in the frame's own character frame), so the root's own
+    turn counts; parent-relative L = G_parentᵀ·G (the root's L is its G).
+
+    - duration l = (start of the second rest − end of the first rest) / rate, seconds;
+    - P+ per segment L(last)·L(first)⁻¹, and the eyes' D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·
+      G_head(first)⁻¹: the eyes' global displacement is the requested change;
+    - start time per segment: first crop frame where the angular speed of L (central differences) exceeds
+      ``start_speed_deg_s``, as a fraction of l; 0 when it never does (Pejsa: the joint starts with the shift);
+    - overshoot time t_β and amount β of the head's displacement (:func:`overshoot`), t_β a fraction of l
+      (1 with β = 0 when there is no overshoot).
+
+    Parameters
+    ----------
+    joints : :func:`gazepipe.schemas.joints.joints_arrays` of the cropped take ([end of first rest, end of
+        second rest)).
+    rests : rest periods [start, stop) in frames of the uncropped take (the clean stage's ``rests``).
+    head : index of the head segment.
+
+    Raises :class:`StageError` when fewer than two rests are given, l ≤ 0, or a frame of the crop lacks a
+    character frame or a segment rotation.
+    """
+    if len(rests) < 2:
+        raise StageError(path, f"gaze_map: {len(rests)} rest period(s), need two", take=take)
+    quat = np.asarray(joints["quat"], dtype=np.float64)
+    n, ns = quat.shape[:2]
+    valid = np.asarray(joints["valid"], dtype=bool) & np.isfinite(joints["char_rot"]).all(axis=1)
+    if n < 3 or not valid.all():
+        raise StageError(path, f"gaze_map: {int((~valid).sum())} of {n} crop frames have no character frame or "
+                               "segment rotation; every frame is needed", take=take)
+    duration = (int(rests[1][0]) - int(rests[0][1])) / rate_hz
+    if duration <= 0:
+        raise StageError(path, f"gaze_map: rests {rests[:2]} give a duration of {duration:.3f} s", take=take)
+    parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
+    rc = from_wxyz(joints["char_rot"])
+    fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]
+    local = [fixed[k] if parents[k] < 0 else fixed[parents[k]].inv() * fixed[k] for k in range(ns)]
+
+    p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) for loc in local]
+    d_head = fixed[head][n - 1] * fixed[head][0].inv()
+    eyes = d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg))
+    p_plus.append(to_wxyz(eyes))
+
+    thr = np.deg2rad(start_speed_deg_s)
+    starts = []
+    for loc in local:
+        hit = np.flatnonzero(angular_speed(loc, rate_hz) > thr)
+        starts.append(hit[0] / rate_hz / duration if len(hit) else 0.0)
+    disp = fixed[head] * fixed[head][0].inv()
+    t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s)
+    t_frac = t_beta / duration if j >= 0 else 1.0
+
+    f32 = np.float32
+    feats = {
+        "yaw_deg": np.array([yaw_deg], f32), "pitch_deg": np.array([pitch_deg], f32),
+        "duration_s": np.array([duration], f32),
+        "start_times": np.array([starts], f32),
+        "overshoot_time": np.array([t_frac], f32), "overshoot": np.array([beta], f32),
+        "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
+    }
+    frame = np.asarray(joints["frame"], dtype=np.int64)
+    qc = {"crop_frames": int(n), "overshoot_frame": int(frame[j]) if j >= 0 else None,
+          "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1]))}
+    return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
+                    time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
+
+
+def mirror_gaze_map(features: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Mirror gaze_map rows (SPEC §2): yaw negates, pitch stays, each quaternion (w, x, y, z) → (w, x, −y, −z)
+    (the rotation M·R·M), times and amounts stay."""
+    out = {k: v.copy() for k, v in features.items()}
+    out["yaw_deg"] = -features["yaw_deg"]
+    q = out["p_plus"].reshape(len(q0 := features["p_plus"]), -1, 4)
+    q[..., 2:] = -q[..., 2:]
+    out["p_plus"] = q.reshape(q0.shape)
+    return out

@@ -1,0 +1,40 @@
+"""Take-disjoint train / val / test splits (SPEC §3.6).
+
+A take's ``split`` in session.toml pins it; otherwise the split follows from a hash of the take id alone, so a
+take keeps its split when other takes are added or removed and every dataset puts it in the same split.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+from gazepipe.errors import ConfigError
+from gazepipe.model import SPLITS
+
+
+def hash_unit(key: str, salt: str = "") -> float:
+    """A deterministic number in [0, 1) from ``key`` (first 8 bytes of sha256(salt + key), big-endian)."""
+    digest = hashlib.sha256(f"{salt}{key}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") / 2.0**64
+
+
+def check_fractions(train: float, val: float) -> None:
+    """Raise :class:`ConfigError` unless 0 ≤ train, 0 ≤ val and train + val ≤ 1."""
+    if not (0.0 <= train and 0.0 <= val and train + val <= 1.0):
+        raise ConfigError(None, f"split fractions train={train}, val={val} must be >= 0 with train + val <= 1",
+                          key="build.train_frac")
+
+
+def assign_split(take_id: str, pinned: str | None, train: float = 0.8, val: float = 0.1, salt: str = "") -> str:
+    """The split of one take: ``pinned`` when given, else by :func:`hash_unit` of the take id:
+    train below ``train``, val below ``train + val``, test above."""
+    if pinned is not None:
+        if pinned not in SPLITS:
+            raise ConfigError(None, f"split {pinned!r} is not one of {', '.join(SPLITS)}", take=take_id)
+        return pinned
+    u = hash_unit(take_id, salt)
+    if u < train:
+        return "train"
+    if u < train + val:
+        return "val"
+    return "test"
