@@ -24,6 +24,7 @@ from gazepipe.stages.eyes import (
     angle_between,
     camera_to_character,
     camera_to_head,
+    combine_camera_estimates,
     cyclopean,
     estimate_camera_rotation,
     eyes_take,
@@ -508,3 +509,39 @@ def test_against_the_sample_sessions_truth(take):
     err = _deg(angle_between(res.eye_dir_char[v], truth_char[v]))
     assert np.median(err) < 2.0
     assert err.max() < 12.0
+
+
+def test_combine_camera_estimates():
+    truth = true_camera_rotation()
+    offsets = Rotation.from_euler("xyz", [[0.5, 0, 0], [-0.5, 0, 0], [0, 0.3, 0]], degrees=True)
+    quats = to_wxyz(offsets * truth)
+    q, worst = combine_camera_estimates(quats, weights=np.array([1.0, 1.0, 2.0]))
+    assert _deg((from_wxyz(q) * truth.inv()).magnitude()) < 0.2
+    assert 0.4 < worst < 0.7
+    q1, worst1 = combine_camera_estimates(quats[:1])
+    assert np.allclose(np.abs(q1), np.abs(quats[0])) and worst1 < 1e-6
+
+
+CORPUS_OPENFACE = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
+
+
+@pytest.mark.skipif(not CORPUS_OPENFACE.exists(), reason="corpus not available")
+def test_real_openface_file_gates_by_its_own_columns():
+    import pandas as pd
+
+    from gazepipe.io.openface import read_openface
+
+    df = pd.read_csv(CORPUS_OPENFACE, skipinitialspace=True)
+    df.columns = [c.strip() for c in df.columns]
+    ok = (df["success"] == 1) & (df["confidence"] >= 0.8)
+    blink = ok & (df["AU45_c"] == 1)
+    g = gate(read_openface(CORPUS_OPENFACE))
+    assert g.n_samples == len(df)
+    assert g.qc["gated_share"] == pytest.approx(np.mean(~ok | blink))
+    assert g.qc["gated_by"]["blink"] == pytest.approx(blink.mean())
+    # the subject's right eye is gaze_0; where measured, the cyclopean vector is the mean of the file's two
+    meas = g.valid & ~g.filled
+    g0 = df[["gaze_0_x", "gaze_0_y", "gaze_0_z"]].to_numpy()
+    g1 = df[["gaze_1_x", "gaze_1_y", "gaze_1_z"]].to_numpy()
+    expect = _unit(_unit(g0) + _unit(g1))
+    assert np.allclose(g.gaze[meas], expect[meas], atol=1e-9)

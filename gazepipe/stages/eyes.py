@@ -6,9 +6,9 @@ Steps, all pure functions on arrays:
    not a blink and both gaze vectors exist; invalid runs of at most ``max_eye_gap_s`` between two valid samples
    are filled by slerp (per eye); longer runs and runs at either end stay invalid.
 2. :func:`cyclopean`: the normalised mean of both eyes (OpenFace cannot resolve vergence, Klein 5.2).
-3. Resampling onto the mocap frames through the clock map t_mocap = offset + ratio · t_video: directions by
-   slerp between the two neighbouring video samples, confidence the minimum of the two, valid only when both are
-   valid; no extrapolation.
+3. Resampling onto the mocap frames through the sync stage's clock map t_mocap = offset + ratio · t_video and
+   its ``resample_to_mocap``: directions by slerp between the two neighbouring video samples, confidence the
+   minimum of the two; a frame is valid only when both are valid; no extrapolation.
 4. :func:`camera_to_character`: v_head = R · v_cam with R the camera rotation, then v_char = R_head · v_head.
 5. When R is not configured, :func:`estimate_camera_rotation_lagged`: least-squares rotation between the
    OpenFace gaze and the direction from the eyes' centre to the target in head axes, over frames where the gaze
@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
 from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.sync import ClockMap, resample_to_mocap
 from gazepipe.timebase import snap_rate
 
 __all__ = [
@@ -54,6 +55,7 @@ __all__ = [
     "angle_between",
     "camera_to_character",
     "camera_to_head",
+    "combine_camera_estimates",
     "cyclopean",
     "estimate_camera_rotation",
     "estimate_camera_rotation_lagged",
@@ -71,7 +73,6 @@ CAMERA_FACING_FACE = np.array([0.0, 1.0, 0.0, 0.0])
 GATE_REASONS = ("valid", "success", "confidence", "blink", "no_gaze")
 
 _EPS = 1e-12
-_TIME_TOL_S = 1e-9
 
 
 @dataclass(frozen=True)
@@ -177,7 +178,8 @@ class EyesResult:
     eye_dir_head : (N, 3) the same in the head segment's axes; NaN where the eye data are invalid.
     valid : (N,) bool: both neighbouring video samples valid (measured or filled), the frame covered by the video,
         and a head rotation present.
-    confidence : (N,) float64 minimum of the two neighbouring video samples' confidence; NaN without coverage.
+    confidence : (N,) float64 minimum of the two neighbouring video samples' confidence (a frame exactly on a
+        sample takes that sample's); NaN without coverage.
     covered : (N,) bool, the frame lies within the video's time span.
     camera_rotation : (4,) w, x, y, z camera → head rotation used.
     camera_source : ``"configured"`` or ``"estimated"``.
@@ -644,6 +646,24 @@ def estimate_camera_rotation_lagged(gaze_cam: np.ndarray, head_rot_char: np.ndar
     return best.estimate, best.lag_s
 
 
+def combine_camera_estimates(quats: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """One camera rotation for a session from per-take estimates (the camera does not move between takes).
+
+    Parameters
+    ----------
+    quats : (K, 4) w, x, y, z estimates, e.g. from the session's ``gaze_follow`` takes.
+    weights : (K,) e.g. each estimate's ``n_used``; default equal.
+
+    Returns
+    -------
+    (quaternion w, x, y, z of the weighted mean rotation (``Rotation.mean``), the largest angle in degrees
+    between an estimate and that mean: a check that the takes agree).
+    """
+    r = from_wxyz(np.atleast_2d(np.asarray(quats, dtype=np.float64)))
+    mean = r.mean(weights=None if weights is None else np.asarray(weights, dtype=np.float64))
+    return to_wxyz(mean), float(np.rad2deg(np.max((r * mean.inv()).magnitude())))
+
+
 def _target_spread_deg(v: np.ndarray) -> float:
     """RMS angle of directions (N, 3) from their normalised mean, degrees."""
     m = _unit(v.mean(axis=0))
@@ -654,39 +674,37 @@ def _target_spread_deg(v: np.ndarray) -> float:
 # composition
 
 
-def _clock(clock: Any) -> tuple[float, float]:
+def _clock(clock: Any) -> ClockMap:
+    """The sync stage's clock map for ``clock`` (a ClockMap, anything with ``offset_s`` and ``ratio``, or
+    ``None`` for the identity)."""
+    if isinstance(clock, ClockMap):
+        return clock
     if clock is None:
-        return 0.0, 1.0
-    return float(clock.offset_s), float(clock.ratio)
+        return ClockMap(offset_s=0.0, ratio=1.0, n_claps=0)
+    return ClockMap(offset_s=float(clock.offset_s), ratio=float(clock.ratio), n_claps=0)
 
 
-def _resample(g: Gated, mocap_time_s: np.ndarray, offset_s: float, ratio: float
+def _resample(g: Gated, mocap_time_s: np.ndarray, clock: ClockMap
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Gated samples onto mocap times: (gaze (M, 3), valid (M,), confidence (M,), covered (M,)).
 
-    Same contract as the sync stage's resampling: directions by slerp between the two neighbouring video
-    samples, confidence the minimum of the two, valid the AND of the two, no extrapolation past either end.
-    Two valid neighbours further apart than a fillable gap (missing video rows) do not make a valid frame.
+    Directions and confidence through the sync stage's :func:`~gazepipe.stages.sync.resample_to_mocap` (slerp
+    between the two neighbouring video samples; the smaller confidence of the two; nothing past either end).
+    A frame is valid only when both neighbours are valid (measured or filled) and they are no further apart
+    than a fillable gap (missing video rows); an exact hit on one sample still needs its neighbour.
     """
     m = mocap_time_s.shape[0]
-    gaze = np.full((m, 3), np.nan)
-    valid = np.zeros(m, dtype=bool)
-    conf = np.full(m, np.nan)
     n = g.n_samples
     if n < 2 or m == 0:
-        return gaze, valid, conf, np.zeros(m, dtype=bool)
-    tv = offset_s + ratio * g.time_s
-    covered = (mocap_time_s >= tv[0] - _TIME_TOL_S) & (mocap_time_s <= tv[-1] + _TIME_TOL_S)
+        return np.full((m, 3), np.nan), np.zeros(m, dtype=bool), np.full(m, np.nan), np.zeros(m, dtype=bool)
+    gaze, covered = resample_to_mocap(g.time_s, g.gaze, "direction", mocap_time_s, clock)
+    conf, _ = resample_to_mocap(g.time_s, g.confidence, "confidence", mocap_time_s, clock)
+    tv = clock.to_mocap(g.time_s)
     i0 = np.clip(np.searchsorted(tv, mocap_time_s, side="right") - 1, 0, n - 2)
     i1 = i0 + 1
-    span = tv[i1] - tv[i0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.clip(np.where(span > 0, (mocap_time_s - tv[i0]) / span, 0.0), 0.0, 1.0)
     near = (g.video_frame[i1] - g.video_frame[i0] - 1) <= g.max_gap_frames
-    valid = covered & g.valid[i0] & g.valid[i1] & near
-    conf = np.where(covered, np.minimum(g.confidence[i0], g.confidence[i1]), np.nan)
-    if valid.any():
-        gaze[valid] = slerp_vectors(g.gaze[i0[valid]], g.gaze[i1[valid]], frac[valid])
+    valid = covered & g.valid[i0] & g.valid[i1] & near & np.isfinite(gaze).all(axis=1)
+    gaze[~valid] = np.nan
     return gaze, valid, conf, covered
 
 
@@ -765,8 +783,8 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
                          f"joint frames", take=take)
     head_q = quat_all[:, _head_index(list(joints.segments), p.head_segment, path, take)]
     head_ok = np.isfinite(head_q).all(axis=1)
-    offset_s, ratio = _clock(clock)
-    gaze_cam, eye_valid, conf, covered = _resample(g, mt, offset_s, ratio)
+    cmap = _clock(clock)
+    gaze_cam, eye_valid, conf, covered = _resample(g, mt, cmap)
 
     qc = dict(g.qc)
     qc["warnings"] = list(g.qc["warnings"])
@@ -781,6 +799,10 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     lag: float | None = None
     residual: float | None = None
     if camera_rotation is None:
+        if not eye_valid.any():
+            raise StageError(path, f"eyes: cannot estimate the camera rotation: no frame has valid eye data "
+                             f"({int(np.count_nonzero(covered))} of {n} frames covered by the video, "
+                             f"{g.qc['gated_share']:.0%} of the video's samples gated out)", take=take)
         try:
             est, lag = estimate_camera_rotation_lagged(gaze_cam, head_q, tdir_char, rate, eye_valid,
                                                        char_rot=char_rot, params=p)
@@ -809,8 +831,8 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
         "valid_share": float(np.count_nonzero(valid) / n) if n else 0.0,
         "frames_without_coverage": int(np.count_nonzero(~covered)),
         "frames_without_head": int(np.count_nonzero(covered & ~head_ok)),
-        "clock_offset_s": offset_s,
-        "clock_ratio": ratio,
+        "clock_offset_s": float(cmap.offset_s),
+        "clock_ratio": float(cmap.ratio),
         "camera_rotation": [float(x) for x in r_cam],
         "camera_rotation_source": source,
         "camera_residual_deg": residual,
