@@ -752,12 +752,14 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     ----------
     eye : the take's :class:`~gazepipe.io.tracks.EyeTrack` (video clock).
     joints : the take's :class:`~gazepipe.stages.frames.Joints` (``segments``, ``quat`` (N, S, 4) in the
-        character frame, ``target_dir`` (N, 3) from the eyes' centre, ``rate_hz``).
+        character frame, ``target_dir`` (N, 3) from the eyes' centre, ``rate_hz``, and optionally ``char_rot``
+        (N, 4), the lab-from-character rotation, so target motion is judged in lab axes).
     mocap_time_s : (N,) mocap-clock seconds of the joints' rows (0 at the mocap file's first frame).
     clock : the sync stage's clock map (attributes ``offset_s``, ``ratio``: t_mocap = offset + ratio · t_video);
         ``None`` when both clocks are the same.
-    camera_rotation : (4,) w, x, y, z camera → head rotation from the markerset's ``[camera]``; ``None``
-        estimates it from the take's fixation frames (:func:`estimate_camera_rotation`).
+    camera_rotation : (4,) w, x, y, z camera → head rotation from the markerset's ``[camera]`` (or a session
+        estimate, :func:`combine_camera_estimates`); ``None`` estimates it from this take together with the
+        eyes' lag behind the target (:func:`estimate_camera_rotation_lagged`).
     params : :class:`EyesParams`.
     path, take : for error messages.
 
@@ -765,8 +767,9 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     -------
     :class:`EyesResult`. A video sample that failed the gate and was not filled never contributes to a valid
     frame. QC adds to the gate's record: frames, valid frames, frames without video coverage, frames without a
-    head rotation, the camera rotation and its source, its residual angle (median over fixation frames, also for
-    a configured rotation, as a check) and the fixation frames used.
+    head rotation, the clock map, the camera rotation and its source, its residual angle (median over the
+    fixation frames; also for a configured rotation, as a check), the frames used, the eyes' lag behind the
+    target (s), and the spread of the target directions in head axes (degrees; small = poorly conditioned).
 
     Raises
     ------
