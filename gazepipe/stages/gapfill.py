@@ -13,8 +13,11 @@ Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applic
 
 Rigid and PCA predictions are corrected to meet the measured samples at both gap edges. To choose, measured
 samples of the same marker next to the gap (as many as the gap is long, on both sides when there is room) are
-hidden, every method predicts them, and the method with the lowest mean error there fills the gap. When no sample
-can be hidden the first applicable method in ``methods`` is used.
+hidden, every method predicts them, and the method with the lowest mean error there fills the gap. The hidden
+stretches are given the gap's own occlusion pattern (markers missing during the gap are treated as missing
+there too), so rigid and PCA are judged with the donors they will really have; methods are compared on the
+frames all of them can predict. The same stretches pick the number of PCA components. When no sample can be
+hidden the first applicable method in ``methods`` is used.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
@@ -154,6 +157,7 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         if pca_window is not None:
             win = (max(0, s - pca_window), min(n_t, e + pca_window))
         model = fit_pca(xyz, valid, m, known, s, e, window=win)
+
     def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
         vis = valid_v if partial else valid
         if meth in ("linear", "pchip"):
