@@ -59,9 +59,9 @@ def clapper_markers(rng: np.random.Generator, n: int, rate: float, contacts, clo
 
 
 def write_clapper_video(path: Path, n_frames: int, contacts_mocap, closing_s, *, offset: float, ratio: float,
-                        seed: int = 0, fourcc: str = "mp4v") -> Path:
+                        seed: int = 0, fourcc: str = "mp4v", sensor_noise: float = 1.5) -> Path:
     """A 160x120 video labelled 60 fps whose clapper closes at ``contacts_mocap`` (mocap clock) given
-    t_mocap = offset + ratio · t_video; returns the path."""
+    t_mocap = offset + ratio · t_video, with Gaussian sensor noise of ``sensor_noise`` grey levels."""
     rng = np.random.default_rng(seed)
     px_per_mm, arm_h, shut_bottom = 0.4, 40.0, 85.0
     ns, exposure = 8, 0.5 / FPS
@@ -69,7 +69,7 @@ def write_clapper_video(path: Path, n_frames: int, contacts_mocap, closing_s, *,
     yy = np.arange(H, dtype=np.float64)
     bg = cv2.GaussianBlur(rng.uniform(30, 90, (H, W)), (0, 0), 3.0)
     bg[86:96, 30:130] = 200.0  # the lower arm
-    noise = rng.normal(0, 1.5, (64, H, W)).astype(np.float32)
+    noise = rng.normal(0, sensor_noise, (64, H, W)).astype(np.float32)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), FPS, (W, H))
     assert writer.isOpened()
     contacts_mocap, closing_s = np.asarray(contacts_mocap), np.asarray(closing_s)

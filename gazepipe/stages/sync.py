@@ -88,37 +88,48 @@ def clapper_distance(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np
     return np.where(ok, d, np.nan)
 
 
+def _trajectory_root(d: np.ndarray, last: int, shut: float, n_fit: int) -> float | None:
+    """Where the closing trajectory fitted on its ``n_fit`` frames up to ``last`` reaches ``shut``, in frames
+    after ``last`` (a quadratic: constant acceleration; a line with two frames); None when it cannot say."""
+    idx = np.arange(max(last - n_fit + 1, 0), last + 1)
+    idx = idx[np.isfinite(d[idx])]
+    if idx.size < 2 or idx[-1] != last:
+        return None
+    x = (idx - last).astype(float)
+    y = d[idx] - shut
+    root = float(-y[-1] / (y[-1] - y[-2])) if y[-1] != y[-2] else None
+    if idx.size >= 3:
+        r = np.roots(np.polyfit(x, y, 2))
+        r = r[np.abs(r.imag) < 1e-9].real
+        r = r[r >= -0.25]
+        if r.size:
+            root = float(r.min())
+    return root
+
+
 def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit: int) -> float:
     """Fractional frame where the closing trajectory reaches ``shut``, near the first frame k0 within the margin.
 
     The arms stop abruptly at contact, so the distance has a kink there: interpolating linearly between the
     two frames around the crossing would put the contact up to a frame late. Instead the closing trajectory
-    is fitted on the ``n_fit`` frames before ``k0`` (a quadratic: constant acceleration; a line with two
-    frames) and solved for ``shut``; the result is kept within [k0 − 1, k0], or [k0 − 1, k0 + 1] when frame
-    k0 is more than 2 σ_d above the shut value (still closing, only within the margin).
+    is fitted on its last ``n_fit`` frames before k0 and solved for ``shut``, within [k0 − 1, k0]. When that
+    solution lies beyond k0 and frame k0 is still more than 2 σ_d above the shut value (closing, only within
+    the margin), the trajectory is refitted up to k0 and solved within [k0, k0 + 1].
     """
-    idx = np.arange(max(k0 - n_fit, 0), k0)
-    idx = idx[np.isfinite(d[idx])]
-    if idx.size < 2 or idx[-1] != k0 - 1:
+    root = _trajectory_root(d, k0 - 1, shut, n_fit)
+    if root is None:
         return float(k0)
-    upper = 2.0 if d[k0] - shut > 2.0 * sigma_d else 1.0
-    x = (idx - (k0 - 1)).astype(float)
-    y = d[idx] - shut
-    x_lin = float(-y[-1] / (y[-1] - y[-2])) if y[-1] != y[-2] else 1.0
-    root = x_lin
-    if idx.size >= 3:
-        r = np.roots(np.polyfit(x, y, 2))
-        r = r[np.abs(r.imag) < 1e-9].real
-        r = r[(r >= -0.25) & (r <= upper + 0.25)]
-        if r.size:
-            root = float(r.min())
-    return float(k0 - 1 + np.clip(root, 0.0, upper))
+    if root > 1.0 and d[k0] - shut > 2.0 * sigma_d and k0 + 1 < d.size:
+        later = _trajectory_root(d, k0, shut, n_fit)
+        if later is not None:
+            return float(k0 + np.clip(later, 0.0, 1.0))
+    return float(k0 - 1 + np.clip(root, 0.0, 1.0))
 
 
 def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray, valid_b: np.ndarray,
                 rate_hz: float, *, speed_k: float = 8.0, min_speed_mm_s: float = 100.0,
                 min_depth_mm: float = 20.0, margin_mm: float = 1.0, margin_k: float = 5.0,
-                plateau_s: float = 0.3, open_s: float = 0.3, fit_s: float = 0.05,
+                plateau_s: float = 0.3, open_s: float = 0.3, fit_s: float = 0.08,
                 min_separation_s: float = 1.0, lag_s: float = 0.02, z_lo: float = 8.0,
                 z_hi: float = 40.0) -> list[Clap]:
     """Every clap in the clapper markers' trajectories.
@@ -257,9 +268,13 @@ def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[
     return (np.concatenate(out) if out else np.zeros(0)), n
 
 
-def _falling_edge(tm: np.ndarray, e: np.ndarray, p: int, post_n: int, exclude_s: float, z_lo: float,
-                  z_hi: float, min_distinct: float) -> tuple[float, float, float, float] | None:
-    """(time, confidence, peak, still) of the end of the burst peaking at sample p of (tm, e), or None."""
+def _falling_edge(fts: np.ndarray, tm: np.ndarray, e: np.ndarray, p: int, post_n: int, exclude_s: float,
+                  z_lo: float, z_hi: float, min_distinct: float) -> tuple[float, float, float, float] | None:
+    """(time, confidence, peak, still) of the end of the burst peaking at sample p, or None.
+
+    ``fts`` are the frames' timestamps, ``e[j]`` the energy between frames j and j + 1, at ``tm[j]`` (the
+    midpoint). See :func:`video_claps` for the definition of the end.
+    """
     peak = float(e[p])
     post = e[p + 1: p + 1 + post_n]
     if post.size < max(3, post_n // 2):
@@ -273,6 +288,19 @@ def _falling_edge(tm: np.ndarray, e: np.ndarray, p: int, post_n: int, exclude_s:
         return None
     k = p + 1 + int(below[0])
     t = tm[k - 1] + (tm[k] - tm[k - 1]) * (e[k - 1] - half) / (e[k - 1] - e[k])
+    j0 = k - 2  # the last sample wholly before the stop (k − 1 may be partial when it is above half)
+    if j0 >= 1 and j0 + 4 <= e.size:
+        slope = (e[j0] - e[j0 - 1]) / (tm[j0] - tm[j0 - 1])  # energy per sample, per second
+        level = e[j0] - still + slope * (fts[j0 + 1] - tm[j0])  # extrapolated to the end of sample j0
+        dt = fts[j0 + 2] - fts[j0 + 1]
+        mass = float(np.sum(e[j0 + 1: j0 + 4] - still))  # in samples' worth of energy
+        if level > 0 and mass > 0:
+            # level·τ + slope·τ²/2 = mass·dt, τ the motion after the end of sample j0
+            a2, a1, c = 0.5 * slope, level, mass * dt
+            disc = a1 * a1 + 4.0 * a2 * c
+            tau = c / a1 if abs(a2) * c < 1e-9 * a1 * a1 else (-a1 + np.sqrt(max(disc, 0.0))) / (2.0 * a2)
+            if 0.0 <= tau <= 2.0 * dt and disc >= 0:
+                t = fts[j0 + 1] + tau
     noise = _MAD * float(np.median(np.abs(post - still)))
     z = (peak - still) / max(noise, 1e-9 * max(peak, 1.0))
     far = np.abs(tm - tm[p]) > exclude_s
@@ -300,7 +328,7 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
     if inside.size == 0:
         return None
     p = int(inside[np.argmax(e[inside])])
-    r = _falling_edge(tm, e, p, max(3, round(post_s / dt)), exclude_s, z_lo, z_hi, min_distinct)
+    r = _falling_edge(fts, tm, e, p, max(3, round(post_s / dt)), exclude_s, z_lo, z_hi, min_distinct)
     if r is None:
         return None
     t, conf, peak, still = r
@@ -334,10 +362,20 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
     Returns
     -------
     One entry per expected time (a single one when searching): the clap, or ``None`` when no burst with a
-    falling edge is found. The clap is where the energy, on the falling edge after the burst's peak, crosses
-    halfway between the peak and the still level; the crossing is interpolated linearly in time between the
-    two energy samples around it, each placed midway between the timestamps of the two frames it compares.
-    For an arm moving at constant speed until contact, this puts the clap within 0.1 frame of the contact.
+    falling edge is found. An energy sample compares frames j and j + 1 and sits midway between their
+    timestamps. The clap is the instant the closing motion stops:
+
+    1. the falling edge is located where the energy, after the burst's peak, first drops below halfway
+       between the peak and the still level (sample k); the crossing, interpolated linearly in time between
+       samples k − 1 and k, is the fallback estimate;
+    2. sample j0 = k − 2 is the last one wholly before the stop. The energy per sample is proportional to the
+       distance moved between the two frames, so the energy above the still level in the next three samples,
+       divided by the rate of energy just before the stop (samples j0 − 1 and j0, extrapolated linearly to
+       the end of sample j0: constant acceleration), is how long the motion went on after frame j0 + 1. That
+       interval is added to frame j0 + 1's timestamp (solving level·τ + slope·τ²/2 = energy·Δt).
+
+    Motion blur and the partial sample spread the edge but keep its energy, which is why step 2 is used
+    rather than the halfway crossing (biased late by up to a quarter frame for an accelerating arm).
     """
     ts = np.asarray(probe_timestamps, dtype=np.float64)
     kw = dict(post_s=post_s, exclude_s=exclude_s, roi=roi, chunk=chunk, z_lo=z_lo, z_hi=z_hi,
