@@ -545,3 +545,58 @@ def test_real_openface_file_gates_by_its_own_columns():
     g1 = df[["gaze_1_x", "gaze_1_y", "gaze_1_z"]].to_numpy()
     expect = _unit(_unit(g0) + _unit(g1))
     assert np.allclose(g.gaze[meas], expect[meas], atol=1e-9)
+
+
+def check_generated_openface(session: Path, take: str) -> None:
+    """The generator's own OpenFace CSV of ``take`` through read_openface and the eyes stage, against its truth:
+    the gate keeps exactly the rows the generator marks valid, no gated-out row reaches a valid frame, the
+    camera rotation is found within 1°, the eye direction within 2° median."""
+    from gazepipe.io.openface import read_openface
+    from gazepipe.synth import load_truth
+
+    tr = load_truth(session, take)
+    sc = tr["scalars"]
+    eye = read_openface(session / sc["eyes"]["path"])
+    clock = SimpleNamespace(offset_s=sc["video"]["offset_s"], ratio=sc["video"]["ratio"])
+    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
+                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=sc["rate_hz"],
+                             char_rot=tr["char_quat_lab"])
+    res = eyes_take(eye, joints, tr["time_s"], clock)
+    g = res.gated
+    truth_valid = np.asarray(tr["eyes_valid"], dtype=bool)
+    assert np.array_equal(g.valid & ~g.filled, truth_valid)
+    raw, filled = expected_gate(SimpleNamespace(n_frames=truth_valid.size, success=truth_valid,
+                                                confidence=np.ones(truth_valid.size),
+                                                blink=np.zeros(truth_valid.size, bool)))
+    assert np.array_equal(g.filled, filled)
+    tv = clock.offset_s + clock.ratio * eye.time_s
+    i0 = np.searchsorted(tv, tr["time_s"][res.valid], side="right") - 1
+    assert np.all((raw | filled)[i0] & (raw | filled)[i0 + 1])
+    assert res.qc["frames_without_coverage"] == sc["video"]["mocap_frames_without_video"]
+
+    cam = from_wxyz(np.asarray(tr["session"]["camera_to_head_quat"]))
+    assert _deg((from_wxyz(res.camera_rotation) * cam.inv()).magnitude()) < 1.0
+    v = res.valid
+    assert v.mean() > 0.8
+    err = _deg(angle_between(res.eye_dir_char[v], tr["eye_dir_char"][v].astype(np.float64)))
+    assert np.median(err) < 2.0
+    assert err.max() < 10.0
+
+
+@pytest.mark.skipif(not (SAMPLE / "eyes").is_dir(), reason="sample session has no OpenFace CSVs yet")
+@pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
+def test_generated_openface_against_truth(take):
+    check_generated_openface(SAMPLE, take)
+
+
+def test_millisecond_timestamps_keep_the_nominal_rate():
+    """OpenFace rounds timestamps to 1 ms: a 60 Hz track must still fill 6-frame (0.1 s) runs, a 59.94 Hz one
+    must not (6 frames last 0.1001 s)."""
+    n = 3000
+    for rate, fills in ((60.0, True), (60000 / 1001, False)):
+        conf = np.full(n, 0.95)
+        conf[1000:1006] = 0.1
+        eye = _track(np.tile([0.0, 0.0, -1.0], (n, 1)), time_s=np.round(np.arange(n) / rate, 3), confidence=conf)
+        g = gate(eye)
+        assert g.rate_hz == pytest.approx(rate, rel=1e-12)
+        assert g.filled[1000:1006].all() == fills

@@ -255,21 +255,29 @@ def cyclopean(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 # gating
 
 
+def _video_rate(rate: float) -> float:
+    """A measured video rate snapped to N·1000/1001 (SPEC §1) or to a whole N within 0.05 %: OpenFace writes
+    timestamps rounded to the millisecond, which alone moves a 60 Hz estimate off 60."""
+    r = snap_rate(rate)
+    n = round(r)
+    return float(n) if r == rate and n >= 1 and abs(r - n) <= 5e-4 * n else r
+
+
 def _video_frames(t: np.ndarray, frame: np.ndarray | None) -> tuple[np.ndarray, float]:
     """Video frame index per row and the frame period in seconds.
 
-    With frame numbers, the period is the time span over the frame span (rate snapped to N·1000/1001 where it
-    is one); without, the median positive time step, and indices follow from the timestamps.
+    With frame numbers, the period is the time span over the frame span; without, the median positive time
+    step, and indices follow from the timestamps. The rate is snapped by :func:`_video_rate`.
     """
     n = t.shape[0]
     if frame is not None and n >= 2 and frame[-1] > frame[0] and t[-1] > t[0]:
-        rate = snap_rate((frame[-1] - frame[0]) / (t[-1] - t[0]))
+        rate = _video_rate((frame[-1] - frame[0]) / (t[-1] - t[0]))
         return np.asarray(frame, dtype=np.int64), 1.0 / rate
     steps = np.diff(t)
     steps = steps[steps > 0]
     if steps.size == 0:
         return np.arange(n, dtype=np.int64), float("nan")
-    dt = 1.0 / snap_rate(1.0 / float(np.median(steps)))
+    dt = 1.0 / _video_rate(1.0 / float(np.median(steps)))
     return np.round((t - t[0]) / dt).astype(np.int64), dt
 
 
