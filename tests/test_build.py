@@ -127,6 +127,10 @@ def test_rnn_sizes_and_feature_names(rnn):
     assert f["x"][-3:] == ["eye_dir.x", "eye_dir.y", "eye_dir.z"] and f["y"] == f["x"][3:]
     assert lod.info["features"]["y"][::6] == ["pelvis.fwd.x", "chest.fwd.x", "head.fwd.x"]
     assert full.info["fps"] == pytest.approx(RATE) and full.info["window"] == 120
+    counts = full.info["counts"]
+    assert counts["segments"] == sum(v["segments"] for v in counts["per_take"].values())
+    assert counts["rows"] == sum(v["rows"] for v in counts["per_take"].values())
+    assert all(v["rows"] == 2 * (v["usable_frames"] - v["segments"]) for v in counts["per_take"].values())
 
 
 @pytest.mark.parametrize("name", ["gaze_rnn", "gaze_rnn_lod"])
@@ -230,6 +234,9 @@ def test_splits_pinned_hashed_and_disjoint(follow_takes, rnn):
     share = {s: got.count(s) / len(got) for s in ("train", "val", "test")}
     assert abs(share["train"] - 0.8) < 0.03 and abs(share["val"] - 0.1) < 0.02
     assert [assign_split(t, None, 0.5, 0.25) for t in ids] != got
+    # the same take id in many sessions is drawn independently per session
+    per_session = {assign_split(f"s{i:03d}/follow_standing_01", None) for i in range(100)}
+    assert per_session == {"train", "val", "test"}
     # every take's rows, mirrored included, are in one split; pins win
     built = rnn["gaze_rnn"]
     where: dict[str, set] = {}

@@ -70,7 +70,11 @@ def schema_bytes(schema: pa.Schema) -> bytes:
 
 def info_bytes(info: dict[str, Any]) -> bytes:
     """dataset.json bytes: sorted keys, floats as Python's shortest round-trip repr, no NaN."""
-    return (json.dumps(info, indent=1, sort_keys=True, allow_nan=False, ensure_ascii=False) + "\n").encode()
+    try:
+        text = json.dumps(info, indent=1, sort_keys=True, allow_nan=False, ensure_ascii=False)
+    except ValueError as exc:
+        raise SchemaError(INFO_NAME, f"cannot be written: {exc} (a statistic or parameter is not finite)") from None
+    return (text + "\n").encode()
 
 
 def stored_schema(built) -> pa.Schema:

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError, StageError
@@ -60,7 +61,7 @@ class BuildParams:
     ----------
     train_frac, val_frac : shares of the hashed takes (not pinned by ``split``) that go to train and val; the
         rest goes to test. With few takes a split can be empty; it is reported, not forced.
-    split_salt : prefix of the hashed take id; change it to draw another deterministic split.
+    split_salt : prefix of the hashed ``<session>/<take>``; change it to draw another deterministic split.
     mirror : add a mirrored copy of every row (Klein 6.2).
     rnn_window, rnn_stride : frames per training sequence and step between sequences for gaze_rnn trainers
         (Klein 6.2: 120 frames = 4 s), written to dataset.json.
@@ -217,6 +218,8 @@ def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
     meta = read_meta(tt.face)
     k = int(meta.get("k", 1))
     channels = list(meta.get("names", []))
+    if not channels:
+        raise StageError(None, "the face table's metadata has no channel names", take=tt.take.id)
     if ctx.sizes is None:
         ctx.sizes = {"k": k, "n_channels": len(channels)}
         ctx.segments = channels
@@ -326,7 +329,8 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
         if rows.n_rows == 0:
             skipped.append({"session": t.session, "take": t.take.id, "reason": "no usable frames"})
             continue
-        split = assign_split(t.take.id, t.take.split, params.train_frac, params.val_frac, params.split_salt)
+        split = assign_split(f"{t.session}/{t.take.id}", t.take.split, params.train_frac, params.val_frac,
+                             params.split_salt)
         built.append((t, split, rows))
     if not built:
         reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in skipped[:3])
@@ -364,8 +368,8 @@ def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: di
         bp["rows"] += n
         tid = f"{t.session}/{t.take.id}"
         split_takes[split].append(tid)
-        per_take[tid] = {"split": split, "rows": n, **rows.qc}
-    for t in sorted({id(t): t for t, _, _ in built}.values(), key=lambda t: (t.session, t.take.id)):
+        per_take[tid] = {**rows.qc, "split": split, "rows": n}
+    for t in sorted((b[0] for b in built), key=lambda t: (t.session, t.take.id)):
         hashes = dict(t.hashes)
         for tname in ("joints", "eyes", "face"):
             tab = getattr(t, tname)
@@ -381,11 +385,22 @@ def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: di
     window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
                       "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
                       "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
+    counts: dict[str, Any] = {"takes": len(built), "rows": int(sum(t.num_rows for t in tables.values())),
+                              "mirrored": bool(params.mirror), "by_split": by_split,
+                              "by_pose": dict(sorted(by_pose.items())), "skipped": len(skipped)}
+    if window is not None and name != "face_clean":
+        lengths = [np.bincount(t.filter(pc.invert(t.column("mirrored"))).column("segment").to_numpy())
+                   for t in tables.values()]
+        counts["segments"] = int(sum(len(v) for v in lengths))
+        counts["segments_with_a_window"] = int(sum(int((v >= window).sum()) for v in lengths))
+        counts["rows_in_segments_with_a_window"] = int(sum(int(v[v >= window].sum()) for v in lengths))
+    counts["per_take"] = per_take
     stats = _stats(train, columns)
     stats["rows_used"] = "training rows only, mirrored copies included"
     stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
     return {
         "name": name,
+        "description": _DESCRIPTIONS[name],
         "version": __version__,
         "schema_version": SCHEMA_VERSION,
         "identifiers": list(IDENTIFIER_NAMES),
@@ -398,15 +413,30 @@ def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: di
         "splits": {"train_frac": params.train_frac, "val_frac": params.val_frac, "salt": params.split_salt,
                    "takes": split_takes},
         "stats": stats,
-        "counts": {"takes": len(built), "rows": int(sum(t.num_rows for t in tables.values())),
-                   "mirrored": bool(params.mirror), "by_split": by_split,
-                   "by_pose": dict(sorted(by_pose.items())), "skipped": len(skipped), "per_take": per_take},
+        "counts": counts,
         "inputs": inputs,
         "params": params.to_dict(),
         "skipped": skipped,
         "warnings": warnings,
     }
 
+
+_RNN_NOTE = ("one row per frame t of a run of consecutive usable frames (segment); x = target direction at t, "
+             "each segment's 6-number rotation (forward R·z, up R·y) at t-1{eyes}; y = the same at t. The first "
+             "frame of a segment only provides the previous pose of the second and has no row. Character "
+             "frame of each frame (+X left, +Y up, +Z forward).")
+_DESCRIPTIONS: dict[str, str] = {
+    "gaze_rnn": "Klein 6.1 gaze RNN: " + _RNN_NOTE.format(eyes=", eye direction at t-1") +
+                " A frame with invalid eyes ends a segment.",
+    "gaze_rnn_lod": "Klein 7 level-of-detail gaze RNN ([lod] segments, no eyes): " + _RNN_NOTE.format(eyes=""),
+    "gaze_map": ("Pejsa 5.1 gaze displacement motions: one row per gaze_shift take; rotations in the character "
+                 "frame held fixed at the crop's first frame; p_plus = parent-relative displacement per segment "
+                 "L(last)·L(first)^-1, then the eyes' D_head^T·Ry(yaw)·Rx(-pitch); start_times and "
+                 "overshoot_time are fractions of duration_s (0: no start found)."),
+    "face_clean": ("Berson 3.1 face cleaner: one row per aligned frame of a face take; dt_s = t[n+1] - t[n]; "
+                   "tracked_dK / clean_dK are forward derivatives of order K divided by dt; rows of a take form "
+                   "one sequence (segment 0)."),
+}
 
 _UNITS: dict[str, dict[str, str]] = {
     "gaze_rnn": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",

@@ -25,7 +25,7 @@ def face_rows(face: pa.Table, k: int) -> TakeRows:
     feats["dt_s"] = face.column("dt_s").to_numpy().astype(np.float64)
     return TakeRows(segment=np.zeros(n, np.int32), frame=face.column("frame").to_numpy().astype(np.int32),
                     time_s=face.column("time_s").to_numpy().astype(np.float64), features=feats,
-                    qc={"rows": int(n)})
+                    qc={})
 
 
 def mirror_face_rows(features: dict[str, np.ndarray], names: list[str]) -> dict[str, np.ndarray]:

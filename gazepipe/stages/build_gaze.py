@@ -103,7 +103,7 @@ def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarra
     x = np.concatenate([target[t], prev], axis=1).astype(np.float32)
     y = cur.astype(np.float32)
     lengths = np.bincount(seg[t], minlength=int(starts.sum())) if len(t) else np.zeros(0, dtype=np.int64)
-    qc = {"frames": int(len(frame)), "usable_frames": int(ok.sum()), "rows": int(len(t)),
+    qc = {"frames": int(len(frame)), "usable_frames": int(ok.sum()),
           "segments": int(starts.sum()), "longest_segment_rows": int(lengths.max()) if len(lengths) else 0}
     return TakeRows(segment=seg[t].astype(np.int32), frame=frame[t].astype(np.int32),
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[t], features={"x": x, "y": y}, qc=qc)

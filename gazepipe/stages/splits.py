@@ -1,7 +1,10 @@
 """Take-disjoint train / val / test splits (SPEC §3.6).
 
-A take's ``split`` in session.toml pins it; otherwise the split follows from a hash of the take id alone, so a
-take keeps its split when other takes are added or removed and every dataset puts it in the same split.
+A take's ``split`` in session.toml pins it; otherwise the split follows from a hash of the take's qualified id
+``<session>/<take>`` alone, so a take keeps its split when other takes are added or removed, and every dataset
+puts it in the same split. The session is part of the key because sessions of different subjects usually reuse
+the same take ids (``follow_standing_01``): hashing the bare id would send that take of every subject to one
+split, and with a handful of distinct ids leave val or test empty.
 """
 
 from __future__ import annotations
@@ -25,14 +28,14 @@ def check_fractions(train: float, val: float) -> None:
                           key="build.train_frac")
 
 
-def assign_split(take_id: str, pinned: str | None, train: float = 0.8, val: float = 0.1, salt: str = "") -> str:
-    """The split of one take: ``pinned`` when given, else by :func:`hash_unit` of the take id:
-    train below ``train``, val below ``train + val``, test above."""
+def assign_split(key: str, pinned: str | None, train: float = 0.8, val: float = 0.1, salt: str = "") -> str:
+    """The split of one take: ``pinned`` when given, else by :func:`hash_unit` of ``key`` (the take's
+    ``<session>/<take>``): train below ``train``, val below ``train + val``, test above."""
     if pinned is not None:
         if pinned not in SPLITS:
-            raise ConfigError(None, f"split {pinned!r} is not one of {', '.join(SPLITS)}", take=take_id)
+            raise ConfigError(None, f"split {pinned!r} is not one of {', '.join(SPLITS)}", take=key)
         return pinned
-    u = hash_unit(take_id, salt)
+    u = hash_unit(key, salt)
     if u < train:
         return "train"
     if u < train + val:
