@@ -20,6 +20,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -45,6 +46,27 @@ def run(seed: int, noise_deg: float, centre_error_mm=(0.0, 0.0, 0.0), duration_s
     return {"median": float(np.median(err)), "p95": float(np.percentile(err, 95)), "cam": cam_err,
             "resid": res.qc["camera_residual_deg"], "lag": res.qc["eye_lag_s"], "valid": res.qc["valid_share"],
             "used": res.qc["camera_frames_used"], "time_s": elapsed, "frames": res.n_frames}
+
+
+def generated_openface(take: str) -> str:
+    from gazepipe.io.openface import read_openface
+    from gazepipe.synth import load_truth
+
+    tr = load_truth(SAMPLE, take)
+    sc = tr["scalars"]
+    eye = read_openface(SAMPLE / sc["eyes"]["path"])
+    clock = SimpleNamespace(offset_s=sc["video"]["offset_s"], ratio=sc["video"]["ratio"])
+    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
+                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=sc["rate_hz"],
+                             char_rot=tr["char_quat_lab"])
+    res = eyes_take(eye, joints, tr["time_s"], clock)
+    v = res.valid
+    err = np.rad2deg(angle_between(res.eye_dir_char[v], tr["eye_dir_char"][v].astype(np.float64)))
+    cam = from_wxyz(np.asarray(tr["session"]["camera_to_head_quat"]))
+    cam_err = float(np.rad2deg((from_wxyz(res.camera_rotation) * cam.inv()).magnitude()))
+    return (f"{take:<20} eye error median {np.median(err):.2f}° p95 {np.percentile(err, 95):.2f}°; camera error "
+            f"{cam_err:.2f}°, residual {res.qc['camera_residual_deg']:.2f}°, lag {res.qc['eye_lag_s']:.3f} s; "
+            f"gated {res.qc['gated_share']:.1%}, valid frames {res.qc['valid_share']:.1%}")
 
 
 def table(rows: list[dict], label: str) -> str:
@@ -91,6 +113,11 @@ def main() -> None:
                 print(f"  {take:<20} {label:<10} eye error median {np.median(err):.2f}° p95 "
                       f"{np.percentile(err, 95):.2f}°; camera error {cam:.2f}°, residual "
                       f"{res.qc['camera_residual_deg']:.2f}°, lag {res.qc['eye_lag_s']:.3f} s")
+
+    if (SAMPLE / "eyes").is_dir():
+        print("\nsample session's own OpenFace CSVs (read_openface, the generator's noise, dips, blinks, clocks)")
+        for take in ("follow_standing_01", "follow_standing_02", "follow_sitting_01"):
+            print("  " + generated_openface(take))
 
     r = run(0, 2.5, duration_s=600.0, pursuit=True)
     print(f"\n10-minute take ({r['frames']} mocap frames, 60 Hz video, camera estimated): {r['time_s']:.2f} s")
