@@ -25,8 +25,14 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def takes(session: Path) -> list[dict]:
+def all_takes(session: Path) -> list[dict]:
     return tomllib.loads((session / "session.toml").read_text())["takes"]
+
+
+@pytest.fixture(scope="module")
+def takes(all_takes: list[dict]) -> list[dict]:
+    """The takes with motion capture (not the ``face`` takes)."""
+    return [t for t in all_takes if "mocap" in t]
 
 
 def _files(root: Path) -> dict[str, bytes]:
@@ -66,7 +72,7 @@ def test_same_seed_gives_identical_bytes(session: Path, tmp_path: Path) -> None:
     assert other["mocap/follow_standing_01.c3d"] != a["mocap/follow_standing_01.c3d"]
 
 
-def test_tomls_parse_and_reference_existing_files(session: Path, takes: list[dict]) -> None:
+def test_tomls_parse_and_reference_existing_files(session: Path, takes: list[dict], all_takes: list[dict]) -> None:
     doc = tomllib.loads((session / "session.toml").read_text())
     assert doc["schema"] == 1
     ms = tomllib.loads((session / doc["session"]["markerset"]).read_text())
@@ -79,9 +85,16 @@ def test_tomls_parse_and_reference_existing_files(session: Path, takes: list[dic
     assert ms["segments"]["pelvis"]["markers"][:2] == ["PEL_L", "PEL_R"]
     assert set(ms["lod"]["segments"]) <= set(names)
     assert "camera" not in ms
-    kinds = [t["kind"] for t in takes]
+    kinds = [t["kind"] for t in all_takes]
     assert kinds.count("gaze_follow") == 2 and kinds.count("gaze_shift") == 3 and kinds.count("neutral") == 1
-    assert len({t["id"] for t in takes}) == len(takes)
+    assert kinds.count("face") == 2 and len(takes) == len(all_takes) - 2
+    assert len({t["id"] for t in all_takes}) == len(all_takes)
+    for t in all_takes:
+        for key in ("mocap", "video", "eyes", "tracked", "clean"):
+            if key in t:
+                assert (session / t[key]).is_file()
+        assert ("video" in t) == ("eyes" in t) == (t["kind"] == "gaze_follow")
+        assert ("tracked" in t) == ("clean" in t) == ("timecode_fps" in t) == (t["kind"] == "face")
     for t in takes:
         assert (session / t["mocap"]).is_file()
         assert (session / "truth" / f"{t['id']}.npz").is_file()
@@ -346,7 +359,8 @@ def test_modality_writers_plug_in(tmp_path: Path) -> None:
         take.truth_scalars["eyes_rows"] = 1
         return {"eyes": rel}
 
-    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=12.0, shift_targets=(), neutral_s=0.0)
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=12.0, shift_targets=(), neutral_s=0.0,
+                      head_camera=False, face_takes=())
     out = generate_session(tmp_path / "w", seed=1, config=cfg, writers=[eyes_writer])
     (take,) = tomllib.loads((out / "session.toml").read_text())["takes"]
     assert take["eyes"] == "eyes/follow_standing_01.csv" and (out / take["eyes"]).is_file()
@@ -361,5 +375,7 @@ def test_module_entry_writes_the_default_session(tmp_path: Path) -> None:
     doc = tomllib.loads((tmp_path / "s" / "session.toml").read_text())
     kinds = [t["kind"] for t in doc["takes"]]
     assert kinds.count("gaze_follow") == 3 and kinds.count("gaze_shift") >= 8 and "neutral" in kinds
+    assert kinds.count("face") == 2
+    assert all("video" in t and "eyes" in t for t in doc["takes"] if t["kind"] == "gaze_follow")
     assert sum(t["target"]["yaw_deg"] < 0 for t in doc["takes"] if "target" in t) >= 3
     assert load_truth(tmp_path / "s", "neutral")["session"]["seed"] == 3

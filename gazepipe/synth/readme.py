@@ -123,4 +123,90 @@ noisy files with its low-pass may differ by a frame or two at each bound. Short 
   or on four markers of different segments at once,
   one at the very start and one at the very end of each gaze_follow take; SACR and the pelvis markers only get
   gaps of at most 3 frames; the clapper has no gap from 1.2 s before to 0.6 s after a clap.
+
+## Head camera: video/<take>.mp4 (gaze_follow takes)
+
+128 x 96 grey pictures (written as BGR), MPEG-4 part 2 (`mp4v`) in .mp4, labelled 60 fps. Frame k is stamped
+`k / 60` s: that is the video clock. The camera's clock against the mocap clock is
+`t_mocap = offset_s + ratio * t_video` (SPEC 3.4). The clock variant cycles with the take's position in the
+session: (a) a crystal running fast, ratio 1 + 2e-4..8e-4, camera started 2-4 s before the mocap; (b) a
+59.94 Hz camera labelled 60, ratio exactly 1.001, started 1.5-3 s before; (c) a crystal running slow,
+ratio 1 - 2e-4..8e-4, camera started 0.25-0.35 s AFTER the mocap, so the first mocap frames have no video
+(`mocap_has_video`). Every video runs 1-2 s past the mocap's last frame. In session01: follow_standing_01 is
+(b), follow_standing_02 is (c), follow_sitting_01 is (a).
+
+Picture: a static face-like image with Gaussian sensor noise (sigma 1.2 grey levels, new every frame), pupils
+that follow each eye's true direction in camera axes, eyelids that close during the blinks of the OpenFace file,
+and the clapper: a fixed lower arm and an upper arm whose gap is 0.4 px per mm of the SAME clapper distance
+curve as the mocap markers CLAP1-CLAP2, evaluated at the frame's mocap time. The exposure is 1/120 s centred
+on the frame's timestamp, integrated with 6 sub-samples (motion blur). The closing burst of motion energy
+therefore ends at the mocap clap mapped to the video clock, `video_clap_times_s = (clap_times_s - offset_s) /
+ratio`; the largest frame difference is the last frame pair before contact. No blink happens from 1.5 s before
+to 1 s after a clap (mocap clock), so the clapper is the only thing moving there.
+
+## Eyes: eyes/<take>.csv (OpenFace FeatureExtraction layout)
+
+One row per video frame: `frame` 1..N, `timestamp` = (frame - 1) / 60 written with 3 decimals (video clock).
+`gaze_0_*` = the subject's RIGHT eye (image left), `gaze_1_*` = the LEFT eye, unit vectors in camera axes
+(x right, y down, z forward; into the camera ~ (0, 0, -1)): v_cam = R^T v_head with R = `camera_to_head_quat`,
+v_head = each eye's true direction in head axes at the frame's mocap time (linear interpolation of the 29.97 Hz
+truth, renormalised; held at either end outside the mocap), turned by a random rotation of RMS 2 degrees.
+Confidence 0.90-0.98 on good frames; dips to 0.30-0.78 in runs of 1-20 frames (noise 8 degrees there); blinks
+of 100-300 ms every 2-6 s: `AU45_c` = 1 and `AU45_r` >= 1 inside, < 1 outside, the vectors drop 15-30 degrees
+and scatter; a few rows with `success` = 0 and zeros for every value (never inside a blink). The take of
+variant (a) is written in the older style: no `face_id` or `gaze_angle_*`, ", " separators in the header and
+between values. The others are OpenFace 2.x (`face_id`, `gaze_angle_x/y`, `pose_*`, eye-corner landmarks
+`x_36..y_45`, a few AUs).
+
+## Truth of the head camera (in truth/<take>.npz, N video frames)
+
+| array | shape, dtype | meaning |
+|---|---|---|
+| video_time_s | (N,) f8 | frame timestamps on the video clock (k / 60) |
+| video_mocap_time_s | (N,) f8 | the same instants on the mocap clock |
+| video_clap_times_s | (2,) f8 | the claps on the video clock |
+| mocap_has_video | (T,) bool | mocap frames inside the video's time span |
+| eyes_dir_head, eyes_dir_cam | (N, 3) f4 | true cyclopean direction (HEADC to the fixation point), head / camera axes |
+| eyes_left_head, eyes_right_head | (N, 3) f4 | each eye's true direction, head axes |
+| eyes_valid | (N,) bool | what gating should keep: success, confidence >= 0.8, no blink |
+| eyes_blink, eyes_success, eyes_low_conf | (N,) bool | injected blinks, success flags, confidence dips |
+| eyes_in_mocap | (N,) bool | frames whose mocap time lies inside the mocap take |
+
+truth.json `takes.<id>.video`: `offset_s`, `ratio`, `offset_at_first_clap_s` (mocap clap - video clap, the
+first clap), `clap_times_mocap_s`, `clap_times_video_s`, `n_frames`, `fps`, `width`, `height`, `exposure_s`,
+`codec`, `starts_after_mocap`, `mocap_frames_without_video`; `takes.<id>.eyes`: `layout`, `rows`,
+`noise_deg`, `confidence_threshold`, `blink_frames`, `failed_frames`, `low_confidence_frames`,
+`valid_fraction`.
+
+## Face takes: face/<take>_clean.csv and face/<take>_tracked.csv (Live Link Face)
+
+No mocap. Columns exactly as the real Live Link Face export in corpus/livelinkface: `Timecode`,
+`BlendShapeCount` (61), the 52 blendshapes in the app's PascalCase order, `HeadYaw/Pitch/Roll`, then
+`LeftEyeYaw/Pitch/Roll`, `RightEyeYaw/Pitch/Roll` (radians), 10 decimals. Timecode `HH:MM:SS:FF.fff` with FF
+counting 60 frames a second (`timecode_fps = 60` on the take) and `.fff` the fraction of a frame; capture frame
+k is at `k / rate_hz * (1 + clock_drift)` s after the first (the phone's clock drifts by a few 1e-5 against the
+timecode). face_01: 60 Hz, 16 s, head tracking on; face_02: 30 Hz (FF steps by 2), 20 s, head tracking off
+(head angles all zero, as in the real take). Dropped frames: about one capture frame in 80, singles plus one
+double drop, at different places in the clean and the tracked file (rows missing; a larger timecode step).
+
+clean = smooth, plausible curves in [0, 1]: latent speech (jaw), smile, brow raise, frown, pucker, lateral jaw,
+saccadic eye yaw/pitch driving the eyeLook channels, blinks every 2-5 s; left/right pairs share the latent with
+a fixed asymmetry of up to 12 % and a little independent drift. tracked = what a tracker reports: the clean
+curve sampled with a timing jitter of 0.25 frame RMS, times a per-channel gain 0.85-1.15 (blinks 0.65-0.8),
+plus an offset 0-0.04, cross-talk (0.15 jawOpen into mouthClose, 0.25 mouthSmile into eyeSquint), white noise
+0.012, outlier spikes (+0.3..0.7 on 1-6 channels in ~0.6 % of frames), clipped to [0, 1]; angles + 0.01 rad noise.
+
+| array | shape, dtype | meaning |
+|---|---|---|
+| face_names | (52,) str | ARKit names, canonical order (gazepipe.arkit.ARKIT_NAMES) |
+| face_time_s | (n,) f8 | capture instant of every capture frame, seconds from the first |
+| face_timecode | (n,) str | its timecode |
+| face_clean, face_tracked | (n, 52) f4 | values of every capture frame, ARKit order (also where dropped) |
+| face_clean_angles, face_tracked_angles | (n, 9) f4 | head yaw/pitch/roll, left eye, right eye (radians) |
+| face_clean_dropped, face_tracked_dropped | (n,) bool | capture frames missing from that file |
+| face_spikes | (n, 52) bool | where an outlier spike was added to the tracked values |
+| face_gain, face_offset | (52,) f8 | the tracked track's per-channel gain and offset |
+
+truth.json `takes.<id>`: `rate_hz`, `timecode_fps`, `duration_s`, `n_frames`, `clock_drift`, `head_tracking`,
+`clean`, `tracked`, `dropped_clean`, `dropped_tracked`, `first_timecode`.
 """

@@ -26,7 +26,7 @@ from gazepipe.synth.skeleton import (
 from gazepipe.synth.truth import quat_wxyz, take_truth, write_npz
 
 MOCAP_RATE_HZ = 30000.0 / 1001.0
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 #: the gaze_shift targets of the sample session (a part of Pejsa's 36° x 12° grid)
 DEFAULT_SHIFTS: tuple[tuple[float, float], ...] = (
@@ -41,7 +41,9 @@ class SynthConfig:
 
     ``follow_poses``: one gaze_follow take per entry (pose names; unknown poses move like ``standing``);
     ``follow_duration_s``: approximate length of each; ``shift_targets``: (yaw, pitch) degrees per gaze_shift
-    take; ``neutral_s``: length of the neutral take (0: none); ``noise_mm``: marker noise sigma.
+    take; ``neutral_s``: length of the neutral take (0: none); ``noise_mm``: marker noise sigma;
+    ``head_camera``: write a head-camera video and an OpenFace CSV per gaze_follow take;
+    ``face_takes``: one ``face`` take (Live Link Face tracked/clean pair) per (capture rate Hz, seconds).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -53,6 +55,8 @@ class SynthConfig:
     session_id: str = "session01"
     subject: str = "p01"
     placement: Placement = field(default_factory=Placement)
+    head_camera: bool = True
+    face_takes: tuple[tuple[float, float], ...] = ((60.0, 16.0), (30.0, 20.0))
 
 
 #: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
@@ -66,20 +70,24 @@ def klein_config(scale: float = 1.0, take_s: float = 60.0, seed_session: str = "
     for pose, secs in KLEIN_POSE_SECONDS.items():
         poses.extend([pose] * max(1, int(round(secs * scale / take_s))))
     return SynthConfig(follow_poses=tuple(poses), follow_duration_s=take_s, shift_targets=(), neutral_s=4.0,
-                       session_id=seed_session)
+                       session_id=seed_session, face_takes=())
 
 
 @dataclass
 class TakeRecord:
-    """Everything known about one generated take; handed to every modality writer."""
+    """Everything known about one generated take; handed to every modality writer.
+
+    ``face`` takes have no motion capture: their ``motion`` and ``kinematics`` are ``None`` and ``rate_hz`` is
+    the face capture rate.
+    """
 
     id: str
     kind: str
     pose: str
     index: int
     rate_hz: float
-    motion: TakeMotion
-    kinematics: Kinematics
+    motion: TakeMotion | None
+    kinematics: Kinematics | None
     truth_arrays: dict[str, np.ndarray]
     truth_scalars: dict[str, Any]
     rng: np.random.Generator          # a stream of its own, for the writer's noise
@@ -172,14 +180,32 @@ def _take_plan(cfg: SynthConfig) -> list[tuple[str, str, str, tuple[float, float
         ps = "m" if pitch < 0 else ""
         plan.append((f"shift_y{ys}{abs(yaw):03.0f}_p{ps}{abs(pitch):02.0f}", "gaze_shift", "standing",
                      (float(yaw), float(pitch))))
+    for k, (rate, secs) in enumerate(cfg.face_takes):
+        plan.append((f"face_{k + 1:02d}", "face", "", (float(rate), float(secs))))
     return plan
+
+
+def builtin_writers(cfg: SynthConfig) -> list[ModalityWriter]:
+    """The modality writers the configuration asks for (head camera video + OpenFace, Live Link Face)."""
+    from gazepipe.synth.headcam import head_camera_writer
+    from gazepipe.synth.livelinkface import face_writer
+
+    out: list[ModalityWriter] = []
+    if cfg.head_camera:
+        out.append(head_camera_writer)
+    if cfg.face_takes:
+        out.append(face_writer)
+    return out
 
 
 def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | None = None,
                      writers: tuple[ModalityWriter, ...] | list[ModalityWriter] = ()) -> Path:
-    """Generate a session folder: session.toml, markerset.toml, mocap/*.c3d and truth/ (npz per take,
-    truth.json, README.md). Same seed and config give byte-identical files. Returns the folder."""
+    """Generate a session folder: session.toml, markerset.toml, mocap/*.c3d, video/*.mp4 and eyes/*.csv
+    (gaze_follow takes, when ``head_camera``), face/*.csv (``face_takes``) and truth/ (npz per take,
+    truth.json, README.md). ``writers`` run after the built-in ones. Same seed and config give byte-identical
+    files. Returns the folder."""
     cfg = config or SynthConfig()
+    all_writers = [*builtin_writers(cfg), *writers]
     out = Path(out_dir)
     (out / "mocap").mkdir(parents=True, exist_ok=True)
     (out / "truth").mkdir(exist_ok=True)
@@ -190,6 +216,16 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         r_motion, r_noise, r_gaps, r_writer = (np.random.default_rng(s) for s in
                                                np.random.SeedSequence([seed, index]).spawn(4))
+        if kind == "face":
+            assert target is not None
+            rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
+                             "duration_s": target[1]}, r_writer, cam, {"id": take_id, "kind": kind})
+            for w in all_writers:
+                rec.entries.update(w(out, rec))
+            write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
+            meta_takes[take_id] = rec.truth_scalars
+            records.append(rec)
+            continue
         if kind == "gaze_follow":
             motion = follow_motion(r_motion, rate, cfg.placement, pose, cfg.follow_duration_s)
         elif kind == "gaze_shift":
@@ -211,7 +247,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         if target is not None:
             entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
         rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, cam, entries)
-        for w in writers:
+        for w in all_writers:
             rec.entries.update(w(out, rec))
         write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
         meta_takes[take_id] = rec.truth_scalars

@@ -232,8 +232,9 @@ def load_truth(session_dir: str | Path, take_id: str) -> dict[str, Any]:
     with np.load(root / f"{take_id}.npz", allow_pickle=False) as z:
         for k in z.files:
             out[k] = z[k]
-    out["labels"] = [str(s) for s in out["labels"]]
-    out["segments"] = [str(s) for s in out["segments"]]
+    for key in ("labels", "segments", "face_names"):
+        if key in out:
+            out[key] = [str(s) for s in out[key]]
     out["scalars"] = meta["takes"][take_id]
     out["session"] = {k: v for k, v in meta.items() if k != "takes"}
     return out

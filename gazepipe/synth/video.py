@@ -1,0 +1,154 @@
+"""Synthetic head-camera video: a camera clock against the mocap clock, and the clapper seen by the camera.
+
+The camera runs on its own clock. Frame k is exposed at ``t_video = k / fps`` (the container stamps it so) and
+the mocap clock reads ``t_mocap = offset_s + ratio · t_video`` at that instant (SPEC §3.4). Each frame shows a
+static, face-like picture with sensor noise, the subject's pupils and eyelids, and the clapper: a fixed lower
+arm and an upper arm whose gap follows the same distance curve as the mocap clapper markers, averaged over the
+exposure (motion blur), so the video clap is the mocap clap mapped onto the video clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gazepipe.synth.motion import CLAP_SHUT_MM, TakeMotion, _clapper_distance
+
+VIDEO_FPS = 60.0
+WIDTH, HEIGHT = 128, 96
+#: exposure time (a 1/120 s shutter), centred on the frame's timestamp, and motion-blur sub-samples
+EXPOSURE_S = 0.5 / VIDEO_FPS
+SUBSAMPLES = 6
+#: clapper picture: pixels per millimetre of arm separation, rows of the fixed (lower) arm, columns of both arms
+PX_PER_MM = 0.4
+LOWER_ARM_ROWS = (82, 90)
+ARM_HEIGHT_PX = 8
+ARM_COLS = (14, 114)
+#: image positions (x, y) of the subject's right eye (image left) and left eye (image right), pixels
+EYE_CENTRES_PX = ((46.0, 38.0), (82.0, 38.0))
+PUPIL_TRAVEL_PX = 7.0
+NOISE_GREY = 1.2
+CHUNK = 512
+
+
+@dataclass(frozen=True)
+class CameraClock:
+    """The head camera's clock: ``t_mocap = offset_s + ratio · t_video``; frames at ``k / fps`` video seconds."""
+
+    offset_s: float
+    ratio: float
+    fps: float = VIDEO_FPS
+
+    def to_mocap(self, t_video: np.ndarray | float) -> np.ndarray:
+        return self.offset_s + self.ratio * np.asarray(t_video, dtype=np.float64)
+
+    def to_video(self, t_mocap: np.ndarray | float) -> np.ndarray:
+        return (np.asarray(t_mocap, dtype=np.float64) - self.offset_s) / self.ratio
+
+
+def camera_clock(rng: np.random.Generator, variant: int, mocap_end_s: float) -> tuple[CameraClock, int]:
+    """A clock and a frame count for one take's video.
+
+    ``variant % 3``: 0, a crystal running fast (ratio 1 + 2e-4 … 8e-4), camera started 2–4 s before the mocap;
+    1, a 59.94 Hz camera labelled 60 (ratio exactly 1.001), started 1.5–3 s before; 2, a crystal running slow
+    (ratio 1 − 2e-4 … 8e-4), camera started 0.25–0.35 s AFTER the mocap (the first mocap frames have no video).
+    The video runs 1–2 s past the mocap's last frame.
+    """
+    v = variant % 3
+    if v == 0:
+        clock = CameraClock(-float(rng.uniform(2.0, 4.0)), 1.0 + float(rng.uniform(2e-4, 8e-4)))
+    elif v == 1:
+        clock = CameraClock(-float(rng.uniform(1.5, 3.0)), 1.001)
+    else:
+        clock = CameraClock(float(rng.uniform(0.25, 0.35)), 1.0 - float(rng.uniform(2e-4, 8e-4)))
+    end_video = float(clock.to_video(mocap_end_s + rng.uniform(1.0, 2.0)))
+    return clock, int(np.ceil(end_video * clock.fps)) + 1
+
+
+def _background(rng: np.random.Generator) -> np.ndarray:
+    """A static face-like grey picture (H, W) float: dim surround, a shaded oval face, eye whites, a mouth."""
+    yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    img = 45.0 + 20.0 * yy / HEIGHT + cv2.GaussianBlur(rng.uniform(-8, 8, (HEIGHT, WIDTH)), (0, 0), 4.0)
+    face = ((xx - 64.0) / 36.0) ** 2 + ((yy - 46.0) / 44.0) ** 2 < 1.0
+    img = np.where(face, 150.0 - 25.0 * np.abs(xx - 64.0) / 36.0, img)
+    for ex, ey in EYE_CENTRES_PX:
+        white = ((xx - ex) / 9.0) ** 2 + ((yy - ey) / 4.5) ** 2 < 1.0
+        img = np.where(white, 200.0, img)
+        brow = (np.abs(yy - (ey - 9.0)) < 1.5) & (np.abs(xx - ex) < 10.0)
+        img = np.where(brow, 70.0, img)
+    mouth = (np.abs(yy - 66.0) < 1.5) & (np.abs(xx - 64.0) < 12.0)
+    img = np.where(mouth, 80.0, img)
+    return cv2.GaussianBlur(img, (0, 0), 0.8)
+
+
+def _arm_cover(bottom: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """Fraction of each pixel row covered by an arm spanning [top, bottom) rows, (..., H)."""
+    yy = np.arange(HEIGHT, dtype=np.float64)
+    return np.clip(np.minimum(yy + 1.0, bottom[..., None]) - np.maximum(yy, top[..., None]), 0.0, 1.0)
+
+
+def render_frames(bg: np.ndarray, frame_idx: np.ndarray, clock: CameraClock, motion: TakeMotion,
+                  gaze_right_cam: np.ndarray, gaze_left_cam: np.ndarray, lid: np.ndarray,
+                  noise: np.ndarray) -> np.ndarray:
+    """Frames ``frame_idx`` as (F, H, W) uint8.
+
+    ``gaze_*_cam`` (F, 3): each eye's direction in camera axes (pupils move with x, y); ``lid`` (F,) in [0, 1]:
+    eyelid closure; ``noise`` (F, H, W): sensor noise in grey levels. The clapper gap is averaged over
+    ``SUBSAMPLES`` instants spread over the exposure.
+    """
+    sub = ((np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * EXPOSURE_S
+    t_m = clock.to_mocap(frame_idx[:, None] / clock.fps + sub[None, :])        # (F, ns) mocap seconds
+    closing = np.asarray(motion.design.get("clap_closing_s", []), dtype=np.float64)
+    d = _clapper_distance(t_m, np.asarray(motion.clap_times_s, dtype=np.float64), closing)
+    bottom = LOWER_ARM_ROWS[0] - (d - CLAP_SHUT_MM) * PX_PER_MM
+    cover = _arm_cover(bottom, bottom - ARM_HEIGHT_PX).mean(axis=1).astype(np.float32)   # (F, H)
+    img = np.repeat(bg.astype(np.float32)[None], frame_idx.size, axis=0)
+
+    yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)
+    for (ex, ey), g in zip(EYE_CENTRES_PX, (gaze_right_cam, gaze_left_cam), strict=True):
+        y0, y1, x0, x1 = int(ey - 6), int(ey + 7), int(ex - 11), int(ex + 12)
+        py, px = yy[y0:y1, x0:x1], xx[y0:y1, x0:x1]
+        cx = ex + PUPIL_TRAVEL_PX * g[:, 0]
+        cy = ey + PUPIL_TRAVEL_PX * g[:, 1]
+        pupil = np.exp(-((px[None] - cx[:, None, None]) ** 2 + (py[None] - cy[:, None, None]) ** 2) / 4.5)
+        patch = img[:, y0:y1, x0:x1] - 150.0 * pupil.astype(np.float32)
+        # the eyelid comes down from the top of the eye over the closure fraction
+        edge = (ey - 5.0) + 10.0 * lid
+        covered = np.clip(edge[:, None, None] - py[None], 0.0, 1.0)
+        img[:, y0:y1, x0:x1] = patch + (140.0 - patch) * covered.astype(np.float32)
+
+    c0, c1 = ARM_COLS
+    lower = _arm_cover(np.array(float(LOWER_ARM_ROWS[1])), np.array(float(LOWER_ARM_ROWS[0])))
+    rows = np.flatnonzero(lower > 0)
+    img[:, rows, c0:c1] += (np.float32(210.0) - img[:, rows, c0:c1]) * lower[rows].astype(np.float32)[None, :, None]
+    rows = np.flatnonzero(cover.max(axis=0) > 0)
+    upper = img[:, rows, c0:c1]
+    img[:, rows, c0:c1] = upper + (np.float32(225.0) - upper) * cover[:, rows, None]
+    img += noise
+    np.rint(img, out=img)
+    np.clip(img, 0, 255, out=img)
+    return img.astype(np.uint8)
+
+
+def write_head_video(path: Path, rng: np.random.Generator, clock: CameraClock, n_frames: int, motion: TakeMotion,
+                     gaze_right_cam: np.ndarray, gaze_left_cam: np.ndarray, lid: np.ndarray) -> None:
+    """Write the take's video (MPEG-4 part 2 in .mp4, labelled ``clock.fps``; OpenCV's FFmpeg writer is
+    byte-deterministic for it). Per-frame arrays are (n_frames, …)."""
+    bg = _background(rng)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), clock.fps, (WIDTH, HEIGHT))
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV cannot write {path} with the mp4v codec")
+    try:
+        for a in range(0, n_frames, CHUNK):
+            idx = np.arange(a, min(a + CHUNK, n_frames))
+            noise = rng.standard_normal((idx.size, HEIGHT, WIDTH), dtype=np.float32) * NOISE_GREY
+            frames = render_frames(bg, idx, clock, motion, gaze_right_cam[idx], gaze_left_cam[idx], lid[idx],
+                                   noise)
+            for fr in frames:
+                writer.write(cv2.cvtColor(fr, cv2.COLOR_GRAY2BGR))
+    finally:
+        writer.release()
