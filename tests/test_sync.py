@@ -332,3 +332,20 @@ def test_resample_scalars_confidence_bools_no_extrapolation():
     # (N, D) scalars interpolate per column
     m, _ = resample_to_mocap(tv, np.column_stack([vals, -vals]), "scalar", np.array([10.25]), clock)
     np.testing.assert_allclose(m, [[1.0, -1.0]])
+
+
+def test_sync_take_without_prior_falls_back_to_the_tail(tmp_path):
+    """The video missed the first clap: the head search finds nothing, the last clap is found in the tail,
+    the clocks are mapped from that one pair (ratio 1) and the unpaired mocap clap is reported."""
+    offset, closing = 1.0, np.array([0.08, 0.08])
+    contacts = np.array([0.5, 29.0])  # the first clap happens before the video starts (mocap 1.0 s)
+    path = write_clapper_video(tmp_path / "tail.mp4", int(30 * FPS), contacts, closing, offset=offset,
+                               ratio=1.0, seed=3)
+    probe = probe_video(path)
+    a, b, va, vb, rate = _mocap_for(contacts, closing, duration_s=32.0, rate=59.94)
+    res = sync_take(a, b, va, vb, rate, probe.timestamps_s, CountingReader(path, probe.timestamps_s))
+    assert res.video_claps[0] is None and res.video_claps[1] is not None
+    assert res.clock.n_claps == 1 and res.clock.ratio == 1.0
+    assert abs(res.clock.offset_s - offset) <= 0.005
+    assert abs(res.mocap_claps[0].time_s - 0.5) < 0.002
+    assert res.qc["warnings"] == [f"mocap clap at {res.mocap_claps[0].time_s:.3f} s has no video counterpart"]

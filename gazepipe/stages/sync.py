@@ -164,9 +164,9 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
     d = clapper_distance(clap_a_xyz, clap_b_xyz, valid_a, valid_b)
     T = d.size
     rate = float(rate_hz)
-    if T < 5:
-        return []
     lag = max(1, round(lag_s * rate))
+    if T < 2 * lag + 5:
+        return []
     v = np.full(T, np.nan)
     v[lag:-lag] = (d[2 * lag:] - d[:-2 * lag]) * (rate / (2 * lag))
     sigma_v = _robust_sigma(v)
@@ -235,7 +235,7 @@ class VideoClap:
 
 
 def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[int, int, int, int] | None = None,
-                  chunk: int = 120) -> tuple[np.ndarray, int]:
+                  chunk: int = 64) -> tuple[np.ndarray, int]:
     """Motion energy between consecutive frames of [start, stop), decoded in chunks of ``chunk`` frames.
 
     Returns
@@ -250,17 +250,16 @@ def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[
     for c0 in range(start, stop, chunk):
         _, frames = read_window(c0, min(c0 + chunk, stop))
         frames = np.asarray(frames)
-        if frames.ndim == 4:  # colour: average the channels
-            frames = frames.mean(axis=3)
         if roi is not None:
             y0, y1, x0, x1 = roi
             frames = frames[:, y0:y1, x0:x1]
-        frames = frames.astype(np.float32)
+        frames = frames.astype(np.int16)  # grey levels (colour: every channel counts) and their differences
         n += frames.shape[0]
         if prev is not None:
             frames = np.concatenate([prev[None], frames])
         if frames.shape[0] > 1:
-            out.append(np.abs(np.diff(frames, axis=0)).mean(axis=(1, 2), dtype=np.float64))
+            diff = np.abs(np.diff(frames, axis=0))
+            out.append(diff.reshape(diff.shape[0], -1).mean(axis=1, dtype=np.float64))
         if frames.shape[0]:
             prev = frames[-1]
         if n < min(c0 + chunk, stop) - start:
@@ -338,7 +337,7 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
 
 def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_times: Sequence[float] | None,
                 *, window_s: float = 1.5, search_s: float = 20.0, post_s: float = 0.3, exclude_s: float = 0.4,
-                roi: tuple[int, int, int, int] | None = None, chunk: int = 120, z_lo: float = 5.0,
+                roi: tuple[int, int, int, int] | None = None, chunk: int = 64, z_lo: float = 5.0,
                 z_hi: float = 30.0, min_distinct: float = 0.5) -> list[VideoClap | None]:
     """Claps in the video near the expected times, decoding only the frames around them.
 
@@ -353,7 +352,8 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
         extra frames are decoded after each window.
     exclude_s : energy further than this from the peak counts as a rival burst.
     roi : optional (y0, y1, x0, x1) region of the frames (in the frames ``read_window`` returns).
-    chunk : frames decoded per ``read_window`` call (bounds memory).
+    chunk : frames decoded per ``read_window`` call (bounds memory; pass a ``read_window`` that scales the
+        frames down, e.g. ``read_frames(..., scale=0.25)``: the clapper fills much of the head camera's view).
     z_lo, z_hi, min_distinct : confidence = snr · distinct, where snr maps (peak − still) over the robust
         spread of the still energy linearly from ``z_lo`` → 0 to ``z_hi`` → 1, and distinct = min(1,
         (peak − rival) / (peak − still) / min_distinct), rival the highest energy further than ``exclude_s``
