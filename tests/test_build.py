@@ -44,9 +44,32 @@ FOLLOW = ("follow_standing_01", "follow_standing_02", "follow_sitting_01")
 M = np.diag([-1.0, 1.0, 1.0])
 
 
+def _sample_root(tmp_path_factory) -> Path:
+    """sample_data/session01 when complete (session, truth, every mocap file), else the same generated anew
+    (the sample folder may be mid-regeneration while tests run)."""
+    import tomllib
+
+    try:
+        doc = tomllib.loads((SAMPLE / "session.toml").read_text())
+        complete = (SAMPLE / "truth" / "truth.json").exists() and all(
+            (SAMPLE / t[k]).exists() for t in doc["takes"] for k in ("mocap", "tracked", "clean") if k in t)
+    except (OSError, KeyError, tomllib.TOMLDecodeError):
+        complete = False
+    if complete:
+        return SAMPLE
+    from gazepipe.synth import generate_session
+
+    return Path(generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0))
+
+
 @pytest.fixture(scope="module")
-def session():
-    return load_session(SAMPLE / "session.toml")
+def root(tmp_path_factory) -> Path:
+    return _sample_root(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def session(root):
+    return load_session(root / "session.toml")
 
 
 def truth_joints(tr: dict, frames: np.ndarray) -> pa.Table:
@@ -81,7 +104,7 @@ def follow_takes(session):
     rng = np.random.default_rng(7)
     out, invalid_frames = [], {}
     for tid in FOLLOW:
-        tr = load_truth(SAMPLE, tid)
+        tr = load_truth(session.root, tid)
         c0, c1 = tr["scalars"]["crop"]
         frames = np.arange(c0, c1)
         bad = rng.random(len(frames)) < 0.01
@@ -146,12 +169,12 @@ def test_y_is_next_x_within_segments(rnn, name):
         np.testing.assert_array_equal(x[1:][nxt][:, 3:], y[:-1][nxt])
 
 
-def test_rnn_matches_truth_and_directions_are_unit(rnn):
+def test_rnn_matches_truth_and_directions_are_unit(rnn, session):
     table = rnn["gaze_rnn"].tables[("p01", "standing", "follow_standing_01")]
     x, y = xy(table)
     orig = ~table.column("mirrored").to_numpy()
     frames = table.column("frame").to_numpy()[orig]
-    tr = load_truth(SAMPLE, "follow_standing_01")
+    tr = load_truth(session.root, "follow_standing_01")
     np.testing.assert_allclose(x[orig, :3], tr["target_dir_char"][frames], atol=1e-6)
     np.testing.assert_allclose(y[orig, -3:], tr["eye_dir_char"][frames], atol=1e-6)
     np.testing.assert_allclose(x[orig, -3:], tr["eye_dir_char"][frames - 1], atol=1e-6)
@@ -373,7 +396,7 @@ def test_gaze_map_on_truth_rotations(session):
     (±0.05), duration and P+."""
     takes = []
     for t in _shift_takes(session):
-        tr = load_truth(SAMPLE, t.id)
+        tr = load_truth(session.root, t.id)
         c0, c1 = tr["scalars"]["crop"]
         takes.append(TakeTables(session=session.id, subject=session.subject, take=t,
                                 joints=truth_joints(tr, np.arange(c0, c1)), markerset=session.markerset,
@@ -381,13 +404,13 @@ def test_gaze_map_on_truth_rotations(session):
     built = build_dataset("gaze_map", takes, BuildParams(train_frac=1.0, val_frac=0.0))
     assert len(built.tables) == 9 and not built.info["skipped"]
     assert built.schema.field("p_plus").type == pa.list_(pa.float32(), 44)
-    segs = list(load_truth(SAMPLE, takes[0].take.id)["segments"])
+    segs = list(load_truth(session.root, takes[0].take.id)["segments"])
     nonzero = 0
     for (_, _, tid), table in built.tables.items():
         rows = table.to_pylist()
         assert len(rows) == 2 and [r["mirrored"] for r in rows] == [False, True]
         row = rows[0]
-        tr = load_truth(SAMPLE, tid)
+        tr = load_truth(session.root, tid)
         sc = tr["scalars"]
         assert row["frame"] == sc["crop"][0]
         assert row["duration_s"] == pytest.approx(sc["l_s"], rel=1e-6)
@@ -437,7 +460,7 @@ def pipeline_shift_takes(session):
     return out
 
 
-def test_gaze_map_on_pipeline_output(pipeline_shift_takes):
+def test_gaze_map_on_pipeline_output(pipeline_shift_takes, session):
     """On the noisy capture files through clean and frames: t_β within ±2 frames and β within ±0.05 of the
     truth; start times within ±2 frames for every segment but the chest.
 
@@ -449,7 +472,7 @@ def test_gaze_map_on_pipeline_output(pipeline_shift_takes):
     assert len(built.tables) == 9 and not built.info["skipped"]
     for (_, _, tid), table in built.tables.items():
         row = table.to_pylist()[0]
-        tr = load_truth(SAMPLE, tid)
+        tr = load_truth(session.root, tid)
         tol = 3.0 if tr["scalars"]["beta"] < 0.03 else 2.0
         _check_map_row(row, tr, row["frame"], skip_starts=("chest",), tb_tol=tol)
 
@@ -498,6 +521,31 @@ def test_face_clean():
     left, right = ARKIT_NAMES.index("eyeBlinkLeft"), ARKIT_NAMES.index("eyeBlinkRight")
     trk = list_to_numpy(table.column("tracked"), 52)
     np.testing.assert_array_equal(trk[half:, left], trk[:half, right])
+
+
+def test_face_clean_from_the_face_stage(session):
+    """The sample session's face takes (60 Hz and 30 Hz) through the face stage: every face-table row becomes
+    one row plus its mirror; takes at different rates give no single fps."""
+    from gazepipe.io.livelinkface import read_livelinkface
+    from gazepipe.schemas.face_table import face_to_table
+    from gazepipe.stages.face import align_face
+
+    takes = []
+    for t in (t for t in session.takes if t.kind == "face"):
+        trk, cln = (read_livelinkface(p, rate_hz=t.rate_hz, timecode_fps=t.timecode_fps) for p in (t.tracked, t.clean))
+        table = face_to_table(align_face(trk, cln), meta={"rate_hz": trk.rate_hz})
+        takes.append(TakeTables(session=session.id, subject=session.subject, take=t, face=table))
+    if len(takes) < 2:
+        pytest.skip("the sample session has no face takes")
+    built = build_dataset("face_clean", [pinned(t, "train") for t in takes])
+    assert built.info["fps"] is None and built.info["rates_hz"] == [30.0, 60.0]
+    for tt in takes:
+        out = built.tables[tt.key]
+        assert out.num_rows == 2 * tt.face.num_rows
+        np.testing.assert_array_equal(list_to_numpy(out.column("clean"), 52)[: tt.face.num_rows],
+                                      list_to_numpy(tt.face.column("clean"), 52))
+        np.testing.assert_array_equal(out.column("time_s").to_numpy()[: tt.face.num_rows],
+                                      tt.face.column("time_s").to_numpy())
 
 
 def test_unknown_dataset_and_no_takes():

@@ -380,8 +380,8 @@ def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: di
         inputs[f"{t.session}/{t.take.id}"] = dict(sorted(hashes.items()))
     warnings = [f"split {s!r} is empty" for s in SPLITS if by_split[s]["takes"] == 0]
     fps = sorted(ctx.fps)
-    if len(fps) > 1:
-        warnings.append(f"takes have different frame rates {fps}; fps is the lowest")
+    if len(fps) > 1 and name != "face_clean":
+        warnings.append(f"takes have different frame rates {fps} Hz: a window of frames spans different times")
     window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
                       "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
                       "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
@@ -407,7 +407,8 @@ def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: di
         "features": {c: list(ctx.names[c]) for c in columns},
         "sizes": dict(ctx.sizes),
         "units": _UNITS[name],
-        "fps": fps[0] if fps else None,
+        "fps": fps[0] if len(fps) == 1 else None,
+        "rates_hz": fps,
         "window": window,
         "stride": stride,
         "splits": {"train_frac": params.train_frac, "val_frac": params.val_frac, "salt": params.split_salt,
