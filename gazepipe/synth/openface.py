@@ -111,9 +111,9 @@ def eye_rows(rng: np.random.Generator, kin: Kinematics, time_s: np.ndarray, t_mo
     blink = _runs(rng, n, fps, BLINK_EVERY_S, (int(BLINK_S[0] * fps), int(BLINK_S[1] * fps)), forbid=quiet)
     low = _runs(rng, n, fps, DIP_EVERY_S, DIP_FRAMES)
     fail = _runs(rng, n, fps, (4.0, 12.0), (1, 6), forbid=blink)
-    if not fail.any():                   # a few failed rows in every file, however short
-        free = np.flatnonzero(~blink[n // 2:])
-        fail[n // 2 + free[0]] = free.size > 0
+    free = np.flatnonzero(~blink[n // 2:])
+    if not fail.any() and free.size:     # at least one failed row in every file, however short
+        fail[n // 2 + free[0]] = True
 
     # blink intensity: a bump above 1 inside the blink, a shoulder either side, small values elsewhere
     au45 = np.clip(0.15 + 0.1 * rng.standard_normal(n), 0.0, 0.6)
