@@ -7,21 +7,28 @@ files it reads (through :mod:`gazepipe.io`), which upstream tables it loads and 
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
+import pyarrow as pa
 
 from gazepipe.io.capture import read_markers
 from gazepipe.io.livelinkface import read_livelinkface
+from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import check_capture_labels
+from gazepipe.io.video import probe_video, read_frames
 from gazepipe.model import Markers, Session, Take
 from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register
+from gazepipe.schemas.base import attach_meta
 from gazepipe.schemas.face_table import face_to_table
-from gazepipe.schemas.joints import joints_schema, joints_to_table
+from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, joints_to_table
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
-from gazepipe.schemas.tracks import face_schema
+from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 from gazepipe.stages.clean import CleanParams, clean_markers
+from gazepipe.stages.eyes import EyesParams, eyes_take
 from gazepipe.stages.face import align_face
 from gazepipe.stages.frames import FramesParams, compute_frames
+from gazepipe.stages.sync import ClockMap, resample_to_mocap, sync_take
 
 
 def _has_mocap(session: Session, take: Take) -> bool:
@@ -213,4 +220,119 @@ register(Stage(
     sources=lambda s, t: [t.tracked, t.clean],
     run=run_face,
     help="tracked and clean Live Link Face tracks aligned on timecode, dt and derivatives",
+))
+
+
+# -------------------------------------------------------------------------------------------------- sync
+
+@dataclasses.dataclass(frozen=True)
+class SyncParams:
+    """Parameters of the sync stage (see :func:`gazepipe.stages.sync.sync_take`).
+
+    window_s : half-width (s) of each video window searched around a predicted clap.
+    search_s : without a prior, the first clap is looked for in the first (or last) ``search_s`` of the video.
+    max_drift : largest accepted |ratio − 1| between the clocks.
+    min_confidence : video claps below this confidence count as not found.
+    video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
+    """
+
+    window_s: float = 1.5
+    search_s: float = 20.0
+    max_drift: float = 0.005
+    min_confidence: float = 0.05
+    video_scale: float = 0.5
+
+
+def _sync_take(session: Session, take: Take) -> bool:
+    ms = session.markerset
+    return _subject_take(session, take) and take.video is not None and ms is not None and len(ms.clapper) == 2
+
+
+def run_sync(ctx: UnitContext) -> UnitResult:
+    take, ms = ctx.take, ctx.session.markerset
+    p = _build(SyncParams, ctx.params)
+    raw, _, _ = _load_markers(ctx, "markers_raw")
+    a, b = raw.index(ms.clapper[0]), raw.index(ms.clapper[1])
+    probe = probe_video(take.video)
+    ts = probe.timestamps_s
+
+    def read_window(start: int, stop: int):
+        return read_frames(take.video, start, stop, gray=True, scale=p.video_scale, timestamps_s=ts)
+
+    res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts, read_window,
+                    window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
+                    min_confidence=p.min_confidence, mocap_path=take.mocap, video_path=take.video, take=take.id)
+    clock = res.clock
+    rows = {
+        "clap": np.arange(len(res.mocap_claps), dtype=np.int32),
+        "mocap_s": np.array([c.time_s for c in res.mocap_claps]),
+        "video_s": np.array([np.nan if v is None else v.time_s for v in res.video_claps]),
+        "confidence_mocap": np.array([c.confidence for c in res.mocap_claps]),
+        "confidence_video": np.array([np.nan if v is None else v.confidence for v in res.video_claps]),
+        "offset_s": np.full(len(res.mocap_claps), clock.offset_s),
+        "ratio": np.full(len(res.mocap_claps), clock.ratio),
+    }
+    table = attach_meta(pa.Table.from_pydict(rows, schema=SYNC), {"video_frames": int(ts.size),
+                                                                  "video_nominal_fps": probe.nominal_fps})
+    qc = dict(res.qc)
+    qc["warnings"] = list(qc.get("warnings", [])) + list(probe.warnings)
+    return UnitResult(tables={"sync": (table, SYNC)}, qc=qc, warnings=qc["warnings"])
+
+
+register(Stage(
+    name="sync", version="1", requires=("ingest",), params=_params_of(SyncParams),
+    outputs=("sync",), applies=_sync_take,
+    sources=lambda s, t: [t.video, *_markerset_file(s)],
+    run=run_sync,
+    help="clapper claps on the mocap and video clocks, the clock map between them",
+))
+
+
+# -------------------------------------------------------------------------------------------------- eyes
+
+def _eyes_take(session: Session, take: Take) -> bool:
+    return _frames_take(session, take) and take.eyes is not None
+
+
+def run_eyes(ctx: UnitContext) -> UnitResult:
+    take, ms = ctx.take, ctx.session.markerset
+    eye = read_openface(take.eyes)
+    ja = joints_arrays(ctx.load("joints"))
+    joints = SimpleNamespace(segments=ja["segments"], quat=ja["quat"], target_dir=ja["target_dir"],
+                             char_rot=ja["char_rot"], rate_hz=ja["meta"]["rate_hz"])
+    clock = ClockMap(offset_s=0.0, ratio=1.0, n_claps=0)
+    if take.video is not None:
+        sync = ctx.load("sync")
+        clock = ClockMap(offset_s=float(sync.column("offset_s")[0].as_py()),
+                         ratio=float(sync.column("ratio")[0].as_py()), n_claps=sync.num_rows)
+    camera = None if ms.camera_rotation is None else np.asarray(ms.camera_rotation, dtype=np.float64)
+    res = eyes_take(eye, joints, ja["time_s"], clock if take.video is not None else None,
+                    camera_rotation=camera, params=_build(EyesParams, ctx.params), path=take.eyes, take=take.id)
+    frames = ja["frame"].astype(np.int64)
+    # a valid frame is "filled" when either video sample around it was bridged by slerp
+    g = res.gated
+    not_filled, _ = resample_to_mocap(g.time_s, (~g.filled).astype(np.float64), "confidence", ja["time_s"], clock)
+    filled = res.valid & (not_filled == 0)
+    table = pa.Table.from_pydict({
+        "frame": pa.array(frames.astype(np.int32)),
+        "source_frame": pa.array(ja["source_frame"].astype(np.int64)),
+        "time_s": pa.array(ja["time_s"]),
+        "valid": pa.array(res.valid),
+        "filled": pa.array(filled),
+        "confidence": pa.array(res.confidence),
+        "eye_dir_char": fixed_list(res.eye_dir_char, 3),
+        "eye_dir_head": fixed_list(res.eye_dir_head, 3),
+    }, schema=EYES)
+    table = attach_meta(table, {"camera_rotation": [float(x) for x in res.camera_rotation],
+                                "camera_source": res.camera_source, "rate_hz": float(joints.rate_hz)})
+    qc = dict(res.qc)
+    return UnitResult(tables={"eyes": (table, EYES)}, qc=qc, warnings=list(qc.get("warnings", [])))
+
+
+register(Stage(
+    name="eyes", version="1", requires=("frames", "sync"), params=_params_of(EyesParams),
+    outputs=("eyes",), applies=_eyes_take,
+    sources=lambda s, t: [t.eyes, *_markerset_file(s)],
+    run=run_eyes,
+    help="OpenFace gaze gated, blink-masked, bridged and rotated into the character frame",
 ))
