@@ -309,9 +309,81 @@ def _falling_edge(fts: np.ndarray, tm: np.ndarray, e: np.ndarray, p: int, post_n
     return float(t), conf, peak, still
 
 
+def _displacement(frames: np.ndarray, shut: np.ndarray, thr: float) -> np.ndarray:
+    """(M,) how far, in pixels up to a common scale, the moving arm in each frame is from its shut position.
+
+    Where a frame differs from the shut image by more than ``thr``, the brighter and the darker parts are
+    where the arm is and where it will be (or the reverse). The distance between their centroids is the
+    displacement while they are apart and the arm's width once they overlap, when instead their mass shrinks
+    in proportion to the displacement: the product of the two, normalised by the largest mass, follows the
+    displacement in both cases (frame differences alone saturate once the arm moves more than its width).
+    """
+    d = frames.astype(np.float32) - shut[None]
+    pos = np.where(d > thr, d, np.float32(0))
+    neg = np.where(d < -thr, -d, np.float32(0))
+    yy, xx = np.mgrid[0:shut.shape[0], 0:shut.shape[1]].astype(np.float32)
+
+    def centroid(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = w.sum(axis=(1, 2), dtype=np.float64)
+        safe = np.where(m > 0, m, 1.0)
+        c = np.stack([(w * yy).sum(axis=(1, 2), dtype=np.float64) / safe,
+                      (w * xx).sum(axis=(1, 2), dtype=np.float64) / safe], axis=1)
+        return m, c
+
+    mp, cp = centroid(pos)
+    mn, cn = centroid(neg)
+    mass = np.minimum(mp, mn)
+    if not mass.max() > 0:
+        return np.zeros(len(frames))
+    return np.linalg.norm(cp - cn, axis=1) * (mass / mass.max())
+
+
+def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: float,
+                            roi: tuple[int, int, int, int] | None, n_before: int = 6,
+                            n_shut: int = 10) -> float | None:
+    """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, or None.
+
+    Decodes the ``n_before`` frames before the edge and ``n_shut`` still frames after it (their median is the
+    shut image), fits the displacement of the last three moving frames (a quadratic) and solves it for zero
+    between that last moving frame and the next; the fractional frame becomes a time by interpolating the
+    two frames' timestamps.
+    """
+    k_e = int(np.searchsorted(ts, t_edge, side="right")) - 1  # the frame at or before the edge
+    a, b = k_e - n_before, k_e + 3 + n_shut
+    if a < 0 or b > ts.size:
+        return None
+    _, fr = read_window(a, b)
+    fr = np.asarray(fr)
+    if len(fr) != b - a:
+        return None
+    if roi is not None:
+        y0, y1, x0, x1 = roi
+        fr = fr[:, y0:y1, x0:x1]
+    if fr.ndim == 4:
+        fr = fr.mean(axis=3)
+    still = fr[-n_shut:].astype(np.float32)
+    shut = np.median(still, axis=0)
+    sigma = _robust_sigma((still - shut[None]).ravel())
+    s = _displacement(fr[: n_before + 3], shut, max(3.0, 4.0 * sigma))
+    moving = np.flatnonzero(s > 0.02 * s.max())
+    if moving.size == 0:
+        return None
+    k = int(moving[-1])
+    if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
+        return None  # not a clean approach to the shut position
+    y = s[k - 2: k + 1]
+    r = np.roots(np.polyfit([-2.0, -1.0, 0.0], y, 2))
+    r = r[np.abs(r.imag) < 1e-9].real
+    r = r[(r >= 0.0) & (r <= 1.5)]
+    root = float(r.min()) if r.size else float(y[2] / (y[1] - y[2]))
+    root = min(max(root, 0.0), 1.0)
+    j = a + k
+    return float(ts[j] + root * (ts[j + 1] - ts[j]))
+
+
 def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, post_s: float, exclude_s: float,
              roi: tuple[int, int, int, int] | None, chunk: int, z_lo: float, z_hi: float,
-             min_distinct: float) -> VideoClap | None:
+             min_distinct: float, refine: bool) -> VideoClap | None:
     """The strongest closing burst among the frames with timestamps in [t0, t1 + post_s]."""
     i0 = int(np.searchsorted(ts, t0, side="left"))
     i1 = int(np.searchsorted(ts, t1 + post_s, side="right"))
@@ -331,6 +403,9 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
     if r is None:
         return None
     t, conf, peak, still = r
+    refined = _refine_by_displacement(ts, read_window, t, roi) if refine else None
+    if refined is not None and abs(refined - t) <= dt:
+        t = refined
     frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
     return VideoClap(time_s=t, frame=frame, confidence=conf, peak=peak, still=still, window=(i0, i0 + n))
 
@@ -338,7 +413,7 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
 def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_times: Sequence[float] | None,
                 *, window_s: float = 1.5, search_s: float = 20.0, post_s: float = 0.3, exclude_s: float = 0.4,
                 roi: tuple[int, int, int, int] | None = None, chunk: int = 64, z_lo: float = 5.0,
-                z_hi: float = 30.0, min_distinct: float = 0.5) -> list[VideoClap | None]:
+                z_hi: float = 30.0, min_distinct: float = 0.5, refine: bool = True) -> list[VideoClap | None]:
     """Claps in the video near the expected times, decoding only the frames around them.
 
     Parameters
@@ -354,6 +429,7 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
     roi : optional (y0, y1, x0, x1) region of the frames (in the frames ``read_window`` returns).
     chunk : frames decoded per ``read_window`` call (bounds memory; pass a ``read_window`` that scales the
         frames down, e.g. ``read_frames(..., scale=0.25)``: the clapper fills much of the head camera's view).
+    refine : refine the end of the burst from the arm's displacement (step 3 below).
     z_lo, z_hi, min_distinct : confidence = snr · distinct, where snr maps (peak − still) over the robust
         spread of the still energy linearly from ``z_lo`` → 0 to ``z_hi`` → 1, and distinct = min(1,
         (peak − rival) / (peak − still) / min_distinct), rival the highest energy further than ``exclude_s``
@@ -374,12 +450,20 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
        the end of sample j0: constant acceleration), is how long the motion went on after frame j0 + 1. That
        interval is added to frame j0 + 1's timestamp (solving level·τ + slope·τ²/2 = energy·Δt).
 
+    3. with ``refine`` (default), the frames just before the edge and a few still ones after it are decoded
+       once more, and the arm's displacement from its shut position is measured in each frame (see
+       :func:`_displacement`); the instant it reaches zero (a quadratic through the last three moving
+       frames, solved between the last moving frame and the next, as for the mocap) replaces the estimate
+       when it lies within a frame of it.
+
     Motion blur and the partial sample spread the edge but keep its energy, which is why step 2 is used
-    rather than the halfway crossing (biased late by up to a quarter frame for an accelerating arm).
+    rather than the halfway crossing (biased late by up to a quarter frame for an accelerating arm). Step 3
+    matters when the arm moves more than its own width between frames: frame differences then saturate and
+    steps 1–2 come out late by up to half a frame.
     """
     ts = np.asarray(probe_timestamps, dtype=np.float64)
     kw = dict(post_s=post_s, exclude_s=exclude_s, roi=roi, chunk=chunk, z_lo=z_lo, z_hi=z_hi,
-              min_distinct=min_distinct)
+              min_distinct=min_distinct, refine=refine)
     if approx_times is None:
         span = min(search_s, 0.5 * float(ts[-1] - ts[0]))
         head = _clap_in(ts, read_window, float(ts[0]), float(ts[0]) + span, **kw)
