@@ -584,7 +584,7 @@ def check_generated_openface(session: Path, take: str) -> None:
 
 
 @pytest.mark.skipif(not (SAMPLE / "eyes").is_dir(), reason="sample session has no OpenFace CSVs yet")
-@pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
+@pytest.mark.parametrize("take", ["follow_standing_01", "follow_standing_02", "follow_sitting_01"])
 def test_generated_openface_against_truth(take):
     check_generated_openface(SAMPLE, take)
 
