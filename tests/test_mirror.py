@@ -74,10 +74,11 @@ def test_twice_is_identity_bitwise(fn, width, dtype):
     @FAST
     @given(any_floats(width, dtype))
     def check(a):
+        before = a.copy()
         once = fn(a)
         assert once is not a and once.dtype == a.dtype and once.shape == a.shape
+        assert bits_equal(a, before)          # the input was not modified in place
         assert bits_equal(fn(once), a)
-        assert bits_equal(a, a.copy())        # the input was not modified in place
 
     check()
 
@@ -382,6 +383,10 @@ def test_mirror_markers_explicit_pairs_and_errors():
                     segments=(Segment("pelvis", ("LASI", "PSIS", "RASI")),) + ms.segments[1:])
     with pytest.raises(StageError, match=r"markerset.toml: mirroring: the root segment"):
         mirror_markers(mk, bad)
+    gone = Markers(labels=[lab for lab in mk.labels if lab != "RASI"], xyz=np.delete(mk.xyz, mk.index("RASI"), 1),
+                   valid=np.delete(mk.valid, mk.index("RASI"), 1), rate_hz=mk.rate_hz)
+    with pytest.raises(StageError, match="root segment marker 'RASI' is not in the capture"):
+        mirror_markers(gone, ms)
 
 
 @SLOW

@@ -241,11 +241,15 @@ def mirror_markers(markers: Markers, markerset: MarkerSet, char_origin: np.ndarr
     """
     labels = list(markers.labels)
     path = markerset.path
+    rs = markerset.root_segment
+    for m in (markerset.root, *rs.markers[:2]):
+        if m not in labels:
+            what = "root" if m == markerset.root else "root segment"
+            raise StageError(path, f"mirroring: {what} marker {m!r} is not in the capture", take=take)
     try:
         partner = marker_pairs(labels) if pairs is None else _normalise_pairs(pairs, labels, path)
     except StageError as e:
         raise StageError(path, e.problem, take=take) from None
-    rs = markerset.root_segment
     m0, m1 = (rs.markers + ("", ""))[:2]
     if partner.get(m0) != m1:
         raise StageError(path, f"mirroring: the root segment {rs.name!r}'s first two markers ({m0!r}, {m1!r}) "
