@@ -228,9 +228,34 @@ def test_mirrored_rows_are_exact_mirrors(rnn, name):
         mr = M @ r @ M
         six_m = np.concatenate([mr[..., :, 2], mr[..., :, 1]], axis=-1).reshape(len(yo), -1)
         np.testing.assert_allclose(ym[:, : 6 * n_seg], six_m, atol=2e-6)
-        # mirroring twice is the identity, exactly
+        # every X component negated, every other value unchanged, bit for bit (so mirroring twice is exact)
         sign = np.where([n.endswith(".x") for n in built.info["features"]["x"]], -1, 1).astype(np.float32)
-        np.testing.assert_array_equal(xm * sign, xo)
+        np.testing.assert_array_equal(xm, xo * sign)
+
+
+def test_mirror_swaps_left_right_segments():
+    """Segments named as a left/right pair swap blocks in the mirrored rows (SPEC §2), central ones do not."""
+    rng = np.random.default_rng(3)
+    n, segs = 40, ["pelvis", "arm_l", "arm_r"]
+    q = Rotation.random(n * 3, random_state=rng).as_quat(canonical=True, scalar_first=True).reshape(n, 3, 4)
+    six = six_from_rotation(from_wxyz(q.reshape(-1, 4))).reshape(n, 3, 6)
+    tgt = rng.normal(size=(n, 3))
+    j = Joints(segments=segs, parents=np.array([-1, 0, 0]), quat=q, quat_local=q, six=six,
+               head_centre=np.zeros((n, 3)), target_dir=tgt / np.linalg.norm(tgt, axis=1, keepdims=True),
+               char_origin=np.zeros((n, 3)), char_rot=np.tile([1.0, 0, 0, 0], (n, 1)), valid=np.ones(n, bool),
+               rate_hz=30.0)
+    frames = np.arange(n)
+    eyes = eyes_table({"eye_dir_char": tgt}, frames, np.zeros(n, bool))
+    tt = TakeTables(session="s", subject="p", take=Take(id="t", kind="gaze_follow", pose="standing", split="train"),
+                    joints=joints_to_table(j, frames), eyes=eyes)
+    table = build_dataset("gaze_rnn", [tt]).tables[("p", "standing", "t")]
+    _, y = xy(table)
+    half = len(y) // 2
+    blocks, mblocks = y[:half, :18].reshape(-1, 3, 6), y[half:, :18].reshape(-1, 3, 6)
+    flip = np.float32([-1, 1, 1, -1, 1, 1])
+    np.testing.assert_array_equal(mblocks[:, 0], blocks[:, 0] * flip)
+    np.testing.assert_array_equal(mblocks[:, 1], blocks[:, 2] * flip)     # mirrored left arm = right arm
+    np.testing.assert_array_equal(mblocks[:, 2], blocks[:, 1] * flip)
 
 
 def test_take_without_eyes_is_skipped_for_gaze_rnn_only(follow_takes):

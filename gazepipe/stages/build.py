@@ -44,9 +44,10 @@ from gazepipe.stages.build_gaze import (
     gaze_map_names,
     gaze_map_row,
     mirror_gaze_map,
-    mirror_signs,
+    mirror_rnn,
     rnn_feature_names,
     rnn_rows,
+    segment_permutation,
 )
 from gazepipe.stages.splits import assign_split, check_fractions
 
@@ -233,11 +234,15 @@ def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
-    if name == "gaze_map":
-        return mirror_gaze_map(rows.features)
     if name == "face_clean":
         return mirror_face_rows(rows.features, ctx.segments)
-    return {c: rows.features[c] * mirror_signs(ctx.names[c]) for c in ("x", "y")}
+    try:
+        perm = segment_permutation(ctx.segments)
+    except StageError as exc:
+        raise StageError(_where(name), f"mirroring: {exc.problem}") from None
+    if name == "gaze_map":
+        return mirror_gaze_map(rows.features, perm)
+    return mirror_rnn(rows.features, len(ctx.segments), name == "gaze_rnn", perm)
 
 
 # -------------------------------------------------------------------------------------------- assembly

@@ -10,6 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
+from gazepipe.stages.mirror import marker_pairs, mirror_quat, mirror_six, mirror_vectors
 from gazepipe.stages.rotations import from_wxyz, to_wxyz
 
 
@@ -109,13 +110,28 @@ def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarra
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[t], features={"x": x, "y": y}, qc=qc)
 
 
-def mirror_signs(names: list[str]) -> np.ndarray:
-    """Mirror (SPEC §2) of vectors in the character frame: −1 on every X component (``….x``), else +1.
+def segment_permutation(segments: list[str]) -> np.ndarray:
+    """Index of each segment's mirror partner (left/right names swap, :func:`gazepipe.stages.mirror.marker_pairs`
+    rules; a central segment is its own partner)."""
+    pairs = marker_pairs(segments)
+    return np.array([segments.index(pairs.get(s, s)) for s in segments], dtype=np.int64)
 
-    Every ``gaze_rnn`` feature is a direction or the forward/up vector of a rotation (M·R·M negates the X of
-    both), so mirroring is an exact sign flip per element; the chain's segments have no left/right partners.
-    """
-    return np.where([n.endswith(".x") for n in names], -1.0, 1.0).astype(np.float32)
+
+def mirror_rnn(features: dict[str, np.ndarray], n_segments: int, with_eyes: bool,
+               perm: np.ndarray) -> dict[str, np.ndarray]:
+    """Mirror gaze_rnn rows (SPEC §2): directions negate X (:func:`mirror_vectors`), each rotation's 6-number
+    form negates the X of forward and up (:func:`mirror_six`, the form of M·R·M), left/right segments swap
+    blocks. Only signs flip and blocks move, so mirroring twice gives the rows back bit for bit."""
+    def rotations(block: np.ndarray) -> np.ndarray:
+        six = block.reshape(len(block), n_segments, 6)[:, perm]
+        return mirror_six(six).reshape(len(block), -1)
+
+    x, y = features["x"], features["y"]
+    r = 6 * n_segments
+    eyes_x = [mirror_vectors(x[:, 3 + r:])] if with_eyes else []
+    eyes_y = [mirror_vectors(y[:, r:])] if with_eyes else []
+    return {"x": np.concatenate([mirror_vectors(x[:, :3]), rotations(x[:, 3:3 + r]), *eyes_x], axis=1),
+            "y": np.concatenate([rotations(y[:, :r]), *eyes_y], axis=1)}
 
 
 # ------------------------------------------------------------------------------------------------ gaze_map
@@ -254,12 +270,14 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
 
 
-def mirror_gaze_map(features: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Mirror gaze_map rows (SPEC §2): yaw negates, pitch stays, each quaternion (w, x, y, z) → (w, x, −y, −z)
-    (the rotation M·R·M), times and amounts stay."""
+def mirror_gaze_map(features: dict[str, np.ndarray], perm: np.ndarray) -> dict[str, np.ndarray]:
+    """Mirror gaze_map rows (SPEC §2): yaw negates, pitch stays; every quaternion becomes that of M·R·M
+    (:func:`mirror_quat`: w, x, −y, −z), left/right segments swap (their start times too); the eyes' entry stays
+    last; durations and overshoot stay."""
     out = {k: v.copy() for k, v in features.items()}
-    out["yaw_deg"] = -features["yaw_deg"]
-    q = out["p_plus"].reshape(len(q0 := features["p_plus"]), -1, 4)
-    q[..., 2:] = -q[..., 2:]
-    out["p_plus"] = q.reshape(q0.shape)
+    out["yaw_deg"] = np.negative(features["yaw_deg"])
+    q = features["p_plus"].reshape(len(features["p_plus"]), -1, 4)
+    order = np.append(perm, q.shape[1] - 1)
+    out["p_plus"] = mirror_quat(q[:, order]).reshape(features["p_plus"].shape)
+    out["start_times"] = features["start_times"][:, perm]
     return out
