@@ -76,6 +76,8 @@ _stage_command("run", None, "Run every stage on every take of SESSIONS (folders 
                "Incremental: units whose inputs, parameters and code are unchanged are skipped.")
 _stage_command("ingest", "ingest", "Read every take's capture files into canonical per-take tables "
                "(OUT/takes/<session>/<take>/markers_raw.parquet).")
+_stage_command("build", "build", "Run every take stage, then build the training datasets "
+               "(OUT/datasets/<name>/: gaze_rnn, gaze_rnn_lod, gaze_map, face_clean).")
 _stage_command("clean", "frames", "Ingest, then clean the markers (spikes, gap filling, stabilisation, rest "
                "cropping) and compute segment frames (markers.parquet, joints.parquet).")
 

@@ -13,12 +13,16 @@ from gazepipe.errors import GazepipeError
 from gazepipe.model import Session
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
+from gazepipe.pipeline.datasets import plan_datasets, run_dataset
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import make_executor
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.runner import TakeJob, UnitOutcome, UnitPlan, new_run_id, plan_take, run_take_job
 from gazepipe.pipeline.state import OutLayout, read_json
+
+#: ``until`` value that runs every take stage and then builds the datasets (as ``None`` does)
+BUILD = "build"
 
 
 @dataclass
@@ -44,7 +48,7 @@ def plan_run(sessions: Sequence[Session], out: Path, *, until: str | None = None
              hashes: HashCache | None = None) -> tuple[list[TakeJob], list[UnitOutcome], list[UnitPlan]]:
     """Plan every take: jobs for takes with work, outcomes for takes that failed while planning, all plans."""
     layout = OutLayout(Path(out))
-    stages = registry.upto(until) if until else registry.stages()
+    stages = registry.upto(until) if until and until != BUILD else registry.stages()
     params = params or {}
     hashes = hashes or HashCache(layout.hashes)
     jobs, failures, plans = [], [], []
@@ -83,6 +87,11 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
                      status="run" if p.run else "skip", reason=p.reason)
         for f in failures:
             log.emit("error", "plan_failed", f.error, take=f.take, stage=f.stage, status="failed")
+        if until in (None, BUILD):
+            for d in plan_datasets(sessions, layout, plans, params or {}, force, optimistic=True):
+                what = f"would build ({d.reason})" if d.run else "up to date"
+                log.emit("info", "plan", f"dataset {d.name}: {what} from {len(d.takes)} takes", stage="build",
+                         dataset=d.name, status="run" if d.run else "skip", reason=d.reason)
         return summary
 
     layout.state.mkdir(parents=True, exist_ok=True)
@@ -102,13 +111,31 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
                 summary.outcomes.extend(UnitOutcome(u.session, u.take, u.stage, "skipped", reason=u.reason)
                                         for u in j.units)
         n_units = sum(u.run for j in todo for u in j.units)
-        if not todo:
-            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans)} units up to date",
-                     status="up_to_date", units=len(plans))
-        else:
+        if todo:
             log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
                      f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
             _execute(todo, summary, log, executor, jobs, scheduler, heartbeat_every)
+        built = 0
+        if until in (None, BUILD):
+            for d in plan_datasets(sessions, layout, plans, params or {}, force):
+                if not d.run:
+                    summary.outcomes.append(UnitOutcome("-", "-", f"build:{d.name}", "skipped", reason=d.reason))
+                    continue
+                o = run_dataset(d, layout, params or {})
+                summary.outcomes.append(o)
+                built += 1
+                if o.status == "ok":
+                    log.emit("info", "dataset", f"dataset {d.name}: built from {len(d.takes)} takes "
+                             f"({o.duration_s:.2f} s)", stage="build", dataset=d.name, status="ok",
+                             duration_s=round(o.duration_s, 4))
+                    for w in o.warnings:
+                        log.emit("warning", "qc_warning", w, stage="build", dataset=d.name)
+                else:
+                    log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
+                             traceback=o.traceback or None)
+        if not todo and not built:
+            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans)} units up to date",
+                     status="up_to_date", units=len(plans))
         hashes.save(layout.write_bytes)
         layout.write_json(layout.runs() / f"{summary.run_id}.json", {
             "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]})

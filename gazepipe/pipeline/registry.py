@@ -108,8 +108,12 @@ def upto(name: str) -> list[Stage]:
 
 
 def default_params() -> dict[str, Any]:
-    """Every stage parameter as ``"stage.param": default``."""
-    return {f"{st.name}.{k}": v for st in stages() for k, v in st.params.items()}
+    """Every parameter as ``"stage.param": default`` (the take stages', then the dataset build's)."""
+    from gazepipe.pipeline.datasets import default_build_params
+
+    out = {f"{st.name}.{k}": v for st in stages() for k, v in st.params.items()}
+    out.update(default_build_params())
+    return out
 
 
 def _ensure_loaded() -> None:

@@ -1,0 +1,91 @@
+"""``gazepipe validate OUT``: QC checks on an output folder, the report files, and the QC gate (exit 3)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from gazepipe.cli.common import handle_errors
+
+EPILOG = """\b
+Exit codes: 0 the gate passed; 2 OUT is not a gazepipe output folder or an option is
+wrong; 3 the QC gate failed (a check at or above --fail-on); 75 a run holds OUT's lock.
+"""
+
+
+def _thresholds(pairs: tuple[str, ...]):
+    import dataclasses
+    import tomllib
+
+    from gazepipe.errors import ConfigError
+    from gazepipe.report.checks import Thresholds
+
+    fields = {f.name: f for f in dataclasses.fields(Thresholds)}
+    values = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(None, f"--threshold {pair}: expected NAME=VALUE with NAME one of {known}")
+        if raw.strip().lower() in ("none", "off"):
+            values[key] = None
+            continue
+        try:
+            v = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            raise ConfigError(None, f"--threshold {pair}: {raw!r} is not a number") from None
+        if not isinstance(v, int | float) or isinstance(v, bool):
+            raise ConfigError(None, f"--threshold {pair}: {raw!r} is not a number")
+        values[key] = v
+    return Thresholds(**values)
+
+
+@click.command("validate", epilog=EPILOG)
+@click.argument("out", type=click.Path(file_okay=False))
+@click.option("--fail-on", type=click.Choice(["warning", "fail"]), default="fail", show_default=True,
+              help="Exit 3 when a check is at this severity or worse (error counts as fail).")
+@click.option("--threshold", "thresholds", multiple=True, metavar="NAME=VALUE",
+              help="Override a check threshold, e.g. --threshold unfilled_warn=0.1 (repeatable; 'none' disables).")
+@click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
+@handle_errors
+def validate(out: str, fail_on: str, thresholds: tuple[str, ...], as_json: bool) -> None:
+    """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and a
+    self-contained OUT/qc/report.html.
+
+    \b
+    Checks per take: stage failures, gap and fill shares, longest gap, fill validation error,
+    unfilled samples, spikes, crop bounds, invalid frames, clap offset/drift/confidence, frames
+    without video, eye gating, camera-rotation residual. Per dataset: schema hash, split
+    disjointness, counts per pose and split, statistics sanity.
+
+    \b
+      gazepipe validate out/
+      gazepipe validate out/ --fail-on warning --threshold unfilled_warn=0.1
+    """
+    import json
+
+    from gazepipe.report.validate import validate_output
+
+    res = validate_output(Path(out), _thresholds(thresholds), fail_on)
+    rep = res.report
+    if as_json:
+        click.echo(json.dumps({"gate": rep["gate"], "summary": rep["summary"],
+                               "files": [str(p) for p in res.paths]}, indent=1))
+    else:
+        s = rep["summary"]
+        counts = ", ".join(f"{n} {k}" for k, n in s["checks"].items() if n)
+        click.echo(f"{s['takes']} take(s), {s['datasets']} dataset(s): {counts}")
+        for r in s["failing"]:
+            if r["severity"] in ("fail", "error"):
+                click.echo(f"  {r['severity']:<7} {r['target']}: {r['id']}: {r['message']}")
+        warn = sum(r["severity"] == "warning" for r in s["failing"])
+        if warn:
+            click.echo(f"  {warn} warning(s): see {res.paths[2]}")
+        click.echo(f"wrote {res.paths[0]}, {res.paths[1].name}, {res.paths[2].name}")
+        click.echo(f"QC gate (--fail-on {fail_on}): " + ("passed" if res.passed else
+                                                         f"FAILED ({len(rep['gate']['hit'])} check(s))"))
+    if not res.passed:
+        sys.exit(3)
