@@ -1,0 +1,416 @@
+"""Quality checks of one take, as pure functions of its unit records and tables (``gazepipe validate``).
+
+Every check returns :class:`Check` results with a severity: ``pass``, ``warning``, ``fail``, ``error`` (the
+check could not be evaluated: an unreadable table, a record without the keys it needs) or ``skipped`` (not
+applicable: the take has no video, no eye tracking, …). Dataset checks are in
+:mod:`gazepipe.report.checks_datasets`.
+
+Thresholds (:class:`Thresholds`; every one is a parameter, stored in ``report.json``):
+
+======================================  ==============  ===========  =============================================
+check                                   warning         fail         measured on
+======================================  ==============  ===========  =============================================
+``stages``                              –               a unit       every unit record of the take (status)
+                                                        failed
+``gap_share``                           > 20 %          –            per marker, share of the take's frames that
+                                                                     were gaps at ingest (worst marker)
+``longest_gap``                         > 1.0 s         –            per marker, longest gap after spike removal
+``fill_error``                          > 10 mm         –            per filled gap, the chosen method's error on
+                                                                     the hidden samples next to the gap
+``unfilled``                            > 5 %           > 30 %       per marker, unfilled share of the kept
+                                                                     (cropped) frames (worst marker)
+``spikes``                              > 1 %           –            per marker, share of samples removed as spikes
+``crop``                                kept < 0.5 s,   –            crop bounds and rests of the clean stage
+                                        a missing rest
+``invalid_frames``                      > 20 %          > 60 %       kept frames without a character frame or
+                                                                     segment rotation (frames stage)
+``clap_confidence``                     < 0.5           –            lowest mocap or video clap confidence
+``clock_drift``                         |drift| >       –            sync: 2+ claps: |ratio − 1|; one clap: drift
+                                        1000 ppm, or                 not measurable on a take longer than 60 s
+                                        one clap and
+                                        take > 60 s
+``clap_residual``                       > 1 frame       –            sync: largest clap-pair misfit (3+ claps)
+``frames_without_video``                > 5 %           > 50 %       sync: mocap frames outside the video
+``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
+``eye_longest_invalid``                 > 1.0 s         –            eyes: longest invalid run after slerp fill
+``camera_residual``                     > 3°            > 10°        eyes: camera-rotation residual angle
+======================================  ==============  ===========  =============================================
+
+``clap_offset`` is reported (value only) and passes whenever the sync stage found a clock map.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gazepipe.model import FILL_CODES
+
+SEVERITIES = ("skipped", "pass", "warning", "fail", "error")
+#: sort rank: failing checks first
+RANK = {"error": 4, "fail": 3, "warning": 2, "pass": 1, "skipped": 0}
+UNFILLED = FILL_CODES["unfilled"]
+MEASURED = FILL_CODES["measured"]
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Severity thresholds of every check (see the table in the module docstring). ``None`` disables one."""
+
+    gap_share_warn: float | None = 0.20
+    longest_gap_warn_s: float | None = 1.0
+    fill_error_warn_mm: float | None = 10.0
+    unfilled_warn: float | None = 0.05
+    unfilled_fail: float | None = 0.30
+    spikes_warn: float | None = 0.01
+    kept_min_s: float | None = 0.5
+    invalid_frames_warn: float | None = 0.20
+    invalid_frames_fail: float | None = 0.60
+    clap_confidence_warn: float | None = 0.5
+    drift_warn_ppm: float | None = 1000.0
+    single_clap_max_video_s: float | None = 60.0
+    clap_residual_warn_frames: float | None = 1.0
+    no_video_warn: float | None = 0.05
+    no_video_fail: float | None = 0.50
+    eye_gated_warn: float | None = 0.30
+    eye_gated_fail: float | None = 0.60
+    eye_longest_invalid_warn_s: float | None = 1.0
+    camera_residual_warn_deg: float | None = 3.0
+    camera_residual_fail_deg: float | None = 10.0
+    stats_sample_rows: int = 20000
+    stats_max_z: float = 6.0
+    stats_seed: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> Thresholds:
+        known = {f.name for f in dataclasses.fields(cls)}
+        bad = sorted(set(values) - known)
+        if bad:
+            raise KeyError(bad[0])
+        return cls(**values)
+
+
+@dataclass
+class Check:
+    """One check's outcome.
+
+    Attributes
+    ----------
+    id : the check's name (``gap_share``, ``split_disjoint`` …).
+    severity : one of :data:`SEVERITIES`.
+    message : one line for people.
+    value : the measured number (or ``None``).
+    threshold : ``{"warning": x, "fail": y}`` as applied (``None`` entries: not used).
+    details : JSON-able facts behind the value (per-marker values, offending takes …).
+    """
+
+    id: str
+    severity: str
+    message: str
+    value: float | int | str | None = None
+    threshold: dict[str, Any] | None = None
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "severity": self.severity, "message": self.message, "value": _clean(self.value),
+                "threshold": self.threshold, "details": _clean(self.details)}
+
+
+def _clean(v: Any) -> Any:
+    """JSON-safe copy: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not np.isfinite(v):
+        return None
+    return v
+
+
+def worst(severities: Sequence[str]) -> str:
+    """The most severe of ``severities`` (``skipped`` for none)."""
+    return max(severities, key=RANK.__getitem__, default="skipped")
+
+
+def grade(value: float, warn: float | None, fail: float | None, *, below: bool = False) -> str:
+    """``fail`` / ``warning`` / ``pass`` for ``value`` above (``below=True``: under) the thresholds."""
+    def hit(t: float | None) -> bool:
+        return t is not None and (value < t if below else value > t)
+    if hit(fail):
+        return "fail"
+    if hit(warn):
+        return "warning"
+    return "pass"
+
+
+def _thr(warn: float | None, fail: float | None = None) -> dict[str, Any]:
+    return {"warning": warn, "fail": fail}
+
+
+def _pct(x: float) -> str:
+    return f"{100.0 * x:.1f} %"
+
+
+def skipped(check_id: str, why: str) -> Check:
+    return Check(check_id, "skipped", f"not applicable: {why}")
+
+
+# ------------------------------------------------------------------------------------------------ stages
+
+def check_stages(records: dict[str, dict[str, Any]]) -> Check:
+    """Every unit of the take ran ok (``records``: stage name → unit record)."""
+    if not records:
+        return Check("stages", "warning", "no stage has run on this take")
+    failed = {s: r.get("error", "") for s, r in records.items() if r.get("status") != "ok"}
+    if failed:
+        first = next(iter(sorted(failed)))
+        return Check("stages", "fail", f"stage {first} failed: {failed[first]}", value=len(failed),
+                     details={"failed": failed, "ran": sorted(records)})
+    return Check("stages", "pass", f"{len(records)} stage(s) ok: {', '.join(sorted(records))}", value=0,
+                 details={"ran": sorted(records)})
+
+
+# ------------------------------------------------------------------------------------------------ markers
+
+def check_gap_share(ingest_qc: dict[str, Any] | None, th: Thresholds) -> Check:
+    """Worst marker's share of frames that were gaps at ingest."""
+    gf = (ingest_qc or {}).get("gap_fraction")
+    if not gf:
+        return skipped("gap_share", "no ingest record with gap shares")
+    worst_m = max(sorted(gf), key=lambda k: gf[k])
+    v = float(gf[worst_m])
+    over = sorted(k for k, x in gf.items() if th.gap_share_warn is not None and x > th.gap_share_warn)
+    sev = grade(v, th.gap_share_warn, None)
+    msg = f"largest gap share {_pct(v)} ({worst_m})"
+    if over:
+        msg += f"; {len(over)} marker(s) above {_pct(th.gap_share_warn)}"
+    return Check("gap_share", sev, msg, value=v, threshold=_thr(th.gap_share_warn),
+                 details={"per_marker": dict(sorted(gf.items())), "over": over})
+
+
+def check_longest_gap(clean_qc: dict[str, Any] | None, th: Thresholds) -> Check:
+    markers = (clean_qc or {}).get("markers")
+    if not markers:
+        return skipped("longest_gap", "no clean record")
+    per = {k: float(v.get("longest_gap_s", 0.0)) for k, v in sorted(markers.items())}
+    worst_m = max(per, key=lambda k: per[k])
+    v = per[worst_m]
+    return Check("longest_gap", grade(v, th.longest_gap_warn_s, None), f"longest gap {v:.2f} s ({worst_m})",
+                 value=v, threshold=_thr(th.longest_gap_warn_s), details={"per_marker_s": per})
+
+
+def check_fill_error(clean_qc: dict[str, Any] | None, th: Thresholds) -> Check:
+    """The chosen method's validation error of every filled gap; the worst one is graded."""
+    if clean_qc is None:
+        return skipped("fill_error", "no clean record")
+    gaps = clean_qc.get("gaps", [])
+    errs = [(g.get("errors_mm", {}).get(g["method"]), g) for g in gaps if g.get("method") not in (None, "unfilled")]
+    errs = [(e, g) for e, g in errs if e is not None and np.isfinite(e)]
+    methods: dict[str, int] = {}
+    for g in gaps:
+        methods[g.get("method", "?")] = methods.get(g.get("method", "?"), 0) + 1
+    if not errs:
+        return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled with a validation error",
+                     details={"gaps_by_method": dict(sorted(methods.items()))})
+    e, g = max(errs, key=lambda eg: eg[0])
+    over = sum(1 for x, _ in errs if th.fill_error_warn_mm is not None and x > th.fill_error_warn_mm)
+    msg = f"worst fill validation error {e:.1f} mm ({g['marker']} frames {g['start']}-{g['stop']}, {g['method']})"
+    if over:
+        msg += f"; {over} gap(s) above {th.fill_error_warn_mm:g} mm"
+    return Check("fill_error", grade(e, th.fill_error_warn_mm, None), msg, value=float(e),
+                 threshold=_thr(th.fill_error_warn_mm),
+                 details={"gaps_by_method": dict(sorted(methods.items())), "over": over,
+                          "median_mm": float(np.median([x for x, _ in errs]))})
+
+
+def fill_shares(fill: np.ndarray, labels: Sequence[str]) -> dict[str, dict[str, float]]:
+    """Per marker, the share of rows of each fill method; ``fill`` (T, M) int8 fill codes."""
+    n = max(fill.shape[0], 1)
+    return {lab: {name: float(np.count_nonzero(fill[:, m] == code)) / n for name, code in FILL_CODES.items()}
+            for m, lab in enumerate(labels)}
+
+
+def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Thresholds) -> Check:
+    """Worst marker's unfilled share of the kept frames (``fill``: (T, M) codes of the ``markers`` table)."""
+    if fill is None:
+        return skipped("unfilled", "no cleaned markers table")
+    if fill.shape[0] == 0:
+        return Check("unfilled", "fail", "the cleaned take kept no frame", value=1.0,
+                     threshold=_thr(th.unfilled_warn, th.unfilled_fail))
+    share = np.count_nonzero(fill == UNFILLED, axis=0) / fill.shape[0]
+    m = int(np.argmax(share))
+    v = float(share[m])
+    per = {lab: float(s) for lab, s in zip(labels, share, strict=True)}
+    filled = float(np.count_nonzero((fill != MEASURED) & (fill != UNFILLED)) / fill.size)
+    return Check("unfilled", grade(v, th.unfilled_warn, th.unfilled_fail),
+                 f"largest unfilled share of kept frames {_pct(v)} ({labels[m]}); {_pct(filled)} of kept samples "
+                 "filled", value=v, threshold=_thr(th.unfilled_warn, th.unfilled_fail),
+                 details={"per_marker": per, "filled_share": filled,
+                          "unfilled_share_all": float(np.count_nonzero(fill == UNFILLED) / fill.size)})
+
+
+def check_spikes(clean_qc: dict[str, Any] | None, frames: int | None, th: Thresholds) -> Check:
+    markers = (clean_qc or {}).get("markers")
+    if not markers or not frames:
+        return skipped("spikes", "no clean record")
+    per = {k: int(v.get("spikes_removed", 0)) for k, v in sorted(markers.items())}
+    worst_m = max(per, key=lambda k: per[k])
+    v = per[worst_m] / frames
+    total = sum(per.values())
+    msg = f"{total} spike sample(s) removed; worst {worst_m} {_pct(v)} of its samples" if total else \
+        "no spike removed"
+    return Check("spikes", grade(v, th.spikes_warn, None), msg, value=v,
+                 threshold=_thr(th.spikes_warn), details={"per_marker": {k: n for k, n in per.items() if n}})
+
+
+def check_crop(clean_qc: dict[str, Any] | None, kind: str, frames: int | None, rate_hz: float | None,
+               th: Thresholds) -> Check:
+    """Crop bounds from rests: long enough, and bounded by the rests the kind needs."""
+    if clean_qc is None or "crop" not in clean_qc:
+        return skipped("crop", "no clean record")
+    a, b = clean_qc["crop"]
+    rests = clean_qc.get("rests", [])
+    kept_s = (b - a) / rate_hz if rate_hz else None
+    problems = []
+    if kind not in ("neutral", "gaze_shift") and frames:
+        if a == 0:
+            problems.append("no leading rest")
+        if b >= frames:
+            problems.append("no trailing rest")
+    if kind == "gaze_shift" and len(rests) > 2:
+        problems.append(f"{len(rests)} rests, cropped between the first two")
+    short = kept_s is not None and th.kept_min_s is not None and kept_s < th.kept_min_s
+    if short:
+        problems.append(f"kept only {kept_s:.2f} s")
+    msg = f"kept frames [{a}, {b})" + (f" = {kept_s:.2f} s" if kept_s is not None else "") + \
+        (f" of {frames}" if frames else "") + f", {len(rests)} rest(s)"
+    if problems:
+        msg += ": " + "; ".join(problems)
+    return Check("crop", "warning" if problems else "pass", msg, value=kept_s,
+                 threshold={"kept_min_s": th.kept_min_s}, details={"crop": [a, b], "rests": rests})
+
+
+def check_invalid_frames(frames_qc: dict[str, Any] | None, kept: int | None, th: Thresholds) -> Check:
+    if frames_qc is None or "invalid_frames" not in frames_qc:
+        return skipped("invalid_frames", "no frames record")
+    n = int(frames_qc["invalid_frames"])
+    v = n / kept if kept else 0.0
+    return Check("invalid_frames", grade(v, th.invalid_frames_warn, th.invalid_frames_fail),
+                 f"{n} of {kept} kept frames ({_pct(v)}) without a full set of segment rotations", value=v,
+                 threshold=_thr(th.invalid_frames_warn, th.invalid_frames_fail))
+
+
+# --------------------------------------------------------------------------------------------------- sync
+
+def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | None, rate_hz: float | None,
+                th: Thresholds) -> list[Check]:
+    """clap_offset, clap_confidence, clock_drift, clap_residual and frames_without_video from the sync QC."""
+    ids = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "frames_without_video")
+    if sync_qc is None:
+        why = "the take has no video" if not has_video else "no sync record"
+        return [skipped(i, why) for i in ids]
+    out: list[Check] = []
+    need = ("offset_s", "ratio", "claps")
+    if any(k not in sync_qc for k in need):
+        missing = [k for k in need if k not in sync_qc]
+        return [Check(i, "error", f"sync record lacks {missing}") for i in ids]
+    off = float(sync_qc["offset_s"])
+    out.append(Check("clap_offset", "pass", f"video starts {off:+.3f} s on the mocap clock (first clap pair)",
+                     value=off))
+    confs = []
+    for c in sync_qc["claps"]:
+        for k in ("mocap_confidence", "video_confidence"):
+            if c.get(k) is not None:
+                confs.append(float(c[k]))
+    unmatched = sum(1 for c in sync_qc["claps"] if c.get("video_s") is None)
+    if confs:
+        v = min(confs)
+        sev = grade(v, th.clap_confidence_warn, None, below=True)
+        msg = f"lowest clap confidence {v:.2f} over {len(sync_qc['claps'])} clap(s)"
+        if unmatched:
+            sev = worst([sev, "warning"])
+            msg += f"; {unmatched} mocap clap(s) without a video clap"
+        out.append(Check("clap_confidence", sev, msg, value=v, threshold=_thr(th.clap_confidence_warn),
+                         details={"claps": sync_qc["claps"]}))
+    else:
+        out.append(Check("clap_confidence", "error", "sync record lists no clap confidence"))
+    n_claps = int(sync_qc.get("n_claps", 1))
+    ppm = float(sync_qc.get("drift_ppm", (float(sync_qc["ratio"]) - 1.0) * 1e6))
+    take_s = frames / rate_hz if frames and rate_hz else None  # the video's own length is not recorded
+    if n_claps < 2:
+        long = take_s is not None and th.single_clap_max_video_s is not None and take_s > th.single_clap_max_video_s
+        msg = "one clap pair: drift not measurable"
+        if take_s is not None:
+            msg += f" (a 0.1 % rate error is {take_s:.1f} ms over this {take_s:.0f} s take)"
+        out.append(Check("clock_drift", "warning" if long else "pass", msg, value=None,
+                         threshold={"single_clap_max_video_s": th.single_clap_max_video_s}))
+    else:
+        drift_ms = sync_qc.get("drift_ms_over_take")
+        msg = f"clock drift {ppm:+.0f} ppm (ratio {float(sync_qc['ratio']):.6f}" + \
+            (f", {float(drift_ms):+.1f} ms over the video)" if drift_ms is not None else ")") + ", corrected"
+        out.append(Check("clock_drift", grade(abs(ppm), th.drift_warn_ppm, None), msg, value=ppm,
+                         threshold=_thr(th.drift_warn_ppm)))
+    if n_claps >= 3 and rate_hz:
+        res_frames = float(sync_qc.get("residual_ms", 0.0)) / 1000.0 * rate_hz
+        out.append(Check("clap_residual", grade(res_frames, th.clap_residual_warn_frames, None),
+                         f"largest clap-pair misfit {float(sync_qc.get('residual_ms', 0.0)):.1f} ms "
+                         f"({res_frames:.2f} mocap frames)", value=res_frames,
+                         threshold=_thr(th.clap_residual_warn_frames)))
+    else:
+        out.append(skipped("clap_residual", f"{n_claps} clap pair(s): the map fits them exactly"))
+    if "frames_without_video" in sync_qc and frames:
+        n = int(sync_qc["frames_without_video"])
+        v = n / frames
+        out.append(Check("frames_without_video", grade(v, th.no_video_warn, th.no_video_fail),
+                         f"{n} of {frames} mocap frames ({_pct(v)}) outside the video", value=v,
+                         threshold=_thr(th.no_video_warn, th.no_video_fail)))
+    else:
+        out.append(skipped("frames_without_video", "sync record has no frame count"))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------- eyes
+
+def eyes_checks(eyes_qc: dict[str, Any] | None, has_eyes: bool, th: Thresholds) -> list[Check]:
+    """eye_gated, eye_longest_invalid and camera_residual from the eyes QC."""
+    ids = ("eye_gated", "eye_longest_invalid", "camera_residual")
+    if eyes_qc is None:
+        why = "the take has no eye tracking" if not has_eyes else "no eyes record"
+        return [skipped(i, why) for i in ids]
+    out: list[Check] = []
+    if "gated_share" in eyes_qc:
+        v = float(eyes_qc["gated_share"])
+        by = eyes_qc.get("gated_by", {})
+        top = ", ".join(f"{k} {_pct(float(x))}" for k, x in sorted(by.items(), key=lambda kv: -kv[1]) if x)
+        out.append(Check("eye_gated", grade(v, th.eye_gated_warn, th.eye_gated_fail),
+                         f"{_pct(v)} of eye samples gated out" + (f" ({top})" if top else ""), value=v,
+                         threshold=_thr(th.eye_gated_warn, th.eye_gated_fail), details={"gated_by": by}))
+    else:
+        out.append(skipped("eye_gated", "eyes record has no gated share"))
+    if "longest_invalid_run_s" in eyes_qc:
+        v = float(eyes_qc["longest_invalid_run_s"])
+        out.append(Check("eye_longest_invalid", grade(v, th.eye_longest_invalid_warn_s, None),
+                         f"longest invalid eye run {v:.2f} s", value=v,
+                         threshold=_thr(th.eye_longest_invalid_warn_s)))
+    else:
+        out.append(skipped("eye_longest_invalid", "eyes record has no invalid runs"))
+    res = eyes_qc.get("camera_residual_deg")
+    if res is None:
+        out.append(skipped("camera_residual", "no camera rotation residual (too few fixation frames)"))
+    else:
+        v = float(res)
+        src = eyes_qc.get("camera_rotation_source", "?")
+        out.append(Check("camera_residual", grade(v, th.camera_residual_warn_deg, th.camera_residual_fail_deg),
+                         f"camera rotation ({src}) residual {v:.2f} deg over "
+                         f"{eyes_qc.get('camera_frames_used', '?')} fixation frames", value=v,
+                         threshold=_thr(th.camera_residual_warn_deg, th.camera_residual_fail_deg)))
+    return out

@@ -1,0 +1,299 @@
+"""Quality checks of the training datasets (``OUT/datasets/<name>/``), pure functions of dataset.json and facts
+gathered from the take files by :mod:`gazepipe.report.collect`.
+
+=====================  =========================================  ===============================================
+check                  warning                                    fail
+=====================  =========================================  ===============================================
+``dataset_read``       –                                          (error) dataset.json, ``_common_metadata`` or a
+                                                                  take file cannot be read
+``schema_hash``        –                                          a file's Arrow schema differs from the one the
+                                                                  code builds from dataset.json's sizes
+``split_disjoint``     –                                          a take has rows in two splits, or its rows'
+                                                                  split differs from dataset.json's
+``counts``             a split is empty                           takes / rows per split and per pose in the
+                                                                  files differ from dataset.json's counts
+``stats_sanity``       a feature's std is 0 (constant)            a mean or std is not finite; the training rows
+                                                                  counted differ; recomputed mean or variance on
+                                                                  a seeded sample of training rows (all rows when
+                                                                  fewer than ``stats_sample_rows``) differs by
+                                                                  more than ``stats_max_z`` standard errors
+``skipped_takes``      takes left out of the build                –
+``split_consistent``   –                                          (output scope) a take in different splits in
+                                                                  two datasets
+=====================  =========================================  ===============================================
+
+Standard errors of the sample checks: mean, σ·√((1 − n/N)/n) with σ the stored std; variance (from n ≥ 30),
+√((m₄ − s⁴)(1 − n/N)/n) with s and m₄ the sample's std and fourth central moment (rows drawn without
+replacement from the N training rows). A full sample (n = N) must match to float rounding (10⁻⁶ relative).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from gazepipe.report.checks import Check, Thresholds, skipped
+
+SPLITS = ("train", "val", "test")
+
+
+def _type_str(t: pa.DataType) -> str:
+    """A type's text without list item names (Parquet stores ``element`` where Arrow says ``item``; Arrow's type
+    equality ignores that name too)."""
+    if pa.types.is_fixed_size_list(t):
+        return f"fixed_size_list<{_type_str(t.value_type)}>[{t.list_size}]"
+    if pa.types.is_list(t) or pa.types.is_large_list(t):
+        return f"{'large_' if pa.types.is_large_list(t) else ''}list<{_type_str(t.value_type)}>"
+    return str(t)
+
+
+def schema_hash(schema: pa.Schema) -> str:
+    """sha256 (first 16 hex digits) of an Arrow schema's fields (name, type, nullability) and its table name and
+    schema version tags; the per-file ``gazepipe.meta`` is left out."""
+    md = schema.metadata or {}
+    parts = [f"{f.name}:{_type_str(f.type)}:{f.nullable}" for f in schema]
+    parts.append(f"table={md.get(b'gazepipe.table', b'').decode()}")
+    parts.append(f"version={md.get(b'gazepipe.schema_version', b'').decode()}")
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+@dataclass
+class FileFacts:
+    """What one take file holds: its path relative to the dataset, identifiers, rows per split, schema hash."""
+
+    path: str
+    subject: str
+    pose: str
+    take: str
+    session: str = ""
+    rows_by_split: dict[str, int] = field(default_factory=dict)
+    schema_hash: str = ""
+    error: str = ""
+
+
+@dataclass
+class StatsSample:
+    """A seeded sample of training rows: per feature column an (n, D) float64 array, the pose of each row,
+    and the number of training rows overall and per pose it was drawn from."""
+
+    columns: dict[str, np.ndarray]
+    pose: np.ndarray
+    n_total: int
+    n_total_by_pose: dict[str, int]
+
+
+def check_schema(expected: pa.Schema | None, common: pa.Schema | None, files: list[FileFacts],
+                 common_error: str = "") -> Check:
+    if expected is None:
+        return Check("schema_hash", "error", "no schema can be built from dataset.json (name or sizes missing)")
+    want = schema_hash(expected)
+    bad: dict[str, str] = {}
+    if common is None:
+        bad["_common_metadata"] = common_error or "missing"
+    elif schema_hash(common) != want:
+        bad["_common_metadata"] = schema_hash(common)
+    for f in files:
+        if f.schema_hash and f.schema_hash != want:
+            bad[f.path] = f.schema_hash
+    details = {"expected": want, "mismatched": bad, "files": len(files)}
+    if bad:
+        first = next(iter(sorted(bad)))
+        return Check("schema_hash", "fail", f"{len(bad)} file(s) differ from the schema in code, e.g. {first}",
+                     value=want, details=details)
+    return Check("schema_hash", "pass", f"_common_metadata and {len(files)} take file(s) match schema {want}",
+                 value=want, details=details)
+
+
+def check_splits(info: dict[str, Any], files: list[FileFacts]) -> Check:
+    """A take's rows all in one split, the one dataset.json lists it under."""
+    listed: dict[str, str] = {}
+    for split, takes in (info.get("splits", {}).get("takes") or {}).items():
+        for t in takes:
+            listed[str(t).split("/")[-1]] = split
+    problems: list[str] = []
+    seen: dict[tuple[str, str], set[str]] = {}
+    for f in files:
+        splits = {s for s, n in f.rows_by_split.items() if n}
+        seen.setdefault((f.subject, f.take), set()).update(splits)
+    for (subject, take), splits in sorted(seen.items()):
+        if len(splits) > 1:
+            problems.append(f"take {take} (subject {subject}) has rows in {sorted(splits)}")
+        elif splits and take in listed and listed[take] not in splits:
+            problems.append(f"take {take}: rows in {sorted(splits)[0]}, dataset.json lists it in {listed[take]}")
+    if problems:
+        return Check("split_disjoint", "fail", problems[0] + (f" (+{len(problems) - 1} more)" if len(problems) > 1
+                                                              else ""), value=len(problems),
+                     details={"problems": problems})
+    per = {s: sum(1 for v in seen.values() if v == {s}) for s in SPLITS}
+    return Check("split_disjoint", "pass", "every take in one split: " + ", ".join(f"{n} {s}" for s, n in per.items()),
+                 value=0, details={"takes_per_split": per})
+
+
+def check_counts(info: dict[str, Any], files: list[FileFacts]) -> Check:
+    counts = info.get("counts", {})
+    by_split = {s: {"takes": 0, "rows": 0} for s in SPLITS}
+    by_pose: dict[str, dict[str, int]] = {}
+    for f in files:
+        rows = sum(f.rows_by_split.values())
+        for s, n in f.rows_by_split.items():
+            if n:
+                by_split.setdefault(s, {"takes": 0, "rows": 0})
+                by_split[s]["takes"] += 1
+                by_split[s]["rows"] += n
+        p = by_pose.setdefault(f.pose, {"takes": 0, "rows": 0})
+        p["takes"] += 1
+        p["rows"] += rows
+    found = {"takes": len(files), "rows": sum(sum(f.rows_by_split.values()) for f in files),
+             "by_split": by_split, "by_pose": dict(sorted(by_pose.items()))}
+    problems = []
+    if counts.get("takes") != found["takes"]:
+        problems.append(f"{found['takes']} take files, dataset.json counts {counts.get('takes')}")
+    if counts.get("rows") != found["rows"]:
+        problems.append(f"{found['rows']} rows in the files, dataset.json counts {counts.get('rows')}")
+    for s in SPLITS:
+        want = (counts.get("by_split") or {}).get(s)
+        if want is not None and (want.get("takes"), want.get("rows")) != (by_split[s]["takes"], by_split[s]["rows"]):
+            problems.append(f"split {s}: files hold {by_split[s]['takes']} takes / {by_split[s]['rows']} rows, "
+                            f"dataset.json {want.get('takes')} / {want.get('rows')}")
+    for p, want in sorted((counts.get("by_pose") or {}).items()):
+        got = by_pose.get(p, {"takes": 0, "rows": 0})
+        if (want.get("takes"), want.get("rows")) != (got["takes"], got["rows"]):
+            problems.append(f"pose {p}: files hold {got['takes']} takes / {got['rows']} rows, dataset.json "
+                            f"{want.get('takes')} / {want.get('rows')}")
+    details = {"found": found, "problems": problems}
+    summary = "; ".join(f"{s} {by_split[s]['takes']} takes / {by_split[s]['rows']} rows" for s in SPLITS)
+    if problems:
+        return Check("counts", "fail", problems[0], value=len(problems), details=details)
+    empty = [s for s in SPLITS if by_split[s]["takes"] == 0]
+    if empty:
+        return Check("counts", "warning", f"empty split(s) {', '.join(empty)}; {summary}", value=0, details=details)
+    return Check("counts", "pass", summary, value=0, details=details)
+
+
+def _stat_arrays(block: dict[str, Any], column: str) -> tuple[np.ndarray, np.ndarray] | None:
+    s = block.get(column)
+    if not isinstance(s, dict) or "mean" not in s or "std" not in s:
+        return None
+    return (np.array([np.nan if x is None else x for x in s["mean"]], dtype=np.float64),
+            np.array([np.nan if x is None else x for x in s["std"]], dtype=np.float64))
+
+
+def _compare(values: np.ndarray, n_total: int, mean: np.ndarray, std: np.ndarray,
+             max_z: float) -> tuple[float, str]:
+    """Largest z of the sample's mean and variance against the stored ones, and which it was."""
+    n = values.shape[0]
+    if n == 0 or values.shape[1] != mean.size:
+        return (float("inf"), f"{values.shape[1]} values per row, statistics have {mean.size}")
+    m = values.mean(axis=0)
+    v = values.var(axis=0)
+    full = n >= n_total
+    slack = 1e-6 * (np.abs(mean) + std) + 1e-9
+    if full:
+        z_m = np.abs(m - mean) / slack
+        z_v = np.abs(v - std**2) / (1e-6 * (std**2 + np.abs(mean) * std) + 1e-12)
+    else:
+        # the stored std sets the mean's standard error (a wrong std is the variance test's business); the
+        # variance's standard error needs the fourth moment, estimated only from 30 rows up
+        fpc = max(1.0 - n / n_total, 0.0)
+        se_m = std * np.sqrt(fpc / n) + slack
+        z_m = np.abs(m - mean) / se_m
+        if n >= 30:
+            m4 = np.mean((values - m) ** 4, axis=0)
+            se_v = np.sqrt(np.maximum(m4 - v**2, 0.0) * fpc / n) + slack * (std + 1e-9)
+            z_v = np.abs(v - std**2) / se_v
+        else:
+            z_v = np.zeros_like(z_m)
+    i_m, i_v = int(np.argmax(z_m)), int(np.argmax(z_v))
+    if z_m[i_m] >= z_v[i_v]:
+        return float(z_m[i_m]), f"mean of element {i_m}: {m[i_m]:.6g} vs {mean[i_m]:.6g}"
+    return float(z_v[i_v]), f"std of element {i_v}: {np.sqrt(v[i_v]):.6g} vs {std[i_v]:.6g}"
+
+
+def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds) -> Check:
+    stats = info.get("stats")
+    if not isinstance(stats, dict) or "overall" not in stats:
+        return Check("stats_sanity", "fail", "dataset.json has no normalisation statistics")
+    columns = list((info.get("features") or {}).keys())
+    blocks = {"overall": stats["overall"], **{f"pose {p}": b for p, b in sorted(stats.get("per_pose", {}).items())}}
+    nonfinite, constant, missing = [], [], []
+    for where, block in blocks.items():
+        for c in columns:
+            arr = _stat_arrays(block, c)
+            if arr is None:
+                missing.append(f"{where} {c}")
+                continue
+            mean, std = arr
+            if not (np.isfinite(mean).all() and np.isfinite(std).all()):
+                nonfinite.append(f"{where} {c}")
+            elif where == "overall" and np.any(std <= 0):
+                constant.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero(std <= 0)[:8])}]")
+    details: dict[str, Any] = {"nonfinite": nonfinite, "constant": constant, "missing": missing}
+    problems = [f"non-finite statistics in {nonfinite[0]}"] if nonfinite else []
+    if missing:
+        problems.append(f"no statistics for {missing[0]}")
+    worst_z = 0.0
+    if sample is not None:
+        rows = stats["overall"].get("rows")
+        details["training_rows"] = sample.n_total
+        details["sample_rows"] = int(sample.pose.size)
+        if rows != sample.n_total:
+            problems.append(f"statistics count {rows} training rows, the files hold {sample.n_total}")
+        worst_what = ""
+        for where, block in blocks.items():
+            pose = None if where == "overall" else where[5:]
+            sel = np.ones(sample.pose.size, bool) if pose is None else sample.pose == pose
+            n_total = sample.n_total if pose is None else sample.n_total_by_pose.get(pose, 0)
+            if pose is not None and block.get("rows") != n_total:
+                problems.append(f"{where}: statistics count {block.get('rows')} training rows, files {n_total}")
+            if not sel.any():
+                continue
+            for c in columns:
+                arr = _stat_arrays(block, c)
+                if arr is None or c not in sample.columns or not np.isfinite(arr[0]).all():
+                    continue
+                z, what = _compare(sample.columns[c][sel], n_total, arr[0], arr[1], th.stats_max_z)
+                if z > worst_z:
+                    worst_z, worst_what = z, f"{where} {c} {what}"
+        details["worst_z"] = worst_z
+        details["worst"] = worst_what
+        if worst_z > th.stats_max_z:
+            problems.append(f"recomputed statistics disagree ({worst_what}, {worst_z:.1f} standard errors)")
+    if problems:
+        return Check("stats_sanity", "fail", problems[0], value=worst_z, threshold={"max_z": th.stats_max_z},
+                     details=details)
+    how = "" if sample is None else f"; recomputed on {sample.pose.size} of {sample.n_total} training rows, " \
+        f"worst {worst_z:.1f} standard errors"
+    if constant:
+        return Check("stats_sanity", "warning", f"constant features (std 0): {', '.join(constant[:4])}{how}",
+                     value=worst_z, threshold={"max_z": th.stats_max_z}, details=details)
+    return Check("stats_sanity", "pass", f"finite, std > 0{how}", value=worst_z,
+                 threshold={"max_z": th.stats_max_z}, details=details)
+
+
+def check_skipped(info: dict[str, Any]) -> Check:
+    sk = info.get("skipped") or []
+    if not sk:
+        return Check("skipped_takes", "pass", "no take left out", value=0)
+    first = sk[0]
+    return Check("skipped_takes", "warning", f"{len(sk)} take(s) left out, e.g. {first.get('take')}: "
+                 f"{first.get('reason')}", value=len(sk), details={"skipped": sk})
+
+
+def check_split_consistency(splits: dict[str, dict[str, str]]) -> Check:
+    """``splits``: dataset name → {take key → split}. A take must be in the same split in every dataset."""
+    if not splits:
+        return skipped("split_consistent", "no dataset")
+    by_take: dict[str, dict[str, str]] = {}
+    for ds, takes in sorted(splits.items()):
+        for t, s in takes.items():
+            by_take.setdefault(t, {})[ds] = s
+    bad = {t: d for t, d in sorted(by_take.items()) if len(set(d.values())) > 1}
+    if bad:
+        t, d = next(iter(bad.items()))
+        return Check("split_consistent", "fail", f"take {t} is in different splits: "
+                     + ", ".join(f"{k} {v}" for k, v in d.items()), value=len(bad), details={"takes": bad})
+    return Check("split_consistent", "pass", f"{len(by_take)} take(s) in the same split in every dataset", value=0)

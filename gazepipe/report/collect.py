@@ -1,0 +1,280 @@
+"""Gather what the report needs from an output folder: unit records, per-take tables, datasets.
+
+Reading goes through :mod:`gazepipe.pipeline.state` (records), :mod:`gazepipe.io.parquet` /
+:mod:`gazepipe.io.datasets` (tables, schema-checked) and :mod:`gazepipe.schemas`. A table that cannot be read is
+not fatal: its error is kept and the checks that need it report ``error``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from gazepipe.errors import ConfigError, GazepipeError
+from gazepipe.io.parquet import read_table
+from gazepipe.model import Markers, MarkerSet
+from gazepipe.pipeline.state import OutLayout, all_records, read_json
+from gazepipe.report.checks import Thresholds
+from gazepipe.report.checks_datasets import FileFacts, StatsSample, schema_hash
+from gazepipe.schemas import expected_schema
+from gazepipe.schemas.base import check_table
+from gazepipe.schemas.joints import list_to_numpy
+from gazepipe.schemas.markers import table_to_markers
+from gazepipe.stages.clean import mean_speed
+
+
+def open_output(out: str | Path) -> OutLayout:
+    """The layout of ``out``; :class:`ConfigError` (exit 2) when it is not a gazepipe output folder."""
+    layout = OutLayout(Path(out))
+    if not layout.root.is_dir():
+        raise ConfigError(out, "not a folder")
+    if not layout.state.is_dir():
+        raise ConfigError(out, "not a gazepipe output folder (no .gazepipe/ inside; run `gazepipe run` first)")
+    return layout
+
+
+# ------------------------------------------------------------------------------------------------- takes
+
+@dataclass
+class TakeEntry:
+    """One take known to the output folder: its settings and its unit records by stage."""
+
+    session: str
+    take: str
+    kind: str = "?"
+    pose: str = "?"
+    has_video: bool = False
+    has_eyes: bool = False
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        return f"{self.session}/{self.take}"
+
+    def qc(self, stage: str) -> dict[str, Any] | None:
+        rec = self.records.get(stage)
+        if rec is None or rec.get("status") != "ok":
+            return None
+        return rec.get("qc") or {}
+
+    def params(self, stage: str) -> dict[str, Any]:
+        return ((self.records.get(stage) or {}).get("components") or {}).get("params") or {}
+
+
+def load_sessions(layout: OutLayout) -> tuple[dict[str, Any], list[str]]:
+    """The sessions the output folder remembers (id → :class:`~gazepipe.model.Session`) and the problems of
+    those that cannot be read now."""
+    from gazepipe.io.session_toml import load_session
+
+    sessions, problems = {}, []
+    for sid, path in sorted((read_json(layout.sessions) or {}).items()):
+        try:
+            sessions[sid] = load_session(path)
+        except GazepipeError as exc:
+            problems.append(f"session {sid}: {exc.one_line()}")
+    return sessions, problems
+
+
+def take_entries(layout: OutLayout, sessions: dict[str, Any]) -> list[TakeEntry]:
+    """Every take with a unit record, plus the takes of the remembered sessions that never ran; sorted."""
+    entries: dict[tuple[str, str], TakeEntry] = {}
+    for rec in all_records(layout):
+        key = (str(rec.get("session")), str(rec.get("take")))
+        e = entries.setdefault(key, TakeEntry(*key))
+        e.records[str(rec.get("stage"))] = rec
+        cfg = (rec.get("components") or {}).get("take") or {}
+        if cfg:
+            e.kind, e.pose = str(cfg.get("kind", e.kind)), str(cfg.get("pose", e.pose))
+            e.has_video, e.has_eyes = bool(cfg.get("video")), bool(cfg.get("eyes"))
+    for sid, s in sessions.items():
+        for t in s.takes:
+            e = entries.setdefault((sid, t.id), TakeEntry(sid, t.id))
+            e.kind, e.pose, e.has_video, e.has_eyes = t.kind, t.pose, bool(t.video), bool(t.eyes)
+    return [entries[k] for k in sorted(entries)]
+
+
+@dataclass
+class TakeTables:
+    """Arrays of one take's tables that the checks and plots use (``None`` where a table is absent)."""
+
+    raw: Markers | None = None
+    fill: np.ndarray | None = None          # (N, M) fill codes of the kept frames
+    fill_labels: list[str] = field(default_factory=list)
+    kept_frames: np.ndarray | None = None   # (N,) rows of the uncropped take
+    eyes: dict[str, np.ndarray] | None = None
+    sync: dict[str, np.ndarray] | None = None
+    errors: dict[str, str] = field(default_factory=dict)
+
+
+def _read(layout: OutLayout, e: TakeEntry, name: str, tables: TakeTables) -> pa.Table | None:
+    path = layout.table(e.session, e.take, name)
+    if not path.exists():
+        return None
+    try:
+        table = read_table(path)
+        schema = expected_schema(name, table)
+        if schema is not None:
+            check_table(table, schema, path=str(path))
+        return table
+    except GazepipeError as exc:
+        tables.errors[name] = exc.one_line()
+    except Exception as exc:  # a table that decodes into nonsense is an error of that table, not of the report
+        tables.errors[name] = f"{path}: {type(exc).__name__}: {exc}"
+    return None
+
+
+def load_take_tables(layout: OutLayout, e: TakeEntry) -> TakeTables:
+    """Read the take's markers_raw, markers, eyes and sync tables (whichever exist)."""
+    out = TakeTables()
+    t = _read(layout, e, "markers_raw", out)
+    if t is not None:
+        out.raw = table_to_markers(t)[0]
+    t = _read(layout, e, "markers", out)
+    if t is not None:
+        m, frames, fill, _ = table_to_markers(t)
+        out.fill, out.fill_labels, out.kept_frames = fill, list(m.labels), frames
+    t = _read(layout, e, "eyes", out)
+    if t is not None:
+        out.eyes = {"time_s": t.column("time_s").to_numpy(), "frame": t.column("frame").to_numpy(),
+                    "valid": t.column("valid").to_numpy(zero_copy_only=False),
+                    "filled": t.column("filled").to_numpy(zero_copy_only=False),
+                    "confidence": t.column("confidence").to_numpy(zero_copy_only=False).astype(np.float64)}
+    t = _read(layout, e, "sync", out)
+    if t is not None:
+        out.sync = {c: t.column(c).to_numpy() for c in t.column_names}
+    return out
+
+
+def speed_trace(raw: Markers, markerset: MarkerSet | None, filter_hz: float | None) -> np.ndarray | None:
+    """Per-frame mean subject-marker speed (mm/s) of the uncropped take, recomputed from the raw markers.
+
+    Like the clean stage: subject markers relative to the mean of the root marker and the root segment's
+    markers, smoothed at ``filter_hz``, central differences. Unlike it, gaps are not filled and spikes not
+    removed (the clean stage does not store its speed), so near gaps the trace can differ slightly.
+    """
+    if markerset is None:
+        return None
+    labels = list(raw.labels)
+    ref = [labels.index(n) for n in (markerset.root, *markerset.root_segment.markers) if n in labels]
+    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
+    if not ref or not subj:
+        return None
+    xyz = np.where(raw.valid[..., None], raw.xyz, np.nan)
+    pos = xyz[:, subj] - xyz[:, ref].mean(axis=1, keepdims=True)
+    valid = np.isfinite(pos).all(axis=2)
+    return mean_speed(np.nan_to_num(pos), valid, raw.rate_hz, filter_hz)
+
+
+# ---------------------------------------------------------------------------------------------- datasets
+
+@dataclass
+class DatasetData:
+    """What the dataset checks and plots need from one dataset folder."""
+
+    name: str
+    info: dict[str, Any] = field(default_factory=dict)
+    expected: pa.Schema | None = None
+    common: pa.Schema | None = None
+    common_error: str = ""
+    files: list[FileFacts] = field(default_factory=list)
+    sample: StatsSample | None = None
+    errors: list[str] = field(default_factory=list)
+    take_splits: dict[str, str] = field(default_factory=dict)
+
+
+def dataset_dirs(layout: OutLayout) -> list[Path]:
+    base = layout.root / "datasets"
+    return sorted(p for p in base.iterdir() if p.is_dir()) if base.is_dir() else []
+
+
+def load_dataset(path: Path, th: Thresholds) -> DatasetData:
+    """Read dataset.json, ``_common_metadata`` and every take file's identifiers; sample the training rows."""
+    from urllib.parse import unquote
+
+    from gazepipe.io.datasets import COMMON_METADATA, read_info
+    from gazepipe.io.datasets import expected_schema as ds_schema
+
+    d = DatasetData(path.name)
+    try:
+        d.info = read_info(path)
+    except GazepipeError as exc:
+        d.errors.append(exc.one_line())
+        return d
+    try:
+        d.expected = ds_schema(d.info)
+    except GazepipeError as exc:
+        d.errors.append(exc.one_line())
+    try:
+        d.common = pq.read_schema(str(path / COMMON_METADATA))
+    except (OSError, pa.ArrowException) as exc:
+        d.common_error = f"{path / COMMON_METADATA}: unreadable ({' '.join(str(exc).split())})"
+    train_parts: list[tuple[str, pa.Table]] = []
+    feature_cols = list((d.info.get("features") or {}).keys())
+    for f in sorted(path.glob("subject=*/pose=*/take=*.parquet")):
+        rel = str(f.relative_to(path))
+        parts = {p.split("=", 1)[0]: unquote(p.split("=", 1)[1]) for p in (f.parent.parent.name, f.parent.name,
+                                                                          f.stem)}
+        facts = FileFacts(rel, parts.get("subject", ""), parts.get("pose", ""), parts.get("take", ""))
+        try:
+            pf = pq.ParquetFile(str(f))
+            facts.schema_hash = schema_hash(pf.schema_arrow)
+            t = pf.read()
+            ident = t.select([c for c in ("split", "session") if c in t.column_names])
+            if "split" in ident.column_names:
+                for s, n in zip(*np.unique(np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str),
+                                           return_counts=True), strict=True):
+                    facts.rows_by_split[str(s)] = int(n)
+            if "session" in ident.column_names and t.num_rows:
+                facts.session = str(ident.column("session")[0].as_py())
+            if facts.rows_by_split.get("train") and all(c in t.column_names for c in feature_cols):
+                train = t.filter(pc.equal(t.column("split"), "train")).select(feature_cols)
+                train_parts.append((facts.pose, train))
+        except (OSError, pa.ArrowException) as exc:
+            facts.error = f"{f}: unreadable ({' '.join(str(exc).split())})"
+            d.errors.append(facts.error)
+        d.files.append(facts)
+        splits = [s for s, n in facts.rows_by_split.items() if n]
+        if len(splits) == 1:
+            d.take_splits[f"{facts.subject}/{facts.take}"] = splits[0]
+    if train_parts:
+        d.sample = _sample(train_parts, feature_cols, th)
+    return d
+
+
+def _values(table: pa.Table, column: str) -> np.ndarray:
+    col = table.column(column)
+    ftype = table.schema.field(column).type
+    if pa.types.is_fixed_size_list(ftype):
+        return list_to_numpy(col, ftype.list_size).astype(np.float64)
+    return col.to_numpy().astype(np.float64).reshape(-1, 1)
+
+
+def _sample(parts: list[tuple[str, pa.Table]], columns: list[str], th: Thresholds) -> StatsSample:
+    """A seeded sample (without replacement) of at most ``th.stats_sample_rows`` training rows."""
+    n_total = sum(t.num_rows for _, t in parts)
+    by_pose: dict[str, int] = {}
+    for p, t in parts:
+        by_pose[p] = by_pose.get(p, 0) + t.num_rows
+    rng = np.random.default_rng(th.stats_seed)
+    k = min(n_total, int(th.stats_sample_rows))
+    chosen = np.sort(rng.choice(n_total, size=k, replace=False)) if k < n_total else np.arange(n_total)
+    starts = np.cumsum([0] + [t.num_rows for _, t in parts])
+    cols: dict[str, list[np.ndarray]] = {c: [] for c in columns}
+    poses: list[np.ndarray] = []
+    for i, (p, t) in enumerate(parts):
+        idx = chosen[(chosen >= starts[i]) & (chosen < starts[i + 1])] - starts[i]
+        if idx.size == 0:
+            continue
+        sub = t.take(pa.array(idx))
+        for c in columns:
+            cols[c].append(_values(sub, c))
+        poses.append(np.full(idx.size, p, dtype=object))
+    return StatsSample(columns={c: np.concatenate(v) for c, v in cols.items() if v},
+                       pose=np.concatenate(poses).astype(str) if poses else np.array([], str),
+                       n_total=n_total, n_total_by_pose=dict(sorted(by_pose.items())))

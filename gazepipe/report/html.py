@@ -1,0 +1,147 @@
+"""``qc/report.html``: one self-contained page (inline CSS and SVG, no script, no external URL) rendered from
+the ``report.json`` object and the plots.
+
+Layout: the gate's verdict; a summary table of takes and datasets, worst first, naming their failing checks; a
+table of every check at warning or worse; then one section per dataset and per take (checks worst first, plots).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from html import escape
+from typing import Any
+
+from gazepipe.report.checks import RANK
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A plot: title, caption and the inline SVG element."""
+
+    title: str
+    caption: str
+    svg: str
+
+
+CSS = """
+body{font-family:'DejaVu Sans',Arial,sans-serif;font-size:13px;margin:20px 28px;color:#222;max-width:1150px}
+h1{font-size:20px;margin:0 0 6px} h2{font-size:16px;margin:28px 0 6px;border-bottom:1px solid #ccc}
+h3{font-size:13px;margin:14px 0 4px}
+table{border-collapse:collapse;margin:6px 0 12px} th,td{border:1px solid #ddd;padding:3px 7px;text-align:left;
+vertical-align:top} th{background:#f4f4f4}
+.sev{display:inline-block;min-width:58px;text-align:center;border-radius:3px;padding:1px 5px;font-weight:bold;
+font-size:11px;color:#fff}
+.sev-error{background:#7b1fa2}.sev-fail{background:#c62828}.sev-warning{background:#ef8f00}
+.sev-pass{background:#2e7d32}.sev-skipped{background:#9e9e9e}
+.gate{padding:8px 12px;border-radius:4px;font-size:15px;font-weight:bold;margin:8px 0 14px;color:#fff}
+.gate-pass{background:#2e7d32}.gate-fail{background:#c62828}
+figure.plot{margin:10px 0 18px} figure.plot figcaption{color:#555;margin:2px 0 4px}
+figure.plot svg{max-width:100%;height:auto}
+.muted{color:#777} td.num{text-align:right;font-variant-numeric:tabular-nums}
+"""
+
+
+def anchor(kind: str, name: str) -> str:
+    return f"{kind}-" + re.sub(r"[^A-Za-z0-9_-]", "-", name)
+
+
+def _sev(s: str) -> str:
+    return f'<span class="sev sev-{escape(s)}">{escape(s)}</span>'
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return escape(str(v))
+
+
+def _checks_table(checks: list[dict[str, Any]]) -> str:
+    rows = ["<table class=\"checks\"><tr><th>severity</th><th>check</th><th>value</th><th>message</th></tr>"]
+    for c in checks:
+        rows.append(f"<tr><td>{_sev(c['severity'])}</td><td>{escape(c['id'])}</td>"
+                    f"<td class=\"num\">{_fmt(c['value'])}</td><td>{escape(c['message'])}</td></tr>")
+    rows.append("</table>")
+    return "\n".join(rows)
+
+
+def _figures(figs: list[Figure]) -> str:
+    out = []
+    for f in figs:
+        out.append(f'<figure class="plot"><h3>{escape(f.title)}</h3><figcaption>{escape(f.caption)}</figcaption>\n'
+                   f"{f.svg}\n</figure>")
+    return "\n".join(out)
+
+
+def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
+                dataset_figs: dict[str, list[Figure]]) -> str:
+    """The page for ``report`` (the report.json object) with the plots of each take (key ``session/take``) and
+    dataset (key: its name)."""
+    gate = report["gate"]
+    summ = report["summary"]
+    p: list[str] = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+                    "<title>gazepipe QC report</title>", f"<style>{CSS}</style></head><body>"]
+    p.append(f"<h1>gazepipe QC report</h1><p class=\"muted\">gazepipe {escape(report['gazepipe_version'])}, "
+             f"report schema {report['schema_version']}; {summ['takes']} take(s), {summ['datasets']} dataset(s)</p>")
+    verdict = "passed" if gate["passed"] else f"failed: {len(gate['hit'])} check(s) at or above {gate['fail_on']}"
+    p.append(f'<div id="gate" class="gate gate-{"pass" if gate["passed"] else "fail"}">QC gate '
+             f"(--fail-on {escape(gate['fail_on'])}) {escape(verdict)}</div>")
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(summ["checks"].items(), key=lambda kv: -RANK[kv[0]]) if n)
+    p.append(f"<p>Checks: {escape(counts)}.</p>")
+
+    # summary: one row per take and dataset, worst first
+    entries = [("dataset", d["name"], "dataset", "", d["severity"], d["checks"]) for d in report["datasets"]]
+    entries += [("take", f"{t['session']}/{t['take']}", t["kind"], t["pose"], t["severity"], t["checks"])
+                for t in report["takes"]]
+    entries.sort(key=lambda e: (-RANK[e[4]], e[0] != "dataset", e[1]))
+    p.append('<h2 id="summary-heading">Summary</h2>')
+    p.append('<table id="summary"><tr><th>severity</th><th>take / dataset</th><th>kind</th><th>pose</th>'
+             "<th>fail</th><th>warning</th><th>checks at warning or worse</th></tr>")
+    for scope, key, kind, pose, sev, checks in entries:
+        bad = [c for c in checks if RANK[c["severity"]] >= RANK["warning"]]
+        nf = sum(c["severity"] in ("fail", "error") for c in checks)
+        nw = sum(c["severity"] == "warning" for c in checks)
+        p.append(f"<tr><td>{_sev(sev)}</td><td><a href=\"#{anchor(scope, key)}\">{escape(key)}</a></td>"
+                 f"<td>{escape(kind)}</td><td>{escape(pose)}</td><td class=\"num\">{nf}</td>"
+                 f"<td class=\"num\">{nw}</td><td>{escape(', '.join(c['id'] for c in bad))}</td></tr>")
+    p.append("</table>")
+
+    failing = summ["failing"]
+    p.append('<h2 id="problems">Checks at warning or worse</h2>')
+    if failing:
+        p.append('<table id="failing"><tr><th>severity</th><th>take / dataset</th><th>check</th><th>message</th></tr>')
+        for r in failing:
+            link = anchor(r["scope"], r["target"]) if r["scope"] != "output" else "output"
+            p.append(f"<tr><td>{_sev(r['severity'])}</td><td><a href=\"#{link}\">{escape(r['target'])}</a></td>"
+                     f"<td>{escape(r['id'])}</td><td>{escape(r['message'])}</td></tr>")
+        p.append("</table>")
+    else:
+        p.append("<p>None.</p>")
+
+    p.append('<h2 id="output">Whole output</h2>')
+    p.append(_checks_table(report["output_checks"]))
+    if report["notes"]:
+        p.append("<ul>" + "".join(f"<li>{escape(n)}</li>" for n in report["notes"]) + "</ul>")
+
+    for d in report["datasets"]:
+        p.append(f"<h2 id=\"{anchor('dataset', d['name'])}\">{_sev(d['severity'])} dataset {escape(d['name'])}</h2>")
+        c = d["counts"] or {}
+        p.append(f"<p>{_fmt(c.get('takes'))} take(s), {_fmt(c.get('rows'))} rows; schema hash "
+                 f"<code>{_fmt(d['schema_hash'])}</code></p>")
+        p.append(_checks_table(d["checks"]))
+        p.append(_figures(dataset_figs.get(d["name"], [])))
+
+    for t in report["takes"]:
+        key = f"{t['session']}/{t['take']}"
+        p.append(f"<h2 id=\"{anchor('take', key)}\">{_sev(t['severity'])} {escape(key)} "
+                 f"<span class=\"muted\">{escape(t['kind'])}, {escape(t['pose'])}</span></h2>")
+        stages = ", ".join(f"{k} {v}" for k, v in t["stages"].items()) or "none ran"
+        p.append(f"<p>Stages: {escape(stages)}</p>")
+        p.append(_checks_table(t["checks"]))
+        p.append(_figures(take_figs.get(key, [])))
+    p.append("<p class=\"muted\">Thresholds: " + escape(", ".join(f"{k} = {v}" for k, v in
+                                                                  sorted(report["thresholds"].items()))) + "</p>")
+    p.append("</body></html>")
+    return "\n".join(p) + "\n"

@@ -1,0 +1,198 @@
+"""The report's pictures, as inline SVG strings (matplotlib, Agg; byte-stable: fixed hash salt, no dates).
+
+Each function returns an SVG element ready to paste into HTML: no XML prologue, no DOCTYPE, no namespace URLs
+(the HTML parser puts ``<svg>`` in the SVG namespace by itself), text kept as text.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from collections.abc import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.ticker import FormatStrFormatter, NullFormatter  # noqa: E402
+
+from gazepipe.model import FILL_CODES  # noqa: E402
+
+#: colours of the fill methods (measured light grey, unfilled red)
+FILL_COLOURS = {"measured": "#eeeeee", "linear": "#1f77b4", "pchip": "#17becf", "rigid": "#2ca02c",
+                "pca": "#9467bd", "unfilled": "#d62728"}
+_STYLE = {"font.size": 8, "axes.titlesize": 9, "axes.labelsize": 8, "legend.fontsize": 7, "svg.fonttype": "none",
+          "font.family": "DejaVu Sans", "axes.spines.top": False, "axes.spines.right": False}
+
+
+def to_svg(fig: plt.Figure, salt: str) -> str:
+    """Render ``fig`` as an inline SVG element and close it. ``salt`` must be unique per figure in a page (it
+    seeds matplotlib's element ids, which share one id space in an HTML document)."""
+    buf = io.StringIO()
+    with plt.rc_context({"svg.hashsalt": salt, **_STYLE}):
+        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None, "Format": None, "Type": None})
+    plt.close(fig)
+    text = buf.getvalue()
+    text = text[text.index("<svg"):]
+    text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text, count=3)
+    text = re.sub(r"<metadata>.*?</metadata>\s*", "", text, flags=re.S)
+    return text.strip()
+
+
+def _fig(w: float, h: float) -> plt.Figure:
+    with plt.rc_context(_STYLE):
+        return plt.figure(figsize=(w, h), dpi=100)
+
+
+def _margins(fig: plt.Figure, left: float = 0.7, right: float = 0.2, bottom: float = 0.45, top: float = 0.3,
+             wspace: float = 0.25) -> None:
+    """Fixed margins in inches (an automatic layout measures every label twice: slow, and not needed here)."""
+    w, h = fig.get_size_inches()
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h, wspace=wspace)
+
+
+def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Sequence[dict],
+                 crop: Sequence[int] | None, raw_valid: np.ndarray | None, salt: str) -> str:
+    """Markers × time, each sample coloured by how it was filled; outside the crop shaded.
+
+    ``gaps``: the clean stage's gap records (marker, start, stop, method); without them (``None`` clean
+    record) the raw gaps are drawn as unfilled.
+    """
+    code = np.full((len(labels), n_frames), FILL_CODES["measured"], dtype=np.int8)
+    row = {lab: i for i, lab in enumerate(labels)}
+    if gaps:
+        for g in gaps:
+            if g.get("marker") in row:
+                code[row[g["marker"]], int(g["start"]):int(g["stop"])] = FILL_CODES.get(g.get("method", "unfilled"),
+                                                                                     FILL_CODES["unfilled"])
+    elif raw_valid is not None:
+        code[~raw_valid.T] = FILL_CODES["unfilled"]
+    names = sorted(FILL_CODES, key=FILL_CODES.__getitem__)
+    cmap = ListedColormap([FILL_COLOURS[n] for n in names])
+    t_end = n_frames / rate_hz
+    fig = _fig(9.0, 1.2 + 0.11 * len(labels))
+    with plt.rc_context(_STYLE):
+        ax = fig.add_subplot(111)
+        ax.imshow(code, aspect="auto", interpolation="nearest", cmap=cmap, vmin=-0.5, vmax=len(names) - 0.5,
+                  extent=(0.0, t_end, len(labels) - 0.5, -0.5))
+        ax.set_yticks(range(len(labels)), labels, fontsize=6)
+        if crop is not None:
+            a, b = crop[0] / rate_hz, crop[1] / rate_hz
+            ax.axvspan(0.0, a, color="black", alpha=0.15, lw=0)
+            ax.axvspan(b, t_end, color="black", alpha=0.15, lw=0)
+            ax.axvline(a, color="black", lw=0.8)
+            ax.axvline(b, color="black", lw=0.8)
+        ax.set_xlabel("time (s)")
+        ax.legend(handles=[Patch(color=FILL_COLOURS[n], label=n) for n in names], ncol=len(names),
+                  loc="lower left", bbox_to_anchor=(0.0, 1.0), frameon=False, borderaxespad=0.2)
+        _margins(fig, left=0.8, top=0.35)
+    return to_svg(fig, salt)
+
+
+def speed_plot(speed: np.ndarray, rate_hz: float, crop: Sequence[int] | None, rests: Sequence[Sequence[int]],
+               threshold: float | None, salt: str) -> str:
+    """Mean subject-marker speed (log scale) with the rest threshold, the rests and the crop bounds."""
+    t = np.arange(speed.size) / rate_hz
+    fig = _fig(9.0, 2.4)
+    with plt.rc_context(_STYLE):
+        ax = fig.add_subplot(111)
+        for a, b in rests:
+            ax.axvspan(a / rate_hz, b / rate_hz, color="#2ca02c", alpha=0.15, lw=0)
+        pos = np.where(speed > 0, speed, np.nan)
+        ax.plot(t, pos, color="#333333", lw=0.8, label="mean marker speed")
+        if threshold is not None:
+            ax.axhline(threshold, color="#2ca02c", lw=0.8, ls="--", label=f"rest threshold {threshold:g} mm/s")
+        if crop is not None:
+            for i, f in enumerate(crop):
+                ax.axvline(f / rate_hz, color="#d62728", lw=1.0, label="crop bounds" if i == 0 else None)
+        if np.isfinite(pos).any():
+            ax.set_yscale("log")
+            ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))  # plain numbers: mathtext is slow
+            ax.yaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlim(0, max(t[-1] if t.size else 1.0, 1e-3))
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("mm/s")
+        ax.set_title("speed, rests (green) and crop")
+        ax.legend(loc="upper right", frameon=False)
+        _margins(fig)
+    return to_svg(fig, salt)
+
+
+def clap_plot(distance: np.ndarray, rate_hz: float, mocap_s: Sequence[float], video_on_mocap_s: Sequence[float | None],
+              salt: str, half_window_s: float = 1.0) -> str:
+    """Clapper distance around each clap, with the mocap clap and the video clap mapped onto the mocap clock."""
+    n = max(len(mocap_s), 1)
+    fig = _fig(min(3.0 * n, 9.0) + 0.6, 2.4)
+    t = np.arange(distance.size) / rate_hz
+    with plt.rc_context(_STYLE):
+        for i, (tm, tv) in enumerate(zip(mocap_s, video_on_mocap_s, strict=True)):
+            ax = fig.add_subplot(1, n, i + 1)
+            sel = (t >= tm - half_window_s) & (t <= tm + half_window_s)
+            ax.plot(t[sel] - tm, distance[sel], color="#333333", lw=0.9, marker=".", ms=2)
+            ax.axvline(0.0, color="#1f77b4", lw=1.0, label="mocap clap")
+            if tv is not None:
+                ax.axvline(tv - tm, color="#ff7f0e", lw=1.0, ls="--",
+                           label=f"video clap ({1000 * (tv - tm):+.1f} ms)")
+            ax.set_title(f"clap {i + 1} at {tm:.2f} s")
+            ax.set_xlabel("time from mocap clap (s)")
+            if i == 0:
+                ax.set_ylabel("clapper distance (mm)")
+            ax.legend(loc="upper right", frameon=False)
+        _margins(fig)
+    return to_svg(fig, salt)
+
+
+def eye_plot(time_s: np.ndarray, confidence: np.ndarray, valid: np.ndarray, filled: np.ndarray,
+             gate: float | None, salt: str) -> str:
+    """Eye-tracking confidence on the mocap frames, the gate, invalid frames shaded, filled frames marked."""
+    fig = _fig(9.0, 2.2)
+    with plt.rc_context(_STYLE):
+        ax = fig.add_subplot(111)
+        bad = ~np.asarray(valid, bool)
+        if bad.any():
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+            dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 0.0
+            for a, b in zip(edges[0::2], edges[1::2], strict=True):
+                ax.axvspan(time_s[a], time_s[b - 1] + dt, color="#d62728", alpha=0.15, lw=0)
+        ax.plot(time_s, confidence, color="#333333", lw=0.7, label="confidence")
+        f = np.asarray(filled, bool)
+        if f.any():
+            ax.plot(time_s[f], confidence[f], ls="none", marker="|", color="#1f77b4", ms=4, label="slerp-filled")
+        if gate is not None:
+            ax.axhline(gate, color="#ff7f0e", lw=0.9, ls="--", label=f"gate {gate:g}")
+        ax.set_ylim(-0.02, 1.02)
+        ax.set_xlabel("time (s)")
+        ax.set_title("eye confidence (red: invalid frames)")
+        ax.legend(loc="lower right", frameon=False, ncol=3)
+        _margins(fig)
+    return to_svg(fig, salt)
+
+
+def feature_plot(values: np.ndarray, poses: np.ndarray, names: Sequence[str], title: str, salt: str) -> str:
+    """Per feature element, the median and the 5–95 % band of each pose's sampled training rows."""
+    pose_list = sorted(set(poses.tolist()))
+    d = values.shape[1]
+    fig = _fig(9.0, 2.6)
+    colours = plt.get_cmap("tab10")
+    x = np.arange(d)
+    with plt.rc_context(_STYLE):
+        ax = fig.add_subplot(111)
+        for i, p in enumerate(pose_list):
+            v = values[poses == p]
+            lo, med, hi = np.nanpercentile(v, [5, 50, 95], axis=0)
+            off = (i - (len(pose_list) - 1) / 2) * 0.8 / max(len(pose_list), 1)
+            ax.vlines(x + off, lo, hi, color=colours(i % 10), lw=2.0, alpha=0.5)
+            ax.plot(x + off, med, ls="none", marker="_", ms=6, color=colours(i % 10),
+                    label=f"{p} ({v.shape[0]} rows)")
+        if d <= 24:
+            ax.set_xticks(x, [str(n) for n in names], rotation=60, ha="right", fontsize=6)
+        else:
+            ax.set_xlabel("feature element (order of dataset.json)")
+        ax.set_title(title)
+        ax.legend(loc="upper right", frameon=False, ncol=min(len(pose_list), 4))
+        _margins(fig, bottom=0.9 if d <= 24 else 0.45)
+    return to_svg(fig, salt)

@@ -1,0 +1,379 @@
+"""`gazepipe validate`: checks and severities, report.json against its schema, takes.parquet, the HTML page
+(self-contained, rendered by headless Chromium), the QC gate's exit codes, byte-identical reruns."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from click.testing import CliRunner
+
+from gazepipe.cli.main import cli
+from gazepipe.cli.validate import validate
+from gazepipe.io.session_toml import load_session
+from gazepipe.report import checks as C
+from gazepipe.report import checks_datasets as D
+from gazepipe.report.schema import REPORT_SCHEMA_VERSION, validate_report
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_data" / "session01"
+CHROMIUM = Path("/usr/bin/chromium")
+
+# a slice of the sample session: the neutral take, one gaze_follow take, three gaze_shift takes (one pinned to
+# train and one to val so that the gaze_map dataset built below has both splits whatever the hash says)
+TAKES = {"neutral": None, "follow_sitting_01": None, "shift_y036_p12": "train", "shift_ym036_p00": "val",
+         "shift_y072_p00": None}
+
+
+def _session_copy(dest: Path, takes: dict[str, str | None]) -> Path:
+    """A session folder with the chosen takes of the sample session (same files, same markerset)."""
+    src = load_session(SAMPLE)
+    (dest / "mocap").mkdir(parents=True)
+    shutil.copy(Path(src.root) / "markerset.toml", dest / "markerset.toml")
+    lines = ['schema = 1', '[session]', f'id = "{src.id}"', f'subject = "{src.subject}"',
+             'markerset = "markerset.toml"', '']
+    for t in src.takes:
+        if t.id not in takes:
+            continue
+        shutil.copy(t.mocap, dest / "mocap" / Path(t.mocap).name)
+        lines += ['[[takes]]', f'id = "{t.id}"', f'kind = "{t.kind}"', f'pose = "{t.pose}"',
+                  f'mocap = "mocap/{Path(t.mocap).name}"']
+        if t.target_yaw_deg is not None:
+            lines.append(f"target = {{ yaw_deg = {t.target_yaw_deg}, pitch_deg = {t.target_pitch_deg} }}")
+        if takes[t.id]:
+            lines.append(f'split = "{takes[t.id]}"')
+        lines.append("")
+    (dest / "session.toml").write_text("\n".join(lines))
+    return dest
+
+
+def _run(session: Path, out: Path) -> None:
+    res = CliRunner().invoke(cli, ["clean", str(session), "--out", str(out), "--executor", "serial",
+                                   "--log-format", "json"])
+    assert res.exit_code in (0, 1), res.output
+
+
+@pytest.fixture(scope="module")
+def clean_out(tmp_path_factory) -> Path:
+    """The pipeline's output for the sample slice (ingest, clean, frames)."""
+    root = tmp_path_factory.mktemp("report_clean")
+    out = root / "out"
+    _run(_session_copy(root / "session", TAKES), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def broken_out(tmp_path_factory) -> Path:
+    """Two good takes and one whose C3D file is cut in half."""
+    root = tmp_path_factory.mktemp("report_broken")
+    session = _session_copy(root / "session", {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": None})
+    c3d = session / "mocap" / "shift_y036_p12.c3d"
+    data = c3d.read_bytes()
+    c3d.write_bytes(data[: len(data) // 2])
+    out = root / "out"
+    _run(session, out)
+    return out
+
+
+def _validate(out: Path, *args: str):
+    return CliRunner().invoke(validate, [str(out), *args])
+
+
+def _report(out: Path) -> dict:
+    return json.loads((out / "qc" / "report.json").read_text())
+
+
+# ----------------------------------------------------------------------------------------------- the gate
+
+def test_clean_sample_passes_fail_gate_and_report_is_valid(clean_out: Path) -> None:
+    res = _validate(clean_out, "--fail-on", "fail")
+    assert res.exit_code == 0, res.output
+    rep = _report(clean_out)
+    assert validate_report(rep) == []
+    assert rep["schema_version"] == REPORT_SCHEMA_VERSION
+    assert rep["gate"] == {"fail_on": "fail", "passed": True, "hit": []}
+    assert sorted(t["take"] for t in rep["takes"]) == sorted(TAKES)
+    for t in rep["takes"]:
+        assert t["stages"], t["take"]
+        assert all(v == "ok" for v in t["stages"].values())
+        assert t["severity"] in ("pass", "warning")
+        sevs = [C.RANK[c["severity"]] for c in t["checks"]]
+        assert sevs == sorted(sevs, reverse=True), "checks must be listed worst first"
+    # the sample has no video and no eye tracking: those checks are not applicable, not passed
+    follow = next(t for t in rep["takes"] if t["take"] == "follow_sitting_01")
+    by_id = {c["id"]: c for c in follow["checks"]}
+    for cid in ("clap_confidence", "clock_drift", "frames_without_video", "eye_gated", "camera_residual"):
+        assert by_id[cid]["severity"] == "skipped"
+    assert rep["thresholds"]["unfilled_warn"] == C.Thresholds().unfilled_warn
+
+
+def test_validation_report_is_not_a_schema_rubber_stamp() -> None:
+    rep = {"schema": "gazepipe.qc_report", "schema_version": REPORT_SCHEMA_VERSION}
+    problems = validate_report(rep)
+    assert any("missing 'takes'" in p for p in problems)
+    bad_check = {"id": "x", "severity": "awful", "message": "", "value": None, "threshold": None, "details": {}}
+    assert validate_report([bad_check], {"type": "array", "items": json.loads(json.dumps(
+        __import__("gazepipe.report.schema", fromlist=["_CHECK"])._CHECK))})
+
+
+def test_thresholds_drive_the_gate(clean_out: Path) -> None:
+    # any gap at all is a warning with a zero threshold: --fail-on warning now fails, --fail-on fail does not
+    assert _validate(clean_out, "--fail-on", "warning", "--threshold", "gap_share_warn=0").exit_code == 3
+    assert _validate(clean_out, "--fail-on", "fail", "--threshold", "gap_share_warn=0").exit_code == 0
+    rep = _report(clean_out)
+    assert rep["thresholds"]["gap_share_warn"] == 0
+    assert all(any(c["id"] == "gap_share" and c["severity"] == "warning" for c in t["checks"])
+               for t in rep["takes"])
+    # a fail threshold below every take's unfilled share makes a take fail
+    res = _validate(clean_out, "--threshold", "unfilled_warn=0", "--threshold", "unfilled_fail=0.0")
+    assert res.exit_code == 3
+    assert "unfilled" in res.output
+    bad = _validate(clean_out, "--threshold", "no_such=1")
+    assert bad.exit_code == 2 and "no_such" in bad.output
+
+
+def test_broken_take_fails_the_gate_and_is_named(broken_out: Path) -> None:
+    res = _validate(broken_out, "--fail-on", "fail")
+    assert res.exit_code == 3, res.output
+    assert "shift_y036_p12" in res.output
+    rep = _report(broken_out)
+    assert validate_report(rep) == []
+    assert not rep["gate"]["passed"]
+    hit = {(h["target"], h["id"]) for h in rep["gate"]["hit"]}
+    assert ("session01/shift_y036_p12", "stages") in hit
+    assert all(h["target"] == "session01/shift_y036_p12" for h in rep["gate"]["hit"])
+    broken = next(t for t in rep["takes"] if t["take"] == "shift_y036_p12")
+    assert broken["severity"] == "fail" and broken["stages"]["ingest"] == "failed"
+    assert rep["summary"]["failing"][0]["target"] == "session01/shift_y036_p12"
+    html = (broken_out / "qc" / "report.html").read_text()
+    summary = html[html.index('id="summary"'):]
+    assert summary.index("shift_y036_p12") < summary.index("shift_ym036_p00"), "failing takes first"
+
+
+def test_not_an_output_folder_is_a_usage_error(tmp_path: Path) -> None:
+    res = CliRunner().invoke(validate, [str(tmp_path)])
+    assert res.exit_code == 2
+    assert "not a gazepipe output folder" in res.output and str(tmp_path) in res.output
+
+
+# ------------------------------------------------------------------------------------------ the files
+
+def test_takes_parquet_matches_the_tables(clean_out: Path) -> None:
+    assert _validate(clean_out).exit_code == 0
+    takes = pd.read_parquet(clean_out / "qc" / "takes.parquet")
+    assert sorted(takes["take"]) == sorted(TAKES)
+    for take in ("follow_sitting_01", "shift_y036_p12"):
+        row = takes.set_index("take").loc[take]
+        # unfilled share of kept frames, worst marker, recomputed here from the cleaned markers table
+        m = pd.read_parquet(clean_out / "takes" / "session01" / take / "markers.parquet")
+        share = (m["fill"].astype(str) == "unfilled").groupby(m["marker"].astype(str), observed=True).mean()
+        assert row["unfilled_share_max"] == pytest.approx(share.max(), abs=1e-12)
+        filled = (~m["fill"].astype(str).isin(["measured", "unfilled"])).mean()
+        assert row["filled_share"] == pytest.approx(filled, abs=1e-12)
+        clean = json.loads((clean_out / ".gazepipe" / "units" / "session01" / take / "clean.json").read_text())
+        assert [row["crop_start"], row["crop_stop"]] == clean["qc"]["crop"]
+        assert row["kept_frames"] == m["frame"].nunique()
+    assert (takes["n_fail"] == 0).all()
+
+
+def test_report_is_byte_identical_on_a_second_run(clean_out: Path) -> None:
+    assert _validate(clean_out).exit_code == 0
+    first = {n: (clean_out / "qc" / n).read_bytes() for n in ("report.json", "takes.parquet", "report.html")}
+    assert _validate(clean_out).exit_code == 0
+    for n, data in first.items():
+        assert (clean_out / "qc" / n).read_bytes() == data, n
+
+
+def test_html_is_self_contained(clean_out: Path) -> None:
+    assert _validate(clean_out).exit_code == 0
+    html = (clean_out / "qc" / "report.html").read_text()
+    assert "http" not in html and "<script" not in html and "<link" not in html
+    assert html.count('id="summary"') == 1
+    # every take with markers has a gap timeline and a speed trace (no video, no eyes in the sample)
+    assert html.count("<svg") == 2 * len(TAKES)
+    for take in TAKES:
+        assert f'id="take-session01-{take}"' in html
+
+
+def _chromium(args: list[str], tmp: Path) -> subprocess.CompletedProcess:
+    base = [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp / 'profile'}"]
+    return subprocess.run(base + args, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "HOME": str(tmp)})
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Chromium not installed here (/usr/bin/chromium; "
+                    "apt-get install chromium): CI installs it")
+def test_chromium_renders_summary_and_plots(clean_out: Path, tmp_path: Path) -> None:
+    assert _validate(clean_out).exit_code == 0
+    url = (clean_out / "qc" / "report.html").resolve().as_uri()
+    dom = _chromium(["--dump-dom", url], tmp_path)
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    html = dom.stdout
+    assert 'id="summary"' in html and 'id="gate"' in html
+    summary = html[html.index('id="summary"'):html.index("</table>", html.index('id="summary"'))]
+    assert summary.count("<tr>") == 1 + len(TAKES)
+    assert html.count("<svg") == 2 * len(TAKES)
+    shot = tmp_path / "shot.png"
+    res = _chromium([f"--screenshot={shot}", "--window-size=1200,2400", url], tmp_path)
+    assert res.returncode == 0 and shot.exists(), res.stderr[-2000:]
+    from PIL import Image
+
+    img = np.asarray(Image.open(shot).convert("L"), dtype=np.float64)
+    assert img.shape == (2400, 1200)
+    assert img.std() > 20, "the page rendered blank"
+
+
+# ------------------------------------------------------------------------------------------------ datasets
+
+@pytest.fixture(scope="module")
+def dataset_out(clean_out: Path, tmp_path_factory) -> Path:
+    """The clean output plus a gaze_map dataset built from its joints and rests (the build stage's code)."""
+    build = pytest.importorskip("gazepipe.stages.build")
+    io_ds = pytest.importorskip("gazepipe.io.datasets")
+    out = tmp_path_factory.mktemp("report_ds") / "out"
+    shutil.copytree(clean_out, out)
+    shutil.rmtree(out / "qc", ignore_errors=True)
+    session = load_session(json.loads((out / ".gazepipe" / "sessions.json").read_text())["session01"])
+    takes = []
+    for t in session.takes:
+        if t.kind != "gaze_shift":
+            continue
+        rec = json.loads((out / ".gazepipe" / "units" / "session01" / t.id / "clean.json").read_text())
+        joints = pq.read_table(out / "takes" / "session01" / t.id / "joints.parquet")
+        takes.append(build.TakeTables(session="session01", subject=session.subject, take=t, joints=joints,
+                                      markerset=session.markerset, meta={"rests": rec["qc"]["rests"]}))
+    built = build.build_dataset("gaze_map", takes)
+    io_ds.write_dataset(built, out / "datasets")
+    return out
+
+
+def _ds_checks(out: Path, *args: str) -> dict[str, dict]:
+    _validate(out, *args)
+    rep = _report(out)
+    assert validate_report(rep) == []
+    (ds,) = rep["datasets"]
+    return {c["id"]: c for c in ds["checks"]}
+
+
+def test_dataset_checks_pass_on_a_built_dataset(dataset_out: Path) -> None:
+    for rows in ("20000", "1"):   # all training rows, and a one-row sample
+        checks = _ds_checks(dataset_out, "--threshold", f"stats_sample_rows={rows}")
+        for cid in ("dataset_read", "schema_hash", "split_disjoint", "counts", "stats_sanity"):
+            assert checks[cid]["severity"] in ("pass", "warning"), (cid, checks[cid])
+        assert checks["stats_sanity"]["severity"] != "fail"
+    assert checks["stats_sanity"]["details"]["sample_rows"] == 1
+    assert checks["split_disjoint"]["details"]["takes_per_split"]["train"] >= 1
+    html = (dataset_out / "qc" / "report.html").read_text()
+    assert 'id="dataset-gaze_map"' in html and "gaze_map: p_plus per pose" in html
+
+
+def _corrupt_copy(src: Path, dest: Path) -> Path:
+    shutil.copytree(src, dest)
+    return dest / "datasets" / "gaze_map"
+
+
+def test_dataset_checks_catch_bad_statistics_split_and_schema(dataset_out: Path, tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    ds = _corrupt_copy(dataset_out, tmp_path / "a")
+    info = json.loads((ds / "dataset.json").read_text())
+    std = info["stats"]["overall"]["yaw_deg"]["std"][0]
+    info["stats"]["overall"]["yaw_deg"]["mean"][0] += 10 * std + 1.0
+    (ds / "dataset.json").write_text(json.dumps(info))
+    checks = _ds_checks(ds.parents[1], "--fail-on", "fail")
+    assert checks["stats_sanity"]["severity"] == "fail"
+    assert "yaw_deg" in checks["stats_sanity"]["message"]
+
+    ds = _corrupt_copy(dataset_out, tmp_path / "b")
+    rel = sorted(p.relative_to(ds) for p in ds.glob("subject=*/pose=*/take=*.parquet"))[0]
+    t = pq.read_table(ds / rel)
+    split = t.column("split").to_pylist()
+    other = "test" if split[0] != "test" else "val"
+    t = t.set_column(t.schema.get_field_index("split"), t.schema.field("split"),
+                     pa.array([split[0]] + [other] * (len(split) - 1), pa.string()))
+    pq.write_table(t, ds / rel)
+    checks = _ds_checks(ds.parents[1])
+    assert checks["split_disjoint"]["severity"] == "fail"
+    assert checks["counts"]["severity"] == "fail"
+
+    ds = _corrupt_copy(dataset_out, tmp_path / "c")
+    t = pq.read_table(ds / rel)
+    i = t.schema.get_field_index("yaw_deg")
+    t = t.set_column(i, pa.field("yaw_deg", pa.float64(), nullable=False), t.column(i).cast(pa.float64()))
+    pq.write_table(t, ds / rel)
+    checks = _ds_checks(ds.parents[1])
+    assert checks["schema_hash"]["severity"] == "fail"
+    assert list(checks["schema_hash"]["details"]["mismatched"]) == [str(rel)]
+
+
+# ----------------------------------------------------------------------------------------- pure checks
+
+def test_unfilled_share_and_grading() -> None:
+    th = C.Thresholds()
+    fill = np.zeros((100, 3), np.int8)
+    fill[:4, 0] = C.UNFILLED            # 4 %: below the warning
+    fill[:10, 1] = C.UNFILLED           # 10 %: a warning
+    fill[50:52, 2] = 1                  # linear-filled samples
+    c = C.check_unfilled(fill, ["a", "b", "c"], th)
+    assert c.severity == "warning" and c.value == pytest.approx(0.10)
+    assert c.details["per_marker"]["a"] == pytest.approx(0.04)
+    assert c.details["filled_share"] == pytest.approx(2 / 300)
+    fill[:40, 2] = C.UNFILLED           # 40 %: a failure
+    assert C.check_unfilled(fill, ["a", "b", "c"], th).severity == "fail"
+    assert C.grade(0.3, 0.3, None) == "pass" and C.grade(0.31, 0.3, 0.6) == "warning"
+    assert C.grade(0.4, 0.5, None, below=True) == "warning"
+
+
+def test_sync_and_eye_checks_read_their_stage_records() -> None:
+    th = C.Thresholds()
+    sync = {"offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0015, "drift_ppm": 1500.0,
+            "drift_ms_over_take": 90.0, "n_claps": 2, "residual_ms": 0.0,
+            "claps": [{"mocap_s": 2.0, "mocap_confidence": 0.9, "video_s": 0.75, "video_confidence": 0.3},
+                      {"mocap_s": 60.0, "mocap_confidence": 0.8, "video_s": 58.66, "video_confidence": 0.9}],
+            "frames_without_video": 300, "frames_decoded": 120, "video_frames": 3600}
+    got = {c.id: c for c in C.sync_checks(sync, True, 1800, 30.0, th)}
+    assert got["clap_offset"].value == 1.25
+    assert got["clap_confidence"].severity == "warning" and got["clap_confidence"].value == 0.3
+    assert got["clock_drift"].severity == "warning"          # 1500 ppm > 1000 ppm
+    assert got["clap_residual"].severity == "skipped"        # two claps fit exactly
+    assert got["frames_without_video"].severity == "warning" and got["frames_without_video"].value == \
+        pytest.approx(300 / 1800)
+    assert all(c.severity == "skipped" for c in C.sync_checks(None, False, 1800, 30.0, th))
+    assert all(c.severity == "error" for c in C.sync_checks({"claps": []}, True, 1800, 30.0, th))
+
+    eyes = {"gated_share": 0.65, "gated_by": {"confidence": 0.5, "blink": 0.15}, "longest_invalid_run_s": 0.4,
+            "camera_residual_deg": 3.5, "camera_rotation_source": "estimated", "camera_frames_used": 200}
+    got = {c.id: c for c in C.eyes_checks(eyes, True, th)}
+    assert got["eye_gated"].severity == "fail"
+    assert got["eye_longest_invalid"].severity == "pass"
+    assert got["camera_residual"].severity == "warning"
+    eyes["camera_residual_deg"] = None
+    assert {c.id: c for c in C.eyes_checks(eyes, True, th)}["camera_residual"].severity == "skipped"
+
+
+def test_stats_recomputation_detects_a_biased_mean() -> None:
+    rng = np.random.default_rng(3)
+    n_total = 5000
+    x = rng.normal(2.0, 3.0, (n_total, 4))
+    info = {"features": {"f": ["a", "b", "c", "d"]},
+            "stats": {"overall": {"rows": n_total, "f": {"mean": x.mean(0).tolist(), "std": x.std(0).tolist()}},
+                      "per_pose": {}}}
+    th = C.Thresholds()
+    idx = np.sort(rng.choice(n_total, 500, replace=False))
+    sample = D.StatsSample({"f": x[idx]}, np.array(["standing"] * 500), n_total, {"standing": n_total})
+    assert D.check_stats(info, sample, th).severity == "pass"
+    full = D.StatsSample({"f": x}, np.array(["standing"] * n_total), n_total, {"standing": n_total})
+    assert D.check_stats(info, full, th).severity == "pass"
+    info["stats"]["overall"]["f"]["mean"][2] += 1.5      # half a std: ~12 standard errors at n = 500
+    assert D.check_stats(info, sample, th).severity == "fail"
+    assert D.check_stats(info, full, th).severity == "fail"
+    info["stats"]["overall"]["f"]["mean"][2] = float("nan")
+    assert D.check_stats(info, None, th).severity == "fail"
