@@ -36,6 +36,8 @@ from gazepipe.stages.gapfill_methods import fit_pca, interp_fill, pca_fill, rigi
 METHODS = ("rigid", "pca", "pchip", "linear")
 #: measured frames kept between a hidden validation stretch and the gap, so interpolation has anchors
 _SEPARATION = 2
+#: hidden validation stretches on each side of an interior gap (two measured no better than one)
+_WINDOWS_PER_SIDE = 1
 #: standard gravity, mm/s²
 G_MM_S2 = 9806.65
 
@@ -113,9 +115,13 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
             if lp >= 1:
                 wins.append((s - lp, s))
         else:
-            lp = min(length, s - r0 - _SEPARATION - 1)
-            if lp >= 1:
-                wins.append((s - _SEPARATION - lp, s - _SEPARATION))
+            stop = s - _SEPARATION
+            for _ in range(_WINDOWS_PER_SIDE):
+                lp = min(length, stop - r0 - 1)
+                if lp < 1:
+                    break
+                wins.append((stop - lp, stop))
+                stop -= lp + _SEPARATION
     if e < n_t:
         after = np.flatnonzero(~valid_m[e:])
         r1 = int(after[0]) + e if after.size else n_t
@@ -124,9 +130,13 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
             if lp >= 1:
                 wins.append((e, e + lp))
         else:
-            lp = min(length, r1 - e - _SEPARATION - 1)
-            if lp >= 1:
-                wins.append((e + _SEPARATION, e + _SEPARATION + lp))
+            start = e + _SEPARATION
+            for _ in range(_WINDOWS_PER_SIDE):
+                lp = min(length, r1 - start - 1)
+                if lp < 1:
+                    break
+                wins.append((start, start + lp))
+                start += lp + _SEPARATION
     return wins
 
 
