@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -19,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gazepipe.errors import InputError
+from gazepipe.io.c3d import MetaError, parse_c3d_meta
 from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
 
@@ -35,6 +37,7 @@ CHILD_TIMEOUT_S = 60
 _CHILD = r"""
 import json, sys
 from gazepipe.errors import InputError
+from gazepipe.io.c3d import MetaError, parse_c3d_meta
 from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
 for p in sys.argv[1:]:
@@ -188,3 +191,63 @@ def test_fuzz_text_exports(tmp_path_factory, case):
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
+
+
+def _records(data: bytes):
+    """(start, name_end, group id, name) of every record of an Intel file's parameter section."""
+    p = (data[0] - 1) * 512 + 4
+    out = []
+    while True:
+        nlen, gid = struct.unpack_from("bb", data, p)
+        if nlen == 0:
+            break
+        ne = p + 2 + abs(nlen)
+        out.append((p, ne, gid, data[p + 2: ne].decode()))
+        off = struct.unpack_from("<h", data, ne)[0]
+        if off == 0:
+            break
+        p = ne + off
+    return out
+
+
+def test_files_that_crash_ezc3d_are_kept_from_it(tmp_path):
+    """Mutations that made ezc3d 1.7.2 crash (SIGSEGV) or hang: the reader must not hand them to it."""
+    src = (CORPUS / "Eb015pi.c3d").read_bytes()
+    recs = _records(src)
+    gid = {name: -g for _, _, g, name in recs if g < 0}
+    find = {(g, name): (p, ne) for p, ne, g, name in recs if g > 0}
+    cases = {}
+    p, ne = find[(gid["ANALOG"], "SCALE")]
+    b = bytearray(src)
+    b[p + 2] = ord("#")                          # ANALOG:SCALE absent
+    cases["no_analog_scale"] = b
+    p, ne = find[(gid["POINT"], "DESCRIPTIONS")]
+    b = bytearray(src)
+    b[p + 1] = (-6) & 0xFF                       # a parameter record read as a group (description length 255)
+    cases["param_as_group"] = b
+    p, ne = find[(gid["SUBJECT"], "NUMBER")]
+    b = bytearray(src)
+    b[ne + 2] = 0xFF                             # an int16 scalar retyped as a character scalar
+    cases["char_scalar"] = b
+    p, ne = find[(gid["ANALOG"], "DESCRIPTIONS")]
+    ndim = src[ne + 3]
+    dims = src[ne + 4: ne + 4 + ndim]
+    desc_at = ne + 4 + ndim + int(np.prod(list(dims))) * 1
+    b = bytearray(src)
+    b[desc_at] = 132                             # description length read as negative
+    cases["desc_len_132"] = b
+    paths = []
+    for name, data in cases.items():
+        path = tmp_path / f"{name}.c3d"
+        path.write_bytes(bytes(data))
+        meta = parse_c3d_meta(bytes(data))
+        try:
+            assert not meta.layout(len(data)).ezc3d_safe, name
+        except MetaError:
+            pass
+        paths.append(str(path))
+    r = subprocess.run([sys.executable, "-c", _CHILD, *paths], capture_output=True, timeout=CHILD_TIMEOUT_S,
+                       env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert r.returncode == 0, r.stderr.decode()[-500:]
+    results = dict(json.loads(line) for line in r.stdout.decode().splitlines() if line.startswith("["))
+    assert set(results.values()) <= {"ok", "input-error"} and len(results) == len(paths)

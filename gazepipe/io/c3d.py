@@ -171,7 +171,9 @@ class C3DMeta:
             prm = self.get(group, name)
             if prm is not None and prm.type != -1:
                 return False
-        return all(len(prm.dims) <= 7 for prm in self.params.values())
+        # ezc3d crashed on character parameters without dimensions (a parameter whose type byte was
+        # changed to -1, a char array whose dimension count was zeroed)
+        return all(len(prm.dims) <= 7 and (prm.type != -1 or len(prm.dims) >= 1) for prm in self.params.values())
 
     def layout(self, file_size: int) -> Layout:
         """Check the header against the parameters and the file size; raise MetaError when they disagree."""
@@ -285,6 +287,7 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
 
     groups: dict[int, str] = {}
     raw_params: list[tuple[int, str, _Param]] = []
+    seen_names: set[tuple[int, str]] = set()
     p = start + 4
     while p + 2 <= end:
         nlen = struct.unpack_from("b", data, p)[0]
@@ -298,6 +301,8 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
         offset = struct.unpack_from(e + "h", data, name_end)[0]
         nxt = name_end + offset
         if gid < 0:
+            if -gid in groups or name in groups.values():
+                meta.irregular = True
             groups.setdefault(-gid, name)
             desc_at = name_end + 2
         else:
@@ -315,9 +320,10 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
             raw = bytes(data[q + 2 + ndim: q + 2 + ndim + size])
             raw_params.append((gid, name, _Param(ptype, dims, raw)))
             desc_at = q + 2 + ndim + size
-        # the description must end inside its record (ezc3d hangs on one that overruns it)
+        # the description must end inside its record, and its length byte must be below 128: ezc3d reads
+        # it as a signed byte and hangs or crashes (SIGSEGV) on a "negative" length
         record_end = nxt if offset > 0 else end
-        if desc_at >= end or desc_at + 1 + data[desc_at] > min(record_end, end):
+        if desc_at >= end or data[desc_at] >= 128 or desc_at + 1 + data[desc_at] > min(record_end, end):
             meta.irregular = True
         if offset == 0:
             break
@@ -331,8 +337,17 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
         if gname is None:
             meta.irregular = True
             continue
+        if (gid, name) in seen_names:
+            meta.irregular = True
+        seen_names.add((gid, name))
         meta.params.setdefault((gname, name), prm)
+    if not all(_printable(n) for n in [*groups.values(), *(n for _, n, _ in raw_params)]):
+        meta.irregular = True
     return meta
+
+
+def _printable(name: str) -> bool:
+    return bool(name) and all(32 < ord(ch) < 127 for ch in name)
 
 
 def make_unique(labels: list[str]) -> tuple[list[str], list[tuple[int, str, str]]]:
