@@ -202,6 +202,15 @@ def params_cmd() -> None:
         click.echo(f"{k} = {json.dumps(v)}")
 
 
+def _register_commands() -> None:
+    from gazepipe.cli.validate import validate
+
+    cli.add_command(validate)
+
+
+_register_commands()
+
+
 def main() -> None:
     cli(prog_name="gazepipe")
 
