@@ -14,8 +14,8 @@ accurate than the raw prediction.
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 from scipy.interpolate import PchipInterpolator
-from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
 #: known samples used on each side of an interval by the interpolating methods
@@ -228,8 +228,8 @@ class PcaModel:
         w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
         self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
         z = (x - self.mean) * self.w
-        gram = z.T @ z
-        evals, evecs = np.linalg.eigh(gram)
+        gram = np.einsum("ni,nj->ij", z, z)  # small: kept out of multithreaded BLAS
+        evals, evecs = scipy.linalg.eigh(gram, driver="evd")
         order = np.argsort(evals)[::-1]
         evals = np.clip(evals[order], 0.0, None)
         evecs = evecs[:, order]
@@ -256,14 +256,20 @@ class PcaModel:
             z = ((x_all[rows][:, kcols] - self.mean[kcols]) * self.w[kcols]).T
             k_top = min(max(ks), kcols.size)
             # least squares for every k at once: the first k columns of A = QR are Q[:, :k] R[:k, :k]
+            # (the leading k × k block of R⁻¹ is the inverse of R's leading block: R is upper triangular)
             q, r = np.linalg.qr(self.v_all[kcols, :k_top])
-            qz = q.T @ z
             diag = np.abs(np.diag(r))
+            good = diag > 1e-8 * max(diag.max(), 1e-300)
+            n_good = int(np.argmin(good)) if not good.all() else k_top
+            if n_good == 0:
+                continue
+            rinv = np.linalg.inv(r[:n_good, :n_good])
+            qz = np.einsum("ij,in->jn", q[:, :n_good], z)
             for i, k in enumerate(ks):
-                if k > k_top or diag[:k].min() < 1e-8 * max(diag.max(), 1e-300):
+                if k > n_good:
                     continue
-                scores = solve_triangular(r[:k, :k], qz[:k])
-                zm = (self.v_all[3 * n_p:, :k] @ scores).T
+                scores = np.einsum("ij,jn->in", rinv[:k, :k], qz[:k])
+                zm = np.einsum("ci,in->nc", self.v_all[3 * n_p:, :k], scores)
                 out[i, rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:]
         return out
 
