@@ -211,3 +211,12 @@ def test_row_with_extra_values_is_an_error(tmp_path):
     p = _write(tmp_path, "w.csv", "frame,time,A_x,A_y,A_z\n1,0,1,2,3\n2,0.01,1,2,3,99\n")
     with pytest.raises(InputError, match="does not fit 5 columns"):
         read_wide_csv(p)
+
+
+def test_qtm_old_layout_with_frame_time_and_trailing_tab(tmp_path):
+    text = QTM_OLD.replace("1.5\t2.5\t3.5\n", "7\t0.00\t1.5\t2.5\t3.5\t\n").replace(
+        "1.25\t2.25\t3.25\n", "8\t0.01\t\t\t\t\n")
+    m = read_qtm_tsv(_write(tmp_path, "old2.tsv", text))
+    assert m.first_frame == 7 and m.n_frames == 2
+    np.testing.assert_array_equal(m.xyz[0, 0], [1.5, 2.5, 3.5])
+    assert m.valid[:, 0].tolist() == [True, False]

@@ -326,17 +326,18 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
         i += 1
     body = raw[lines.offset(i):]
     first_row = lines[i] or ""
-    n_cells = len(first_row.rstrip(" \t").split("\t"))
+    n_cells = len(first_row.split("\t"))
     if col_names is not None:
         lead = [c.lower() for c in col_names[:2]]
         n_lead = 2 if lead == ["frame", "time"] else 1
         n_cols = max(len(col_names), n_lead + 3 * m)
     else:
-        n_lead = n_cells - 3 * m if n_cells - 3 * m in (0, 1, 2) else (n_cells - 3 * m - 1
-                                                                       if n_cells - 3 * m == 3 else -1)
-        if n_lead < 0:
-            raise _Bad(f"data rows have {n_cells} columns, expected {3 * m} (+ Frame, Time)")
-        n_cols = max(n_cells, n_lead + 3 * m)
+        # rows are the coordinates, optionally after Frame and Time, optionally with a trailing tab
+        extra = n_cells - 3 * m
+        if extra not in (0, 1, 2, 3):
+            raise _Bad(f"data rows have {n_cells} cells, expected {3 * m} (+ Frame, Time)")
+        n_lead = extra - extra % 2
+        n_cols = n_lead + 3 * m
     arr = _numbers(body, "\t", n_cols)
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
@@ -346,8 +347,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     if n_frames.isdigit() and int(n_frames) != xyz.shape[0]:
         notes.append(f"NO_OF_FRAMES says {n_frames} but the file has {xyz.shape[0]} data rows")
     rate = _resolve_rate(file_rate, rate_hz, notes)
-    first = _first_frame(arr[:, 0]) if n_lead >= 1 and (col_names is None or col_names[0].lower() == "frame") \
-        else 1
+    has_frame = n_lead == 2 if col_names is None else col_names[0].lower() == "frame"
+    first = _first_frame(arr[:, 0]) if has_frame else 1
     return _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                    fmt="qtm_tsv", notes=notes, zero_gaps=True)
 
