@@ -28,7 +28,7 @@ CHROMIUM = Path("/usr/bin/chromium")
 
 # a slice of the sample session: the neutral take, one gaze_follow take, three gaze_shift takes (one pinned to
 # train and one to val so that the gaze_map dataset built below has both splits whatever the hash says)
-TAKES = {"neutral": None, "follow_sitting_01": None, "shift_y036_p12": "train", "shift_ym036_p00": "val",
+TAKES = {"neutral": None, "follow_sitting_01": "train", "shift_y036_p12": "train", "shift_ym036_p00": "val",
          "shift_y072_p00": None}
 
 
@@ -42,9 +42,14 @@ def _session_copy(dest: Path, takes: dict[str, str | None]) -> Path:
     for t in src.takes:
         if t.id not in takes:
             continue
-        shutil.copy(t.mocap, dest / "mocap" / Path(t.mocap).name)
-        lines += ['[[takes]]', f'id = "{t.id}"', f'kind = "{t.kind}"', f'pose = "{t.pose}"',
-                  f'mocap = "mocap/{Path(t.mocap).name}"']
+        lines += ['[[takes]]', f'id = "{t.id}"', f'kind = "{t.kind}"', f'pose = "{t.pose}"']
+        for key in ("mocap", "video", "eyes"):
+            path = getattr(t, key)
+            if path:
+                rel = Path(path).relative_to(src.root)
+                (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(path, dest / rel)
+                lines.append(f'{key} = "{rel.as_posix()}"')
         if t.target_yaw_deg is not None:
             lines.append(f"target = {{ yaw_deg = {t.target_yaw_deg}, pitch_deg = {t.target_pitch_deg} }}")
         if takes[t.id]:
@@ -55,14 +60,14 @@ def _session_copy(dest: Path, takes: dict[str, str | None]) -> Path:
 
 
 def _run(session: Path, out: Path) -> None:
-    res = CliRunner().invoke(cli, ["clean", str(session), "--out", str(out), "--executor", "serial",
+    res = CliRunner().invoke(cli, ["run", str(session), "--out", str(out), "--executor", "serial",
                                    "--log-format", "json"])
     assert res.exit_code in (0, 1), res.output
 
 
 @pytest.fixture(scope="module")
 def clean_out(tmp_path_factory) -> Path:
-    """The pipeline's output for the sample slice (ingest, clean, frames)."""
+    """The whole pipeline's output for the sample slice (take stages and datasets)."""
     root = tmp_path_factory.mktemp("report_clean")
     out = root / "out"
     _run(_session_copy(root / "session", TAKES), out)
@@ -73,7 +78,7 @@ def clean_out(tmp_path_factory) -> Path:
 def broken_out(tmp_path_factory) -> Path:
     """Two good takes and one whose C3D file is cut in half."""
     root = tmp_path_factory.mktemp("report_broken")
-    session = _session_copy(root / "session", {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": None})
+    session = _session_copy(root / "session", {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": "train"})
     c3d = session / "mocap" / "shift_y036_p12.c3d"
     data = c3d.read_bytes()
     c3d.write_bytes(data[: len(data) // 2])
@@ -106,11 +111,21 @@ def test_clean_sample_passes_fail_gate_and_report_is_valid(clean_out: Path) -> N
         assert t["severity"] in ("pass", "warning")
         sevs = [C.RANK[c["severity"]] for c in t["checks"]]
         assert sevs == sorted(sevs, reverse=True), "checks must be listed worst first"
-    # the sample has no video and no eye tracking: those checks are not applicable, not passed
-    follow = next(t for t in rep["takes"] if t["take"] == "follow_sitting_01")
-    by_id = {c["id"]: c for c in follow["checks"]}
-    for cid in ("clap_confidence", "clock_drift", "frames_without_video", "eye_gated", "camera_residual"):
-        assert by_id[cid]["severity"] == "skipped"
+    # the follow take has a video and eye tracking: its sync and eyes records are checked; the shift takes
+    # have neither: those checks are not applicable there (skipped), not passed
+    follow = {c["id"]: c for c in next(t for t in rep["takes"] if t["take"] == "follow_sitting_01")["checks"]}
+    shift = {c["id"]: c for c in next(t for t in rep["takes"] if t["take"] == "shift_y036_p12")["checks"]}
+    for cid in ("clap_offset", "clap_confidence", "clock_drift", "frames_without_video", "eye_gated",
+                "eye_longest_invalid", "camera_residual"):
+        assert follow[cid]["severity"] in ("pass", "warning"), follow[cid]
+    for cid in ("clap_offset", "clap_confidence", "clock_drift", "frames_without_video"):
+        assert shift[cid]["severity"] == "skipped" and "no video" in shift[cid]["message"]
+    assert "eye_gated" not in shift
+    sync = json.loads((clean_out / ".gazepipe" / "units" / "session01" / "follow_sitting_01" / "sync.json")
+                      .read_text())["qc"]
+    lowest = min(min(c["mocap_confidence"], c["video_confidence"]) for c in sync["claps"])
+    assert follow["clap_confidence"]["value"] == lowest
+    assert {d["name"] for d in rep["datasets"]} == {"gaze_rnn", "gaze_rnn_lod", "gaze_map"}
     assert rep["thresholds"]["unfilled_warn"] == C.Thresholds().unfilled_warn
 
 
@@ -191,15 +206,28 @@ def test_report_is_byte_identical_on_a_second_run(clean_out: Path) -> None:
         assert (clean_out / "qc" / n).read_bytes() == data, n
 
 
+def _section(html: str, anchor: str) -> str:
+    start = html.index(f'id="{anchor}"')
+    nxt = html.find("<h2 id=", start + 1)
+    return html[start: nxt if nxt > 0 else len(html)]
+
+
 def test_html_is_self_contained(clean_out: Path) -> None:
     assert _validate(clean_out).exit_code == 0
     html = (clean_out / "qc" / "report.html").read_text()
     assert "http" not in html and "<script" not in html and "<link" not in html
     assert html.count('id="summary"') == 1
-    # every take with markers has a gap timeline and a speed trace (no video, no eyes in the sample)
-    assert html.count("<svg") == 2 * len(TAKES)
+    assert html.count("<svg") == html.count('<figure class="plot">') == html.count("</svg>")
+    # every take with markers has a gap timeline and a speed trace; the take with a video and eye tracking also
+    # the clap alignment and the eye confidence
     for take in TAKES:
-        assert f'id="take-session01-{take}"' in html
+        sec = _section(html, f"take-session01-{take}")
+        titles = [t for t in ("Gap timeline", "Speed and crop", "Clap alignment", "Eye confidence") if t in sec]
+        want = 4 if take == "follow_sitting_01" else 2
+        assert len(titles) == want and sec.count("<svg") == want, (take, titles)
+    # feature distributions of every dataset
+    assert _section(html, "dataset-gaze_rnn").count("<svg") == 2          # x and y
+    assert _section(html, "dataset-gaze_map").count("<svg") == 3          # scalars, p_plus, start_times
 
 
 def _chromium(args: list[str], tmp: Path) -> subprocess.CompletedProcess:
@@ -219,8 +247,10 @@ def test_chromium_renders_summary_and_plots(clean_out: Path, tmp_path: Path) -> 
     html = dom.stdout
     assert 'id="summary"' in html and 'id="gate"' in html
     summary = html[html.index('id="summary"'):html.index("</table>", html.index('id="summary"'))]
-    assert summary.count("<tr>") == 1 + len(TAKES)
-    assert html.count("<svg") == 2 * len(TAKES)
+    assert summary.count("<tr>") == 1 + len(TAKES) + 3                    # header, takes, datasets
+    n_figs = (clean_out / "qc" / "report.html").read_text().count('<figure class="plot">')
+    assert n_figs >= 2 * len(TAKES) + 2 + 7
+    assert html.count("<svg") == n_figs
     shot = tmp_path / "shot.png"
     res = _chromium([f"--screenshot={shot}", "--window-size=1200,2400", url], tmp_path)
     assert res.returncode == 0 and shot.exists(), res.stderr[-2000:]
@@ -235,44 +265,32 @@ def test_chromium_renders_summary_and_plots(clean_out: Path, tmp_path: Path) -> 
 
 @pytest.fixture(scope="module")
 def dataset_out(clean_out: Path, tmp_path_factory) -> Path:
-    """The clean output plus a gaze_map dataset built from its joints and rests (the build stage's code)."""
-    build = pytest.importorskip("gazepipe.stages.build")
-    io_ds = pytest.importorskip("gazepipe.io.datasets")
+    """A copy of the sample output (it holds the datasets the engine built) to validate with other options."""
     out = tmp_path_factory.mktemp("report_ds") / "out"
     shutil.copytree(clean_out, out)
-    shutil.rmtree(out / "qc", ignore_errors=True)
-    session = load_session(json.loads((out / ".gazepipe" / "sessions.json").read_text())["session01"])
-    takes = []
-    for t in session.takes:
-        if t.kind != "gaze_shift":
-            continue
-        rec = json.loads((out / ".gazepipe" / "units" / "session01" / t.id / "clean.json").read_text())
-        joints = pq.read_table(out / "takes" / "session01" / t.id / "joints.parquet")
-        takes.append(build.TakeTables(session="session01", subject=session.subject, take=t, joints=joints,
-                                      markerset=session.markerset, meta={"rests": rec["qc"]["rests"]}))
-    built = build.build_dataset("gaze_map", takes)
-    io_ds.write_dataset(built, out / "datasets")
+    assert (out / "datasets" / "gaze_map" / "dataset.json").exists()
     return out
 
 
-def _ds_checks(out: Path, *args: str) -> dict[str, dict]:
+def _ds_checks(out: Path, *args: str, name: str = "gaze_map") -> dict[str, dict]:
     _validate(out, *args)
     rep = _report(out)
     assert validate_report(rep) == []
-    (ds,) = rep["datasets"]
+    (ds,) = [d for d in rep["datasets"] if d["name"] == name]
     return {c["id"]: c for c in ds["checks"]}
 
 
 def test_dataset_checks_pass_on_a_built_dataset(dataset_out: Path) -> None:
     for rows in ("20000", "1"):   # all training rows, and a one-row sample
         checks = _ds_checks(dataset_out, "--threshold", f"stats_sample_rows={rows}")
-        for cid in ("dataset_read", "schema_hash", "split_disjoint", "counts", "stats_sanity"):
+        for cid in ("build", "dataset_read", "schema_hash", "split_disjoint", "counts", "stats_sanity"):
             assert checks[cid]["severity"] in ("pass", "warning"), (cid, checks[cid])
         assert checks["stats_sanity"]["severity"] != "fail"
     assert checks["stats_sanity"]["details"]["sample_rows"] == 1
     assert checks["split_disjoint"]["details"]["takes_per_split"]["train"] >= 1
     html = (dataset_out / "qc" / "report.html").read_text()
     assert 'id="dataset-gaze_map"' in html and "gaze_map: p_plus per pose" in html
+    assert "gaze_map: scalar features per pose" in html
 
 
 def _corrupt_copy(src: Path, dest: Path) -> Path:
@@ -334,7 +352,7 @@ def test_unfilled_share_and_grading() -> None:
 
 def test_sync_and_eye_checks_read_their_stage_records() -> None:
     th = C.Thresholds()
-    sync = {"offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0015, "drift_ppm": 1500.0,
+    sync = {"offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0025, "drift_ppm": 2500.0,
             "drift_ms_over_take": 90.0, "n_claps": 2, "residual_ms": 0.0,
             "claps": [{"mocap_s": 2.0, "mocap_confidence": 0.9, "video_s": 0.75, "video_confidence": 0.3},
                       {"mocap_s": 60.0, "mocap_confidence": 0.8, "video_s": 58.66, "video_confidence": 0.9}],
@@ -342,7 +360,7 @@ def test_sync_and_eye_checks_read_their_stage_records() -> None:
     got = {c.id: c for c in C.sync_checks(sync, True, 1800, 30.0, th)}
     assert got["clap_offset"].value == 1.25
     assert got["clap_confidence"].severity == "warning" and got["clap_confidence"].value == 0.3
-    assert got["clock_drift"].severity == "warning"          # 1500 ppm > 1000 ppm
+    assert got["clock_drift"].severity == "warning"          # 2500 ppm > 2000 ppm
     assert got["clap_residual"].severity == "skipped"        # two claps fit exactly
     assert got["frames_without_video"].severity == "warning" and got["frames_without_video"].value == \
         pytest.approx(300 / 1800)

@@ -25,10 +25,10 @@ check                                   warning         fail         measured on
 ``invalid_frames``                      > 20 %          > 60 %       kept frames without a character frame or
                                                                      segment rotation (frames stage)
 ``clap_confidence``                     < 0.5           –            lowest mocap or video clap confidence
-``clock_drift``                         |drift| >       –            sync: 2+ claps: |ratio − 1|; one clap: drift
-                                        1000 ppm, or                 not measurable on a take longer than 60 s
-                                        one clap and
-                                        take > 60 s
+``clock_drift``                         |drift| >       –            sync: 2+ claps: |ratio − 1| (a camera
+                                        2000 ppm, or                 labelled 60 fps running at 59.94 is 1000 ppm,
+                                        one clap and                 corrected by the clock map); one clap: drift
+                                        take > 60 s                  not measurable on a take longer than 60 s
 ``clap_residual``                       > 1 frame       –            sync: largest clap-pair misfit (3+ claps)
 ``frames_without_video``                > 5 %           > 50 %       sync: mocap frames outside the video
 ``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
@@ -71,7 +71,7 @@ class Thresholds:
     invalid_frames_warn: float | None = 0.20
     invalid_frames_fail: float | None = 0.60
     clap_confidence_warn: float | None = 0.5
-    drift_warn_ppm: float | None = 1000.0
+    drift_warn_ppm: float | None = 2000.0
     single_clap_max_video_s: float | None = 60.0
     clap_residual_warn_frames: float | None = 1.0
     no_video_warn: float | None = 0.05
@@ -324,7 +324,7 @@ def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | N
         missing = [k for k in need if k not in sync_qc]
         return [Check(i, "error", f"sync record lacks {missing}") for i in ids]
     off = float(sync_qc["offset_s"])
-    out.append(Check("clap_offset", "pass", f"video starts {off:+.3f} s on the mocap clock (first clap pair)",
+    out.append(Check("clap_offset", "pass", f"mocap minus video clock at the first clap: {off:+.3f} s",
                      value=off))
     confs = []
     for c in sync_qc["claps"]:

@@ -183,7 +183,8 @@ class DatasetData:
     common: pa.Schema | None = None
     common_error: str = ""
     files: list[FileFacts] = field(default_factory=list)
-    sample: StatsSample | None = None
+    sample: StatsSample | None = None       # training rows, for the statistics check
+    all_rows: StatsSample | None = None     # rows of every split, for the distribution plots
     errors: list[str] = field(default_factory=list)
     take_splits: dict[str, str] = field(default_factory=dict)
 
@@ -191,6 +192,17 @@ class DatasetData:
 def dataset_dirs(layout: OutLayout) -> list[Path]:
     base = layout.root / "datasets"
     return sorted(p for p in base.iterdir() if p.is_dir()) if base.is_dir() else []
+
+
+def dataset_records(layout: OutLayout) -> dict[str, dict[str, Any]]:
+    """The engine's record of each dataset build (``OUT/.gazepipe/datasets/<name>.json``), by name."""
+    out = {}
+    base = layout.state / "datasets"
+    for p in sorted(base.glob("*.json")) if base.is_dir() else []:
+        rec = read_json(p)
+        if isinstance(rec, dict):
+            out[p.stem] = rec
+    return out
 
 
 def load_dataset(path: Path, th: Thresholds) -> DatasetData:
@@ -215,6 +227,7 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     except (OSError, pa.ArrowException) as exc:
         d.common_error = f"{path / COMMON_METADATA}: unreadable ({' '.join(str(exc).split())})"
     train_parts: list[tuple[str, pa.Table]] = []
+    all_parts: list[tuple[str, pa.Table]] = []
     feature_cols = list((d.info.get("features") or {}).keys())
     for f in sorted(path.glob("subject=*/pose=*/take=*.parquet")):
         rel = str(f.relative_to(path))
@@ -232,9 +245,11 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
                     facts.rows_by_split[str(s)] = int(n)
             if "session" in ident.column_names and t.num_rows:
                 facts.session = str(ident.column("session")[0].as_py())
-            if facts.rows_by_split.get("train") and all(c in t.column_names for c in feature_cols):
-                train = t.filter(pc.equal(t.column("split"), "train")).select(feature_cols)
-                train_parts.append((facts.pose, train))
+            if all(c in t.column_names for c in feature_cols):
+                all_parts.append((facts.pose, t.select(feature_cols)))
+                if facts.rows_by_split.get("train"):
+                    train = t.filter(pc.equal(t.column("split"), "train")).select(feature_cols)
+                    train_parts.append((facts.pose, train))
         except (OSError, pa.ArrowException) as exc:
             facts.error = f"{f}: unreadable ({' '.join(str(exc).split())})"
             d.errors.append(facts.error)
@@ -244,6 +259,8 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
             d.take_splits[f"{facts.subject}/{facts.take}"] = splits[0]
     if train_parts:
         d.sample = _sample(train_parts, feature_cols, th)
+    if all_parts:
+        d.all_rows = _sample(all_parts, feature_cols, th)
     return d
 
 

@@ -196,3 +196,29 @@ def feature_plot(values: np.ndarray, poses: np.ndarray, names: Sequence[str], ti
         ax.legend(loc="upper right", frameon=False, ncol=min(len(pose_list), 4))
         _margins(fig, bottom=0.9 if d <= 24 else 0.45)
     return to_svg(fig, salt)
+
+
+def scalar_features_plot(columns: dict[str, np.ndarray], poses: np.ndarray, salt: str) -> str:
+    """One small panel per scalar feature: per pose, the median and the 5–95 % band of the sampled rows."""
+    pose_list = sorted(set(poses.tolist()))
+    names = list(columns)
+    per_row = 6
+    n_rows = (len(names) + per_row - 1) // per_row
+    fig = _fig(9.0, 1.9 * n_rows + 0.4)
+    colours = plt.get_cmap("tab10")
+    with plt.rc_context(_STYLE):
+        for k, name in enumerate(names):
+            ax = fig.add_subplot(n_rows, per_row, k + 1)
+            for i, p in enumerate(pose_list):
+                v = columns[name][poses == p]
+                if v.size == 0:
+                    continue
+                lo, med, hi = np.nanpercentile(v, [5, 50, 95])
+                ax.vlines(i, lo, hi, color=colours(i % 10), lw=3.0, alpha=0.5)
+                ax.plot([i], [med], ls="none", marker="_", ms=10, color=colours(i % 10))
+            ax.set_xticks(range(len(pose_list)), pose_list, rotation=30, ha="right", fontsize=6)
+            ax.set_xlim(-0.7, len(pose_list) - 0.3)
+            ax.set_title(name, fontsize=8)
+        _margins(fig, left=0.5, bottom=0.5, top=0.3, wspace=0.6)
+        fig.subplots_adjust(hspace=0.7)
+    return to_svg(fig, salt)

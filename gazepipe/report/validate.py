@@ -29,6 +29,7 @@ from gazepipe.report.collect import (
     TakeEntry,
     TakeTables,
     dataset_dirs,
+    dataset_records,
     load_dataset,
     load_sessions,
     load_take_tables,
@@ -185,10 +186,25 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
 
 # ---------------------------------------------------------------------------------------------- datasets
 
-def dataset_checks(d: DatasetData, th: C.Thresholds) -> list[C.Check]:
+def build_check(record: dict[str, Any] | None, built: bool) -> C.Check:
+    """The engine's build of the dataset succeeded (its record) and left a dataset folder."""
+    if record is None:
+        return C.skipped("build", "no build record (built outside the engine)")
+    if record.get("status") != "ok":
+        return C.Check("build", "fail", f"build failed: {record.get('error', '?')}")
+    if not built:
+        return C.Check("build", "fail", "the build record says ok but the dataset folder is missing")
+    n = len((record.get("components") or {}).get("takes") or [])
+    return C.Check("build", "pass", f"built from {n} take(s)", value=n)
+
+
+def dataset_checks(d: DatasetData, th: C.Thresholds, record: dict[str, Any] | None = None,
+                   built: bool = True) -> list[C.Check]:
+    out = [build_check(record, built)]
+    if not built:
+        return out
     if not d.info:
-        return [C.Check("dataset_read", "error", "; ".join(d.errors) or "dataset.json unreadable")]
-    out = []
+        return out + [C.Check("dataset_read", "error", "; ".join(d.errors) or "dataset.json unreadable")]
     if d.errors:
         out.append(C.Check("dataset_read", "error", d.errors[0], value=len(d.errors), details={"errors": d.errors}))
     else:
@@ -203,15 +219,24 @@ def dataset_checks(d: DatasetData, th: C.Thresholds) -> list[C.Check]:
 
 
 def dataset_figures(d: DatasetData) -> list[Figure]:
-    if d.sample is None:
+    """Feature distributions per pose: the scalar features together, each vector feature on its own."""
+    smp = d.all_rows
+    if smp is None:
         return []
+    names = d.info.get("features") or {}
+    how = f"over {smp.pose.size} sampled rows of every split (mirrored copies included), one colour per pose"
+    scalars = [c for c, v in smp.columns.items() if v.shape[1] == 1]
     figs = []
-    for col, vals in d.sample.columns.items():
-        names = (d.info.get("features") or {}).get(col, [])
+    if scalars:
+        figs.append(Figure(f"{d.name}: scalar features per pose", f"Median (tick) and 5–95 % range (bar) {how}.",
+                           plots.scalar_features_plot({c: smp.columns[c][:, 0] for c in scalars}, smp.pose,
+                                                      f"dataset:{d.name}:scalars")))
+    for col, vals in smp.columns.items():
+        if col in scalars:
+            continue
         figs.append(Figure(f"{d.name}: {col} per pose", f"Median (tick) and 5–95 % range (bar) of every element of "
-                           f"{col} over {d.sample.pose.size} sampled training rows, one colour per pose.",
-                           plots.feature_plot(vals, d.sample.pose, names, f"{d.name} {col}",
-                                              f"dataset:{d.name}:{col}")))
+                           f"{col} {how}.", plots.feature_plot(vals, smp.pose, names.get(col, []),
+                                                               f"{d.name} {col}", f"dataset:{d.name}:{col}")))
     return figs
 
 
@@ -274,9 +299,11 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str) -> ValidateResu
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
     splits: dict[str, dict[str, str]] = {}
-    for path in dataset_dirs(layout):
-        d = load_dataset(path, th)
-        checks = _sorted_checks(dataset_checks(d, th))
+    dirs = {p.name: p for p in dataset_dirs(layout)}
+    records = dataset_records(layout)
+    for name in sorted(set(dirs) | set(records)):
+        d = load_dataset(dirs[name], th) if name in dirs else DatasetData(name)
+        checks = _sorted_checks(dataset_checks(d, th, records.get(name), name in dirs))
         splits[d.name] = d.take_splits
         ds_figs[d.name] = dataset_figures(d)
         counts = d.info.get("counts") or {}
