@@ -50,6 +50,16 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
         for o in summary.failed:
             if o.traceback:
                 click.echo(o.traceback, err=True)
+    ran_any = any(o.status in ("ok", "failed") for o in summary.outcomes)
+    report_html = Path(out) / "qc" / "report.html"
+    if until is None and not dry_run and (ran_any or not report_html.is_file()):
+        from gazepipe.report.validate import validate_output
+
+        res = validate_output(Path(out))
+        gate = res.report["summary"]["checks"]
+        log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("
+                 + ", ".join(f"{n} {k}" for k, n in gate.items() if n) + ")", status="ok",
+                 path=str(res.paths[2]))
     if not dry_run:
         ran = summary.count("ok")
         failed = len(summary.failed)

@@ -49,9 +49,11 @@ def _thresholds(pairs: tuple[str, ...]):
               help="Exit 3 when a check is at this severity or worse (error counts as fail).")
 @click.option("--threshold", "thresholds", multiple=True, metavar="NAME=VALUE",
               help="Override a check threshold, e.g. --threshold unfilled_warn=0.1 (repeatable; 'none' disables).")
+@click.option("--no-plots", is_flag=True, help="Leave the plots out of report.html (faster; report.json and "
+              "takes.parquet are the same).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
 @handle_errors
-def validate(out: str, fail_on: str, thresholds: tuple[str, ...], as_json: bool) -> None:
+def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool, as_json: bool) -> None:
     """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and a
     self-contained OUT/qc/report.html.
 
@@ -69,7 +71,7 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], as_json: bool)
 
     from gazepipe.report.validate import validate_output
 
-    res = validate_output(Path(out), _thresholds(thresholds), fail_on)
+    res = validate_output(Path(out), _thresholds(thresholds), fail_on, plots_on=not no_plots)
     rep = res.report
     if as_json:
         click.echo(json.dumps({"gate": rep["gate"], "summary": rep["summary"],

@@ -252,7 +252,7 @@ def _sorted_checks(checks: list[C.Check]) -> list[C.Check]:
 
 
 def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fail_on: str = "fail",
-                    lock: bool = True) -> ValidateResult:
+                    lock: bool = True, plots_on: bool = True) -> ValidateResult:
     """Check everything in the output folder ``out`` and write ``out/qc/{report.json,takes.parquet,report.html}``.
 
     Parameters
@@ -261,6 +261,8 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     fail_on : the gate: ``fail`` (checks at fail or error) or ``warning`` (warning or worse).
     lock : hold the output folder's lock while reading and writing (a running ``gazepipe run`` makes this raise
         :class:`~gazepipe.errors.LockedError`, exit 75).
+    plots_on : draw the plots (off: the HTML page has the tables only; report.json and takes.parquet are the
+        same either way).
 
     Raises :class:`~gazepipe.errors.ConfigError` when ``out`` is not a gazepipe output folder.
     """
@@ -270,11 +272,11 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     th = thresholds or C.Thresholds()
     if lock:
         with OutputLock(layout.lock):
-            return _validate(layout, th, fail_on)
-    return _validate(layout, th, fail_on)
+            return _validate(layout, th, fail_on, plots_on)
+    return _validate(layout, th, fail_on, plots_on)
 
 
-def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str) -> ValidateResult:
+def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool) -> ValidateResult:
     sessions, session_problems = load_sessions(layout)
     notes: list[str] = []
     takes_out: list[dict[str, Any]] = []
@@ -286,7 +288,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str) -> ValidateResu
         checks = _sorted_checks(take_checks(e, tables, th))
         sev = C.worst([c.severity for c in checks])
         s = sessions.get(e.session)
-        figs, fig_notes = take_figures(e, tables, s.markerset if s is not None else None)
+        figs, fig_notes = take_figures(e, tables, s.markerset if s is not None else None) if plots_on else ([], [])
         take_figs[e.key] = figs
         notes.extend(f"{e.key}: {n}" for n in fig_notes)
         takes_out.append({"session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": sev,
@@ -305,7 +307,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str) -> ValidateResu
         d = load_dataset(dirs[name], th) if name in dirs else DatasetData(name)
         checks = _sorted_checks(dataset_checks(d, th, records.get(name), name in dirs))
         splits[d.name] = d.take_splits
-        ds_figs[d.name] = dataset_figures(d)
+        ds_figs[d.name] = dataset_figures(d) if plots_on else []
         counts = d.info.get("counts") or {}
         datasets_out.append({"name": d.name, "severity": C.worst([c.severity for c in checks]),
                              "schema_hash": D.schema_hash(d.expected) if d.expected is not None else None,
