@@ -129,7 +129,7 @@ def session_datasets(n_takes: int = 0) -> list[dict]:
         print(f"[sample session] markerset not loaded ({exc}); rigid clusters from the data")
     out = []
     rng = np.random.default_rng(7)
-    files = sorted((sess / "truth").glob("*.npz"))
+    files = [f for f in sorted((sess / "truth").glob("*.npz")) if "markers_true" in np.load(f).files]
     if n_takes:
         files = files[::max(1, len(files) // n_takes)][:n_takes]
     for f in files:
