@@ -2,6 +2,8 @@
 
 Each entry wires a pure function of :mod:`gazepipe.stages` to the engine: which takes it applies to, which raw
 files it reads (through :mod:`gazepipe.io`), which upstream tables it loads and which tables it returns.
+Readers and stage functions are imported inside the ``run_*`` functions: planning needs only the parameter
+defaults, so a run with nothing to do never pays for importing scipy.signal, pandas or OpenCV.
 """
 
 from __future__ import annotations
@@ -12,11 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.io.capture import read_markers
-from gazepipe.io.livelinkface import read_livelinkface
-from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import check_capture_labels
-from gazepipe.io.video import probe_video, read_frames
 from gazepipe.model import Markers, Session, Take
 from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register
 from gazepipe.schemas.base import attach_meta
@@ -24,11 +22,9 @@ from gazepipe.schemas.face_table import face_to_table
 from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, joints_to_table
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
-from gazepipe.stages.clean import CleanParams, clean_markers
-from gazepipe.stages.eyes import EyesParams, eyes_take
-from gazepipe.stages.face import align_face
-from gazepipe.stages.frames import FramesParams, compute_frames
-from gazepipe.stages.sync import ClockMap, resample_to_mocap, sync_take
+from gazepipe.stages.clean import CleanParams
+from gazepipe.stages.eyes import EyesParams
+from gazepipe.stages.frames import FramesParams
 
 
 def _has_mocap(session: Session, take: Take) -> bool:
@@ -61,6 +57,8 @@ def _renamed(labels: list[str], mapping: dict[str, int]) -> list[str]:
 
 
 def run_ingest(ctx: UnitContext) -> UnitResult:
+    from gazepipe.io.capture import read_markers
+
     take, ms = ctx.take, ctx.session.markerset
     markers = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
     meta: dict = {}
@@ -120,6 +118,8 @@ def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tu
 
 
 def run_clean(ctx: UnitContext) -> UnitResult:
+    from gazepipe.stages.clean import clean_markers
+
     raw, _, _ = _load_markers(ctx, "markers_raw")
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
                         path=ctx.take.mocap, take=ctx.take.id)
@@ -158,6 +158,10 @@ def _frames_take(session: Session, take: Take) -> bool:
 
 
 def run_frames(ctx: UnitContext) -> UnitResult:
+    from gazepipe.io.capture import read_markers
+    from gazepipe.stages.clean import clean_markers
+    from gazepipe.stages.frames import compute_frames
+
     ms = ctx.session.markerset
     markers, frames, _ = _load_markers(ctx, "markers")
     markers = dataclasses.replace(markers, first_frame=markers.first_frame)
@@ -203,6 +207,9 @@ def _face_take(session: Session, take: Take) -> bool:
 
 
 def run_face(ctx: UnitContext) -> UnitResult:
+    from gazepipe.io.livelinkface import read_livelinkface
+    from gazepipe.stages.face import align_face
+
     take = ctx.take
     tracked = read_livelinkface(take.tracked, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
     clean = read_livelinkface(take.clean, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
@@ -249,6 +256,9 @@ def _sync_take(session: Session, take: Take) -> bool:
 
 
 def run_sync(ctx: UnitContext) -> UnitResult:
+    from gazepipe.io.video import probe_video, read_frames
+    from gazepipe.stages.sync import sync_take
+
     take, ms = ctx.take, ctx.session.markerset
     p = _build(SyncParams, ctx.params)
     raw, _, _ = _load_markers(ctx, "markers_raw")
@@ -295,6 +305,10 @@ def _eyes_take(session: Session, take: Take) -> bool:
 
 
 def run_eyes(ctx: UnitContext) -> UnitResult:
+    from gazepipe.io.openface import read_openface
+    from gazepipe.stages.eyes import eyes_take
+    from gazepipe.stages.sync import ClockMap, resample_to_mocap
+
     take, ms = ctx.take, ctx.session.markerset
     eye = read_openface(take.eyes)
     ja = joints_arrays(ctx.load("joints"))

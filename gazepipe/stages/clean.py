@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import ndimage, signal
 
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
@@ -119,6 +118,8 @@ def zero_phase_sos(cutoff_hz: float, rate_hz: float, order: int = 2) -> np.ndarr
         raise ValueError(f"low-pass cutoff {cutoff_hz} Hz must lie in (0, {rate_hz / 2.0}) Hz")
     c = double_pass_correction(order)
     wd = np.arctan(np.tan(np.pi * cutoff_hz / rate_hz) / c) / np.pi * 2.0  # fraction of Nyquist
+    from scipy import signal  # imported here: scipy.signal is slow to import and rarely needed
+
     return signal.butter(order, wd, btype="low", output="sos")
 
 
@@ -142,6 +143,8 @@ def lowpass_runs(xyz: np.ndarray, valid: np.ndarray, sos: np.ndarray,
 
     Returns the filtered copy and the number of runs too short for the filter's padding (left unfiltered).
     """
+    from scipy import signal
+
     out = xyz.copy()
     padlen = 3 * (2 * len(sos) + 1)
     short = 0
@@ -159,6 +162,8 @@ def lowpass_runs(xyz: np.ndarray, valid: np.ndarray, sos: np.ndarray,
 def gaussian_runs(xyz: np.ndarray, valid: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
     """Gaussian low-pass (−3 dB at ``cutoff_hz``, σ = √(ln 2)/(2π f) s) of every marker's runs of valid samples
     separately (never across a gap; edges reflected so a still edge stays still)."""
+    from scipy import ndimage
+
     sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * cutoff_hz) * rate_hz   # in samples
     out = xyz.copy()
     for m in range(xyz.shape[1]):

@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
@@ -440,6 +439,8 @@ def _smooth_dirs(v: np.ndarray, k: int) -> np.ndarray:
         return v
     ok = np.isfinite(v).all(axis=1)
     vz = np.where(ok[:, None], v, 0.0)
+    from scipy.ndimage import uniform_filter1d
+
     s = uniform_filter1d(vz, k, axis=0, mode="constant", cval=0.0)
     cnt = uniform_filter1d(ok.astype(np.float64), k, mode="constant", cval=0.0)
     return np.where((cnt > 1.0 - 1e-9)[:, None], _unit(s), np.nan)
