@@ -1,0 +1,168 @@
+"""Helpers of the end-to-end acceptance tests: read what ``gazepipe run`` wrote and compare it with the
+sample session's ground truth (sample_data/session01/truth)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+from scipy.spatial.transform import Rotation
+
+from gazepipe.io.datasets import read_dataset
+from gazepipe.schemas.joints import joints_arrays
+from gazepipe.schemas.markers import table_to_markers
+from gazepipe.stages.build import feature_values
+from gazepipe.synth import load_truth
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_data" / "session01"
+SESSION_ID = "session01"
+FILL_MEASURED, FILL_UNFILLED = "measured", "unfilled"
+
+
+def session_takes() -> list[dict[str, Any]]:
+    """The ``[[takes]]`` entries of the sample session's session.toml."""
+    return tomllib.loads((SAMPLE / "session.toml").read_text())["takes"]
+
+
+def markerset() -> dict[str, Any]:
+    return tomllib.loads((SAMPLE / "markerset.toml").read_text())
+
+
+def take_ids(kind: str) -> list[str]:
+    return [t["id"] for t in session_takes() if t["kind"] == kind]
+
+
+@cache
+def truth(take: str) -> dict[str, Any]:
+    return load_truth(SAMPLE, take)
+
+
+class Output:
+    """Read access to one output folder of ``gazepipe run`` on the sample session."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+        self._cache: dict[Any, Any] = {}
+
+    def take_dir(self, take: str) -> Path:
+        return self.root / "takes" / SESSION_ID / take
+
+    def table(self, take: str, name: str):
+        key = ("table", take, name)
+        if key not in self._cache:
+            self._cache[key] = pq.read_table(self.take_dir(take) / f"{name}.parquet")
+        return self._cache[key]
+
+    def unit(self, take: str, stage: str) -> dict[str, Any]:
+        return json.loads((self.root / ".gazepipe" / "units" / SESSION_ID / take / f"{stage}.json").read_text())
+
+    def dataset_record(self, name: str) -> dict[str, Any]:
+        return json.loads((self.root / ".gazepipe" / "datasets" / f"{name}.json").read_text())
+
+    def markers(self, take: str, name: str = "markers"):
+        """``(Markers, frames, fill codes or None, meta)`` of a take's markers or markers_raw table."""
+        key = ("markers", take, name)
+        if key not in self._cache:
+            self._cache[key] = table_to_markers(self.table(take, name))
+        return self._cache[key]
+
+    def fill_names(self, take: str) -> np.ndarray:
+        """Fill method of every sample of the markers table as strings, (T, M)."""
+        t = self.table(take, "markers")
+        m, _, _, _ = self.markers(take)
+        col = t.column("fill").combine_chunks()
+        names = np.asarray(col.dictionary.to_pylist(), dtype=object)
+        codes = col.indices.to_numpy(zero_copy_only=False)
+        return names[codes].reshape(len(m.labels), -1).T
+
+    def joints(self, take: str) -> dict[str, Any]:
+        key = ("joints", take)
+        if key not in self._cache:
+            self._cache[key] = joints_arrays(self.table(take, "joints"))
+        return self._cache[key]
+
+    def eyes(self, take: str) -> dict[str, np.ndarray]:
+        key = ("eyes", take)
+        if key not in self._cache:
+            t = self.table(take, "eyes")
+            self._cache[key] = {
+                "frame": t.column("frame").to_numpy().astype(np.int64),
+                "valid": t.column("valid").to_numpy(zero_copy_only=False),
+                "eye_dir_char": feature_values(t, "eye_dir_char").astype(np.float64),
+            }
+        return self._cache[key]
+
+    def dataset(self, name: str):
+        """``(table, info)`` of a dataset folder, read with the schema checks of read_dataset."""
+        key = ("dataset", name)
+        if key not in self._cache:
+            self._cache[key] = read_dataset(self.root / "datasets" / name)
+        return self._cache[key]
+
+
+def angle_deg(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
+    """Angle of the rotation between two quaternion arrays (..., 4) ``w, x, y, z``, degrees."""
+    a = Rotation.from_quat(np.asarray(q_a, float).reshape(-1, 4), scalar_first=True)
+    b = Rotation.from_quat(np.asarray(q_b, float).reshape(-1, 4), scalar_first=True)
+    return np.degrees((a * b.inv()).magnitude()).reshape(np.shape(q_a)[:-1])
+
+
+def vec_angle_deg(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Angle between direction vectors (..., 3), degrees (inputs need not be unit length)."""
+    u = np.asarray(u, float)
+    v = np.asarray(v, float)
+    cross = np.linalg.norm(np.cross(u, v), axis=-1)
+    return np.degrees(np.arctan2(cross, np.einsum("...i,...i->...", u, v)))
+
+
+def tree_digest(root: Path, parts: tuple[str, ...]) -> dict[str, str]:
+    """SHA-256 of every file under ``root/<part>`` for each part, keyed by relative path."""
+    out = {}
+    for part in parts:
+        base = root / part
+        for p in sorted(base.rglob("*")):
+            if p.is_file():
+                out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+def json_events(text: str) -> list[dict[str, Any]]:
+    """The JSON-line log events in a command's output (other lines ignored)."""
+    events = []
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("{"):
+            try:
+                events.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+    return events
+
+
+def invalid_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of True in a boolean mask as half-open (start, stop) index pairs."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.diff(m.astype(np.int8))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+def mirror_rnn(v: np.ndarray) -> np.ndarray:
+    """Expected mirror of gaze_rnn x or y rows (N, 3k) when every segment is central: negate X of every
+    3-vector (target and eye directions, forward and up of each 6-number rotation)."""
+    out = np.array(v, copy=True)
+    out[:, 0::3] = -out[:, 0::3]
+    return out
+
+
+def frame_rows(frames: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """Row index of each wanted frame number in a sorted frame column (asserts they are all present)."""
+    idx = np.searchsorted(frames, wanted)
+    assert np.all(idx < len(frames)) and np.array_equal(frames[idx], wanted), "frames missing from the table"
+    return idx
