@@ -1,0 +1,116 @@
+"""``gazepipe train NAME --data DATASET_DIR --out MODEL_DIR``: run a trainer plugin on a built dataset."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import click
+
+from gazepipe.cli.common import handle_errors
+from gazepipe.errors import ConfigError
+
+EPILOG = """\b
+Trainers: gaze_map (numpy/scipy), gaze_rnn and face_clean (need gazepipe[torch]),
+plus any installed under the "gazepipe.trainers" entry-point group.
+Exit codes: 0 ok; 1 the data could not be read or training failed; 2 usage error,
+unknown trainer, or a dataset the trainer cannot use.
+"""
+
+
+def parse_options(pairs: tuple[str, ...]) -> dict[str, Any]:
+    """``key=value`` pairs → dict; values parsed as JSON where they parse (3, 0.5, true, "a"), else text."""
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(None, f"--option {pair!r}: expected KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def dataset_header(data_dir: Path) -> tuple[dict[str, Any], list[str]]:
+    """dataset.json and the column names of ``_common_metadata``, read without the rows; a folder that is not a
+    dataset is a usage error (exit 2)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from gazepipe.errors import GazepipeError
+    from gazepipe.io.datasets import COMMON_METADATA, read_info
+
+    if not data_dir.is_dir():
+        raise ConfigError(data_dir, "no such dataset folder")
+    try:
+        info = read_info(data_dir)
+    except GazepipeError as exc:
+        raise ConfigError(exc.path, exc.problem) from None
+    try:
+        columns = list(pq.read_schema(str(data_dir / COMMON_METADATA)).names)
+    except (OSError, pa.ArrowException) as exc:
+        raise ConfigError(data_dir / COMMON_METADATA, f"missing or unreadable ({exc})") from None
+    return info, columns
+
+
+def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
+    lines = []
+    for k, v in metrics.items():
+        if isinstance(v, dict):
+            lines.extend(_summary(v, f"{prefix}{k}."))
+        elif isinstance(v, float):
+            lines.append(f"  {prefix}{k} = {v:.6g}")
+        elif isinstance(v, int | str | bool) or v is None:
+            lines.append(f"  {prefix}{k} = {v}")
+    return lines
+
+
+@click.command("train", epilog=EPILOG)
+@click.argument("name")
+@click.option("--data", "data_dir", required=True, type=click.Path(file_okay=False),
+              help="A built dataset folder (OUT/datasets/<name>).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Folder for the model: model.json (config, metrics) and its weights.")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Training epochs (trainer default).")
+@click.option("--hidden", type=click.IntRange(min=1), default=None, help="Hidden units (trainer default).")
+@click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Learning rate (trainer default).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same model).")
+@click.option("--option", "opts", multiple=True, metavar="KEY=VALUE",
+              help="A trainer-specific option; repeatable.")
+@click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
+@handle_errors
+def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: int | None, lr: float | None,
+          seed: int, opts: tuple[str, ...], as_json: bool) -> None:
+    """Train the model NAME on a built dataset and save it in --out.
+
+    The trainer checks the dataset first (its name, schema version and columns) and refuses one it cannot use.
+
+    \b
+      gazepipe train gaze_map --data out/datasets/gaze_map --out models/gaze_map
+      gazepipe train gaze_rnn --data out/datasets/gaze_rnn --out models/gaze_rnn --epochs 50
+      gazepipe train gaze_rnn --data out/datasets/gaze_rnn_lod --out models/lod
+      gazepipe train face_clean --data out/datasets/face_clean --out models/face --option chunk=200
+    """
+    from gazepipe.datasets import open_dataset
+    from gazepipe.trainers.base import TrainOptions, check_compatible, check_options, load_trainer
+
+    trainer = load_trainer(name)
+    options = TrainOptions(epochs=epochs, hidden=hidden, lr=lr, seed=seed, extra=parse_options(opts))
+    check_options(trainer, options)
+    data_path = Path(data_dir)
+    info, columns = dataset_header(data_path)
+    check_compatible(trainer, info, columns, data_path)
+    data = open_dataset(data_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = trainer.train(data, out, options)
+    if as_json:
+        click.echo(json.dumps(metrics, indent=1, sort_keys=True))
+        return
+    click.echo(f"trained {trainer.name} on {data_path} -> {out}")
+    for line in _summary(metrics):
+        click.echo(line)

@@ -1,0 +1,10 @@
+# PyTorch: 120-frame windows of (x, y), normalised with the training statistics, in a DataLoader
+import torch
+
+from gazepipe.datasets import open_dataset
+
+ds = open_dataset("out/datasets/gaze_rnn")
+loader = torch.utils.data.DataLoader(ds.to_torch("train"), batch_size=64, shuffle=True,
+                                     generator=torch.Generator().manual_seed(0))
+x, y = next(iter(loader))
+print(x.shape, y.shape)     # (64, 120, 66) and (64, 120, 63)
