@@ -173,6 +173,25 @@ def test_broken_take_fails_the_gate_and_is_named(broken_out: Path) -> None:
     assert summary.index("shift_y036_p12") < summary.index("shift_ym036_p00"), "failing takes first"
 
 
+def test_outputs_older_than_their_inputs_are_flagged(tmp_path: Path) -> None:
+    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train"})
+    out = tmp_path / "out"
+    _run(session, out)
+    assert _validate(out, "--no-plots").exit_code == 0
+    stages = {t["take"]: next(c for c in t["checks"] if c["id"] == "stages") for t in _report(out)["takes"]}
+    assert all(c["severity"] == "pass" and "up to date" in c["message"] for c in stages.values())
+    with (session / "markerset.toml").open("a") as f:   # every unit's fingerprint covers the markerset
+        f.write("\n# edited after the run\n")
+    assert _validate(out, "--no-plots", "--fail-on", "warning").exit_code == 3
+    assert {h["target"] for h in _report(out)["gate"]["hit"] if h["id"] == "stages"} == \
+        {"session01/neutral", "session01/shift_y036_p12"}
+    stages = {t["take"]: next(c for c in t["checks"] if c["id"] == "stages") for t in _report(out)["takes"]}
+    for take, c in stages.items():
+        assert c["severity"] == "warning", take
+        assert all(v.startswith("stale") for v in c["details"]["not_up_to_date"].values())
+        assert "ingest" in c["details"]["not_up_to_date"]
+
+
 def test_not_an_output_folder_is_a_usage_error(tmp_path: Path) -> None:
     res = CliRunner().invoke(validate, [str(tmp_path)])
     assert res.exit_code == 2
@@ -378,6 +397,18 @@ def test_sync_and_eye_checks_read_their_stage_records() -> None:
     assert got["camera_residual"].severity == "warning"
     eyes["camera_residual_deg"] = None
     assert {c.id: c for c in C.eyes_checks(eyes, True, th)}["camera_residual"].severity == "skipped"
+
+
+def test_face_checks() -> None:
+    th = C.Thresholds()
+    qc = {"rows_tracked": 1000, "rows_clean": 990, "dropped_frames_tracked": 80, "dropped_frames_clean": 2,
+          "unmatched_tracked": 30, "unmatched_clean": 20, "rows_out": 969}
+    got = {c.id: c for c in C.face_checks(qc, th)}
+    assert got["face_unmatched"].severity == "pass" and got["face_unmatched"].value == pytest.approx(0.03)
+    assert got["face_dropped"].severity == "warning" and got["face_dropped"].value == pytest.approx(80 / 1080)
+    qc["unmatched_tracked"] = 600
+    assert {c.id: c for c in C.face_checks(qc, th)}["face_unmatched"].severity == "fail"
+    assert [c.severity for c in C.face_checks(None, th)] == ["skipped", "skipped"]
 
 
 def test_stats_recomputation_detects_a_biased_mean() -> None:

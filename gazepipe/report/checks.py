@@ -10,8 +10,9 @@ Thresholds (:class:`Thresholds`; every one is a parameter, stored in ``report.js
 ======================================  ==============  ===========  =============================================
 check                                   warning         fail         measured on
 ======================================  ==============  ===========  =============================================
-``stages``                              –               a unit       every unit record of the take (status)
-                                                        failed
+``stages``                              a unit is       a unit       every unit record of the take (status), and
+                                        stale or never  failed       whether it is up to date with its inputs now
+                                        ran
 ``gap_share``                           > 20 %          –            per marker, share of the take's frames that
                                                                      were gaps at ingest (worst marker)
 ``longest_gap``                         > 1.0 s         –            per marker, longest gap after spike removal
@@ -34,6 +35,8 @@ check                                   warning         fail         measured on
 ``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
 ``eye_longest_invalid``                 > 1.0 s         –            eyes: longest invalid run after slerp fill
 ``camera_residual``                     > 3°            > 10°        eyes: camera-rotation residual angle
+``face_unmatched``                      > 5 %           > 50 %       face: tracked frames without a clean frame
+``face_dropped``                        > 5 %           –            face: dropped capture frames of either track
 ======================================  ==============  ===========  =============================================
 
 ``clap_offset`` is reported (value only) and passes whenever the sync stage found a clock map.
@@ -81,6 +84,9 @@ class Thresholds:
     eye_longest_invalid_warn_s: float | None = 1.0
     camera_residual_warn_deg: float | None = 3.0
     camera_residual_fail_deg: float | None = 10.0
+    face_unmatched_warn: float | None = 0.05
+    face_unmatched_fail: float | None = 0.50
+    face_dropped_warn: float | None = 0.05
     stats_sample_rows: int = 20000
     stats_max_z: float = 6.0
     stats_seed: int = 0
@@ -166,17 +172,32 @@ def skipped(check_id: str, why: str) -> Check:
 
 # ------------------------------------------------------------------------------------------------ stages
 
-def check_stages(records: dict[str, dict[str, Any]]) -> Check:
-    """Every unit of the take ran ok (``records``: stage name → unit record)."""
-    if not records:
-        return Check("stages", "warning", "no stage has run on this take")
+def check_stages(records: dict[str, dict[str, Any]], states: list[dict[str, Any]] | None = None) -> Check:
+    """Every unit of the take ran ok and is up to date.
+
+    ``records``: stage name → unit record. ``states``: the take's rows of
+    :func:`gazepipe.pipeline.status.collect_status` (stage, state ok | failed | stale | pending, detail), or
+    ``None`` when the sessions cannot be read now (freshness is then not checked).
+    """
     failed = {s: r.get("error", "") for s, r in records.items() if r.get("status") != "ok"}
+    details: dict[str, Any] = {"ran": sorted(records)}
     if failed:
         first = next(iter(sorted(failed)))
-        return Check("stages", "fail", f"stage {first} failed: {failed[first]}", value=len(failed),
-                     details={"failed": failed, "ran": sorted(records)})
-    return Check("stages", "pass", f"{len(records)} stage(s) ok: {', '.join(sorted(records))}", value=0,
-                 details={"ran": sorted(records)})
+        details["failed"] = failed
+        return Check("stages", "fail", f"stage {first} failed: {failed[first]}", value=len(failed), details=details)
+    behind = {r["stage"]: f"{r['state']}: {r.get('detail', '')}".rstrip(": ")
+              for r in states or [] if r.get("state") in ("stale", "pending")}
+    if behind:
+        details["not_up_to_date"] = behind
+        first = next(iter(behind))
+        what = "never ran" if behind[first].startswith("pending") else behind[first]
+        return Check("stages", "warning", f"{len(behind)} stage(s) not up to date with the inputs, e.g. {first} "
+                     f"({what})", value=len(behind), details=details)
+    if not records:
+        return Check("stages", "warning", "no stage has run on this take", details=details)
+    fresh = "" if states is None else ", up to date"
+    return Check("stages", "pass", f"{len(records)} stage(s) ok{fresh}: {', '.join(sorted(records))}", value=0,
+                 details=details)
 
 
 # ------------------------------------------------------------------------------------------------ markers
@@ -413,4 +434,32 @@ def eyes_checks(eyes_qc: dict[str, Any] | None, has_eyes: bool, th: Thresholds) 
                          f"camera rotation ({src}) residual {v:.2f} deg over "
                          f"{eyes_qc.get('camera_frames_used', '?')} fixation frames", value=v,
                          threshold=_thr(th.camera_residual_warn_deg, th.camera_residual_fail_deg)))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------- face
+
+def face_checks(face_qc: dict[str, Any] | None, th: Thresholds) -> list[Check]:
+    """face_unmatched and face_dropped from the face QC (Live Link Face tracks aligned on timecode)."""
+    if face_qc is None:
+        return [skipped("face_unmatched", "no face record"), skipped("face_dropped", "no face record")]
+    out = []
+    n = int(face_qc.get("rows_tracked", 0))
+    if n:
+        v = int(face_qc.get("unmatched_tracked", 0)) / n
+        out.append(Check("face_unmatched", grade(v, th.face_unmatched_warn, th.face_unmatched_fail),
+                         f"{face_qc.get('unmatched_tracked', 0)} of {n} tracked frames ({_pct(v)}) without a clean "
+                         f"frame; {face_qc.get('rows_out', '?')} rows kept", value=v,
+                         threshold=_thr(th.face_unmatched_warn, th.face_unmatched_fail)))
+    else:
+        out.append(Check("face_unmatched", "fail", "the tracked face track has no frame", value=1.0))
+    shares = {}
+    for side in ("tracked", "clean"):
+        rows, dropped = int(face_qc.get(f"rows_{side}", 0)), int(face_qc.get(f"dropped_frames_{side}", 0))
+        shares[side] = dropped / (rows + dropped) if rows + dropped else 0.0
+    side = max(shares, key=lambda k: shares[k])
+    v = shares[side]
+    out.append(Check("face_dropped", grade(v, th.face_dropped_warn, None),
+                     f"dropped capture frames: {_pct(shares['tracked'])} tracked, {_pct(shares['clean'])} clean",
+                     value=v, threshold=_thr(th.face_dropped_warn), details=shares))
     return out

@@ -81,6 +81,21 @@ def load_sessions(layout: OutLayout) -> tuple[dict[str, Any], list[str]]:
     return sessions, problems
 
 
+def unit_states(layout: OutLayout) -> dict[str, list[dict[str, Any]]] | None:
+    """Per take (``session/take``), its units' states now (:func:`gazepipe.pipeline.status.collect_status`:
+    ok | failed | stale | pending); ``None`` when they cannot be worked out."""
+    from gazepipe.pipeline.status import collect_status
+
+    try:
+        rows = collect_status(layout.root)
+    except GazepipeError:
+        return None
+    out: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        out.setdefault(f"{r['session']}/{r['take']}", []).append(r)
+    return out
+
+
 def take_entries(layout: OutLayout, sessions: dict[str, Any]) -> list[TakeEntry]:
     """Every take with a unit record, plus the takes of the remembered sessions that never ran; sorted."""
     entries: dict[tuple[str, str], TakeEntry] = {}

@@ -36,6 +36,7 @@ from gazepipe.report.collect import (
     open_output,
     speed_trace,
     take_entries,
+    unit_states,
 )
 from gazepipe.report.html import Figure, render_html
 from gazepipe.report.schema import REPORT_SCHEMA_VERSION, TAKES_SCHEMA
@@ -59,20 +60,17 @@ class ValidateResult:
 
 # ------------------------------------------------------------------------------------------------- takes
 
-def take_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Check]:
-    """Every check of one take (pure: records and arrays in, checks out)."""
+def take_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds,
+                states: list[dict[str, Any]] | None = None) -> list[C.Check]:
+    """Every check of one take (pure: records, unit states and arrays in, checks out)."""
     ingest, clean, frames_qc = e.qc("ingest"), e.qc("clean"), e.qc("frames")
     n_frames = (ingest or {}).get("frames")
     rate = (ingest or {}).get("rate_hz")
-    out = [C.check_stages(e.records)]
+    out = [C.check_stages(e.records, states)]
     for name, err in sorted(tables.errors.items()):
         out.append(C.Check(f"table_{name}", "error", f"{name} table unreadable: {err}"))
     if e.kind == "face":
-        face = e.qc("face")
-        out.append(C.Check("face_rows", "pass" if face is not None else "skipped",
-                           "face tracks aligned" if face is not None else "not applicable: no face record",
-                           details={k: v for k, v in (face or {}).items() if isinstance(v, int | float)}))
-        return out
+        return out + C.face_checks(e.qc("face"), th)
     out.append(C.check_gap_share(ingest, th))
     out.append(C.check_longest_gap(clean, th))
     out.append(C.check_fill_error(clean, th))
@@ -278,6 +276,7 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
 
 def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool) -> ValidateResult:
     sessions, session_problems = load_sessions(layout)
+    states = unit_states(layout) if not session_problems else None
     notes: list[str] = []
     takes_out: list[dict[str, Any]] = []
     rows: list[dict[str, Any]] = []
@@ -285,7 +284,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool)
     refs: list[dict[str, Any]] = []
     for e in take_entries(layout, sessions):
         tables = load_take_tables(layout, e)
-        checks = _sorted_checks(take_checks(e, tables, th))
+        checks = _sorted_checks(take_checks(e, tables, th, None if states is None else states.get(e.key, [])))
         sev = C.worst([c.severity for c in checks])
         s = sessions.get(e.session)
         figs, fig_notes = take_figures(e, tables, s.markerset if s is not None else None) if plots_on else ([], [])
