@@ -149,6 +149,9 @@ def test_clap_times_offset_and_ratio(out):
     for take, _, off0, off1, r, rq, _ in rows:
         assert abs(off0) <= 5.0 and abs(off1) <= 5.0, (take, off0, off1)
         assert abs(r) <= 1e-4 and abs(rq) <= 1e-4, (take, r, rq)
+    # The mocap claps (a quarter of a mocap frame: the contact is refined below one frame).
+    mocap = np.abs(np.concatenate([np.asarray(r[6]) for r in rows]))
+    assert mocap.max() <= 0.25, mocap
 
 
 def test_eye_directions_against_truth(out):
@@ -402,6 +405,27 @@ def test_rnn_y_is_next_x(out, name):
     assert consecutive.sum() > 0.8 * len(x)
     i = np.flatnonzero(consecutive)
     assert np.array_equal(y[i], x[i + 1, 3:3 + n_rot])
+
+
+def test_rnn_rows_are_the_take_tables_at_their_frame(out):
+    """Unmirrored gaze_rnn rows hold the joints and eyes tables' values of their own frame (t) and the one
+    before (t - 1), as float32: target direction, every segment's 6-number rotation, eye direction."""
+    ident, x, y, info = _rnn_arrays(out, "gaze_rnn")
+    n_seg = len(truth(FOLLOW[0])["segments"])
+    for take in FOLLOW:
+        sel = (ident["take"] == take) & ~ident["mirrored"]
+        assert sel.sum() > 100, take
+        f = ident["frame"][sel].astype(np.int64)
+        j, eyes = out.joints(take), out.eyes(take)
+        cur, prev = frame_rows(j["frame"], f), frame_rows(j["frame"], f - 1)
+        six = j["six"].reshape(len(j["frame"]), -1)
+        assert six.shape[1] == 6 * n_seg
+        np.testing.assert_array_equal(y[sel][:, :6 * n_seg], six[cur].astype(np.float32))
+        np.testing.assert_array_equal(x[sel][:, 3:3 + 6 * n_seg], six[prev].astype(np.float32))
+        np.testing.assert_allclose(x[sel][:, :3], j["target_dir"][cur], atol=1e-6)
+        ecur, eprev = frame_rows(eyes["frame"], f), frame_rows(eyes["frame"], f - 1)
+        np.testing.assert_allclose(y[sel][:, 6 * n_seg:], eyes["eye_dir_char"][ecur], atol=1e-6)
+        np.testing.assert_allclose(x[sel][:, 3 + 6 * n_seg:], eyes["eye_dir_char"][eprev], atol=1e-6)
 
 
 @pytest.mark.parametrize("name", ["gaze_rnn", "gaze_rnn_lod"])
