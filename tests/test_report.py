@@ -253,6 +253,13 @@ def test_html_is_self_contained(clean_out: Path) -> None:
     # feature distributions of every dataset
     assert _section(html, "dataset-gaze_rnn").count("<svg") == 2          # x and y
     assert _section(html, "dataset-gaze_map").count("<svg") == 3          # scalars, p_plus, start_times
+    # with a cap, only the worst take keeps its plots
+    assert _validate(clean_out, "--plot-takes", "1").exit_code == 0
+    html = (clean_out / "qc" / "report.html").read_text()
+    plotted = [t for t in TAKES if "<svg" in _section(html, f"take-session01-{t}")]
+    sev = {t["take"]: C.RANK[t["severity"]] for t in _report(clean_out)["takes"]}
+    assert len(plotted) == 1 and sev[plotted[0]] == max(sev.values())
+    assert "plots drawn for the 1 worst of 5 takes" in html
 
 
 def _chromium(args: list[str], tmp: Path) -> subprocess.CompletedProcess:

@@ -51,9 +51,12 @@ def _thresholds(pairs: tuple[str, ...]):
               help="Override a check threshold, e.g. --threshold unfilled_warn=0.1 (repeatable; 'none' disables).")
 @click.option("--no-plots", is_flag=True, help="Leave the plots out of report.html (faster; report.json and "
               "takes.parquet are the same).")
+@click.option("--plot-takes", type=click.IntRange(0), default=100, show_default=True,
+              help="Plot at most this many takes, the worst first (every take keeps its checks table).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
 @handle_errors
-def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool, as_json: bool) -> None:
+def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool, plot_takes: int,
+             as_json: bool) -> None:
     """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and a
     self-contained OUT/qc/report.html.
 
@@ -71,7 +74,7 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool
 
     from gazepipe.report.validate import validate_output
 
-    res = validate_output(Path(out), _thresholds(thresholds), fail_on, plots_on=not no_plots)
+    res = validate_output(Path(out), _thresholds(thresholds), fail_on, plots_on=not no_plots, plot_takes=plot_takes)
     rep = res.report
     if as_json:
         click.echo(json.dumps({"gate": rep["gate"], "summary": rep["summary"],

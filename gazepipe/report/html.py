@@ -76,9 +76,9 @@ def _figures(figs: list[Figure]) -> str:
 
 
 def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
-                dataset_figs: dict[str, list[Figure]]) -> str:
+                dataset_figs: dict[str, list[Figure]], plot_notes: list[str] | None = None) -> str:
     """The page for ``report`` (the report.json object) with the plots of each take (key ``session/take``) and
-    dataset (key: its name)."""
+    dataset (key: its name), and notes on plots left out."""
     gate = report["gate"]
     summ = report["summary"]
     p: list[str] = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -122,8 +122,9 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
 
     p.append('<h2 id="output">Whole output</h2>')
     p.append(_checks_table(report["output_checks"]))
-    if report["notes"]:
-        p.append("<ul>" + "".join(f"<li>{escape(n)}</li>" for n in report["notes"]) + "</ul>")
+    notes = list(report["notes"]) + list(plot_notes or [])
+    if notes:
+        p.append('<ul id="notes">' + "".join(f"<li>{escape(n)}</li>" for n in notes) + "</ul>")
 
     for d in report["datasets"]:
         p.append(f"<h2 id=\"{anchor('dataset', d['name'])}\">{_sev(d['severity'])} dataset {escape(d['name'])}</h2>")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import re
+import warnings
 from collections.abc import Sequence
 
 import matplotlib
@@ -53,6 +54,21 @@ def _margins(fig: plt.Figure, left: float = 0.7, right: float = 0.2, bottom: flo
     """Fixed margins in inches (an automatic layout measures every label twice: slow, and not needed here)."""
     w, h = fig.get_size_inches()
     fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h, wspace=wspace)
+
+
+def envelope(x: np.ndarray, y: np.ndarray, max_bins: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """A long trace reduced to the minimum and maximum of ``max_bins`` equal bins (drawn as a line it looks the
+    same at figure resolution, peaks included); traces up to ``2 · max_bins`` samples are returned as they are."""
+    n = y.size
+    if n <= 2 * max_bins:
+        return x, y
+    edges = np.linspace(0, n, max_bins + 1).astype(np.int64)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo = np.fmin.reduceat(y, edges[:-1])
+        hi = np.fmax.reduceat(y, edges[:-1])
+    xc = 0.5 * (x[edges[:-1]] + x[np.minimum(edges[1:], n) - 1])
+    return np.repeat(xc, 2), np.column_stack([lo, hi]).reshape(-1)
 
 
 def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Sequence[dict],
@@ -103,7 +119,7 @@ def speed_plot(speed: np.ndarray, rate_hz: float, crop: Sequence[int] | None, re
         for a, b in rests:
             ax.axvspan(a / rate_hz, b / rate_hz, color="#2ca02c", alpha=0.15, lw=0)
         pos = np.where(speed > 0, speed, np.nan)
-        ax.plot(t, pos, color="#333333", lw=0.8, label="mean marker speed")
+        ax.plot(*envelope(t, pos), color="#333333", lw=0.8, label="mean marker speed")
         if threshold is not None:
             ax.axhline(threshold, color="#2ca02c", lw=0.8, ls="--", label=f"rest threshold {threshold:g} mm/s")
         if crop is not None:
@@ -152,22 +168,23 @@ def eye_plot(time_s: np.ndarray, confidence: np.ndarray, valid: np.ndarray, fill
     fig = _fig(9.0, 2.2)
     with plt.rc_context(_STYLE):
         ax = fig.add_subplot(111)
-        bad = ~np.asarray(valid, bool)
-        if bad.any():
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
-            dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 0.0
-            for a, b in zip(edges[0::2], edges[1::2], strict=True):
-                ax.axvspan(time_s[a], time_s[b - 1] + dt, color="#d62728", alpha=0.15, lw=0)
-        ax.plot(time_s, confidence, color="#333333", lw=0.7, label="confidence")
-        f = np.asarray(filled, bool)
-        if f.any():
-            ax.plot(time_s[f], confidence[f], ls="none", marker="|", color="#1f77b4", ms=4, label="slerp-filled")
+        # invalid (red) and slerp-filled (blue) frames as one background strip: a raster, whatever the length
+        strip = np.where(np.asarray(filled, bool), 2, np.where(np.asarray(valid, bool), 0, 1))[None, :]
+        if time_s.size:
+            dt = float(np.median(np.diff(time_s))) if time_s.size > 1 else 1.0
+            ax.imshow(strip, aspect="auto", interpolation="nearest", origin="lower",
+                      cmap=ListedColormap(["#ffffff", "#f4c2c2", "#c6dbef"]), vmin=-0.5, vmax=2.5,
+                      extent=(float(time_s[0]), float(time_s[-1]) + dt, -0.02, 1.02))
+        ax.plot(*envelope(time_s, np.asarray(confidence, np.float64)), color="#333333", lw=0.7,
+                label="confidence")
+        ax.plot([], [], ls="none", marker="s", color="#f4c2c2", label="invalid")
+        ax.plot([], [], ls="none", marker="s", color="#c6dbef", label="slerp-filled")
         if gate is not None:
             ax.axhline(gate, color="#ff7f0e", lw=0.9, ls="--", label=f"gate {gate:g}")
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel("time (s)")
-        ax.set_title("eye confidence (red: invalid frames)")
-        ax.legend(loc="lower right", frameon=False, ncol=3)
+        ax.set_title("eye confidence")
+        ax.legend(loc="lower right", frameon=False, ncol=4)
         _margins(fig)
     return to_svg(fig, salt)
 

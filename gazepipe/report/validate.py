@@ -176,7 +176,7 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
         eq = e.qc("eyes") or {}
         ey = tables.eyes
         figs.append(Figure("Eye confidence", "OpenFace confidence on the mocap frames (the lower of the two video "
-                           "samples around each frame) against the gate; red spans are invalid frames.",
+                           "samples around each frame) against the gate; red: invalid frames, blue: frames bridged by slerp.",
                            plots.eye_plot(ey["time_s"], ey["confidence"], ey["valid"], ey["filled"],
                                           eq.get("min_confidence"), salt + "eyes")))
     return figs, notes
@@ -250,7 +250,7 @@ def _sorted_checks(checks: list[C.Check]) -> list[C.Check]:
 
 
 def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fail_on: str = "fail",
-                    lock: bool = True, plots_on: bool = True) -> ValidateResult:
+                    lock: bool = True, plots_on: bool = True, plot_takes: int = 100) -> ValidateResult:
     """Check everything in the output folder ``out`` and write ``out/qc/{report.json,takes.parquet,report.html}``.
 
     Parameters
@@ -259,8 +259,11 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     fail_on : the gate: ``fail`` (checks at fail or error) or ``warning`` (warning or worse).
     lock : hold the output folder's lock while reading and writing (a running ``gazepipe run`` makes this raise
         :class:`~gazepipe.errors.LockedError`, exit 75).
-    plots_on : draw the plots (off: the HTML page has the tables only; report.json and takes.parquet are the
-        same either way).
+    plots_on : draw the plots (off: the HTML page has the tables only).
+    plot_takes : draw the plots of at most this many takes, the worst first (the page of a corpus of thousands
+        of takes stays readable and small); every take keeps its checks table.
+
+    report.json and takes.parquet do not depend on ``plots_on`` and ``plot_takes``.
 
     Raises :class:`~gazepipe.errors.ConfigError` when ``out`` is not a gazepipe output folder.
     """
@@ -268,34 +271,44 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
         raise ValueError(f"fail_on must be one of {FAIL_ON}")
     layout = open_output(out)
     th = thresholds or C.Thresholds()
+    limit = int(plot_takes) if plots_on else 0
     if lock:
         with OutputLock(layout.lock):
-            return _validate(layout, th, fail_on, plots_on)
-    return _validate(layout, th, fail_on, plots_on)
+            return _validate(layout, th, fail_on, limit)
+    return _validate(layout, th, fail_on, limit)
 
 
-def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool) -> ValidateResult:
+def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int) -> ValidateResult:
     sessions, session_problems = load_sessions(layout)
     states = unit_states(layout) if not session_problems else None
-    notes: list[str] = []
     takes_out: list[dict[str, Any]] = []
     rows: list[dict[str, Any]] = []
-    take_figs: dict[str, list[Figure]] = {}
     refs: list[dict[str, Any]] = []
-    for e in take_entries(layout, sessions):
+    entries = take_entries(layout, sessions)
+    for e in entries:
         tables = load_take_tables(layout, e)
         checks = _sorted_checks(take_checks(e, tables, th, None if states is None else states.get(e.key, [])))
         sev = C.worst([c.severity for c in checks])
-        s = sessions.get(e.session)
-        figs, fig_notes = take_figures(e, tables, s.markerset if s is not None else None) if plots_on else ([], [])
-        take_figs[e.key] = figs
-        notes.extend(f"{e.key}: {n}" for n in fig_notes)
         takes_out.append({"session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": sev,
                           "stages": {k: r.get("status", "?") for k, r in sorted(e.records.items())},
                           "checks": [c.to_dict() for c in checks]})
         rows.append(take_row(e, checks, sev))
         refs.extend(_ref("take", e.key, c) for c in checks)
         del tables
+
+    # plots: a second pass over the worst takes only (tables are read again, one take at a time)
+    take_figs: dict[str, list[Figure]] = {}
+    plot_notes: list[str] = []
+    ranked = sorted(zip(entries, takes_out, strict=True), key=lambda et: (-C.RANK[et[1]["severity"]], et[0].key))
+    for e, _ in ranked[:plot_takes]:
+        s = sessions.get(e.session)
+        figs, fig_notes = take_figures(e, load_take_tables(layout, e), s.markerset if s is not None else None)
+        take_figs[e.key] = figs
+        plot_notes.extend(f"{e.key}: {n}" for n in fig_notes)
+    if 0 < plot_takes < len(entries):
+        plot_notes.insert(0, f"plots drawn for the {plot_takes} worst of {len(entries)} takes (--plot-takes)")
+    elif plot_takes == 0 and entries:
+        plot_notes.insert(0, "plots left out (--no-plots)")
 
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
@@ -306,7 +319,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool)
         d = load_dataset(dirs[name], th) if name in dirs else DatasetData(name)
         checks = _sorted_checks(dataset_checks(d, th, records.get(name), name in dirs))
         splits[d.name] = d.take_splits
-        ds_figs[d.name] = dataset_figures(d) if plots_on else []
+        ds_figs[d.name] = dataset_figures(d) if plot_takes > 0 else []
         counts = d.info.get("counts") or {}
         datasets_out.append({"name": d.name, "severity": C.worst([c.severity for c in checks]),
                              "schema_hash": D.schema_hash(d.expected) if d.expected is not None else None,
@@ -333,10 +346,10 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool)
         "thresholds": th.to_dict(),
         "takes": takes_out, "datasets": datasets_out,
         "output_checks": [c.to_dict() for c in output_checks],
-        "notes": notes,
+        "notes": list(session_problems),
     }
     table = pa.Table.from_pylist(rows, schema=TAKES_SCHEMA) if rows else TAKES_SCHEMA.empty_table()
-    html = render_html(report, take_figs, ds_figs)
+    html = render_html(report, take_figs, ds_figs, plot_notes)
     qc = layout.root / "qc"
     qc.mkdir(exist_ok=True)
     layout.tmp.mkdir(parents=True, exist_ok=True)
@@ -348,7 +361,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots_on: bool)
     layout.write_bytes(paths[2], html.encode())
     n_figs = sum(len(v) for v in take_figs.values()) + sum(len(v) for v in ds_figs.values())
     return ValidateResult(report=report, paths=paths, passed=not hit, takes=table, html=html, figures=n_figs,
-                          notes=notes)
+                          notes=plot_notes)
 
 
 __all__ = ["FAIL_ON", "ValidateResult", "dataset_checks", "take_checks", "validate_output"]
