@@ -173,6 +173,20 @@ def test_broken_take_fails_the_gate_and_is_named(broken_out: Path) -> None:
     assert summary.index("shift_y036_p12") < summary.index("shift_ym036_p00"), "failing takes first"
 
 
+def test_unreadable_table_is_an_error_that_fails_the_gate(broken_out: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(broken_out, out)
+    table = out / "takes" / "session01" / "shift_ym036_p00" / "markers.parquet"
+    table.write_bytes(table.read_bytes()[:200])
+    res = _validate(out, "--no-plots")
+    assert res.exit_code == 3
+    take = next(t for t in _report(out)["takes"] if t["take"] == "shift_ym036_p00")
+    checks = {c["id"]: c for c in take["checks"]}
+    assert checks["table_markers"]["severity"] == "error" and str(table) in checks["table_markers"]["message"]
+    assert checks["unfilled"]["severity"] == "error"
+    assert take["severity"] == "error" and take["checks"][0]["severity"] == "error"
+
+
 def test_outputs_older_than_their_inputs_are_flagged(tmp_path: Path) -> None:
     session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train"})
     out = tmp_path / "out"

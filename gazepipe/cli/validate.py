@@ -61,10 +61,12 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool
     self-contained OUT/qc/report.html.
 
     \b
-    Checks per take: stage failures, gap and fill shares, longest gap, fill validation error,
-    unfilled samples, spikes, crop bounds, invalid frames, clap offset/drift/confidence, frames
-    without video, eye gating, camera-rotation residual. Per dataset: schema hash, split
-    disjointness, counts per pose and split, statistics sanity.
+    Checks per take: failed or out-of-date stages, gap and fill shares, longest gap, fill
+    validation error, unfilled samples, spikes, crop bounds, invalid frames, clap
+    offset/drift/confidence, frames without video, eye gating, camera-rotation residual,
+    face-track matching. Per dataset: build, schema hash, split disjointness, counts per
+    pose and split, statistics sanity. Severities: pass, warning, fail, error (the check
+    could not be evaluated), skipped (not applicable). Thresholds: see report.json.
 
     \b
       gazepipe validate out/
