@@ -420,6 +420,16 @@ def test_sync_and_eye_checks_read_their_stage_records() -> None:
     assert {c.id: c for c in C.eyes_checks(eyes, True, th)}["camera_residual"].severity == "skipped"
 
 
+def test_stage_warnings_are_surfaced() -> None:
+    recs = {"ingest": {"status": "ok", "warnings": []},
+            "face": {"status": "ok", "warnings": ["tracked: head rotations are all zero", "clean: 8 dropped"]}}
+    c = C.check_stage_warnings(recs)
+    assert c.severity == "warning" and c.value == 2 and "head rotations are all zero" in c.message
+    assert c.details["warnings"] == {"face": recs["face"]["warnings"]}
+    recs["face"]["warnings"] = []
+    assert C.check_stage_warnings(recs).severity == "pass"
+
+
 def test_face_checks() -> None:
     th = C.Thresholds()
     qc = {"rows_tracked": 1000, "rows_clean": 990, "dropped_frames_tracked": 80, "dropped_frames_clean": 2,

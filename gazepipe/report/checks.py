@@ -13,6 +13,8 @@ check                                   warning         fail         measured on
 ``stages``                              a unit is       a unit       every unit record of the take (status), and
                                         stale or never  failed       whether it is up to date with its inputs now
                                         ran
+``stage_warnings``                      a stage warned  –            the warnings each stage recorded (a file
+                                                                     100 % invalid, head tracking off, …)
 ``gap_share``                           > 20 %          –            per marker, share of the take's frames that
                                                                      were gaps at ingest (worst marker)
 ``longest_gap``                         > 1.0 s         –            per marker, longest gap after spike removal
@@ -198,6 +200,17 @@ def check_stages(records: dict[str, dict[str, Any]], states: list[dict[str, Any]
     fresh = "" if states is None else ", up to date"
     return Check("stages", "pass", f"{len(records)} stage(s) ok{fresh}: {', '.join(sorted(records))}", value=0,
                  details=details)
+
+
+def check_stage_warnings(records: dict[str, dict[str, Any]]) -> Check:
+    """The warnings the take's stages recorded, so none goes unseen."""
+    per = {s: list(r.get("warnings") or []) for s, r in sorted(records.items()) if r.get("warnings")}
+    n = sum(len(w) for w in per.values())
+    if not n:
+        return Check("stage_warnings", "pass", "no stage warning", value=0)
+    stage, first = next((s, w[0]) for s, w in per.items())
+    more = f" (+{n - 1} more)" if n > 1 else ""
+    return Check("stage_warnings", "warning", f"{stage}: {first}{more}", value=n, details={"warnings": per})
 
 
 # ------------------------------------------------------------------------------------------------ markers

@@ -66,7 +66,7 @@ def take_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds,
     ingest, clean, frames_qc = e.qc("ingest"), e.qc("clean"), e.qc("frames")
     n_frames = (ingest or {}).get("frames")
     rate = (ingest or {}).get("rate_hz")
-    out = [C.check_stages(e.records, states)]
+    out = [C.check_stages(e.records, states), C.check_stage_warnings(e.records)]
     for name, err in sorted(tables.errors.items()):
         out.append(C.Check(f"table_{name}", "error", f"{name} table unreadable: {err}"))
     if e.kind == "face":
