@@ -236,3 +236,44 @@ def test_face_clean_beats_the_tracked_input(datasets, tmp_path):
     assert v["cleaned_rmse"] < 0.95 * rmse_tracked, v
     meta = json.loads((tmp_path / "m" / "model.json").read_text())
     assert meta["config"]["dropout"] == 0.3 and meta["config"]["window"] == 200 and meta["config"]["stride"] == 50
+
+
+# ------------------------------------------------------------------------------------- on a pipeline run
+
+@pytest.mark.slow
+def test_trainers_on_the_sample_session_run(tmp_path_factory):
+    """`gazepipe run` on sample_data/session01, then every trainer through `gazepipe train` on what it wrote;
+    the reader's runs agree with the builder's own segment counts in dataset.json."""
+    from gazepipe.cli.main import cli
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+    if not (sample / "session.toml").is_file():
+        pytest.skip("no sample session")
+    root = tmp_path_factory.mktemp("sample_run")
+    out = root / "out"
+    res = CliRunner().invoke(cli, ["run", str(sample), "--out", str(out), "--executor", "serial",
+                                   "--log-format", "json"])
+    assert res.exit_code == 0, res.output[-2000:]
+    for name in ("gaze_rnn", "gaze_rnn_lod"):
+        ds = open_dataset(out / "datasets" / name)
+        counts = ds.info["counts"]
+        w = ds.windows(None, mirrored=False)
+        assert w.runs == counts["segments"]
+        assert w.runs - w.short_runs == counts["segments_with_a_window"]
+    have_torch = True
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        have_torch = False
+    jobs = [("gaze_map", "gaze_map", [])]
+    if have_torch:
+        small = ["--epochs", "1", "--hidden", "16", "--option", "threads=1", "--option", "max_windows=16"]
+        jobs += [("gaze_rnn", "gaze_rnn", small), ("gaze_rnn", "gaze_rnn_lod", small),
+                 ("face_clean", "face_clean", small)]
+    for trainer, name, extra in jobs:
+        model = root / "models" / name
+        r = run_train(trainer, "--data", str(out / "datasets" / name), "--out", str(model), *extra)
+        assert r.exit_code == 0, (name, r.output)
+        meta = json.loads((model / "model.json").read_text())
+        assert meta["trainer"] == trainer and meta["dataset"]["name"] == name
+        assert (model / meta["weights"]).is_file()
