@@ -20,7 +20,7 @@ from gazepipe.cli.validate import validate
 from gazepipe.io.session_toml import load_session
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
-from gazepipe.report.schema import REPORT_SCHEMA_VERSION, validate_report
+from gazepipe.report.schema import REPORT_JSON_SCHEMA, REPORT_SCHEMA_VERSION, validate_report
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_data" / "session01"
@@ -133,9 +133,14 @@ def test_validation_report_is_not_a_schema_rubber_stamp() -> None:
     rep = {"schema": "gazepipe.qc_report", "schema_version": REPORT_SCHEMA_VERSION}
     problems = validate_report(rep)
     assert any("missing 'takes'" in p for p in problems)
-    bad_check = {"id": "x", "severity": "awful", "message": "", "value": None, "threshold": None, "details": {}}
-    assert validate_report([bad_check], {"type": "array", "items": json.loads(json.dumps(
-        __import__("gazepipe.report.schema", fromlist=["_CHECK"])._CHECK))})
+    check = C.Check("x", "pass", "fine").to_dict()
+    take = {"session": "s", "take": "t", "kind": "gaze_shift", "pose": "standing", "severity": "pass",
+            "stages": {}, "checks": [check]}
+    takes_schema = REPORT_JSON_SCHEMA["properties"]["takes"]
+    assert validate_report([take], takes_schema) == []
+    assert any("'awful' is not one of" in p for p in validate_report(
+        [{**take, "checks": [{**check, "severity": "awful"}]}], takes_schema))
+    assert any("unexpected 'extra'" in p for p in validate_report([{**take, "extra": 1}], takes_schema))
 
 
 def test_thresholds_drive_the_gate(clean_out: Path) -> None:
