@@ -89,6 +89,8 @@ def test_usage_errors(datasets, tmp_path):
     assert res.exit_code == 2 and "has no option q (options: k, train_split)" in res.output
     res = run_train("gaze_map", "--data", str(datasets / "gaze_map"), "--out", str(tmp_path / "m"), "--option", "k")
     assert res.exit_code == 2 and "expected KEY=VALUE" in res.output
+    res = run_train("gaze_map", "--data", str(datasets / "gaze_map"), "--out", str(tmp_path / "m"), "--epochs", "3")
+    assert res.exit_code == 2 and "trainer 'gaze_map' does not use --epochs" in res.output
 
 
 def test_torch_trainer_without_torch(datasets, tmp_path, monkeypatch):

@@ -72,6 +72,7 @@ class Trainer(Protocol):
     schema_version : the dataset schema version it reads (dataset.json ``schema_version``).
     required_columns : columns the dataset's files must have.
     options : known ``--option`` keys → one-line help (unknown keys are refused).
+    knobs : optional; which of ``epochs``, ``hidden``, ``lr`` it uses (default all three; others are refused).
     """
 
     name: str
@@ -135,6 +136,12 @@ def check_compatible(trainer: Trainer, info: dict[str, Any], columns: list[str],
 
 
 def check_options(trainer: Trainer, options: TrainOptions) -> None:
+    """Refuse (exit 2) an ``--option`` the trainer does not declare and a knob (``--epochs``, ``--hidden``,
+    ``--lr``) it does not use (its optional ``knobs`` attribute; all three when absent)."""
+    uses = tuple(getattr(trainer, "knobs", ("epochs", "hidden", "lr")))
+    unused = [f"--{k}" for k in ("epochs", "hidden", "lr") if getattr(options, k) is not None and k not in uses]
+    if unused:
+        raise ConfigError(None, f"trainer {trainer.name!r} does not use {', '.join(unused)}")
     known = dict(getattr(trainer, "options", {}) or {})
     unknown = sorted(k for k in options.extra if k not in known)
     if unknown:

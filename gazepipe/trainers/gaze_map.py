@@ -215,6 +215,7 @@ class GazeMapTrainer:
     dataset = "gaze_map"
     schema_version = 1
     required_columns = ("yaw_deg", "pitch_deg", "duration_s", "start_times", "overshoot_time", "overshoot", "p_plus")
+    knobs: tuple[str, ...] = ()
     options = {"k": "neighbours blended per request (Kovar-Gleicher k; default 4)",
                "train_split": "the split whose rows form the map (default train)"}
 
