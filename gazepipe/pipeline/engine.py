@@ -172,7 +172,8 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, executor: 
                 elif o.status == "blocked":
                     log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
                              take=o.take, stage=o.stage, status="blocked")
-            if heartbeat_every and done % heartbeat_every == 0 and done < len(todo):
+            log.progress(done, len(todo))
+            if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
                 log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
 
 

@@ -25,6 +25,7 @@ class EventLog:
         self.fmt = fmt
         self.run_id = run_id
         self.quiet = quiet
+        self._bar = False   # a progress bar is on the terminal's last line
 
     @property
     def interactive(self) -> bool:
@@ -41,11 +42,25 @@ class EventLog:
                 rec["message"] = message
             line = json.dumps(rec, default=str, sort_keys=False)
         else:
-            if level == "debug":
-                return
+            if level == "debug" or (self.interactive and event == "unit" and fields.get("status") == "ok"):
+                return  # on a terminal the progress bar stands for the units that went well
             prefix = {"warning": "warning: ", "error": "error: "}.get(level, "")
             line = prefix + (message or event)
+            if self._bar:
+                line = "\r\033[K" + line
+                self._bar = False
         print(line, file=self.stream, flush=True)
+
+    def progress(self, done: int, total: int, what: str = "takes") -> None:
+        """Redraw a one-line progress bar (terminals only; nothing in logs)."""
+        if not self.interactive or total <= 0:
+            return
+        width = 30
+        full = int(width * done / total)
+        bar = "#" * full + "-" * (width - full)
+        end = "\n" if done >= total else ""
+        print(f"\r\033[K[{bar}] {done}/{total} {what}", end=end, file=self.stream, flush=True)
+        self._bar = done < total
 
 
 def _isatty(stream: TextIO) -> bool:
