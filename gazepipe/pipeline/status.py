@@ -46,6 +46,20 @@ def collect_status(out: Path) -> list[dict[str, Any]]:
         if rec is not None:
             row["duration_s"] = rec.get("duration_s")
         rows.append(row)
+    from gazepipe.pipeline.datasets import plan_datasets
+
+    planned = {d.name: d for d in plan_datasets(sessions, layout, plans, {})}
+    for path in sorted((layout.state / "datasets").glob("*.json")):
+        rec = read_json(path) or {}
+        name = path.stem
+        row = {"session": "-", "take": f"dataset {name}", "stage": "build", "duration_s": rec.get("duration_s")}
+        if rec.get("status") == "failed":
+            row.update(state="failed", detail=rec.get("error", ""))
+        elif name in planned and planned[name].run:
+            row.update(state="stale", detail=planned[name].reason)
+        else:
+            row.update(state="ok", detail="")
+        rows.append(row)
     for key, rec in sorted(records.items(), key=lambda kv: tuple(map(str, kv[0]))):
         if key not in seen:
             rows.append({"session": key[0], "take": key[1], "stage": key[2],
