@@ -213,9 +213,11 @@ def params_cmd() -> None:
 
 
 def _register_commands() -> None:
+    from gazepipe.cli.train import train
     from gazepipe.cli.validate import validate
 
     cli.add_command(validate)
+    cli.add_command(train)
 
 
 _register_commands()
