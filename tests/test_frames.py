@@ -365,3 +365,45 @@ def test_sample_target_direction(sample_joints):
             assert np.median(np.degrees(np.arccos(cos))) <= 1.0, tid
             hc = tr["head_centre_char"][res.frames].astype(np.float64)
             assert np.median(np.linalg.norm(j.head_centre[ok] - hc[ok], axis=1)) < 2.0, tid
+
+
+def test_partial_clusters_fitted_to_markers_present(take):
+    """A five-marker head with one or two markers missing is fitted to those present (its accuracy stays that of
+    a full cluster, its centroid is carried by the fit); a three-marker segment missing one stays undefined, and
+    so does a head left with a collinear or too small subset."""
+    mk, neutral, rots, truth = take
+    xyz = mk.xyz.copy()
+    h = [mk.index(n) for n in NAMES["head"]]
+    xyz[100:200, h[4]] = np.nan                   # HTOP: four coplanar markers left
+    xyz[250:300, [h[0], h[3]]] = np.nan           # HFL + HBR: three left
+    xyz[350:360, [h[0], h[1], h[2]]] = np.nan     # two left: undefined
+    xyz[400:410, mk.index("SPN2")] = np.nan       # a triangle loses a marker: undefined
+    m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    ms = markerset(headc=False, eye_offset=tuple(HEADC_OFF - np.mean(OFFSETS["head"], axis=0)))
+    j = compute_frames(m2, ms, neutral)
+    full = compute_frames(mk, ms, neutral)
+    part = np.r_[100:200, 250:300]
+    assert j.valid[part].all()
+    assert not j.valid[350:360].any() and np.isnan(j.quat[350:360, 2]).all()
+    assert not j.valid[400:410].any() and np.isfinite(j.quat[400:410, 2]).all()
+    err = angles_deg(j.quat[part, 2], rots["head"][part])
+    err_full = angles_deg(full.quat[:, 2], rots["head"])
+    assert np.median(err) < 2.0 * np.median(err_full) and err.max() < 2.0   # 0.5 mm noise on a 140 mm cluster
+    assert np.median(np.linalg.norm(j.head_centre[part] - truth["headc"][part], axis=1)) < 2.0
+    others = np.setdiff1d(np.arange(mk.n_frames), np.r_[part, 350:360, 400:410])
+    np.testing.assert_array_equal(j.quat[others], full.quat[others])
+
+
+def test_partial_cluster_collinear_subset_undefined(take):
+    """Three markers left on one line of the reference carry no rotation about it: the segment stays undefined."""
+    mk, neutral, _, _ = take
+    xyz, nxyz = mk.xyz.copy(), neutral.xyz.copy()
+    h = [mk.index(n) for n in NAMES["head"]]
+    # move HTOP onto the line HFL–HBR in every frame (neutral included): HFL, HBR, HTOP are collinear
+    for arr in (xyz, nxyz):
+        arr[:, h[4]] = 0.5 * (arr[:, h[0]] + arr[:, h[3]])
+    xyz[20:30, [h[1], h[2]]] = np.nan
+    m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    n2 = Markers(labels=neutral.labels, xyz=nxyz, valid=neutral.valid, rate_hz=RATE)
+    j = compute_frames(m2, markerset(), n2)
+    assert not j.valid[20:30].any() and j.valid[30:40].all()
