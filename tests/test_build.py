@@ -418,7 +418,8 @@ def _check_map_row(row: dict, tr: dict, crop0: int, skip_starts: tuple[str, ...]
 
 def test_gaze_map_on_truth_rotations(session):
     """On the generator's own rotations the builder reproduces its truth: start times, t_β (±2 frames), β
-    (±0.05), duration and P+."""
+    (±0.05), duration and P+. The rotations are noise-free, so the start rule runs as the truth's (Pejsa's: raw
+    central differences, no low-pass, no minimum duration)."""
     takes = []
     for t in _shift_takes(session):
         tr = load_truth(session.root, t.id)
@@ -426,7 +427,8 @@ def test_gaze_map_on_truth_rotations(session):
         takes.append(TakeTables(session=session.id, subject=session.subject, take=t,
                                 joints=truth_joints(tr, np.arange(c0, c1)), markerset=session.markerset,
                                 meta={"rests": tr["scalars"]["rest_periods"]}))
-    built = build_dataset("gaze_map", takes, BuildParams(train_frac=1.0, val_frac=0.0))
+    built = build_dataset("gaze_map", takes, BuildParams(train_frac=1.0, val_frac=0.0, start_filter_hz=None,
+                                                         start_min_s=0.0))
     assert len(built.tables) == 9 and not built.info["skipped"]
     assert built.schema.field("p_plus").type == pa.list_(pa.float32(), 44)
     segs = list(load_truth(session.root, takes[0].take.id)["segments"])
@@ -485,21 +487,46 @@ def pipeline_shift_takes(session):
     return out
 
 
+def _near_threshold(tr: dict, thr_deg_s: float = 18.0, margin_deg_s: float = 2.5) -> tuple[str, ...]:
+    """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
+    start threshold (the root: its turn in the character frame held fixed at the crop start)."""
+    from gazepipe.stages.build_gaze import angular_speed
+
+    c0, c1 = tr["scalars"]["crop"]
+    c = from_wxyz(tr["char_quat_lab"][c0:c1])
+    out = []
+    for k, s in enumerate(tr["segments"]):
+        if k == 0:
+            r = c[0].inv() * c * from_wxyz(tr["seg_quat_char"][c0:c1, 0].astype(np.float64))
+        else:
+            r = from_wxyz(tr["seg_quat_local"][c0:c1, k].astype(np.float64))
+        if abs(np.degrees(angular_speed(r, RATE).max()) - thr_deg_s) < margin_deg_s:
+            out.append(s)
+    return tuple(out)
+
+
 def test_gaze_map_on_pipeline_output(pipeline_shift_takes, session):
     """On the noisy capture files through clean and frames: t_β within ±2 frames and β within ±0.05 of the
-    truth; start times within ±2 frames for every segment but the chest.
+    truth; start times within ±2 frames (in take frames) for every segment whose noise-free peak speed is not
+    within 2.5°/s of the 18°/s threshold.
 
-    The chest's parent-relative speed (chest against spine4) carries about 20°/s of noise at 30 Hz with 0.5 mm
-    marker noise, above the 18°/s threshold itself, so its start is found 6–13 frames early in the 72° takes
-    (measured). shift_y000_p12 (pitch only) overshoots by β = 0.023 of a ~12° head turn, about 0.3°, the size
-    of the orientation noise: its t_β is only located within ±3 frames."""
+    Parent-relative orientations carry ~1° of noise with 0.5 mm marker noise; after the start rule's 2 Hz
+    low-pass a few °/s of speed noise remain, so a segment peaking at 16–20°/s (the chest and necks of the 72°
+    shifts) may or may not cross 18°/s: those are left out (measured: 3 of 90 starts miss, all of them such).
+    shift_y000_p12 (pitch only) overshoots by β = 0.023 of a ~12° head turn, about 0.3°, the size of the
+    orientation noise: its t_β is only located within ±3 frames."""
     built = build_dataset("gaze_map", pipeline_shift_takes, BuildParams(train_frac=1.0, val_frac=0.0))
     assert len(built.tables) == 9 and not built.info["skipped"]
+    checked = 0
     for (_, _, tid), table in built.tables.items():
         row = table.to_pylist()[0]
         tr = load_truth(session.root, tid)
         tol = 3.0 if tr["scalars"]["beta"] < 0.03 else 2.0
-        _check_map_row(row, tr, row["frame"], skip_starts=("chest",), tb_tol=tol)
+        skip = _near_threshold(tr)
+        assert len(skip) <= 4, skip
+        checked += len(tr["segments"]) - len(skip)
+        _check_map_row(row, tr, row["frame"], skip_starts=skip, tb_tol=tol)
+    assert checked >= 75
 
 
 # ------------------------------------------------------------------------------------------------ face_clean
@@ -591,3 +618,54 @@ def test_schema_identity_is_checked():
         check_table(t, gaze_rnn_schema(21, 18))
     with pytest.raises(SchemaError):
         check_table(with_identity(gaze_rnn_schema(21, 17, "gaze_rnn_lod"), "gaze_rnn_lod", 1).empty_table(), s)
+
+
+# ------------------------------------------------------------------------------------------------ start times
+
+def _shift_rotations(amp_deg: float, n: int = 90, onset: int = 30, dur_s: float = 0.5, rate: float = 30000 / 1001,
+                     noise_deg: float = 0.0, seed: int = 0) -> Rotation:
+    """A quintic (minimum-jerk) turn of ``amp_deg`` about a tilted axis starting at frame ``onset``, with
+    Gaussian rotation-vector noise of ``noise_deg`` per axis."""
+    u = np.clip((np.arange(n) - onset) / (dur_s * rate), 0.0, 1.0)
+    theta = np.deg2rad(amp_deg) * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    axis = np.array([0.2, 1.0, 0.1]) / np.linalg.norm([0.2, 1.0, 0.1])
+    rv = theta[:, None] * axis + np.random.default_rng(seed).normal(0.0, np.deg2rad(noise_deg), (n, 3))
+    return Rotation.from_rotvec(rv)
+
+
+def test_start_times_robust_to_orientation_noise():
+    """With ~1° of orientation noise (0.6° per axis, the sample session's parent-relative level) the default
+    low-pass start rule finds a fast turn's start within 2 frames of the noise-free crossing of 18°/s, and no
+    start for a slow turn (peak ~11°/s); raw central differences fire on the noise alone."""
+    from gazepipe.stages.build_gaze import angular_speed, start_frame
+
+    rate = 30000 / 1001
+    p = BuildParams()
+    thr = np.deg2rad(p.start_speed_deg_s)
+    min_frames = max(1, round(p.start_min_s * rate))
+    want = int(np.flatnonzero(angular_speed(_shift_rotations(30.0), rate) > thr)[0])
+    assert np.degrees(angular_speed(_shift_rotations(3.0), rate).max()) < 12.0
+    got, slow, raw_slow = [], [], []
+    for seed in range(20):
+        fast = _shift_rotations(30.0, noise_deg=0.6, seed=seed)
+        slow_r = _shift_rotations(3.0, noise_deg=0.6, seed=100 + seed)
+        got.append(start_frame(fast, rate, thr, p.start_filter_hz, min_frames))
+        slow.append(start_frame(slow_r, rate, thr, p.start_filter_hz, min_frames))
+        raw_slow.append(start_frame(slow_r, rate, thr, None, 1))
+    assert np.abs(np.array(got) - want).max() <= 2, (got, want)
+    assert slow == [-1] * 20, slow
+    assert sum(r >= 0 for r in raw_slow) >= 15, raw_slow     # the old rule: noise "starts" the slow turn
+
+
+def test_start_time_needs_min_duration():
+    """A one-frame excursion above the threshold is not a start; two frames are (the default minimum at 30 Hz)."""
+    from gazepipe.stages.build_gaze import start_frame
+
+    rate = 30.0
+    rv = np.zeros((40, 3))
+    rv[10, 1] = np.deg2rad(2.0)                          # a one-sample spike: 30°/s at frames 9 and 11 alone
+    rv[25:, 1] = np.deg2rad(1.0) * np.arange(1, 16)     # a 30°/s turn: above 18°/s from frame 25 on
+    r = Rotation.from_rotvec(rv)
+    thr = np.deg2rad(18.0)
+    assert start_frame(r, rate, thr, None, 1) == 9
+    assert start_frame(r, rate, thr, None, 2) == 25

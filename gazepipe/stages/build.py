@@ -68,6 +68,17 @@ class BuildParams:
         (Klein 6.2: 120 frames = 4 s), written to dataset.json.
     face_window, face_stride : the same for face_clean (Berson 4.1: 200-frame chunks, overlap 150).
     start_speed_deg_s : gaze_map start-time threshold on parent-relative angular speed (Pejsa: 18°/s).
+    start_filter_hz : −3 dB frequency (Hz) of the zero-phase Gaussian low-pass applied to the parent-relative
+        rotations before the start-time speeds (``None`` = raw central differences, Pejsa's rule on clean
+        data). Marker noise of 0.5 mm gives parent-relative orientations ~1° of noise, so raw central
+        differences at 30 Hz carry ~22°/s of speed noise on average (up to ~70°/s) in the sample session's
+        rests: above 18°/s, so segments that never move that fast "start" within the first frames. At 2 Hz the
+        noise is ~4°/s on average and stays below 17°/s (p99.9 13°/s), while the noise-free speed peaks of
+        the ~0.5 s gaze-shift movements drop by ~12 % (9–27 %). On the sample session this leaves 3 of 90
+        segment start times off by more than 2 frames, all segments whose noise-free peak speed is within
+        2°/s of 18°/s, which noise of a few °/s cannot resolve (2.5 Hz: 9 of 90; 3 Hz: 14 of 90).
+    start_min_s : the low-passed speed must stay above the threshold at least this long (s) for a start
+        (1/15 s = 2 frames at 30 Hz: a single-frame noise excursion does not count).
     overshoot_window_s : gaze_map overshoot confirmation window each side (s).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
     """
@@ -81,6 +92,8 @@ class BuildParams:
     face_window: int = 200
     face_stride: int = 50
     start_speed_deg_s: float = 18.0
+    start_filter_hz: float | None = 2.0
+    start_min_s: float = 1.0 / 15.0
     overshoot_window_s: float = 0.1
     head_segment: str | None = None
 
@@ -210,6 +223,7 @@ def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
     ctx.fps.add(rate)
     return gaze_map_row(j, tt.meta["rests"], rate, float(take.target_yaw_deg), float(take.target_pitch_deg),
                         head=segs.index(head_name), start_speed_deg_s=p.start_speed_deg_s,
+                        start_filter_hz=p.start_filter_hz, start_min_s=p.start_min_s,
                         overshoot_window_s=p.overshoot_window_s, take=take.id)
 
 

@@ -158,6 +158,34 @@ def angular_speed(r: Rotation, rate_hz: float) -> np.ndarray:
     return w
 
 
+def smooth_rotations(r: Rotation, rate_hz: float, cutoff_hz: float | None) -> Rotation:
+    """Zero-phase Gaussian low-pass (−3 dB at ``cutoff_hz``, σ = √(ln 2)/(2π f) s) of a rotation sequence: the
+    rotation vectors of r(t)·r(0)⁻¹ are filtered (edges reflected, so a still edge stays still) and mapped back.
+    ``None`` returns r unchanged. The displacements of a gaze shift stay far below 180°, where rotation
+    vectors are smooth in t."""
+    if cutoff_hz is None or len(r) < 2:
+        return r
+    from scipy import ndimage
+
+    sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * cutoff_hz) * rate_hz   # samples
+    rv = (r * r[0].inv()).as_rotvec()
+    rv = ndimage.gaussian_filter1d(rv, sigma, axis=0, mode="reflect", truncate=4.0)
+    return Rotation.from_rotvec(rv) * r[0]
+
+
+def start_frame(r: Rotation, rate_hz: float, threshold_rad_s: float, filter_hz: float | None,
+                min_frames: int = 1) -> int:
+    """First frame where the angular speed of r (:func:`angular_speed` of :func:`smooth_rotations`) exceeds
+    ``threshold_rad_s`` and stays above it for at least ``min_frames`` frames; −1 when it never does."""
+    above = angular_speed(smooth_rotations(r, rate_hz, filter_hz), rate_hz) > threshold_rad_s
+    m = max(1, int(min_frames))
+    if m > 1 and len(above) >= m:
+        cs = np.concatenate([[0], np.cumsum(above)])
+        above = np.concatenate([(cs[m:] - cs[:-m]) == m, np.zeros(m - 1, dtype=bool)])
+    hit = np.flatnonzero(above)
+    return int(hit[0]) if len(hit) else -1
+
+
 def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, float, int]:
     """Overshoot of a displacement sequence D(t) (D(0) = identity): (t_β in s from the first frame, β, frame).
 
@@ -199,8 +227,8 @@ def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
 
 
 def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
-                 head: int, start_speed_deg_s: float = 18.0, overshoot_window_s: float = 0.1,
-                 path: str | None = None, take: str | None = None) -> TakeRows:
+                 head: int, start_speed_deg_s: float = 18.0, start_filter_hz: float | None = 2.0,
+                 start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, path: str | None = None, take: str | None = None) -> TakeRows:
     """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6).
 
     Rotations are taken in the character frame held fixed at the crop's first frame: G(t) = C(0)ᵀ·C(t)·Q(t)
@@ -210,8 +238,9 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     - duration l = (start of the second rest − end of the first rest) / rate, seconds;
     - P+ per segment L(last)·L(first)⁻¹, and the eyes' D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·
       G_head(first)⁻¹: the eyes' global displacement is the requested change;
-    - start time per segment: first crop frame where the angular speed of L (central differences) exceeds
-      ``start_speed_deg_s``, as a fraction of l; 0 when it never does (Pejsa: the joint starts with the shift);
+    - start time per segment: first crop frame where the angular speed of L (central differences of L
+      low-passed at ``start_filter_hz``, :func:`start_frame`) exceeds ``start_speed_deg_s`` for at least
+      ``start_min_s``, as a fraction of l; 0 when it never does (Pejsa: the joint starts with the shift);
     - overshoot time t_β and amount β of the head's displacement (:func:`overshoot`), t_β a fraction of l
       (1 with β = 0 when there is no overshoot).
 
@@ -248,9 +277,10 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
 
     thr = np.deg2rad(start_speed_deg_s)
     starts = []
+    min_frames = max(1, int(round(start_min_s * rate_hz)))
     for loc in local:
-        hit = np.flatnonzero(angular_speed(loc, rate_hz) > thr)
-        starts.append(hit[0] / rate_hz / duration if len(hit) else 0.0)
+        j0 = start_frame(loc, rate_hz, thr, start_filter_hz, min_frames)
+        starts.append(j0 / rate_hz / duration if j0 >= 0 else 0.0)
     disp = fixed[head] * fixed[head][0].inv()
     t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s)
     t_frac = t_beta / duration if j >= 0 else 1.0
