@@ -223,3 +223,39 @@ def test_accuracy_on_real_walking_slice():
     # the per-gap choice is close to the best single method and far better than the seed's linear fill
     assert err < 1.25 * min(single.values())
     assert err < 0.5 * single["linear"]
+
+
+# ------------------------------------------------------------------------------------------- blending
+def test_blend_weights_inverse_square_and_cutoffs():
+    from gazepipe.stages.gapfill import METHODS, blend_weights  # noqa: PLC0415
+
+    w = blend_weights({"rigid": 1.0, "pca": 2.0, "pchip": 2.5, "linear": 10.0}, METHODS)
+    # linear is more than 3x worse than the best and is left out; the rest by 1/err²
+    inv = np.array([1.0, 1 / 4.0, 1 / 6.25])
+    assert list(w) == ["rigid", "pca", "pchip"]
+    assert np.allclose(list(w.values()), inv / inv.sum()) and sum(w.values()) == pytest.approx(1.0)
+    assert blend_weights({"rigid": np.nan, "pca": np.nan}, METHODS) == {"rigid": 1.0}  # nothing validated
+    assert blend_weights({"pchip": np.nan, "linear": 0.5}, METHODS) == {"linear": 1.0}
+    assert blend_weights({}, METHODS) == {}
+
+
+def test_blended_gap_is_the_weighted_sum_of_the_methods():
+    truth, measured, clusters = body()
+    gaps = [(5, 250, 280), (2, 100, 110), (9, 400, 406)]
+    x, valid = hide(measured, gaps)
+    res = fill_gaps(x, valid, RATE, clusters=clusters)
+    single = {m: fill_gaps(x, valid, RATE, clusters=clusters, methods=(m,)) for m in ("rigid", "pca", "pchip",
+                                                                                     "linear")}
+    n_blended = 0
+    for g in res.gaps:
+        assert sum(g.weights.values()) == pytest.approx(1.0)
+        assert g.method == max(g.weights, key=g.weights.get)
+        assert (res.fill_code[g.start:g.stop, g.marker] == FILL_CODES[g.method]).all()
+        expect = sum(w * single[k].xyz[g.start:g.stop, g.marker] for k, w in g.weights.items())
+        assert np.allclose(res.xyz[g.start:g.stop, g.marker], expect, atol=1e-9)
+        n_blended += len(g.weights) > 1
+    assert n_blended >= 1
+    # a blend is no worse than the best single method over these gaps (each has a near-noise-level method)
+    err = np.mean([gap_error(res, truth, *gap) for gap in gaps])
+    best_single = min(np.mean([gap_error(r, truth, *gap) for gap in gaps]) for r in single.values())
+    assert err <= 1.1 * best_single

@@ -13,11 +13,15 @@ Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applic
 
 Rigid and PCA predictions are corrected to meet the measured samples at both gap edges. To choose, measured
 samples of the same marker next to the gap (as many as the gap is long, on both sides when there is room) are
-hidden, every method predicts them, and the method with the lowest mean error there fills the gap. The hidden
-stretches are given the gap's own occlusion pattern (markers missing during the gap are treated as missing
-there too), so rigid and PCA are judged with the donors they will really have; methods are compared on the
-frames all of them can predict. The same stretches pick the number of PCA components. When no sample can be
-hidden the first applicable method in ``methods`` is used.
+hidden and every method predicts them (its validation error: the mean error there). The hidden stretches are
+given the gap's own occlusion pattern (markers missing during the gap are treated as missing there too), so
+rigid and PCA are judged with the donors they will really have; methods are compared on the frames all of them
+can predict. The same stretches pick the number of PCA components. Interpolation is also judged on the gap's
+own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
+larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
+do not show). The gap is filled with a convex blend of the best methods, weighted by inverse squared
+validation error (:func:`blend_weights`), and coded by the method with the largest weight. When no sample can
+be hidden the first applicable method in ``methods`` is used.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
@@ -38,6 +42,16 @@ METHODS = ("rigid", "pca", "pchip", "linear")
 _SEPARATION = 2
 #: hidden validation stretches on each side of an interior gap (two measured no better than one)
 _WINDOWS_PER_SIDE = 1
+#: interpolation methods (they use the marker's own samples only)
+_INTERP = ("pchip", "linear")
+#: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
+_N_DONORS = 3
+#: at most this many methods are blended per gap
+_BLEND_TOP = 3
+#: methods with a validation error more than this many times the best one's are left out of the blend
+_BLEND_MAX_RATIO = 3.0
+#: validation errors below this (mm) are treated as equal: below the noise of any capture
+_ERR_FLOOR_MM = 0.01
 #: standard gravity, mm/s²
 G_MM_S2 = 9806.65
 
@@ -45,13 +59,16 @@ G_MM_S2 = 9806.65
 @dataclass
 class GapRecord:
     """One gap of one marker: frames ``[start, stop)``, the method that filled it (``unfilled`` if none) and
-    each method's mean validation error in mm (NaN when the method could not apply or nothing was hidden)."""
+    each method's mean validation error in mm (NaN when the method could not apply or nothing was hidden).
+    ``method`` is the method with the largest weight when several were blended (see ``weights``)."""
 
     marker: int
     start: int
     stop: int
     method: str
     errors: dict[str, float] = field(default_factory=dict)
+    #: blend weights of the methods combined to fill the gap (summing to 1; one entry when a single method)
+    weights: dict[str, float] = field(default_factory=dict)
 
     @property
     def length(self) -> int:
@@ -220,7 +237,43 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
             errors[meth] = float(row.mean()) if row.size else float("nan")
     else:
         errors = {meth: float("nan") for meth in preds}
+    if validate:
+        # interpolation knows nothing of the gap's own frames: its error there is what the motion during the
+        # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
+        # The nearest markers measured through the gap, interpolated over the same frames, show it.
+        for meth, err_d in _donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP]).items():
+            if np.isfinite(err_d) and not err_d <= errors.get(meth, np.nan):
+                errors[meth] = err_d
     return preds, errors
+
+
+def _donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
+                         methods: list[str], n_donors: int = _N_DONORS) -> dict[str, float]:
+    """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
+    to ``m`` that are measured there and on both sides (NaN when there is none)."""
+    n_t = valid.shape[0]
+    lo, hi = s - _SEPARATION - 1, e + _SEPARATION + 1
+    if not methods or lo < 0 or hi > n_t:
+        return {}
+    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
+    cand = cand[cand != m]
+    if cand.size == 0:
+        return {meth: float("nan") for meth in methods}
+    # distance to the target on the measured frames next to the gap
+    near = np.array([s - 1, e])
+    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    donors = cand[np.argsort(d, kind="stable")[:n_donors]]
+    out: dict[str, float] = {}
+    for meth in methods:
+        errs = []
+        for j in donors:
+            known = valid[:, j].copy()
+            known[s:e] = False
+            q = interp_fill(xyz[:, j], known, [(s, e)], meth)[0]
+            if q is not None:
+                errs.append(float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean()))
+        out[meth] = float(np.mean(errs)) if errs else float("nan")
+    return out
 
 
 def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
@@ -234,9 +287,32 @@ def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
     return min(scored, key=lambda m: (errors[m], methods.index(m)))
 
 
+def blend_weights(errors: dict[str, float], methods: tuple[str, ...], *, top: int = _BLEND_TOP,
+                  max_ratio: float = _BLEND_MAX_RATIO) -> dict[str, float]:
+    """Convex weights of the methods to blend, from their validation errors (mm).
+
+    The ``top`` methods with the lowest finite errors, among those within ``max_ratio`` of the best, are weighted
+    by inverse squared error (an error below ``_ERR_FLOOR_MM`` counts as that floor), so a clearly better
+    method dominates and near-equal ones average out their independent mistakes. Without any finite error, the
+    method :func:`choose` picks gets weight 1. Empty when no method applies.
+    """
+    best = choose(errors, methods)
+    if best is None:
+        return {}
+    scored = sorted((m for m in methods if m in errors and np.isfinite(errors[m])),
+                    key=lambda m: (errors[m], methods.index(m)))
+    if not scored:
+        return {best: 1.0}
+    e0 = max(errors[scored[0]], _ERR_FLOOR_MM)
+    keep = [m for m in scored[:top] if max(errors[m], _ERR_FLOOR_MM) <= max_ratio * e0]
+    inv = np.array([1.0 / max(errors[m], _ERR_FLOOR_MM) ** 2 for m in keep])
+    w = inv / inv.sum()
+    return {m: float(x) for m, x in zip(keep, w, strict=True)}
+
+
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
-              pca_window_s: float | None = 10.0) -> FillResult:
+              pca_window_s: float | None = 10.0, blend: bool = True) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -250,6 +326,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
     validation : when False, skip hiding samples and take the first applicable method in ``methods`` order.
+    blend : fill each gap with the convex combination of the best methods by validation error
+        (:func:`blend_weights`; samples coded by the largest weight); when False, the single best method.
     pca_window_s : PCA models are fitted on frames within this many seconds of the gap (None: the whole take).
 
     Returns
@@ -288,15 +366,20 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 continue
             preds, errors = predict_gap(src, valid, m, s, e, methods, cluster_of.get(m),
                                         validate=validation, pca_window=pca_window)
-            best = choose(errors, methods)
+            if blend:
+                weights = blend_weights(errors, methods)
+            else:
+                one = choose(errors, methods)
+                weights = {} if one is None else {one: 1.0}
             full_errors = {k: errors.get(k, float("nan")) for k in methods}
-            if best is None:
+            if not weights:
                 records.append(GapRecord(m, s, e, "unfilled", full_errors))
                 continue
-            out[s:e, m] = preds[best]
+            best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
+            out[s:e, m] = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
             code[s:e, m] = FILL_CODES[best]
             filled[best] += e - s
-            records.append(GapRecord(m, s, e, best, full_errors))
+            records.append(GapRecord(m, s, e, best, full_errors, weights))
         unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
         qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records)
