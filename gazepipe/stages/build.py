@@ -76,7 +76,8 @@ class BuildParams:
         noise is ~4°/s on average and stays below 17°/s (p99.9 13°/s), while the noise-free speed peaks of
         the ~0.5 s gaze-shift movements drop by ~12 % (9–27 %). On the sample session this leaves 3 of 90
         segment start times off by more than 2 frames, all segments whose noise-free peak speed is within
-        2°/s of 18°/s, which noise of a few °/s cannot resolve (2.5 Hz: 9 of 90; 3 Hz: 14 of 90).
+        2°/s of 18°/s, which noise of a few °/s cannot resolve (raw: 7 of 90, among them the chest starting
+        6–11 frames early on every 72° shift; 1.5 Hz: 4, the chest never found; 2.5 Hz: 9; 3 Hz: 13).
     start_min_s : the low-passed speed must stay above the threshold at least this long (s) for a start
         (1/15 s = 2 frames at 30 Hz: a single-frame noise excursion does not count).
     overshoot_window_s : gaze_map overshoot confirmation window each side (s).
