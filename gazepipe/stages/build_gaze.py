@@ -228,7 +228,8 @@ def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
 
 def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
                  head: int, start_speed_deg_s: float = 18.0, start_filter_hz: float | None = 2.0,
-                 start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, path: str | None = None, take: str | None = None) -> TakeRows:
+                 start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, path: str | None = None,
+                 take: str | None = None) -> TakeRows:
     """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6).
 
     Rotations are taken in the character frame held fixed at the crop's first frame: G(t) = C(0)ᵀ·C(t)·Q(t)

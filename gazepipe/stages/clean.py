@@ -248,10 +248,11 @@ def refine_onset(speed: np.ndarray, b: int, sigma: float, threshold: float, lo: 
     Model of the noise-free speed after the onset t0: A·((t − t0)/σ)² up to t0 + τσ, then on with the slope it
     reached (a smooth start, then a steady rise); smoothed by the same Gaussian and combined with the rest's
     noise floor f (the median speed of the rest before the window; see ``ONSET_MOVING_SHARE``), it is fitted to
-    the smoothed speed from b − 3σ to the end of its rise (4·threshold or its first maximum) by exhaustive least squares over t0 (0.1 sample
-    steps within 2σ of b), τ and A (log grid), which has no local minima to fall into. Returns the first frame
-    where the fitted noise-free speed reaches the threshold, within [b − 1, b + 2σ]; ``b`` itself when the
-    window is too short. ``lo``/``hi`` bound the frames the fit may use (the rest's start, the next rest's start).
+    the smoothed speed from b − 3σ to the end of its rise (4·threshold or its first maximum) by exhaustive
+    least squares over t0 (0.1-sample steps within 2σ of b), τ and A (log grids), which has no local minima to
+    fall into. Returns the first frame where the fitted noise-free speed reaches the threshold, within
+    [b − 1, b + 2σ]; ``b`` itself when the window is too short or not finite. ``lo``/``hi`` bound the frames
+    the fit may use (the rest's start, the next rest's start).
     """
     n = len(speed)
     reach = int(np.ceil(3.0 * sigma))
@@ -294,9 +295,11 @@ def refine_rests(rests: list[tuple[int, int]], speed: np.ndarray, rate_hz: float
     reaches the threshold (:func:`refine_onset`), for rests long enough to give the noise floor (at least
     9σ of the speed filter: 0.7 s at any rate; short pauses inside motion are left as found).
 
-    Only ends: a motion decelerating into a rest settles with a slow tail rather than from a still floor, which
-    the onset model does not describe, and the smoothed speed's crossing there is already within a frame or two
-    (measured on the sample session: starts of rests +0.2 frame mean after gaze shifts)."""
+    Only ends: a motion decelerating into a rest often settles with a slow tail rather than to a still floor,
+    and the smoothed speed's crossing there is already close (sample session: starts of the gaze shifts'
+    second rests median 0, −1..+1 frames; of the gaze_follow takes' last rests 0..+2). The same fit in reversed
+    time was measured and moved the gaze shifts' second-rest starts to a median of −1 (shortening the gaze_map
+    duration) and the gaze_follow ones to −2..−1, so it is not applied."""
     sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * filter_hz) * rate_hz
     reach = int(np.ceil(3.0 * sigma))
     n = len(speed)
