@@ -8,8 +8,7 @@ and each batch by a timeout, so that a native crash (OpenCV, Arrow) or a hang fa
 blocking the run.
 
 Count: 120 OpenFace + 120 Live Link Face + 80 video + 120 Parquet + 80 dataset = 520 cases in the main tests, plus
-30 non-UTF-8 texts and 40 tables inconsistent with their metadata in the two tests of known escapes (marked
-xfail until the readers are fixed) = 590 here; with the C3D (200), CSV/TSV (150) and TOML (600) cases of
+30 non-UTF-8 texts and 40 tables inconsistent with their metadata = 590 here; with the C3D (200), CSV/TSV (150) and TOML (600) cases of
 ``test_fuzz_capture_readers.py`` and ``test_session_contract.py``, 1540 fuzzed inputs across every reader.
 """
 
@@ -441,9 +440,6 @@ def test_fuzz_datasets(tmp_path, pipeline_out):
 
 # ------------------------------------------------------------------------------------- known escapes, reported
 
-@pytest.mark.xfail(strict=True, reason="io/tracks.py read_columns: UnicodeDecodeError is a ValueError, so the "
-                   "`except ValueError` branch takes it and _junk_error's re-read raises it again (the "
-                   "`except UnicodeDecodeError` after it is unreachable); io/datasets.py read_info does not catch it")
 def test_fuzz_non_utf8_text(tmp_path, pipeline_out):
     """Text inputs with bytes that are not UTF-8: 10 OpenFace, 10 Live Link Face, 10 dataset.json."""
     session, out = pipeline_out
@@ -471,11 +467,6 @@ def test_fuzz_non_utf8_text(tmp_path, pipeline_out):
     _assert_clean(_run_batch(cases, tmp_path), min_ok=0)
 
 
-@pytest.mark.xfail(strict=True, reason="schemas/markers.py table_to_markers trusts its metadata: a table whose rows "
-                   "are not labels x frames, or whose labels are not a list, raises ValueError/TypeError instead "
-                   "of a SchemaError naming the file; io/datasets.py expected_schema: dict(info['sizes']) raises "
-                   "ValueError, a missing size or an unknown name gives an error that names no file, a non-object 'counts' an "
-                   "AttributeError (dataset.json's structure is not checked)")
 def test_fuzz_tables_inconsistent_with_their_metadata(tmp_path, pipeline_out):
     """Tables that pass the schema check but disagree with their own metadata: 20 per-take tables (cut short,
     metadata entries changed) and 20 datasets whose dataset.json entries (any, sizes, name, counts) are changed or

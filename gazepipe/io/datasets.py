@@ -129,16 +129,43 @@ def read_info(dataset_dir: str | Path) -> dict[str, Any]:
     """dataset.json of a dataset folder."""
     path = Path(dataset_dir) / INFO_NAME
     try:
-        return json.loads(path.read_text())
+        info = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise InputError(path, "file not found (not a gazepipe dataset, or an unfinished build)") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not a UTF-8 text file") from None
     except json.JSONDecodeError as exc:
         raise InputError(path, f"not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except OSError as exc:
+        raise InputError(path, f"cannot read ({exc.strerror})") from None
+    _check_info(info, path)
+    return info
 
 
-def expected_schema(info: dict[str, Any]) -> pa.Schema:
+def _check_info(info: Any, path: Path) -> None:
+    """dataset.json's structure, as far as reading the dataset depends on it."""
+    if not isinstance(info, dict):
+        raise InputError(path, "expected a JSON object")
+    if not isinstance(info.get("name"), str):
+        raise InputError(path, "missing or non-text 'name'", key="name")
+    sizes = info.get("sizes")
+    if not isinstance(sizes, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool)
+                                              and v >= 0 for k, v in sizes.items()):
+        raise InputError(path, "'sizes' must be an object of whole numbers", key="sizes")
+    for key in ("counts", "stats", "params"):
+        if key in info and not isinstance(info[key], dict):
+            raise InputError(path, f"'{key}' must be an object", key=key)
+    for key in ("features",):
+        if key in info and not isinstance(info[key], dict | list):
+            raise InputError(path, f"'{key}' must be an object or a list", key=key)
+
+
+def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.Schema:
     """The schema a dataset's files must match, rebuilt in code from dataset.json's name and sizes."""
-    return dataset_schema(str(info.get("name")), dict(info.get("sizes", {})))
+    try:
+        return dataset_schema(str(info.get("name")), dict(info.get("sizes", {})))
+    except SchemaError as exc:
+        raise SchemaError(path or exc.path, exc.problem) from None
 
 
 def read_take(path: str | Path, schema: pa.Schema) -> pa.Table:
@@ -168,7 +195,7 @@ def read_dataset(dataset_dir: str | Path) -> tuple[pa.Table, dict[str, Any]]:
     """
     root = Path(dataset_dir)
     info = read_info(root)
-    schema = expected_schema(info)
+    schema = expected_schema(info, Path(root) / INFO_NAME)
     try:
         common = pq.read_schema(str(root / COMMON_METADATA))
     except (FileNotFoundError, pa.ArrowException, OSError) as exc:

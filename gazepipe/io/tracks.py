@@ -188,12 +188,12 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         df = pd.read_csv(path, dtype=dtypes, **kw)
     except pd.errors.EmptyDataError:
         raise InputError(path, f"{what}: no data rows") from None
+    except UnicodeDecodeError:  # a ValueError too: caught first
+        raise InputError(path, f"{what}: not a UTF-8 text file") from None
     except ValueError as e:
         if isinstance(e, pd.errors.ParserError):
             raise InputError(path, f"{what}: malformed CSV: {str(e).splitlines()[0]}") from None
         raise _junk_error(path, what, order, pos, text, kw) from None
-    except UnicodeDecodeError:
-        raise InputError(path, f"{what}: not a text CSV file") from None
     if len(df) == 0:
         raise InputError(path, f"{what}: no data rows")
     cols = {c: df[pos[c]].to_numpy() for c in order}

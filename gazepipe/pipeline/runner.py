@@ -30,6 +30,11 @@ from gazepipe.pipeline.hashing import HashCache, sha256_json
 from gazepipe.pipeline.registry import Stage, UnitContext
 from gazepipe.pipeline.state import OutLayout, read_json
 from gazepipe.schemas import expected_schema
+from gazepipe.schemas.base import check_table
+from gazepipe.schemas.markers import check_markers_meta
+
+#: tables in the long markers layout, whose metadata must agree with their rows
+MARKERS_TABLES = ("markers_raw", "markers", "neutral")
 
 
 @dataclass
@@ -154,8 +159,9 @@ def _loader(layout: OutLayout):
         table = read_table(path)
         schema = expected_schema(name, table)
         if schema is not None:
-            from gazepipe.schemas.base import check_table
             check_table(table, schema, path=str(path))
+        if name in MARKERS_TABLES:
+            check_markers_meta(table, str(path))
         return table
     return load
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from gazepipe.errors import SchemaError
 from gazepipe.model import FILL_NAMES, Markers
 from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
@@ -74,6 +75,34 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     }
     info.update(meta or {})
     return attach_meta(table, info)
+
+
+def check_markers_meta(table: pa.Table, path: str | None = None) -> None:
+    """Raise :class:`SchemaError` unless the table's metadata agrees with its rows (labels × frames, marker-major,
+    a known rate): a table can match its schema and still be cut short or carry edited metadata."""
+    try:
+        meta = read_meta(table)
+    except ValueError:
+        raise SchemaError(path, "unreadable gazepipe metadata") from None
+    labels = meta.get("labels")
+    if not isinstance(labels, list) or not all(isinstance(x, str) for x in labels) or len(set(labels)) != len(labels):
+        raise SchemaError(path, "metadata 'labels' is not a list of distinct marker names")
+    rate = meta.get("rate_hz")
+    if not isinstance(rate, int | float) or isinstance(rate, bool) or not rate > 0:
+        raise SchemaError(path, "metadata 'rate_hz' is not a positive number")
+    if not isinstance(meta.get("first_frame"), int) or isinstance(meta.get("first_frame"), bool):
+        raise SchemaError(path, "metadata 'first_frame' is not a whole number")
+    m = len(labels)
+    if m == 0 or table.num_rows % m:
+        raise SchemaError(path, f"{table.num_rows} rows do not make {m} markers x whole frames")
+    t = table.num_rows // m
+    marker = table.column("marker").combine_chunks()
+    idx = marker.indices.to_numpy(zero_copy_only=False) if t else np.zeros(0, np.int64)
+    if len(marker.dictionary) != m or not np.array_equal(idx, np.repeat(np.arange(m), t)):
+        raise SchemaError(path, "rows are not marker-major in the order of the metadata's labels")
+    frames = table.column("frame").to_numpy()
+    if t and not np.array_equal(frames.reshape(m, t), np.broadcast_to(frames[:t], (m, t))):
+        raise SchemaError(path, "markers do not share the same frames")
 
 
 def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray | None, dict[str, Any]]:
