@@ -259,3 +259,23 @@ def test_blended_gap_is_the_weighted_sum_of_the_methods():
     err = np.mean([gap_error(res, truth, *gap) for gap in gaps])
     best_single = min(np.mean([gap_error(r, truth, *gap) for gap in gaps]) for r in single.values())
     assert err <= 1.1 * best_single
+
+
+def test_movement_during_gap_between_still_phases_not_interpolated():
+    """Still, then a quick movement, then still: the hidden stretches beside the gap show no motion, so
+    interpolation validates perfectly there; the markers measured through the gap show the movement."""
+    truth0, _, clusters = body(noise=0.0)
+    # frame i of the take shows body frame idx[i]: still at 100, 300 frames of motion in 30, still at 400
+    idx = np.concatenate([np.full(280, 100), np.linspace(100, 400, 30).round().astype(int), np.full(290, 400)])
+    truth = truth0[idx]
+    rng = np.random.default_rng(5)
+    measured = truth + rng.normal(0, NOISE, truth.shape)
+    m, s, e = 5, 275, 315
+    x, valid = hide(measured, [(m, s, e)])
+    res = fill_gaps(x, valid, RATE, clusters=clusters)
+    rec = res.gaps[[g.marker for g in res.gaps].index(m)]
+    linear = fill_gaps(x, valid, RATE, clusters=clusters, methods=("linear",))
+    assert gap_error(linear, truth, m, s, e) > 20.0  # the movement is not a straight line at constant speed
+    assert rec.errors["linear"] > 10.0 and rec.errors["pchip"] > 10.0  # seen on the donors, not beside the gap
+    assert set(rec.weights) <= {"rigid", "pca"}
+    assert gap_error(res, truth, m, s, e) < 3.0

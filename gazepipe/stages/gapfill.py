@@ -33,9 +33,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from gazepipe.model import FILL_CODES
-from gazepipe.stages.gapfill_methods import fit_pca, interp_fill, pca_fill, rigid_fill
+from gazepipe.stages.gapfill_methods import _N_ANCHORS, PcaModel, fit_pca, interp_fill, pca_fill, rigid_fill
 
 METHODS = ("rigid", "pca", "pchip", "linear")
 #: measured frames kept between a hidden validation stretch and the gap, so interpolation has anchors
@@ -46,6 +47,8 @@ _WINDOWS_PER_SIDE = 1
 _INTERP = ("pchip", "linear")
 #: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
 _N_DONORS = 3
+#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger
+_PCA_DONOR_FACTOR = 2.0
 #: at most this many methods are blended per gap
 _BLEND_TOP = 3
 #: methods with a validation error more than this many times the best one's are left out of the blend
@@ -241,8 +244,16 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         # interpolation knows nothing of the gap's own frames: its error there is what the motion during the
         # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
         # The nearest markers measured through the gap, interpolated over the same frames, show it.
-        for meth, err_d in _donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP]).items():
-            if np.isfinite(err_d) and not err_d <= errors.get(meth, np.nan):
+        donor_err = _donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP])
+        # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
+        # hidden through them): the same model, built for the nearest marker measured through the gap with
+        # that marker hidden there, predicts it
+        if "pca" in preds and model is not None:
+            donor_err["pca"] = _donor_pca_error(xyz, valid, m, s, e, model, pca_window)
+        for meth, err_d in donor_err.items():
+            # another marker's error is a rough guess of this one's: PCA's is only believed when it is far off
+            factor = _PCA_DONOR_FACTOR if meth == "pca" else 1.0
+            if np.isfinite(err_d) and not err_d <= factor * errors.get(meth, np.nan):
                 errors[meth] = err_d
     return preds, errors
 
@@ -252,7 +263,7 @@ def _donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: 
     """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
     to ``m`` that are measured there and on both sides (NaN when there is none)."""
     n_t = valid.shape[0]
-    lo, hi = s - _SEPARATION - 1, e + _SEPARATION + 1
+    lo, hi = s - _N_ANCHORS, e + _N_ANCHORS
     if not methods or lo < 0 or hi > n_t:
         return {}
     cand = np.flatnonzero(valid[lo:hi].all(axis=0))
@@ -263,17 +274,47 @@ def _donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: 
     near = np.array([s - 1, e])
     d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
     donors = cand[np.argsort(d, kind="stable")[:n_donors]]
+    # the donors are measured on the _N_ANCHORS frames each side, the knots interp_fill would use: one
+    # interpolant for all of them at once
+    knots = np.r_[lo:s, e:hi]
+    y = xyz[knots][:, donors].reshape(knots.size, -1)
+    t = np.arange(s, e, dtype=np.float64)
+    truth = xyz[s:e][:, donors]
     out: dict[str, float] = {}
     for meth in methods:
-        errs = []
-        for j in donors:
-            known = valid[:, j].copy()
-            known[s:e] = False
-            q = interp_fill(xyz[:, j], known, [(s, e)], meth)[0]
-            if q is not None:
-                errs.append(float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean()))
-        out[meth] = float(np.mean(errs)) if errs else float("nan")
+        if meth == "linear":
+            w = ((t - (s - 1)) / (e - (s - 1)))[:, None]
+            q = (1.0 - w) * xyz[s - 1, donors].reshape(1, -1) + w * xyz[e, donors].reshape(1, -1)
+        else:
+            q = PchipInterpolator(knots.astype(np.float64), y, axis=0)(t)
+        err = np.linalg.norm(q.reshape(e - s, donors.size, 3) - truth, axis=2)
+        out[meth] = float(err.mean(axis=0).mean())
     return out
+
+
+def _donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, model: PcaModel,
+                     pca_window: int | None) -> float:
+    """Mean error (mm) of the PCA fill of gap ``[s, e)`` for the marker nearest to ``m`` that is measured
+    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted)."""
+    n_t = valid.shape[0]
+    lo, hi = max(s - 1, 0), min(e + 1, n_t)
+    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
+    cand = cand[cand != m]
+    near = [t for t in (s - 1, e) if 0 <= t < n_t and valid[t, m]]
+    if cand.size == 0 or not near:
+        return float("nan")
+    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    j = int(cand[np.argmin(d)])
+    valid_j = valid.copy()
+    valid_j[s:e, j] = False
+    win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
+    model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
+    if model_j is None:
+        return float("nan")
+    rank = model.ks.index(model.k) if model.k in model.ks else len(model.ks) // 2
+    k = model_j.ks[min(rank, len(model_j.ks) - 1)]
+    q = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, [k])[0]
+    return float("nan") if q is None else float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean())
 
 
 def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
