@@ -1,0 +1,226 @@
+"""Benchmark ``gazepipe run`` at scale against the I/O floor.
+
+``python bench/bench_scale.py bench/_work/klein_x1`` (a corpus written by ``bench/make_corpus.py``) prints:
+
+- the I/O floor, measured in this run: every mocap file read with ezc3d, every CSV with pandas, and the tables the
+  pipeline produced re-written with pyarrow with the pipeline's own writer options (the same output bytes);
+- end-to-end ``gazepipe run`` wall time (a fresh ``python -m gazepipe`` process, serial executor) and its ratio
+  to the floor; the no-op re-run; the same run with ``--executor process -j 2`` and ``--executor dask -j 2`` and
+  their speed-ups over serial;
+- time per stage (sums of the unit records' ``duration_s``; dataset builds from their records);
+- peak memory: resident set of the whole process tree (the run and its workers), sampled every 50 ms;
+- with ``--profile``: the serial run under cProfile, top functions by own time.
+
+Work folders go under ``--work`` (default ``bench/_work/scale``), one per executor, recreated each time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pstats
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import psutil
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+
+# ----------------------------------------------------------------------------------------------- measuring
+
+class TreeMemory:
+    """Peak resident memory of a process and all its descendants (sum over the tree, sampled)."""
+
+    def __init__(self, pid: int, every_s: float = 0.05) -> None:
+        self.pid, self.every_s = pid, every_s
+        self.peak_total = 0
+        self.peak_single = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        try:
+            root = psutil.Process(self.pid)
+        except psutil.NoSuchProcess:
+            return
+        while not self._stop.is_set():
+            total = 0
+            try:
+                procs = [root, *root.children(recursive=True)]
+            except psutil.NoSuchProcess:
+                break
+            for p in procs:
+                try:
+                    rss = p.memory_info().rss
+                except (psutil.NoSuchProcess, psutil.AccessDenied):
+                    continue
+                total += rss
+                self.peak_single = max(self.peak_single, rss)
+            self.peak_total = max(self.peak_total, total)
+            self._stop.wait(self.every_s)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = None, fresh: bool = True,
+            profile: Path | None = None) -> dict:
+    """``python -m gazepipe run`` in a fresh process; wall time, exit code, peak memory of the process tree."""
+    if fresh and out.exists():
+        shutil.rmtree(out)
+    cmd = [sys.executable]
+    if profile is not None:
+        cmd += ["-m", "cProfile", "-o", str(profile)]
+    cmd += ["-m", "gazepipe", "run", *map(str, sessions), "--out", str(out), "--executor", executor,
+            "--log-format", "json"]
+    if jobs:
+        cmd += ["-j", str(jobs)]
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    log = out.parent / f"{out.name}.log"
+    t0 = time.perf_counter()
+    with open(log, "wb") as fh:
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        mem = TreeMemory(proc.pid)
+        rc = proc.wait()
+    wall = time.perf_counter() - t0
+    mem.stop()
+    if rc != 0:
+        print(f"warning: {' '.join(cmd[-8:])} exited {rc}; see {log}", file=sys.stderr)
+    return {"wall_s": wall, "rc": rc, "peak_tree_mb": mem.peak_total / 2**20,
+            "peak_process_mb": mem.peak_single / 2**20, "log": str(log)}
+
+
+def stage_times(out: Path) -> dict[str, float]:
+    """Seconds per stage summed over takes (unit records), and per dataset build."""
+    per: dict[str, float] = defaultdict(float)
+    for p in (out / ".gazepipe" / "units").glob("*/*/*.json"):
+        rec = json.loads(p.read_text())
+        per[rec["stage"]] += float(rec.get("duration_s", 0.0))
+    for p in (out / ".gazepipe" / "datasets").glob("*.json"):
+        per[f"build:{p.stem}"] += float(json.loads(p.read_text()).get("duration_s", 0.0))
+    return dict(per)
+
+
+def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
+    """Seconds to read every input (ezc3d for C3D, pandas for CSV) and to write the same output tables with
+    pyarrow and the pipeline's writer options (tables loaded beforehand; only the writes are timed)."""
+    import ezc3d
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    from gazepipe.io.parquet import WRITE_OPTIONS
+
+    c3d = sorted(p for s in sessions for p in (s / "mocap").glob("*.c3d"))
+    csvs = sorted(p for s in sessions for sub in ("eyes", "face") for p in (s / sub).glob("*.csv"))
+    t0 = time.perf_counter()
+    frames = 0
+    for p in c3d:
+        frames += ezc3d.c3d(str(p))["data"]["points"].shape[2]
+    t_c3d = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for p in csvs:
+        pd.read_csv(p, skipinitialspace=True)
+    t_csv = time.perf_counter() - t0
+    files = sorted(p for p in produced.rglob("*.parquet") if ".gazepipe" not in p.parts)
+    tables = [pq.read_table(p) for p in files]
+    sink = produced.parent / "_floor_write"
+    sink.mkdir(exist_ok=True)
+    t0 = time.perf_counter()
+    n_bytes = 0
+    for i, t in enumerate(tables):
+        dest = sink / f"{i}.parquet"
+        pq.write_table(t, dest, **WRITE_OPTIONS)
+        n_bytes += dest.stat().st_size
+    t_write = time.perf_counter() - t0
+    shutil.rmtree(sink)
+    return {"read_c3d_s": t_c3d, "read_csv_s": t_csv, "write_parquet_s": t_write,
+            "total_s": t_c3d + t_csv + t_write, "c3d_files": len(c3d), "csv_files": len(csvs),
+            "mocap_frames": frames, "parquet_files": len(files), "parquet_mb": n_bytes / 2**20}
+
+
+def top_profile(path: Path, n: int = 15) -> list[str]:
+    st = pstats.Stats(str(path))
+    rows = []
+    total = st.total_tt
+    for (file, line, fn), (_cc, nc, tt, ct, _callers) in sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:n]:
+        short = file.replace(str(REPO) + "/", "").split("site-packages/")[-1]
+        rows.append(f"{tt:8.2f} s own {100 * tt / total:5.1f} %  {ct:8.2f} s cum  {nc:>8} calls  {short}:{line}({fn})")
+    return rows
+
+
+# ----------------------------------------------------------------------------------------------- main
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("corpus", help="A folder of session folders (bench/make_corpus.py output).")
+    p.add_argument("--work", default=str(REPO / "bench" / "_work" / "scale"))
+    p.add_argument("--executors", default="serial,process,dask",
+                   help="Comma-separated: which end-to-end runs to time (serial is always run).")
+    p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--profile", action="store_true", help="Also profile a serial run with cProfile.")
+    a = p.parse_args(argv)
+
+    corpus = Path(a.corpus)
+    sessions = sorted(d for d in corpus.iterdir() if (d / "session.toml").is_file())
+    if not sessions:
+        p.error(f"no session folders in {corpus}")
+    work = Path(a.work)
+    work.mkdir(parents=True, exist_ok=True)
+    size_mb = sum(f.stat().st_size for s in sessions for f in s.rglob("*") if f.is_file() and "truth" not in f.parts)
+    print(f"corpus {corpus}: {len(sessions)} sessions, {size_mb / 2**20:.0f} MB of inputs; "
+          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+
+    results: dict[str, dict] = {}
+    results["serial"] = run_cli(sessions, work / "serial", "serial")
+    print(f"serial run: {results['serial']['wall_s']:.1f} s", flush=True)
+    results["noop"] = run_cli(sessions, work / "serial", "serial", fresh=False)
+    print(f"no-op re-run: {results['noop']['wall_s']:.2f} s", flush=True)
+    floor = io_floor(sessions, work / "serial")
+    print(f"I/O floor: {floor['total_s']:.1f} s", flush=True)
+    for ex in [e for e in a.executors.split(",") if e and e != "serial"]:
+        results[ex] = run_cli(sessions, work / ex, ex, jobs=a.jobs)
+        print(f"{ex} run (-j {a.jobs}): {results[ex]['wall_s']:.1f} s", flush=True)
+    prof_rows: list[str] = []
+    if a.profile:
+        prof = work / "serial.prof"
+        results["profiled"] = run_cli(sessions, work / "profiled", "serial", profile=prof)
+        prof_rows = top_profile(prof)
+
+    serial = results["serial"]["wall_s"]
+    print()
+    print(f"I/O floor: {floor['total_s']:.2f} s = read {floor['c3d_files']} C3D ({floor['mocap_frames']} frames) "
+          f"{floor['read_c3d_s']:.2f} s + read {floor['csv_files']} CSV {floor['read_csv_s']:.2f} s + write "
+          f"{floor['parquet_files']} Parquet ({floor['parquet_mb']:.0f} MB) {floor['write_parquet_s']:.2f} s")
+    print(f"{'run':<22}{'wall s':>9}{'x floor':>9}{'speed-up':>10}{'peak tree MB':>14}{'peak proc MB':>14}  exit")
+    for name, r in results.items():
+        label = {"serial": "end-to-end serial", "noop": "no-op re-run", "profiled": "serial under cProfile"
+                 }.get(name, f"end-to-end {name} -j {a.jobs}")
+        speed = f"{serial / r['wall_s']:.2f}x" if name not in ("noop", "profiled") else ""
+        print(f"{label:<22}{r['wall_s']:9.2f}{r['wall_s'] / floor['total_s']:9.2f}{speed:>10}"
+              f"{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}")
+    st = stage_times(work / "serial")
+    total = sum(st.values())
+    print(f"\nper stage (serial run; unit records, {total:.1f} s in all):")
+    for name, secs in sorted(st.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:<22}{secs:9.2f} s {100 * secs / total:6.1f} %")
+    if prof_rows:
+        print("\nprofile of the serial run, top functions by own time:")
+        print("\n".join("  " + r for r in prof_rows))
+    summary = {"corpus": str(corpus), "floor": floor, "runs": results, "stages": st}
+    (work / "results.json").write_text(json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
