@@ -166,3 +166,23 @@ def frame_rows(frames: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     idx = np.searchsorted(frames, wanted)
     assert np.all(idx < len(frames)) and np.array_equal(frames[idx], wanted), "frames missing from the table"
     return idx
+
+
+def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg_s: float = 2.5) -> tuple[str, ...]:
+    """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
+    gaze_map start threshold (the root: its turn in the character frame held fixed at the crop start). With
+    a few deg/s of speed noise left after the low-pass, whether such a segment "starts" cannot be decided."""
+    from gazepipe.stages.build_gaze import angular_speed
+    from gazepipe.stages.rotations import from_wxyz
+
+    c0, c1 = tr["scalars"]["crop"]
+    c = from_wxyz(tr["char_quat_lab"][c0:c1])
+    out = []
+    for k, s in enumerate(tr["segments"]):
+        if k == 0:
+            r = c[0].inv() * c * from_wxyz(tr["seg_quat_char"][c0:c1, 0].astype(np.float64))
+        else:
+            r = from_wxyz(tr["seg_quat_local"][c0:c1, k].astype(np.float64))
+        if abs(np.degrees(angular_speed(r, rate_hz).max()) - thr_deg_s) < margin_deg_s:
+            out.append(s)
+    return tuple(out)

@@ -37,6 +37,7 @@ from gazepipe.stages.frames import Joints
 from gazepipe.stages.rotations import from_wxyz, matrix_from_six, six_from_rotation
 from gazepipe.stages.splits import assign_split
 from gazepipe.synth import load_truth
+from tests.acceptance_helpers import near_threshold
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
 RATE = 30000 / 1001
@@ -487,22 +488,8 @@ def pipeline_shift_takes(session):
     return out
 
 
-def _near_threshold(tr: dict, thr_deg_s: float = 18.0, margin_deg_s: float = 2.5) -> tuple[str, ...]:
-    """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
-    start threshold (the root: its turn in the character frame held fixed at the crop start)."""
-    from gazepipe.stages.build_gaze import angular_speed
-
-    c0, c1 = tr["scalars"]["crop"]
-    c = from_wxyz(tr["char_quat_lab"][c0:c1])
-    out = []
-    for k, s in enumerate(tr["segments"]):
-        if k == 0:
-            r = c[0].inv() * c * from_wxyz(tr["seg_quat_char"][c0:c1, 0].astype(np.float64))
-        else:
-            r = from_wxyz(tr["seg_quat_local"][c0:c1, k].astype(np.float64))
-        if abs(np.degrees(angular_speed(r, RATE).max()) - thr_deg_s) < margin_deg_s:
-            out.append(s)
-    return tuple(out)
+def _near_threshold(tr: dict) -> tuple[str, ...]:
+    return near_threshold(tr, RATE)
 
 
 def test_gaze_map_on_pipeline_output(pipeline_shift_takes, session):
