@@ -254,9 +254,6 @@ def test_sigkill_at_random_moments_then_rerun_gives_reference_bytes(session, ref
     assert sum("after takes_done" in w for w in killed) >= 3, killed
 
 
-@pytest.mark.xfail(strict=True, reason="cli/main.py _run writes the QC report only when a unit ran in this run (or "
-                   "report.html is missing): a run killed after its units and datasets were recorded but before "
-                   "the report was rewritten leaves the previous report, and every later run (nothing to do) keeps it")
 def test_qc_report_after_a_kill_between_the_build_and_the_report(session, reference, tmp_path):
     """The engine's part of a run finishes on changed input, the process dies before the QC report (simulated by
     running the engine alone); the next ``gazepipe run`` must still leave a report of the current outputs."""

@@ -50,16 +50,8 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
         for o in summary.failed:
             if o.traceback:
                 click.echo(o.traceback, err=True)
-    ran_any = any(o.status in ("ok", "failed") for o in summary.outcomes)
-    report_html = Path(out) / "qc" / "report.html"
-    if until is None and not dry_run and (ran_any or not report_html.is_file()):
-        from gazepipe.report.validate import validate_output
-
-        res = validate_output(Path(out))
-        gate = res.report["summary"]["checks"]
-        log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("
-                 + ", ".join(f"{n} {k}" for k, n in gate.items() if n) + ")", status="ok",
-                 path=str(res.paths[2]))
+    if until is None and not dry_run:
+        _refresh_report(Path(out), log)
     if not dry_run:
         ran = summary.count("ok")
         failed = len(summary.failed)
@@ -71,6 +63,23 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
         log.emit("error" if failed else "info", "run_end", msg, status="failed" if failed else "ok",
                  ran=ran, skipped=skipped, failed=failed, blocked=blocked)
     sys.exit(summary.exit_code)
+
+
+def _refresh_report(out: Path, log) -> None:
+    """Write the QC report unless it already describes exactly these outputs."""
+    from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json
+    from gazepipe.report.validate import validate_output
+
+    layout = OutLayout(out)
+    stamp = layout.state / "report.json"
+    current = outputs_fingerprint(layout)
+    if (out / "qc" / "report.html").is_file() and (read_json(stamp) or {}).get("outputs") == current:
+        return
+    res = validate_output(out)
+    layout.write_json(stamp, {"outputs": current})
+    counts = res.report["summary"]["checks"]
+    log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("
+             + ", ".join(f"{n} {k}" for k, n in counts.items() if n) + ")", status="ok", path=str(res.paths[2]))
 
 
 def _stage_command(name: str, until: str | None, summary: str) -> None:

@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError
 from gazepipe.io.datasets import write_dataset
@@ -145,7 +147,8 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) ->
                 meta["rests"] = cmeta.get("rests", [])
             inputs.append(TakeTables(session=s.id, subject=s.subject, take=t, markerset=s.markerset,
                                      meta=meta, hashes=dict(units), **tables))
-        built = build_dataset(plan.name, inputs, build_params(params))
+        with threadpool_limits(limits=1):  # as for take units: results independent of the BLAS thread count
+            built = build_dataset(plan.name, inputs, build_params(params))
         written = write_dataset(built, layout.root / "datasets", layout.write_bytes)
         root = layout.root / "datasets" / plan.name
         record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in written},

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
+from threadpoolctl import threadpool_limits
 
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError, InputError, SchemaError
@@ -197,7 +198,10 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> Uni
                               "gazepipe_version": __version__}
     outcome = UnitOutcome(plan.session, plan.take, plan.stage, "ok", reason=plan.reason)
     try:
-        result = st.run(ctx)
+        # one BLAS thread whatever the executor: results must not depend on where a unit ran (a multi-threaded
+        # BLAS sums in another order), and takes already run in parallel
+        with threadpool_limits(limits=1):
+            result = st.run(ctx)
         missing = [o for o in st.outputs if o not in result.tables]
         if missing:
             raise RuntimeError(f"stage {st.name} produced no {missing}")

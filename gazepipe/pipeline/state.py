@@ -86,3 +86,18 @@ def all_records(layout: OutLayout) -> list[dict[str, Any]]:
             if isinstance(rec, dict):
                 recs.append(rec)
     return recs
+
+
+def outputs_fingerprint(layout: OutLayout) -> str:
+    """A hash of what the output folder holds: every unit's and dataset's fingerprint and status.
+
+    The QC report records it, so a run can tell whether the report describes the current outputs (a run killed
+    after its units but before its report leaves a report that no longer does).
+    """
+    import hashlib
+
+    h = hashlib.sha256()
+    for p in sorted(layout.state.glob("units/*/*/*.json")) + sorted(layout.state.glob("datasets/*.json")):
+        rec = read_json(p) or {}
+        h.update(f"{p.relative_to(layout.state)}\0{rec.get('fingerprint')}\0{rec.get('status')}\n".encode())
+    return h.hexdigest()
