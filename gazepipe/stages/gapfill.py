@@ -7,7 +7,8 @@ Pure functions on arrays: positions are (T, M, 3) float64 millimetres in the lab
 Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applicable method predicts the gap:
 
 * ``rigid``: least-squares rigid fit of the marker's cluster (segment) mates measured in each frame to the nearest
-  complete frames before and after the gap, blended across it;
+  complete frames before and after the gap, blended across it; a marker without a cluster (or whose mates are
+  hidden with it) uses the markers measured through the gap whose distance to it is steadiest around it;
 * ``pca``: reconstruction from all markers' intercorrelation (Gløersen & Federolf 2016, PLoS ONE 11:e0152616);
 * ``pchip`` and ``linear`` interpolation in time.
 
@@ -49,6 +50,10 @@ _INTERP = ("pchip", "linear")
 _N_DONORS = 3
 #: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger
 _PCA_DONOR_FACTOR = 2.0
+#: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
+_MATES_WINDOW_S = 2.0
+#: largest standard deviation (mm) of a mate's distance to the marker
+_MATES_MAX_STD_MM = 5.0
 #: at most this many methods are blended per gap
 _BLEND_TOP = 3
 #: methods with a validation error more than this many times the best one's are left out of the blend
@@ -317,6 +322,29 @@ def _donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
     return float("nan") if q is None else float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean())
 
 
+def _steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
+                  n_mates: int = 3, max_std_mm: float = _MATES_MAX_STD_MM) -> list[int] | None:
+    """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
+    through the gap whose distance to ``m`` varied least (standard deviation below ``max_std_mm``) over the
+    ``window`` frames on each side where both are measured. ``None`` when fewer than two qualify."""
+    n_t = valid.shape[0]
+    cand = np.flatnonzero(valid[s:e].all(axis=0))
+    cand = cand[cand != m]
+    if cand.size < 2:
+        return None
+    lo, hi = max(0, s - window), min(n_t, e + window)
+    both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
+    d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]), axis=2)
+    n = both.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mu = np.where(both, d, 0.0).sum(axis=0) / n
+        sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
+    sd[(n < 10) | ~np.isfinite(sd)] = np.inf
+    order = np.argsort(sd, kind="stable")[:n_mates]
+    mates = cand[order[sd[order] < max_std_mm]]
+    return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
+
+
 def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
     """Method with the lowest validation error; the first available in ``methods`` order when none has one."""
     avail = [m for m in methods if m in errors]
@@ -353,7 +381,7 @@ def blend_weights(errors: dict[str, float], methods: tuple[str, ...], *, top: in
 
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
-              pca_window_s: float | None = 10.0, blend: bool = True) -> FillResult:
+              pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -363,6 +391,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     rate_hz : sampling rate, Hz.
     clusters : lists of marker indices that move rigidly together (segments); rigid fill uses the cluster of
         the gap's marker (the first one listing it).
+    steady_mates : for a gap whose marker has no cluster, or whose cluster has no mate measured in some of its
+        frames, rigid fill uses the (up to three) markers measured through the gap whose distance to it varied
+        least around the gap (standard deviation under 5 mm over 2 s each side), when there are two or more.
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
@@ -405,7 +436,12 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             if e - s > max_len or valid[:, m].sum() == 0:
                 records.append(GapRecord(m, s, e, "unfilled"))
                 continue
-            preds, errors = predict_gap(src, valid, m, s, e, methods, cluster_of.get(m),
+            cluster = cluster_of.get(m)
+            # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
+            if steady_mates and "rigid" in methods and (cluster is None
+                                                        or not valid[s:e][:, cluster].any(axis=1).all()):
+                cluster = _steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
+            preds, errors = predict_gap(src, valid, m, s, e, methods, cluster,
                                         validate=validation, pca_window=pca_window)
             if blend:
                 weights = blend_weights(errors, methods)
