@@ -48,6 +48,9 @@ _WINDOWS_PER_SIDE = 1
 _INTERP = ("pchip", "linear")
 #: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
 _N_DONORS = 3
+#: the donors' interpolation error replaces the validation error when more than this many times larger (the
+#: larger of two noisy estimates of the same error would be biased up)
+_INTERP_DONOR_FACTOR = 1.5
 #: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger
 _PCA_DONOR_FACTOR = 2.0
 #: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
@@ -256,8 +259,8 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         if "pca" in preds and model is not None:
             donor_err["pca"] = _donor_pca_error(xyz, valid, m, s, e, model, pca_window)
         for meth, err_d in donor_err.items():
-            # another marker's error is a rough guess of this one's: PCA's is only believed when it is far off
-            factor = _PCA_DONOR_FACTOR if meth == "pca" else 1.0
+            # another marker's error is a rough guess of this one's: believed only when clearly larger
+            factor = _PCA_DONOR_FACTOR if meth == "pca" else _INTERP_DONOR_FACTOR
             if np.isfinite(err_d) and not err_d <= factor * errors.get(meth, np.nan):
                 errors[meth] = err_d
     return preds, errors
