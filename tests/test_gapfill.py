@@ -94,19 +94,19 @@ def test_choice_without_clusters_uses_other_methods():
 
 
 def test_without_clusters_rigid_fill_finds_the_steady_mates():
-    from gazepipe.stages.gapfill import _steady_mates  # noqa: PLC0415
+    from gazepipe.stages.gapfill_methods import find_steady_mates  # noqa: PLC0415
 
     truth, measured, clusters = body()
     m, s, e = 7, 280, 330  # a swinging segment: its own mates are the only markers at a steady distance
     x, valid = hide(measured, [(m, s, e)])
-    assert sorted(_steady_mates(x, valid, m, s, e, 120)) == clusters[1]
+    assert sorted(find_steady_mates(x, valid, m, s, e, 120)) == clusters[1]
     res = fill_gaps(x, valid, RATE)
     rec = res.gaps[0]
     assert "rigid" in rec.weights and np.isfinite(rec.errors["rigid"])
     assert gap_error(res, truth, m, s, e) < 2.0
     # with its segment hidden with it, the mates are markers measured through the gap, none of the hidden ones
     x2, valid2 = hide(measured, [(j, s, e) for j in clusters[1]])
-    mates = _steady_mates(x2, valid2, m, s, e, 120)
+    mates = find_steady_mates(x2, valid2, m, s, e, 120)
     assert mates is None or (mates[0] == m and not set(mates[1:]) & set(clusters[1]) and valid2[s:e, mates[1:]].all())
 
 

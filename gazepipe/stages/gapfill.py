@@ -34,10 +34,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from gazepipe.model import FILL_CODES
-from gazepipe.stages.gapfill_methods import _N_ANCHORS, PcaModel, fit_pca, interp_fill, pca_fill, rigid_fill
+from gazepipe.stages.gapfill_methods import (
+    donor_interp_errors,
+    donor_pca_error,
+    find_steady_mates,
+    fit_pca,
+    interp_fill,
+    pca_fill,
+    rigid_fill,
+)
 
 METHODS = ("rigid", "pca", "pchip", "linear")
 #: measured frames kept between a hidden validation stretch and the gap, so interpolation has anchors
@@ -46,8 +53,6 @@ _SEPARATION = 2
 _WINDOWS_PER_SIDE = 1
 #: interpolation methods (they use the marker's own samples only)
 _INTERP = ("pchip", "linear")
-#: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
-_N_DONORS = 3
 #: the donors' interpolation error replaces the validation error when more than this many times larger (the
 #: larger of two noisy estimates of the same error would be biased up)
 _INTERP_DONOR_FACTOR = 1.5
@@ -55,8 +60,6 @@ _INTERP_DONOR_FACTOR = 1.5
 _PCA_DONOR_FACTOR = 2.0
 #: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
 _MATES_WINDOW_S = 2.0
-#: largest standard deviation (mm) of a mate's distance to the marker
-_MATES_MAX_STD_MM = 5.0
 #: at most this many methods are blended per gap
 _BLEND_TOP = 3
 #: methods with a validation error more than this many times the best one's are left out of the blend
@@ -252,100 +255,18 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         # interpolation knows nothing of the gap's own frames: its error there is what the motion during the
         # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
         # The nearest markers measured through the gap, interpolated over the same frames, show it.
-        donor_err = _donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP])
+        donor_err = donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP])
         # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
         # hidden through them): the same model, built for the nearest marker measured through the gap with
         # that marker hidden there, predicts it
         if "pca" in preds and model is not None:
-            donor_err["pca"] = _donor_pca_error(xyz, valid, m, s, e, model, pca_window)
+            donor_err["pca"] = donor_pca_error(xyz, valid, m, s, e, model, pca_window)
         for meth, err_d in donor_err.items():
             # another marker's error is a rough guess of this one's: believed only when clearly larger
             factor = _PCA_DONOR_FACTOR if meth == "pca" else _INTERP_DONOR_FACTOR
             if np.isfinite(err_d) and not err_d <= factor * errors.get(meth, np.nan):
                 errors[meth] = err_d
     return preds, errors
-
-
-def _donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
-                         methods: list[str], n_donors: int = _N_DONORS) -> dict[str, float]:
-    """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
-    to ``m`` that are measured there and on both sides (NaN when there is none)."""
-    n_t = valid.shape[0]
-    lo, hi = s - _N_ANCHORS, e + _N_ANCHORS
-    if not methods or lo < 0 or hi > n_t:
-        return {}
-    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
-    cand = cand[cand != m]
-    if cand.size == 0:
-        return {meth: float("nan") for meth in methods}
-    # distance to the target on the measured frames next to the gap
-    near = np.array([s - 1, e])
-    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
-    donors = cand[np.argsort(d, kind="stable")[:n_donors]]
-    # the donors are measured on the _N_ANCHORS frames each side, the knots interp_fill would use: one
-    # interpolant for all of them at once
-    knots = np.r_[lo:s, e:hi]
-    y = xyz[knots][:, donors].reshape(knots.size, -1)
-    t = np.arange(s, e, dtype=np.float64)
-    truth = xyz[s:e][:, donors]
-    out: dict[str, float] = {}
-    for meth in methods:
-        if meth == "linear":
-            w = ((t - (s - 1)) / (e - (s - 1)))[:, None]
-            q = (1.0 - w) * xyz[s - 1, donors].reshape(1, -1) + w * xyz[e, donors].reshape(1, -1)
-        else:
-            q = PchipInterpolator(knots.astype(np.float64), y, axis=0)(t)
-        err = np.linalg.norm(q.reshape(e - s, donors.size, 3) - truth, axis=2)
-        out[meth] = float(err.mean(axis=0).mean())
-    return out
-
-
-def _donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, model: PcaModel,
-                     pca_window: int | None) -> float:
-    """Mean error (mm) of the PCA fill of gap ``[s, e)`` for the marker nearest to ``m`` that is measured
-    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted)."""
-    n_t = valid.shape[0]
-    lo, hi = max(s - 1, 0), min(e + 1, n_t)
-    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
-    cand = cand[cand != m]
-    near = [t for t in (s - 1, e) if 0 <= t < n_t and valid[t, m]]
-    if cand.size == 0 or not near:
-        return float("nan")
-    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
-    j = int(cand[np.argmin(d)])
-    valid_j = valid.copy()
-    valid_j[s:e, j] = False
-    win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-    model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
-    if model_j is None:
-        return float("nan")
-    rank = model.ks.index(model.k) if model.k in model.ks else len(model.ks) // 2
-    k = model_j.ks[min(rank, len(model_j.ks) - 1)]
-    q = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, [k])[0]
-    return float("nan") if q is None else float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean())
-
-
-def _steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
-                  n_mates: int = 3, max_std_mm: float = _MATES_MAX_STD_MM) -> list[int] | None:
-    """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
-    through the gap whose distance to ``m`` varied least (standard deviation below ``max_std_mm``) over the
-    ``window`` frames on each side where both are measured. ``None`` when fewer than two qualify."""
-    n_t = valid.shape[0]
-    cand = np.flatnonzero(valid[s:e].all(axis=0))
-    cand = cand[cand != m]
-    if cand.size < 2:
-        return None
-    lo, hi = max(0, s - window), min(n_t, e + window)
-    both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
-    d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]), axis=2)
-    n = both.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mu = np.where(both, d, 0.0).sum(axis=0) / n
-        sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
-    sd[(n < 10) | ~np.isfinite(sd)] = np.inf
-    order = np.argsort(sd, kind="stable")[:n_mates]
-    mates = cand[order[sd[order] < max_std_mm]]
-    return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
 
 
 def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
@@ -443,7 +364,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
             if steady_mates and "rigid" in methods and (cluster is None
                                                         or not valid[s:e][:, cluster].any(axis=1).all()):
-                cluster = _steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
+                cluster = find_steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
             preds, errors = predict_gap(src, valid, m, s, e, methods, cluster,
                                         validate=validation, pca_window=pca_window)
             if blend:

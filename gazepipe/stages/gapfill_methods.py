@@ -18,6 +18,10 @@ import scipy.linalg
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
+#: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
+_N_DONORS = 3
+#: largest standard deviation (mm) of a mate's distance to the marker
+_MATES_MAX_STD_MM = 5.0
 #: known samples used on each side of an interval by the interpolating methods
 _N_ANCHORS = 3
 
@@ -315,3 +319,85 @@ def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.nd
     lo, hi = max(a - 1, 0), min(b + 1, n_t)
     preds = model.predict(xyz, valid, np.arange(lo, hi), ks)
     return [_edge_correct(p, xyz[:, model.m], known_m, a, b, lo, hi, partial) for p in preds]
+
+
+def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
+                         methods: list[str], n_donors: int = _N_DONORS) -> dict[str, float]:
+    """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
+    to ``m`` that are measured there and on both sides (NaN when there is none)."""
+    n_t = valid.shape[0]
+    lo, hi = s - _N_ANCHORS, e + _N_ANCHORS
+    if not methods or lo < 0 or hi > n_t:
+        return {}
+    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
+    cand = cand[cand != m]
+    if cand.size == 0:
+        return {meth: float("nan") for meth in methods}
+    # distance to the target on the measured frames next to the gap
+    near = np.array([s - 1, e])
+    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    donors = cand[np.argsort(d, kind="stable")[:n_donors]]
+    # the donors are measured on the _N_ANCHORS frames each side, the knots interp_fill would use: one
+    # interpolant for all of them at once
+    knots = np.r_[lo:s, e:hi]
+    y = xyz[knots][:, donors].reshape(knots.size, -1)
+    t = np.arange(s, e, dtype=np.float64)
+    truth = xyz[s:e][:, donors]
+    out: dict[str, float] = {}
+    for meth in methods:
+        if meth == "linear":
+            w = ((t - (s - 1)) / (e - (s - 1)))[:, None]
+            q = (1.0 - w) * xyz[s - 1, donors].reshape(1, -1) + w * xyz[e, donors].reshape(1, -1)
+        else:
+            q = PchipInterpolator(knots.astype(np.float64), y, axis=0)(t)
+        err = np.linalg.norm(q.reshape(e - s, donors.size, 3) - truth, axis=2)
+        out[meth] = float(err.mean(axis=0).mean())
+    return out
+
+
+def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, model: PcaModel,
+                     pca_window: int | None) -> float:
+    """Mean error (mm) of the PCA fill of gap ``[s, e)`` for the marker nearest to ``m`` that is measured
+    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted)."""
+    n_t = valid.shape[0]
+    lo, hi = max(s - 1, 0), min(e + 1, n_t)
+    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
+    cand = cand[cand != m]
+    near = [t for t in (s - 1, e) if 0 <= t < n_t and valid[t, m]]
+    if cand.size == 0 or not near:
+        return float("nan")
+    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    j = int(cand[np.argmin(d)])
+    valid_j = valid.copy()
+    valid_j[s:e, j] = False
+    win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
+    model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
+    if model_j is None:
+        return float("nan")
+    rank = model.ks.index(model.k) if model.k in model.ks else len(model.ks) // 2
+    k = model_j.ks[min(rank, len(model_j.ks) - 1)]
+    q = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, [k])[0]
+    return float("nan") if q is None else float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean())
+
+
+def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
+                  n_mates: int = 3, max_std_mm: float = _MATES_MAX_STD_MM) -> list[int] | None:
+    """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
+    through the gap whose distance to ``m`` varied least (standard deviation below ``max_std_mm``) over the
+    ``window`` frames on each side where both are measured. ``None`` when fewer than two qualify."""
+    n_t = valid.shape[0]
+    cand = np.flatnonzero(valid[s:e].all(axis=0))
+    cand = cand[cand != m]
+    if cand.size < 2:
+        return None
+    lo, hi = max(0, s - window), min(n_t, e + window)
+    both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
+    d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]), axis=2)
+    n = both.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mu = np.where(both, d, 0.0).sum(axis=0) / n
+        sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
+    sd[(n < 10) | ~np.isfinite(sd)] = np.inf
+    order = np.argsort(sd, kind="stable")[:n_mates]
+    mates = cand[order[sd[order] < max_std_mm]]
+    return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
