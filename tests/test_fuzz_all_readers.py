@@ -438,7 +438,7 @@ def test_fuzz_datasets(tmp_path, pipeline_out):
     _assert_clean(_run_batch(cases, tmp_path))
 
 
-# ------------------------------------------------------------------------------------- known escapes, reported
+# ------------------------------------------------------------------------- inputs that once escaped the readers
 
 def test_fuzz_non_utf8_text(tmp_path, pipeline_out):
     """Text inputs with bytes that are not UTF-8: 10 OpenFace, 10 Live Link Face, 10 dataset.json."""
