@@ -423,7 +423,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
         qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
                        "method": g.method,
                        "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
-                       "weights": {k: float(v) for k, v in getattr(g, "weights", {}).items()}}
+                       "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
     return xyz, code, valid
