@@ -38,34 +38,16 @@ from gazepipe.stages.rotations import from_wxyz, matrix_from_six, six_from_rotat
 from gazepipe.stages.splits import assign_split
 from gazepipe.synth import load_truth
 from tests.acceptance_helpers import near_threshold
+from tests.conftest import SAMPLE  # noqa: E402
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
 RATE = 30000 / 1001
 FOLLOW = ("follow_standing_01", "follow_standing_02", "follow_sitting_01")
 M = np.diag([-1.0, 1.0, 1.0])
 
 
-def _sample_root(tmp_path_factory) -> Path:
-    """sample_data/session01 when complete (session, truth, every mocap file), else the same generated anew
-    (the sample folder may be mid-regeneration while tests run)."""
-    import tomllib
-
-    try:
-        doc = tomllib.loads((SAMPLE / "session.toml").read_text())
-        complete = (SAMPLE / "truth" / "truth.json").exists() and all(
-            (SAMPLE / t[k]).exists() for t in doc["takes"] for k in ("mocap", "tracked", "clean") if k in t)
-    except (OSError, KeyError, tomllib.TOMLDecodeError):
-        complete = False
-    if complete:
-        return SAMPLE
-    from gazepipe.synth import generate_session
-
-    return Path(generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0))
-
-
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
-    return _sample_root(tmp_path_factory)
+    return SAMPLE
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy import signal
@@ -437,29 +435,13 @@ def test_spike_removed_and_filled():
 
 # ------------------------------------------------------------------------------------------------ sample session
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
-
-
-def _sample_root(tmp_path_factory) -> Path:
-    """sample_data/session01 when complete (session, truth, every mocap file), else the same generated anew."""
-    import tomllib
-
-    try:
-        doc = tomllib.loads((SAMPLE / "session.toml").read_text())
-        complete = (SAMPLE / "truth" / "truth.json").exists() and all(
-            (SAMPLE / t["mocap"]).exists() for t in doc["takes"] if "mocap" in t)
-    except (OSError, KeyError, tomllib.TOMLDecodeError):
-        complete = False
-    if complete:
-        return SAMPLE
-    synth = pytest.importorskip("gazepipe.synth.session")
-    return synth.generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0)
+from tests.conftest import SAMPLE  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def sample_session(tmp_path_factory):
     """The sample session with its ground truth."""
-    return _sample_root(tmp_path_factory)
+    return SAMPLE
 
 
 def test_sample_gaze_shift_crop_bounds(sample_session):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -269,23 +267,7 @@ def test_deterministic(take):
 
 # ------------------------------------------------------------------------------------------------ sample session
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
-
-
-def _sample_root(tmp_path_factory) -> Path:
-    """sample_data/session01 when complete (session, truth, every mocap file), else the same generated anew."""
-    import tomllib
-
-    try:
-        doc = tomllib.loads((SAMPLE / "session.toml").read_text())
-        complete = (SAMPLE / "truth" / "truth.json").exists() and all(
-            (SAMPLE / t["mocap"]).exists() for t in doc["takes"] if "mocap" in t)
-    except (OSError, KeyError, tomllib.TOMLDecodeError):
-        complete = False
-    if complete:
-        return SAMPLE
-    synth = pytest.importorskip("gazepipe.synth.session")
-    return synth.generate_session(tmp_path_factory.mktemp("synth") / "session01", seed=0)
+from tests.conftest import SAMPLE  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -297,7 +279,7 @@ def sample_joints(tmp_path_factory):
     from gazepipe.stages.clean import CleanParams, clean_markers
     from gazepipe.synth.truth import load_truth
 
-    root = _sample_root(tmp_path_factory)
+    root = SAMPLE
     ses = load_session(root / "session.toml")
     ms = ses.markerset
     out = {}
