@@ -142,3 +142,27 @@ def test_sigkill_midway_then_rerun_gives_identical_outputs(tmp_path):
                               "--executor", "serial"], env=env, capture_output=True, text=True)
         assert res.returncode == 0, res.stderr
         assert output_digests(out) == expected
+
+
+def test_unchanged_bad_take_is_not_retried_but_still_fails_the_run(tiny_session, tmp_path):
+    out = tmp_path / "out"
+    (tiny_session / "mocap" / "t2.csv").write_text("frame,time,SACR_x\n1,0.0,not-a-number\n")
+    assert run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")[0] == 1
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    ev = events(err)
+    assert code == 1                                   # the take is still failed
+    assert any(e["event"] == "nothing_to_do" for e in ev)
+    again = [e for e in ev if e["event"] == "unit" and e.get("status") == "failed"]
+    assert len(again) == 1 and again[0]["take"] == "t2" and "t2.csv" in again[0]["message"]
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial", "--force")
+    assert any(e["event"] == "unit" and e.get("take") == "t0" and e.get("status") == "ok" for e in events(err))
+
+
+def test_serial_executor_reports_each_take_as_it_finishes(tmp_path):
+    session = make_tiny_session(tmp_path / "s", n_takes=3)
+    code, _, err = run_cli("ingest", str(session), "--out", str(tmp_path / "o"), "--executor", "serial",
+                           "--heartbeat", "1")
+    ev = events(err)
+    order = [e["event"] for e in ev if e["event"] in ("unit", "heartbeat")]
+    # a heartbeat after the first and second takes, each after that take's unit line
+    assert order[:4] == ["unit", "heartbeat", "unit", "heartbeat"]

@@ -65,17 +65,23 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     sys.exit(summary.exit_code)
 
 
+#: takes plotted in the report that `gazepipe run` writes (the worst first); report.json covers every take
+REPORT_PLOT_TAKES = 12
+
+
 def _refresh_report(out: Path, log) -> None:
     """Write the QC report unless it already describes exactly these outputs."""
     from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json
-    from gazepipe.report.validate import validate_output
 
     layout = OutLayout(out)
     stamp = layout.state / "report.json"
     current = outputs_fingerprint(layout)
     if (out / "qc" / "report.html").is_file() and (read_json(stamp) or {}).get("outputs") == current:
         return
-    res = validate_output(out)
+    from gazepipe.report.validate import validate_output
+
+    # plots for the worst takes only: `gazepipe validate OUT --plot-takes N` draws more
+    res = validate_output(out, plot_takes=REPORT_PLOT_TAKES)
     layout.write_json(stamp, {"outputs": current})
     counts = res.report["summary"]["checks"]
     log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("

@@ -58,6 +58,7 @@ class DatasetPlan:
     takes: list[tuple[Session, Take, dict[str, str]]]   # contributing takes with their units' fingerprints
     run: bool
     reason: str
+    error: str = ""     # set when the build failed before on the same inputs and is not retried
 
 
 def _record_path(layout: OutLayout, name: str) -> Path:
@@ -107,20 +108,24 @@ def plan_datasets(sessions: Sequence[Session], layout: OutLayout, take_plans: Se
                 "takes": sorted([s.id, t.id, u] for s, t, u in takes)}
         fingerprint = sha256_json(comp)
         rec = read_json(_record_path(layout, name))
-        reason = ""
+        reason = error = ""
         if force:
             reason = "--force"
         elif not isinstance(rec, dict):
             reason = "never built"
         elif rec.get("status") != "ok":
-            reason = "failed last time"
+            if rec.get("fingerprint") == fingerprint and not rec.get("retry", True):
+                error = rec.get("error", "failed")
+            else:
+                reason = "failed last time"
         elif rec.get("fingerprint") != fingerprint:
             old = rec.get("components", {})
             reason = ("parameters changed" if old.get("params") != comp["params"] else
                       "its takes changed" if old.get("takes") != comp["takes"] else "fingerprint changed")
         elif not all((layout.root / "datasets" / name / f).is_file() for f in rec.get("outputs", {})):
             reason = "an output file is missing"
-        plans.append(DatasetPlan(name, fingerprint, comp, takes, bool(reason), reason or "up to date"))
+        plans.append(DatasetPlan(name, fingerprint, comp, takes, bool(reason),
+                                 reason or ("failed earlier on these same inputs" if error else "up to date"), error))
     return plans
 
 
@@ -157,6 +162,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) ->
                             for s in built.info.get("skipped", [])]
     except GazepipeError as exc:
         outcome.status, outcome.error = "failed", f"dataset {plan.name}: {exc.one_line()}"
+        record["retry"] = False
     except Exception as exc:  # a bug: recorded, the run goes on
         outcome.status = "failed"
         outcome.error = f"dataset {plan.name}: internal error: {type(exc).__name__}: {exc}"

@@ -108,8 +108,11 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
         todo = [j for j in take_jobs if any(u.run for u in j.units)]
         for j in take_jobs:
             if j not in todo:
-                summary.outcomes.extend(UnitOutcome(u.session, u.take, u.stage, "skipped", reason=u.reason)
-                                        for u in j.units)
+                summary.outcomes.extend(_not_run(u) for u in j.units)
+        for u in plans:
+            if u.error:
+                log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
+                         session=u.session, take=u.take, stage=u.stage, status="failed")
         n_units = sum(u.run for j in todo for u in j.units)
         if todo:
             log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
@@ -119,7 +122,11 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
         if until in (None, BUILD):
             for d in plan_datasets(sessions, layout, plans, params or {}, force):
                 if not d.run:
-                    summary.outcomes.append(UnitOutcome("-", "-", f"build:{d.name}", "skipped", reason=d.reason))
+                    summary.outcomes.append(UnitOutcome("-", "-", f"build:{d.name}", "failed" if d.error else "skipped",
+                                                        reason=d.reason, error=d.error))
+                    if d.error:
+                        log.emit("error", "dataset", f"{d.error} (failed earlier on these same inputs; --force "
+                                 "retries)", stage="build", dataset=d.name, status="failed")
                     continue
                 o = run_dataset(d, layout, params or {})
                 summary.outcomes.append(o)
@@ -147,10 +154,17 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, executor: 
     n_workers = min(len(todo), jobs or os.cpu_count() or 1)
     kind = "serial" if (executor == "process" and n_workers <= 1) else executor
     done = 0
+    if kind == "process":  # local workers stop if this process dies (the lock dies with it)
+        for job in todo:
+            job.parent_pid = os.getpid()
     with make_executor(kind, n_workers, scheduler) as ex:
-        futures = {ex.submit(run_take_job, job): job for job in todo}
-        for fut in as_completed(futures):
-            job = futures[fut]
+        if kind == "serial":  # one take at a time, so progress shows as it happens
+            futures = {}
+            pending = ((ex.submit(run_take_job, job), job) for job in todo)
+        else:
+            futures = {ex.submit(run_take_job, job): job for job in todo}
+            pending = ((fut, futures[fut]) for fut in as_completed(futures))
+        for fut, job in pending:
             try:
                 outcomes = fut.result()
             except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
@@ -175,6 +189,12 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, executor: 
             log.progress(done, len(todo))
             if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
                 log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
+
+
+def _not_run(u: UnitPlan) -> UnitOutcome:
+    """The outcome of a unit that is not run: up to date, or failed before on the same inputs."""
+    status = "failed" if u.error else "skipped"
+    return UnitOutcome(u.session, u.take, u.stage, status, reason=u.reason, error=u.error)
 
 
 def _remember_sessions(layout: OutLayout, sessions: Sequence[Session]) -> None:

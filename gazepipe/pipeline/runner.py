@@ -49,6 +49,7 @@ class UnitPlan:
     components: dict[str, Any]
     run: bool
     reason: str
+    error: str = ""     # set when the unit failed before on the same inputs and is not retried
 
 
 @dataclass
@@ -73,6 +74,7 @@ class TakeJob:
     take: Take
     units: list[UnitPlan]
     params: dict[str, Any]
+    parent_pid: int | None = None   # the run's process, for local workers: they stop when it is gone
 
 
 # --------------------------------------------------------------------------------------------- planning
@@ -108,11 +110,19 @@ def plan_take(session: Session, take: Take, stages: Sequence[Stage], params: dic
         }
         fp = sha256_json(comp)
         fps[st.name] = fp
-        reason = _why(st, comp, fp, layout.record(session.id, take.id, st.name),
-                      [layout.table(session.id, take.id, o) for o in st.outputs], running, force)
+        record_path = layout.record(session.id, take.id, st.name)
+        reason = _why(st, comp, fp, record_path, [layout.table(session.id, take.id, o) for o in st.outputs],
+                      running, force)
+        error = ""
         if reason:
             running.add(st.name)
-        plans.append(UnitPlan(session.id, take.id, st.name, fp, comp, bool(reason), reason or "up to date"))
+        else:
+            rec = read_json(record_path) or {}
+            if rec.get("status") == "failed":
+                error = rec.get("error", "failed")
+        plans.append(UnitPlan(session.id, take.id, st.name, fp, comp, bool(reason),
+                              reason or ("failed earlier on these same inputs (--force retries)" if error
+                                         else "up to date"), error))
     return plans
 
 
@@ -125,6 +135,8 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
     if not isinstance(rec, dict) or "fingerprint" not in rec:
         return "never ran"
     if rec.get("status") != "ok":
+        if rec["fingerprint"] == fp and not rec.get("retry", True):
+            return ""   # an input problem: the same inputs fail the same way
         return "failed last time"
     if rec["fingerprint"] == fp:
         sizes = rec.get("outputs", {})
@@ -173,6 +185,8 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     outcomes: list[UnitOutcome] = []
     failed: set[str] = set()
     for plan in job.units:
+        if job.parent_pid is not None and not _alive(job.parent_pid):
+            break  # the run died (its lock with it): write nothing more, a new run may already be going
         st = registry.get(plan.stage)
         if any(u in failed for u in st.requires):
             failed.add(st.name)
@@ -180,6 +194,11 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
                                         reason="an upstream stage failed"))
             continue
         if not plan.run:
+            if plan.error:  # failed before on exactly these inputs: not retried without --force
+                failed.add(st.name)
+                outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "failed", reason=plan.reason,
+                                            error=plan.error))
+                continue
             outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "skipped", reason=plan.reason))
             continue
         out = _run_unit(st, plan, job, layout)
@@ -217,9 +236,11 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> Uni
         if exc.take is None:
             exc.take = plan.take
         outcome.status, outcome.error = "failed", exc.one_line()
+        record["retry"] = False   # the inputs are at fault: the same inputs fail the same way
         if isinstance(exc, SchemaError | InputError):
             outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
+        record["retry"] = True
         outcome.status = "failed"
         outcome.error = f"take {plan.take}: stage {st.name}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
@@ -232,6 +253,16 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> Uni
     record["duration_s"] = round(outcome.duration_s, 4)
     layout.write_json(layout.record(plan.session, plan.take, plan.stage), record)
     return outcome
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def new_run_id() -> str:

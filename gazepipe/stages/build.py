@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -37,19 +37,10 @@ from gazepipe.schemas.datasets import (
     feature_columns,
 )
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
-from gazepipe.stages.build_face import face_columns, face_rows, mirror_face_rows
-from gazepipe.stages.build_gaze import (
-    TakeRows,
-    align_eyes,
-    gaze_map_names,
-    gaze_map_row,
-    mirror_gaze_map,
-    mirror_rnn,
-    rnn_feature_names,
-    rnn_rows,
-    segment_permutation,
-)
 from gazepipe.stages.splits import assign_split, check_fractions
+
+if TYPE_CHECKING:  # the row builders import scipy and pandas: loaded when a dataset is built, not when planned
+    from gazepipe.stages.build_gaze import TakeRows
 
 KINDS = {"gaze_rnn": "gaze_follow", "gaze_rnn_lod": "gaze_follow", "gaze_map": "gaze_shift", "face_clean": "face"}
 
@@ -169,6 +160,8 @@ class _Context:
 
 
 def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
+    from gazepipe.stages.build_gaze import align_eyes, rnn_feature_names, rnn_rows
+
     lod = ctx.name == "gaze_rnn_lod"
     if tt.joints is None:
         raise StageError(None, "no joints table", take=tt.take.id)
@@ -201,6 +194,8 @@ def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
+    from gazepipe.stages.build_gaze import gaze_map_names, gaze_map_row
+
     take = tt.take
     if tt.joints is None:
         raise StageError(None, "no joints table", take=take.id)
@@ -229,6 +224,8 @@ def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
+    from gazepipe.stages.build_face import face_columns, face_rows
+
     if tt.face is None:
         raise StageError(None, "no face table", take=tt.take.id)
     meta = read_meta(tt.face)
@@ -249,6 +246,9 @@ def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
+    from gazepipe.stages.build_face import mirror_face_rows
+    from gazepipe.stages.build_gaze import mirror_gaze_map, mirror_rnn, segment_permutation
+
     if name == "face_clean":
         return mirror_face_rows(rows.features, ctx.segments)
     try:
