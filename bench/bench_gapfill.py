@@ -10,7 +10,7 @@ Data: the sample session's truth (``sample_data/session01``, with 0.5 mm noise a
 measured against the noise-free truth; gaps in the subject's markers, segments from its markerset), and the gap-free stretches of two real C3D files: Walking_Hybrid_2
 (trajectories de-duplicated; rigid clusters found from the data) and ART-Human (whole ART triplets hidden).
 
-Usage: ``PYTHONPATH=. python bench/bench_gapfill.py [--trials N] [--seed S]``
+Usage: ``PYTHONPATH=. python bench/bench_gapfill.py [--trials N] [--seeds K] [--seed S] [--data all|session|real]``
 """
 
 from __future__ import annotations
@@ -278,10 +278,46 @@ def mean(v: list[np.ndarray]) -> float:
     return float(np.concatenate(v).mean()) if v else float("nan")
 
 
+def merge(outs: list[dict]) -> dict:
+    """Pool the runs of several seeds; ``per_seed`` keeps each run for the spread of the ratios."""
+    first = outs[0]
+    pooled = {
+        "per_bin": {b: {c: [v for o in outs for v in o["per_bin"][b][c]] for c in first["per_bin"][b]}
+                    for b in first["per_bin"]},
+        "cover": {b: {c: [sum(o["cover"][b][c][i] for o in outs) for i in range(2)] for c in first["cover"][b]}
+                  for b in first["cover"]},
+        "paired": {b: {c: [sum(o["paired"][b][c][i] for o in outs) for i in range(2)] for c in first["paired"][b]}
+                   for b in first["paired"]},
+        "long": {c: [v for o in outs for v in o["long"][c]] for c in first["long"]},
+        "changed": sum(o["changed"] for o in outs),
+        "t_fill": float(np.mean([o["t_fill"] for o in outs])),
+        "t_ktk": float(np.mean([o["t_ktk"] for o in outs])),
+        "pattern": first["pattern"],
+        "per_seed": outs,
+    }
+    return pooled
+
+
+def spread(out: dict, key: tuple[int, int] | None, num: str, den: str) -> str:
+    """``± std`` of the ratio mean(num) / mean(den) over the seeds' runs (empty with one seed)."""
+    runs = out.get("per_seed", [])
+    if len(runs) < 2:
+        return ""
+    r = []
+    for o in runs:
+        d = o["long"] if key is None else o["per_bin"][key]
+        if d[num] and d[den]:
+            r.append(mean(d[num]) / mean(d[den]))
+    return f"±{np.std(r, ddof=1):.2f}" if len(r) >= 2 else ""
+
+
 def report(ds: dict, out: dict, has_ktk: bool) -> None:
-    print(f"\n== {ds['name']}: {ds['note']}; {len(ds['clusters'])} rigid clusters; occlusion: {out['pattern']}")
+    n_seeds = len(out.get("per_seed", [])) or 1
+    print(f"\n== {ds['name']}: {ds['note']}; {len(ds['clusters'])} rigid clusters; occlusion: {out['pattern']}; "
+          f"{n_seeds} seed(s), ratios as pooled value ± std over seeds")
     cols = ["choice", "hindsight", *METHODS] + (["ktk"] if has_ktk else [])
-    head = "bin (frames)  n_gaps " + " ".join(f"{c:>13s}" for c in cols) + "  choice/hind  choice/ktk  worst choice/method"
+    head = ("bin (frames)  n_gaps " + " ".join(f"{c:>13s}" for c in cols)
+            + "  choice/hind        choice/ktk  worst choice/method")
     print("mean/p95 error (mm) of hidden samples; methods forced on every gap they can fill (coverage in %)")
     print(head)
     rows = [(f"{lo}-{hi}", out["per_bin"][(lo, hi)], (lo, hi)) for lo, hi in BINS]
@@ -292,12 +328,15 @@ def report(ds: dict, out: dict, has_ktk: bool) -> None:
         cells = " ".join(f"{fmt(d[c]):>13s}" for c in cols)
         r_h = mean(d["choice"]) / mean(d["hindsight"])
         r_k = mean(d["ktk"]) / mean(d["choice"]) if has_ktk and d["ktk"] else float("nan")
+        s_h = spread(out, key, "choice", "hindsight")
+        s_k = spread(out, key, "ktk", "choice") if has_ktk else ""
         worst = ""
         if key is not None:
             ratios = {m: p[0] / p[1] for m, p in out["paired"][key].items() if p[1] > 0}
             wm = max(ratios, key=ratios.get)
             worst = f"{ratios[wm]:.2f} ({wm})"
-        print(f"{name:>12s} {len(d['choice']):7d} {cells}  {r_h:10.2f}  {('ktk ' + format(r_k, '.1f') + 'x lower'):>11s}  {worst}")
+        print(f"{name:>12s} {len(d['choice']):7d} {cells}  {format(r_h, '.2f') + s_h:>11s}  "
+              f"{('ktk ' + format(r_k, '.1f') + s_k + 'x lower'):>16s}  {worst}")
     cov = " ".join(f"{m} {100 * sum(out['cover'][b][m][0] for b in BINS) / max(1, sum(out['cover'][b][m][1] for b in BINS)):.0f}%"
                    for m in METHODS)
     print(f"coverage: {cov}; measured samples changed: {out['changed']}; "
@@ -307,8 +346,9 @@ def report(ds: dict, out: dict, has_ktk: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=6, help="occlusion patterns per bin and take")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trials", type=int, default=5, help="occlusion patterns per bin, take and seed")
+    ap.add_argument("--seeds", type=int, default=3, help="seeds (the ratios' spread is their std over seeds)")
+    ap.add_argument("--seed", type=int, default=0, help="first seed")
     ap.add_argument("--data", choices=("all", "session", "real"), default="all")
     ap.add_argument("--takes", type=int, default=4, help="sample-session takes to use (0: all)")
     ap.add_argument("--pattern", choices=("random", "neighbours"), default="random",
@@ -328,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
             datasets.append(ds)
     for i, ds in enumerate(datasets):
         t0 = time.perf_counter()
-        out = run(ds, args.trials, args.seed + i, args.pattern)
+        out = merge([run(ds, args.trials, 1000 * k + args.seed + i, args.pattern) for k in range(args.seeds)])
         report(ds, out, has_ktk)
         print(f"({time.perf_counter() - t0:.0f} s)")
         sys.stdout.flush()
