@@ -296,3 +296,25 @@ def test_movement_during_gap_between_still_phases_not_interpolated():
     assert rec.errors["linear"] > 10.0 and rec.errors["pchip"] > 10.0  # seen on the donors, not beside the gap
     assert set(rec.weights) <= {"rigid", "pca"}
     assert gap_error(res, truth, m, s, e) < 3.0
+
+
+def test_pca_body_frame_with_some_predictors_hidden():
+    """In the body frame (predictors' mean trajectory subtracted) the centroid of the predictors measured in a
+    frame is shifted by their mean offset from all predictors' centroid: a translating shape is predicted
+    exactly from any subset of its markers."""
+    from gazepipe.stages.gapfill_methods import PcaModel
+
+    rng = np.random.default_rng(3)
+    n_t = 300
+    t = np.arange(n_t) / RATE
+    shape = rng.normal(0, 150, (6, 3))
+    root = np.stack([800 * np.sin(0.7 * t), 300 * np.cos(1.3 * t), 50 * t ** 2], axis=1)
+    xyz = shape[None] + root[:, None, :]
+    valid = np.ones((n_t, 6), bool)
+    model = PcaModel(xyz, valid, 5, np.arange(5), np.arange(0, 200))
+    vis = valid.copy()
+    vis[200:, :3] = False  # only predictors 3 and 4 measured in the frames predicted
+    pred = model.predict(xyz, vis, np.arange(200, n_t))[0]
+    assert np.abs(pred - xyz[200:, 5]).max() < 1e-6
+    # the offset matters: the visible predictors' centroid is tens of mm away from all predictors' centroid
+    assert np.linalg.norm(shape[3:5].mean(axis=0) - shape[:5].mean(axis=0)) > 20.0

@@ -22,6 +22,11 @@ from scipy.spatial.transform import Rotation
 _N_DONORS = 3
 #: largest standard deviation (mm) of a mate's distance to the marker
 _MATES_MAX_STD_MM = 5.0
+#: PCA in a frame moving with the body (the predictors' mean trajectory subtracted), as Gløersen & Federolf
+PCA_BODY_FRAME = True
+#: PCA on coordinates normalised by their standard deviation before the distance weighting (off: measured
+#: worse on the Walking file, 20.7 vs 8.0 mm on gaps over 0.25 s)
+PCA_UNIT_STD = False
 #: known samples used on each side of an interval by the interpolating methods
 _N_ANCHORS = 3
 
@@ -220,17 +225,25 @@ class PcaModel:
     """
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
-                 *, sigma_scale: float = 2.0,
+                 *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
                  var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
+        self.body_frame = body_frame
         cols = np.concatenate([predictors, [m]])
-        x = xyz[train][:, cols].reshape(train.size, -1)
+        xt = xyz[train][:, cols]
+        if body_frame:
+            # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
+            xt = xt - xt[:, :-1].mean(axis=1, keepdims=True)
+        x = xt.reshape(train.size, -1)
         self.mean = x.mean(axis=0)
         d = np.linalg.norm(xyz[train][:, predictors] - xyz[train][:, [m]], axis=2).mean(axis=0)
         sigma = sigma_scale * max(float(np.median(d)), 1.0)
         w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
         self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
+        if unit_std:
+            sd = x.std(axis=0)
+            self.w = self.w / np.where(sd > 1e-6, sd, 1.0)
         z = (x - self.mean) * self.w
         gram = np.einsum("ni,nj->ij", z, z)  # small: kept out of multithreaded BLAS
         evals, evecs = scipy.linalg.eigh(gram, driver="evd")
@@ -257,7 +270,16 @@ class PcaModel:
             if not pattern.any():
                 continue
             kcols = np.flatnonzero(np.repeat(pattern, 3))
-            z = ((x_all[rows][:, kcols] - self.mean[kcols]) * self.w[kcols]).T
+            x_rows = x_all[rows]
+            ctr = 0.0
+            if self.body_frame:
+                # the frame's mean trajectory from the predictors measured, shifted by the training mean
+                # offset between the visible predictors' centroid and all predictors' centroid
+                pts = x_rows.reshape(rows.size, n_p, 3)[:, pattern]
+                off = self.mean[:3 * n_p].reshape(n_p, 3)[pattern].mean(axis=0)
+                ctr = pts.mean(axis=1) - off
+                x_rows = x_rows - np.tile(ctr, n_p)
+            z = ((x_rows[:, kcols] - self.mean[kcols]) * self.w[kcols]).T
             k_top = min(max(ks), kcols.size)
             # least squares for every k at once: the first k columns of A = QR are Q[:, :k] R[:k, :k]
             # (the leading k × k block of R⁻¹ is the inverse of R's leading block: R is upper triangular)
@@ -274,7 +296,7 @@ class PcaModel:
                     continue
                 scores = np.einsum("ij,jn->in", rinv[:k, :k], qz[:k])
                 zm = np.einsum("ci,in->nc", self.v_all[3 * n_p:, :k], scores)
-                out[i, rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:]
+                out[i, rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
         return out
 
 
