@@ -317,7 +317,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         the gap's marker (the first one listing it).
     steady_mates : for a gap whose marker has no cluster, or whose cluster has no mate measured in some of its
         frames, rigid fill uses the (up to three) markers measured through the gap whose distance to it varied
-        least around the gap (standard deviation under 5 mm over 2 s each side), when there are two or more.
+        least around the gap (standard deviation under 20 mm over 2 s each side), when there are two or more.
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
