@@ -217,7 +217,9 @@ class PcaModel:
     """Gløersen & Federolf (2016) style PCA model of all markers' coordinates for one target marker.
 
     Fitted on the frames where the target and every predictor are measured (optionally only within a time
-    window around the gap). Coordinates are centred on the training mean and each marker's columns are weighted
+    window around the gap). With ``body_frame`` the predictors' mean trajectory is subtracted from every marker
+    first (a frame moving with the body, as in the paper). Coordinates are centred on the training mean (and with
+    ``unit_std`` divided by their standard deviation) and each marker's columns are weighted
     by ``exp(-d² / (2 σ²))`` with ``d`` its mean distance to the target (σ = ``sigma_scale`` × the median
     distance), so nearby markers dominate the components, as in the paper's distance weighting. The target's
     coordinates in a frame are reconstructed from the scores of the first ``k`` components fitted (least
