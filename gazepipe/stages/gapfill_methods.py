@@ -14,9 +14,9 @@ accurate than the raw prediction.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
-from scipy.interpolate import PchipInterpolator
-from scipy.spatial.transform import Rotation
+
+# scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
+# plan a run, and a run with nothing to do should not pay for scipy.interpolate and scipy.linalg
 
 #: nearest markers whose interpolation over a gap's frames estimates an interpolation method's error there
 _N_DONORS = 3
@@ -59,6 +59,8 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             anchors.append(known_idx[max(0, i0 - _N_ANCHORS):i1 + _N_ANCHORS])
     if kind == "pchip" and anchors:
         knots = np.unique(np.concatenate(anchors))
+        from scipy.interpolate import PchipInterpolator
+
         interp = PchipInterpolator(knots.astype(np.float64), xyz_m[knots], axis=0)
     for (a, b), good in zip(intervals, ok, strict=True):
         if not good:
@@ -142,6 +144,8 @@ def min_rotation(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarr
     sin = np.linalg.norm(cross, axis=1)
     ang = np.arctan2(sin, v @ u)
     axis = np.where(sin[:, None] > 1e-12, cross / np.maximum(sin, 1e-12)[:, None], 0.0)
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_rotvec(axis * ang[:, None]).as_matrix(), c_ref, c_cur
 
 
@@ -249,6 +253,8 @@ class PcaModel:
             self.w = self.w / np.where(sd > 1e-6, sd, 1.0)
         z = (x - self.mean) * self.w
         gram = np.einsum("ni,nj->ij", z, z)  # small: kept out of multithreaded BLAS
+        import scipy.linalg
+
         evals, evecs = scipy.linalg.eigh(gram, driver="evd")
         order = np.argsort(evals)[::-1]
         evals = np.clip(evals[order], 0.0, None)
@@ -374,6 +380,8 @@ def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
             w = ((t - (s - 1)) / (e - (s - 1)))[:, None]
             q = (1.0 - w) * xyz[s - 1, donors].reshape(1, -1) + w * xyz[e, donors].reshape(1, -1)
         else:
+            from scipy.interpolate import PchipInterpolator
+
             q = PchipInterpolator(knots.astype(np.float64), y, axis=0)(t)
         err = np.linalg.norm(q.reshape(e - s, donors.size, 3) - truth, axis=2)
         out[meth] = float(err.mean(axis=0).mean())
