@@ -31,7 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gazepipe.errors import InputError, SchemaError
-from gazepipe.io.parquet import WRITE_OPTIONS
+from gazepipe.io.parquet import WRITE_OPTIONS, read_table
 from gazepipe.schemas.base import attach_meta, check_table
 from gazepipe.schemas.datasets import dataset_schema
 
@@ -171,13 +171,7 @@ def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.
 def read_take(path: str | Path, schema: pa.Schema) -> pa.Table:
     """Read one take file, check it against ``schema`` and its identifiers against its folder names."""
     path = Path(path)
-    try:
-        table = pq.read_table(str(path))
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except (pa.ArrowException, OSError) as exc:
-        raise InputError(path, f"not a readable Parquet file ({exc})") from None
-    check_table(table, schema, path=str(path))
+    table = read_table(path, schema)
     parts = {p.split("=", 1)[0]: unquote(p.split("=", 1)[1]) for p in (path.parent.parent.name,
                                                                       path.parent.name, path.stem)}
     for col, want in parts.items():
