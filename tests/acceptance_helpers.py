@@ -186,3 +186,22 @@ def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg
         if abs(np.degrees(angular_speed(r, rate_hz).max()) - thr_deg_s) < margin_deg_s:
             out.append(s)
     return tuple(out)
+
+
+def truth_joints(tr: dict, frames: np.ndarray):
+    """A joints table of a take's true rotations on ``frames`` (rows of the uncropped take), for dataset tests."""
+    from gazepipe.schemas.joints import joints_to_table
+    from gazepipe.stages.frames import Joints
+    from gazepipe.stages.rotations import from_wxyz, six_from_rotation
+
+    q = tr["seg_quat_char"][frames].astype(np.float64)
+    n, s = q.shape[:2]
+    six = six_from_rotation(from_wxyz(q.reshape(-1, 4))).reshape(n, s, 6)
+    j = Joints(segments=list(tr["segments"]), parents=np.arange(-1, s - 1), quat=q,
+               quat_local=tr["seg_quat_local"][frames].astype(np.float64), six=six,
+               head_centre=tr["head_centre_char"][frames].astype(np.float64),
+               target_dir=tr["target_dir_char"][frames].astype(np.float64),
+               char_origin=tr["char_origin_lab"][frames].astype(np.float64),
+               char_rot=tr["char_quat_lab"][frames].astype(np.float64),
+               valid=np.ones(n, bool), rate_hz=float(tr["scalars"]["rate_hz"]))
+    return joints_to_table(j, frames)

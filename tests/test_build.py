@@ -37,7 +37,7 @@ from gazepipe.stages.frames import Joints
 from gazepipe.stages.rotations import from_wxyz, matrix_from_six, six_from_rotation
 from gazepipe.stages.splits import assign_split
 from gazepipe.synth import load_truth
-from tests.acceptance_helpers import near_threshold
+from tests.acceptance_helpers import near_threshold, truth_joints
 from tests.conftest import SAMPLE  # noqa: E402
 
 RATE = 30000 / 1001
@@ -53,20 +53,6 @@ def root(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def session(root):
     return load_session(root / "session.toml")
-
-
-def truth_joints(tr: dict, frames: np.ndarray) -> pa.Table:
-    """A joints table of the truth's rotations on ``frames`` (rows of the uncropped take)."""
-    q = tr["seg_quat_char"][frames].astype(np.float64)
-    n, s = q.shape[:2]
-    six = six_from_rotation(from_wxyz(q.reshape(-1, 4))).reshape(n, s, 6)
-    j = Joints(segments=list(tr["segments"]), parents=np.arange(-1, s - 1), quat=q,
-               quat_local=tr["seg_quat_local"][frames].astype(np.float64), six=six,
-               head_centre=tr["head_centre_char"][frames].astype(np.float64),
-               target_dir=tr["target_dir_char"][frames].astype(np.float64),
-               char_origin=tr["char_origin_lab"][frames], char_rot=tr["char_quat_lab"][frames],
-               valid=np.ones(n, bool), rate_hz=RATE)
-    return joints_to_table(j, frames)
 
 
 def eyes_table(tr: dict, frames: np.ndarray, invalid: np.ndarray) -> pa.Table:

@@ -24,29 +24,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from tests.acceptance_helpers import truth_joints
+
 GAZE_MAP_VAL = ((18.0, 12.0), (-36.0, 0.0), (54.0, -12.0))
 FOLLOW_POSES = ("standing", "standing", "sitting", "standing", "sitting")
 FOLLOW_VAL = "follow_standing_03"
 FACE_VAL = "face_04"
 _CACHE: dict[str, Path] = {}
-
-
-def _truth_joints(tr: dict, frames: np.ndarray) -> pa.Table:
-    from gazepipe.schemas.joints import joints_to_table
-    from gazepipe.stages.frames import Joints
-    from gazepipe.stages.rotations import from_wxyz, six_from_rotation
-
-    q = tr["seg_quat_char"][frames].astype(np.float64)
-    n, s = q.shape[:2]
-    six = six_from_rotation(from_wxyz(q.reshape(-1, 4))).reshape(n, s, 6)
-    j = Joints(segments=list(tr["segments"]), parents=np.arange(-1, s - 1), quat=q,
-               quat_local=tr["seg_quat_local"][frames].astype(np.float64), six=six,
-               head_centre=tr["head_centre_char"][frames].astype(np.float64),
-               target_dir=tr["target_dir_char"][frames].astype(np.float64),
-               char_origin=tr["char_origin_lab"][frames].astype(np.float64),
-               char_rot=tr["char_quat_lab"][frames].astype(np.float64),
-               valid=np.ones(n, bool), rate_hz=float(tr["scalars"]["rate_hz"]))
-    return joints_to_table(j, frames)
 
 
 def _eyes_table(tr: dict, frames: np.ndarray) -> pa.Table:
@@ -99,7 +83,7 @@ def make_datasets(out: Path) -> Path:
         frames = np.arange(*tr["scalars"]["crop"])
         follow.append(TakeTables(session=s.id, subject=s.subject, take=_pin(t, "val" if t.id == FOLLOW_VAL else
                                                                             "train"),
-                                 joints=_truth_joints(tr, frames), eyes=_eyes_table(tr, frames), markerset=s.markerset))
+                                 joints=truth_joints(tr, frames), eyes=_eyes_table(tr, frames), markerset=s.markerset))
     for name in ("gaze_rnn", "gaze_rnn_lod"):
         write_dataset(build_dataset(name, follow, params), datasets)
 
@@ -112,7 +96,7 @@ def make_datasets(out: Path) -> Path:
         frames = np.arange(*tr["scalars"]["crop"])
         split = "val" if (t.target_yaw_deg, t.target_pitch_deg) in GAZE_MAP_VAL else "train"
         shift.append(TakeTables(session=s.id, subject=s.subject, take=_pin(t, split),
-                                joints=_truth_joints(tr, frames), markerset=s.markerset,
+                                joints=truth_joints(tr, frames), markerset=s.markerset,
                                 meta={"rests": tr["scalars"]["rest_periods"]}))
     write_dataset(build_dataset("gaze_map", shift, params), datasets)
 
