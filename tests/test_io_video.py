@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gazepipe.errors import InputError
-from gazepipe.io.video import probe_video, read_frames
+from gazepipe.io.video import FrameReader, probe_video, read_frames
 
 W, H, N, FPS = 64, 48, 30, 30.0
 
@@ -104,12 +104,48 @@ def test_read_window_colour_scale_and_clipping(video):
         read_frames(video, 5, 5)
 
 
+@pytest.mark.parametrize("max_skip", [0, 4, 300])
+def test_frame_reader_windows_in_any_order(video, max_skip):
+    """One open capture serves windows ahead (next frame, a little ahead, far ahead), behind, overlapping and
+    clipped at the end: every window has the frames and timestamps of decoding the whole video in order, with
+    seeks (max_skip 0) or with grabs forward."""
+    pr = probe_video(video)
+    _, every = _decode_all(video)
+    windows = [(0, 5), (5, 9), (12, 15), (25, 27), (3, 8), (6, 10), (2, 4), (20, 40), (0, 1)]
+    for ts_arg in (pr.timestamps_s, None):
+        with FrameReader(video, timestamps_s=ts_arg, max_skip=max_skip) as reader:
+            for a, b in windows:
+                ts, fr = reader(a, b)
+                stop = min(b, N)
+                np.testing.assert_array_equal(fr, every[a:stop])
+                np.testing.assert_allclose(ts, pr.timestamps_s[a:stop], atol=1e-9)
+            with pytest.raises(InputError):
+                reader(N + 2, N + 4)
+            ts, fr = reader(1, 3)  # still usable after a window past the end
+            np.testing.assert_array_equal(fr, every[1:3])
+
+
+def test_frame_reader_stops_trusting_an_inexact_seek(video):
+    pr = probe_video(video)
+    _, every = _decode_all(video)
+    with FrameReader(video, timestamps_s=pr.timestamps_s + 1.0, max_skip=0) as reader:
+        for a, b in [(11, 14), (20, 22), (4, 6), (28, 30)]:
+            ts, fr = reader(a, b)
+            np.testing.assert_array_equal(fr, every[a:b])
+            np.testing.assert_allclose(ts, pr.timestamps_s[a:b], atol=1e-9)
+    reader = FrameReader(video, gray=False, scale=0.5)
+    assert reader(2, 4)[1].shape == (2, H // 2, W // 2, 3)
+    reader.close()
+    with pytest.raises(ValueError):
+        reader(0, 1)
+
+
 def test_bad_videos(tmp_path):
     (tmp_path / "empty.mp4").write_bytes(b"")
     (tmp_path / "text.mp4").write_text("this is not a video\n" * 50)
     (tmp_path / "dir.mp4").mkdir()
     for p in [tmp_path / "missing.mp4", tmp_path / "empty.mp4", tmp_path / "text.mp4", tmp_path / "dir.mp4"]:
-        for call in (lambda q: probe_video(q), lambda q: read_frames(q, 0, 2)):
+        for call in (lambda q: probe_video(q), lambda q: read_frames(q, 0, 2), lambda q: FrameReader(q)):
             with pytest.raises(InputError) as ei:
                 call(p)
             msg = str(ei.value)

@@ -2,8 +2,9 @@
 
 Frame times come from the container (the frames' own presentation timestamps), never from the nominal rate: a
 camera labelled 60 fps may run at 59.94 or drop frames. :func:`probe_video` walks the stream's undecoded
-packets to collect them; :func:`read_frames` seeks to a window and decodes
-only that window, for the sync stage to look at the frames around a clap.
+packets to collect them. :class:`FrameReader` decodes windows of frames through one open capture, for the
+sync stage to look at the frames around each clap of a take (grabbing forward to a window a little ahead,
+seeking to one further away); :func:`read_frames` decodes a single window.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 from gazepipe.errors import InputError
 from gazepipe.io.tracks import VideoProbe
 
-__all__ = ["VideoProbe", "probe_video", "read_frames"]
+__all__ = ["FrameReader", "VideoProbe", "probe_video", "read_frames"]
 
 
 def _open(path: Path) -> cv2.VideoCapture:
@@ -100,9 +101,133 @@ def probe_video(path: str | Path) -> VideoProbe:
                       header_frames=header_frames, timestamp_source=source, warnings=warnings)
 
 
+class FrameReader:
+    """The frames of one video through one open capture, decoded in stream order where possible.
+
+    Calling it with ``(start, stop)`` returns the frames [start, stop) as :func:`read_frames` does: it is a
+    ``read_window`` for the sync stage, which asks for a few windows per take, mostly in increasing order. A
+    window starting at the next frame costs only its decoding; one a little further ahead (at most ``max_skip``
+    frames) is reached by grabbing the frames in between (decoded, never converted); one behind or further ahead
+    by seeking, checked against the probe's timestamps when they are given (an inexact seek falls back to
+    grabbing from the start, and seeks are not trusted again in this file).
+
+    Parameters
+    ----------
+    path : the video.
+    gray, scale : as for :func:`read_frames`.
+    timestamps_s : the probe's timestamps, to check seeks.
+    max_skip : most frames grabbed to reach a window ahead rather than seeking (a seek decodes from the
+        previous key frame anyway).
+
+    Use it as a context manager, or call :meth:`close`.
+
+    Raises
+    ------
+    InputError : unreadable file (when opened), or a window starting past the last frame (when called).
+    """
+
+    def __init__(self, path: str | Path, *, gray: bool = True, scale: float = 1.0,
+                 timestamps_s: np.ndarray | None = None, max_skip: int = 300) -> None:
+        if not scale > 0:
+            raise ValueError(f"scale must be positive, got {scale}")
+        self.path = Path(path)
+        self.gray, self.scale, self.max_skip = gray, float(scale), int(max_skip)
+        self.timestamps_s = None if timestamps_s is None else np.asarray(timestamps_s, dtype=np.float64)
+        self._cap: cv2.VideoCapture | None = _open(self.path)
+        self._next: int | None = 0  # the frame the next grab() returns; None when unknown
+        self._seek_ok = True
+
+    def __enter__(self) -> FrameReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+    def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        """(timestamps (M,) s, frames (M, H, W) or (M, H, W, 3) uint8) of the frames [start, stop)."""
+        if start < 0 or stop <= start:
+            raise ValueError(f"need 0 <= start < stop, got [{start}, {stop})")
+        if self._cap is None:
+            raise ValueError(f"{self.path}: the reader is closed")
+        pending = self._reach(start)  # the timestamp of frame ``start`` when a seek check already grabbed it
+        ts: list[float] = []
+        frames: list[np.ndarray] = []
+        interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
+        for i in range(start, stop):
+            if pending is None:
+                if not self._cap.grab():
+                    self._next = None
+                    break
+                t = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+            else:
+                t, pending = pending, None
+            good, img = self._cap.retrieve()
+            if not good:
+                self._next = None
+                break
+            self._next = i + 1
+            if self.gray and img.ndim == 3:
+                img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            if self.scale != 1.0:
+                img = cv2.resize(img, None, fx=self.scale, fy=self.scale, interpolation=interp)
+            ts.append(t)
+            frames.append(img)
+        if not frames:
+            raise InputError(self.path, f"no frame at index {start} (the video is shorter)")
+        return np.asarray(ts, dtype=np.float64), np.stack(frames).astype(np.uint8, copy=False)
+
+    def _grab(self, n: int) -> None:
+        for _ in range(n):  # grab() skips the colour conversion and the copy to numpy
+            if not self._cap.grab():
+                self._next = None
+                return
+            self._next += 1
+
+    def _reach(self, start: int) -> float | None:
+        """Put the capture before frame ``start``; returns that frame's timestamp when a checked seek has
+        already grabbed it (the next retrieve() returns it), else None (the next grab() returns it)."""
+        ahead = None if self._next is None else start - self._next
+        if ahead is not None and 0 <= ahead <= self.max_skip:
+            self._grab(ahead)
+            return None
+        if self._seek_ok and start > 0:
+            checked = self._seek(start)
+            if checked is not False:
+                self._next = start
+                return checked
+            self._seek_ok = False
+            self._next = None  # wherever the inexact seek left the capture
+        if self._next is None or start < self._next:
+            self._cap.release()
+            self._cap = _open(self.path)
+            self._next = 0
+        self._grab(start - self._next)
+        return None
+
+    def _seek(self, start: int) -> float | None | bool:
+        """Seek to frame ``start``: False when the seek cannot be trusted; else None, or the frame's timestamp
+        when the check against the probe's timestamps grabbed it."""
+        if not self._cap.set(cv2.CAP_PROP_POS_FRAMES, float(start)):
+            return False
+        ts = self.timestamps_s
+        if ts is None or start >= ts.size:
+            return None  # nothing to check against (past the end: the call reports the short video)
+        if not self._cap.grab():
+            return False
+        got = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+        half = 0.5 * float(np.median(np.diff(ts))) if ts.size > 1 else 1e-3
+        return got if abs(got - ts[start]) <= half else False
+
+
 def read_frames(path: str | Path, start: int, stop: int, *, gray: bool = True, scale: float = 1.0,
                 timestamps_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Decode the frames [start, stop) of a video, and only those.
+    """Decode the frames [start, stop) of a video, and only those (opening it for this window alone; a caller
+    reading several windows of one video should keep a :class:`FrameReader` instead).
 
     Parameters
     ----------
@@ -122,58 +247,7 @@ def read_frames(path: str | Path, start: int, stop: int, *, gray: bool = True, s
     ------
     InputError : unreadable file, or ``start`` past the last frame.
     """
-    path = Path(path)
     if start < 0 or stop <= start:
         raise ValueError(f"need 0 <= start < stop, got [{start}, {stop})")
-    if not scale > 0:
-        raise ValueError(f"scale must be positive, got {scale}")
-    cap = _open(path)
-    try:
-        ok = _seek(cap, start, timestamps_s)
-        if not ok:
-            cap.release()
-            cap = _open(path)
-            for _ in range(start):  # grab() skips the colour conversion and the copy to numpy
-                if not cap.grab():
-                    break
-        ts: list[float] = []
-        frames: list[np.ndarray] = []
-        for _ in range(stop - start):
-            if not cap.grab():
-                break
-            ts.append(cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
-            good, img = cap.retrieve()
-            if not good:
-                break
-            if gray and img.ndim == 3:
-                img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-            if scale != 1.0:
-                interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
-                img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=interp)
-            frames.append(img)
-    finally:
-        cap.release()
-    if not frames:
-        raise InputError(path, f"no frame at index {start} (the video is shorter)")
-    return np.asarray(ts[: len(frames)], dtype=np.float64), np.stack(frames).astype(np.uint8, copy=False)
-
-
-def _seek(cap: cv2.VideoCapture, start: int, timestamps_s: np.ndarray | None) -> bool:
-    """Seek so that the next grab() returns frame ``start``; False when the seek cannot be trusted."""
-    if start == 0:
-        return True
-    if not cap.set(cv2.CAP_PROP_POS_FRAMES, float(start)):
-        return False
-    if timestamps_s is None:
-        return True
-    ts = np.asarray(timestamps_s, dtype=np.float64)
-    if start >= ts.size:
-        return True  # nothing to check against; read_frames reports the short video
-    # peek at the next frame's time, then seek back to it
-    if not cap.grab():
-        return False
-    got = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
-    half = 0.5 * float(np.median(np.diff(ts))) if ts.size > 1 else 1e-3
-    if abs(got - ts[start]) > half:
-        return False
-    return bool(cap.set(cv2.CAP_PROP_POS_FRAMES, float(start)))
+    with FrameReader(path, gray=gray, scale=scale, timestamps_s=timestamps_s, max_skip=0) as reader:
+        return reader(start, stop)
