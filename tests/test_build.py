@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 from gazepipe.errors import SchemaError, StageError
 from gazepipe.io.datasets import (
     IGNORE_PREFIXES,
+    StagedDatasetWriter,
     open_dataset,
     read_dataset,
     read_info,
@@ -306,6 +307,53 @@ def test_rebuild_is_byte_identical(follow_takes, tmp_path):
     assert files_a == files_b and len(files_a) == 5
     for rel in files_a:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
+
+
+def _lazy(tt: TakeTables, events: list[str]) -> TakeTables:
+    """The take with its tables behind a loader that logs when it is called."""
+    def load() -> dict:
+        events.append(f"load {tt.take.id}")
+        return {"joints": tt.joints, "eyes": tt.eyes, "meta": dict(tt.meta)}
+    return TakeTables(session=tt.session, subject=tt.subject, take=tt.take, markerset=tt.markerset, loader=load)
+
+
+def test_streaming_build_loads_one_take_at_a_time_and_writes_the_same_bytes(follow_takes, tmp_path):
+    takes, _ = follow_takes
+    takes = [pinned(t, s) for t, s in zip(takes, ("train", "val", "train"), strict=True)]
+    write_dataset(build_dataset("gaze_rnn", takes), tmp_path / "memory")
+    events: list[str] = []
+    writer = StagedDatasetWriter(tmp_path / "stream", "gaze_rnn", tmp_path / "staging.part")
+
+    def sink(key, table):
+        events.append(f"emit {key[2]}")
+        writer(key, table)
+
+    built = build_dataset("gaze_rnn", [_lazy(t, events) for t in takes], sink=sink)
+    assert built.tables == {}
+    # in (subject, pose, take) order, each take is loaded only after the previous one was handed on
+    order = ["follow_sitting_01", "follow_standing_01", "follow_standing_02"]
+    assert events == [f"{what} {tid}" for tid in order for what in ("load", "emit")]
+    assert not (tmp_path / "stream" / "gaze_rnn" / "dataset.json").exists()   # nothing published before commit
+    writer.commit(built)
+    assert not (tmp_path / "staging.part").exists()
+    a = sorted(p.relative_to(tmp_path / "memory") for p in (tmp_path / "memory").rglob("*") if p.is_file())
+    b = sorted(p.relative_to(tmp_path / "stream") for p in (tmp_path / "stream").rglob("*") if p.is_file())
+    assert a == b and len(a) == 5
+    for rel in a:
+        assert (tmp_path / "memory" / rel).read_bytes() == (tmp_path / "stream" / rel).read_bytes(), rel
+
+
+def test_failed_streaming_build_leaves_the_published_dataset_as_it_was(follow_takes, tmp_path):
+    takes, _ = follow_takes
+    write_dataset(build_dataset("gaze_rnn", [pinned(t, "train") for t in takes]), tmp_path)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    writer = StagedDatasetWriter(tmp_path, "gaze_rnn", tmp_path / "staging.part")
+    with pytest.raises(StageError, match="no training take"):   # found only after every take was built
+        build_dataset("gaze_rnn", [pinned(t, "val") for t in takes], sink=writer)
+    assert len(writer.staged) == 3
+    writer.abort()
+    after = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert after == before
 
 
 def test_layout_and_loaders(rnn, tmp_path):

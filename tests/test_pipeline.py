@@ -166,3 +166,15 @@ def test_serial_executor_reports_each_take_as_it_finishes(tmp_path):
     order = [e["event"] for e in ev if e["event"] in ("unit", "heartbeat")]
     # a heartbeat after the first and second takes, each after that take's unit line
     assert order[:4] == ["unit", "heartbeat", "unit", "heartbeat"]
+
+
+def test_stale_temporaries_and_staging_folders_are_cleared(tmp_path):
+    from gazepipe.pipeline.atomic import clear_stale_temporaries
+
+    tmp = tmp_path / "tmp"
+    (tmp / "gaze_rnn.123.abc.part" / "subject=p" / "pose=s").mkdir(parents=True)
+    (tmp / "gaze_rnn.123.abc.part" / "subject=p" / "pose=s" / "take=t.parquet").write_bytes(b"x")
+    (tmp / ".joints.parquet.9.def.part").write_bytes(b"y")
+    (tmp / "keep.txt").write_bytes(b"z")
+    assert clear_stale_temporaries(tmp) == 2
+    assert [p.name for p in tmp.iterdir()] == ["keep.txt"]

@@ -8,7 +8,8 @@ Layout of one dataset ``<name>`` under ``OUT/datasets``::
 
 Files are produced as bytes and handed to a ``write_bytes(path, data)`` callback (the engine's atomic writer;
 a plain file write by default), take files first, then ``_common_metadata``, then ``dataset.json`` last, so a
-dataset.json always describes complete take files. Take files of an earlier build that are no longer part of
+dataset.json always describes complete take files. The engine's streaming build stages take files as they are
+built (:class:`StagedDatasetWriter`) and publishes them only when the whole dataset built. Take files of an earlier build that are no longer part of
 the dataset are removed afterwards. Every table is checked against its schema before it is written and after it
 is read.
 
@@ -22,6 +23,8 @@ skip it (:data:`IGNORE_PREFIXES`), and pandas, which types hive keys as dictiona
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -84,7 +87,7 @@ def stored_schema(built) -> pa.Schema:
 
 
 def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | None = None) -> list[Path]:
-    """Write a :class:`gazepipe.stages.build.BuiltDataset` under ``datasets_dir/<name>``.
+    """Write a :class:`gazepipe.stages.build.BuiltDataset` (tables in memory) under ``datasets_dir/<name>``.
 
     Parameters
     ----------
@@ -104,6 +107,51 @@ def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | Non
         check_table(table, built.schema, path=str(path))
         write(path, table_bytes(table))
         written.append(path)
+    return _finish(root, built, written, write)
+
+
+class StagedDatasetWriter:
+    """Writes a dataset's take files as a streaming build emits them (:data:`gazepipe.stages.build.TakeSink`).
+
+    Take files go to ``staging`` (a folder on the same file system, e.g. under ``OUT/.gazepipe/tmp``), each
+    fsynced; :meth:`commit` renames them into ``datasets_dir/<name>`` and then writes ``_common_metadata`` and
+    dataset.json with ``write_bytes``; :meth:`abort` deletes the staging folder. A build that fails half-way
+    therefore leaves the published dataset as it was.
+    """
+
+    def __init__(self, datasets_dir: str | Path, name: str, staging: str | Path,
+                 write_bytes: WriteBytes | None = None) -> None:
+        self.root = Path(datasets_dir) / name
+        self.staging = Path(staging)
+        self.write = write_bytes or _plain_write
+        self.staged: list[tuple[Path, Path]] = []
+
+    def __call__(self, key: tuple[str, str, str], table: pa.Table) -> None:
+        rel = take_path(*key)
+        tmp = self.staging / rel
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            fh.write(table_bytes(table))
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.staged.append((tmp, self.root / rel))
+
+    def commit(self, built) -> list[Path]:
+        """Publish the staged take files, then the schema file and dataset.json of ``built``; the paths written."""
+        written: list[Path] = []
+        for tmp, final in sorted(self.staged, key=lambda p: p[1]):
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
+            written.append(final)
+        self.abort()
+        return _finish(self.root, built, written, self.write)
+
+    def abort(self) -> None:
+        shutil.rmtree(self.staging, ignore_errors=True)
+
+
+def _finish(root: Path, built, written: list[Path], write: WriteBytes) -> list[Path]:
+    """Write ``_common_metadata`` and dataset.json after the take files, then delete stale take files."""
     write(root / COMMON_METADATA, schema_bytes(stored_schema(built)))
     written.append(root / COMMON_METADATA)
     write(root / INFO_NAME, info_bytes(built.info))

@@ -36,3 +36,13 @@ def read_table(path: str | Path, schema: pa.Schema | None = None) -> pa.Table:
         except SchemaError:
             raise
     return table
+
+
+def read_schema(path: str | Path) -> pa.Schema:
+    """The Arrow schema (with its metadata) of a Parquet file, without reading its rows."""
+    try:
+        return pq.read_schema(str(path))
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(path, f"not a readable Parquet file ({exc})") from None

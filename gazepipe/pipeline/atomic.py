@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -59,13 +60,17 @@ def atomic_write_bytes(final: str | Path, data: bytes, tmp_dir: str | Path) -> N
 
 
 def clear_stale_temporaries(tmp_dir: str | Path) -> int:
-    """Delete temporary files left by a killed run (call only while holding the output lock)."""
+    """Delete temporary files and staging folders left by a killed run (call only while holding the output
+    lock)."""
     n = 0
     d = Path(tmp_dir)
     if d.is_dir():
         for p in d.iterdir():
             if ".part" in p.name:
                 with contextlib.suppress(OSError):
-                    p.unlink()
+                    if p.is_dir() and not p.is_symlink():
+                        shutil.rmtree(p)
+                    else:
+                        p.unlink()
                     n += 1
     return n

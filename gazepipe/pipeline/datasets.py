@@ -8,8 +8,11 @@ units failed are left out (and named in the record), so one bad take never block
 from __future__ import annotations
 
 import dataclasses
+import functools
+import os
 import time
 import traceback
+import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,7 +22,8 @@ from threadpoolctl import threadpool_limits
 
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError
-from gazepipe.io.datasets import write_dataset
+from gazepipe.io.datasets import StagedDatasetWriter
+from gazepipe.io.parquet import read_schema
 from gazepipe.model import Session, Take
 from gazepipe.pipeline.hashing import sha256_json
 from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader
@@ -129,6 +133,17 @@ def plan_datasets(sessions: Sequence[Session], layout: OutLayout, take_plans: Se
     return plans
 
 
+def _take_inputs(load, layout: OutLayout, session: str, take: str, units: dict[str, str]) -> dict[str, Any]:
+    """One take's tables for the build (read when the build reaches the take)."""
+    got: dict[str, Any] = {}
+    for stage, table in (("frames", "joints"), ("eyes", "eyes"), ("face", "face")):
+        if stage in units:
+            got[table] = load(session, take, table)
+    if "clean" in units:  # the rest periods are in the cleaned markers' metadata: the schema is enough
+        got["meta"] = {"rests": read_meta(read_schema(layout.table(session, take, "markers"))).get("rests", [])}
+    return got
+
+
 def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) -> UnitOutcome:
     """Build one dataset, write it atomically, record it."""
     t0 = time.perf_counter()
@@ -136,25 +151,16 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) ->
     outcome = UnitOutcome("-", "-", f"build:{plan.name}", "ok", reason=plan.reason)
     record: dict[str, Any] = {"dataset": plan.name, "fingerprint": plan.fingerprint, "components": plan.components,
                               "gazepipe_version": __version__}
+    writer = StagedDatasetWriter(layout.root / "datasets", plan.name,
+                                 layout.tmp / f"{plan.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part",
+                                 layout.write_bytes)
     try:
-        inputs = []
-        for s, t, units in plan.takes:
-            tables = {}
-            meta: dict[str, Any] = {}
-            if "frames" in units:
-                tables["joints"] = load(s.id, t.id, "joints")
-            if "eyes" in units:
-                tables["eyes"] = load(s.id, t.id, "eyes")
-            if "face" in units:
-                tables["face"] = load(s.id, t.id, "face")
-            if "clean" in units:
-                cmeta = read_meta(load(s.id, t.id, "markers").schema)
-                meta["rests"] = cmeta.get("rests", [])
-            inputs.append(TakeTables(session=s.id, subject=s.subject, take=t, markerset=s.markerset,
-                                     meta=meta, hashes=dict(units), **tables))
+        inputs = [TakeTables(session=s.id, subject=s.subject, take=t, markerset=s.markerset, hashes=dict(units),
+                             loader=functools.partial(_take_inputs, load, layout, s.id, t.id, units))
+                  for s, t, units in plan.takes]
         with threadpool_limits(limits=1):  # as for take units: results independent of the BLAS thread count
-            built = build_dataset(plan.name, inputs, build_params(params))
-        written = write_dataset(built, layout.root / "datasets", layout.write_bytes)
+            built = build_dataset(plan.name, inputs, build_params(params), sink=writer)
+        written = writer.commit(built)
         root = layout.root / "datasets" / plan.name
         record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in written},
                       counts=built.info.get("counts"), skipped=built.info.get("skipped", []))
@@ -168,6 +174,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) ->
         outcome.error = f"dataset {plan.name}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
     if outcome.status == "failed":
+        writer.abort()
         record.update(status="failed", error=outcome.error)
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)

@@ -18,25 +18,19 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
-from gazepipe import __version__
 from gazepipe.errors import GazepipeError, StageError
-from gazepipe.model import SPLITS, MarkerSet, Take
+from gazepipe.model import MarkerSet, Take
 from gazepipe.schemas.base import attach_meta, check_table, read_meta
-from gazepipe.schemas.datasets import (
-    DATASETS,
-    IDENTIFIER_NAMES,
-    SCHEMA_VERSION,
-    dataset_schema,
-    feature_columns,
-)
+from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
+from gazepipe.stages.build_info import DatasetSummary, feature_values, table_hash
 from gazepipe.stages.splits import assign_split, check_fractions
 
 if TYPE_CHECKING:  # the row builders import scipy and pandas: loaded when a dataset is built, not when planned
@@ -108,6 +102,8 @@ class TakeTables:
     meta : extra facts: ``rests`` (list of [start, stop) frames of the uncropped take, from the clean stage;
         needed by gaze_map) and ``rate_hz`` (default: the joints table's).
     hashes : content hashes of the inputs by table name; computed from the tables when absent.
+    loader : when set, called when the build reaches this take; returns the fields to fill in (``joints``,
+        ``eyes``, ``face`` tables, ``meta`` entries), so only one take's tables are in memory at a time.
     """
 
     session: str
@@ -119,28 +115,34 @@ class TakeTables:
     markerset: MarkerSet | None = None
     meta: dict[str, Any] = field(default_factory=dict)
     hashes: dict[str, str] = field(default_factory=dict)
+    loader: Callable[[], dict[str, Any]] | None = None
 
     @property
     def key(self) -> tuple[str, str, str]:
         return (self.subject, self.take.pose, self.take.id)
 
+    def loaded(self) -> TakeTables:
+        """This take with its tables loaded (itself when there is no ``loader``)."""
+        if self.loader is None:
+            return self
+        got = dict(self.loader())
+        meta = {**self.meta, **got.pop("meta", {})}
+        return dataclasses.replace(self, loader=None, meta=meta, **got)
+
+
+#: receives each take's dataset table as soon as it is built: ``sink((subject, pose, take), table)``
+TakeSink = Callable[[tuple[str, str, str], pa.Table], None]
+
 
 @dataclass
 class BuiltDataset:
-    """A built dataset: per-take tables keyed by (subject, pose, take), the dataset.json object, the schema."""
+    """A built dataset: per-take tables keyed by (subject, pose, take) (empty when they went to a sink), the
+    dataset.json object, the schema."""
 
     name: str
     tables: dict[tuple[str, str, str], pa.Table]
     info: dict[str, Any]
     schema: pa.Schema
-
-
-def table_hash(table: pa.Table) -> str:
-    """sha256 of a table's Arrow IPC stream (schema, metadata and data)."""
-    sink = pa.BufferOutputStream()
-    with pa.ipc.new_stream(sink, table.schema) as writer:
-        writer.write_table(table)
-    return hashlib.sha256(sink.getvalue().to_pybytes()).hexdigest()
 
 
 def _where(name: str) -> str:
@@ -292,34 +294,19 @@ def _take_table(tt: TakeTables, split: str, rows: TakeRows, mirrored: dict[str, 
     return table
 
 
-def feature_values(table: pa.Table, column: str) -> np.ndarray:
-    """A feature column as an (N, D) array of its stored dtype (D = 1 for a scalar column)."""
-    ftype = table.schema.field(column).type
-    if pa.types.is_fixed_size_list(ftype):
-        return list_to_numpy(table.column(column), ftype.list_size)
-    return table.column(column).to_numpy().reshape(-1, 1)
-
-
-def _stats(tables: list[tuple[str, pa.Table]], columns: list[str]) -> dict[str, Any]:
-    """Mean and population std per feature element over ``tables`` (pose, table), overall and per pose."""
-    def summary(ts: list[pa.Table]) -> dict[str, Any]:
-        out: dict[str, Any] = {"rows": int(sum(t.num_rows for t in ts))}
-        for c in columns:
-            v = np.concatenate([feature_values(t, c) for t in ts]).astype(np.float64)
-            out[c] = {"mean": [float(x) for x in v.mean(axis=0)], "std": [float(x) for x in v.std(axis=0)]}
-        return out
-
-    poses = sorted({p for p, _ in tables})
-    return {"overall": summary([t for _, t in tables]),
-            "per_pose": {p: summary([t for q, t in tables if q == p]) for p in poses}}
-
-
-def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None = None) -> BuiltDataset:
+def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None = None,
+                  sink: TakeSink | None = None) -> BuiltDataset:
     """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables.
+
+    Takes are processed one at a time in (subject, pose, take) order: a take with a ``loader`` is loaded when
+    its turn comes, its table goes to ``sink(key, table)`` as soon as it is built (and is then dropped), and
+    dataset.json is summarised as it goes, so memory holds one take whatever the dataset's size. Without a
+    ``sink`` the tables are kept in :attr:`BuiltDataset.tables`.
 
     Takes of other kinds are ignored; a take that cannot give rows is skipped and listed in
     ``info["skipped"]``. Raises :class:`StageError` for an unknown dataset, two takes with the same
-    (subject, pose, take id), no usable take, or no training take (statistics need one).
+    (subject, pose, take id), no usable take, or no training take (statistics need one); the sink may already
+    have received tables then.
     """
     params = params or BuildParams()
     if name not in DATASETS:
@@ -338,135 +325,59 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
 
     ctx = _Context(name=name, params=params)
     build = {"gaze_rnn": _rnn, "gaze_rnn_lod": _rnn, "gaze_map": _gaze_map, "face_clean": _face}[name]
-    built: list[tuple[TakeTables, str, TakeRows]] = []
+    window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
+                      "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
+                      "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
+    kept: dict[tuple[str, str, str], pa.Table] = {}
+    emit = sink or kept.__setitem__
     skipped: list[dict[str, str]] = []
-    for t in mine:
+    schema: pa.Schema | None = None
+    summary: DatasetSummary | None = None
+    for ref in mine:
         try:
+            t = ref.loaded()
             rows = build(t, ctx)
         except GazepipeError as exc:
-            skipped.append({"session": t.session, "take": t.take.id, "reason": exc.problem})
+            skipped.append({"session": ref.session, "take": ref.take.id, "reason": exc.problem})
             continue
         if rows.n_rows == 0:
             skipped.append({"session": t.session, "take": t.take.id, "reason": "no usable frames"})
             continue
         split = assign_split(f"{t.session}/{t.take.id}", t.take.split, params.train_frac, params.val_frac,
                              params.split_salt)
-        built.append((t, split, rows))
-    if not built:
+        if schema is None:
+            schema = dataset_schema(name, ctx.sizes)
+            summary = DatasetSummary(name, feature_columns(schema), window)
+        mirrored = _mirror(name, rows, ctx) if params.mirror else None
+        table = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
+        summary.add_take(f"{t.session}/{t.take.id}", t.take.pose, split, table, rows.qc, _input_hashes(t, name))
+        emit(t.key, table)
+        del t, rows, mirrored, table
+    if summary is None:
         reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in skipped[:3])
         raise StageError(_where(name), f"no take gave rows ({reasons})")
-
-    schema = dataset_schema(name, ctx.sizes)
-    tables: dict[tuple[str, str, str], pa.Table] = {}
-    for t, split, rows in built:
-        mirrored = _mirror(name, rows, ctx) if params.mirror else None
-        tables[t.key] = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
-
-    train = [(t.take.pose, tables[t.key]) for t, s, _ in built if s == "train"]
-    if not train:
-        raise StageError(_where(name), f"no training take among {len(built)} (splits: "
-                                       f"{', '.join(sorted({s for _, s, _ in built}))}); statistics need at least "
-                                       "one: pin a take with split = \"train\" or change the split fractions")
-    columns = feature_columns(schema)
-    info = _info(name, params, ctx, built, tables, skipped, columns, schema, train)
-    return BuiltDataset(name=name, tables=tables, info=info, schema=schema)
+    if not summary.train_takes:
+        splits = sorted(s for s, v in summary.by_split.items() if v["takes"])
+        raise StageError(_where(name), f"no training take among {summary.n_takes} (splits: {', '.join(splits)}); "
+                                       "statistics need at least one: pin a take with split = \"train\" or change "
+                                       "the split fractions")
+    info = summary.info(params=params.to_dict(), names=ctx.names, sizes=ctx.sizes, fps=sorted(ctx.fps),
+                        stride=stride, mirror=params.mirror, salt=params.split_salt, train_frac=params.train_frac,
+                        val_frac=params.val_frac, skipped=skipped)
+    return BuiltDataset(name=name, tables=kept, info=info, schema=schema)
 
 
-def _info(name: str, params: BuildParams, ctx: _Context, built: list, tables: dict, skipped: list,
-          columns: list[str], schema: pa.Schema, train: list) -> dict[str, Any]:
-    by_split: dict[str, dict[str, Any]] = {s: {"takes": 0, "rows": 0} for s in SPLITS}
-    by_pose: dict[str, dict[str, int]] = {}
-    split_takes: dict[str, list[str]] = {s: [] for s in SPLITS}
-    per_take: dict[str, Any] = {}
-    inputs: dict[str, dict[str, str]] = {}
-    for t, split, rows in built:
-        n = tables[t.key].num_rows
-        by_split[split]["takes"] += 1
-        by_split[split]["rows"] += n
-        bp = by_pose.setdefault(t.take.pose, {"takes": 0, "rows": 0})
-        bp["takes"] += 1
-        bp["rows"] += n
-        tid = f"{t.session}/{t.take.id}"
-        split_takes[split].append(tid)
-        per_take[tid] = {**rows.qc, "split": split, "rows": n}
-    for t in sorted((b[0] for b in built), key=lambda t: (t.session, t.take.id)):
-        hashes = dict(t.hashes)
-        for tname in ("joints", "eyes", "face"):
-            tab = getattr(t, tname)
-            if tab is not None and tname not in hashes:
-                hashes[tname] = table_hash(tab)
-        if "rests" in t.meta and name == "gaze_map":
-            hashes.setdefault("rests", hashlib.sha256(repr(t.meta["rests"]).encode()).hexdigest())
-        inputs[f"{t.session}/{t.take.id}"] = dict(sorted(hashes.items()))
-    warnings = [f"split {s!r} is empty" for s in SPLITS if by_split[s]["takes"] == 0]
-    fps = sorted(ctx.fps)
-    if len(fps) > 1 and name != "face_clean":
-        warnings.append(f"takes have different frame rates {fps} Hz: a window of frames spans different times")
-    window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
-                      "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
-                      "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
-    counts: dict[str, Any] = {"takes": len(built), "rows": int(sum(t.num_rows for t in tables.values())),
-                              "mirrored": bool(params.mirror), "by_split": by_split,
-                              "by_pose": dict(sorted(by_pose.items())), "skipped": len(skipped)}
-    if window is not None and name != "face_clean":
-        lengths = [np.bincount(t.filter(pc.invert(t.column("mirrored"))).column("segment").to_numpy())
-                   for t in tables.values()]
-        counts["segments"] = int(sum(len(v) for v in lengths))
-        counts["segments_with_a_window"] = int(sum(int((v >= window).sum()) for v in lengths))
-        counts["rows_in_segments_with_a_window"] = int(sum(int(v[v >= window].sum()) for v in lengths))
-    counts["per_take"] = per_take
-    stats = _stats(train, columns)
-    stats["rows_used"] = "training rows only, mirrored copies included"
-    stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
-    return {
-        "name": name,
-        "description": _DESCRIPTIONS[name],
-        "version": __version__,
-        "schema_version": SCHEMA_VERSION,
-        "identifiers": list(IDENTIFIER_NAMES),
-        "features": {c: list(ctx.names[c]) for c in columns},
-        "sizes": dict(ctx.sizes),
-        "units": _UNITS[name],
-        "fps": fps[0] if len(fps) == 1 else None,
-        "rates_hz": fps,
-        "window": window,
-        "stride": stride,
-        "splits": {"train_frac": params.train_frac, "val_frac": params.val_frac, "salt": params.split_salt,
-                   "takes": split_takes},
-        "stats": stats,
-        "counts": counts,
-        "inputs": inputs,
-        "params": params.to_dict(),
-        "skipped": skipped,
-        "warnings": warnings,
-    }
+def _input_hashes(t: TakeTables, name: str) -> dict[str, str]:
+    """The take's input hashes for dataset.json: those given, plus a content hash of every table not given."""
+    hashes = dict(t.hashes)
+    for tname in ("joints", "eyes", "face"):
+        tab = getattr(t, tname)
+        if tab is not None and tname not in hashes:
+            hashes[tname] = table_hash(tab)
+    if "rests" in t.meta and name == "gaze_map":
+        hashes.setdefault("rests", hashlib.sha256(repr(t.meta["rests"]).encode()).hexdigest())
+    return hashes
 
 
-_RNN_NOTE = ("one row per frame t of a run of consecutive usable frames (segment); x = target direction at t, "
-             "each segment's 6-number rotation (forward R·z, up R·y) at t-1{eyes}; y = the same at t. The first "
-             "frame of a segment only provides the previous pose of the second and has no row. Character "
-             "frame of each frame (+X left, +Y up, +Z forward).")
-_DESCRIPTIONS: dict[str, str] = {
-    "gaze_rnn": "Klein 6.1 gaze RNN: " + _RNN_NOTE.format(eyes=", eye direction at t-1") +
-                " A frame with invalid eyes ends a segment.",
-    "gaze_rnn_lod": "Klein 7 level-of-detail gaze RNN ([lod] segments, no eyes): " + _RNN_NOTE.format(eyes=""),
-    "gaze_map": ("Pejsa 5.1 gaze displacement motions: one row per gaze_shift take; rotations in the character "
-                 "frame held fixed at the crop's first frame; p_plus = parent-relative displacement per segment "
-                 "L(last)·L(first)^-1, then the eyes' D_head^T·Ry(yaw)·Rx(-pitch); start_times and "
-                 "overshoot_time are fractions of duration_s (0: no start found)."),
-    "face_clean": ("Berson 3.1 face cleaner: one row per aligned frame of a face take; dt_s = t[n+1] - t[n]; "
-                   "tracked_dK / clean_dK are forward derivatives of order K divided by dt; rows of a take form "
-                   "one sequence (segment 0)."),
-}
-
-_UNITS: dict[str, dict[str, str]] = {
-    "gaze_rnn": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
-                 "time_s": "s"},
-    "gaze_rnn_lod": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
-                     "time_s": "s"},
-    "gaze_map": {"yaw_deg": "deg", "pitch_deg": "deg", "duration_s": "s", "start_times": "fraction of duration",
-                 "overshoot_time": "fraction of duration", "overshoot": "fraction of the final displacement",
-                 "p_plus": "quaternion w, x, y, z", "time_s": "s"},
-    "face_clean": {"tracked": "blendshape coefficient", "clean": "blendshape coefficient", "dt_s": "s",
-                   "tracked_dK": "1/s^K", "clean_dK": "1/s^K", "time_s": "s"},
-}
+__all__ = ["KINDS", "BuildParams", "BuiltDataset", "TakeSink", "TakeTables", "build_dataset", "feature_values",
+           "table_hash"]

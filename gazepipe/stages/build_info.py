@@ -1,0 +1,207 @@
+"""The ``dataset.json`` object of a built dataset, accumulated one take at a time.
+
+:class:`DatasetSummary` is fed each take's table as the build emits it and keeps only small facts (counts, the
+take's QC, its input hashes, segment lengths) and running statistics, so a dataset of any size is summarised in
+the memory of one take. Statistics are the mean and population standard deviation of the stored float32 values
+over the training rows, overall and per pose, merged take by take with Chan et al.'s pairwise update (equal to a
+two-pass computation over the concatenated rows to ~1e-15 relative).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from gazepipe import __version__
+from gazepipe.model import SPLITS
+from gazepipe.schemas.datasets import IDENTIFIER_NAMES, SCHEMA_VERSION
+from gazepipe.schemas.joints import list_to_numpy
+
+
+def feature_values(table: pa.Table, column: str) -> np.ndarray:
+    """A feature column as an (N, D) array of its stored dtype (D = 1 for a scalar column)."""
+    ftype = table.schema.field(column).type
+    if pa.types.is_fixed_size_list(ftype):
+        return list_to_numpy(table.column(column), ftype.list_size)
+    return table.column(column).to_numpy().reshape(-1, 1)
+
+
+def table_hash(table: pa.Table) -> str:
+    """sha256 of a table's Arrow IPC stream (schema, metadata and data)."""
+    sink = pa.BufferOutputStream()
+    with pa.ipc.new_stream(sink, table.schema) as writer:
+        writer.write_table(table)
+    return hashlib.sha256(sink.getvalue().to_pybytes()).hexdigest()
+
+
+@dataclass
+class RunningMoments:
+    """Count, mean and sum of squared deviations per element of one feature (float64), mergeable."""
+
+    n: int = 0
+    mean: np.ndarray | None = None
+    m2: np.ndarray | None = None
+
+    def add(self, values: np.ndarray) -> None:
+        """Merge the rows of ``values`` (N, D)."""
+        v = np.asarray(values, dtype=np.float64)
+        nb = v.shape[0]
+        if nb == 0:
+            return
+        mb = v.mean(axis=0)
+        m2b = ((v - mb) ** 2).sum(axis=0)
+        if self.n == 0:
+            self.n, self.mean, self.m2 = nb, mb, m2b
+            return
+        n = self.n + nb
+        delta = mb - self.mean
+        self.mean = self.mean + delta * (nb / n)
+        self.m2 = self.m2 + m2b + delta ** 2 * (self.n * nb / n)
+        self.n = n
+
+    def result(self) -> dict[str, list[float]]:
+        if self.n == 0:
+            return {"mean": [], "std": []}
+        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in np.sqrt(self.m2 / self.n)]}
+
+
+@dataclass
+class _Group:
+    rows: int = 0
+    moments: dict[str, RunningMoments] = field(default_factory=dict)
+
+
+@dataclass
+class DatasetSummary:
+    """Facts of a dataset gathered take by take (see :meth:`add_take`), turned into dataset.json by :meth:`info`."""
+
+    name: str
+    columns: list[str]
+    window: int | None
+    by_split: dict[str, dict[str, int]] = field(default_factory=lambda: {s: {"takes": 0, "rows": 0} for s in SPLITS})
+    by_pose: dict[str, dict[str, int]] = field(default_factory=dict)
+    split_takes: dict[str, list[str]] = field(default_factory=lambda: {s: [] for s in SPLITS})
+    per_take: dict[str, Any] = field(default_factory=dict)
+    inputs: dict[str, dict[str, str]] = field(default_factory=dict)
+    segment_lengths: list[np.ndarray] = field(default_factory=list)
+    overall: _Group = field(default_factory=_Group)
+    per_pose: dict[str, _Group] = field(default_factory=dict)
+    n_takes: int = 0
+    n_rows: int = 0
+
+    def add_take(self, tid: str, pose: str, split: str, table: pa.Table, qc: dict[str, Any],
+                 hashes: dict[str, str]) -> None:
+        """Count one take's table (its rows, mirrored ones included) and, for a training take, its statistics."""
+        n = table.num_rows
+        self.n_takes += 1
+        self.n_rows += n
+        self.by_split[split]["takes"] += 1
+        self.by_split[split]["rows"] += n
+        bp = self.by_pose.setdefault(pose, {"takes": 0, "rows": 0})
+        bp["takes"] += 1
+        bp["rows"] += n
+        self.split_takes[split].append(tid)
+        self.per_take[tid] = {**qc, "split": split, "rows": n}
+        self.inputs[tid] = dict(sorted(hashes.items()))
+        if self.window is not None and self.name != "face_clean":
+            self.segment_lengths.append(
+                np.bincount(table.filter(pc.invert(table.column("mirrored"))).column("segment").to_numpy()))
+        if split != "train":
+            return
+        groups = [self.overall, self.per_pose.setdefault(pose, _Group())]
+        for g in groups:
+            g.rows += n
+        for c in self.columns:
+            v = feature_values(table, c)
+            for g in groups:
+                g.moments.setdefault(c, RunningMoments()).add(v)
+
+    @property
+    def train_takes(self) -> int:
+        return self.by_split["train"]["takes"]
+
+    def _stats(self) -> dict[str, Any]:
+        def summary(g: _Group) -> dict[str, Any]:
+            out: dict[str, Any] = {"rows": g.rows}
+            for c in self.columns:
+                out[c] = g.moments.get(c, RunningMoments()).result()
+            return out
+
+        stats = {"overall": summary(self.overall),
+                 "per_pose": {p: summary(self.per_pose[p]) for p in sorted(self.per_pose)}}
+        stats["rows_used"] = "training rows only, mirrored copies included"
+        stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
+        return stats
+
+    def info(self, *, params: dict[str, Any], names: dict[str, list[str]], sizes: dict[str, int], fps: list[float],
+             stride: int | None, mirror: bool, salt: str, train_frac: float, val_frac: float,
+             skipped: list[dict[str, str]]) -> dict[str, Any]:
+        """The dataset.json object."""
+        warnings = [f"split {s!r} is empty" for s in SPLITS if self.by_split[s]["takes"] == 0]
+        if len(fps) > 1 and self.name != "face_clean":
+            warnings.append(f"takes have different frame rates {fps} Hz: a window of frames spans different times")
+        counts: dict[str, Any] = {"takes": self.n_takes, "rows": self.n_rows, "mirrored": bool(mirror),
+                                  "by_split": self.by_split, "by_pose": dict(sorted(self.by_pose.items())),
+                                  "skipped": len(skipped)}
+        if self.window is not None and self.name != "face_clean":
+            lengths, w = self.segment_lengths, self.window
+            counts["segments"] = int(sum(len(v) for v in lengths))
+            counts["segments_with_a_window"] = int(sum(int((v >= w).sum()) for v in lengths))
+            counts["rows_in_segments_with_a_window"] = int(sum(int(v[v >= w].sum()) for v in lengths))
+        counts["per_take"] = self.per_take
+        return {
+            "name": self.name,
+            "description": DESCRIPTIONS[self.name],
+            "version": __version__,
+            "schema_version": SCHEMA_VERSION,
+            "identifiers": list(IDENTIFIER_NAMES),
+            "features": {c: list(names[c]) for c in self.columns},
+            "sizes": dict(sizes),
+            "units": UNITS[self.name],
+            "fps": fps[0] if len(fps) == 1 else None,
+            "rates_hz": fps,
+            "window": self.window,
+            "stride": stride,
+            "splits": {"train_frac": train_frac, "val_frac": val_frac, "salt": salt, "takes": self.split_takes},
+            "stats": self._stats(),
+            "counts": counts,
+            "inputs": dict(sorted(self.inputs.items())),
+            "params": params,
+            "skipped": skipped,
+            "warnings": warnings,
+        }
+
+
+_RNN_NOTE = ("one row per frame t of a run of consecutive usable frames (segment); x = target direction at t, "
+             "each segment's 6-number rotation (forward R·z, up R·y) at t-1{eyes}; y = the same at t. The first "
+             "frame of a segment only provides the previous pose of the second and has no row. Character "
+             "frame of each frame (+X left, +Y up, +Z forward).")
+DESCRIPTIONS: dict[str, str] = {
+    "gaze_rnn": "Klein 6.1 gaze RNN: " + _RNN_NOTE.format(eyes=", eye direction at t-1") +
+                " A frame with invalid eyes ends a segment.",
+    "gaze_rnn_lod": "Klein 7 level-of-detail gaze RNN ([lod] segments, no eyes): " + _RNN_NOTE.format(eyes=""),
+    "gaze_map": ("Pejsa 5.1 gaze displacement motions: one row per gaze_shift take; rotations in the character "
+                 "frame held fixed at the crop's first frame; p_plus = parent-relative displacement per segment "
+                 "L(last)·L(first)^-1, then the eyes' D_head^T·Ry(yaw)·Rx(-pitch); start_times and "
+                 "overshoot_time are fractions of duration_s (0: no start found)."),
+    "face_clean": ("Berson 3.1 face cleaner: one row per aligned frame of a face take; dt_s = t[n+1] - t[n]; "
+                   "tracked_dK / clean_dK are forward derivatives of order K divided by dt; rows of a take form "
+                   "one sequence (segment 0)."),
+}
+
+UNITS: dict[str, dict[str, str]] = {
+    "gaze_rnn": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
+                 "time_s": "s"},
+    "gaze_rnn_lod": {"x": "unit vectors, character frame (+X left, +Y up, +Z forward)", "y": "unit vectors",
+                     "time_s": "s"},
+    "gaze_map": {"yaw_deg": "deg", "pitch_deg": "deg", "duration_s": "s", "start_times": "fraction of duration",
+                 "overshoot_time": "fraction of duration", "overshoot": "fraction of the final displacement",
+                 "p_plus": "quaternion w, x, y, z", "time_s": "s"},
+    "face_clean": {"tracked": "blendshape coefficient", "clean": "blendshape coefficient", "dt_s": "s",
+                   "tracked_dK": "1/s^K", "clean_dK": "1/s^K", "time_s": "s"},
+}
