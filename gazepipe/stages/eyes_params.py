@@ -1,0 +1,49 @@
+"""Parameters of the eyes stage (SPEC §3.5), shared by its modules."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["EyesParams"]
+
+
+@dataclass(frozen=True)
+class EyesParams:
+    """Parameters of the eyes stage (SPEC §3.5); speeds in degrees per second, times in seconds.
+
+    Attributes
+    ----------
+    min_confidence : OpenFace confidence at or above which a sample can be valid.
+    max_eye_gap_s : longest invalid run (between two valid samples) filled by slerp.
+    head_segment : the head segment's name in the joints; ``None`` = ``"head"``, else the last segment.
+    smooth_s : moving-average window of the directions whose central differences give angular speeds (used
+        only to choose the frames of the camera-rotation fit).
+    max_target_speed_deg_s : fastest the target may move (lab axes when the joints give the character frame's
+        orientation, else character axes; after the lag) for a frame to enter the fit: during pursuit the eyes
+        trail a moving target, more the faster it goes.
+    max_gaze_speed_deg_s : fastest the gaze may move in camera axes (saccades are far faster; pursuit and the
+        vestibulo-ocular reflex during head turns are slower).
+    settle_s : frames this soon after a faster target move stay out (the eyes land after the catch-up saccade).
+    max_eccentricity_deg : frames whose target lies further than this from the head's forward axis stay out (the
+        eyes rotate at most about 45-50 degrees in the head; beyond that they do not reach the target).
+    max_lag_s : longest eye-behind-target delay searched; the eyes follow a target about 0.2 s late.
+    keep_percentile : after each fit, frames whose error is above this percentile are left out of the next fit.
+    refit_iterations : number of trimmed re-fits after the first fit.
+    min_fixation_frames : fewest fixation frames needed to estimate the camera rotation.
+    min_target_spread_deg : below this RMS spread of the target directions the estimate is poorly conditioned
+        (a warning in QC).
+    """
+
+    min_confidence: float = 0.8
+    max_eye_gap_s: float = 0.1
+    head_segment: str | None = None
+    smooth_s: float = 0.2
+    max_target_speed_deg_s: float = 30.0
+    max_gaze_speed_deg_s: float = 60.0
+    settle_s: float = 0.15
+    max_eccentricity_deg: float = 50.0
+    max_lag_s: float = 0.5
+    keep_percentile: float = 75.0
+    refit_iterations: int = 3
+    min_fixation_frames: int = 30
+    min_target_spread_deg: float = 5.0
