@@ -42,7 +42,8 @@ from gazepipe.stages.gapfill_methods import (
     find_steady_mates,
     fit_pca,
     interp_fill,
-    pca_fill,
+    norm3,
+    pca_fill_many,
     rigid_fill,
 )
 
@@ -173,7 +174,8 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
 
 def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
                 cluster: list[int] | None, *, validate: bool = True,
-                pca_window: int | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+                pca_window: int | None = None,
+                cache: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Every applicable method's prediction of gap ``[s, e)`` of marker ``m``, and its validation error (mm).
 
     Returns ``(predictions, errors)``: predictions maps method -> (e - s, 3); errors maps method -> mean
@@ -199,6 +201,25 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
             win = (max(0, s - pca_window), min(n_t, e + pca_window))
         model = fit_pca(xyz, valid, m, known, s, e, window=win)
 
+    pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
+    pca_gap: np.ndarray | None = None
+    if model is not None:
+        # the hidden stretches and the gap in one prediction (they share the gap's occlusion patterns)
+        jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
+        per_job = pca_fill_many(model, xyz, jobs, model.ks)
+        if wins:
+            # number of PCA components: the one that predicts the hidden stretches best
+            scores = []
+            for i in range(len(model.ks)):
+                e_k = [norm3(q[i] - xyz_m[a:b])
+                       for q, (a, b) in zip(per_job[:-1], wins, strict=True) if q[i] is not None]
+                e_k = np.concatenate(e_k) if e_k else np.array([np.nan])
+                scores.append(np.nanmean(e_k) if np.isfinite(e_k).any() else np.inf)
+            best = int(np.argmin(scores))
+            model.k = model.ks[best]
+            pca_wins = {w: q[best] for w, q in zip(wins, per_job[:-1], strict=True)}
+        pca_gap = per_job[-1][model.ks.index(model.k)]
+
     def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
         vis = valid_v if partial else valid
         if meth in ("linear", "pchip"):
@@ -210,24 +231,9 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         if meth == "pca":
             if model is None:
                 return None
-            if partial and (a, b) in pca_wins:
-                return pca_wins[(a, b)]
-            return pca_fill(model, xyz, vis, known_m, a, b, partial)[0]
+            return pca_wins.get((a, b)) if partial else pca_gap
         raise ValueError(f"unknown gap-filling method {meth!r}")
 
-    pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
-    if model is not None and wins:
-        # number of PCA components: the one that predicts the hidden stretches best
-        per_win = [pca_fill(model, xyz, valid_v, known, a, b, True, model.ks) for a, b in wins]
-        scores = []
-        for i in range(len(model.ks)):
-            e_k = [np.linalg.norm(q[i] - xyz_m[a:b], axis=1) for q, (a, b) in zip(per_win, wins, strict=True)
-                   if q[i] is not None]
-            e_k = np.concatenate(e_k) if e_k else np.array([np.nan])
-            scores.append(np.nanmean(e_k) if np.isfinite(e_k).any() else np.inf)
-        best = int(np.argmin(scores))
-        model.k = model.ks[best]
-        pca_wins = {w: q[best] for w, q in zip(wins, per_win, strict=True)}
     interp_wins = {meth: dict(zip(wins, interp_fill(xyz_m, known, wins, meth), strict=True))
                    for meth in ("linear", "pchip") if meth in methods and wins}
     preds: dict[str, np.ndarray] = {}
@@ -241,7 +247,7 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     for a, b in wins:
         for meth in preds:
             q = run(meth, a, b, known, True)
-            errs[meth].append(np.full(b - a, np.nan) if q is None else np.linalg.norm(q - xyz_m[a:b], axis=1))
+            errs[meth].append(np.full(b - a, np.nan) if q is None else norm3(q - xyz_m[a:b]))
     errors: dict[str, float] = {}
     if wins and preds:
         err = np.array([np.concatenate(errs[meth]) for meth in preds])
@@ -260,7 +266,7 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         # hidden through them): the same model, built for the nearest marker measured through the gap with
         # that marker hidden there, predicts it
         if "pca" in preds and model is not None:
-            donor_err["pca"] = donor_pca_error(xyz, valid, m, s, e, model, pca_window)
+            donor_err["pca"] = donor_pca_error(xyz, valid, m, s, e, model, pca_window, cache)
         for meth, err_d in donor_err.items():
             # another marker's error is a rough guess of this one's: believed only when clearly larger
             factor = _PCA_DONOR_FACTOR if meth == "pca" else _INTERP_DONOR_FACTOR
@@ -352,37 +358,43 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             cluster_of.setdefault(int(j), [int(k) for k in c])
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
-    for m in range(n_m):
-        gaps = find_gaps(valid[:, m]) if n_t else []
-        filled = {k: 0 for k in METHODS}
-        longest = max((e - s for s, e in gaps), default=0)
-        for s, e in gaps:
-            if e - s > max_len or valid[:, m].sum() == 0:
-                records.append(GapRecord(m, s, e, "unfilled"))
-                continue
-            cluster = cluster_of.get(m)
-            # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
-            if steady_mates and "rigid" in methods and (cluster is None
-                                                        or not valid[s:e][:, cluster].any(axis=1).all()):
-                cluster = find_steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
-            preds, errors = predict_gap(src, valid, m, s, e, methods, cluster,
-                                        validate=validation, pca_window=pca_window)
-            if blend:
-                weights = blend_weights(errors, methods)
-            else:
-                one = choose(errors, methods)
-                weights = {} if one is None else {one: 1.0}
-            full_errors = {k: errors.get(k, float("nan")) for k in methods}
-            if not weights:
-                records.append(GapRecord(m, s, e, "unfilled", full_errors))
-                continue
-            best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
-            out[s:e, m] = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
-            code[s:e, m] = FILL_CODES[best]
-            filled[best] += e - s
-            records.append(GapRecord(m, s, e, best, full_errors, weights))
-        unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
-        qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
+    #: models and predictions shared by the gaps of one call (the donor checks of gaps with the same frames)
+    cache: dict = {}
+    from threadpoolctl import threadpool_limits
+
+    # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
+    with threadpool_limits(limits=1):
+        for m in range(n_m):
+            gaps = find_gaps(valid[:, m]) if n_t else []
+            filled = {k: 0 for k in METHODS}
+            longest = max((e - s for s, e in gaps), default=0)
+            for s, e in gaps:
+                if e - s > max_len or valid[:, m].sum() == 0:
+                    records.append(GapRecord(m, s, e, "unfilled"))
+                    continue
+                cluster = cluster_of.get(m)
+                # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
+                if steady_mates and "rigid" in methods and (cluster is None
+                                                            or not valid[s:e][:, cluster].any(axis=1).all()):
+                    cluster = find_steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
+                preds, errors = predict_gap(src, valid, m, s, e, methods, cluster,
+                                            validate=validation, pca_window=pca_window, cache=cache)
+                if blend:
+                    weights = blend_weights(errors, methods)
+                else:
+                    one = choose(errors, methods)
+                    weights = {} if one is None else {one: 1.0}
+                full_errors = {k: errors.get(k, float("nan")) for k in methods}
+                if not weights:
+                    records.append(GapRecord(m, s, e, "unfilled", full_errors))
+                    continue
+                best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
+                out[s:e, m] = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
+                code[s:e, m] = FILL_CODES[best]
+                filled[best] += e - s
+                records.append(GapRecord(m, s, e, best, full_errors, weights))
+            unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
+            qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records)
 
 

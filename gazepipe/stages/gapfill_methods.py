@@ -32,6 +32,54 @@ PCA_UNIT_STD = False
 _N_ANCHORS = 3
 
 
+def norm3(v: np.ndarray) -> np.ndarray:
+    """Euclidean norm over the last axis (of length 3): the same result as ``np.linalg.norm(v, axis=-1)``,
+    several times faster on many short vectors."""
+    sq = v * v
+    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
+
+
+def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """PCHIP interpolant through knots ``x`` (n,) increasing, values ``y`` (n, k), evaluated at ``t`` (q,) inside
+    ``[x[0], x[-1]]``: (q, k).
+
+    The same arithmetic as ``scipy.interpolate.PchipInterpolator(x, y, axis=0)(t)`` (Fritsch–Carlson slopes as
+    a weighted harmonic mean, Moler's one-sided three-point end slopes, the cubic Hermite piece evaluated as
+    ``c3 + c2 s + c1 s² + c0 s³``), so the results are bit for bit the same, without the cost of building a
+    piecewise polynomial for every knot when a few pieces are evaluated.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    hk = (x[1:] - x[:-1])[:, None]
+    mk = (y[1:] - y[:-1]) / hk
+    dk = np.empty_like(y)
+    if y.shape[0] == 2:
+        dk[0] = mk[0]
+        dk[1] = mk[0]
+    else:
+        smk = np.sign(mk)
+        cond = (smk[1:] != smk[:-1]) | (mk[1:] == 0) | (mk[:-1] == 0)
+        w1 = 2 * hk[1:] + hk[:-1]
+        w2 = hk[1:] + 2 * hk[:-1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            whmean = (w1 / mk[:-1] + w2 / mk[1:]) / (w1 + w2)
+            dk[1:-1] = np.where(cond, 0.0, 1.0 / whmean)
+        for i, h0, h1, m0, m1 in ((0, hk[0], hk[1], mk[0], mk[1]), (-1, hk[-1], hk[-2], mk[-1], mk[-2])):
+            d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+            flat = np.sign(d) != np.sign(m0)
+            big = ~flat & (np.sign(m0) != np.sign(m1)) & (np.abs(d) > 3.0 * np.abs(m0))
+            dk[i] = np.where(flat, 0.0, np.where(big, 3.0 * m0, d))
+    j = np.clip(np.searchsorted(x, t, side="right") - 1, 0, x.size - 2)
+    h = hk[j]
+    slope = mk[j]
+    tt = (dk[j] + dk[j + 1] - 2 * slope) / h
+    c0 = tt / h
+    c1 = (slope - dk[j]) / h - tt
+    s = (np.asarray(t, dtype=np.float64) - x[j])[:, None]
+    s2 = s * s
+    return ((y[j] + dk[j] * s) + c1 * s2) + c0 * (s2 * s)
+
+
 def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[int, int]],
                 kind: str) -> list[np.ndarray | None]:
     """Linear or PCHIP interpolation of one marker over each frame interval ``[a, b)`` of ``intervals``.
@@ -59,9 +107,7 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             anchors.append(known_idx[max(0, i0 - _N_ANCHORS):i1 + _N_ANCHORS])
     if kind == "pchip" and anchors:
         knots = np.unique(np.concatenate(anchors))
-        from scipy.interpolate import PchipInterpolator
-
-        interp = PchipInterpolator(knots.astype(np.float64), xyz_m[knots], axis=0)
+        yk = xyz_m[knots]
     for (a, b), good in zip(intervals, ok, strict=True):
         if not good:
             out.append(None)
@@ -73,7 +119,7 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             w = ((t - t0) / (t1 - t0))[:, None]
             out.append((1.0 - w) * xyz_m[t0] + w * xyz_m[t1])
         else:
-            out.append(interp(t))
+            out.append(pchip_eval(knots, yk, t))
     return out
 
 
@@ -139,9 +185,9 @@ def min_rotation(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarr
     u = ref[1] - ref[0]
     u = u / np.linalg.norm(u)
     v = cur[:, 1] - cur[:, 0]
-    v = v / np.linalg.norm(v, axis=1, keepdims=True)
+    v = v / norm3(v)[:, None]
     cross = np.cross(u, v)
-    sin = np.linalg.norm(cross, axis=1)
+    sin = norm3(cross)
     ang = np.arctan2(sin, v @ u)
     axis = np.where(sin[:, None] > 1e-12, cross / np.maximum(sin, 1e-12)[:, None], 0.0)
     from scipy.spatial.transform import Rotation
@@ -217,6 +263,16 @@ def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], k
     return _edge_correct(pred, xyz[:, m], known_m, a, b, lo, hi, partial)
 
 
+def _flat(xyz: np.ndarray) -> np.ndarray:
+    """(T, M, 3) positions as (T, 3 M) (a view when contiguous)."""
+    return xyz.reshape(xyz.shape[0], -1)
+
+
+def _cols3(markers: np.ndarray) -> np.ndarray:
+    """Columns of markers' x, y, z in :func:`_flat`'s layout."""
+    return (3 * np.asarray(markers)[:, None] + np.arange(3)).ravel()
+
+
 class PcaModel:
     """Gløersen & Federolf (2016) style PCA model of all markers' coordinates for one target marker.
 
@@ -237,14 +293,15 @@ class PcaModel:
         self.m = m
         self.predictors = predictors
         self.body_frame = body_frame
-        cols = np.concatenate([predictors, [m]])
-        xt = xyz[train][:, cols]
+        cols = np.append(predictors, m)
+        # rows first, then the columns of the (frames, markers × 3) view: far cheaper than xyz[train][:, cols]
+        xt = _flat(xyz)[train][:, _cols3(cols)].reshape(train.size, cols.size, 3)
+        d = norm3(xt[:, :-1] - xt[:, -1:]).mean(axis=0)
         if body_frame:
             # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
             xt = xt - xt[:, :-1].mean(axis=1, keepdims=True)
         x = xt.reshape(train.size, -1)
         self.mean = x.mean(axis=0)
-        d = np.linalg.norm(xyz[train][:, predictors] - xyz[train][:, [m]], axis=2).mean(axis=0)
         sigma = sigma_scale * max(float(np.median(d)), 1.0)
         w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
         self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
@@ -252,12 +309,16 @@ class PcaModel:
             sd = x.std(axis=0)
             self.w = self.w / np.where(sd > 1e-6, sd, 1.0)
         z = (x - self.mean) * self.w
-        gram = np.einsum("ni,nj->ij", z, z)  # small: kept out of multithreaded BLAS
+        gram = z.T @ z
         import scipy.linalg
 
         evals, evecs = scipy.linalg.eigh(gram, driver="evd")
         order = np.argsort(evals)[::-1]
-        evals = np.clip(evals[order], 0.0, None)
+        # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
+        # otherwise their rounding noise would decide the component counts
+        tol = 1e-12 * train.size * float(np.square(self.mean * self.w).sum())
+        evals = evals[order]
+        evals = np.where(evals > tol, evals, 0.0)
         evecs = evecs[:, order]
         total = evals.sum()
         frac = np.cumsum(evals) / total if total > 0 else np.ones_like(evals)
@@ -267,14 +328,15 @@ class PcaModel:
         self.v_all = evecs[:, :max(self.ks)]
 
     def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray,
-                ks: list[int] | None = None) -> np.ndarray:
+                ks: list[int] | None = None, vis: np.ndarray | None = None) -> np.ndarray:
         """Target positions (len(ks), n, 3) in ``frames`` from the first ``k`` components for each ``k`` in
-        ``ks`` (default ``[self.k]``); NaN rows where too few predictors are measured."""
+        ``ks`` (default ``[self.k]``); NaN rows where too few predictors are measured. ``vis`` (n, M) replaces
+        ``valid[frames]`` as the markers measured in each of those frames (frames may repeat)."""
         ks = [self.k] if ks is None else ks
         n_p = self.predictors.size
         out = np.full((len(ks), frames.size, 3), np.nan)
-        vis = valid[frames][:, self.predictors]
-        x_all = xyz[frames][:, self.predictors].reshape(frames.size, -1)
+        vis = (valid[frames] if vis is None else vis)[:, self.predictors]
+        x_all = _flat(xyz)[frames][:, _cols3(self.predictors)]
         for pattern, rows in row_patterns(vis):
             if not pattern.any():
                 continue
@@ -320,21 +382,23 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
     """
     n_t, n_m = valid.shape
     lo, hi = (0, n_t) if window is None else window
-    others = np.array([j for j in range(n_m) if j != m], dtype=np.int64)
-    preds = others[valid[a:b][:, others].all(axis=0)]
+    through = valid[a:b].all(axis=0)
+    through[m] = False
+    preds = np.flatnonzero(through)
     rows = known_m[lo:hi]
     vw = valid[lo:hi]
     if preds.size > max_predictors:
         step = max(1, (hi - lo) // 200)  # a few hundred frames are plenty for a mean distance
         both = vw[::step][:, preds] & rows[::step, None]
-        d = np.linalg.norm(np.nan_to_num(xyz[lo:hi:step][:, preds] - xyz[lo:hi:step][:, [m]]), axis=2)
+        xs = _flat(xyz)[lo:hi:step]
+        d = norm3(xs[:, _cols3(preds)].reshape(-1, preds.size, 3) - xs[:, 3 * m:3 * m + 3][:, None])
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_d = np.where(both, d, 0.0).sum(axis=0) / both.sum(axis=0)
         mean_d[~np.isfinite(mean_d)] = np.inf
         preds = np.sort(preds[np.argsort(mean_d, kind="stable")[:max_predictors]])
     while preds.size:
         ok = rows & vw[:, preds].all(axis=1)
-        if ok.sum() >= min_train:
+        if np.count_nonzero(ok) >= min_train:
             return PcaModel(xyz, valid, m, preds, np.flatnonzero(ok) + lo, **kw)
         counts = (vw[:, preds] & rows[:, None]).sum(axis=0)
         preds = np.delete(preds, int(np.argmin(counts)))
@@ -346,10 +410,27 @@ def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.nd
     """PCA reconstruction of the model's marker over ``[a, b)`` for each component count in ``ks`` (default
     the model's ``k``), each corrected to meet the known edge samples. With ``partial``, frames without enough
     measured predictors are NaN instead of making that result ``None``."""
+    return pca_fill_many(model, xyz, [(a, b, valid, known_m, partial)], ks)[0]
+
+
+def pca_fill_many(model: PcaModel, xyz: np.ndarray,
+                  jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
+                  ks: list[int] | None = None) -> list[list[np.ndarray | None]]:
+    """:func:`pca_fill` for several intervals at once, ``jobs`` = ``[(a, b, valid, known_m, partial), ...]``:
+    one prediction over all their frames, so intervals with the same occlusion pattern share its least-squares
+    factorisation. Returns one list (over ``ks``) per job."""
     n_t = xyz.shape[0]
-    lo, hi = max(a - 1, 0), min(b + 1, n_t)
-    preds = model.predict(xyz, valid, np.arange(lo, hi), ks)
-    return [_edge_correct(p, xyz[:, model.m], known_m, a, b, lo, hi, partial) for p in preds]
+    spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b, *_ in jobs]
+    frames = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
+    vis = np.concatenate([valid[lo:hi] for (lo, hi), (_, _, valid, _, _) in zip(spans, jobs, strict=True)])
+    preds = model.predict(xyz, None, frames, ks, vis=vis)
+    out = []
+    i0 = 0
+    for (lo, hi), (a, b, _, known_m, partial) in zip(spans, jobs, strict=True):
+        out.append([_edge_correct(p[i0:i0 + hi - lo], xyz[:, model.m], known_m, a, b, lo, hi, partial)
+                    for p in preds])
+        i0 += hi - lo
+    return out
 
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
@@ -366,7 +447,7 @@ def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
         return {meth: float("nan") for meth in methods}
     # distance to the target on the measured frames next to the gap
     near = np.array([s - 1, e])
-    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    d = norm3(xyz[near][:, cand] - xyz[near][:, [m]]).mean(axis=0)
     donors = cand[np.argsort(d, kind="stable")[:n_donors]]
     # the donors are measured on the _N_ANCHORS frames each side, the knots interp_fill would use: one
     # interpolant for all of them at once
@@ -380,18 +461,19 @@ def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
             w = ((t - (s - 1)) / (e - (s - 1)))[:, None]
             q = (1.0 - w) * xyz[s - 1, donors].reshape(1, -1) + w * xyz[e, donors].reshape(1, -1)
         else:
-            from scipy.interpolate import PchipInterpolator
-
-            q = PchipInterpolator(knots.astype(np.float64), y, axis=0)(t)
-        err = np.linalg.norm(q.reshape(e - s, donors.size, 3) - truth, axis=2)
+            q = pchip_eval(knots, y, t)
+        err = norm3(q.reshape(e - s, donors.size, 3) - truth)
         out[meth] = float(err.mean(axis=0).mean())
     return out
 
 
 def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, model: PcaModel,
-                     pca_window: int | None) -> float:
+                     pca_window: int | None, cache: dict | None = None) -> float:
     """Mean error (mm) of the PCA fill of gap ``[s, e)`` for the marker nearest to ``m`` that is measured
-    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted)."""
+    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted).
+
+    ``cache`` (a dict kept for one set of ``xyz``, ``valid`` and ``pca_window``) keeps that marker's errors for
+    every component count, for the other gaps of the same frames that check the same marker."""
     n_t = valid.shape[0]
     lo, hi = max(s - 1, 0), min(e + 1, n_t)
     cand = np.flatnonzero(valid[lo:hi].all(axis=0))
@@ -399,18 +481,26 @@ def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, 
     near = [t for t in (s - 1, e) if 0 <= t < n_t and valid[t, m]]
     if cand.size == 0 or not near:
         return float("nan")
-    d = np.linalg.norm(xyz[near][:, cand] - xyz[near][:, [m]], axis=2).mean(axis=0)
+    d = norm3(xyz[near][:, cand] - xyz[near][:, [m]]).mean(axis=0)
     j = int(cand[np.argmin(d)])
-    valid_j = valid.copy()
-    valid_j[s:e, j] = False
-    win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-    model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
-    if model_j is None:
+    key = ("donor_pca", j, s, e)
+    errs = None if cache is None else cache.get(key)
+    if errs is None:
+        errs = []
+        valid_j = valid.copy()
+        valid_j[s:e, j] = False
+        win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
+        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
+        if model_j is not None:
+            qs = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, model_j.ks)
+            errs = [float("nan") if q is None else float(norm3(q - xyz[s:e, j]).mean())
+                    for q in qs]
+        if cache is not None:
+            cache[key] = errs
+    if not errs:
         return float("nan")
     rank = model.ks.index(model.k) if model.k in model.ks else len(model.ks) // 2
-    k = model_j.ks[min(rank, len(model_j.ks) - 1)]
-    q = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, [k])[0]
-    return float("nan") if q is None else float(np.linalg.norm(q - xyz[s:e, j], axis=1).mean())
+    return errs[min(rank, len(errs) - 1)]
 
 
 def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
@@ -425,7 +515,7 @@ def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int
         return None
     lo, hi = max(0, s - window), min(n_t, e + window)
     both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
-    d = np.linalg.norm(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]), axis=2)
+    d = norm3(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]))
     n = both.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mu = np.where(both, d, 0.0).sum(axis=0) / n

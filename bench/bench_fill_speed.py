@@ -1,0 +1,106 @@
+"""Speed of gap filling as the clean stage runs it (spike removal, then :func:`fill_gaps` with the markerset's
+segments as rigid clusters), on real-sized takes.
+
+Takes: every ``--step``-th C3D of ``bench/_work/klein_x10/klein_laying/mocap`` (written by ``bench/make_corpus.py``)
+up to ``--takes``, and the sample session's takes. Prints the time per take and per gap (minimum over
+``--repeats`` runs of the whole set) and a digest of the outputs (fill codes and filled positions), so two
+versions can be checked for identical results.
+
+Usage: ``PYTHONPATH=. python bench/bench_fill_speed.py [--takes 8] [--repeats 3] [--profile]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gazepipe.io.capture import read_markers
+from gazepipe.io.session_toml import load_markerset
+from gazepipe.stages.clean import CleanParams
+from gazepipe.stages.gapfill import fill_gaps, remove_spikes
+
+ROOT = Path(__file__).resolve().parents[1]
+KLEIN = ROOT / "bench" / "_work" / "klein_x10" / "klein_laying"
+SAMPLE = ROOT / "sample_data" / "session01"
+
+
+def load_takes(folder: Path, n: int, step: int) -> list[dict]:
+    """Each take's spike-free positions, valid mask, rate and clusters, as ``clean._fill`` builds them."""
+    ms = load_markerset(folder / "markerset.toml")
+    files = sorted((folder / "mocap").glob("*.c3d"))[::step]
+    if n:
+        files = files[:n]
+    p = CleanParams()
+    out = []
+    for f in files:
+        mk = read_markers(f, default_units=ms.units)
+        valid = mk.valid & np.isfinite(mk.xyz).all(axis=2)
+        xyz = np.where(valid[..., None], mk.xyz, np.nan)
+        valid, _ = remove_spikes(xyz, valid, mk.rate_hz, max_accel_mm_s2=p.spike_max_accel_mm_s2,
+                                 min_step_mm=p.spike_min_step_mm, max_piece_s=p.spike_max_piece_s)
+        xyz = np.where(valid[..., None], xyz, np.nan)
+        pos = {lab.split(":")[-1]: i for i, lab in enumerate(mk.labels)}
+        clusters = [[pos[x] for x in s.markers if x in pos] for s in ms.segments]
+        out.append({"name": f"{folder.name}/{f.stem}", "xyz": xyz, "valid": valid, "rate": mk.rate_hz,
+                    "clusters": [c for c in clusters if len(c) >= 2], "max_gap_s": p.max_gap_s,
+                    "methods": tuple(p.fill_methods)})
+    return out
+
+
+def fill(t: dict):
+    return fill_gaps(t["xyz"], t["valid"], t["rate"], clusters=t["clusters"], max_gap_s=t["max_gap_s"],
+                     methods=t["methods"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--takes", type=int, default=8, help="Klein takes (0: all)")
+    ap.add_argument("--step", type=int, default=6, help="use every step-th Klein take")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--profile", action="store_true", help="cProfile one pass and print the top functions")
+    args = ap.parse_args(argv)
+    sets = []
+    if (KLEIN / "mocap").is_dir():
+        sets.append(("klein_laying", load_takes(KLEIN, args.takes, args.step)))
+    else:
+        print(f"{KLEIN} absent (run bench/make_corpus.py): skipped")
+    if (SAMPLE / "mocap").is_dir():
+        sets.append(("sample session01", load_takes(SAMPLE, 0, 1)))
+    for name, takes in sets:
+        n_gaps = 0
+        digest = hashlib.sha256()
+        best = np.inf
+        for rep in range(args.repeats):
+            t0 = time.perf_counter()
+            results = [fill(t) for t in takes]
+            best = min(best, time.perf_counter() - t0)
+            if rep == 0:
+                for r in results:
+                    n_gaps += sum(g.method != "unfilled" for g in r.gaps)
+                    digest.update(np.ascontiguousarray(r.fill_code).tobytes())
+                    digest.update(np.nan_to_num(r.xyz, nan=-1e300).tobytes())
+        frames = sum(t["xyz"].shape[0] for t in takes)
+        markers = np.mean([t["xyz"].shape[1] for t in takes])
+        print(f"{name}: {len(takes)} takes, {frames / len(takes):.0f} frames x {markers:.0f} markers, "
+              f"{n_gaps / len(takes):.1f} filled gaps per take; fill_gaps {1000 * best / len(takes):.1f} ms per take, "
+              f"{1000 * best / max(n_gaps, 1):.2f} ms per gap (min of {args.repeats}); "
+              f"output digest {digest.hexdigest()[:16]}")
+        if args.profile:
+            import cProfile
+            import pstats
+
+            pr = cProfile.Profile()
+            pr.enable()
+            for t in takes:
+                fill(t)
+            pr.disable()
+            pstats.Stats(pr).sort_stats("cumulative").print_stats(25)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
