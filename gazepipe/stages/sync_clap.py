@@ -1,0 +1,192 @@
+"""sync stage, mocap side: the clapper's contact instants in the clapper markers' trajectories (Klein 5.1).
+
+A clapper carrying one marker on each arm is snapped shut in view of the head camera; the clap is the contact
+instant, when the closing of the clapper arms ends (:func:`mocap_claps`). The robust-statistics helpers here are
+shared with the video side (:mod:`gazepipe.stages.sync_video`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Clap", "clapper_distance", "mocap_claps"]
+
+_MAD = 1.4826  # MAD → standard deviation for Gaussian noise
+
+
+def _robust_sigma(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return float("nan")
+    return float(_MAD * np.median(np.abs(x - np.median(x))))
+
+
+def _score(z: float, lo: float, hi: float) -> float:
+    """Linear map of a signal-to-noise ratio onto 0..1: ``lo`` (just detectable) → 0, ``hi`` → 1."""
+    if not np.isfinite(z):
+        return 1.0 if z > 0 else 0.0
+    return float(np.clip((z - lo) / (hi - lo), 0.0, 1.0))
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Half-open [start, stop) runs of True."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
+
+
+@dataclass
+class Clap:
+    """A clap found in the mocap.
+
+    Attributes
+    ----------
+    time_s : contact instant, seconds on the mocap clock (0 at the take's first frame).
+    frame : the same instant as a fractional frame index (time_s · rate).
+    confidence : 0..1, how clearly the closing stands out of the noise (see :func:`mocap_claps`).
+    closing_speed_mm_s : fastest closing speed of the distance between the markers.
+    open_mm, shut_mm : distance held before the closing, and the plateau after it.
+    margin_mm : tolerance around ``shut_mm`` used to decide that the clapper is shut.
+    """
+
+    time_s: float
+    frame: float
+    confidence: float
+    closing_speed_mm_s: float
+    open_mm: float
+    shut_mm: float
+    margin_mm: float
+
+
+def clapper_distance(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray,
+                     valid_b: np.ndarray) -> np.ndarray:
+    """(T,) distance in mm between the two clapper markers, NaN where either is invalid."""
+    d = np.linalg.norm(np.asarray(clap_a_xyz, float) - np.asarray(clap_b_xyz, float), axis=1)
+    ok = np.asarray(valid_a, bool) & np.asarray(valid_b, bool) & np.isfinite(d)
+    return np.where(ok, d, np.nan)
+
+
+def _trajectory_root(d: np.ndarray, last: int, shut: float, n_fit: int) -> float | None:
+    """Where the closing trajectory fitted on its ``n_fit`` frames up to ``last`` reaches ``shut``, in frames
+    after ``last`` (a quadratic: constant acceleration; a line with two frames); None when it cannot say."""
+    idx = np.arange(max(last - n_fit + 1, 0), last + 1)
+    idx = idx[np.isfinite(d[idx])]
+    if idx.size < 2 or idx[-1] != last:
+        return None
+    x = (idx - last).astype(float)
+    y = d[idx] - shut
+    root = float(-y[-1] / (y[-1] - y[-2])) if y[-1] != y[-2] else None
+    if idx.size >= 3:
+        r = np.roots(np.polyfit(x, y, 2))
+        r = r[np.abs(r.imag) < 1e-9].real
+        r = r[r >= -0.25]
+        if r.size:
+            root = float(r.min())
+    return root
+
+
+def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit: int) -> float:
+    """Fractional frame where the closing trajectory reaches ``shut``, near the first frame k0 within the margin.
+
+    The arms stop abruptly at contact, so the distance has a kink there: interpolating linearly between the
+    two frames around the crossing would put the contact up to a frame late. Instead the closing trajectory
+    is fitted on its last ``n_fit`` frames before k0 and solved for ``shut``, within [k0 − 1, k0]. When that
+    solution lies beyond k0 and frame k0 is still more than 2 σ_d above the shut value (closing, only within
+    the margin), the trajectory is refitted up to k0 and solved within [k0, k0 + 1].
+    """
+    root = _trajectory_root(d, k0 - 1, shut, n_fit)
+    if root is None:
+        return float(k0)
+    if root > 1.0 and d[k0] - shut > 2.0 * sigma_d and k0 + 1 < d.size:
+        later = _trajectory_root(d, k0, shut, n_fit)
+        if later is not None:
+            return float(k0 + np.clip(later, 0.0, 1.0))
+    return float(k0 - 1 + np.clip(root, 0.0, 1.0))
+
+
+def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray, valid_b: np.ndarray,
+                rate_hz: float, *, speed_k: float = 8.0, min_speed_mm_s: float = 100.0,
+                min_depth_mm: float = 20.0, margin_mm: float = 1.0, margin_k: float = 5.0,
+                plateau_s: float = 0.3, open_s: float = 0.3, fit_s: float = 0.08,
+                min_separation_s: float = 1.0, lag_s: float = 0.02, z_lo: float = 8.0,
+                z_hi: float = 40.0) -> list[Clap]:
+    """Every clap in the clapper markers' trajectories.
+
+    Parameters
+    ----------
+    clap_a_xyz, clap_b_xyz : (T, 3) marker positions, mm (NaN allowed where invalid).
+    valid_a, valid_b : (T,) validity masks.
+    rate_hz : mocap frame rate; frame i is at i / rate_hz seconds.
+    speed_k, min_speed_mm_s : a closing event is a run of frames whose distance velocity is below
+        −max(speed_k · σ_v, min_speed_mm_s), σ_v the robust (MAD) spread of the distance velocity over the
+        whole take.
+    lag_s : the distance velocity is a central difference over ± max(1, round(lag_s · rate)) frames, so that
+        its noise, and the confidence, do not grow with the frame rate.
+    min_depth_mm : the distance must drop at least this much (open − shut).
+    margin_mm, margin_k : the clapper counts as shut within max(margin_mm, margin_k · σ_d) of the shut value,
+        σ_d the robust spread of the distance on the plateau after the closing.
+    plateau_s : the plateau after the fastest closing from which the shut value is taken (its median); the
+        clapper must stay shut over most of it, or the event is not a clap.
+    open_s : the open distance is the largest one in the ``open_s`` before the closing.
+    fit_s : length of the closing trajectory fitted to refine the contact (at least three frames).
+    min_separation_s : two claps closer than this are one (the faster closing is kept).
+    z_lo, z_hi : confidence = the smaller of the closing speed over σ_v and the depth over σ_d, mapped
+        linearly so that ``z_lo`` (the detection floor) gives 0 and ``z_hi`` or more gives 1.
+
+    Returns
+    -------
+    The claps in time order. Each is the first time, after the fastest closing of its event, that the
+    distance comes within the margin of its shut value, refined below one frame by solving the fitted
+    closing trajectory for the shut value (see :func:`_contact_crossing`).
+    """
+    d = clapper_distance(clap_a_xyz, clap_b_xyz, valid_a, valid_b)
+    T = d.size
+    rate = float(rate_hz)
+    lag = max(1, round(lag_s * rate))
+    if T < 2 * lag + 5:
+        return []
+    v = np.full(T, np.nan)
+    v[lag:-lag] = (d[2 * lag:] - d[:-2 * lag]) * (rate / (2 * lag))
+    sigma_v = _robust_sigma(v)
+    if not np.isfinite(sigma_v):
+        return []
+    thr = max(speed_k * sigma_v, min_speed_mm_s)
+    closing = np.nan_to_num(v, nan=0.0) < -thr
+    n_plat = max(5, round(plateau_s * rate))
+    n_open = max(3, round(open_s * rate))
+    n_fit = max(3, round(fit_s * rate))
+    found: list[Clap] = []
+    for s, e in _runs(closing):
+        f = s + int(np.nanargmin(v[s:e]))
+        plat = d[f + 1: f + 1 + n_plat]
+        if np.count_nonzero(np.isfinite(plat)) < 0.8 * n_plat:
+            continue  # not enough of the plateau seen (end of the take or occluded)
+        shut = float(np.nanmedian(plat))
+        sigma_d = max(_robust_sigma(plat), sigma_v * np.sqrt(2.0) * lag / rate)
+        margin = max(margin_mm, margin_k * sigma_d)
+        tail = plat[len(plat) // 2:]
+        if np.count_nonzero(np.abs(tail - shut) <= margin) < 0.8 * tail.size:
+            continue  # the clapper does not stay shut: not a clap
+        before = d[max(s - n_open, 0): f + 1]
+        if not np.any(np.isfinite(before)):
+            continue
+        opened = float(np.nanmax(before))
+        if opened - shut < min_depth_mm:
+            continue
+        within = np.flatnonzero(d[s:] <= shut + margin)
+        if within.size == 0:
+            continue
+        k0 = s + int(within[0])
+        frame = _contact_crossing(d, k0, shut, sigma_d, n_fit)
+        speed = float(-v[f])
+        z = min(speed / max(sigma_v, 1e-12), (opened - shut) / max(sigma_d, 1e-12))
+        clap = Clap(time_s=frame / rate, frame=frame, confidence=_score(z, z_lo, z_hi),
+                    closing_speed_mm_s=speed, open_mm=opened, shut_mm=shut, margin_mm=margin)
+        if found and clap.time_s - found[-1].time_s < min_separation_s:
+            if clap.closing_speed_mm_s > found[-1].closing_speed_mm_s:
+                found[-1] = clap
+            continue
+        found.append(clap)
+    return found
+

@@ -1,0 +1,283 @@
+"""sync stage, video side: the clapper's claps in the head-camera video, from a few seconds of frames around each
+expected clap only (the video is never decoded whole).
+
+The video comes in as its probe's frame timestamps and a ``read_window(start, stop)`` callable returning
+``(timestamps_s, frames)`` for the frames [start, stop) (``gazepipe.io.video.FrameReader`` for the take,
+typically with a small ``scale``). The clap is the end of the closing burst of per-frame motion energy
+(:func:`video_claps`), refined from the moving arm's displacement.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from gazepipe.stages.sync_clap import _MAD, _robust_sigma, _score
+
+__all__ = ["ReadWindow", "VideoClap", "motion_energy", "video_claps"]
+
+#: ``read_window(start, stop) -> (timestamps_s (M,), frames (M, H, W) uint8)`` for the frames [start, stop)
+ReadWindow = Callable[[int, int], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass
+class VideoClap:
+    """A clap found in the video.
+
+    Attributes
+    ----------
+    time_s : end of the closing burst, seconds on the video clock (the frames' own timestamps).
+    frame : the same instant as a fractional frame index (interpolated between frame timestamps).
+    confidence : 0..1 (see :func:`video_claps`).
+    peak, still : motion energy (mean absolute grey-level difference) at the burst's peak and when still.
+    window : the frames [start, stop) that were decoded to find it.
+    """
+
+    time_s: float
+    frame: float
+    confidence: float
+    peak: float
+    still: float
+    window: tuple[int, int]
+
+
+def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[int, int, int, int] | None = None,
+                  chunk: int = 64) -> tuple[np.ndarray, int]:
+    """Motion energy between consecutive frames of [start, stop), decoded in chunks of ``chunk`` frames.
+
+    Returns
+    -------
+    energy : (n − 1,) mean absolute grey-level difference between frames i − 1 and i (sample i − 1 belongs
+        between those two frames' timestamps), optionally inside ``roi = (y0, y1, x0, x1)`` pixels.
+    n : the number of frames actually returned (fewer than stop − start at the end of the video).
+    """
+    out: list[np.ndarray] = []
+    prev: np.ndarray | None = None
+    n = 0
+    for c0 in range(start, stop, chunk):
+        _, frames = read_window(c0, min(c0 + chunk, stop))
+        frames = np.asarray(frames)
+        if roi is not None:
+            y0, y1, x0, x1 = roi
+            frames = frames[:, y0:y1, x0:x1]
+        frames = frames.astype(np.int16)  # grey levels (colour: every channel counts) and their differences
+        n += frames.shape[0]
+        if prev is not None:
+            frames = np.concatenate([prev[None], frames])
+        if frames.shape[0] > 1:
+            diff = np.abs(np.diff(frames, axis=0))
+            out.append(diff.reshape(diff.shape[0], -1).mean(axis=1, dtype=np.float64))
+        if frames.shape[0]:
+            prev = frames[-1]
+        if n < min(c0 + chunk, stop) - start:
+            break  # end of the video
+    return (np.concatenate(out) if out else np.zeros(0)), n
+
+
+def _falling_edge(fts: np.ndarray, tm: np.ndarray, e: np.ndarray, p: int, post_n: int, exclude_s: float,
+                  z_lo: float, z_hi: float, min_distinct: float) -> tuple[float, float, float, float] | None:
+    """(time, confidence, peak, still) of the end of the burst peaking at sample p, or None.
+
+    ``fts`` are the frames' timestamps, ``e[j]`` the energy between frames j and j + 1, at ``tm[j]`` (the
+    midpoint). See :func:`video_claps` for the definition of the end.
+    """
+    peak = float(e[p])
+    post = e[p + 1: p + 1 + post_n]
+    if post.size < max(3, post_n // 2):
+        return None  # the burst is too close to the end of what was decoded
+    still = float(np.median(post))
+    if not peak > still:
+        return None
+    half = still + 0.5 * (peak - still)
+    below = np.flatnonzero(e[p + 1:] < half)
+    if below.size == 0:
+        return None
+    k = p + 1 + int(below[0])
+    t = tm[k - 1] + (tm[k] - tm[k - 1]) * (e[k - 1] - half) / (e[k - 1] - e[k])
+    j0 = k - 2  # the last sample wholly before the stop (k − 1 may be partial when it is above half)
+    if j0 >= 1 and j0 + 4 <= e.size:
+        slope = (e[j0] - e[j0 - 1]) / (tm[j0] - tm[j0 - 1])  # energy per sample, per second
+        level = e[j0] - still + slope * (fts[j0 + 1] - tm[j0])  # extrapolated to the end of sample j0
+        dt = fts[j0 + 2] - fts[j0 + 1]
+        mass = float(np.sum(e[j0 + 1: j0 + 4] - still))  # in samples' worth of energy
+        if level > 0 and mass > 0:
+            # level·τ + slope·τ²/2 = mass·dt, τ the motion after the end of sample j0
+            a2, a1, c = 0.5 * slope, level, mass * dt
+            disc = a1 * a1 + 4.0 * a2 * c
+            tau = c / a1 if abs(a2) * c < 1e-9 * a1 * a1 else (-a1 + np.sqrt(max(disc, 0.0))) / (2.0 * a2)
+            if 0.0 <= tau <= 2.0 * dt and disc >= 0:
+                t = fts[j0 + 1] + tau
+    noise = _MAD * float(np.median(np.abs(post - still)))
+    z = (peak - still) / max(noise, 1e-9 * max(peak, 1.0))
+    far = np.abs(tm - tm[p]) > exclude_s
+    rival = float(e[far].max()) if np.any(far) else still
+    distinct = (peak - max(rival, still)) / (peak - still)
+    conf = _score(z, z_lo, z_hi) * float(np.clip(distinct / min_distinct, 0.0, 1.0))
+    return float(t), conf, peak, still
+
+
+def _displacement(frames: np.ndarray, shut: np.ndarray, thr: float) -> np.ndarray:
+    """(M,) how far, in pixels up to a common scale, the moving arm in each frame is from its shut position.
+
+    Where a frame differs from the shut image by more than ``thr``, the brighter and the darker parts are
+    where the arm is and where it will be (or the reverse). The distance between their centroids is the
+    displacement while they are apart and the arm's width once they overlap, when instead their mass shrinks
+    in proportion to the displacement: the product of the two, normalised by the largest mass, follows the
+    displacement in both cases (frame differences alone saturate once the arm moves more than its width).
+    """
+    d = frames.astype(np.float32) - shut[None]
+    pos = np.where(d > thr, d, np.float32(0))
+    neg = np.where(d < -thr, -d, np.float32(0))
+    yy, xx = np.mgrid[0:shut.shape[0], 0:shut.shape[1]].astype(np.float32)
+
+    def centroid(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = w.sum(axis=(1, 2), dtype=np.float64)
+        safe = np.where(m > 0, m, 1.0)
+        c = np.stack([(w * yy).sum(axis=(1, 2), dtype=np.float64) / safe,
+                      (w * xx).sum(axis=(1, 2), dtype=np.float64) / safe], axis=1)
+        return m, c
+
+    mp, cp = centroid(pos)
+    mn, cn = centroid(neg)
+    mass = np.minimum(mp, mn)
+    if not mass.max() > 0:
+        return np.zeros(len(frames))
+    return np.linalg.norm(cp - cn, axis=1) * (mass / mass.max())
+
+
+def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: float,
+                            roi: tuple[int, int, int, int] | None, n_before: int = 6,
+                            n_shut: int = 10) -> float | None:
+    """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, or None.
+
+    Decodes the ``n_before`` frames before the edge and ``n_shut`` still frames after it (their median is the
+    shut image), fits the displacement of the last three moving frames (a quadratic) and solves it for zero
+    between that last moving frame and the next; the fractional frame becomes a time by interpolating the
+    two frames' timestamps.
+    """
+    k_e = int(np.searchsorted(ts, t_edge, side="right")) - 1  # the frame at or before the edge
+    a, b = k_e - n_before, k_e + 3 + n_shut
+    if a < 0 or b > ts.size:
+        return None
+    _, fr = read_window(a, b)
+    fr = np.asarray(fr)
+    if len(fr) != b - a:
+        return None
+    if roi is not None:
+        y0, y1, x0, x1 = roi
+        fr = fr[:, y0:y1, x0:x1]
+    if fr.ndim == 4:
+        fr = fr.mean(axis=3)
+    still = fr[-n_shut:].astype(np.float32)
+    shut = np.median(still, axis=0)
+    sigma = _robust_sigma((still - shut[None]).ravel())
+    s = _displacement(fr[: n_before + 3], shut, max(3.0, 4.0 * sigma))
+    moving = np.flatnonzero(s > 0.02 * s.max())
+    if moving.size == 0:
+        return None
+    k = int(moving[-1])
+    if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
+        return None  # not a clean approach to the shut position
+    y = s[k - 2: k + 1]
+    r = np.roots(np.polyfit([-2.0, -1.0, 0.0], y, 2))
+    r = r[np.abs(r.imag) < 1e-9].real
+    r = r[(r >= 0.0) & (r <= 1.5)]
+    root = float(r.min()) if r.size else float(y[2] / (y[1] - y[2]))
+    root = min(max(root, 0.0), 1.0)
+    j = a + k
+    return float(ts[j] + root * (ts[j + 1] - ts[j]))
+
+
+def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, post_s: float, exclude_s: float,
+             roi: tuple[int, int, int, int] | None, chunk: int, z_lo: float, z_hi: float,
+             min_distinct: float, refine: bool) -> VideoClap | None:
+    """The strongest closing burst among the frames with timestamps in [t0, t1 + post_s]."""
+    i0 = int(np.searchsorted(ts, t0, side="left"))
+    i1 = int(np.searchsorted(ts, t1 + post_s, side="right"))
+    i0, i1 = max(i0 - 1, 0), min(i1, ts.size)
+    if i1 - i0 < 4:
+        return None
+    e, n = motion_energy(read_window, i0, i1, roi=roi, chunk=chunk)
+    fts = ts[i0: i0 + n]
+    tm = 0.5 * (fts[:-1] + fts[1:])  # an energy sample sits between its two frames
+    dt = float(np.median(np.diff(fts))) if fts.size > 1 else 1.0
+    # the peak must lie inside [t0, t1]; the post_s after t1 is only there to see the burst end
+    inside = np.flatnonzero((tm >= t0) & (tm <= t1))
+    if inside.size == 0:
+        return None
+    p = int(inside[np.argmax(e[inside])])
+    r = _falling_edge(fts, tm, e, p, max(3, round(post_s / dt)), exclude_s, z_lo, z_hi, min_distinct)
+    if r is None:
+        return None
+    t, conf, peak, still = r
+    refined = _refine_by_displacement(ts, read_window, t, roi) if refine else None
+    if refined is not None and abs(refined - t) <= dt:
+        t = refined
+    frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
+    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=peak, still=still, window=(i0, i0 + n))
+
+
+def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_times: Sequence[float] | None,
+                *, window_s: float = 1.5, search_s: float = 20.0, post_s: float = 0.3, exclude_s: float = 0.4,
+                roi: tuple[int, int, int, int] | None = None, chunk: int = 64, z_lo: float = 5.0,
+                z_hi: float = 30.0, min_distinct: float = 0.5, refine: bool = True) -> list[VideoClap | None]:
+    """Claps in the video near the expected times, decoding only the frames around them.
+
+    Parameters
+    ----------
+    probe_timestamps : (N,) every frame's own timestamp, seconds (video clock).
+    read_window : returns ``(timestamps, frames)`` for the frames [start, stop) (see :data:`ReadWindow`).
+    approx_times : expected clap times on the video clock; ``None`` searches the first ``search_s`` seconds
+        (at most half the video) for one clap (and, only when none is found there, the last ``search_s``).
+    window_s : half-width of the search window around each expected time.
+    post_s : the still level is the median motion energy over the ``post_s`` after the burst's peak; that many
+        extra frames are decoded after each window.
+    exclude_s : energy further than this from the peak counts as a rival burst.
+    roi : optional (y0, y1, x0, x1) region of the frames (in the frames ``read_window`` returns).
+    chunk : frames decoded per ``read_window`` call (bounds memory; pass a ``read_window`` that scales the
+        frames down, e.g. ``read_frames(..., scale=0.25)``: the clapper fills much of the head camera's view).
+    refine : refine the end of the burst from the arm's displacement (step 3 below).
+    z_lo, z_hi, min_distinct : confidence = snr · distinct, where snr maps (peak − still) over the robust
+        spread of the still energy linearly from ``z_lo`` → 0 to ``z_hi`` → 1, and distinct = min(1,
+        (peak − rival) / (peak − still) / min_distinct), rival the highest energy further than ``exclude_s``
+        from the peak (the opening of the clapper, a head movement).
+
+    Returns
+    -------
+    One entry per expected time (a single one when searching): the clap, or ``None`` when no burst with a
+    falling edge is found. An energy sample compares frames j and j + 1 and sits midway between their
+    timestamps. The clap is the instant the closing motion stops:
+
+    1. the falling edge is located where the energy, after the burst's peak, first drops below halfway
+       between the peak and the still level (sample k); the crossing, interpolated linearly in time between
+       samples k − 1 and k, is the fallback estimate;
+    2. sample j0 = k − 2 is the last one wholly before the stop. The energy per sample is proportional to the
+       distance moved between the two frames, so the energy above the still level in the next three samples,
+       divided by the rate of energy just before the stop (samples j0 − 1 and j0, extrapolated linearly to
+       the end of sample j0: constant acceleration), is how long the motion went on after frame j0 + 1. That
+       interval is added to frame j0 + 1's timestamp (solving level·τ + slope·τ²/2 = energy·Δt).
+
+    3. with ``refine`` (default), the frames just before the edge and a few still ones after it are decoded
+       once more, and the arm's displacement from its shut position is measured in each frame (see
+       :func:`_displacement`); the instant it reaches zero (a quadratic through the last three moving
+       frames, solved between the last moving frame and the next, as for the mocap) replaces the estimate
+       when it lies within a frame of it.
+
+    Motion blur and the partial sample spread the edge but keep its energy, which is why step 2 is used
+    rather than the halfway crossing (biased late by up to a quarter frame for an accelerating arm). Step 3
+    matters when the arm moves more than its own width between frames: frame differences then saturate and
+    steps 1–2 come out late by up to half a frame.
+    """
+    ts = np.asarray(probe_timestamps, dtype=np.float64)
+    kw = dict(post_s=post_s, exclude_s=exclude_s, roi=roi, chunk=chunk, z_lo=z_lo, z_hi=z_hi,
+              min_distinct=min_distinct, refine=refine)
+    if approx_times is None:
+        span = min(search_s, 0.5 * float(ts[-1] - ts[0]))
+        head = _clap_in(ts, read_window, float(ts[0]), float(ts[0]) + span, **kw)
+        if head is not None and head.confidence > 0:
+            return [head]
+        return [_clap_in(ts, read_window, float(ts[-1]) - span, float(ts[-1]), **kw)]
+    return [_clap_in(ts, read_window, t - window_s, t + window_s, **kw) for t in approx_times]
+
