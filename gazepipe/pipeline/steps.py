@@ -9,6 +9,8 @@ defaults, so a run with nothing to do never pays for importing scipy.signal, pan
 from __future__ import annotations
 
 import dataclasses
+import functools
+import os
 from types import SimpleNamespace
 
 import numpy as np
@@ -157,9 +159,20 @@ def _frames_take(session: Session, take: Take) -> bool:
     return _subject_take(session, take) and take.kind in ("gaze_follow", "gaze_shift")
 
 
-def run_frames(ctx: UnitContext) -> UnitResult:
+@functools.lru_cache(maxsize=4)
+def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int]) -> Markers:
+    """The neutral take's cleaned markers (``file_id`` = size, mtime, inode of its capture: a changed file is
+    read again)."""
     from gazepipe.io.capture import read_markers
     from gazepipe.stages.clean import clean_markers
+
+    raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
+    mapping = check_capture_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))
+    raw.labels = _renamed(raw.labels, mapping)
+    return clean_markers(raw, ms, "neutral", params, path=take.mocap, take=take.id).markers
+
+
+def run_frames(ctx: UnitContext) -> UnitResult:
     from gazepipe.stages.frames import compute_frames
 
     ms = ctx.session.markerset
@@ -167,14 +180,11 @@ def run_frames(ctx: UnitContext) -> UnitResult:
     markers = dataclasses.replace(markers, first_frame=markers.first_frame)
     neutral_take = _neutral_take(ctx.session)
     if neutral_take is not None:
-        # the neutral take is cleaned here again (it is short) so takes never wait on each other
-        raw = read_markers(neutral_take.mocap, rate_hz=neutral_take.rate_hz, default_units=ms.units)
-        mapping = check_capture_labels(ms, raw.labels, neutral_take.mocap, neutral_take.id,
-                                       required=_required_markers(ms, neutral_take))
-        raw.labels = _renamed(raw.labels, mapping)
-        clean_params = _build(CleanParams, ctx.params_of("clean"))
-        neutral = clean_markers(raw, ms, "neutral", clean_params, path=neutral_take.mocap,
-                                take=neutral_take.id).markers
+        # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
+        # cleans it once for all the takes it runs (keyed by the file's identity and the parameters)
+        st = os.stat(neutral_take.mocap)
+        neutral = _clean_neutral(neutral_take, ms, _build(CleanParams, ctx.params_of("clean")),
+                                 (st.st_size, st.st_mtime_ns, st.st_ino))
         source = f"neutral take {neutral_take.id}"
     else:
         neutral, nframes, nmeta = _load_markers(ctx, "neutral")
@@ -192,7 +202,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="1", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="2", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

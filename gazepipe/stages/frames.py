@@ -209,7 +209,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
     n_origin, n_cmat = character_frame(neutral, markerset, path=path, take=take)
     has_char = np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
     n_has_char = np.isfinite(n_cmat).all(axis=(1, 2)) & np.isfinite(n_origin).all(axis=1)
-    rc = Rotation.from_matrix(np.where(has_char[:, None, None], cmat, np.eye(3)))
+    # rotations are composed as matrices (batched matmul) and turned into quaternions once per segment
+    cmat_t = np.where(has_char[:, None, None], cmat, np.eye(3)).transpose(0, 2, 1)
 
     gmat = np.full((n, ns, 3, 3), np.nan)
     centres: dict[str, np.ndarray] = {}   # lab centroid of each segment's full cluster
@@ -227,13 +228,12 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
         # reference cluster for rigid fits: the neutral cluster's mean shape in character coordinates
         ref = _to_char(npts[nok], n_origin[nok], n_cmat[nok]).mean(axis=0)
         n_raw, _ = _marker_frames(npts[nok], ref, params.triangle)
-        n_glob = Rotation.from_matrix(n_cmat[nok]).inv() * Rotation.from_matrix(n_raw)
-        calib = n_glob.mean().inv()   # right-multiplied: neutral mean → identity
+        n_glob = Rotation.from_matrix(n_cmat[nok].transpose(0, 2, 1) @ n_raw)
+        calib = n_glob.mean().inv().as_matrix()   # right-multiplied: neutral mean → identity
         raw, centres[s.name] = _marker_frames(pts, ref, params.triangle, params.min_plane_ratio)
         ok = has_char & np.isfinite(raw).all(axis=(1, 2))
         if ok.any():
-            g = rc[ok].inv() * Rotation.from_matrix(raw[ok]) * calib
-            gmat[ok, j] = g.as_matrix()
+            gmat[ok, j] = cmat_t[ok] @ raw[ok] @ calib
 
     valid = has_char & np.isfinite(gmat).all(axis=(1, 2, 3))
     quat = np.full((n, ns, 4), np.nan)
@@ -250,7 +250,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
             continue
         okp = ok & np.isfinite(gmat[:, p]).all(axis=(1, 2))
         if okp.any():
-            loc = Rotation.from_matrix(gmat[okp, p]).inv() * Rotation.from_matrix(gmat[okp, j])
+            loc = Rotation.from_matrix(gmat[okp, p].transpose(0, 2, 1) @ gmat[okp, j])
             quat_local[okp, j] = to_wxyz(loc)
     six = six_from_matrix(gmat)
 
@@ -267,7 +267,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
 
     char_rot = np.full((n, 4), np.nan)
     if has_char.any():
-        char_rot[has_char] = to_wxyz(rc[has_char])
+        char_rot[has_char] = to_wxyz(Rotation.from_matrix(cmat[has_char]))
     qc["invalid_frames"] = int(np.sum(~valid))
     return Joints(segments=names, parents=parents, quat=quat, quat_local=quat_local, six=six,
                   head_centre=head_centre, target_dir=target_dir,

@@ -71,6 +71,11 @@ def frame_from_points(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndar
     return np.stack([e1, e2, e3], axis=-1)
 
 
+def det3(m: np.ndarray) -> np.ndarray:
+    """Determinants of (..., 3, 3) matrices by the triple product of their rows (no LU per matrix)."""
+    return np.einsum("...i,...i->...", m[..., 0, :], np.cross(m[..., 1, :], m[..., 2, :]))
+
+
 def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Least-squares rotations (N, 3, 3) with pts[n] − centroid ≈ R[n] · (ref − centroid(ref)).
 
@@ -85,13 +90,13 @@ def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
     pts = np.asarray(pts, dtype=np.float64)
     a = ref - ref.mean(axis=0)
     b = pts - pts.mean(axis=1, keepdims=True)
-    h = np.einsum("ki,nkj->nij", a, b)          # cross-covariance, (N, 3, 3)
+    h = a.T @ b                                  # cross-covariance, (N, 3, 3)
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", vt.transpose(0, 2, 1), u.transpose(0, 2, 1))))
+    v = vt.transpose(0, 2, 1)
+    d = np.sign(det3(v) * det3(u))
     d[d == 0] = 1.0
-    corr = np.ones((len(pts), 3))
-    corr[:, 2] = d
-    return np.einsum("nji,nj,nkj->nik", vt, corr, u)
+    v[:, :, 2] *= d[:, None]
+    return v @ u.transpose(0, 2, 1)
 
 
 def up_vector(up_axis: str) -> np.ndarray:
