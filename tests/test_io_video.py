@@ -104,16 +104,17 @@ def test_read_window_colour_scale_and_clipping(video):
         read_frames(video, 5, 5)
 
 
-@pytest.mark.parametrize("max_skip", [0, 4, 300])
-def test_frame_reader_windows_in_any_order(video, max_skip):
+@pytest.mark.parametrize("max_skip,threads", [(0, 1), (4, 1), (300, 1), (4, None)])
+def test_frame_reader_windows_in_any_order(video, max_skip, threads):
     """One open capture serves windows ahead (next frame, a little ahead, far ahead), behind, overlapping and
-    clipped at the end: every window has the frames and timestamps of decoding the whole video in order, with
-    seeks (max_skip 0) or with grabs forward."""
+    clipped at the end: every window has the frames and timestamps of decoding the whole video in order (with
+    the backend's default threads), with seeks (max_skip 0) or with grabs forward, on one decoding thread or
+    the backend's default."""
     pr = probe_video(video)
     _, every = _decode_all(video)
     windows = [(0, 5), (5, 9), (12, 15), (25, 27), (3, 8), (6, 10), (2, 4), (20, 40), (0, 1)]
     for ts_arg in (pr.timestamps_s, None):
-        with FrameReader(video, timestamps_s=ts_arg, max_skip=max_skip) as reader:
+        with FrameReader(video, timestamps_s=ts_arg, max_skip=max_skip, threads=threads) as reader:
             for a, b in windows:
                 ts, fr = reader(a, b)
                 stop = min(b, N)

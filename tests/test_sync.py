@@ -167,7 +167,7 @@ def test_mocap_confidence_falls_with_noise():
 
 # ----------------------------------------------------------------------------------------- video claps
 OFFSET, RATIO = 3.217, 60.0 / 59.94  # the camera's "60 fps" is 59.94 real frames per second
-REFINE_FRAMES = 6 + 3 + 10  # decoded again per clap to refine it: before the edge, around it, still after it
+REFINE_FRAMES = 6 + 3 + 10  # looked at again per clap to refine it: before the edge, around it, still after it
 
 
 @pytest.fixture(scope="module")
@@ -227,11 +227,14 @@ def test_only_windows_are_decoded(many_claps):
     probe = probe_video(path)
     reader = CountingReader(path, probe.timestamps_s)
     window_s, post_s = 0.8, 0.3
-    video_claps(probe.timestamps_s, reader, [float(truth[2])], window_s=window_s, post_s=post_s, chunk=30)
-    expected = (2 * window_s + post_s) * FPS + 2 + REFINE_FRAMES
+    found = video_claps(probe.timestamps_s, reader, [float(truth[2])], window_s=window_s, post_s=post_s, chunk=30)
+    assert found[0] is not None and abs(found[0].time_s - truth[2]) * FPS <= 1.0
+    # the window once, in order: the refinement's frames come from those already decoded
+    expected = (2 * window_s + post_s) * FPS + 2
     assert reader.frames <= expected and reader.frames < probe.n_frames / 10
     starts = [c[0] for c in reader.calls]
     assert min(starts) >= (truth[2] - window_s) * FPS - 2
+    assert all(b == c for (_, b), (c, _) in zip(reader.calls[:-1], reader.calls[1:], strict=True))
     assert all(stop - start <= 30 for start, stop in reader.calls)
 
 

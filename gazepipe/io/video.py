@@ -20,14 +20,29 @@ from gazepipe.io.tracks import VideoProbe
 __all__ = ["FrameReader", "VideoProbe", "probe_video", "read_frames"]
 
 
-def _open(path: Path) -> cv2.VideoCapture:
+_N_THREADS = getattr(cv2, "CAP_PROP_N_THREADS", None)
+
+
+def _open(path: Path, threads: int | None = 1) -> cv2.VideoCapture:
+    """Open a video; ``threads`` decoding threads when the FFmpeg backend takes the setting (None: its default).
+
+    One thread by default: takes already run in parallel, and a small head-camera picture decodes faster on one
+    thread than handed between several (about 1.5x at 128x96).
+    """
     if not path.exists():
         raise InputError(path, "no such file")
     if path.is_dir():
         raise InputError(path, "is a folder, not a video file")
     if path.stat().st_size == 0:
         raise InputError(path, "empty file")
-    cap = cv2.VideoCapture(str(path))
+    cap = None
+    if threads is not None and _N_THREADS is not None:
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, [_N_THREADS, int(threads)])
+        if not cap.isOpened():
+            cap.release()
+            cap = None
+    if cap is None:
+        cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         cap.release()
         raise InputError(path, "OpenCV cannot open this video (unknown container or codec, or a damaged file)")
@@ -118,6 +133,7 @@ class FrameReader:
     timestamps_s : the probe's timestamps, to check seeks.
     max_skip : most frames grabbed to reach a window ahead rather than seeking (a seek decodes from the
         previous key frame anyway).
+    threads : decoding threads (None: the backend's default, usually one per core). The frames are the same.
 
     Use it as a context manager, or call :meth:`close`.
 
@@ -127,13 +143,14 @@ class FrameReader:
     """
 
     def __init__(self, path: str | Path, *, gray: bool = True, scale: float = 1.0,
-                 timestamps_s: np.ndarray | None = None, max_skip: int = 300) -> None:
+                 timestamps_s: np.ndarray | None = None, max_skip: int = 300, threads: int | None = 1) -> None:
         if not scale > 0:
             raise ValueError(f"scale must be positive, got {scale}")
         self.path = Path(path)
         self.gray, self.scale, self.max_skip = gray, float(scale), int(max_skip)
         self.timestamps_s = None if timestamps_s is None else np.asarray(timestamps_s, dtype=np.float64)
-        self._cap: cv2.VideoCapture | None = _open(self.path)
+        self.threads = threads
+        self._cap: cv2.VideoCapture | None = _open(self.path, threads)
         self._next: int | None = 0  # the frame the next grab() returns; None when unknown
         self._seek_ok = True
 
@@ -204,7 +221,7 @@ class FrameReader:
             self._next = None  # wherever the inexact seek left the capture
         if self._next is None or start < self._next:
             self._cap.release()
-            self._cap = _open(self.path)
+            self._cap = _open(self.path, self.threads)
             self._next = 0
         self._grab(start - self._next)
         return None

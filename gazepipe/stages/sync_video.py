@@ -190,6 +190,41 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     return float(ts[j] + root * (ts[j + 1] - ts[j]))
 
 
+class _Kept:
+    """A ``read_window`` that keeps the frames it decodes, one contiguous run of at most ``budget`` bytes, so that
+    frames asked for again (the refinement looks back at frames of the window just searched) come from memory
+    instead of a second decode behind a backward seek. Past the budget it keeps nothing more."""
+
+    def __init__(self, read_window: ReadWindow, budget: int = 64 << 20) -> None:
+        self.read_window, self.budget = read_window, budget
+        self.chunks: list[tuple[int, np.ndarray, np.ndarray]] = []  # (first frame, timestamps, frames)
+        self.nbytes = 0
+
+    def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        kept = self._slice(start, stop)
+        if kept is not None:
+            return kept
+        t, fr = self.read_window(start, stop)
+        fr = np.asarray(fr)
+        end = self.chunks[-1][0] + len(self.chunks[-1][2]) if self.chunks else None
+        if end != start:
+            self.chunks, self.nbytes = [], 0
+        if self.nbytes + fr.nbytes <= self.budget:
+            self.chunks.append((start, np.asarray(t), fr))
+            self.nbytes += fr.nbytes
+        else:
+            self.budget = -1  # over budget: keep nothing from now on
+            self.chunks, self.nbytes = [], 0
+        return t, fr
+
+    def _slice(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self.chunks or start < self.chunks[0][0] or stop > self.chunks[-1][0] + len(self.chunks[-1][2]):
+            return None
+        parts = [(t[max(start - c0, 0): stop - c0], fr[max(start - c0, 0): stop - c0])
+                 for c0, t, fr in self.chunks if c0 < stop and c0 + len(fr) > start]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
 def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, post_s: float, exclude_s: float,
              roi: tuple[int, int, int, int] | None, chunk: int, z_lo: float, z_hi: float,
              min_distinct: float, refine: bool) -> VideoClap | None:
@@ -199,6 +234,7 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
     i0, i1 = max(i0 - 1, 0), min(i1, ts.size)
     if i1 - i0 < 4:
         return None
+    read_window = _Kept(read_window)
     e, n = motion_energy(read_window, i0, i1, roi=roi, chunk=chunk)
     fts = ts[i0: i0 + n]
     tm = 0.5 * (fts[:-1] + fts[1:])  # an energy sample sits between its two frames
