@@ -1,6 +1,6 @@
 """Eyes stage accuracy and speed on synthetic takes with known truth.
 
-Per seed, a 60 s take from the generator of ``tests/test_eyes.py``: a camera below and in front of the face,
+Per seed, a 60 s take from the generator of ``bench/_av.py`` (shared with ``tests/test_eyes.py``): a camera below and in front of the face,
 head turns, a target 1.5–3 m away that either jumps between goals and stays ("jumps") or keeps moving from goal
 to goal ("pursuit", as Klein's pole), eyes 0.2 s behind it, per-eye angular noise, confidence dips, blinks and
 lost tracking with junk gaze, a video clock with an offset and a 400 ppm rate error. Reported: the eye direction
@@ -17,20 +17,14 @@ Usage: ``PYTHONPATH=. python bench/bench_eyes.py [--seeds N]``
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from _av import SAMPLE, make_scene, sample_scene  # bench/_av.py
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from test_eyes import SAMPLE, make_scene, sample_scene  # noqa: E402
-
-from gazepipe.stages.eyes import EyesParams, angle_between, eyes_take  # noqa: E402
-from gazepipe.stages.rotations import from_wxyz  # noqa: E402
+from gazepipe.stages.eyes import EyesParams, angle_between, eyes_take
+from gazepipe.stages.rotations import from_wxyz
 
 
 def run(seed: int, noise_deg: float, centre_error_mm=(0.0, 0.0, 0.0), duration_s: float = 60.0,

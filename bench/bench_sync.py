@@ -13,7 +13,8 @@
    Its clapper arm is 8 px tall and moves up to ~28 px per frame, so frame differences saturate near the
    contact and the video clap comes out late by a fraction of a frame; the table shows by how much.
 
-The synthetic clapper, its video rendering and the counting reader come from ``tests/test_sync.py``.
+The synthetic clapper, its video rendering and the counting reader (one FrameReader per take, as the pipeline
+reads a video) come from ``bench/_av.py``, shared with ``tests/test_sync.py``.
 
 Usage: ``PYTHONPATH=. python bench/bench_sync.py [--takes N] [--seed S]``
 """
@@ -25,10 +26,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _av import FPS, CountingReader, clapper_markers, write_clapper_video  # bench/_av.py
 
 from gazepipe.io.video import probe_video
 from gazepipe.stages.sync import sync_take
-from tests.test_sync import FPS, CountingReader, clapper_markers, write_clapper_video
 
 WORK = Path(__file__).resolve().parent / "_work"
 

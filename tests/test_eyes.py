@@ -1,14 +1,13 @@
 """The eyes stage: gating, slerp fill, cyclopean gaze, camera → head → character axes, camera estimate.
 
-Most tests run on a synthetic take built here from a known truth: a camera rotation, head rotations, a target
-that jumps between goals, eyes that follow it 0.2 s late, OpenFace-like per-eye vectors with angular noise,
-confidence dips, blinks with junk gaze, success == 0 rows with junk gaze, and a video clock with an offset and a
-rate error against the mocap clock.
+Most tests run on a synthetic take built from a known truth (``bench/_av.py``, shared with
+``bench/bench_eyes.py``): a camera rotation, head rotations, a target that jumps between goals, eyes that follow
+it 0.2 s late, OpenFace-like per-eye vectors with angular noise, confidence dips, blinks with junk gaze,
+success == 0 rows with junk gaze, and a video clock with an offset and a rate error against the mocap clock.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -16,6 +15,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from bench._av import (
+    LAG_S,
+    MOCAP_HZ,
+    SAMPLE,
+    VIDEO_HZ,
+    Scene,
+    make_scene,
+    sample_scene,
+    tangent_noise,
+    true_camera_rotation,
+)
 from gazepipe.errors import StageError
 from gazepipe.io.tracks import EyeTrack
 from gazepipe.stages.eyes import (
@@ -33,12 +43,6 @@ from gazepipe.stages.eyes import (
 )
 from gazepipe.stages.rotations import from_wxyz, to_wxyz
 
-MOCAP_HZ = 30000 / 1001
-VIDEO_HZ = 60.0
-LAG_S = 0.2            # the eyes follow the target this late
-IPD_MM = 63.0
-JUNK_DOWN_DEG = 25.0   # OpenFace's gaze during a blink drops well below the truth
-
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
@@ -47,141 +51,6 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _deg(a: np.ndarray) -> np.ndarray:
     return np.rad2deg(a)
 
-
-def true_camera_rotation() -> Rotation:
-    """A camera below and in front of the face, looking back at it, tilted up 18°, turned 7°, rolled 3°."""
-    facing = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))
-    return Rotation.from_euler("yxz", [7.0, 18.0, 3.0], degrees=True) * facing
-
-
-def _tangent_noise(rng: np.random.Generator, v: np.ndarray, rms_deg: float) -> np.ndarray:
-    """Unit vectors v perturbed by isotropic angular noise of the given RMS angle."""
-    s = np.deg2rad(rms_deg) / np.sqrt(2.0)
-    n = rng.normal(0.0, s, v.shape)
-    n -= np.sum(n * v, axis=1, keepdims=True) * v
-    return _unit(v + n)
-
-
-@dataclass
-class Scene:
-    eye: EyeTrack
-    joints: SimpleNamespace
-    mocap_time_s: np.ndarray
-    clock: SimpleNamespace
-    cam: Rotation
-    eye_dir_char: np.ndarray     # truth per mocap frame
-    eye_dir_head: np.ndarray
-    video_eye_cam: np.ndarray    # noise-free cyclopean truth per video sample, camera axes
-    head_missing: np.ndarray     # mocap frames given no head rotation
-
-
-def make_scene(seed: int = 0, *, duration_s: float = 40.0, noise_deg: float = 2.5, offset_s: float = 0.7,
-               ratio: float = 1.0004, centre_error_mm: tuple[float, float, float] = (0.0, 0.0, 0.0),
-               pursuit: bool = False) -> Scene:
-    """A synthetic take with its truth (see the module docstring); every random choice comes from ``seed``.
-
-    The target jumps between goals (an eased 0.35 s move, then still), or with ``pursuit`` keeps moving from
-    goal to goal at constant speed (as Klein's pole does), so the eyes' delay matters on every frame.
-
-    ``centre_error_mm`` (head axes) displaces the point the joints' target direction is measured from, as when
-    the head markers' centroid stands in for the eyes' centre.
-    """
-    rng = np.random.default_rng(seed)
-    cam = true_camera_rotation()
-    # target goals in the character frame, mm; the eyes' centre sways a little around (0, 1600, 0)
-    n_goals = int(duration_s / 1.2) + 2
-    jumps = np.cumsum(rng.uniform(1.2, 2.5, n_goals - 1))
-    yaw = rng.uniform(-50, 50, n_goals)
-    pitch = rng.uniform(-20, 20, n_goals)
-    dist = rng.uniform(1500, 3000, n_goals)
-    goal_dir = Rotation.from_euler("YX", np.stack([yaw, -pitch], 1), degrees=True).apply([0.0, 0.0, 1.0])
-    phase = rng.uniform(0, 2 * np.pi, 4)
-
-    def centre(t: np.ndarray) -> np.ndarray:
-        return np.stack([20 * np.sin(0.3 * t + phase[0]), 1600 + 5 * np.sin(0.5 * t), 10 * np.sin(0.2 * t)], 1)
-
-    def target(t: np.ndarray) -> np.ndarray:
-        k = np.searchsorted(jumps, t)                      # goal index: before jumps[k]
-        prev = np.clip(k - 1, 0, None)
-        since = t - jumps[prev]
-        if pursuit:                                        # constant speed from goal k-1 to goal k
-            leg = jumps[np.clip(k, 0, len(jumps) - 1)] - jumps[prev]
-            u = np.where(k == 0, 1.0, np.clip(since / np.where(leg > 0, leg, 1.0), 0.0, 1.0))
-        else:                                              # eased 0.35 s move from goal k-1 to goal k
-            u = np.clip(since / 0.35, 0.0, 1.0)
-            u = np.where(k == 0, 1.0, u * u * (3 - 2 * u))
-        p0 = goal_dir[prev] * dist[prev, None]
-        p1 = goal_dir[k] * dist[k, None]
-        return (1 - u)[:, None] * p0 + u[:, None] * p1 + np.array([0.0, 1600.0, 0.0])
-
-    def head(t: np.ndarray) -> Rotation:
-        y = 25 * np.sin(2 * np.pi * 0.043 * t + phase[1])
-        p = 8 * np.sin(2 * np.pi * 0.061 * t + phase[2])
-        r = 4 * np.sin(2 * np.pi * 0.05 * t + phase[3])
-        return Rotation.from_euler("YXZ", np.stack([y, -p, r], 1), degrees=True)
-
-    # mocap frames
-    n = int(duration_s * MOCAP_HZ)
-    tm = np.arange(n) / MOCAP_HZ
-    rh = head(tm)
-    c = centre(tm)
-    tdir = _unit(target(tm) - c - rh.apply(np.asarray(centre_error_mm, dtype=np.float64)))
-    eye_char = _unit(target(tm - LAG_S) - c)
-    head_q = to_wxyz(rh)
-    head_missing = np.zeros(n, dtype=bool)
-    head_missing[rng.choice(n, 12, replace=False)] = True
-    head_q[head_missing] = np.nan
-    quat = np.stack([np.tile([1.0, 0, 0, 0], (n, 1)), head_q], axis=1)
-    joints = SimpleNamespace(segments=["pelvis", "head"], quat=quat, target_dir=tdir, rate_hz=MOCAP_HZ)
-
-    # video samples on the video clock, mapped to the mocap clock for the truth
-    m = int((duration_s - offset_s - 1.0) / ratio * VIDEO_HZ)
-    tv = np.arange(m) / VIDEO_HZ
-    t_on_mocap = offset_s + ratio * tv
-    rhv = head(t_on_mocap)
-    cv = centre(t_on_mocap)
-    tgt = target(t_on_mocap - LAG_S)
-    eyes = []
-    for side in (+1.0, -1.0):        # subject's left eye is +X in head axes
-        pos = cv + rhv.apply(np.array([side * IPD_MM / 2, 0.0, 0.0]))
-        d_head = rhv.inv().apply(_unit(tgt - pos))
-        eyes.append(cam.inv().apply(d_head))
-    left, right = eyes
-    video_truth = cam.inv().apply(rhv.inv().apply(_unit(tgt - cv)))
-    left = _tangent_noise(rng, left, noise_deg)
-    right = _tangent_noise(rng, right, noise_deg)
-
-    conf = np.clip(0.93 + 0.02 * rng.normal(size=m), 0.81, 0.99)
-    success = np.ones(m, dtype=bool)
-    blink = np.zeros(m, dtype=bool)
-    # confidence dips, short (fillable) and long
-    for length in (2, 3, 4, 6, 6, 7, 9, 15, 30, 1):
-        s = rng.integers(30, m - 60)
-        conf[s:s + length] = rng.uniform(0.2, 0.79)
-    # blinks: 4–9 samples; the gaze drops by JUNK_DOWN_DEG
-    down = Rotation.from_euler("x", -JUNK_DOWN_DEG, degrees=True)   # camera x: rotating −x tilts the gaze down
-    t_blink = 1.0
-    while True:
-        t_blink += rng.uniform(2.0, 4.0)
-        s = int(t_blink * VIDEO_HZ)
-        if s >= m - 20:
-            break
-        length = int(rng.integers(4, 10))
-        blink[s:s + length] = True
-        left[s:s + length] = down.apply(left[s:s + length])
-        right[s:s + length] = down.apply(right[s:s + length])
-    # lost tracking: junk directions, confidence 0
-    for length in (20, 1, 5):
-        s = rng.integers(30, m - 60)
-        success[s:s + length] = False
-        conf[s:s + length] = 0.0
-        left[s:s + length] = _unit(rng.normal(size=(length, 3)))
-        right[s:s + length] = _unit(rng.normal(size=(length, 3)))
-    eye = EyeTrack(time_s=tv, frame=np.arange(1, m + 1), success=success, confidence=conf, gaze_left=left,
-                   gaze_right=right, blink=blink)
-    return Scene(eye=eye, joints=joints, mocap_time_s=tm, clock=SimpleNamespace(offset_s=offset_s, ratio=ratio),
-                 cam=cam, eye_dir_char=eye_char, eye_dir_head=rh.inv().apply(eye_char), video_eye_cam=video_truth,
-                 head_missing=head_missing)
 
 
 def expected_gate(eye: EyeTrack, min_conf: float = 0.8, max_gap_samples: int = 6) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +218,7 @@ def test_estimate_camera_rotation_direct_with_outliers():
     rng = np.random.default_rng(7)
     cam = true_camera_rotation()
     tdir = _unit(rng.normal(size=(400, 3)) * [0.4, 0.25, 0.1] + [0, 0, 1])
-    gaze = _tangent_noise(rng, cam.inv().apply(tdir), 2.0)
+    gaze = tangent_noise(rng, cam.inv().apply(tdir), 2.0)
     gaze[:60] = _unit(rng.normal(size=(60, 3)))                  # 15 % gross outliers
     est = estimate_camera_rotation(gaze, tdir)
     assert _deg((from_wxyz(est.quat) * cam.inv()).magnitude()) < 0.5
@@ -460,42 +329,6 @@ def test_params_are_honoured():
     assert EyesParams().min_confidence == 0.8 and EyesParams().max_eye_gap_s == 0.1
 
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
-
-
-def sample_scene(take: str, seed: int = 21, noise_deg: float = 2.5) -> tuple[Scene, np.ndarray]:
-    """The sample generator's eyes for ``take`` (pursuit with catch-up saccades, a 45° eye limit, a body that
-    turns) seen through its true camera rotation, at 60 Hz on a shifted video clock, with per-eye noise and
-    blinks with junk gaze; joints from the truth. Returns the scene and the truth's eye_dir_char."""
-    from gazepipe.synth import load_truth
-
-    tr = load_truth(SAMPLE, take)
-    cam = from_wxyz(np.asarray(tr["session"]["camera_to_head_quat"]))
-    tm = tr["time_s"]
-    eye_head = tr["eye_dir_head"].astype(np.float64)
-    clock = SimpleNamespace(offset_s=0.4, ratio=0.9997)
-    tv = np.arange(int((tm[-1] - 0.9) / clock.ratio * VIDEO_HZ)) / VIDEO_HZ
-    pos = np.interp(clock.offset_s + clock.ratio * tv, tm, np.arange(tm.size))
-    i0 = np.minimum(pos.astype(np.int64), tm.size - 2)
-    true_cam = cam.inv().apply(slerp_vectors(eye_head[i0], eye_head[i0 + 1], pos - i0))
-    rng = np.random.default_rng(seed)
-    m = tv.size
-    left, right = _tangent_noise(rng, true_cam, noise_deg), _tangent_noise(rng, true_cam, noise_deg)
-    blink = np.zeros(m, dtype=bool)
-    for s in rng.integers(0, m - 10, 12):
-        blink[s:s + 8] = True
-    left[blink] = right[blink] = _unit(np.array([0.7, 0.7, 0.1]))   # junk: away from the face, far off any truth
-    eye = EyeTrack(time_s=tv, frame=np.arange(1, m + 1), success=np.ones(m, bool), confidence=np.full(m, 0.9),
-                   gaze_left=left, gaze_right=right, blink=blink)
-    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
-                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=tr["scalars"]["rate_hz"],
-                             char_rot=tr["char_quat_lab"])
-    head = from_wxyz(joints.quat[:, -1])
-    truth_char = tr["eye_dir_char"].astype(np.float64)
-    sc = Scene(eye=eye, joints=joints, mocap_time_s=tm, clock=clock, cam=cam, eye_dir_char=truth_char,
-               eye_dir_head=eye_head, video_eye_cam=true_cam, head_missing=np.zeros(tm.size, dtype=bool))
-    assert np.allclose(head.apply(eye_head), truth_char, atol=1e-4)   # the truth's own consistency
-    return sc, truth_char
 
 
 @pytest.mark.skipif(not (SAMPLE / "truth" / "truth.json").exists(), reason="sample session not generated")

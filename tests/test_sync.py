@@ -1,22 +1,19 @@
 """sync stage: clapper claps on both clocks, the clock map and resampling, against synthetic ground truth.
 
-The clapper model (used for the mocap curves and for the videos alike): shut, opened over 0.3 s, held open,
-then closed with constant acceleration over ``closing_s`` so that the arms hit each other at full speed at the
-contact instant, and stay shut. Videos are rendered from the same model on the mocap clock, sampled at
-t_mocap = offset + ratio · t_video for every frame's timestamp, with motion blur over a half-frame exposure
-centred on the timestamp, sensor noise and a slowly moving distractor, and written with OpenCV.
+The clapper model, its mocap markers, its rendered videos and the counting reader come from ``bench/_av.py``
+(shared with ``bench/bench_sync.py``): the arms close with constant acceleration and hit each other at full
+speed at the contact instant; videos are rendered on the mocap clock at t_mocap = offset + ratio · t_video, with
+motion blur, sensor noise and a slowly moving distractor.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import cv2
 import numpy as np
 import pytest
 
+from bench._av import FPS, OPEN_MM, SHUT_MM, CountingReader, clapper_markers, write_clapper_video
 from gazepipe.errors import StageError
-from gazepipe.io.video import probe_video, read_frames
+from gazepipe.io.video import probe_video
 from gazepipe.stages.sync import (
     Clap,
     ClockMap,
@@ -27,88 +24,6 @@ from gazepipe.stages.sync import (
     sync_take,
     video_claps,
 )
-
-OPEN_MM, SHUT_MM = 150.0, 25.0
-W, H, FPS = 160, 120, 60.0
-
-
-# ----------------------------------------------------------------------------------------- generators
-def clapper_distance(t: np.ndarray, contacts: np.ndarray, closing_s: np.ndarray) -> np.ndarray:
-    """Distance (mm) between the clapper markers at mocap times t, for claps at ``contacts``."""
-    d = np.full(t.shape, SHUT_MM)
-    for tc, tcl in zip(contacts, closing_s, strict=True):
-        t_open = tc - tcl - 0.6
-        x = np.clip((t - t_open) / 0.3, 0.0, 1.0)
-        opening = x * x * (3.0 - 2.0 * x)
-        u = np.clip((t - (tc - tcl)) / tcl, 0.0, 1.0)
-        inside = (t >= t_open) & (t < tc)
-        d = np.where(inside, SHUT_MM + (OPEN_MM - SHUT_MM) * opening * (1.0 - u * u), d)
-    return d
-
-
-def clapper_markers(rng: np.random.Generator, n: int, rate: float, contacts, closing_s, noise_mm: float):
-    """Two clapper markers (n, 3) mm with Gaussian noise per coordinate, carried slowly around."""
-    t = np.arange(n) / rate
-    d = clapper_distance(t, np.asarray(contacts), np.asarray(closing_s))
-    centre = np.column_stack([300 * np.sin(0.2 * t), 200 * np.cos(0.15 * t), 1500 + 50 * np.sin(0.3 * t)])
-    axis = np.array([0.2, 0.3, 0.93])
-    axis /= np.linalg.norm(axis)
-    a = centre + rng.normal(0, noise_mm, (n, 3))
-    b = centre + d[:, None] * axis + rng.normal(0, noise_mm, (n, 3))
-    return a, b, np.ones(n, bool), np.ones(n, bool)
-
-
-def write_clapper_video(path: Path, n_frames: int, contacts_mocap, closing_s, *, offset: float, ratio: float,
-                        seed: int = 0, fourcc: str = "mp4v", sensor_noise: float = 1.5,
-                        arm_h: float = 40.0) -> Path:
-    """A 160x120 video labelled 60 fps whose clapper closes at ``contacts_mocap`` (mocap clock) given
-    t_mocap = offset + ratio · t_video, with Gaussian sensor noise of ``sensor_noise`` grey levels; the moving
-    arm is ``arm_h`` pixels tall and travels 50 pixels."""
-    rng = np.random.default_rng(seed)
-    px_per_mm, shut_bottom = 0.4, 85.0
-    ns, exposure = 8, 0.5 / FPS
-    sub = (np.arange(ns) + 0.5) / ns - 0.5
-    yy = np.arange(H, dtype=np.float64)
-    bg = cv2.GaussianBlur(rng.uniform(30, 90, (H, W)), (0, 0), 3.0)
-    bg[86:96, 30:130] = 200.0  # the lower arm
-    noise = rng.normal(0, sensor_noise, (64, H, W)).astype(np.float32)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), FPS, (W, H))
-    assert writer.isOpened()
-    contacts_mocap, closing_s = np.asarray(contacts_mocap), np.asarray(closing_s)
-    for c0 in range(0, n_frames, 256):
-        idx = np.arange(c0, min(c0 + 256, n_frames))
-        tm = offset + ratio * (idx[:, None] / FPS + sub[None, :] * exposure)  # (F, ns) mocap times
-        d = clapper_distance(tm, contacts_mocap, closing_s)
-        bottom = shut_bottom - (d - SHUT_MM) * px_per_mm
-        top = bottom - arm_h
-        cover = np.clip(np.minimum(yy + 1, bottom[..., None]) - np.maximum(yy, top[..., None]), 0, 1).mean(1)
-        img = np.repeat(bg[None].astype(np.float32), idx.size, axis=0)
-        img[:, :, 30:130] += (230.0 - img[:, :, 30:130]) * cover[:, :, None]
-        # a slow distractor (a dark blob drifting across the left edge) and sensor noise (from a pool)
-        cx = 12 + 8 * np.sin(idx / FPS * 0.7)
-        bx = np.exp(-((np.arange(W)[None, :] - cx[:, None]) ** 2) / 50)
-        by = np.exp(-((yy - 60) ** 2) / 50)
-        img -= 40 * by[None, :, None] * bx[:, None, :]
-        img += noise[rng.integers(0, len(noise), idx.size)]
-        for fr in np.clip(np.rint(img), 0, 255).astype(np.uint8):
-            writer.write(cv2.cvtColor(fr, cv2.COLOR_GRAY2BGR))
-    writer.release()
-    return path
-
-
-class CountingReader:
-    """``read_window`` over a file through gazepipe.io.video.read_frames, recording what was asked for."""
-
-    def __init__(self, path: Path, timestamps: np.ndarray) -> None:
-        self.path, self.ts = path, timestamps
-        self.calls: list[tuple[int, int]] = []
-        self.frames = 0
-
-    def __call__(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
-        self.calls.append((start, stop))
-        t, fr = read_frames(self.path, start, stop, timestamps_s=self.ts)
-        self.frames += len(fr)
-        return t, fr
 
 
 # ----------------------------------------------------------------------------------------- mocap claps
