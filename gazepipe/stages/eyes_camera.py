@@ -25,7 +25,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 from scipy.spatial.transform import Rotation
 
 from gazepipe.stages.eyes_gate import _angle, _unit, angle_between
@@ -101,6 +100,8 @@ def _smooth_dirs(v: np.ndarray, k: int) -> np.ndarray:
     window is NaN."""
     if k <= 1:
         return v
+    from scipy.ndimage import uniform_filter1d  # here: planning a run imports this module, not scipy.ndimage
+
     ok = np.isfinite(v).all(axis=-1)
     vz = np.where(ok[..., None], v, 0.0)
     s = uniform_filter1d(vz, k, axis=-2, mode="constant", cval=0.0)
