@@ -13,7 +13,8 @@ The stages' inputs are the tables ``gazepipe run`` writes: when ``--out`` has no
 
 Last, each unit's output is compared with the table the run stored (written by the code of that run): the
 largest change of the clock offset (ms), ratio (ppm) and video clap times (ms), and of the eye directions
-(degrees) and validity, so that a change of results shows next to a change of speed.
+(degrees) and validity, and whether the tables are equal value for value, so that a change of results shows
+next to a change of speed.
 
 Usage: ``PYTHONPATH=. python bench/bench_stage_speed.py [SESSION ...] [--out DIR] [--repeats N] [--takes N]``
 """
@@ -28,6 +29,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pyarrow as pa
 from threadpoolctl import threadpool_limits
 
 from gazepipe.io.openface import read_openface
@@ -140,6 +142,20 @@ def _eyes_take_ms(ctx: UnitContext, repeats: int) -> float:
                  repeats)[0]
 
 
+def _same(new, old) -> bool:
+    """Tables equal value for value (NaN equal to NaN), with the same columns and metadata."""
+    if new.column_names != old.column_names or new.schema.metadata != old.schema.metadata:
+        return False
+    for name in new.column_names:
+        a, b = new.column(name).combine_chunks(), old.column(name).combine_chunks()
+        while pa.types.is_list(a.type) or pa.types.is_fixed_size_list(a.type):
+            a, b = a.flatten(), b.flatten()
+        x, y = a.to_numpy(zero_copy_only=False), b.to_numpy(zero_copy_only=False)
+        if x.shape != y.shape or not np.array_equal(x, y, equal_nan=x.dtype.kind == "f"):
+            return False
+    return True
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("sessions", nargs="*", type=Path, help="session folders (default: every one in klein_x1)")
@@ -154,7 +170,7 @@ def main() -> None:
     sync_st, eyes_st = registry.get("sync"), registry.get("eyes")
     rows = []
     print(f"{'take':<34} {'sync':>7} {'probe':>7} {'search':>7} {'search1':>8} {'eyes':>7} {'eyes_take':>9} | "
-          f"{'d off ms':>8} {'d ratio':>8} {'d clap ms':>9} {'d eye deg':>9} {'d valid':>7}")
+          f"{'d off ms':>8} {'d ratio':>8} {'d clap ms':>9} {'d eye deg':>9} {'d valid':>7} {'same':>4}")
     with threadpool_limits(limits=1):
         for s in sessions:
             session = load_session(s / "session.toml")
@@ -169,20 +185,24 @@ def main() -> None:
                 ms_eyes, res_e = _best(lambda c=ctx_e: eyes_st.run(c), args.repeats)
                 ms_probe, ms_search, ms_search1 = _sync_parts(ctx_s, args.repeats)
                 ms_et = _eyes_take_ms(ctx_e, args.repeats)
-                d_off, d_ratio, d_clap = _sync_change(res_s.tables["sync"][0], ctx_s.load("sync"))
-                d_eye, d_valid = _eyes_change(res_e.tables["eyes"][0], ctx_e.load("eyes"))
+                new_s, new_e = res_s.tables["sync"][0], res_e.tables["eyes"][0]
+                old_s, old_e = ctx_s.load("sync"), ctx_e.load("eyes")
+                d_off, d_ratio, d_clap = _sync_change(new_s, old_s)
+                d_eye, d_valid = _eyes_change(new_e, old_e)
+                same = ("s" if _same(new_s, old_s) else "-") + ("e" if _same(new_e, old_e) else "-")
                 row = (ms_sync, ms_probe, ms_search, ms_search1, ms_eyes, ms_et)
                 rows.append(row)
                 print(f"{s.name + '/' + take.id:<34} {ms_sync:7.1f} {ms_probe:7.1f} {ms_search:7.1f} "
                       f"{ms_search1:8.1f} {ms_eyes:7.1f} {ms_et:9.1f} | {d_off:8.4f} {d_ratio:8.3f} {d_clap:9.4f} "
-                      f"{d_eye:9.5f} {d_valid:7d}", flush=True)
+                      f"{d_eye:9.2e} {d_valid:7d} {same:>4}", flush=True)
     r = np.array(rows)
     widths = (7, 7, 7, 8, 7, 9)
     print(f"{'mean over ' + str(len(rows)) + ' takes (ms)':<34} "
           + " ".join(f"{x:{w}.1f}" for x, w in zip(r.mean(axis=0), widths, strict=True)))
     print(f"{'total (s)':<34} " + " ".join(f"{x / 1e3:{w}.2f}" for x, w in zip(r.sum(axis=0), widths, strict=True)))
     print("(minimum of --repeats runs per take; search: sync_take with one read_frames call per window, "
-          "search1: with one FrameReader per take; d: change against the tables the run stored)")
+          "search1: with one FrameReader per take; d: change against the tables the run stored; same: s and/or e "
+          "when the sync and/or eyes table equals the stored one value for value)")
 
 
 if __name__ == "__main__":

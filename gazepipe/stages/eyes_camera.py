@@ -216,7 +216,9 @@ class _Fits(NamedTuple):
 
 def _robust_fits(gaze: np.ndarray, target: np.ndarray, weights: np.ndarray, cand: np.ndarray,
                  p: EyesParams) -> _Fits:
-    """:func:`estimate_camera_rotation`'s trimmed fit for L target series at once.
+    """:func:`estimate_camera_rotation`'s trimmed fit for L target series at once, to score candidate lags (its
+    Kabsch solution may differ from ``Rotation.align_vectors`` in the last bits; the winner is refitted by
+    :func:`estimate_camera_rotation`).
 
     gaze (N, 3) finite where ``cand``; target (L, N, 3) finite where ``cand`` (L, N); weights (N,). Each stack
     follows the single fit step for step: fit on its kept frames, then up to ``refit_iterations`` times keep the
@@ -282,7 +284,7 @@ def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
     :class:`CameraEstimate` (quaternion w, x, y, z with target ≈ R · gaze; the median residual angle in degrees
     over all candidate frames under the final rotation; the frames in the final fit).
 
-    Method: weighted Wahba / Kabsch (SVD) on the candidates, then ``refit_iterations``
+    Method: ``Rotation.align_vectors`` (weighted Wahba / Kabsch) on the candidates, then ``refit_iterations``
     times: keep the candidates whose error is at most the ``keep_percentile`` percentile and re-fit. This drops
     frames where the eyes had not yet arrived, blinks that slipped through, and OpenFace outliers.
 
@@ -294,14 +296,26 @@ def estimate_camera_rotation(gaze_cam: np.ndarray, target_dir_head: np.ndarray,
     g = np.asarray(gaze_cam, dtype=np.float64)
     tdir = np.asarray(target_dir_head, dtype=np.float64)
     w = np.ones(g.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
-    tw = None if target_dir_world is None else np.asarray(target_dir_world, dtype=np.float64)[None]
-    cand = _candidates(g, tdir[None], w, rate_hz, p, tw)
-    fit = _robust_fits(g, tdir[None], w, cand, p)
+    cand = _candidates(g, tdir, w, rate_hz, p, target_dir_world)
+    n_cand = int(np.count_nonzero(cand))
     need = max(p.min_fixation_frames, 3)
-    if fit.n_cand[0] < need:
-        raise ValueError(f"only {int(fit.n_cand[0])} fixation frame(s) with valid gaze and target; need {need}")
-    return CameraEstimate(quat=to_wxyz(Rotation.from_matrix(fit.rot[0])), residual_deg=float(fit.residual_deg[0]),
-                          n_used=int(fit.n_used[0]))
+    if n_cand < need:
+        raise ValueError(f"only {n_cand} fixation frame(s) with valid gaze and target; need {need}")
+    gi, ti, wi = g[cand], tdir[cand], w[cand]
+    keep = np.ones(n_cand, dtype=bool)
+    rot = Rotation.identity()
+    for it in range(p.refit_iterations + 1):
+        rot, _ = Rotation.align_vectors(ti[keep], gi[keep], weights=wi[keep])
+        if it == p.refit_iterations:
+            break
+        err = angle_between(rot.apply(gi), ti)
+        new = err <= np.percentile(err, p.keep_percentile)
+        if np.count_nonzero(new) < 3 or np.array_equal(new, keep):
+            break
+        keep = new
+    err = angle_between(rot.apply(gi), ti)
+    return CameraEstimate(quat=to_wxyz(rot), residual_deg=float(np.rad2deg(np.median(err))),
+                          n_used=int(np.count_nonzero(keep)))
 
 
 def combine_camera_estimates(quats: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, float]:

@@ -17,7 +17,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from gazepipe.stages.eyes_camera import (
     CameraEstimate,
@@ -25,11 +24,12 @@ from gazepipe.stages.eyes_camera import (
     _robust_fits,
     _row_median,
     camera_to_head,
+    estimate_camera_rotation,
     fixation_frames,
 )
 from gazepipe.stages.eyes_gate import _unit, angle_between
 from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.rotations import from_wxyz
 
 __all__ = ["check_camera_rotation", "estimate_camera_rotation_lagged", "world_targets"]
 
@@ -148,19 +148,20 @@ def estimate_camera_rotation_lagged(gaze_cam: np.ndarray, head_rot_char: np.ndar
     def score(shifts: np.ndarray) -> np.ndarray:
         twl, th = _lagged(w_head, tw, shifts)
         fits = _robust_fits(g, th, w, _candidates(g, th, w, rate_hz, p, twl), p)
-        batches.append(fits)
+        batches.append((shifts, fits))
         return fits.residual_deg
 
     found = _lag_search(score, rate_hz, p.max_lag_s)
     if found is None:
         need = max(p.min_fixation_frames, 3)
-        raise ValueError(f"only {int(batches[0].n_cand[0])} fixation frame(s) with valid gaze and target; "
+        raise ValueError(f"only {int(batches[0][1].n_cand[0])} fixation frame(s) with valid gaze and target; "
                          f"need {need}")
     lag, batch, i = found
-    fits = batches[batch]
-    est = CameraEstimate(quat=to_wxyz(Rotation.from_matrix(fits.rot[i])), residual_deg=float(fits.residual_deg[i]),
-                         n_used=int(fits.n_used[i]))
-    return est, lag
+    shift = batches[batch][0][i]
+    # the winner refitted on its own, exactly as a single fit: the batched scores only choose the lag
+    twl = _delayed(tw, np.array([shift]))[0]
+    th = np.einsum("nji,nj->ni", w_head, twl)
+    return estimate_camera_rotation(g, th, weights, rate_hz=rate_hz, params=p, target_dir_world=twl), lag
 
 
 def check_camera_rotation(gaze_cam: np.ndarray, r_cam: np.ndarray, head_q: np.ndarray, tdir_char: np.ndarray,
