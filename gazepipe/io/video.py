@@ -149,6 +149,8 @@ class FrameReader:
         self.path = Path(path)
         self.gray, self.scale, self.max_skip = gray, float(scale), int(max_skip)
         self.timestamps_s = None if timestamps_s is None else np.asarray(timestamps_s, dtype=np.float64)
+        ts = self.timestamps_s
+        self._tolerance = 0.5 * float(np.median(np.diff(ts))) if ts is not None and ts.size > 1 else 1e-3
         self.threads = threads
         self._cap: cv2.VideoCapture | None = _open(self.path, threads)
         self._next: int | None = 0  # the frame the next grab() returns; None when unknown
@@ -237,8 +239,7 @@ class FrameReader:
         if not self._cap.grab():
             return False
         got = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
-        half = 0.5 * float(np.median(np.diff(ts))) if ts.size > 1 else 1e-3
-        return got if abs(got - ts[start]) <= half else False
+        return got if abs(got - ts[start]) <= self._tolerance else False  # within half a frame
 
 
 def read_frames(path: str | Path, start: int, stop: int, *, gray: bool = True, scale: float = 1.0,
