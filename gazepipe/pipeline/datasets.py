@@ -26,7 +26,7 @@ from gazepipe.io.datasets import StagedDatasetWriter
 from gazepipe.io.parquet import read_schema
 from gazepipe.model import Session, Take
 from gazepipe.pipeline.hashing import sha256_json
-from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader
+from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _alive, _loader
 from gazepipe.pipeline.state import OutLayout, read_json
 from gazepipe.schemas.base import read_meta
 from gazepipe.schemas.datasets import DATASETS
@@ -144,8 +144,17 @@ def _take_inputs(load, layout: OutLayout, session: str, take: str, units: dict[s
     return got
 
 
-def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) -> UnitOutcome:
-    """Build one dataset, write it atomically, record it."""
+class _RunGone(Exception):
+    """The run that submitted a dataset job to a local worker is gone: stop without writing anything."""
+
+
+def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
+                parent_pid: int | None = None) -> UnitOutcome:
+    """Build one dataset, write it atomically, record it.
+
+    ``parent_pid``: the run's process when this runs in a local worker; when that process is gone (its lock
+    with it) the build stops before publishing anything or writing its record.
+    """
     t0 = time.perf_counter()
     load = _loader(layout)
     outcome = UnitOutcome("-", "-", f"build:{plan.name}", "ok", reason=plan.reason)
@@ -154,18 +163,30 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any]) ->
     writer = StagedDatasetWriter(layout.root / "datasets", plan.name,
                                  layout.tmp / f"{plan.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part",
                                  layout.write_bytes)
+
+    def sink(key: tuple[str, str, str], table) -> None:
+        if parent_pid is not None and not _alive(parent_pid):
+            raise _RunGone
+        writer(key, table)
+
     try:
         inputs = [TakeTables(session=s.id, subject=s.subject, take=t, markerset=s.markerset, hashes=dict(units),
                              loader=functools.partial(_take_inputs, load, layout, s.id, t.id, units))
                   for s, t, units in plan.takes]
         with threadpool_limits(limits=1):  # as for take units: results independent of the BLAS thread count
-            built = build_dataset(plan.name, inputs, build_params(params), sink=writer)
+            built = build_dataset(plan.name, inputs, build_params(params), sink=sink)
+        if parent_pid is not None and not _alive(parent_pid):
+            raise _RunGone
         written = writer.commit(built)
         root = layout.root / "datasets" / plan.name
         record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in written},
                       counts=built.info.get("counts"), skipped=built.info.get("skipped", []))
         outcome.warnings = [f"{plan.name}: take {s['take']} left out: {s['reason']}"
                             for s in built.info.get("skipped", [])]
+    except _RunGone:
+        writer.abort()
+        outcome.status, outcome.error = "failed", f"dataset {plan.name}: the run stopped"
+        return outcome
     except GazepipeError as exc:
         outcome.status, outcome.error = "failed", f"dataset {plan.name}: {exc.one_line()}"
         record["retry"] = False

@@ -13,7 +13,7 @@ from gazepipe.errors import GazepipeError
 from gazepipe.model import Session
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
-from gazepipe.pipeline.datasets import plan_datasets, run_dataset
+from gazepipe.pipeline.datasets import DatasetPlan, plan_datasets, run_dataset
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import make_executor
 from gazepipe.pipeline.hashing import HashCache
@@ -114,32 +114,14 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
                 log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
                          session=u.session, take=u.take, stage=u.stage, status="failed")
         n_units = sum(u.run for j in todo for u in j.units)
-        if todo:
-            log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
-                     f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
-            _execute(todo, summary, log, executor, jobs, scheduler, heartbeat_every)
-        built = 0
-        if until in (None, BUILD):
-            for d in plan_datasets(sessions, layout, plans, params or {}, force):
-                if not d.run:
-                    summary.outcomes.append(UnitOutcome("-", "-", f"build:{d.name}", "failed" if d.error else "skipped",
-                                                        reason=d.reason, error=d.error))
-                    if d.error:
-                        log.emit("error", "dataset", f"{d.error} (failed earlier on these same inputs; --force "
-                                 "retries)", stage="build", dataset=d.name, status="failed")
-                    continue
-                o = run_dataset(d, layout, params or {})
-                summary.outcomes.append(o)
-                built += 1
-                if o.status == "ok":
-                    log.emit("info", "dataset", f"dataset {d.name}: built from {len(d.takes)} takes "
-                             f"({o.duration_s:.2f} s)", stage="build", dataset=d.name, status="ok",
-                             duration_s=round(o.duration_s, 4))
-                    for w in o.warnings:
-                        log.emit("warning", "qc_warning", w, stage="build", dataset=d.name)
-                else:
-                    log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
-                             traceback=o.traceback or None)
+        with _Workers(executor, jobs, scheduler, len(todo)) as workers:
+            if todo:
+                log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
+                         f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
+                _execute(todo, summary, log, workers, heartbeat_every)
+            built = 0
+            if until in (None, BUILD):
+                built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers)
         if not todo and not built:
             log.emit("info", "nothing_to_do", f"nothing to do: {len(plans)} units up to date",
                      status="up_to_date", units=len(plans))
@@ -149,46 +131,114 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
     return summary
 
 
-def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, executor: str, jobs: int | None,
-             scheduler: str | None, heartbeat_every: int) -> None:
-    n_workers = min(len(todo), jobs or os.cpu_count() or 1)
-    kind = "serial" if (executor == "process" and n_workers <= 1) else executor
+class _Workers:
+    """The run's executor, started when first needed (a run with nothing to do starts no cluster)."""
+
+    def __init__(self, executor: str, jobs: int | None, scheduler: str | None, n_takes: int) -> None:
+        # the datasets are built on the same workers after the takes
+        self.n = min(n_takes, jobs or os.cpu_count() or 1)
+        self.kind = "serial" if (executor == "process" and self.n <= 1) else executor
+        self.scheduler = scheduler
+        self._ex = None
+
+    @property
+    def local(self) -> bool:
+        """Workers are processes of this machine (they watch this process and stop when it is gone)."""
+        return self.kind == "process"
+
+    @property
+    def executor(self):
+        if self._ex is None:
+            self._ex = make_executor(self.kind, self.n, self.scheduler)
+        return self._ex
+
+    def __enter__(self) -> _Workers:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._ex is not None:
+            self._ex.shutdown(wait=True)
+
+
+def _build_datasets(sessions: Sequence[Session], layout: OutLayout, plans: list[UnitPlan], params: dict[str, Any],
+                    force: bool, summary: RunSummary, log: EventLog, workers: _Workers) -> int:
+    """Build the datasets that are not up to date (on the workers when there are several); the number built."""
+    todo = []
+    for d in plan_datasets(sessions, layout, plans, params, force):
+        if d.run:
+            todo.append(d)
+            continue
+        summary.outcomes.append(UnitOutcome("-", "-", f"build:{d.name}", "failed" if d.error else "skipped",
+                                            reason=d.reason, error=d.error))
+        if d.error:
+            log.emit("error", "dataset", f"{d.error} (failed earlier on these same inputs; --force retries)",
+                     stage="build", dataset=d.name, status="failed")
+    if workers.kind == "serial" or len(todo) <= 1:
+        results = ((d, run_dataset(d, layout, params)) for d in todo)
+    else:
+        parent = os.getpid() if workers.local else None
+        futures = {workers.executor.submit(run_dataset, d, layout, params, parent): d for d in todo}
+        results = ((futures[f], _dataset_result(f, futures[f])) for f in as_completed(futures))
+    for d, o in results:
+        summary.outcomes.append(o)
+        if o.status == "ok":
+            log.emit("info", "dataset", f"dataset {d.name}: built from {len(d.takes)} takes "
+                     f"({o.duration_s:.2f} s)", stage="build", dataset=d.name, status="ok",
+                     duration_s=round(o.duration_s, 4))
+            for w in o.warnings:
+                log.emit("warning", "qc_warning", w, stage="build", dataset=d.name)
+        else:
+            log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
+                     traceback=o.traceback or None)
+    return len(todo)
+
+
+def _dataset_result(fut, d: DatasetPlan) -> UnitOutcome:
+    try:
+        return fut.result()
+    except Exception as exc:  # the worker itself died
+        return UnitOutcome("-", "-", f"build:{d.name}", "failed",
+                           error=f"dataset {d.name}: worker died while building ({type(exc).__name__}: {exc})")
+
+
+def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _Workers,
+             heartbeat_every: int) -> None:
     done = 0
-    if kind == "process":  # local workers stop if this process dies (the lock dies with it)
+    if workers.local:  # local workers stop if this process dies (the lock dies with it)
         for job in todo:
             job.parent_pid = os.getpid()
-    with make_executor(kind, n_workers, scheduler) as ex:
-        if kind == "serial":  # one take at a time, so progress shows as it happens
-            futures = {}
-            pending = ((ex.submit(run_take_job, job), job) for job in todo)
-        else:
-            futures = {ex.submit(run_take_job, job): job for job in todo}
-            pending = ((fut, futures[fut]) for fut in as_completed(futures))
-        for fut, job in pending:
-            try:
-                outcomes = fut.result()
-            except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
-                outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
-                                        error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
-                            for u in job.units if u.run]
-            done += 1
-            summary.outcomes.extend(outcomes)
-            for o in outcomes:
-                if o.status == "ok":
-                    log.emit("info", "unit", f"[{done}/{len(todo)}] {o.session}/{o.take} {o.stage}: ok "
-                             f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
-                             status="ok", duration_s=round(o.duration_s, 4))
-                    for w in o.warnings:
-                        log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
-                elif o.status == "failed":
-                    log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
-                             status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
-                elif o.status == "blocked":
-                    log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
-                             take=o.take, stage=o.stage, status="blocked")
-            log.progress(done, len(todo))
-            if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
-                log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
+    ex = workers.executor
+    if workers.kind == "serial":  # one take at a time, so progress shows as it happens
+        futures = {}
+        pending = ((ex.submit(run_take_job, job), job) for job in todo)
+    else:
+        futures = {ex.submit(run_take_job, job): job for job in todo}
+        pending = ((fut, futures[fut]) for fut in as_completed(futures))
+    for fut, job in pending:
+        try:
+            outcomes = fut.result()
+        except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
+            outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
+                                    error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
+                        for u in job.units if u.run]
+        done += 1
+        summary.outcomes.extend(outcomes)
+        for o in outcomes:
+            if o.status == "ok":
+                log.emit("info", "unit", f"[{done}/{len(todo)}] {o.session}/{o.take} {o.stage}: ok "
+                         f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
+                         status="ok", duration_s=round(o.duration_s, 4))
+                for w in o.warnings:
+                    log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
+            elif o.status == "failed":
+                log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
+                         status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
+            elif o.status == "blocked":
+                log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
+                         take=o.take, stage=o.stage, status="blocked")
+        log.progress(done, len(todo))
+        if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
+            log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
 
 
 def _not_run(u: UnitPlan) -> UnitOutcome:
