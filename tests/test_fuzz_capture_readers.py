@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gazepipe.errors import InputError
-from gazepipe.io.c3d import MetaError, parse_c3d_meta
+from gazepipe.io.c3d_meta import MetaError, parse_c3d_meta
 from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
 
@@ -37,7 +37,7 @@ CHILD_TIMEOUT_S = 60
 _CHILD = r"""
 import json, sys
 from gazepipe.errors import InputError
-from gazepipe.io.c3d import MetaError, parse_c3d_meta
+from gazepipe.io.c3d_meta import MetaError, parse_c3d_meta
 from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
 for p in sys.argv[1:]:
