@@ -1,4 +1,5 @@
-"""Read and validate a session's ``session.toml`` and its ``markerset.toml`` (SPEC §1).
+"""Read and validate a session's ``session.toml`` and its ``markerset.toml`` (SPEC §1; the markerset's own
+rules are in :mod:`gazepipe.io.markerset_toml`).
 
 Every problem is a :class:`~gazepipe.errors.ConfigError` naming the file, the key (TOML dotted form, array
 entries 0-based: ``takes[3].kind``, ``segments.head.markers[1]``) and what is wrong, on one line.
@@ -23,23 +24,27 @@ Choices where SPEC §1 is silent:
 
 from __future__ import annotations
 
-import difflib
-import json
-import math
-import re
-import tomllib
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import ConfigError, InputError
-from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Segment, Session, Take
-from gazepipe.timebase import snap_rate, unit_scale_to_mm
+from gazepipe.io.markerset_toml import _parse_markerset, load_markerset, validate_markerset
+from gazepipe.io.toml_common import (
+    WORD,
+    Collector,
+    key_name,
+    read_toml,
+    resolve_inside,
+    show,
+    suggest,
+    type_name,
+)
+from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Session, Take
+from gazepipe.timebase import snap_rate
 
 __all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels"]
 
-_WORD = re.compile(r"[A-Za-z0-9_-]+")
-_CTRL = re.compile(r"[\x00-\x1f\x7f]")
 UNSPECIFIED_POSE = "unspecified"
 MOCAP_SUFFIXES = (".c3d", ".csv", ".tsv")
 
@@ -59,341 +64,6 @@ _KIND_REQUIRED: dict[str, tuple[str, ...]] = {
     "face": ("tracked", "clean", "rate_hz"),
 }
 _TAKE_KEYS = ("id", "kind", "pose", "split", *dict.fromkeys(k for ks in _KIND_KEYS.values() for k in ks))
-_MARKERSET_TOP = ("schema", "up_axis", "units", "root", "target", "clapper", "head_centre", "eye_offset_mm",
-                  "segments", "lod", "camera")
-
-
-# ----------------------------------------------------------------------------------------------------------- helpers
-
-def _k(name: Any) -> str:
-    """A TOML key as it would be written: bare when possible, else quoted (always one line)."""
-    s = str(name)
-    return s if _WORD.fullmatch(s) else json.dumps(s)
-
-
-def _show(value: Any) -> str:
-    """Short one-line rendering of a value for messages."""
-    r = repr(value)
-    return r if len(r) <= 40 else r[:37] + "..."
-
-
-def _type_name(value: Any) -> str:
-    return {bool: "boolean", int: "integer", float: "number", str: "string", list: "array",
-            dict: "table"}.get(type(value), type(value).__name__)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _suggest(key: str, known: Iterable[str]) -> str:
-    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-class _Collector:
-    """Gathers the problems of one file."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.errors: list[ConfigError] = []
-        self.take: str | None = None  # the take id problems are attributed to, while reading a take
-
-    def add(self, key: str | None, problem: str, take: str | None = None) -> None:
-        self.errors.append(ConfigError(self.path, problem, key=key, take=take or self.take))
-
-    def unknown_keys(self, table: dict, known: Sequence[str], prefix: str, what: str = "key") -> None:
-        for name in table:
-            if name not in known:
-                self.add(f"{prefix}{_k(name)}", f"unknown {what} {name!r}{_suggest(str(name), known)}")
-
-    def table(self, value: Any, key: str) -> dict | None:
-        if isinstance(value, dict):
-            return value
-        self.add(key, f"must be a table, got {_type_name(value)}")
-        return None
-
-    def string(self, table: dict, name: str, key: str, *, required: bool = False) -> str | None:
-        if name not in table:
-            if required:
-                self.add(key, "missing (a string is required)")
-            return None
-        value = table[name]
-        if not isinstance(value, str):
-            self.add(key, f"must be a string, got {_type_name(value)} {_show(value)}")
-            return None
-        return value
-
-    def word(self, table: dict, name: str, key: str, what: str, *, required: bool = False) -> str | None:
-        value = self.string(table, name, key, required=required)
-        if value is not None and not _WORD.fullmatch(value):
-            self.add(key, f"bad {what} {_show(value)}: use only letters, digits, '_' and '-'")
-            return None
-        return value
-
-    def number(self, table: dict, name: str, key: str, *, positive: bool = False) -> float | None:
-        if name not in table:
-            return None
-        value = table[name]
-        if not _is_number(value):
-            self.add(key, f"must be a finite number, got {_type_name(value)} {_show(value)}")
-            return None
-        if positive and value <= 0:
-            self.add(key, f"must be > 0, got {_show(value)}")
-            return None
-        return float(value)
-
-    def marker_name(self, value: Any, key: str) -> str | None:
-        if not isinstance(value, str):
-            self.add(key, f"must be a marker name (string), got {_type_name(value)} {_show(value)}")
-            return None
-        if not value or value != value.strip() or _CTRL.search(value):
-            self.add(key, f"bad marker name {_show(value)}: empty, padded or with control characters")
-            return None
-        return value
-
-    def schema(self, doc: dict) -> None:
-        if "schema" in doc and (type(doc["schema"]) is not int or doc["schema"] != 1):
-            self.add("schema", f"unsupported schema {_show(doc['schema'])} (this version reads schema = 1)")
-
-
-def _read_toml(path: Path, col: _Collector) -> dict | None:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        col.add(None, "file not found")
-        return None
-    except IsADirectoryError:
-        col.add(None, "is a directory, not a TOML file")
-        return None
-    except OSError as exc:
-        col.add(None, f"cannot read: {exc.strerror or exc}")
-        return None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        col.add(None, f"not TOML: not UTF-8 text (byte {exc.start})")
-        return None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        col.add(None, f"TOML syntax error: {exc}")
-        return None
-
-
-def _resolve_inside(root: Path, value: str, key: str, col: _Collector, take: str | None = None,
-                    must_exist: bool = True) -> str | None:
-    """Absolute path of ``value`` (relative to ``root``), or ``None`` after reporting why it is unusable."""
-    if not value or _CTRL.search(value):
-        col.add(key, f"bad path {_show(value)}: empty or with control characters", take)
-        return None
-    try:
-        p = (root / value).resolve()
-        inside = p == root or p.is_relative_to(root)
-        if not inside:
-            col.add(key, f"path {_show(value)} escapes the session folder {root}", take)
-            return None
-        if must_exist and not p.is_file():
-            col.add(key, f"{'not a file' if p.exists() else 'file not found'}: {p}", take)
-            return None
-    except (OSError, RuntimeError, ValueError) as exc:
-        col.add(key, f"bad path {_show(value)}: {exc}", take)
-        return None
-    return str(p)
-
-
-# --------------------------------------------------------------------------------------------------------- markerset
-
-def validate_markerset(path: str | Path) -> list[ConfigError]:
-    """Every problem in a markerset.toml (empty when it is valid)."""
-    return _parse_markerset(Path(path).absolute())[1]
-
-
-def load_markerset(path: str | Path) -> MarkerSet:
-    """Read and validate ``markerset.toml``; raises the first :class:`ConfigError` found."""
-    ms, errors = _parse_markerset(Path(path).absolute())
-    if errors:
-        raise errors[0]
-    assert ms is not None
-    return ms
-
-
-def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
-    col = _Collector(path)
-    doc = _read_toml(path, col)
-    if doc is None:
-        return None, col.errors
-    col.schema(doc)
-    col.unknown_keys(doc, _MARKERSET_TOP, "")
-
-    up_axis = col.string(doc, "up_axis", "up_axis", required=True)
-    if up_axis is not None and up_axis.strip().lower() not in ("y", "z"):
-        col.add("up_axis", f"must be \"y\" or \"z\", got {_show(up_axis)}")
-        up_axis = None
-    units = col.string(doc, "units", "units") or "mm"
-    try:
-        unit_scale_to_mm(units)
-    except KeyError:
-        col.add("units", f"unknown units {_show(units)} (expected mm, cm, m, dm or in)")
-    root = col.marker_name(doc["root"], "root") if "root" in doc else None
-    if "root" not in doc:
-        col.add("root", "missing (the marker at the base of the spine)")
-    target = col.marker_name(doc["target"], "target") if "target" in doc else None
-    head_centre = col.marker_name(doc["head_centre"], "head_centre") if "head_centre" in doc else None
-
-    clapper: tuple[str, ...] = ()
-    if "clapper" in doc:
-        value = doc["clapper"]
-        if not isinstance(value, list) or len(value) != 2:
-            col.add("clapper", f"must be an array of two marker names, got {_show(value)}")
-        else:
-            names = [col.marker_name(v, f"clapper[{i}]") for i, v in enumerate(value)]
-            if None not in names:
-                if names[0] == names[1]:
-                    col.add("clapper", f"the two clapper markers are the same ({names[0]!r})")
-                else:
-                    clapper = tuple(names)  # type: ignore[arg-type]
-
-    eye_offset = _vector(doc, "eye_offset_mm", 3, col)
-    segments = _segments(doc, col)
-    seg_names = [s.name for s in segments]
-
-    # the target and the clapper are not on the subject: they must not share a name with its markers
-    seen: dict[str, str] = {}
-    for s in segments:
-        for m in s.markers:
-            seen.setdefault(m, f"on segment {s.name!r}")
-    if root is not None:
-        seen.setdefault(root, "the root marker")
-    if head_centre is not None:
-        seen.setdefault(head_centre, "the head centre")
-    for name, key in ((target, "target"), *((c, f"clapper[{i}]") for i, c in enumerate(clapper))):
-        if name is not None and name in seen:
-            col.add(key, f"marker {name!r} is also {seen[name]}")
-    if target is not None and target in clapper:
-        col.add("target", f"marker {target!r} is also a clapper marker")
-
-    lod: tuple[str, ...] = ()
-    if "lod" in doc and (table := col.table(doc["lod"], "lod")) is not None:
-        col.unknown_keys(table, ("segments",), "lod.")
-        value = table.get("segments", [])
-        if not isinstance(value, list):
-            col.add("lod.segments", f"must be an array of segment names, got {_type_name(value)}")
-        else:
-            names = []
-            for i, v in enumerate(value):
-                if not isinstance(v, str) or v not in seg_names:
-                    col.add(f"lod.segments[{i}]", f"{_show(v)} is not a segment{_suggest(str(v), seg_names)}")
-                elif v in names:
-                    col.add(f"lod.segments[{i}]", f"segment {v!r} listed twice")
-                else:
-                    names.append(v)
-            lod = tuple(names)
-
-    rotation = None
-    if "camera" in doc and (table := col.table(doc["camera"], "camera")) is not None:
-        col.unknown_keys(table, ("rotation",), "camera.")
-        q = _vector(table, "rotation", 4, col, prefix="camera.")
-        if q is not None:
-            norm = math.sqrt(sum(c * c for c in q))
-            if abs(norm - 1.0) > 1e-3:
-                col.add("camera.rotation", f"not a unit quaternion (w, x, y, z): norm {norm:.6g}")
-            else:
-                rotation = tuple(c / norm for c in q)
-
-    if col.errors:
-        return None, col.errors
-    assert up_axis is not None and root is not None
-    return MarkerSet(path=str(path), up_axis=up_axis.strip().lower(), units=units.strip().lower(), root=root,
-                     target=target, clapper=clapper, segments=tuple(segments), head_centre=head_centre,
-                     eye_offset_mm=eye_offset, lod_segments=lod, camera_rotation=rotation), []  # type: ignore[arg-type]
-
-
-def _vector(table: dict, name: str, n: int, col: _Collector, prefix: str = "") -> tuple[float, ...] | None:
-    if name not in table:
-        return None
-    value = table[name]
-    if not isinstance(value, list) or len(value) != n or not all(_is_number(v) for v in value):
-        col.add(f"{prefix}{name}", f"must be an array of {n} finite numbers, got {_show(value)}")
-        return None
-    return tuple(float(v) for v in value)
-
-
-def _segments(doc: dict, col: _Collector) -> list[Segment]:
-    """The ``[segments.*]`` tables in file order; reports every structural problem."""
-    if "segments" not in doc:
-        col.add("segments", "missing (at least the root segment is required)")
-        return []
-    table = col.table(doc["segments"], "segments")
-    if table is None:
-        return []
-    if not table:
-        col.add("segments", "no segments defined")
-        return []
-    order = list(table)
-    parents: dict[str, Any] = {}
-    segments: list[Segment] = []
-    owner: dict[str, str] = {}
-    bad_parent: set[str] = set()
-    for name in order:
-        key = f"segments.{_k(name)}"
-        seg = col.table(table[name], key)
-        if seg is None:
-            continue
-        col.unknown_keys(seg, ("markers", "parent"), f"{key}.")
-        markers: list[str] = []
-        value = seg.get("markers")
-        if value is None:
-            col.add(f"{key}.markers", "missing (three or more marker names)")
-        elif not isinstance(value, list):
-            col.add(f"{key}.markers", f"must be an array of marker names, got {_type_name(value)}")
-        else:
-            for i, v in enumerate(value):
-                m = col.marker_name(v, f"{key}.markers[{i}]")
-                if m is None:
-                    continue
-                if m in markers:
-                    col.add(f"{key}.markers[{i}]", f"marker {m!r} listed twice")
-                elif m in owner:
-                    col.add(f"{key}.markers[{i}]", f"marker {m!r} is already on segment {owner[m]!r}")
-                else:
-                    markers.append(m)
-                    owner[m] = name
-            if len(value) < 3:
-                col.add(f"{key}.markers", f"a segment needs at least 3 markers, got {len(value)}")
-        parent = seg.get("parent")
-        if parent is not None and not isinstance(parent, str):
-            col.add(f"{key}.parent", f"must be a segment name (string), got {_type_name(parent)}")
-            bad_parent.add(name)
-            parent = None
-        parents[name] = parent
-        segments.append(Segment(name=str(name), markers=tuple(markers), parent=parent))
-
-    roots = [n for n in parents if parents[n] is None and n not in bad_parent]
-    for extra in roots[1:]:
-        col.add(f"segments.{_k(extra)}.parent",
-                f"missing: only one segment may lack a parent (the root is {roots[0]!r})")
-    reported_cycle: set[str] = set()
-    for idx, name in enumerate(order):
-        parent = parents.get(name)
-        if parent is None or name not in parents:
-            continue
-        key = f"segments.{_k(name)}.parent"
-        if parent not in table:
-            col.add(key, f"unknown parent {parent!r}{_suggest(parent, order)}")
-            continue
-        # walk up the chain: a cycle returns to this segment
-        chain, cur = [name], parent
-        while cur is not None and cur not in chain and cur in parents:
-            chain.append(cur)
-            cur = parents[cur]
-        if cur == name:
-            if name not in reported_cycle:
-                col.add(key, "parent cycle: " + " -> ".join([*chain, name]))
-                reported_cycle.update(chain)
-        elif cur is None and order.index(parent) > idx:
-            col.add(key, f"parent {parent!r} comes after {name!r}: list segments from the root to the head")
-    return segments
 
 
 # ----------------------------------------------------------------------------------------------------------- session
@@ -427,8 +97,8 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         root = toml_path.parent.resolve()
     except (OSError, RuntimeError) as exc:
         return None, [ConfigError(toml_path, f"cannot resolve the session folder: {exc}")]
-    col = _Collector(toml_path)
-    doc = _read_toml(toml_path, col)
+    col = Collector(toml_path)
+    doc = read_toml(toml_path, col)
     if doc is None:
         return None, col.errors
     col.schema(doc)
@@ -440,12 +110,12 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         sid = col.word(sess, "id", "session.id", "session id")
     else:
         sid = root.name
-        if not _WORD.fullmatch(sid):
-            col.add("session.id", f"missing, and the folder name {_show(sid)} is not a valid id: set it")
+        if not WORD.fullmatch(sid):
+            col.add("session.id", f"missing, and the folder name {show(sid)} is not a valid id: set it")
             sid = None
     subject = col.word(sess, "subject", "session.subject", "subject", required=True)
     ms_rel = col.string(sess, "markerset", "session.markerset")
-    ms_path = _resolve_inside(root, ms_rel, "session.markerset", col) if ms_rel is not None else None
+    ms_path = resolve_inside(root, ms_rel, "session.markerset", col) if ms_rel is not None else None
 
     defaults = col.table(doc.get("defaults", {}), "defaults") or {}
     col.unknown_keys(defaults, _DEFAULT_KEYS, "defaults.")
@@ -460,7 +130,7 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         col.add("takes", "no [[takes]] in the session")
         raw_takes = []
     elif not isinstance(raw_takes, list):
-        col.add("takes", f"must be an array of tables ([[takes]]), got {_type_name(raw_takes)}")
+        col.add("takes", f"must be an array of tables ([[takes]]), got {type_name(raw_takes)}")
         raw_takes = []
     ids: dict[str, int] = {}
     neutral_at: int | None = None
@@ -497,17 +167,17 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
                    takes=tuple(takes)), []
 
 
-def _split(table: dict, key: str, col: _Collector, take: str | None = None) -> str | None:
+def _split(table: dict, key: str, col: Collector, take: str | None = None) -> str | None:
     value = table.get(key.rsplit(".", 1)[-1])
     if value is None:
         return None
     if value not in SPLITS:
-        col.add(key, f"bad split {_show(value)} (expected {', '.join(SPLITS)})", take)
+        col.add(key, f"bad split {show(value)} (expected {', '.join(SPLITS)})", take)
         return None
     return value
 
 
-def _take(raw: Any, i: int, root: Path, col: _Collector, ids: dict[str, int], d_pose: str | None,
+def _take(raw: Any, i: int, root: Path, col: Collector, ids: dict[str, int], d_pose: str | None,
           d_split: str | None, d_rate: float | None, d_tc: float | None) -> Take | None:
     """One ``[[takes]]`` entry, or ``None`` after reporting its problems."""
     key = f"takes[{i}]"
@@ -523,7 +193,7 @@ def _take(raw: Any, i: int, root: Path, col: _Collector, ids: dict[str, int], d_
         col.take = None
 
 
-def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: _Collector, ids: dict[str, int],
+def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, ids: dict[str, int],
                  n_before: int, d_pose: str | None, d_split: str | None, d_rate: float | None,
                  d_tc: float | None) -> Take | None:
     key = f"takes[{i}]"
@@ -534,12 +204,12 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: _Collector, 
             ids[tid] = i
     kind = col.string(t, "kind", f"{key}.kind", required=True)
     if kind is not None and kind not in TAKE_KINDS:
-        col.add(f"{key}.kind", f"unknown take kind {_show(kind)}{_suggest(kind, TAKE_KINDS)}"
+        col.add(f"{key}.kind", f"unknown take kind {show(kind)}{suggest(kind, TAKE_KINDS)}"
                 f" (expected {', '.join(TAKE_KINDS)})", tid)
         kind = None
     for name in t:
         if name not in _TAKE_KEYS:
-            col.add(f"{key}.{_k(name)}", f"unknown key {name!r}{_suggest(str(name), _TAKE_KEYS)}", tid)
+            col.add(f"{key}.{key_name(name)}", f"unknown key {name!r}{suggest(str(name), _TAKE_KEYS)}", tid)
         elif kind is not None and name not in ("id", "kind", "pose", "split") and name not in _KIND_KEYS[kind]:
             col.add(f"{key}.{name}", f"{name!r} does not apply to {kind} takes", tid)
     if kind is not None:
@@ -556,10 +226,10 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: _Collector, 
     for name in _FILE_KEYS:
         if name in t and (kind is None or name in _KIND_KEYS[kind]):
             value = col.string(t, name, f"{key}.{name}")
-            files[name] = None if value is None else _resolve_inside(root, value, f"{key}.{name}", col, tid)
+            files[name] = None if value is None else resolve_inside(root, value, f"{key}.{name}", col, tid)
     mocap = files.get("mocap")
     if mocap is not None and Path(mocap).suffix.lower() not in MOCAP_SUFFIXES:
-        col.add(f"{key}.mocap", f"unsupported mocap file type {_show(Path(mocap).suffix)} "
+        col.add(f"{key}.mocap", f"unsupported mocap file type {show(Path(mocap).suffix)} "
                 f"(expected {', '.join(MOCAP_SUFFIXES)})", tid)
 
     rate = col.number(t, "rate_hz", f"{key}.rate_hz", positive=True) if "rate_hz" in t else d_rate
@@ -574,9 +244,9 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: _Collector, 
         yaw = col.number(tgt, "yaw_deg", f"{key}.target.yaw_deg")
         pitch = col.number(tgt, "pitch_deg", f"{key}.target.pitch_deg")
         if yaw is not None and abs(yaw) > 180:
-            col.add(f"{key}.target.yaw_deg", f"out of range [-180, 180]: {_show(yaw)}", tid)
+            col.add(f"{key}.target.yaw_deg", f"out of range [-180, 180]: {show(yaw)}", tid)
         if pitch is not None and abs(pitch) > 90:
-            col.add(f"{key}.target.pitch_deg", f"out of range [-90, 90]: {_show(pitch)}", tid)
+            col.add(f"{key}.target.pitch_deg", f"out of range [-90, 90]: {show(pitch)}", tid)
 
     if len(col.errors) > n_before:
         return None

@@ -1,0 +1,156 @@
+"""Shared parts of the TOML readers (:mod:`gazepipe.io.session_toml`, :mod:`gazepipe.io.markerset_toml`):
+collecting one-line problems with their dotted keys, reading a TOML file, resolving a path inside a folder.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import re
+import tomllib
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+from gazepipe.errors import ConfigError
+
+WORD = re.compile(r"[A-Za-z0-9_-]+")
+CTRL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def key_name(name: Any) -> str:
+    """A TOML key as it would be written: bare when possible, else quoted (always one line)."""
+    s = str(name)
+    return s if WORD.fullmatch(s) else json.dumps(s)
+
+
+def show(value: Any) -> str:
+    """Short one-line rendering of a value for messages."""
+    r = repr(value)
+    return r if len(r) <= 40 else r[:37] + "..."
+
+
+def type_name(value: Any) -> str:
+    return {bool: "boolean", int: "integer", float: "number", str: "string", list: "array",
+            dict: "table"}.get(type(value), type(value).__name__)
+
+
+def is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def suggest(key: str, known: Iterable[str]) -> str:
+    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+class Collector:
+    """Gathers the problems of one file."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.errors: list[ConfigError] = []
+        self.take: str | None = None  # the take id problems are attributed to, while reading a take
+
+    def add(self, key: str | None, problem: str, take: str | None = None) -> None:
+        self.errors.append(ConfigError(self.path, problem, key=key, take=take or self.take))
+
+    def unknown_keys(self, table: dict, known: Sequence[str], prefix: str, what: str = "key") -> None:
+        for name in table:
+            if name not in known:
+                self.add(f"{prefix}{key_name(name)}", f"unknown {what} {name!r}{suggest(str(name), known)}")
+
+    def table(self, value: Any, key: str) -> dict | None:
+        if isinstance(value, dict):
+            return value
+        self.add(key, f"must be a table, got {type_name(value)}")
+        return None
+
+    def string(self, table: dict, name: str, key: str, *, required: bool = False) -> str | None:
+        if name not in table:
+            if required:
+                self.add(key, "missing (a string is required)")
+            return None
+        value = table[name]
+        if not isinstance(value, str):
+            self.add(key, f"must be a string, got {type_name(value)} {show(value)}")
+            return None
+        return value
+
+    def word(self, table: dict, name: str, key: str, what: str, *, required: bool = False) -> str | None:
+        value = self.string(table, name, key, required=required)
+        if value is not None and not WORD.fullmatch(value):
+            self.add(key, f"bad {what} {show(value)}: use only letters, digits, '_' and '-'")
+            return None
+        return value
+
+    def number(self, table: dict, name: str, key: str, *, positive: bool = False) -> float | None:
+        if name not in table:
+            return None
+        value = table[name]
+        if not is_number(value):
+            self.add(key, f"must be a finite number, got {type_name(value)} {show(value)}")
+            return None
+        if positive and value <= 0:
+            self.add(key, f"must be > 0, got {show(value)}")
+            return None
+        return float(value)
+
+    def marker_name(self, value: Any, key: str) -> str | None:
+        if not isinstance(value, str):
+            self.add(key, f"must be a marker name (string), got {type_name(value)} {show(value)}")
+            return None
+        if not value or value != value.strip() or CTRL.search(value):
+            self.add(key, f"bad marker name {show(value)}: empty, padded or with control characters")
+            return None
+        return value
+
+    def schema(self, doc: dict) -> None:
+        if "schema" in doc and (type(doc["schema"]) is not int or doc["schema"] != 1):
+            self.add("schema", f"unsupported schema {show(doc['schema'])} (this version reads schema = 1)")
+
+
+def read_toml(path: Path, col: Collector) -> dict | None:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        col.add(None, "file not found")
+        return None
+    except IsADirectoryError:
+        col.add(None, "is a directory, not a TOML file")
+        return None
+    except OSError as exc:
+        col.add(None, f"cannot read: {exc.strerror or exc}")
+        return None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        col.add(None, f"not TOML: not UTF-8 text (byte {exc.start})")
+        return None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        col.add(None, f"TOML syntax error: {exc}")
+        return None
+
+
+def resolve_inside(root: Path, value: str, key: str, col: Collector, take: str | None = None,
+                    must_exist: bool = True) -> str | None:
+    """Absolute path of ``value`` (relative to ``root``), or ``None`` after reporting why it is unusable."""
+    if not value or CTRL.search(value):
+        col.add(key, f"bad path {show(value)}: empty or with control characters", take)
+        return None
+    try:
+        p = (root / value).resolve()
+        inside = p == root or p.is_relative_to(root)
+        if not inside:
+            col.add(key, f"path {show(value)} escapes the session folder {root}", take)
+            return None
+        if must_exist and not p.is_file():
+            col.add(key, f"{'not a file' if p.exists() else 'file not found'}: {p}", take)
+            return None
+    except (OSError, RuntimeError, ValueError) as exc:
+        col.add(key, f"bad path {show(value)}: {exc}", take)
+        return None
+    return str(p)
