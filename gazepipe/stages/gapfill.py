@@ -45,6 +45,7 @@ from gazepipe.stages.gapfill_methods import (
     norm3,
     pca_fill_many,
     rigid_fill,
+    rigid_fill_many,
 )
 
 METHODS = ("rigid", "pca", "pchip", "linear")
@@ -209,12 +210,15 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         per_job = pca_fill_many(model, xyz, jobs, model.ks)
         if wins:
             # number of PCA components: the one that predicts the hidden stretches best
-            scores = []
-            for i in range(len(model.ks)):
-                e_k = [norm3(q[i] - xyz_m[a:b])
-                       for q, (a, b) in zip(per_job[:-1], wins, strict=True) if q[i] is not None]
-                e_k = np.concatenate(e_k) if e_k else np.array([np.nan])
-                scores.append(np.nanmean(e_k) if np.isfinite(e_k).any() else np.inf)
+            # mean error of each count over the hidden samples it could predict (a stretch it cannot predict
+            # at all does not count)
+            e_k = np.concatenate([norm3(np.stack([np.full((b - a, 3), np.nan) if q is None else q for q in qs])
+                                        - xyz_m[a:b]) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)],
+                                 axis=1)
+            fin = np.isfinite(e_k)
+            n_fin = fin.sum(axis=1)
+            scores = np.where(fin, e_k, 0.0).sum(axis=1) / np.maximum(n_fin, 1)
+            scores[n_fin == 0] = np.inf
             best = int(np.argmin(scores))
             model.k = model.ks[best]
             pca_wins = {w: q[best] for w, q in zip(wins, per_job[:-1], strict=True)}
@@ -227,6 +231,8 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
                 return interp_wins[meth].get((a, b))
             return interp_fill(xyz_m, known_m, [(a, b)], meth)[0]
         if meth == "rigid":
+            if partial:
+                return rigid_wins.get((a, b))
             return None if not cluster else rigid_fill(xyz, vis, m, cluster, known_m, a, b, partial)
         if meth == "pca":
             if model is None:
@@ -234,6 +240,8 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
             return pca_wins.get((a, b)) if partial else pca_gap
         raise ValueError(f"unknown gap-filling method {meth!r}")
 
+    rigid_wins = (dict(zip(wins, rigid_fill_many(xyz, valid_v, m, cluster, known, wins, True), strict=True))
+                  if cluster and wins and "rigid" in methods else {})
     interp_wins = {meth: dict(zip(wins, interp_fill(xyz_m, known, wins, meth), strict=True))
                    for meth in ("linear", "pchip") if meth in methods and wins}
     preds: dict[str, np.ndarray] = {}

@@ -107,19 +107,23 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             anchors.append(known_idx[max(0, i0 - _N_ANCHORS):i1 + _N_ANCHORS])
     if kind == "pchip" and anchors:
         knots = np.unique(np.concatenate(anchors))
-        yk = xyz_m[knots]
+        t_all = np.concatenate([np.arange(a, b, dtype=np.float64) for (a, b), good in zip(intervals, ok,
+                                                                                         strict=True) if good])
+        q_all = pchip_eval(knots, xyz_m[knots], t_all)
+    i0 = 0
     for (a, b), good in zip(intervals, ok, strict=True):
         if not good:
             out.append(None)
             continue
-        t = np.arange(a, b, dtype=np.float64)
         if kind == "linear":
+            t = np.arange(a, b, dtype=np.float64)
             i = np.searchsorted(known_idx, a)
             t0, t1 = known_idx[i - 1], known_idx[i]
             w = ((t - t0) / (t1 - t0))[:, None]
             out.append((1.0 - w) * xyz_m[t0] + w * xyz_m[t1])
         else:
-            out.append(pchip_eval(knots, yk, t))
+            out.append(q_all[i0:i0 + b - a])
+            i0 += b - a
     return out
 
 
@@ -150,49 +154,52 @@ def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: i
     return core + (1.0 - w) * res_l + w * res_r
 
 
-def kabsch(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares rigid transforms (Kabsch / Söderkvist–Wedin) from one reference to many frames.
+def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Where point ``p[r]`` fixed to the reference points ``ref[r]`` goes in each frame of ``cur``, by the
+    least-squares rigid transform (Kabsch / Söderkvist–Wedin) of the reference onto that frame's points.
 
-    Parameters
-    ----------
-    ref : (K, 3) reference positions.
-    cur : (n, K, 3) positions in n frames.
-
-    Returns
-    -------
-    R : (n, 3, 3) rotations, ref_centroid : (3,), cur_centroid : (n, 3); ``cur ≈ R @ (ref - c_ref) + c_cur``.
+    ref : (R, K, 3); cur : (n, K, 3); p : (R, 3). Returns (R, n, 3).
     """
-    c_ref = ref.mean(axis=0)
+    c_ref = ref.mean(axis=1)
     c_cur = cur.mean(axis=1)
-    h = np.einsum("ki,nkj->nij", ref - c_ref, cur - c_cur[:, None, :])
+    h = np.einsum("rki,nkj->rnij", ref - c_ref[:, None], cur - c_cur[:, None])
     u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", u, vt)))
+    d = np.sign(np.linalg.det(u @ vt))
     d[d == 0] = 1.0
-    vt = vt.copy()
-    vt[:, 2, :] *= d[:, None]
-    r = np.einsum("nji,nkj->nik", vt, u)  # V · diag(1, 1, d) · Uᵀ
-    return r, c_ref, c_cur
+    vt[..., 2, :] *= d[..., None]
+    rot = np.einsum("rnji,rnkj->rnik", vt, u)  # V · diag(1, 1, d) · Uᵀ
+    return np.einsum("rnij,rj->rni", rot, p - c_ref) + c_cur
 
 
-def min_rotation(ref: np.ndarray, cur: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rigid transforms from two reference points to two points per frame: the smallest rotation taking the
-    reference axis onto each frame's axis (the twist about the axis is not observable and is taken as none).
+def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Where point ``p[r]`` fixed to two reference points ``ref[r]`` goes in each frame of ``cur``, taking the
+    smallest rotation of the reference axis onto each frame's axis (the twist about the axis is not observable
+    and is taken as none).
 
-    ref : (2, 3); cur : (n, 2, 3). Returns ``(R, c_ref, c_cur)`` like :func:`kabsch`.
+    ref : (R, 2, 3) reference points; cur : (n, 2, 3) the two points per frame; p : (R, 3).
+    Returns (R, n, 3): ``rot(p - c_ref) + c_cur`` by Rodrigues' formula, with ``c`` the two points' midpoint.
     """
-    c_ref = ref.mean(axis=0)
+    c_ref = ref.mean(axis=1)
     c_cur = cur.mean(axis=1)
-    u = ref[1] - ref[0]
-    u = u / np.linalg.norm(u)
+    u = ref[:, 1] - ref[:, 0]
+    u = u / norm3(u)[:, None]
     v = cur[:, 1] - cur[:, 0]
     v = v / norm3(v)[:, None]
-    cross = np.cross(u, v)
+    u_, v_ = u[:, None, :], v[None, :, :]
+    cross = np.stack([u_[..., 1] * v_[..., 2] - u_[..., 2] * v_[..., 1],
+                      u_[..., 2] * v_[..., 0] - u_[..., 0] * v_[..., 2],
+                      u_[..., 0] * v_[..., 1] - u_[..., 1] * v_[..., 0]], axis=-1)
     sin = norm3(cross)
-    ang = np.arctan2(sin, v @ u)
-    axis = np.where(sin[:, None] > 1e-12, cross / np.maximum(sin, 1e-12)[:, None], 0.0)
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(axis * ang[:, None]).as_matrix(), c_ref, c_cur
+    turn = sin > 1e-12
+    ang = np.where(turn, np.arctan2(sin, np.einsum("rc,nc->rn", u, v)), 0.0)
+    k = np.where(turn[..., None], cross / np.maximum(sin, 1e-12)[..., None], 0.0)
+    q = (p - c_ref)[:, None, :]
+    c, s = np.cos(ang)[..., None], np.sin(ang)[..., None]
+    kxq = np.stack([k[..., 1] * q[..., 2] - k[..., 2] * q[..., 1],
+                    k[..., 2] * q[..., 0] - k[..., 0] * q[..., 2],
+                    k[..., 0] * q[..., 1] - k[..., 1] * q[..., 0]], axis=-1)
+    kq = (k * q).sum(axis=-1, keepdims=True)
+    return c * q + s * kxq + (1.0 - c) * kq * k + c_cur
 
 
 def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -206,14 +213,6 @@ def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
 
 
-def _non_collinear(pts: np.ndarray, min_spread_mm: float = 5.0) -> bool:
-    """True when ``pts`` (K, 3) span a plane: the second singular value of the centred set is big enough."""
-    if pts.shape[0] < 3:
-        return False
-    s = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
-    return bool(s[1] > max(min_spread_mm, 0.05 * s[0]))
-
-
 def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
                a: int, b: int, partial: bool = False) -> np.ndarray | None:
     """Rigid-cluster fill of marker ``m`` over frames ``[a, b)``.
@@ -225,42 +224,64 @@ def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], k
     (one reference only at the ends of the take), then corrected to meet the known samples at both edges.
     With ``partial``, frames that cannot be predicted are NaN instead of making the result ``None``.
     """
+    return rigid_fill_many(xyz, valid, m, cluster, known_m, [(a, b)], partial)[0]
+
+
+def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
+                    intervals: list[tuple[int, int]], partial: bool = False) -> list[np.ndarray | None]:
+    """:func:`rigid_fill` over each of ``intervals`` (the same ``valid`` and ``known_m``): occlusion patterns
+    and the frames where each set of mates is complete are found once for all of them."""
     n_t = xyz.shape[0]
-    others = np.array([j for j in cluster if j != m], dtype=np.int64)
+    cl = np.asarray(cluster, dtype=np.int64)
+    others = cl[cl != m]
     if others.size < 2:
-        return None
-    lo, hi = max(a - 1, 0), min(b + 1, n_t)
-    vis = valid[lo:hi][:, others]
-    pred = np.full((hi - lo, 3), np.nan)
-    for pattern, rows in row_patterns(vis):
+        return [None] * len(intervals)
+    spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b in intervals]
+    frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
+    which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
+    pred_all = np.full((frames_all.size, 3), np.nan)
+    for pattern, rows_all in row_patterns(valid[frames_all][:, others]):
         if pattern.sum() < 2:
             continue
         sub = others[pattern]
-        frames = rows + lo
-        complete = known_m & valid[:, sub].all(axis=1)
-        cand_before = np.flatnonzero(complete[:a])
-        cand_after = np.flatnonzero(complete[b:]) + b
-        refs = []
-        if cand_before.size:
-            refs.append(int(cand_before[-1]))
-        if cand_after.size:
-            refs.append(int(cand_after[0]))
+        complete = np.flatnonzero(known_m & valid[:, sub].all(axis=1))
         two = sub.size == 2
-        refs = [r for r in refs if (np.linalg.norm(xyz[r, sub[1]] - xyz[r, sub[0]]) > 5.0 if two
-                                    else _non_collinear(xyz[r, sub]))]
-        if not refs:
-            continue
-        cur = xyz[frames][:, sub]
-        preds = []
-        for r in refs:
-            rot, c_ref, c_cur = (min_rotation if two else kabsch)(xyz[r, sub], cur)
-            preds.append(np.einsum("nij,j->ni", rot, xyz[r, m] - c_ref) + c_cur)
-        if len(preds) == 1:
-            pred[rows] = preds[0]
-        else:
-            w = np.clip((frames - refs[0]) / (refs[1] - refs[0]), 0.0, 1.0)[:, None]
-            pred[rows] = (1.0 - w) * preds[0] + w * preds[1]
-    return _edge_correct(pred, xyz[:, m], known_m, a, b, lo, hi, partial)
+        for i in np.unique(which[rows_all]):
+            a, b = intervals[i]
+            rows = rows_all[which[rows_all] == i]
+            frames = frames_all[rows]
+            refs = []
+            j = np.searchsorted(complete, a)  # complete frames before a: complete[:j]
+            if j > 0:
+                refs.append(int(complete[j - 1]))
+            j = np.searchsorted(complete, b)
+            if j < complete.size:
+                refs.append(int(complete[j]))
+            if not refs:
+                continue
+            ref_pts = xyz[refs][:, sub]
+            if two:
+                keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > 5.0
+            else:
+                # the mates must span a plane: second singular value of the centred set big enough
+                sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
+                keep = sv[:, 1] > np.maximum(5.0, 0.05 * sv[:, 0])
+            if not keep.any():
+                continue
+            refs = [r for r, k in zip(refs, keep, strict=True) if k]
+            cur = xyz[frames][:, sub]
+            preds = list((min_rotation_apply if two else kabsch_apply)(ref_pts[keep], cur, xyz[refs, m]))
+            if len(preds) == 1:
+                pred_all[rows] = preds[0]
+            else:
+                w = np.clip((frames - refs[0]) / (refs[1] - refs[0]), 0.0, 1.0)[:, None]
+                pred_all[rows] = (1.0 - w) * preds[0] + w * preds[1]
+    out = []
+    i0 = 0
+    for (a, b), (lo, hi) in zip(intervals, spans, strict=True):
+        out.append(_edge_correct(pred_all[i0:i0 + hi - lo], xyz[:, m], known_m, a, b, lo, hi, partial))
+        i0 += hi - lo
+    return out
 
 
 def _flat(xyz: np.ndarray) -> np.ndarray:
@@ -310,9 +331,12 @@ class PcaModel:
             self.w = self.w / np.where(sd > 1e-6, sd, 1.0)
         z = (x - self.mean) * self.w
         gram = z.T @ z
-        import scipy.linalg
+        from scipy.linalg import lapack
 
-        evals, evecs = scipy.linalg.eigh(gram, driver="evd")
+        # LAPACK's divide-and-conquer solver directly (what scipy.linalg.eigh(driver="evd") calls)
+        evals, evecs, info = lapack.dsyevd(gram, compute_v=1, lower=1)
+        if info:
+            raise np.linalg.LinAlgError(f"eigendecomposition of the PCA Gram matrix failed (LAPACK info {info})")
         order = np.argsort(evals)[::-1]
         # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
         # otherwise their rounding noise would decide the component counts
@@ -323,7 +347,7 @@ class PcaModel:
         total = evals.sum()
         frac = np.cumsum(evals) / total if total > 0 else np.ones_like(evals)
         k_max = max(3 * predictors.size - 1, 1)
-        self.ks = sorted({min(int(np.searchsorted(frac, f) + 1), k_max) for f in var_fracs})
+        self.ks = sorted(set(np.minimum(np.searchsorted(frac, var_fracs) + 1, k_max).tolist()))
         self.k = self.ks[len(self.ks) // 2]
         self.v_all = evecs[:, :max(self.ks)]
 
@@ -361,13 +385,15 @@ class PcaModel:
             if n_good == 0:
                 continue
             rinv = np.linalg.inv(r[:n_good, :n_good])
-            qz = np.einsum("ij,in->jn", q[:, :n_good], z)
-            for i, k in enumerate(ks):
-                if k > n_good:
-                    continue
-                scores = np.einsum("ij,jn->in", rinv[:k, :k], qz[:k])
-                zm = np.einsum("ci,in->nc", self.v_all[3 * n_p:, :k], scores)
-                out[i, rows] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
+            qz = q[:, :n_good].T @ z
+            # target = V_t[:, :k] R_k⁻¹ Q_kᵀ z for every k: the small (3 × k) maps first, padded with zeros
+            use = [i for i, k in enumerate(ks) if k <= n_good]
+            maps = np.zeros((len(use), 3, n_good))
+            for u, i in enumerate(use):
+                k = ks[i]
+                maps[u, :, :k] = self.v_all[3 * n_p:, :k] @ rinv[:k, :k]
+            zm = np.einsum("ucj,jn->unc", maps, qz)
+            out[np.ix_(use, rows)] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
         return out
 
 
@@ -391,7 +417,9 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
         step = max(1, (hi - lo) // 200)  # a few hundred frames are plenty for a mean distance
         both = vw[::step][:, preds] & rows[::step, None]
         xs = _flat(xyz)[lo:hi:step]
-        d = norm3(xs[:, _cols3(preds)].reshape(-1, preds.size, 3) - xs[:, 3 * m:3 * m + 3][:, None])
+        # coordinate by coordinate on (frames, markers) arrays: the same sums as norm3, on contiguous data
+        sq = [np.square(xs[:, 3 * preds + c] - xs[:, 3 * m + c:3 * m + c + 1]) for c in range(3)]
+        d = np.sqrt(sq[0] + sq[1] + sq[2])
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_d = np.where(both, d, 0.0).sum(axis=0) / both.sum(axis=0)
         mean_d[~np.isfinite(mean_d)] = np.inf
@@ -427,9 +455,29 @@ def pca_fill_many(model: PcaModel, xyz: np.ndarray,
     out = []
     i0 = 0
     for (lo, hi), (a, b, _, known_m, partial) in zip(spans, jobs, strict=True):
-        out.append([_edge_correct(p[i0:i0 + hi - lo], xyz[:, model.m], known_m, a, b, lo, hi, partial)
-                    for p in preds])
+        out.append(_edge_correct_all(preds[:, i0:i0 + hi - lo], xyz[:, model.m], known_m, a, b, lo, hi, partial))
         i0 += hi - lo
+    return out
+
+
+def _edge_correct_all(preds: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
+                      lo: int, hi: int, partial: bool) -> list[np.ndarray | None]:
+    """:func:`_edge_correct` of each of ``preds`` (K, hi - lo, 3): the same arithmetic, in one pass for those
+    complete over ``[a - 1, b]`` when both edges are known."""
+    out: list[np.ndarray | None] = [None] * preds.shape[0]
+    fast = np.zeros(preds.shape[0], dtype=bool)
+    if a - 1 >= lo and b < hi and known_m[a - 1] and known_m[b]:
+        fast = ~np.isnan(preds[:, a - 1 - lo:b + 1 - lo]).any(axis=(1, 2))
+    if fast.any():
+        p = preds[fast]
+        w = ((np.arange(a, b) - (a - 1)) / (b - (a - 1)))[:, None]
+        res_l = xyz_m[a - 1] - p[:, a - 1 - lo]
+        res_r = xyz_m[b] - p[:, b - lo]
+        core = p[:, a - lo:b - lo] + (1.0 - w) * res_l[:, None] + w * res_r[:, None]
+        for i, c in zip(np.flatnonzero(fast), core, strict=True):
+            out[i] = c
+    for i in np.flatnonzero(~fast):
+        out[i] = _edge_correct(preds[i], xyz_m, known_m, a, b, lo, hi, partial)
     return out
 
 
