@@ -20,8 +20,11 @@ of speed.
 back with this one: a worker process imports it, and every repeat of every take runs once here and once there,
 alternately, so that both see the same load; the table then gives both minima and their ratio.
 
+Times are wall times, or with ``--cpu`` the process's CPU time (all its threads: less sensitive to other
+processes, and it counts the work of extra decoding threads).
+
 Usage: ``PYTHONPATH=. python bench/bench_stage_speed.py [SESSION ...] [--out DIR] [--repeats N] [--takes N]
-[--baseline DIR]``
+[--baseline DIR] [--cpu]``
 """
 
 from __future__ import annotations
@@ -64,11 +67,14 @@ CORPUS = BENCH / "_work" / "klein_x1"
 COLUMNS = ("sync", "probe", "search", "search1", "eyes", "eyes_take")
 
 
+_CLOCK = time.perf_counter  # time.process_time with --cpu
+
+
 def _ms(fn) -> tuple[float, object]:
-    """Wall time of one call of ``fn`` in ms, and its result."""
-    t0 = time.perf_counter()
+    """Time of one call of ``fn`` in ms (wall, or CPU with --cpu), and its result."""
+    t0 = _CLOCK()
     out = fn()
-    return (time.perf_counter() - t0) * 1e3, out
+    return (_CLOCK() - t0) * 1e3, out
 
 
 def _ensure_tables(sessions: list[Path], out: Path) -> None:
@@ -210,8 +216,9 @@ def _worker(out: Path) -> None:
 
 def _start_baseline(path: Path, out: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(path.resolve()))
-    return subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker", "--out", str(out)],
-                            cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", "--out", str(out)]
+    cmd += ["--cpu"] if _CLOCK is time.process_time else []
+    return subprocess.Popen(cmd, cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
 
 
 def _ask(worker: subprocess.Popen, session: Path, take: str) -> dict[str, float]:
@@ -234,8 +241,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--takes", type=int, default=0, help="time only the first N takes (0: all)")
     ap.add_argument("--baseline", type=Path, help="another checkout to time back to back with this one")
+    ap.add_argument("--cpu", action="store_true",
+                    help="CPU time of this process (all its threads) instead of wall time: less sensitive to other "
+                         "processes on the machine, and it counts the work of extra decoding threads")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    global _CLOCK
+    _CLOCK = time.process_time if args.cpu else time.perf_counter
     out = args.out.resolve()
     if args.worker:
         _worker(out)
