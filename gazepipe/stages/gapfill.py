@@ -251,14 +251,13 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
             preds[meth] = p
     # validation: every applicable method predicts the hidden stretches (frames it cannot predict are NaN);
     # methods are compared on the frames all of them could predict, else each on its own frames
-    errs = {meth: [] for meth in preds}
-    for a, b in wins:
-        for meth in preds:
-            q = run(meth, a, b, known, True)
-            errs[meth].append(np.full(b - a, np.nan) if q is None else norm3(q - xyz_m[a:b]))
     errors: dict[str, float] = {}
     if wins and preds:
-        err = np.array([np.concatenate(errs[meth]) for meth in preds])
+        truth = np.concatenate([xyz_m[a:b] for a, b in wins])
+        hidden = [[run(meth, a, b, known, True) for a, b in wins] for meth in preds]
+        err = norm3(np.stack([np.concatenate([np.full((b - a, 3), np.nan) if q is None else q
+                                              for q, (a, b) in zip(qs, wins, strict=True)]) for qs in hidden])
+                    - truth)
         common = np.isfinite(err).all(axis=0)
         for i, meth in enumerate(preds):
             row = err[i, common] if common.any() else err[i, np.isfinite(err[i])]

@@ -64,11 +64,13 @@ def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             whmean = (w1 / mk[:-1] + w2 / mk[1:]) / (w1 + w2)
             dk[1:-1] = np.where(cond, 0.0, 1.0 / whmean)
-        for i, h0, h1, m0, m1 in ((0, hk[0], hk[1], mk[0], mk[1]), (-1, hk[-1], hk[-2], mk[-1], mk[-2])):
-            d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
-            flat = np.sign(d) != np.sign(m0)
-            big = ~flat & (np.sign(m0) != np.sign(m1)) & (np.abs(d) > 3.0 * np.abs(m0))
-            dk[i] = np.where(flat, 0.0, np.where(big, 3.0 * m0, d))
+        # both ends at once: rows 0 (first knot) and 1 (last knot)
+        h0, h1 = hk[[0, -1]], hk[[1, -2]]
+        m0, m1 = mk[[0, -1]], mk[[1, -2]]
+        d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+        flat = np.sign(d) != np.sign(m0)
+        big = ~flat & (np.sign(m0) != np.sign(m1)) & (np.abs(d) > 3.0 * np.abs(m0))
+        dk[[0, -1]] = np.where(flat, 0.0, np.where(big, 3.0 * m0, d))
     j = np.clip(np.searchsorted(x, t, side="right") - 1, 0, x.size - 2)
     h = hk[j]
     slope = mk[j]
