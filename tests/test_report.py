@@ -190,6 +190,13 @@ def test_unreadable_table_is_an_error_that_fails_the_gate(broken_out: Path, tmp_
     assert checks["table_markers"]["severity"] == "error" and str(table) in checks["table_markers"]["message"]
     assert checks["unfilled"]["severity"] == "error"
     assert take["severity"] == "error" and take["checks"][0]["severity"] == "error"
+    # a table the checks do not decode (only its footer and schema are read) is reported just the same
+    raw = out / "takes" / "session01" / "neutral" / "markers_raw.parquet"
+    raw.write_bytes(raw.read_bytes()[:-100])
+    assert _validate(out, "--no-plots").exit_code == 3
+    take = next(t for t in _report(out)["takes"] if t["take"] == "neutral")
+    checks = {c["id"]: c for c in take["checks"]}
+    assert checks["table_markers_raw"]["severity"] == "error" and str(raw) in checks["table_markers_raw"]["message"]
 
 
 def test_outputs_older_than_their_inputs_are_flagged(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from gazepipe.errors import ConfigError, GazepipeError
-from gazepipe.io.parquet import read_table
+from gazepipe.io.parquet import read_schema, read_table
 from gazepipe.model import Markers, MarkerSet
 from gazepipe.pipeline.state import OutLayout, all_records, read_json
 from gazepipe.report.checks import Thresholds
@@ -144,9 +144,37 @@ def _read(layout: OutLayout, e: TakeEntry, name: str, tables: TakeTables) -> pa.
     return None
 
 
-def load_take_tables(layout: OutLayout, e: TakeEntry) -> TakeTables:
-    """Read the take's markers_raw, markers, eyes and sync tables (whichever exist)."""
+def _probe(layout: OutLayout, e: TakeEntry, name: str, tables: TakeTables) -> None:
+    """Check that a table's footer reads and its schema is the expected one, without decoding its rows."""
+    path = layout.table(e.session, e.take, name)
+    if not path.exists():
+        return
+    try:
+        empty = read_schema(path).empty_table()
+        schema = expected_schema(name, empty)
+        if schema is not None:
+            check_table(empty, schema, path=str(path))
+    except GazepipeError as exc:
+        tables.errors[name] = exc.one_line()
+    except Exception as exc:
+        tables.errors[name] = f"{path}: {type(exc).__name__}: {exc}"
+
+
+def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True) -> TakeTables:
+    """Read the take's markers_raw, markers, eyes and sync tables (whichever exist).
+
+    With ``arrays=False`` (what the checks need) only the cleaned markers are decoded, for their fill codes; the
+    other tables are probed (footer and schema) so an unreadable one is still reported.
+    """
     out = TakeTables()
+    if not arrays:
+        for name in ("markers_raw", "eyes", "sync"):
+            _probe(layout, e, name, out)
+        t = _read(layout, e, "markers", out)
+        if t is not None:
+            m, frames, fill, _ = table_to_markers(t)
+            out.fill, out.fill_labels, out.kept_frames = fill, list(m.labels), frames
+        return out
     t = _read(layout, e, "markers_raw", out)
     if t is not None:
         out.raw = table_to_markers(t)[0]

@@ -286,7 +286,7 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int
     refs: list[dict[str, Any]] = []
     entries = take_entries(layout, sessions)
     for e in entries:
-        tables = load_take_tables(layout, e)
+        tables = load_take_tables(layout, e, arrays=False)
         checks = _sorted_checks(take_checks(e, tables, th, None if states is None else states.get(e.key, [])))
         sev = C.worst([c.severity for c in checks])
         takes_out.append({"session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": sev,
