@@ -25,7 +25,7 @@ from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, jo
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 from gazepipe.stages.clean import CleanParams
-from gazepipe.stages.eyes import EyesParams
+from gazepipe.stages.eyes_params import EyesParams
 from gazepipe.stages.frames import FramesParams
 
 
@@ -266,7 +266,7 @@ def _sync_take(session: Session, take: Take) -> bool:
 
 
 def run_sync(ctx: UnitContext) -> UnitResult:
-    from gazepipe.io.video import probe_video, read_frames
+    from gazepipe.io.video import FrameReader, probe_video
     from gazepipe.stages.sync import sync_take
 
     take, ms = ctx.take, ctx.session.markerset
@@ -276,12 +276,12 @@ def run_sync(ctx: UnitContext) -> UnitResult:
     probe = probe_video(take.video)
     ts = probe.timestamps_s
 
-    def read_window(start: int, stop: int):
-        return read_frames(take.video, start, stop, gray=True, scale=p.video_scale, timestamps_s=ts)
-
-    res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts, read_window,
-                    window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
-                    min_confidence=p.min_confidence, mocap_path=take.mocap, video_path=take.video, take=take.id)
+    # one open capture for all of the take's windows, read forward
+    with FrameReader(take.video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
+        res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts,
+                        read_window, window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
+                        min_confidence=p.min_confidence, mocap_path=take.mocap, video_path=take.video,
+                        take=take.id)
     clock = res.clock
     rows = {
         "clap": np.arange(len(res.mocap_claps), dtype=np.int32),
