@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from gazepipe.errors import ConfigError, GazepipeError
@@ -269,9 +268,10 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
         d.common = pq.read_schema(str(path / COMMON_METADATA))
     except (OSError, pa.ArrowException) as exc:
         d.common_error = f"{path / COMMON_METADATA}: unreadable ({' '.join(str(exc).split())})"
-    train_parts: list[tuple[str, pa.Table]] = []
-    all_parts: list[tuple[str, pa.Table]] = []
     feature_cols = list((d.info.get("features") or {}).keys())
+    # pass 1: identifiers only (split, session) of every take file; pass 2 reads the feature columns of one file
+    # at a time and keeps only the sampled rows, so memory holds one take whatever the dataset's size
+    readable: list[tuple[Path, str, int, np.ndarray]] = []   # file, pose, rows, positions of training rows
     for f in sorted(path.glob("subject=*/pose=*/take=*.parquet")):
         rel = str(f.relative_to(path))
         parts = {p.split("=", 1)[0]: unquote(p.split("=", 1)[1]) for p in (f.parent.parent.name, f.parent.name,
@@ -279,20 +279,17 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
         facts = FileFacts(rel, parts.get("subject", ""), parts.get("pose", ""), parts.get("take", ""))
         try:
             pf = pq.ParquetFile(str(f))
+            names = pf.schema_arrow.names
             facts.schema_hash = schema_hash(pf.schema_arrow)
-            t = pf.read()
-            ident = t.select([c for c in ("split", "session") if c in t.column_names])
-            if "split" in ident.column_names:
-                for s, n in zip(*np.unique(np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str),
-                                           return_counts=True), strict=True):
-                    facts.rows_by_split[str(s)] = int(n)
-            if "session" in ident.column_names and t.num_rows:
+            ident = pf.read(columns=[c for c in ("split", "session") if c in names])
+            split = np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str) \
+                if "split" in ident.column_names else np.zeros(0, str)
+            for sp, n in zip(*np.unique(split, return_counts=True), strict=True):
+                facts.rows_by_split[str(sp)] = int(n)
+            if "session" in ident.column_names and ident.num_rows:
                 facts.session = str(ident.column("session")[0].as_py())
-            if all(c in t.column_names for c in feature_cols):
-                all_parts.append((facts.pose, t.select(feature_cols)))
-                if facts.rows_by_split.get("train"):
-                    train = t.filter(pc.equal(t.column("split"), "train")).select(feature_cols)
-                    train_parts.append((facts.pose, train))
+            if all(c in names for c in feature_cols):
+                readable.append((f, facts.pose, pf.metadata.num_rows, np.flatnonzero(split == "train")))
         except (OSError, pa.ArrowException) as exc:
             facts.error = f"{f}: unreadable ({' '.join(str(exc).split())})"
             d.errors.append(facts.error)
@@ -300,11 +297,63 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
         splits = [s for s, n in facts.rows_by_split.items() if n]
         if len(splits) == 1:
             d.take_splits[f"{facts.subject}/{facts.take}"] = splits[0]
-    if train_parts:
-        d.sample = _sample(train_parts, feature_cols, th)
-    if all_parts:
-        d.all_rows = _sample(all_parts, feature_cols, th)
+    if readable:
+        train_pick = _choose([(pose, len(tr)) for _, pose, _, tr in readable], th)
+        all_pick = _choose([(pose, n) for _, pose, n, _ in readable], th)
+        train_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
+        all_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
+        train_pose: list[np.ndarray] = []
+        all_pose: list[np.ndarray] = []
+        for i, (f, pose, _, train) in enumerate(readable):
+            t_idx, a_idx = train[train_pick.rows[i]], all_pick.rows[i]
+            if not (t_idx.size or a_idx.size):
+                continue
+            try:
+                t = pq.read_table(str(f), columns=feature_cols)
+            except (OSError, pa.ArrowException) as exc:
+                d.errors.append(f"{f}: unreadable ({' '.join(str(exc).split())})")
+                continue
+            for idx, rows, poses in ((t_idx, train_rows, train_pose), (a_idx, all_rows, all_pose)):
+                if idx.size:
+                    sub = t.take(pa.array(idx))
+                    for c in feature_cols:
+                        rows[c].append(_values(sub, c))
+                    poses.append(np.full(idx.size, pose, dtype=object))
+        if train_pick.n_total:
+            d.sample = train_pick.sample(train_rows, train_pose)
+        if all_pick.n_total:
+            d.all_rows = all_pick.sample(all_rows, all_pose)
     return d
+
+
+@dataclass
+class _Pick:
+    """Which rows of each part a seeded sample takes (positions within the part), and the part sizes."""
+
+    rows: list[np.ndarray]
+    n_total: int
+    n_total_by_pose: dict[str, int]
+
+    def sample(self, cols: dict[str, list[np.ndarray]], poses: list[np.ndarray]) -> StatsSample:
+        return StatsSample(columns={c: np.concatenate(v) for c, v in cols.items() if v},
+                           pose=np.concatenate(poses).astype(str) if poses else np.array([], str),
+                           n_total=self.n_total, n_total_by_pose=dict(sorted(self.n_total_by_pose.items())))
+
+
+def _choose(sizes: list[tuple[str, int]], th: Thresholds) -> _Pick:
+    """A seeded sample (without replacement) of at most ``th.stats_sample_rows`` of the rows of parts of these
+    (pose, size), in order: the positions taken in each part."""
+    n_total = sum(n for _, n in sizes)
+    by_pose: dict[str, int] = {}
+    for p, n in sizes:
+        if n:
+            by_pose[p] = by_pose.get(p, 0) + n
+    rng = np.random.default_rng(th.stats_seed)
+    k = min(n_total, int(th.stats_sample_rows))
+    chosen = np.sort(rng.choice(n_total, size=k, replace=False)) if k < n_total else np.arange(n_total)
+    starts = np.cumsum([0] + [n for _, n in sizes])
+    rows = [chosen[(chosen >= starts[i]) & (chosen < starts[i + 1])] - starts[i] for i in range(len(sizes))]
+    return _Pick(rows, n_total, by_pose)
 
 
 def _values(table: pa.Table, column: str) -> np.ndarray:
@@ -313,28 +362,3 @@ def _values(table: pa.Table, column: str) -> np.ndarray:
     if pa.types.is_fixed_size_list(ftype):
         return list_to_numpy(col, ftype.list_size).astype(np.float64)
     return col.to_numpy().astype(np.float64).reshape(-1, 1)
-
-
-def _sample(parts: list[tuple[str, pa.Table]], columns: list[str], th: Thresholds) -> StatsSample:
-    """A seeded sample (without replacement) of at most ``th.stats_sample_rows`` training rows."""
-    n_total = sum(t.num_rows for _, t in parts)
-    by_pose: dict[str, int] = {}
-    for p, t in parts:
-        by_pose[p] = by_pose.get(p, 0) + t.num_rows
-    rng = np.random.default_rng(th.stats_seed)
-    k = min(n_total, int(th.stats_sample_rows))
-    chosen = np.sort(rng.choice(n_total, size=k, replace=False)) if k < n_total else np.arange(n_total)
-    starts = np.cumsum([0] + [t.num_rows for _, t in parts])
-    cols: dict[str, list[np.ndarray]] = {c: [] for c in columns}
-    poses: list[np.ndarray] = []
-    for i, (p, t) in enumerate(parts):
-        idx = chosen[(chosen >= starts[i]) & (chosen < starts[i + 1])] - starts[i]
-        if idx.size == 0:
-            continue
-        sub = t.take(pa.array(idx))
-        for c in columns:
-            cols[c].append(_values(sub, c))
-        poses.append(np.full(idx.size, p, dtype=object))
-    return StatsSample(columns={c: np.concatenate(v) for c, v in cols.items() if v},
-                       pose=np.concatenate(poses).astype(str) if poses else np.array([], str),
-                       n_total=n_total, n_total_by_pose=dict(sorted(by_pose.items())))
