@@ -66,7 +66,7 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
 
 
 #: takes plotted in the report that `gazepipe run` writes (the worst first); report.json covers every take
-REPORT_PLOT_TAKES = 12
+REPORT_PLOT_TAKES = 6
 
 
 def _refresh_report(out: Path, log) -> None:
