@@ -166,10 +166,14 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
 
 # -------------------------------------------------------------------------------------------- execution
 
-def _loader(layout: OutLayout):
+def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None):
+    """A function reading a take's table by name, schema-checked; ``written`` holds tables this process just wrote
+    (by path), returned instead of reading the file back."""
     def load(session_id: str, take_id: str, name: str) -> pa.Table:
         path = layout.table(session_id, take_id, name)
-        table = read_table(path)
+        table = written.get(path) if written else None
+        if table is None:
+            table = read_table(path)
         schema = expected_schema(name, table)
         if schema is not None:
             check_table(table, schema, path=str(path))
@@ -184,6 +188,7 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     layout = OutLayout(Path(job.out))
     outcomes: list[UnitOutcome] = []
     failed: set[str] = set()
+    written: dict[Path, pa.Table] = {}   # this take's tables written so far: later units need not read them back
     for plan in job.units:
         if job.parent_pid is not None and not _alive(job.parent_pid):
             break  # the run died (its lock with it): write nothing more, a new run may already be going
@@ -201,16 +206,17 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
                 continue
             outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "skipped", reason=plan.reason))
             continue
-        out = _run_unit(st, plan, job, layout)
+        out = _run_unit(st, plan, job, layout, written)
         if out.status == "failed":
             failed.add(st.name)
         outcomes.append(out)
     return outcomes
 
 
-def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> UnitOutcome:
+def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
+              written: dict[Path, pa.Table] | None = None) -> UnitOutcome:
     t0 = time.perf_counter()
-    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout),
+    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written),
                       job.params)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
                               "fingerprint": plan.fingerprint, "components": plan.components,
@@ -230,6 +236,8 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout) -> Uni
             with atomic_path(final, layout.tmp) as tmp:
                 write_table(table, tmp, schema)
             sizes[final.name] = final.stat().st_size
+            if written is not None:
+                written[final] = table
         record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings)
         outcome.warnings = list(result.warnings)
     except GazepipeError as exc:
