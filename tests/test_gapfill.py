@@ -318,3 +318,40 @@ def test_pca_body_frame_with_some_predictors_hidden():
     assert np.abs(pred - xyz[200:, 5]).max() < 1e-6
     # the offset matters: the visible predictors' centroid is tens of mm away from all predictors' centroid
     assert np.linalg.norm(shape[3:5].mean(axis=0) - shape[:5].mean(axis=0)) > 20.0
+
+
+def test_pchip_eval_is_scipys_pchip_bit_for_bit():
+    """The PCHIP evaluated on the few knots around a gap is scipy's interpolant exactly (flat stretches, sign
+    changes of the slope, uneven knot spacing, two knots)."""
+    from scipy.interpolate import PchipInterpolator
+
+    from gazepipe.stages.gapfill_methods import pchip_eval
+
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        n = int(rng.integers(2, 12))
+        x = np.sort(rng.choice(100, n, replace=False)).astype(np.float64)
+        y = rng.normal(0, 50, (n, 3)).cumsum(axis=0)
+        if trial % 3 == 0:
+            y[int(rng.integers(n))] = y[0]  # repeated values: zero slopes
+        if trial % 4 == 0:
+            y = np.round(y)  # integer data (ART files): many equal neighbours
+        t = np.setdiff1d(np.arange(x[0], x[-1]), x)
+        if t.size:
+            assert np.array_equal(pchip_eval(x, y, t), PchipInterpolator(x, y, axis=0)(t))
+
+
+def test_two_mate_rotation_moves_a_rigid_point():
+    """With two mates the fill rotates the reference the least way onto each frame's axis: a point on a body
+    turning about an axis perpendicular to the mates' axis, through their midpoint, is recovered exactly."""
+    from gazepipe.stages.gapfill_methods import min_rotation_apply
+
+    ref = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])
+    p = np.array([50.0, 0.0, 80.0])  # above the midpoint, in the plane the rotation keeps
+    ang = np.linspace(-2.5, 2.5, 41)
+    rot = Rotation.from_euler("y", ang[:, None])
+    shift = np.array([10.0, -20.0, 30.0])
+    cur = np.stack([rot.apply(r - ref.mean(axis=0)) for r in ref], axis=1) + ref.mean(axis=0) + shift
+    want = rot.apply(p - ref.mean(axis=0)) + ref.mean(axis=0) + shift
+    got = min_rotation_apply(ref[None], cur, p[None])[0]
+    assert np.abs(got - want).max() < 1e-9
