@@ -22,10 +22,11 @@ def write_table(table: pa.Table, path: str | Path, schema: pa.Schema | None = No
     pq.write_table(table, str(path), **WRITE_OPTIONS)
 
 
-def read_table(path: str | Path, schema: pa.Schema | None = None) -> pa.Table:
-    """Read a Parquet file and check it against ``schema`` (when given)."""
+def read_table(path: str | Path, schema: pa.Schema | None = None, columns: list[str] | None = None) -> pa.Table:
+    """Read a Parquet file (only ``columns`` when given; the schema's metadata is kept) and check it against
+    ``schema`` (when given)."""
     try:
-        table = pq.read_table(str(path))
+        table = pq.read_table(str(path), columns=columns)
     except FileNotFoundError:
         raise InputError(path, "file not found") from None
     except (pa.ArrowException, OSError) as exc:

@@ -24,7 +24,7 @@ from gazepipe.report.checks_datasets import FileFacts, StatsSample, schema_hash
 from gazepipe.schemas import expected_schema
 from gazepipe.schemas.base import check_table
 from gazepipe.schemas.joints import list_to_numpy
-from gazepipe.schemas.markers import table_to_markers
+from gazepipe.schemas.markers import check_markers_meta, fill_codes, table_to_markers
 from gazepipe.stages.clean import mean_speed
 
 
@@ -167,12 +167,18 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True) ->
     """
     out = TakeTables()
     if not arrays:
-        for name in ("markers_raw", "eyes", "sync"):
+        for name in ("markers_raw", "eyes", "sync", "markers"):
             _probe(layout, e, name, out)
-        t = _read(layout, e, "markers", out)
-        if t is not None:
-            m, frames, fill, _ = table_to_markers(t)
-            out.fill, out.fill_labels, out.kept_frames = fill, list(m.labels), frames
+        path = layout.table(e.session, e.take, "markers")
+        if path.exists() and "markers" not in out.errors:
+            try:  # the fill codes, with the rows' layout checked against the metadata; not the coordinates
+                t = read_table(path, columns=["marker", "frame", "fill"])
+                check_markers_meta(t, str(path))
+                out.fill_labels, out.kept_frames, out.fill = fill_codes(t)
+            except GazepipeError as exc:
+                out.errors["markers"] = exc.one_line()
+            except Exception as exc:
+                out.errors["markers"] = f"{path}: {type(exc).__name__}: {exc}"
         return out
     t = _read(layout, e, "markers_raw", out)
     if t is not None:

@@ -105,6 +105,17 @@ def check_markers_meta(table: pa.Table, path: str | None = None) -> None:
         raise SchemaError(path, "markers do not share the same frames")
 
 
+def fill_codes(table: pa.Table) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """``(labels, frames, fill)`` of a cleaned markers table of which only ``frame`` and ``fill`` need be read:
+    fill is (T, M) int8 codes (:data:`gazepipe.model.FILL_CODES`)."""
+    labels = list(read_meta(table)["labels"])
+    m = len(labels)
+    t = table.num_rows // m if m else 0
+    frames = table.column("frame").to_numpy()[:t].astype(np.int64)
+    fill = table.column("fill").combine_chunks().indices.to_numpy(zero_copy_only=False)
+    return labels, frames, fill.astype(np.int8).reshape(m, t).T
+
+
 def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray | None, dict[str, Any]]:
     """Inverse of :func:`markers_to_table`: ``(markers, frames, fill_code or None, meta)``."""
     meta = read_meta(table)
