@@ -309,3 +309,20 @@ def sample_scene(take: str, seed: int = 21, noise_deg: float = 2.5) -> tuple[Sce
                eye_dir_head=eye_head, video_eye_cam=true_cam, head_missing=np.zeros(tm.size, dtype=bool))
     assert np.allclose(head.apply(eye_head), truth_char, atol=1e-4)   # the truth's own consistency
     return sc, truth_char
+
+
+def eyes_on_truth(session: Path, take: str):
+    """The eyes stage on a generated session's own OpenFace CSV of ``take``, with the truth's joints and clock map
+    as its inputs: ``(truth, eye track, EyesResult)``."""
+    from gazepipe.io.openface import read_openface
+    from gazepipe.stages.eyes import eyes_take
+    from gazepipe.synth import load_truth
+
+    tr = load_truth(session, take)
+    sc = tr["scalars"]
+    eye = read_openface(session / sc["eyes"]["path"])
+    clock = SimpleNamespace(offset_s=sc["video"]["offset_s"], ratio=sc["video"]["ratio"])
+    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
+                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=sc["rate_hz"],
+                             char_rot=tr["char_quat_lab"])
+    return tr, eye, eyes_take(eye, joints, tr["time_s"], clock)

@@ -18,10 +18,9 @@ from __future__ import annotations
 
 import argparse
 import time
-from types import SimpleNamespace
 
 import numpy as np
-from _av import SAMPLE, make_scene, sample_scene  # bench/_av.py
+from _av import SAMPLE, eyes_on_truth, make_scene, sample_scene  # bench/_av.py
 
 from gazepipe.stages.eyes import EyesParams, angle_between, eyes_take
 from gazepipe.stages.rotations import from_wxyz
@@ -43,17 +42,7 @@ def run(seed: int, noise_deg: float, centre_error_mm=(0.0, 0.0, 0.0), duration_s
 
 
 def generated_openface(take: str) -> str:
-    from gazepipe.io.openface import read_openface
-    from gazepipe.synth import load_truth
-
-    tr = load_truth(SAMPLE, take)
-    sc = tr["scalars"]
-    eye = read_openface(SAMPLE / sc["eyes"]["path"])
-    clock = SimpleNamespace(offset_s=sc["video"]["offset_s"], ratio=sc["video"]["ratio"])
-    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
-                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=sc["rate_hz"],
-                             char_rot=tr["char_quat_lab"])
-    res = eyes_take(eye, joints, tr["time_s"], clock)
+    tr, _, res = eyes_on_truth(SAMPLE, take)
     v = res.valid
     err = np.rad2deg(angle_between(res.eye_dir_char[v], tr["eye_dir_char"][v].astype(np.float64)))
     cam = from_wxyz(np.asarray(tr["session"]["camera_to_head_quat"]))

@@ -21,6 +21,7 @@ from bench._av import (
     SAMPLE,
     VIDEO_HZ,
     Scene,
+    eyes_on_truth,
     make_scene,
     sample_scene,
     tangent_noise,
@@ -384,17 +385,8 @@ def check_generated_openface(session: Path, take: str) -> None:
     """The generator's own OpenFace CSV of ``take`` through read_openface and the eyes stage, against its truth:
     the gate keeps exactly the rows the generator marks valid, no gated-out row reaches a valid frame, the
     camera rotation is found within 1°, the eye direction within 2° median."""
-    from gazepipe.io.openface import read_openface
-    from gazepipe.synth import load_truth
-
-    tr = load_truth(session, take)
+    tr, eye, res = eyes_on_truth(session, take)
     sc = tr["scalars"]
-    eye = read_openface(session / sc["eyes"]["path"])
-    clock = SimpleNamespace(offset_s=sc["video"]["offset_s"], ratio=sc["video"]["ratio"])
-    joints = SimpleNamespace(segments=list(tr["segments"]), quat=tr["seg_quat_char"].astype(np.float64),
-                             target_dir=tr["target_dir_char"].astype(np.float64), rate_hz=sc["rate_hz"],
-                             char_rot=tr["char_quat_lab"])
-    res = eyes_take(eye, joints, tr["time_s"], clock)
     g = res.gated
     truth_valid = np.asarray(tr["eyes_valid"], dtype=bool)
     assert np.array_equal(g.valid & ~g.filled, truth_valid)
@@ -402,7 +394,7 @@ def check_generated_openface(session: Path, take: str) -> None:
                                                 confidence=np.ones(truth_valid.size),
                                                 blink=np.zeros(truth_valid.size, bool)))
     assert np.array_equal(g.filled, filled)
-    tv = clock.offset_s + clock.ratio * eye.time_s
+    tv = sc["video"]["offset_s"] + sc["video"]["ratio"] * eye.time_s
     i0 = np.searchsorted(tv, tr["time_s"][res.valid], side="right") - 1
     assert np.all((raw | filled)[i0] & (raw | filled)[i0 + 1])
     assert res.qc["frames_without_coverage"] == sc["video"]["mocap_frames_without_video"]
