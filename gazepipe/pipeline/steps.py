@@ -177,7 +177,6 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
     ms = ctx.session.markerset
     markers, frames, _ = _load_markers(ctx, "markers")
-    markers = dataclasses.replace(markers, first_frame=markers.first_frame)
     neutral_take = _neutral_take(ctx.session)
     if neutral_take is not None:
         # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
