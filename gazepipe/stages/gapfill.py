@@ -9,7 +9,9 @@ Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applic
 * ``rigid``: least-squares rigid fit of the marker's cluster (segment) mates measured in each frame to the nearest
   complete frames before and after the gap, blended across it; a marker without a cluster (or whose mates are
   hidden with it) uses the markers measured through the gap whose distance to it is steadiest around it;
-* ``pca``: reconstruction from all markers' intercorrelation (Gløersen & Federolf 2016, PLoS ONE 11:e0152616);
+* ``pca``: reconstruction from all markers' intercorrelation (Gløersen & Federolf 2016, PLoS ONE 11:e0152616),
+  in the lab frame and in the moving frame of three markers at a steady distance from the gap's marker; the best
+  few (model, component count) pairs on the hidden stretches below are averaged (:func:`_pca_predictions`);
 * ``pchip`` and ``linear`` interpolation in time.
 
 Rigid and PCA predictions are corrected to meet the measured samples at both gap edges. To choose, measured
@@ -17,10 +19,10 @@ samples of the same marker next to the gap (two stretches as long as the gap on 
 are hidden and every method predicts them (its validation error: the mean error there). The hidden stretches are
 given the gap's own occlusion pattern (markers missing during the gap are treated as missing there too), so
 rigid and PCA are judged with the donors they will really have; methods are compared on the frames all of them
-can predict. The same stretches pick the number of PCA components. Interpolation is also judged on the gap's
+can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the gap's
 own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
 larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
-do not show). The gap is filled with a convex blend of the best methods, weighted by inverse squared
+do not show); PCA is then checked the same way on the nearest such marker. The gap is filled with a convex blend of the best methods, weighted by inverse squared
 validation error (:func:`blend_weights`), and coded by the method with the largest weight. When no sample can
 be hidden the first applicable method in ``methods`` is used.
 
@@ -37,6 +39,7 @@ import numpy as np
 
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.gapfill_methods import (
+    PcaModel,
     donor_interp_errors,
     donor_pca_error,
     find_steady_mates,
@@ -59,12 +62,16 @@ _INTERP = ("pchip", "linear")
 #: the donors' interpolation error replaces the validation error when more than this many times larger (the
 #: larger of two noisy estimates of the same error would be biased up)
 _INTERP_DONOR_FACTOR = 1.5
-#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger
-_PCA_DONOR_FACTOR = 2.0
+#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger (an order
+#: of magnitude: the model has not seen the gap's poses; at 2 or 5 the donor's noisy error misled the choice on
+#: the real walking file's long gaps, 5.07 -> 5.72 / 5.18 mm)
+_PCA_DONOR_FACTOR = 10.0
 #: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
 _MATES_WINDOW_S = 2.0
 #: at most this many methods are blended per gap
 _BLEND_TOP = 3
+#: at most this many PCA (model, component count) candidates are averaged per gap
+_PCA_BLEND_TOP = 5
 #: methods with a validation error more than this many times the best one's are left out of the blend
 _BLEND_MAX_RATIO = 3.0
 #: validation errors below this (mm) are treated as equal: below the noise of any capture
@@ -196,34 +203,11 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         known[a:b] = False
         valid_v[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
     xyz_m = xyz[:, m]
-    model = None
-    if "pca" in methods:
-        win = None
-        if pca_window is not None:
-            win = (max(0, s - pca_window), min(n_t, e + pca_window))
-        model = fit_pca(xyz, valid, m, known, s, e, window=win)
-
+    model = pca_gap = None
     pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
-    pca_gap: np.ndarray | None = None
-    if model is not None:
-        # the hidden stretches and the gap in one prediction (they share the gap's occlusion patterns)
-        jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
-        per_job = pca_fill_many(model, xyz, jobs, model.ks)
-        if wins:
-            # number of PCA components: the one that predicts the hidden stretches best
-            # mean error of each count over the hidden samples it could predict (a stretch it cannot predict
-            # at all does not count)
-            e_k = np.concatenate([norm3(np.stack([np.full((b - a, 3), np.nan) if q is None else q for q in qs])
-                                        - xyz_m[a:b]) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)],
-                                 axis=1)
-            fin = np.isfinite(e_k)
-            n_fin = fin.sum(axis=1)
-            scores = np.where(fin, e_k, 0.0).sum(axis=1) / np.maximum(n_fin, 1)
-            scores[n_fin == 0] = np.inf
-            best = int(np.argmin(scores))
-            model.k = model.ks[best]
-            pca_wins = {w: q[best] for w, q in zip(wins, per_job[:-1], strict=True)}
-        pca_gap = per_job[-1][model.ks.index(model.k)]
+    if "pca" in methods:
+        win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
+        model, pca_gap, pca_wins = _pca_predictions(xyz, valid, valid_v, known, m, s, e, wins, win)
 
     def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
         vis = valid_v if partial else valid
@@ -270,17 +254,92 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
         # The nearest markers measured through the gap, interpolated over the same frames, show it.
         donor_err = donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP])
-        # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
-        # hidden through them): the same model, built for the nearest marker measured through the gap with
-        # that marker hidden there, predicts it
-        if "pca" in preds and model is not None:
-            donor_err["pca"] = donor_pca_error(xyz, valid, m, s, e, model, pca_window, cache)
+        novel = False
         for meth, err_d in donor_err.items():
             # another marker's error is a rough guess of this one's: believed only when clearly larger
-            factor = _PCA_DONOR_FACTOR if meth == "pca" else _INTERP_DONOR_FACTOR
-            if np.isfinite(err_d) and not err_d <= factor * errors.get(meth, np.nan):
+            if np.isfinite(err_d) and not err_d <= _INTERP_DONOR_FACTOR * errors.get(meth, np.nan):
                 errors[meth] = err_d
+                novel = True
+        # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
+        # hidden through them). Where the donors show motion that the stretches do not, the same kind of model,
+        # built for the nearest marker measured through the gap with that marker hidden there, predicts it.
+        # (Checked only then: on continuous motion the donor's error is a noisy guess that misleads the choice.)
+        if novel and "pca" in preds and model is not None:
+            err_d = donor_pca_error(xyz, valid, m, s, e, model, pca_window, cache)
+            if np.isfinite(err_d) and not err_d <= _PCA_DONOR_FACTOR * errors.get("pca", np.nan):
+                errors["pca"] = err_d
     return preds, errors
+
+
+
+def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, known: np.ndarray, m: int, s: int,
+                     e: int, wins: list[tuple[int, int]], win: tuple[int, int] | None
+                     ) -> tuple[PcaModel | None, np.ndarray | None, dict[tuple[int, int], np.ndarray | None]]:
+    """PCA's prediction of gap ``[s, e)`` of marker ``m`` and of the hidden stretches ``wins``.
+
+    Two models are fitted on the frames in ``win`` (``known``: the marker's samples outside the gap and the
+    stretches): in the lab frame, and in the moving frame of three predictors that stay at a steady distance
+    from the marker (:class:`PcaModel` ``local_frame``; rotation of the body part removed, so that the
+    components describe its deformation). Every (model, component count) pair predicts the stretches; the gap is
+    filled with the ``_PCA_BLEND_TOP`` pairs that predicted them best, weighted by inverse squared error (model
+    averaging: measured 5–10 % below the single best pair on both real files, every gap length). Returns
+    ``(model, gap, stretches)``: the best pair's model (its ``k`` set), the (e - s, 3) prediction or None, and
+    each stretch's blended prediction (NaN where it cannot be predicted).
+    """
+    models = []
+    for local in (False, True):
+        mod = fit_pca(xyz, valid, m, known, s, e, window=win, local_frame=local)
+        if mod is not None and (not local or mod.frame is not None):
+            models.append(mod)
+    if not models:
+        return None, None, {}
+    # the hidden stretches and the gap in one prediction per model (they share the gap's occlusion patterns)
+    jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid[:, m], False)]
+    fills = [pca_fill_many(mod, xyz, jobs, mod.ks) for mod in models]
+    cands = [(mod, k) for mod in models for k in mod.ks]
+    # per_job[j][c]: candidate c's prediction of job j (None when it cannot predict any of it)
+    per_job = [[q for f in fills for q in f[j]] for j in range(len(jobs))]
+    xyz_m = xyz[:, m]
+    if wins:
+        # each candidate's mean error over the hidden samples it could predict
+        e_c = np.concatenate([norm3(np.stack([np.full((b - a, 3), np.nan) if q is None else q for q in qs])
+                                    - xyz_m[a:b]) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)], axis=1)
+        fin = np.isfinite(e_c)
+        n_fin = fin.sum(axis=1)
+        scores = np.where(fin, e_c, 0.0).sum(axis=1) / np.maximum(n_fin, 1)
+        scores[n_fin == 0] = np.inf
+    else:
+        scores = np.full(len(cands), np.inf)
+        scores[len(models[0].ks) // 2] = 1.0  # no validation: the middle component count of the lab-frame model
+    scores[[q is None for q in per_job[-1]]] = np.inf
+    if not np.isfinite(scores).any():
+        return None, None, {}
+    idx, w = inverse_square_weights(scores, _PCA_BLEND_TOP)
+    model, model.k = cands[idx[0]]
+
+    def mix(preds: list[np.ndarray | None], n: int) -> np.ndarray:
+        # weights renormalised per frame over the candidates that predict it
+        q = np.stack([np.full((n, 3), np.nan) if preds[i] is None else preds[i] for i in idx])
+        ok = np.isfinite(q).all(axis=2)
+        wf = np.where(ok, w[:, None], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return (np.where(ok[..., None], q, 0.0) * wf[..., None]).sum(axis=0) / wf.sum(axis=0)[:, None]
+
+    stretches = {(a, b): mix(qs, b - a) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)}
+    return model, mix(per_job[-1], e - s), stretches
+
+
+def inverse_square_weights(errors: np.ndarray, top: int, max_ratio: float = _BLEND_MAX_RATIO
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """The ``top`` entries of ``errors`` (mm) with the lowest finite values, among those within ``max_ratio`` of
+    the lowest, and their convex weights ∝ 1 / error² (an error below ``_ERR_FLOOR_MM`` counts as that floor):
+    ``(indices best first, weights)``. Ties keep the order of ``errors``."""
+    order = np.argsort(errors, kind="stable")
+    order = order[np.isfinite(errors[order])][:top]
+    e = np.maximum(errors[order], _ERR_FLOOR_MM)
+    order, e = order[e <= max_ratio * e[0]], e[e <= max_ratio * e[0]]
+    inv = 1.0 / e ** 2
+    return order, inv / inv.sum()
 
 
 def choose(errors: dict[str, float], methods: tuple[str, ...]) -> str | None:
@@ -306,15 +365,11 @@ def blend_weights(errors: dict[str, float], methods: tuple[str, ...], *, top: in
     best = choose(errors, methods)
     if best is None:
         return {}
-    scored = sorted((m for m in methods if m in errors and np.isfinite(errors[m])),
-                    key=lambda m: (errors[m], methods.index(m)))
+    scored = [m for m in methods if m in errors and np.isfinite(errors[m])]
     if not scored:
         return {best: 1.0}
-    e0 = max(errors[scored[0]], _ERR_FLOOR_MM)
-    keep = [m for m in scored[:top] if max(errors[m], _ERR_FLOOR_MM) <= max_ratio * e0]
-    inv = np.array([1.0 / max(errors[m], _ERR_FLOOR_MM) ** 2 for m in keep])
-    w = inv / inv.sum()
-    return {m: float(x) for m, x in zip(keep, w, strict=True)}
+    idx, w = inverse_square_weights(np.array([errors[m] for m in scored]), top, max_ratio)
+    return {scored[i]: float(x) for i, x in zip(idx, w, strict=True)}
 
 
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,

@@ -312,14 +312,23 @@ class PcaModel:
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
+                 local_frame: bool = False,
                  var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
-        self.body_frame = body_frame
         cols = np.append(predictors, m)
         # rows first, then the columns of the (frames, markers × 3) view: far cheaper than xyz[train][:, cols]
         xt = _flat(xyz)[train][:, _cols3(cols)].reshape(train.size, cols.size, 3)
-        d = norm3(xt[:, :-1] - xt[:, -1:]).mean(axis=0)
+        dist = norm3(xt[:, :-1] - xt[:, -1:])
+        d = dist.mean(axis=0)
+        #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
+        self.frame: np.ndarray | None = None
+        if local_frame and predictors.size >= 3:
+            self.frame = self._fit_frame(xt, dist.std(axis=0))
+        if self.frame is not None:
+            xt = self._to_local(xt, xt[:, self.frame])[0]
+            body_frame = False
+        self.body_frame = body_frame
         if body_frame:
             # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
             xt = xt - xt[:, :-1].mean(axis=1, keepdims=True)
@@ -353,6 +362,32 @@ class PcaModel:
         self.k = self.ks[len(self.ks) // 2]
         self.v_all = evecs[:, :max(self.ks)]
 
+    def _fit_frame(self, xt: np.ndarray, dist_std: np.ndarray) -> np.ndarray | None:
+        """The three predictors whose distance to the target varied least over the training frames (``xt``:
+        (n, P + 1, 3)), with their reference shape (``self.ref``, a least-squares mean shape): None when they are
+        nearly collinear (the rotation about their line would be noise)."""
+        pick = np.sort(np.argsort(dist_std, kind="stable")[:3])
+        pts = xt[:, pick]
+        ref = pts[0] - pts[0].mean(axis=0)
+        for _ in range(2):  # generalised Procrustes: align every frame to the reference, average, repeat
+            self.ref = ref
+            ref = self._to_local(pts, pts)[0].mean(axis=0)
+        sv = np.linalg.svd(ref - ref.mean(axis=0), compute_uv=False)
+        if sv[1] <= max(5.0, 0.05 * sv[0]):
+            return None
+        self.ref = ref - ref.mean(axis=0)
+        return pick
+
+    def _to_local(self, x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): rotations ``rot`` (n, 3, 3) and
+        centroids ``c`` (n, 3) with ``frame_pts − c ≈ rot · (ref − mean(ref))``; returns ``(local, rot, c)``,
+        ``local = rotᵀ (x − c)``."""
+        from gazepipe.stages.rotations import kabsch
+
+        rot = kabsch(self.ref, frame_pts)
+        c = frame_pts.mean(axis=1)
+        return np.einsum("nkj,nji->nki", x - c[:, None], rot), rot, c
+
     def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray,
                 ks: list[int] | None = None, vis: np.ndarray | None = None) -> np.ndarray:
         """Target positions (len(ks), n, 3) in ``frames`` from the first ``k`` components for each ``k`` in
@@ -363,6 +398,13 @@ class PcaModel:
         out = np.full((len(ks), frames.size, 3), np.nan)
         vis = (valid[frames] if vis is None else vis)[:, self.predictors]
         x_all = _flat(xyz)[frames][:, _cols3(self.predictors)]
+        if self.frame is not None:
+            # into the moving frame; frames without all three frame markers cannot be predicted
+            vis = vis & vis[:, self.frame].all(axis=1, keepdims=True)
+            pts = x_all.reshape(frames.size, n_p, 3)
+            fp = np.where(vis[:, self.frame, None], pts[:, self.frame], 0.0)
+            loc, rot, c0 = self._to_local(pts, fp + self.ref * ~vis[:, self.frame, None])
+            x_all = loc.reshape(frames.size, -1)
         for pattern, rows in row_patterns(vis):
             if not pattern.any():
                 continue
@@ -396,6 +438,8 @@ class PcaModel:
                 maps[u, :, :k] = self.v_all[3 * n_p:, :k] @ rinv[:k, :k]
             zm = np.einsum("ucj,jn->unc", maps, qz)
             out[np.ix_(use, rows)] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
+        if self.frame is not None:
+            out = np.einsum("knj,nij->kni", out, rot) + c0
         return out
 
 
@@ -533,14 +577,14 @@ def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, 
         return float("nan")
     d = norm3(xyz[near][:, cand] - xyz[near][:, [m]]).mean(axis=0)
     j = int(cand[np.argmin(d)])
-    key = ("donor_pca", j, s, e)
+    key = ("donor_pca", j, s, e, model.frame is not None)
     errs = None if cache is None else cache.get(key)
     if errs is None:
         errs = []
         valid_j = valid.copy()
         valid_j[s:e, j] = False
         win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win)
+        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win, local_frame=model.frame is not None)
         if model_j is not None:
             qs = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, model_j.ks)
             errs = [float("nan") if q is None else float(norm3(q - xyz[s:e, j]).mean())
