@@ -355,3 +355,43 @@ def test_two_mate_rotation_moves_a_rigid_point():
     want = rot.apply(p - ref.mean(axis=0)) + ref.mean(axis=0) + shift
     got = min_rotation_apply(ref[None], cur, p[None])[0]
     assert np.abs(got - want).max() < 1e-9
+
+
+def test_pca_local_frame_follows_a_turning_body_part():
+    """A body part turning through large angles: in the lab frame (even with its translation removed) its
+    markers are far from linear in the pose, so a few components cannot reconstruct one of them; in the moving
+    frame of three steady markers its shape is constant and any other marker on it is reconstructed exactly."""
+    from gazepipe.stages.gapfill_methods import PcaModel
+
+    rng = np.random.default_rng(4)
+    n_t = 400
+    t = np.arange(n_t) / RATE
+    shape = rng.normal(0, 80, (6, 3))
+    rot = Rotation.from_euler("zyx", np.stack([2.5 * np.sin(2 * np.pi * 0.2 * t), 1.0 * np.sin(2 * np.pi * 0.35 * t),
+                                              0.7 * np.cos(2 * np.pi * 0.25 * t)], axis=1))
+    xyz = np.stack([rot.apply(p) for p in shape], axis=1) + np.array([300.0, -200.0, 900.0])
+    valid = np.ones((n_t, 6), bool)
+    train, test = np.arange(0, 300), np.arange(300, n_t)
+    local = PcaModel(xyz, valid, 5, np.arange(5), train, local_frame=True)
+    lab = PcaModel(xyz, valid, 5, np.arange(5), train)
+    assert local.frame is not None and lab.frame is None
+    err_local = np.linalg.norm(local.predict(xyz, valid, test, local.ks)[0] - xyz[test, 5], axis=-1)
+    err_lab = np.linalg.norm(lab.predict(xyz, valid, test, lab.ks[:1])[0] - xyz[test, 5], axis=-1)
+    assert err_local.max() < 1e-6  # the fewest components already: the shape does not change
+    assert err_lab.mean() > 5.0
+
+
+def test_pca_local_frame_needs_three_spread_markers():
+    """Three steadiest predictors on a line cannot fix a rotation: the model keeps the lab frame."""
+    from gazepipe.stages.gapfill_methods import PcaModel
+
+    n_t = 200
+    t = np.arange(n_t) / RATE
+    line = np.array([[0.0, 0, 0], [50.0, 0, 0], [100.0, 0, 0]])
+    rot = Rotation.from_euler("z", np.sin(t)[:, None])
+    xyz = np.concatenate([np.stack([rot.apply(p) for p in line], axis=1),
+                          np.stack([100 * np.sin(3 * t), 50 * np.cos(2 * t), t], axis=1)[:, None, :],
+                          np.stack([rot.apply(np.array([30.0, 40.0, 0.0]))], axis=1)], axis=1)
+    valid = np.ones((n_t, 5), bool)
+    model = PcaModel(xyz, valid, 4, np.arange(4), np.arange(n_t), local_frame=True)
+    assert model.frame is None
