@@ -72,14 +72,16 @@ def test_each_method_recovers_hidden_samples(method, length, tol_mm):
         assert gap_error(res, truth, m, s, e) < tol_mm
 
 
-def test_choice_prefers_rigid_for_long_gap_and_beats_interpolation():
+def test_choice_follows_the_segment_for_long_gap_and_beats_interpolation():
     truth, measured, clusters = body()
     m, s, e = 5, 250, 300  # 0.83 s of a swinging segment: interpolation cannot know the swing
     x, valid = hide(measured, [(m, s, e)])
     res = fill_gaps(x, valid, RATE, clusters=clusters)
     rec = next(g for g in res.gaps if g.marker == m)
-    assert rec.method == "rigid"
-    assert rec.errors["rigid"] < rec.errors["pchip"]
+    # the segment's mates carry the marker: rigid fill, and PCA in the moving frame of its nearest markers (the
+    # same mates) validate alike and share the fill; interpolation gets no weight
+    assert set(rec.weights) <= {"rigid", "pca"} and rec.weights.get("rigid", 0.0) > 0.25
+    assert rec.errors["rigid"] < rec.errors["pchip"] / 10
     pchip = fill_gaps(x, valid, RATE, clusters=clusters, methods=("pchip",))
     assert gap_error(res, truth, m, s, e) < 2.0 < gap_error(pchip, truth, m, s, e)
 
@@ -372,7 +374,7 @@ def test_pca_local_frame_follows_a_turning_body_part():
     xyz = np.stack([rot.apply(p) for p in shape], axis=1) + np.array([300.0, -200.0, 900.0])
     valid = np.ones((n_t, 6), bool)
     train, test = np.arange(0, 300), np.arange(300, n_t)
-    local = PcaModel(xyz, valid, 5, np.arange(5), train, local_frame=True)
+    local = PcaModel(xyz, valid, 5, np.arange(5), train, local_frame="steady")
     lab = PcaModel(xyz, valid, 5, np.arange(5), train)
     assert local.frame is not None and lab.frame is None
     err_local = np.linalg.norm(local.predict(xyz, valid, test, local.ks)[0] - xyz[test, 5], axis=-1)
@@ -393,5 +395,5 @@ def test_pca_local_frame_needs_three_spread_markers():
                           np.stack([100 * np.sin(3 * t), 50 * np.cos(2 * t), t], axis=1)[:, None, :],
                           np.stack([rot.apply(np.array([30.0, 40.0, 0.0]))], axis=1)], axis=1)
     valid = np.ones((n_t, 5), bool)
-    model = PcaModel(xyz, valid, 4, np.arange(4), np.arange(n_t), local_frame=True)
+    model = PcaModel(xyz, valid, 4, np.arange(4), np.arange(n_t), local_frame="steady")
     assert model.frame is None

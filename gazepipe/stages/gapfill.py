@@ -72,6 +72,9 @@ _MATES_WINDOW_S = 2.0
 _BLEND_TOP = 3
 #: at most this many PCA (model, component count) candidates are averaged per gap
 _PCA_BLEND_TOP = 5
+#: PCA models fitted per gap: lab frame (None) and the moving frames of :class:`PcaModel` ``local_frame``
+#: (the third model: gaps over 0.25 s 1.05 -> 0.87 mm on the ART file, 5.84 -> 5.44 mm on Walking)
+_PCA_MODELS = (None, "steady", "near")
 #: methods with a validation error more than this many times the best one's are left out of the blend
 _BLEND_MAX_RATIO = 3.0
 #: validation errors below this (mm) are treated as equal: below the noise of any capture
@@ -207,7 +210,7 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
     if "pca" in methods:
         win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-        model, pca_gap, pca_wins = _pca_predictions(xyz, valid, valid_v, known, m, s, e, wins, win)
+        model, pca_gap, pca_wins = _pca_predictions(xyz, valid, valid_v, m, s, e, wins, win)
 
     def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
         vis = valid_v if partial else valid
@@ -272,29 +275,39 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
 
 
 
-def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, known: np.ndarray, m: int, s: int,
-                     e: int, wins: list[tuple[int, int]], win: tuple[int, int] | None
-                     ) -> tuple[PcaModel | None, np.ndarray | None, dict[tuple[int, int], np.ndarray | None]]:
+def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m: int, s: int, e: int,
+                     wins: list[tuple[int, int]], win: tuple[int, int] | None
+                     ) -> tuple[PcaModel | None, np.ndarray | None, dict[tuple[int, int], np.ndarray]]:
     """PCA's prediction of gap ``[s, e)`` of marker ``m`` and of the hidden stretches ``wins``.
 
-    Two models are fitted on the frames in ``win`` (``known``: the marker's samples outside the gap and the
-    stretches): in the lab frame, and in the moving frame of three predictors that stay at a steady distance
-    from the marker (:class:`PcaModel` ``local_frame``; rotation of the body part removed, so that the
-    components describe its deformation). Every (model, component count) pair predicts the stretches; the gap is
-    filled with the ``_PCA_BLEND_TOP`` pairs that predicted them best, weighted by inverse squared error (model
-    averaging: measured 5–10 % below the single best pair on both real files, every gap length). Returns
-    ``(model, gap, stretches)``: the best pair's model (its ``k`` set), the (e - s, 3) prediction or None, and
-    each stretch's blended prediction (NaN where it cannot be predicted).
+    Models are fitted on the frames in ``win`` where the marker is measured outside the gap and the stretches:
+    in the lab frame, and in the moving frames of the three predictors at the steadiest distance from the marker
+    and of the three nearest ones (:class:`PcaModel` ``local_frame``: the rotation of the body part removed, so
+    the components describe how it bends). When the stretches leave too few training frames, the farthest
+    stretches are given back to training (and not used for validation). Every (model, component count) pair
+    predicts the stretches; the gap is filled with the ``_PCA_BLEND_TOP`` pairs that predicted them best,
+    weighted by inverse squared error (model averaging: 5–10 % below the single best pair on both real files,
+    at every gap length). Returns ``(model, gap, stretches)``: the best pair's model (its ``k`` set), the
+    (e - s, 3) prediction or None, and each validated stretch's blended prediction (NaN where it cannot be
+    predicted).
     """
-    models = []
-    for local in (False, True):
-        mod = fit_pca(xyz, valid, m, known, s, e, window=win, local_frame=local)
-        if mod is not None and (not local or mod.frame is not None):
-            models.append(mod)
+    valid_m = valid[:, m]
+    used = sorted(wins, key=lambda w: min(abs(w[0] - e), abs(s - w[1])))  # nearest first
+    while True:
+        known = valid_m.copy()
+        for a, b in used:
+            known[a:b] = False
+        models = [mod for frame in _PCA_MODELS
+                  if (mod := fit_pca(xyz, valid, m, known, s, e, window=win, local_frame=frame)) is not None
+                  and (frame is None or mod.frame is not None)]
+        if models or not used:
+            break
+        used = used[:-1]
     if not models:
         return None, None, {}
+    wins = [w for w in wins if w in used]
     # the hidden stretches and the gap in one prediction per model (they share the gap's occlusion patterns)
-    jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid[:, m], False)]
+    jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
     fills = [pca_fill_many(mod, xyz, jobs, mod.ks) for mod in models]
     cands = [(mod, k) for mod in models for k in mod.ks]
     # per_job[j][c]: candidate c's prediction of job j (None when it cannot predict any of it)
@@ -310,8 +323,14 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, kn
         scores[n_fin == 0] = np.inf
     else:
         scores = np.full(len(cands), np.inf)
-        scores[len(models[0].ks) // 2] = 1.0  # no validation: the middle component count of the lab-frame model
-    scores[[q is None for q in per_job[-1]]] = np.inf
+    no_gap = np.array([q is None for q in per_job[-1]])
+    if not np.isfinite(scores[~no_gap]).any():
+        # nothing hidden, or no candidate predicted a hidden sample: unvalidated, the first model's middle
+        # component count, else the first candidate that predicts the gap
+        mid = len(models[0].ks) // 2
+        scores = np.full(len(cands), np.inf)
+        scores[mid if not no_gap[mid] else int(np.argmin(no_gap))] = 1.0
+    scores[no_gap] = np.inf
     if not np.isfinite(scores).any():
         return None, None, {}
     idx, w = inverse_square_weights(scores, _PCA_BLEND_TOP)

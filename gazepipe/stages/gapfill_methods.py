@@ -308,11 +308,18 @@ class PcaModel:
     coordinates in a frame are reconstructed from the scores of the first ``k`` components fitted (least
     squares) to the predictors measured in that frame. Candidate ``k`` (``self.ks``) are the numbers of
     components explaining each of ``var_fracs`` of the weighted variance; the caller picks one (by validation).
+
+    With ``local_frame`` (``"steady"``: the three predictors whose distance to the target varied least over the
+    training frames; ``"near"``: the three nearest) every frame is first expressed in the moving frame of those
+    three markers (least-squares rotation onto their mean shape, their centroid as origin) instead of the body
+    frame, so the components describe how the body part bends rather than how it turns, which a linear model
+    cannot follow through large rotations. ``self.frame`` stays None (lab or body frame) when the three are
+    nearly collinear.
     """
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
-                 local_frame: bool = False,
+                 local_frame: str | None = None,
                  var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)) -> None:
         self.m = m
         self.predictors = predictors
@@ -323,8 +330,11 @@ class PcaModel:
         d = dist.mean(axis=0)
         #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
         self.frame: np.ndarray | None = None
-        if local_frame and predictors.size >= 3:
-            self.frame = self._fit_frame(xt, dist.std(axis=0))
+        self.local_frame = local_frame
+        if local_frame is not None and predictors.size >= 3:
+            if local_frame not in ("steady", "near"):
+                raise ValueError(f"local_frame must be None, 'steady' or 'near', not {local_frame!r}")
+            self.frame = self._fit_frame(xt, dist.std(axis=0) if local_frame == "steady" else d)
         if self.frame is not None:
             xt = self._to_local(xt, xt[:, self.frame])[0]
             body_frame = False
@@ -362,11 +372,11 @@ class PcaModel:
         self.k = self.ks[len(self.ks) // 2]
         self.v_all = evecs[:, :max(self.ks)]
 
-    def _fit_frame(self, xt: np.ndarray, dist_std: np.ndarray) -> np.ndarray | None:
-        """The three predictors whose distance to the target varied least over the training frames (``xt``:
-        (n, P + 1, 3)), with their reference shape (``self.ref``, a least-squares mean shape): None when they are
-        nearly collinear (the rotation about their line would be noise)."""
-        pick = np.sort(np.argsort(dist_std, kind="stable")[:3])
+    def _fit_frame(self, xt: np.ndarray, rank: np.ndarray) -> np.ndarray | None:
+        """The three predictors lowest in ``rank`` (P,), with their reference shape over the training frames
+        ``xt`` (n, P + 1, 3) (``self.ref``, a least-squares mean shape): None when they are nearly collinear (the
+        rotation about their line would be noise)."""
+        pick = np.sort(np.argsort(rank, kind="stable")[:3])
         pts = xt[:, pick]
         ref = pts[0] - pts[0].mean(axis=0)
         for _ in range(2):  # generalised Procrustes: align every frame to the reference, average, repeat
@@ -577,14 +587,14 @@ def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, 
         return float("nan")
     d = norm3(xyz[near][:, cand] - xyz[near][:, [m]]).mean(axis=0)
     j = int(cand[np.argmin(d)])
-    key = ("donor_pca", j, s, e, model.frame is not None)
+    key = ("donor_pca", j, s, e, model.local_frame)
     errs = None if cache is None else cache.get(key)
     if errs is None:
         errs = []
         valid_j = valid.copy()
         valid_j[s:e, j] = False
         win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win, local_frame=model.frame is not None)
+        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win, local_frame=model.local_frame)
         if model_j is not None:
             qs = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, model_j.ks)
             errs = [float("nan") if q is None else float(norm3(q - xyz[s:e, j]).mean())
