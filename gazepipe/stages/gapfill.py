@@ -43,7 +43,7 @@ from gazepipe.stages.gapfill_methods import (
     donor_interp_errors,
     donor_pca_error,
     find_steady_mates,
-    fit_pca,
+    fit_pca_models,
     interp_fill,
     norm3,
     pca_fill_many,
@@ -62,10 +62,10 @@ _INTERP = ("pchip", "linear")
 #: the donors' interpolation error replaces the validation error when more than this many times larger (the
 #: larger of two noisy estimates of the same error would be biased up)
 _INTERP_DONOR_FACTOR = 1.5
-#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger (an order
-#: of magnitude: the model has not seen the gap's poses; at 2 or 5 the donor's noisy error misled the choice on
-#: the real walking file's long gaps, 5.07 -> 5.72 / 5.18 mm)
-_PCA_DONOR_FACTOR = 10.0
+#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger (the
+#: model has clearly not seen the gap's poses: 400x on a movement between two still phases; at 2 to 10 the
+#: donor's noisy error misled the choice on the real files, e.g. ART 16-30 frames 0.62 -> 0.73 mm at 10)
+_PCA_DONOR_FACTOR = 30.0
 #: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
 _MATES_WINDOW_S = 2.0
 #: at most this many methods are blended per gap
@@ -297,9 +297,9 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
         known = valid_m.copy()
         for a, b in used:
             known[a:b] = False
-        models = [mod for frame in _PCA_MODELS
-                  if (mod := fit_pca(xyz, valid, m, known, s, e, window=win, local_frame=frame)) is not None
-                  and (frame is None or mod.frame is not None)]
+        models = fit_pca_models(xyz, valid, m, known, s, e, _PCA_MODELS, window=win)
+        if not models and None not in _PCA_MODELS:
+            models = fit_pca_models(xyz, valid, m, known, s, e, (None,), window=win)
         if models or not used:
             break
         used = used[:-1]

@@ -373,28 +373,28 @@ class PcaModel:
         self.v_all = evecs[:, :max(self.ks)]
 
     def _fit_frame(self, xt: np.ndarray, rank: np.ndarray) -> np.ndarray | None:
-        """The three predictors lowest in ``rank`` (P,), with their reference shape over the training frames
-        ``xt`` (n, P + 1, 3) (``self.ref``, a least-squares mean shape): None when they are nearly collinear (the
-        rotation about their line would be noise)."""
+        """The three predictors lowest in ``rank`` (P,), in index order, over the training frames ``xt``
+        (n, P + 1, 3): None when they are nearly collinear or coincident in a typical frame (the frame's rotation
+        would be noise)."""
         pick = np.sort(np.argsort(rank, kind="stable")[:3])
-        pts = xt[:, pick]
-        ref = pts[0] - pts[0].mean(axis=0)
-        for _ in range(2):  # generalised Procrustes: align every frame to the reference, average, repeat
-            self.ref = ref
-            ref = self._to_local(pts, pts)[0].mean(axis=0)
-        sv = np.linalg.svd(ref - ref.mean(axis=0), compute_uv=False)
-        if sv[1] <= max(5.0, 0.05 * sv[0]):
+        a = xt[:, pick[1]] - xt[:, pick[0]]
+        b = xt[:, pick[2]] - xt[:, pick[0]]
+        la, lb = norm3(a), norm3(b)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sin = norm3(np.cross(a, b)) / (la * lb)
+        if not (np.median(la) > 5.0 and np.median(lb) > 5.0 and np.median(sin) > 0.1):
             return None
-        self.ref = ref - ref.mean(axis=0)
         return pick
 
-    def _to_local(self, x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): rotations ``rot`` (n, 3, 3) and
-        centroids ``c`` (n, 3) with ``frame_pts − c ≈ rot · (ref − mean(ref))``; returns ``(local, rot, c)``,
-        ``local = rotᵀ (x − c)``."""
-        from gazepipe.stages.rotations import kabsch
+    @staticmethod
+    def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): the Gram–Schmidt triad ``rot``
+        (n, 3, 3) of the three points (:func:`gazepipe.stages.rotations.frame_from_points`) at their centroid
+        ``c`` (n, 3); returns ``(local, rot, c)``, ``local = rotᵀ (x − c)``. (As good as a least-squares fit of
+        the three for the PCA, which only needs the frame to move with them, and several times cheaper.)"""
+        from gazepipe.stages.rotations import frame_from_points
 
-        rot = kabsch(self.ref, frame_pts)
+        rot = frame_from_points(frame_pts[:, 0], frame_pts[:, 1], frame_pts[:, 2])
         c = frame_pts.mean(axis=1)
         return np.einsum("nkj,nji->nki", x - c[:, None], rot), rot, c
 
@@ -412,8 +412,9 @@ class PcaModel:
             # into the moving frame; frames without all three frame markers cannot be predicted
             vis = vis & vis[:, self.frame].all(axis=1, keepdims=True)
             pts = x_all.reshape(frames.size, n_p, 3)
-            fp = np.where(vis[:, self.frame, None], pts[:, self.frame], 0.0)
-            loc, rot, c0 = self._to_local(pts, fp + self.ref * ~vis[:, self.frame, None])
+            # frames without the three get a stand-in triangle (their rows are not predicted)
+            fp = np.where(vis[:, self.frame, None], pts[:, self.frame], np.eye(3) * 100.0)
+            loc, rot, c0 = self._to_local(pts, fp)
             x_all = loc.reshape(frames.size, -1)
         for pattern, rows in row_patterns(vis):
             if not pattern.any():
@@ -455,13 +456,44 @@ class PcaModel:
 
 def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
             *, window: tuple[int, int] | None = None, min_train: int = 20, max_predictors: int = 12,
-            **kw: float) -> PcaModel | None:
+            **kw) -> PcaModel | None:
     """PCA model for marker ``m`` whose predictors are the markers measured in every frame of ``[a, b)``.
 
     Only the ``max_predictors`` markers nearest to ``m`` (mean distance over the window) are used: the distance
-    weighting makes far markers contribute next to nothing, and the model stays small and fast. Training frames: ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When
-    fewer than ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
+    weighting makes far markers contribute next to nothing, and the model stays small and fast. Training frames:
+    ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When fewer than
+    ``min_train`` frames remain, the predictor measured least often is dropped, and so on. ``kw`` go to
+    :class:`PcaModel`.
     """
+    chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
+    return None if chosen is None else PcaModel(xyz, valid, m, *chosen, **kw)
+
+
+def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
+                   local_frames: tuple[str | None, ...], *, window: tuple[int, int] | None = None,
+                   min_train: int = 20, max_predictors: int = 12) -> list[PcaModel]:
+    """:func:`fit_pca` for each of ``local_frames`` (see :class:`PcaModel`), on the same predictors and training
+    frames; a moving frame that cannot be set up (collinear markers), or that is made of the same three markers
+    as an earlier model's, gives no model."""
+    chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
+    models: list[PcaModel] = []
+    if chosen is None:
+        return models
+    seen = []
+    for frame in local_frames:
+        mod = PcaModel(xyz, valid, m, *chosen, local_frame=frame)
+        key = None if mod.frame is None else tuple(mod.frame)
+        if (frame is not None and key is None) or key in seen:
+            continue
+        seen.append(key)
+        models.append(mod)
+    return models
+
+
+def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
+                  window: tuple[int, int] | None, min_train: int, max_predictors: int
+                  ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Predictors and training frames of :func:`fit_pca` (None when fewer than ``min_train`` frames remain)."""
     n_t, n_m = valid.shape
     lo, hi = (0, n_t) if window is None else window
     through = valid[a:b].all(axis=0)
@@ -483,7 +515,7 @@ def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: 
     while preds.size:
         ok = rows & vw[:, preds].all(axis=1)
         if np.count_nonzero(ok) >= min_train:
-            return PcaModel(xyz, valid, m, preds, np.flatnonzero(ok) + lo, **kw)
+            return preds, np.flatnonzero(ok) + lo
         counts = (vw[:, preds] & rows[:, None]).sum(axis=0)
         preds = np.delete(preds, int(np.argmin(counts)))
     return None
