@@ -10,8 +10,8 @@ Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applic
   complete frames before and after the gap, blended across it; a marker without a cluster (or whose mates are
   hidden with it) uses the markers measured through the gap whose distance to it is steadiest around it;
 * ``pca``: reconstruction from all markers' intercorrelation (Gløersen & Federolf 2016, PLoS ONE 11:e0152616),
-  in the lab frame and in the moving frame of three markers at a steady distance from the gap's marker; the best
-  few (model, component count) pairs on the hidden stretches below are averaged (:func:`_pca_predictions`);
+  in the lab frame and in the moving frames of nearby markers (the body part's rotation removed); the best few
+  (model, component count) pairs on the hidden stretches below are averaged (:func:`_pca_predictions`);
 * ``pchip`` and ``linear`` interpolation in time.
 
 Rigid and PCA predictions are corrected to meet the measured samples at both gap edges. To choose, measured
@@ -19,12 +19,13 @@ samples of the same marker next to the gap (two stretches as long as the gap on 
 are hidden and every method predicts them (its validation error: the mean error there). The hidden stretches are
 given the gap's own occlusion pattern (markers missing during the gap are treated as missing there too), so
 rigid and PCA are judged with the donors they will really have; methods are compared on the frames all of them
-can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the gap's
-own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
+can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the
+gap's own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
 larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
-do not show); PCA is then checked the same way on the nearest such marker. The gap is filled with a convex blend of the best methods, weighted by inverse squared
-validation error (:func:`blend_weights`), and coded by the method with the largest weight. When no sample can
-be hidden the first applicable method in ``methods`` is used.
+do not show); PCA is then checked the same way on the nearest such marker. The gap is filled with a convex
+blend of the best methods, weighted by inverse squared validation error (:func:`blend_weights`), and coded
+by the method with the largest weight. When no sample can be hidden the first applicable method in
+``methods`` is used.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
@@ -274,7 +275,6 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     return preds, errors
 
 
-
 def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m: int, s: int, e: int,
                      wins: list[tuple[int, int]], win: tuple[int, int] | None
                      ) -> tuple[PcaModel | None, np.ndarray | None, dict[tuple[int, int], np.ndarray]]:
@@ -298,8 +298,6 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
         for a, b in used:
             known[a:b] = False
         models = fit_pca_models(xyz, valid, m, known, s, e, _PCA_MODELS, window=win)
-        if not models and None not in _PCA_MODELS:
-            models = fit_pca_models(xyz, valid, m, known, s, e, (None,), window=win)
         if models or not used:
             break
         used = used[:-1]

@@ -311,7 +311,7 @@ class PcaModel:
 
     With ``local_frame`` (``"steady"``: the three predictors whose distance to the target varied least over the
     training frames; ``"near"``: the three nearest) every frame is first expressed in the moving frame of those
-    three markers (least-squares rotation onto their mean shape, their centroid as origin) instead of the body
+    three markers (their Gram–Schmidt triad, their centroid as origin) instead of the body
     frame, so the components describe how the body part bends rather than how it turns, which a linear model
     cannot follow through large rotations. ``self.frame`` stays None (lab or body frame) when the three are
     nearly collinear.
