@@ -320,21 +320,16 @@ class PcaModel:
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
                  local_frame: str | None = None,
-                 var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)) -> None:
+                 var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999),
+                 training: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.m = m
         self.predictors = predictors
-        cols = np.append(predictors, m)
-        # rows first, then the columns of the (frames, markers × 3) view: far cheaper than xyz[train][:, cols]
-        xt = _flat(xyz)[train][:, _cols3(cols)].reshape(train.size, cols.size, 3)
-        dist = norm3(xt[:, :-1] - xt[:, -1:])
+        # (training frames, predictors + target, 3) positions and (frames, predictors) distances to the target
+        xt, dist = _training_arrays(xyz, m, predictors, train) if training is None else training
         d = dist.mean(axis=0)
         #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
-        self.frame: np.ndarray | None = None
+        self.frame = None if local_frame is None else _frame_markers(xt, dist, local_frame)
         self.local_frame = local_frame
-        if local_frame is not None and predictors.size >= 3:
-            if local_frame not in ("steady", "near"):
-                raise ValueError(f"local_frame must be None, 'steady' or 'near', not {local_frame!r}")
-            self.frame = self._fit_frame(xt, dist.std(axis=0) if local_frame == "steady" else d)
         if self.frame is not None:
             xt = self._to_local(xt, xt[:, self.frame])[0]
             body_frame = False
@@ -371,20 +366,6 @@ class PcaModel:
         self.ks = sorted(set(np.minimum(np.searchsorted(frac, var_fracs) + 1, k_max).tolist()))
         self.k = self.ks[len(self.ks) // 2]
         self.v_all = evecs[:, :max(self.ks)]
-
-    def _fit_frame(self, xt: np.ndarray, rank: np.ndarray) -> np.ndarray | None:
-        """The three predictors lowest in ``rank`` (P,), in index order, over the training frames ``xt``
-        (n, P + 1, 3): None when they are nearly collinear or coincident in a typical frame (the frame's rotation
-        would be noise)."""
-        pick = np.sort(np.argsort(rank, kind="stable")[:3])
-        a = xt[:, pick[1]] - xt[:, pick[0]]
-        b = xt[:, pick[2]] - xt[:, pick[0]]
-        la, lb = norm3(a), norm3(b)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sin = norm3(np.cross(a, b)) / (la * lb)
-        if not (np.median(la) > 5.0 and np.median(lb) > 5.0 and np.median(sin) > 0.1):
-            return None
-        return pick
 
     @staticmethod
     def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -454,6 +435,37 @@ class PcaModel:
         return out
 
 
+def _training_arrays(xyz: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, P + 1, 3) of the predictors then marker ``m`` in frames ``train``, and each predictor's
+    distance to ``m`` (n, P), mm."""
+    cols = np.append(predictors, m)
+    # rows first, then the columns of the (frames, markers × 3) view: far cheaper than xyz[train][:, cols]
+    xt = _flat(xyz)[train][:, _cols3(cols)].reshape(train.size, cols.size, 3)
+    return xt, norm3(xt[:, :-1] - xt[:, -1:])
+
+
+def _frame_markers(xt: np.ndarray, dist: np.ndarray, kind: str) -> np.ndarray | None:
+    """The three predictors (positions, in index order) of a :class:`PcaModel` moving frame: ``"steady"``, those
+    whose distance to the target (``dist`` (n, P) over the training frames ``xt`` (n, P + 1, 3)) varied least;
+    ``"near"``, the nearest. None when there are fewer than three or they are nearly collinear or coincident in
+    a typical frame (the frame's rotation would be noise)."""
+    if kind not in ("steady", "near"):
+        raise ValueError(f"local_frame must be None, 'steady' or 'near', not {kind!r}")
+    if dist.shape[1] < 3:
+        return None
+    rank = dist.std(axis=0) if kind == "steady" else dist.mean(axis=0)
+    pick = np.sort(np.argsort(rank, kind="stable")[:3])
+    a = xt[:, pick[1]] - xt[:, pick[0]]
+    b = xt[:, pick[2]] - xt[:, pick[0]]
+    la, lb = norm3(a), norm3(b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin = norm3(np.cross(a, b)) / (la * lb)
+    if not (la.mean() > 5.0 and lb.mean() > 5.0 and np.mean(sin) > 0.1):
+        return None
+    return pick
+
+
 def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
             *, window: tuple[int, int] | None = None, min_train: int = 20, max_predictors: int = 12,
             **kw) -> PcaModel | None:
@@ -479,14 +491,15 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
     models: list[PcaModel] = []
     if chosen is None:
         return models
+    training = _training_arrays(xyz, m, *chosen)
     seen = []
     for frame in local_frames:
-        mod = PcaModel(xyz, valid, m, *chosen, local_frame=frame)
-        key = None if mod.frame is None else tuple(mod.frame)
+        pick = None if frame is None else _frame_markers(*training, frame)
+        key = None if pick is None else tuple(pick.tolist())
         if (frame is not None and key is None) or key in seen:
             continue
         seen.append(key)
-        models.append(mod)
+        models.append(PcaModel(xyz, valid, m, *chosen, local_frame=frame, training=training))
     return models
 
 
