@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import ConfigError
-from gazepipe.io.toml_common import Collector, is_number, key_name, read_toml, show, suggest, type_name
+from gazepipe.io.toml_common import Collector, is_number, key_name, read_document, show, suggest, type_name
 from gazepipe.model import MarkerSet, Segment
 from gazepipe.timebase import unit_scale_to_mm
 
@@ -36,11 +36,9 @@ def load_markerset(path: str | Path) -> MarkerSet:
 
 def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
     col = Collector(path)
-    doc = read_toml(path, col)
+    doc = read_document(path, col, _MARKERSET_TOP)
     if doc is None:
         return None, col.errors
-    col.schema(doc)
-    col.unknown_keys(doc, _MARKERSET_TOP, "")
 
     up_axis = col.string(doc, "up_axis", "up_axis", required=True)
     if up_axis is not None and up_axis.strip().lower() not in ("y", "z"):

@@ -34,7 +34,7 @@ from gazepipe.io.toml_common import (
     WORD,
     Collector,
     key_name,
-    read_toml,
+    read_document,
     resolve_inside,
     show,
     suggest,
@@ -98,11 +98,9 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
     except (OSError, RuntimeError) as exc:
         return None, [ConfigError(toml_path, f"cannot resolve the session folder: {exc}")]
     col = Collector(toml_path)
-    doc = read_toml(toml_path, col)
+    doc = read_document(toml_path, col, _SESSION_TOP)
     if doc is None:
         return None, col.errors
-    col.schema(doc)
-    col.unknown_keys(doc, _SESSION_TOP, "")
 
     sess = col.table(doc.get("session", {}), "session") or {}
     col.unknown_keys(sess, _SESSION_KEYS, "session.")

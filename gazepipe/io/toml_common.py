@@ -111,6 +111,16 @@ class Collector:
             self.add("schema", f"unsupported schema {show(doc['schema'])} (this version reads schema = 1)")
 
 
+def read_document(path: Path, col: Collector, top_keys: Sequence[str]) -> dict | None:
+    """A gazepipe TOML file's top-level table: read (:func:`read_toml`), its ``schema`` checked and keys not in
+    ``top_keys`` reported to ``col``. None when it cannot be read or parsed."""
+    doc = read_toml(path, col)
+    if doc is not None:
+        col.schema(doc)
+        col.unknown_keys(doc, top_keys, "")
+    return doc
+
+
 def read_toml(path: Path, col: Collector) -> dict | None:
     try:
         raw = path.read_bytes()
