@@ -34,3 +34,25 @@ def test_local_multiprocess_cluster_matches_serial(tmp_path):
     digests = output_digests(serial)
     assert any(k.endswith("joints.parquet") for k in digests)
     assert digests == output_digests(dask_out)
+
+
+def _worker_environ() -> dict[str, str | None]:
+    import os
+
+    return {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS")}
+
+
+def test_local_cluster_workers_keep_glibc_malloc_defaults():
+    # Dask's default MALLOC_TRIM_THRESHOLD_ makes the stages 1.5x slower; the thread limits stay
+    import dask
+
+    from gazepipe.pipeline.executors import DaskExecutor
+
+    ex = DaskExecutor(workers=1)
+    try:
+        env = ex.submit(_worker_environ).result(timeout=60)
+    finally:
+        ex.shutdown()
+    assert env == {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}
+    # the process's Dask configuration is as it was
+    assert "MALLOC_TRIM_THRESHOLD_" in dask.config.get("distributed.nanny.pre-spawn-environ")
