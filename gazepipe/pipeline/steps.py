@@ -141,7 +141,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="3", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="4", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,
@@ -201,7 +201,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="2", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="3", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

@@ -376,7 +376,7 @@ def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
     if ok.any():
         rot = Rotation.from_rotvec(-ang[ok, None] * up[None, :])
         pts = out[ok]
-        res[ok] = np.einsum("nij,nkj->nki", rot.as_matrix(), pts)
+        res[ok] = pts @ np.swapaxes(rot.as_matrix(), 1, 2)  # R · p for every point, as row vectors
     return res
 
 
