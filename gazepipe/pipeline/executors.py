@@ -47,7 +47,7 @@ class DaskExecutor(Executor):
             # threshold, so every numpy temporary over 128 KiB is mapped and unmapped afresh (page faults each
             # time): takes ran 1.5x slower in such workers. They keep the thread limits. (Set for the cluster's
             # life: a nanny that restarts a worker reads it again.)
-            environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+            environ = {k: v for k, v in (dask.config.get("distributed.nanny.pre-spawn-environ", None) or {}).items()
                        if k != "MALLOC_TRIM_THRESHOLD_"}
             self._config = dask.config.set({"distributed.nanny.pre-spawn-environ": environ})
             try:
