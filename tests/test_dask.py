@@ -48,6 +48,7 @@ def test_local_cluster_workers_keep_glibc_malloc_defaults():
 
     from gazepipe.pipeline.executors import DaskExecutor
 
+    before = dask.config.get("distributed.nanny.pre-spawn-environ", None)
     ex = DaskExecutor(workers=1)
     try:
         env = ex.submit(_worker_environ).result(timeout=60)
@@ -55,4 +56,4 @@ def test_local_cluster_workers_keep_glibc_malloc_defaults():
         ex.shutdown()
     assert env == {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}
     # the process's Dask configuration is as it was
-    assert "MALLOC_TRIM_THRESHOLD_" in dask.config.get("distributed.nanny.pre-spawn-environ")
+    assert dask.config.get("distributed.nanny.pre-spawn-environ", None) == before
