@@ -247,9 +247,8 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     stretches = None
     if wins and preds:
         truth = np.concatenate([xyz_m[a:b] for a, b in wins])
-        hidden = {meth: np.concatenate([np.full((b - a, 3), np.nan) if q is None else q
-                                        for q, (a, b) in zip([run(meth, a, b, known, True) for a, b in wins],
-                                                             wins, strict=True)]) for meth in preds}
+        hidden = {meth: np.concatenate([_or_nan(run(meth, a, b, known, True), b - a) for a, b in wins])
+                  for meth in preds}
         stretches = (truth, hidden)
         err = norm3(np.stack(list(hidden.values())) - truth)
         common = np.isfinite(err).all(axis=0)
@@ -318,8 +317,8 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
     xyz_m = xyz[:, m]
     if wins:
         # each candidate's mean error over the hidden samples it could predict
-        e_c = np.concatenate([norm3(np.stack([np.full((b - a, 3), np.nan) if q is None else q for q in qs])
-                                    - xyz_m[a:b]) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)], axis=1)
+        e_c = np.concatenate([norm3(np.stack([_or_nan(q, b - a) for q in qs]) - xyz_m[a:b])
+                              for qs, (a, b) in zip(per_job[:-1], wins, strict=True)], axis=1)
         fin = np.isfinite(e_c)
         n_fin = fin.sum(axis=1)
         scores = np.where(fin, e_c, 0.0).sum(axis=1) / np.maximum(n_fin, 1)
@@ -341,7 +340,7 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
 
     def mix(preds: list[np.ndarray | None], n: int) -> np.ndarray:
         # weights renormalised per frame over the candidates that predict it
-        q = np.stack([np.full((n, 3), np.nan) if preds[i] is None else preds[i] for i in idx])
+        q = np.stack([_or_nan(preds[i], n) for i in idx])
         ok = np.isfinite(q).all(axis=2)
         wf = np.where(ok, w[:, None], 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -349,6 +348,11 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
 
     stretches = {(a, b): mix(qs, b - a) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)}
     return model, mix(per_job[-1], e - s), stretches
+
+
+def _or_nan(pred: np.ndarray | None, n: int) -> np.ndarray:
+    """A method's (n, 3) prediction, or NaN rows when it could not predict any of the n frames."""
+    return np.full((n, 3), np.nan) if pred is None else pred
 
 
 def inverse_square_weights(errors: np.ndarray, top: int, max_ratio: float = _BLEND_MAX_RATIO

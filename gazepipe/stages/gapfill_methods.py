@@ -322,14 +322,17 @@ class PcaModel:
                  *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
                  local_frame: str | None = None,
                  var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999),
-                 training: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 training: tuple[np.ndarray, np.ndarray] | None = None,
+                 frame_markers: np.ndarray | None = None) -> None:
         self.m = m
         self.predictors = predictors
         # (training frames, predictors + target, 3) positions and (frames, predictors) distances to the target
         xt, dist = _training_arrays(xyz, m, predictors, train) if training is None else training
         d = dist.mean(axis=0)
         #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
-        self.frame = None if local_frame is None else _frame_markers(xt, dist, local_frame)
+        # (``frame_markers``: already picked by the caller for ``local_frame``)
+        self.frame = (frame_markers if frame_markers is not None or local_frame is None
+                      else _frame_markers(xt, dist, local_frame))
         self.local_frame = local_frame
         if self.frame is not None:
             xt = self._to_local(xt, xt[:, self.frame])[0]
@@ -500,7 +503,7 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
         if (frame is not None and key is None) or key in seen:
             continue
         seen.append(key)
-        models.append(PcaModel(xyz, valid, m, *chosen, local_frame=frame, training=training))
+        models.append(PcaModel(xyz, valid, m, *chosen, local_frame=frame, training=training, frame_markers=pick))
     return models
 
 
