@@ -124,6 +124,31 @@ def test_long_gaps_stay_unfilled():
     assert res.qc[1].longest_gap_s == pytest.approx(n / RATE)
 
 
+def test_validation_stretches_hide_enough_samples_next_to_short_gaps():
+    from gazepipe.stages.gapfill import _validation_windows  # noqa: PLC0415
+
+    valid = np.ones(400, bool)
+    for length, per_side in ((1, 16), (3, 6), (5, 4), (8, 2), (40, 2)):
+        s = 200
+        valid_m = valid.copy()
+        valid_m[s:s + length] = False
+        wins = _validation_windows(valid_m, s, s + length)
+        before = [w for w in wins if w[1] <= s]
+        after = [w for w in wins if w[0] >= s + length]
+        assert len(before) == len(after) == per_side, length
+        # each as long as the gap, two measured frames apart, nearest first, none touching the gap
+        for side in (before, after):
+            assert all(b - a == length for a, b in side)
+            gaps = [min(abs(a1 - b0), abs(a0 - b1)) for (a0, b0), (a1, b1) in zip(side[:-1], side[1:], strict=True)]
+            assert gaps == [2] * (per_side - 1), (length, side)
+        assert before[0][1] == s - 2 and after[0][0] == s + length + 2
+    # no room: the stretches stop at the neighbouring gap and keep one measured frame before it
+    valid_m = valid.copy()
+    valid_m[190] = valid_m[200] = False
+    before = [w for w in _validation_windows(valid_m, 200, 201) if w[1] <= 200]
+    assert before == [(197, 198), (194, 195)]  # (191, 192) would leave no measured frame after 190
+
+
 def test_edge_gaps_never_interpolated_in_time():
     truth, measured, clusters = body()
     x, valid = hide(measured, [(1, 0, 10), (5, 590, 600)])

@@ -15,10 +15,11 @@ Gap filling (Pejsa 5.2.2.1, improved). For every gap of every marker each applic
 * ``pchip`` and ``linear`` interpolation in time.
 
 Rigid and PCA predictions are corrected to meet the measured samples at both gap edges. To choose, measured
-samples of the same marker next to the gap (two stretches as long as the gap on each side, when there is room)
-are hidden and every method predicts them (its validation error: the mean error there). The hidden stretches are
-given the gap's own occlusion pattern (markers missing during the gap are treated as missing there too), so
-rigid and PCA are judged with the donors they will really have; methods are compared on the frames all of them
+samples of the same marker next to the gap (two stretches as long as the gap on each side, when there is room;
+more for gaps under eight frames, so that at least 16 samples per side are hidden) are hidden and every
+method predicts them (its validation error: the mean error there). The hidden stretches are given the gap's
+own occlusion pattern (markers missing during the gap are treated as missing there too), so rigid and PCA are
+judged with the donors they will really have; methods are compared on the frames all of them
 can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the
 gap's own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
 larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
@@ -58,6 +59,10 @@ _SEPARATION = 2
 #: hidden validation stretches on each side of an interior gap (two: gaps over 0.25 s of the ART file 3.02 ->
 #: 2.87 mm, 1.31 -> 1.13 x the best method per gap in hindsight; Walking 7.23 -> 7.36 mm; see the commit)
 _WINDOWS_PER_SIDE = 2
+#: short gaps get more stretches (each as long as the gap), up to this many hidden samples per side: the mean
+#: error over two stretches of one to five frames is too noisy to rank the methods by (ART file, gaps of 1-5
+#: frames: 1.27 -> 1.17 x the best method per gap in hindsight; gaps of 6 frames or more are unchanged)
+_MIN_HIDDEN_PER_SIDE = 16
 #: interpolation methods (they use the marker's own samples only)
 _INTERP = ("pchip", "linear")
 #: the donors' interpolation error replaces the validation error when more than this many times larger (the
@@ -142,7 +147,8 @@ def find_gaps(valid_m: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, int]]:
-    """Stretches of measured samples next to gap ``[s, e)`` to hide for validation, about as long as the gap.
+    """Stretches of measured samples next to gap ``[s, e)`` to hide for validation, about as long as the gap:
+    ``_WINDOWS_PER_SIDE`` on each side, or as many as hide ``_MIN_HIDDEN_PER_SIDE`` samples for a short gap.
 
     Inside a take the stretch is kept ``_SEPARATION`` measured frames away from the gap and leaves at least one
     measured frame on its far side, so every method (interpolation included) sees the same kind of problem.
@@ -150,6 +156,7 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
     """
     n_t = valid_m.size
     length = e - s
+    n_win = max(_WINDOWS_PER_SIDE, -(-_MIN_HIDDEN_PER_SIDE // length))
     wins: list[tuple[int, int]] = []
     edge = s == 0 or e == n_t
     if s > 0:
@@ -161,7 +168,7 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
                 wins.append((s - lp, s))
         else:
             stop = s - _SEPARATION
-            for _ in range(_WINDOWS_PER_SIDE):
+            for _ in range(n_win):
                 lp = min(length, stop - r0 - 1)
                 if lp < 1:
                     break
@@ -176,7 +183,7 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
                 wins.append((e, e + lp))
         else:
             start = e + _SEPARATION
-            for _ in range(_WINDOWS_PER_SIDE):
+            for _ in range(n_win):
                 lp = min(length, r1 - start - 1)
                 if lp < 1:
                     break
