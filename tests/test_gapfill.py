@@ -395,7 +395,8 @@ def test_two_mate_rotation_moves_a_rigid_point():
     shift = np.array([10.0, -20.0, 30.0])
     cur = np.stack([rot.apply(r - ref.mean(axis=0)) for r in ref], axis=1) + ref.mean(axis=0) + shift
     want = rot.apply(p - ref.mean(axis=0)) + ref.mean(axis=0) + shift
-    got = min_rotation_apply(ref[None], cur, p[None])[0]
+    n = ang.size
+    got = min_rotation_apply(np.repeat(ref[None], n, axis=0), cur, np.repeat(p[None], n, axis=0))
     assert np.abs(got - want).max() < 1e-9
 
 

@@ -157,30 +157,29 @@ def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: i
 
 
 def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[r]`` fixed to the reference points ``ref[r]`` goes in each frame of ``cur``, by the
-    least-squares rigid transform (Kabsch / Söderkvist–Wedin) of the reference onto that frame's points.
+    """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
+    least-squares rigid transform (Kabsch / Söderkvist–Wedin) of the reference onto them.
 
-    ref : (R, K, 3); cur : (n, K, 3); p : (R, 3). Returns (R, n, 3).
+    ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
     """
     c_ref = ref.mean(axis=1)
     c_cur = cur.mean(axis=1)
-    # cross-covariance per (reference, frame): (ref − c)ᵀ (cur − c), batched matmul
-    h = np.swapaxes(ref - c_ref[:, None], 1, 2)[:, None] @ (cur - c_cur[:, None])[None]
+    h = np.swapaxes(ref - c_ref[:, None], 1, 2) @ (cur - c_cur[:, None])  # cross-covariance (n, 3, 3)
     u, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(u @ vt))
     d[d == 0] = 1.0
     vt[..., 2, :] *= d[..., None]
     rot = np.swapaxes(u @ vt, -1, -2)  # V · diag(1, 1, d) · Uᵀ
-    return (rot @ (p - c_ref)[:, None, :, None])[..., 0] + c_cur
+    return (rot @ (p - c_ref)[..., None])[..., 0] + c_cur
 
 
 def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[r]`` fixed to two reference points ``ref[r]`` goes in each frame of ``cur``, taking the
-    smallest rotation of the reference axis onto each frame's axis (the twist about the axis is not observable
-    and is taken as none).
+    """Where point ``p[i]`` fixed to two reference points ``ref[i]`` goes with the two points ``cur[i]``, taking
+    the smallest rotation of the reference axis onto the current one (the twist about the axis is not
+    observable and is taken as none).
 
-    ref : (R, 2, 3) reference points; cur : (n, 2, 3) the two points per frame; p : (R, 3).
-    Returns (R, n, 3): ``rot(p - c_ref) + c_cur`` by Rodrigues' formula, with ``c`` the two points' midpoint.
+    ref, cur : (n, 2, 3); p : (n, 3). Returns (n, 3): ``rot(p - c_ref) + c_cur`` by Rodrigues' formula, with
+    ``c`` the two points' midpoint.
     """
     c_ref = ref.mean(axis=1)
     c_cur = cur.mean(axis=1)
@@ -188,21 +187,15 @@ def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.nd
     u = u / norm3(u)[:, None]
     v = cur[:, 1] - cur[:, 0]
     v = v / norm3(v)[:, None]
-    u_, v_ = u[:, None, :], v[None, :, :]
-    cross = np.stack([u_[..., 1] * v_[..., 2] - u_[..., 2] * v_[..., 1],
-                      u_[..., 2] * v_[..., 0] - u_[..., 0] * v_[..., 2],
-                      u_[..., 0] * v_[..., 1] - u_[..., 1] * v_[..., 0]], axis=-1)
+    cross = np.cross(u, v)
     sin = norm3(cross)
     turn = sin > 1e-12
-    ang = np.where(turn, np.arctan2(sin, np.einsum("rc,nc->rn", u, v)), 0.0)
-    k = np.where(turn[..., None], cross / np.maximum(sin, 1e-12)[..., None], 0.0)
-    q = (p - c_ref)[:, None, :]
-    c, s = np.cos(ang)[..., None], np.sin(ang)[..., None]
-    kxq = np.stack([k[..., 1] * q[..., 2] - k[..., 2] * q[..., 1],
-                    k[..., 2] * q[..., 0] - k[..., 0] * q[..., 2],
-                    k[..., 0] * q[..., 1] - k[..., 1] * q[..., 0]], axis=-1)
-    kq = (k * q).sum(axis=-1, keepdims=True)
-    return c * q + s * kxq + (1.0 - c) * kq * k + c_cur
+    ang = np.where(turn, np.arctan2(sin, (u * v).sum(axis=1)), 0.0)
+    k = np.where(turn[:, None], cross / np.maximum(sin, 1e-12)[:, None], 0.0)
+    q = p - c_ref
+    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
+    kq = (k * q).sum(axis=1, keepdims=True)
+    return c * q + s * np.cross(k, q) + (1.0 - c) * kq * k + c_cur
 
 
 def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -243,48 +236,54 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
     frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
     pred_all = np.full((frames_all.size, 3), np.nan)
-    for pattern, rows_all in row_patterns(valid[frames_all][:, others]):
+    starts = np.array([a for a, _ in intervals])
+    stops = np.array([b for _, b in intervals])
+    for pattern, rows in row_patterns(valid[frames_all][:, others]):
         if pattern.sum() < 2:
             continue
         sub = others[pattern]
         complete = np.flatnonzero(known_m & valid[:, sub].all(axis=1))
+        if complete.size == 0:
+            continue
+        # each row's reference frames: the nearest complete frames before and after its interval (-1: none)
+        j0 = np.searchsorted(complete, starts[which[rows]])
+        j1 = np.searchsorted(complete, stops[which[rows]])
+        before = np.where(j0 > 0, complete[np.maximum(j0 - 1, 0)], -1)
+        after = np.where(j1 < complete.size, complete[np.minimum(j1, complete.size - 1)], -1)
+        refs = np.unique(np.concatenate([before, after]))
+        refs = refs[refs >= 0]
+        ref_pts = xyz[refs][:, sub]
         two = sub.size == 2
-        for i in np.unique(which[rows_all]):
-            a, b = intervals[i]
-            rows = rows_all[which[rows_all] == i]
-            frames = frames_all[rows]
-            refs = []
-            j = np.searchsorted(complete, a)  # complete frames before a: complete[:j]
-            if j > 0:
-                refs.append(int(complete[j - 1]))
-            j = np.searchsorted(complete, b)
-            if j < complete.size:
-                refs.append(int(complete[j]))
-            if not refs:
-                continue
-            ref_pts = xyz[refs][:, sub]
-            if two:
-                keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > 5.0
-            else:
-                # the mates must span a plane: second singular value of the centred set big enough
-                sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
-                keep = sv[:, 1] > np.maximum(5.0, 0.05 * sv[:, 0])
-            if not keep.any():
-                continue
-            refs = [r for r, k in zip(refs, keep, strict=True) if k]
-            cur = xyz[frames][:, sub]
-            preds = list((min_rotation_apply if two else kabsch_apply)(ref_pts[keep], cur, xyz[refs, m]))
-            if len(preds) == 1:
-                pred_all[rows] = preds[0]
-            else:
-                w = np.clip((frames - refs[0]) / (refs[1] - refs[0]), 0.0, 1.0)[:, None]
-                pred_all[rows] = (1.0 - w) * preds[0] + w * preds[1]
-    out = []
-    i0 = 0
-    for (a, b), (lo, hi) in zip(intervals, spans, strict=True):
-        out.append(_edge_correct(pred_all[i0:i0 + hi - lo], xyz[:, m], known_m, a, b, lo, hi, partial))
-        i0 += hi - lo
-    return out
+        if two:
+            keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > 5.0
+        else:
+            # the mates must span a plane: second singular value of the centred set big enough
+            sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
+            keep = sv[:, 1] > np.maximum(5.0, 0.05 * sv[:, 0])
+        usable = np.zeros(n_t + 1, dtype=bool)  # index -1 (no reference) lands on the last, False, entry
+        usable[refs[keep]] = True
+        ok0, ok1 = usable[before], usable[after]
+        frames = frames_all[rows]
+        # the prediction from every usable (row, reference) pair at once
+        pair_rows = np.concatenate([np.flatnonzero(ok0), np.flatnonzero(ok1)])
+        pair_refs = np.concatenate([before[ok0], after[ok1]])
+        if pair_rows.size == 0:
+            continue
+        apply = min_rotation_apply if two else kabsch_apply
+        pair_pred = apply(xyz[pair_refs][:, sub], xyz[frames[pair_rows]][:, sub], xyz[pair_refs, m])
+        p0 = np.full((rows.size, 3), np.nan)
+        p1 = np.full((rows.size, 3), np.nan)
+        n0 = int(ok0.sum())
+        p0[ok0], p1[ok1] = pair_pred[:n0], pair_pred[n0:]
+        pred = np.where(ok0[:, None], p0, p1)
+        blend = ok0 & ok1
+        if blend.any():
+            b0, b1 = before[blend], after[blend]
+            w = np.clip((frames[blend] - b0) / (b1 - b0), 0.0, 1.0)[:, None]
+            pred[blend] = (1.0 - w) * p0[blend] + w * p1[blend]
+        pred_all[rows] = pred
+    return [r[0] for r in _edge_correct_spans(pred_all[None], xyz[:, m], spans,
+                                              [(a, b, known_m, partial) for a, b in intervals])]
 
 
 def _flat(xyz: np.ndarray) -> np.ndarray:
@@ -557,32 +556,35 @@ def pca_fill_many(model: PcaModel, xyz: np.ndarray,
     frames = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     vis = np.concatenate([valid[lo:hi] for (lo, hi), (_, _, valid, _, _) in zip(spans, jobs, strict=True)])
     preds = model.predict(xyz, None, frames, ks, vis=vis)
-    out = []
-    i0 = 0
-    for (lo, hi), (a, b, _, known_m, partial) in zip(spans, jobs, strict=True):
-        out.append(_edge_correct_all(preds[:, i0:i0 + hi - lo], xyz[:, model.m], known_m, a, b, lo, hi, partial))
-        i0 += hi - lo
-    return out
+    return _edge_correct_spans(preds, xyz[:, model.m], spans, [(a, b, known_m, partial)
+                                                               for a, b, _, known_m, partial in jobs])
 
 
-def _edge_correct_all(preds: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
-                      lo: int, hi: int, partial: bool) -> list[np.ndarray | None]:
-    """:func:`_edge_correct` of each of ``preds`` (K, hi - lo, 3): the same arithmetic, in one pass for those
-    complete over ``[a - 1, b]`` when both edges are known."""
-    out: list[np.ndarray | None] = [None] * preds.shape[0]
-    fast = np.zeros(preds.shape[0], dtype=bool)
-    if a - 1 >= lo and b < hi and known_m[a - 1] and known_m[b]:
-        fast = ~np.isnan(preds[:, a - 1 - lo:b + 1 - lo]).any(axis=(1, 2))
+def _edge_correct_spans(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[int, int]],
+                        jobs: list[tuple[int, int, np.ndarray, bool]]) -> list[list[np.ndarray | None]]:
+    """:func:`_edge_correct` of each of ``preds`` (K, F, 3) on each interval: ``jobs`` = ``[(a, b, known_m,
+    partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` lie one after the other along F.
+    Returns one list (over K) per job. Intervals known at both edges span exactly ``[a - 1, b]``; each
+    (prediction, interval) complete there is corrected in one pass over all frames, the same arithmetic."""
+    lens = np.array([hi - lo for lo, hi in spans])
+    offs = np.concatenate([[0], np.cumsum(lens)[:-1]])
+    both = np.array([a - 1 >= lo and b < hi and bool(known_m[a - 1]) and bool(known_m[b])
+                     for (lo, hi), (a, b, known_m, _) in zip(spans, jobs, strict=True)])
+    fast = both[None, :] & ~np.logical_or.reduceat(np.isnan(preds).any(axis=2), offs, axis=1)
+    corrected = None
     if fast.any():
-        p = preds[fast]
-        w = ((np.arange(a, b) - (a - 1)) / (b - (a - 1)))[:, None]
-        res_l = xyz_m[a - 1] - p[:, a - 1 - lo]
-        res_r = xyz_m[b] - p[:, b - lo]
-        core = p[:, a - lo:b - lo] + (1.0 - w) * res_l[:, None] + w * res_r[:, None]
-        for i, c in zip(np.flatnonzero(fast), core, strict=True):
-            out[i] = c
-    for i in np.flatnonzero(~fast):
-        out[i] = _edge_correct(preds[i], xyz_m, known_m, a, b, lo, hi, partial)
+        job_of = np.repeat(np.arange(len(jobs)), lens)
+        w = ((np.arange(lens.sum()) - offs[job_of]) / np.maximum(lens[job_of] - 1, 1))[:, None]
+        left = np.array([a - 1 if ok else 0 for (a, *_), ok in zip(jobs, both, strict=True)])
+        right = np.array([b if ok else 0 for (_, b, *_), ok in zip(jobs, both, strict=True)])
+        res_l = xyz_m[left] - preds[:, offs]
+        res_r = xyz_m[right] - preds[:, offs + lens - 1]
+        corrected = preds + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of]
+    out = []
+    for j, ((lo, hi), (a, b, known_m, partial)) in enumerate(zip(spans, jobs, strict=True)):
+        out.append([corrected[k, offs[j] + 1:offs[j] + lens[j] - 1] if fast[k, j]
+                    else _edge_correct(preds[k, offs[j]:offs[j] + lens[j]], xyz_m, known_m, a, b, lo, hi, partial)
+                    for k in range(preds.shape[0])])
     return out
 
 
