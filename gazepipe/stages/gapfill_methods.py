@@ -158,19 +158,14 @@ def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: i
 
 def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
-    least-squares rigid transform (Kabsch / Söderkvist–Wedin) of the reference onto them.
+    least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.rotations.kabsch`).
 
     ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
     """
-    c_ref = ref.mean(axis=1)
-    c_cur = cur.mean(axis=1)
-    h = np.swapaxes(ref - c_ref[:, None], 1, 2) @ (cur - c_cur[:, None])  # cross-covariance (n, 3, 3)
-    u, _, vt = np.linalg.svd(h)
-    d = np.sign(np.linalg.det(u @ vt))
-    d[d == 0] = 1.0
-    vt[..., 2, :] *= d[..., None]
-    rot = np.swapaxes(u @ vt, -1, -2)  # V · diag(1, 1, d) · Uᵀ
-    return (rot @ (p - c_ref)[..., None])[..., 0] + c_cur
+    from gazepipe.stages.rotations import kabsch
+
+    rot = kabsch(ref, cur)
+    return (rot @ (p - ref.mean(axis=1))[..., None])[..., 0] + cur.mean(axis=1)
 
 
 def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -77,20 +77,22 @@ def det3(m: np.ndarray) -> np.ndarray:
 
 
 def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Least-squares rotations (N, 3, 3) with pts[n] − centroid ≈ R[n] · (ref − centroid(ref)).
+    """Least-squares rotations (N, 3, 3) with pts[n] − centroid ≈ R[n] · (ref[n] − centroid(ref[n])).
 
     Parameters
     ----------
-    ref : (K, 3) reference cluster (any origin).
+    ref : (K, 3) reference cluster shared by every frame, or (N, K, 3) one per frame (any origin).
     pts : (N, K, 3) observed clusters, same marker order; every marker must be finite.
 
     Batched SVD over frames (Kabsch; the sign correction keeps det R = +1).
     """
     ref = np.asarray(ref, dtype=np.float64)
     pts = np.asarray(pts, dtype=np.float64)
-    a = ref - ref.mean(axis=0)
     b = pts - pts.mean(axis=1, keepdims=True)
-    h = a.T @ b                                  # cross-covariance, (N, 3, 3)
+    if ref.ndim == 2:
+        h = (ref - ref.mean(axis=0)).T @ b        # cross-covariance, (N, 3, 3)
+    else:
+        h = np.swapaxes(ref - ref.mean(axis=1, keepdims=True), 1, 2) @ b
     u, _, vt = np.linalg.svd(h)
     v = vt.transpose(0, 2, 1)
     d = np.sign(det3(v) * det3(u))
