@@ -36,24 +36,32 @@ def test_local_multiprocess_cluster_matches_serial(tmp_path):
     assert digests == output_digests(dask_out)
 
 
-def _worker_environ() -> dict[str, str | None]:
+def _worker_settings() -> dict[str, object]:
     import os
 
-    return {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS")}
-
-
-def test_local_cluster_workers_keep_glibc_malloc_defaults():
-    # Dask's default MALLOC_TRIM_THRESHOLD_ makes the stages 1.5x slower; the thread limits stay
     import dask
 
-    from gazepipe.pipeline.executors import DaskExecutor
+    got: dict[str, object] = {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_", "OMP_NUM_THREADS")}
+    got.update({k: dask.config.get(k) for k in ("distributed.admin.tick.interval", "distributed.worker.profile.enabled")})
+    return got
 
-    before = dask.config.get("distributed.nanny.pre-spawn-environ", None)
+
+def test_local_cluster_worker_settings():
+    # Dask's default MALLOC_TRIM_THRESHOLD_ makes the stages 1.5x slower; the thread limits stay; the cluster's own
+    # periodic work (event-loop ticks, stack sampling) is quieted
+    import dask
+
+    from gazepipe.pipeline.executors import QUIET_LOCAL_CLUSTER, DaskExecutor
+
+    keys = ["distributed.nanny.pre-spawn-environ", *QUIET_LOCAL_CLUSTER]
+    before = {k: dask.config.get(k, None) for k in keys}
     ex = DaskExecutor(workers=1)
     try:
-        env = ex.submit(_worker_environ).result(timeout=60)
+        got = ex.submit(_worker_settings).result(timeout=60)
     finally:
         ex.shutdown()
-    assert env == {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}
+    assert got == {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1",
+                   "distributed.admin.tick.interval": "1s", "distributed.worker.profile.enabled": False}
+    assert before["distributed.admin.tick.interval"] != "1s"  # so the worker did not merely see the default
     # the process's Dask configuration is as it was
-    assert dask.config.get("distributed.nanny.pre-spawn-environ", None) == before
+    assert {k: dask.config.get(k, None) for k in keys} == before
