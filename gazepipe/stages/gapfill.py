@@ -48,7 +48,7 @@ from gazepipe.stages.gapfill_methods import (
     fit_pca_models,
     interp_fill,
     norm3,
-    pca_fill_many,
+    pca_fill_packed,
     rigid_fill,
     rigid_fill_many,
 )
@@ -317,22 +317,24 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
     wins = [w for w in wins if w in used]
     # the hidden stretches and the gap in one prediction per model (they share the gap's occlusion patterns)
     jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
-    fills = [pca_fill_many(mod, xyz, jobs, mod.ks) for mod in models]
+    packed = [pca_fill_packed(mod, xyz, jobs, mod.ks) for mod in models]
     cands = [(mod, k) for mod in models for k in mod.ks]
-    # per_job[j][c]: candidate c's prediction of job j (None when it cannot predict any of it)
-    per_job = [[q for f in fills for q in f[j]] for j in range(len(jobs))]
+    # every candidate's prediction of the stretches then the gap (C, frames, 3), NaN where it has none
+    filled = np.concatenate([f for f, _ in packed])
+    no_gap = np.concatenate([none[:, -1] for _, none in packed])
+    n_hidden = filled.shape[1] - (e - s)
     xyz_m = xyz[:, m]
     if wins:
         # each candidate's mean error over the hidden samples it could predict
-        e_c = np.concatenate([norm3(np.stack([_or_nan(q, b - a) for q in qs]) - xyz_m[a:b])
-                              for qs, (a, b) in zip(per_job[:-1], wins, strict=True)], axis=1)
+        truth = np.concatenate([xyz_m[a:b] for a, b in wins])
+        # row-major, so each row sums in the same (pairwise) order whatever the layout norm3 returns
+        e_c = np.ascontiguousarray(norm3(filled[:, :n_hidden] - truth))
         fin = np.isfinite(e_c)
         n_fin = fin.sum(axis=1)
         scores = np.where(fin, e_c, 0.0).sum(axis=1) / np.maximum(n_fin, 1)
         scores[n_fin == 0] = np.inf
     else:
         scores = np.full(len(cands), np.inf)
-    no_gap = np.array([q is None for q in per_job[-1]])
     if not np.isfinite(scores[~no_gap]).any():
         # nothing hidden, or no candidate predicted a hidden sample: unvalidated, the first model's middle
         # component count, else the first candidate that predicts the gap
@@ -344,17 +346,15 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
         return None, None, {}
     idx, w = inverse_square_weights(scores, _PCA_BLEND_TOP)
     model, model.k = cands[idx[0]]
-
-    def mix(preds: list[np.ndarray | None], n: int) -> np.ndarray:
-        # weights renormalised per frame over the candidates that predict it
-        q = np.stack([_or_nan(preds[i], n) for i in idx])
-        ok = np.isfinite(q).all(axis=2)
-        wf = np.where(ok, w[:, None], 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return (np.where(ok[..., None], q, 0.0) * wf[..., None]).sum(axis=0) / wf.sum(axis=0)[:, None]
-
-    stretches = {(a, b): mix(qs, b - a) for qs, (a, b) in zip(per_job[:-1], wins, strict=True)}
-    return model, mix(per_job[-1], e - s), stretches
+    # the blend, weights renormalised per frame over the candidates that predict it
+    q = filled[idx]
+    ok = np.isfinite(q).all(axis=2)
+    wf = np.where(ok, w[:, None], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mixed = (np.where(ok[..., None], q, 0.0) * wf[..., None]).sum(axis=0) / wf.sum(axis=0)[:, None]
+    offs = np.cumsum([0] + [b - a for a, b in wins]).tolist()
+    stretches = {w_: mixed[o:o + w_[1] - w_[0]] for w_, o in zip(wins, offs, strict=False)}
+    return model, mixed[n_hidden:], stretches
 
 
 def _or_nan(pred: np.ndarray | None, n: int) -> np.ndarray:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from gazepipe.stages.vectors import cross3, norm3
+
 # scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
 # plan a run, and a run with nothing to do should not pay for scipy.interpolate and scipy.linalg
 
@@ -30,13 +32,6 @@ PCA_BODY_FRAME = True
 PCA_UNIT_STD = False
 #: known samples used on each side of an interval by the interpolating methods
 _N_ANCHORS = 3
-
-
-def norm3(v: np.ndarray) -> np.ndarray:
-    """Euclidean norm over the last axis (of length 3): the same result as ``np.linalg.norm(v, axis=-1)``,
-    several times faster on many short vectors."""
-    sq = v * v
-    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
 
 
 def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -182,7 +177,7 @@ def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.nd
     u = u / norm3(u)[:, None]
     v = cur[:, 1] - cur[:, 0]
     v = v / norm3(v)[:, None]
-    cross = np.cross(u, v)
+    cross = cross3(u, v)
     sin = norm3(cross)
     turn = sin > 1e-12
     ang = np.where(turn, np.arctan2(sin, (u * v).sum(axis=1)), 0.0)
@@ -190,7 +185,7 @@ def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.nd
     q = p - c_ref
     c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
     kq = (k * q).sum(axis=1, keepdims=True)
-    return c * q + s * np.cross(k, q) + (1.0 - c) * kq * k + c_cur
+    return c * q + s * cross3(k, q) + (1.0 - c) * kq * k + c_cur
 
 
 def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -277,8 +272,8 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
             w = np.clip((frames[blend] - b0) / (b1 - b0), 0.0, 1.0)[:, None]
             pred[blend] = (1.0 - w) * p0[blend] + w * p1[blend]
         pred_all[rows] = pred
-    return [r[0] for r in _edge_correct_spans(pred_all[None], xyz[:, m], spans,
-                                              [(a, b, known_m, partial) for a, b in intervals])]
+    jobs = [(a, b, known_m, partial) for a, b in intervals]
+    return [r[0] for r in _unpack(*_edge_correct_packed(pred_all[None], xyz[:, m], spans, jobs), jobs)]
 
 
 def _flat(xyz: np.ndarray) -> np.ndarray:
@@ -337,7 +332,7 @@ class PcaModel:
             xt = xt - xt[:, :-1].mean(axis=1, keepdims=True)
         x = xt.reshape(train.size, -1)
         self.mean = x.mean(axis=0)
-        sigma = sigma_scale * max(float(np.median(d)), 1.0)
+        sigma = sigma_scale * max(_median(d), 1.0)
         w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
         self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
         if unit_std:
@@ -433,6 +428,13 @@ class PcaModel:
         return out
 
 
+def _median(v: np.ndarray) -> float:
+    """``np.median`` of a short finite 1-D array (the same value), without its overhead."""
+    s = sorted(v.tolist())
+    h = len(s) // 2
+    return s[h] if len(s) % 2 else (s[h - 1] + s[h]) / 2.0
+
+
 def _training_arrays(xyz: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Positions (n, P + 1, 3) of the predictors then marker ``m`` in frames ``train``, and each predictor's
@@ -458,7 +460,7 @@ def _frame_markers(xt: np.ndarray, dist: np.ndarray, kind: str) -> np.ndarray | 
     b = xt[:, pick[2]] - xt[:, pick[0]]
     la, lb = norm3(a), norm3(b)
     with np.errstate(invalid="ignore", divide="ignore"):
-        sin = norm3(np.cross(a, b)) / (la * lb)
+        sin = norm3(cross3(a, b)) / (la * lb)
     if not (la.mean() > 5.0 and lb.mean() > 5.0 and np.mean(sin) > 0.1):
         return None
     return pick
@@ -546,27 +548,46 @@ def pca_fill_many(model: PcaModel, xyz: np.ndarray,
     """:func:`pca_fill` for several intervals at once, ``jobs`` = ``[(a, b, valid, known_m, partial), ...]``:
     one prediction over all their frames, so intervals with the same occlusion pattern share its least-squares
     factorisation. Returns one list (over ``ks``) per job."""
+    return _unpack(*pca_fill_packed(model, xyz, jobs, ks), jobs)
+
+
+def pca_fill_packed(model: PcaModel, xyz: np.ndarray,
+                    jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
+                    ks: list[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pca_fill_many` as one array: ``(filled, none)``, ``filled`` (len(ks), Σ (b − a), 3) the jobs'
+    intervals one after the other (NaN where not predicted), ``none`` (len(ks), len(jobs)) True where
+    :func:`pca_fill_many` gives None."""
     n_t = xyz.shape[0]
     spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b, *_ in jobs]
     frames = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     vis = np.concatenate([valid[lo:hi] for (lo, hi), (_, _, valid, _, _) in zip(spans, jobs, strict=True)])
     preds = model.predict(xyz, None, frames, ks, vis=vis)
-    return _edge_correct_spans(preds, xyz[:, model.m], spans, [(a, b, known_m, partial)
-                                                               for a, b, _, known_m, partial in jobs])
+    return _edge_correct_packed(preds, xyz[:, model.m], spans, [(a, b, known_m, partial)
+                                                                for a, b, _, known_m, partial in jobs])
 
 
-def _edge_correct_spans(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[int, int]],
-                        jobs: list[tuple[int, int, np.ndarray, bool]]) -> list[list[np.ndarray | None]]:
+def _unpack(filled: np.ndarray, none: np.ndarray, jobs: list[tuple]) -> list[list[np.ndarray | None]]:
+    """:func:`_edge_correct_packed`'s result as one list (over predictions) of arrays or None per job."""
+    offs = np.cumsum([0] + [b - a for a, b, *_ in jobs]).tolist()
+    return [[None if none[k, j] else filled[k, offs[j]:offs[j + 1]] for k in range(filled.shape[0])]
+            for j in range(len(jobs))]
+
+
+def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[int, int]],
+                         jobs: list[tuple[int, int, np.ndarray, bool]]) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_edge_correct` of each of ``preds`` (K, F, 3) on each interval: ``jobs`` = ``[(a, b, known_m,
     partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` lie one after the other along F.
-    Returns one list (over K) per job. Intervals known at both edges span exactly ``[a - 1, b]``; each
-    (prediction, interval) complete there is corrected in one pass over all frames, the same arithmetic."""
+    Returns ``(filled, none)`` as :func:`pca_fill_packed` does. Intervals known at both edges span exactly
+    ``[a - 1, b]``; each (prediction, interval) complete there is corrected in one pass over all frames, the
+    same arithmetic."""
     lens = np.array([hi - lo for lo, hi in spans])
     offs = np.concatenate([[0], np.cumsum(lens)[:-1]])
     both = np.array([a - 1 >= lo and b < hi and bool(known_m[a - 1]) and bool(known_m[b])
                      for (lo, hi), (a, b, known_m, _) in zip(spans, jobs, strict=True)])
     fast = both[None, :] & ~np.logical_or.reduceat(np.isnan(preds).any(axis=2), offs, axis=1)
-    corrected = None
+    # each interval's frames [a, b) within the spans
+    inner = np.concatenate([np.arange(o + a - lo, o + b - lo)
+                            for o, (lo, _), (a, b, *_) in zip(offs.tolist(), spans, jobs, strict=True)])
     if fast.any():
         job_of = np.repeat(np.arange(len(jobs)), lens)
         w = ((np.arange(lens.sum()) - offs[job_of]) / np.maximum(lens[job_of] - 1, 1))[:, None]
@@ -574,13 +595,18 @@ def _edge_correct_spans(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[
         right = np.array([b if ok else 0 for (_, b, *_), ok in zip(jobs, both, strict=True)])
         res_l = xyz_m[left] - preds[:, offs]
         res_r = xyz_m[right] - preds[:, offs + lens - 1]
-        corrected = preds + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of]
-    out = []
+        filled = (preds + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of])[:, inner]
+    else:
+        filled = np.empty((preds.shape[0], inner.size, 3))
+    none = np.zeros(fast.shape, dtype=bool)
+    out_off = 0
     for j, ((lo, hi), (a, b, known_m, partial)) in enumerate(zip(spans, jobs, strict=True)):
-        out.append([corrected[k, offs[j] + 1:offs[j] + lens[j] - 1] if fast[k, j]
-                    else _edge_correct(preds[k, offs[j]:offs[j] + lens[j]], xyz_m, known_m, a, b, lo, hi, partial)
-                    for k in range(preds.shape[0])])
-    return out
+        for k in np.flatnonzero(~fast[:, j]).tolist():
+            q = _edge_correct(preds[k, offs[j]:offs[j] + lens[j]], xyz_m, known_m, a, b, lo, hi, partial)
+            none[k, j] = q is None
+            filled[k, out_off:out_off + b - a] = np.nan if q is None else q
+        out_off += b - a
+    return filled, none
 
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,

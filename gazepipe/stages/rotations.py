@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from gazepipe.stages.vectors import cross3
+
 _EPS = 1e-12
 
 
@@ -45,7 +47,7 @@ def matrix_from_six(six: np.ndarray) -> np.ndarray:
     z = fwd / np.linalg.norm(fwd, axis=-1, keepdims=True)
     y = up - np.sum(up * z, axis=-1, keepdims=True) * z
     y = y / np.linalg.norm(y, axis=-1, keepdims=True)
-    x = np.cross(y, z)
+    x = cross3(y, z)
     return np.stack([x, y, z], axis=-1)
 
 
@@ -62,18 +64,18 @@ def frame_from_points(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndar
     """
     a = np.asarray(p1, dtype=np.float64) - p0
     b = np.asarray(p2, dtype=np.float64) - p0
-    n = np.cross(a, b)
+    n = cross3(a, b)
     with np.errstate(invalid="ignore", divide="ignore"):
         e1 = a / np.linalg.norm(a, axis=-1, keepdims=True)
         nn = np.linalg.norm(n, axis=-1, keepdims=True)
         e3 = np.where(nn > _EPS, n / nn, np.nan)
-    e2 = np.cross(e3, e1)
+    e2 = cross3(e3, e1)
     return np.stack([e1, e2, e3], axis=-1)
 
 
 def det3(m: np.ndarray) -> np.ndarray:
     """Determinants of (..., 3, 3) matrices by the triple product of their rows (no LU per matrix)."""
-    return np.einsum("...i,...i->...", m[..., 0, :], np.cross(m[..., 1, :], m[..., 2, :]))
+    return np.einsum("...i,...i->...", m[..., 0, :], cross3(m[..., 1, :], m[..., 2, :]))
 
 
 def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -122,5 +124,5 @@ def heading_frames(left_raw: np.ndarray, up: np.ndarray) -> np.ndarray:
         nl = np.linalg.norm(left, axis=1, keepdims=True)
         left = np.where(nl > _EPS, left / nl, np.nan)
     upb = np.broadcast_to(up, left.shape)
-    fwd = np.cross(left, upb)
+    fwd = cross3(left, upb)
     return np.stack([left, upb, fwd], axis=-1)
