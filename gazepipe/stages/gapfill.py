@@ -317,11 +317,10 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
     wins = [w for w in wins if w in used]
     # the hidden stretches and the gap in one prediction per model (they share the gap's occlusion patterns)
     jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
-    packed = [pca_fill_packed(mod, xyz, jobs, mod.ks) for mod in models]
     cands = [(mod, k) for mod in models for k in mod.ks]
     # every candidate's prediction of the stretches then the gap (C, frames, 3), NaN where it has none
-    filled = np.concatenate([f for f, _ in packed])
-    no_gap = np.concatenate([none[:, -1] for _, none in packed])
+    filled, none = pca_fill_packed(models, xyz, jobs)
+    no_gap = none[:, -1]
     n_hidden = filled.shape[1] - (e - s)
     xyz_m = xyz[:, m]
     if wins:

@@ -194,9 +194,15 @@ def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         return []
     if (vis == vis[0]).all():
         return [(vis[0], np.arange(vis.shape[0]))]
-    patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
+    if vis.shape[1] > 62:
+        patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
+    # each row as an integer, first column most significant: the order of np.unique(vis, axis=0), far cheaper
+    code = vis.astype(np.int64) @ (1 << np.arange(vis.shape[1] - 1, -1, -1, dtype=np.int64))
+    order = np.argsort(code, kind="stable")
+    cuts = np.flatnonzero(np.diff(code[order])) + 1
+    return [(vis[rows[0]], rows) for rows in np.split(order, cuts)]
 
 
 def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
@@ -551,19 +557,24 @@ def pca_fill_many(model: PcaModel, xyz: np.ndarray,
     return _unpack(*pca_fill_packed(model, xyz, jobs, ks), jobs)
 
 
-def pca_fill_packed(model: PcaModel, xyz: np.ndarray,
+def pca_fill_packed(models: PcaModel | list[PcaModel], xyz: np.ndarray,
                     jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
                     ks: list[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`pca_fill_many` as one array: ``(filled, none)``, ``filled`` (len(ks), Σ (b − a), 3) the jobs'
-    intervals one after the other (NaN where not predicted), ``none`` (len(ks), len(jobs)) True where
-    :func:`pca_fill_many` gives None."""
+    """:func:`pca_fill_many` as one array, for one model (its ``ks``, default its ``k``) or for several
+    models of the same marker (each with all its ``ks``, in order): ``(filled, none)``, ``filled``
+    (predictions, Σ (b − a), 3) the jobs' intervals one after the other (NaN where not predicted), ``none``
+    (predictions, len(jobs)) True where :func:`pca_fill_many` gives None."""
+    if isinstance(models, PcaModel):
+        models, kss = [models], [ks]
+    else:
+        kss = [mod.ks for mod in models]
     n_t = xyz.shape[0]
     spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b, *_ in jobs]
     frames = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     vis = np.concatenate([valid[lo:hi] for (lo, hi), (_, _, valid, _, _) in zip(spans, jobs, strict=True)])
-    preds = model.predict(xyz, None, frames, ks, vis=vis)
-    return _edge_correct_packed(preds, xyz[:, model.m], spans, [(a, b, known_m, partial)
-                                                                for a, b, _, known_m, partial in jobs])
+    preds = np.concatenate([mod.predict(xyz, None, frames, k, vis=vis) for mod, k in zip(models, kss, strict=True)])
+    return _edge_correct_packed(preds, xyz[:, models[0].m], spans, [(a, b, known_m, partial)
+                                                                    for a, b, _, known_m, partial in jobs])
 
 
 def _unpack(filled: np.ndarray, none: np.ndarray, jobs: list[tuple]) -> list[list[np.ndarray | None]]:
@@ -575,37 +586,41 @@ def _unpack(filled: np.ndarray, none: np.ndarray, jobs: list[tuple]) -> list[lis
 
 def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[int, int]],
                          jobs: list[tuple[int, int, np.ndarray, bool]]) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_edge_correct` of each of ``preds`` (K, F, 3) on each interval: ``jobs`` = ``[(a, b, known_m,
-    partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` lie one after the other along F.
-    Returns ``(filled, none)`` as :func:`pca_fill_packed` does. Intervals known at both edges span exactly
-    ``[a - 1, b]``; each (prediction, interval) complete there is corrected in one pass over all frames, the
-    same arithmetic."""
-    lens = np.array([hi - lo for lo, hi in spans])
-    offs = np.concatenate([[0], np.cumsum(lens)[:-1]])
-    both = np.array([a - 1 >= lo and b < hi and bool(known_m[a - 1]) and bool(known_m[b])
-                     for (lo, hi), (a, b, known_m, _) in zip(spans, jobs, strict=True)])
-    fast = both[None, :] & ~np.logical_or.reduceat(np.isnan(preds).any(axis=2), offs, axis=1)
-    # each interval's frames [a, b) within the spans
-    inner = np.concatenate([np.arange(o + a - lo, o + b - lo)
-                            for o, (lo, _), (a, b, *_) in zip(offs.tolist(), spans, jobs, strict=True)])
-    if fast.any():
-        job_of = np.repeat(np.arange(len(jobs)), lens)
-        w = ((np.arange(lens.sum()) - offs[job_of]) / np.maximum(lens[job_of] - 1, 1))[:, None]
-        left = np.array([a - 1 if ok else 0 for (a, *_), ok in zip(jobs, both, strict=True)])
-        right = np.array([b if ok else 0 for (_, b, *_), ok in zip(jobs, both, strict=True)])
-        res_l = xyz_m[left] - preds[:, offs]
-        res_r = xyz_m[right] - preds[:, offs + lens - 1]
-        filled = (preds + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of])[:, inner]
-    else:
-        filled = np.empty((preds.shape[0], inner.size, 3))
-    none = np.zeros(fast.shape, dtype=bool)
-    out_off = 0
-    for j, ((lo, hi), (a, b, known_m, partial)) in enumerate(zip(spans, jobs, strict=True)):
-        for k in np.flatnonzero(~fast[:, j]).tolist():
-            q = _edge_correct(preds[k, offs[j]:offs[j] + lens[j]], xyz_m, known_m, a, b, lo, hi, partial)
-            none[k, j] = q is None
-            filled[k, out_off:out_off + b - a] = np.nan if q is None else q
-        out_off += b - a
+    """:func:`_edge_correct` of each of ``preds`` (K, F, 3) on each interval, all at once: ``jobs`` =
+    ``[(a, b, known_m, partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` lie one after the
+    other along F. Returns ``(filled, none)`` as :func:`pca_fill_packed` does, with the same arithmetic as
+    :func:`_edge_correct` (a one-sided correction is the two-sided formula with weight 0 or 1 on a zero residual,
+    which adds exact zeros)."""
+    n_k = preds.shape[0]
+    lo_l, hi_l = [lo for lo, _ in spans], [hi for _, hi in spans]
+    a_l, b_l = [j[0] for j in jobs], [j[1] for j in jobs]
+    lo, hi, a, b = (np.array(v, dtype=np.int64) for v in (lo_l, hi_l, a_l, b_l))
+    partial = np.array([j[3] for j in jobs], dtype=bool)
+    lens = hi - lo
+    offs = np.cumsum(lens) - lens
+    n_in = b - a
+    job_of = np.repeat(np.arange(len(jobs)), n_in)
+    in_offs = np.cumsum(n_in) - n_in
+    # each interval's frames [a, b) within the spans, and the frame numbers
+    t = np.arange(n_in.sum()) - in_offs[job_of] + a[job_of]
+    inner = offs[job_of] + t - lo[job_of]
+    core = preds[:, inner]
+    bad = np.isnan(core).any(axis=2)
+    n_bad = np.add.reduceat(bad, in_offs, axis=1) if inner.size else np.zeros((n_k, len(jobs)), np.int64)
+    none = (n_bad == n_in) | ((n_bad > 0) & ~partial)
+    # the known samples next to each interval (spans start at a - 1 and end at b + 1 inside the take)
+    known_l = np.array([a_ - 1 >= lo_ and bool(j[2][a_ - 1]) for a_, lo_, j in zip(a_l, lo_l, jobs, strict=True)])
+    known_r = np.array([b_ < hi_ and bool(j[2][b_]) for b_, hi_, j in zip(b_l, hi_l, jobs, strict=True)])
+    p_l = preds[:, offs + np.maximum(a - 1 - lo, 0)]
+    p_r = preds[:, offs + np.minimum(b - lo, lens - 1)]
+    ok_l = known_l & np.isfinite(p_l).all(axis=2)
+    ok_r = known_r & np.isfinite(p_r).all(axis=2)
+    res_l = np.where(ok_l[..., None], xyz_m[np.maximum(a - 1, 0)] - p_l, 0.0)
+    res_r = np.where(ok_r[..., None], xyz_m[np.minimum(b, xyz_m.shape[0] - 1)] - p_r, 0.0)
+    w2 = (t - (a[job_of] - 1)) / (b[job_of] - (a[job_of] - 1))
+    w = np.where(ok_l[:, job_of], np.where(ok_r[:, job_of], w2, 0.0), 1.0)[..., None]
+    filled = core + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of]
+    filled[none[:, job_of]] = np.nan
     return filled, none
 
 
