@@ -257,6 +257,47 @@ def test_report_is_byte_identical_on_a_second_run(clean_out: Path) -> None:
     assert "<svg" not in (clean_out / "qc" / "report.html").read_text()
 
 
+def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) -> None:
+    """A run starts the report's take half when its takes are done (before any dataset exists), finishes it
+    after the datasets, and writes what `gazepipe validate` writes; a run with nothing to do keeps it."""
+    import io
+
+    from gazepipe.cli.main import REPORT_PLOT_TAKES, _RunReport
+    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.pipeline.events import EventLog
+    from gazepipe.report.validate import validate_output
+
+    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train",
+                                                    "shift_ym036_p00": "val"})
+    out = tmp_path / "out"
+    calls: list[tuple[str, bool]] = []
+
+    class Spy(_RunReport):
+        def takes_done(self) -> None:
+            calls.append(("takes_done", (out / "datasets").is_dir() and any((out / "datasets").iterdir())))
+            super().takes_done()
+
+        def finish(self) -> None:
+            calls.append(("finish", (out / "datasets" / "gaze_map" / "dataset.json").is_file()))
+            super().finish()
+
+    def run() -> None:
+        log = EventLog("json", stream=io.StringIO())
+        run_pipeline([load_session(session)], out, executor="serial", log=log, report=Spy(out, log))
+
+    run()
+    assert calls == [("takes_done", False), ("finish", True)]
+    written = {n: (out / "qc" / n).read_bytes() for n in ("report.json", "takes.parquet", "report.html")}
+    validate_output(out, plot_takes=REPORT_PLOT_TAKES)
+    for n, data in written.items():
+        assert (out / "qc" / n).read_bytes() == data, n
+    calls.clear()
+    stamp = (out / "qc" / "report.html").stat().st_mtime_ns
+    run()
+    assert calls == [("finish", True)]
+    assert (out / "qc" / "report.html").stat().st_mtime_ns == stamp
+
+
 def _section(html: str, anchor: str) -> str:
     start = html.index(f'id="{anchor}"')
     nxt = html.find("<h2 id=", start + 1)

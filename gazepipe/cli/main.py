@@ -44,14 +44,14 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     loaded = load_sessions(sessions)
     values = parse_params(params, params_file)
     log = EventLog(log_format, run_id=new_run_id())
+    report = _RunReport(Path(out), log) if until is None and not dry_run else None
     summary = run_pipeline(loaded, out, until=until, params=values, executor=executor, jobs=jobs,
-                           scheduler=scheduler, force=force, dry_run=dry_run, log=log, heartbeat_every=heartbeat)
+                           scheduler=scheduler, force=force, dry_run=dry_run, log=log, heartbeat_every=heartbeat,
+                           report=report)
     if debug:
         for o in summary.failed:
             if o.traceback:
                 click.echo(o.traceback, err=True)
-    if until is None and not dry_run:
-        _refresh_report(Path(out), log)
     if not dry_run:
         ran = summary.count("ok")
         failed = len(summary.failed)
@@ -69,23 +69,44 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
 REPORT_PLOT_TAKES = 6
 
 
-def _refresh_report(out: Path, log) -> None:
-    """Write the QC report unless it already describes exactly these outputs."""
-    from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json
+class _RunReport:
+    """The QC report of a full run. Its take half starts as soon as the takes are done, in a thread, while the
+    datasets are built; it is finished under the run's lock, unless it already describes exactly these
+    outputs."""
 
-    layout = OutLayout(out)
-    stamp = layout.state / "report.json"
-    current = outputs_fingerprint(layout)
-    if (out / "qc" / "report.html").is_file() and (read_json(stamp) or {}).get("outputs") == current:
-        return
-    from gazepipe.report.validate import validate_output
+    def __init__(self, out: Path, log) -> None:
+        self.out = out
+        self.log = log
+        self.background = None
 
-    # plots for the worst takes only: `gazepipe validate OUT --plot-takes N` draws more
-    res = validate_output(out, plot_takes=REPORT_PLOT_TAKES)
-    layout.write_json(stamp, {"outputs": current})
-    counts = res.report["summary"]["checks"]
-    log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("
-             + ", ".join(f"{n} {k}" for k, n in counts.items() if n) + ")", status="ok", path=str(res.paths[2]))
+    def takes_done(self) -> None:
+        from gazepipe.report.validate import ReportInBackground
+
+        # plots for the worst takes only: `gazepipe validate OUT --plot-takes N` draws more
+        self.background = ReportInBackground(self.out, plot_takes=REPORT_PLOT_TAKES)
+
+    def finish(self) -> None:
+        from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json
+
+        layout = OutLayout(self.out)
+        stamp = layout.state / "report.json"
+        current = outputs_fingerprint(layout)
+        background, self.background = self.background, None
+        if (self.out / "qc" / "report.html").is_file() and (read_json(stamp) or {}).get("outputs") == current:
+            if background is not None:
+                background.finish_quietly()
+            return
+        if background is not None:
+            res = background.finish()
+        else:
+            from gazepipe.report.validate import validate_output
+
+            res = validate_output(self.out, plot_takes=REPORT_PLOT_TAKES, lock=False)  # the run holds it
+        layout.write_json(stamp, {"outputs": current})
+        counts = res.report["summary"]["checks"]
+        self.log.emit("info", "qc_report", f"QC report: {res.paths[2]} ("
+                      + ", ".join(f"{n} {k}" for k, n in counts.items() if n) + ")", status="ok",
+                      path=str(res.paths[2]))
 
 
 def _stage_command(name: str, until: str | None, summary: str) -> None:

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from gazepipe.errors import GazepipeError
 from gazepipe.model import Session
@@ -69,8 +69,13 @@ def plan_run(sessions: Sequence[Session], out: Path, *, until: str | None = None
 def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | None = None,
                  params: dict[str, Any] | None = None, executor: str = "process", jobs: int | None = None,
                  scheduler: str | None = None, force: bool = False, dry_run: bool = False,
-                 log: EventLog | None = None, heartbeat_every: int = 10) -> RunSummary:
-    """Run the stages (up to ``until``) on every take of ``sessions`` into ``out``."""
+                 log: EventLog | None = None, heartbeat_every: int = 10,
+                 report: RunReport | None = None) -> RunSummary:
+    """Run the stages (up to ``until``) on every take of ``sessions`` into ``out``.
+
+    ``report``: told when the takes are done (``takes_done``, only when units ran: the datasets are built
+    next) and, at the end, still under the output folder's lock, ``finish`` (every run that is not a dry run).
+    """
     layout = OutLayout(Path(out))
     log = log or EventLog()
     summary = RunSummary(run_id=log.run_id or new_run_id())
@@ -119,6 +124,9 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
                 log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
                          f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
                 _execute(todo, summary, log, workers, heartbeat_every)
+                if report is not None:
+                    hashes.save(layout.write_bytes)  # what the report's unit states are worked out with
+                    report.takes_done()
             built = 0
             if until in (None, BUILD):
                 built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers)
@@ -128,7 +136,17 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
         hashes.save(layout.write_bytes)
         layout.write_json(layout.runs() / f"{summary.run_id}.json", {
             "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]})
+        if report is not None:
+            report.finish()
     return summary
+
+
+class RunReport(Protocol):
+    """What a run tells the QC report (see :func:`run_pipeline`)."""
+
+    def takes_done(self) -> None: ...
+
+    def finish(self) -> None: ...
 
 
 class _Workers:

@@ -278,7 +278,64 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     return _validate(layout, th, fail_on, limit)
 
 
+class ReportInBackground:
+    """The take half of the report (every take's checks, the worst takes' plots) computed in a thread from now
+    on, while the caller does other work (a run builds its datasets); :meth:`finish` adds the datasets and
+    writes the files, as :func:`validate_output` would have.
+
+    The caller keeps every take's outputs as they are until :meth:`finish` (a run holds the folder's lock; only
+    the datasets may change meanwhile) and holds the lock itself when it needs one.
+    """
+
+    def __init__(self, out: str | Path, thresholds: C.Thresholds | None = None, plot_takes: int = 100) -> None:
+        import threading
+
+        self.layout = open_output(out)
+        self.th = thresholds or C.Thresholds()
+        self.plot_takes = int(plot_takes)
+        self._done: _TakePass | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="gazepipe-report-takes", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            self._done = _take_pass(self.layout, self.th, self.plot_takes)
+        except BaseException as exc:  # handed to the caller by finish()
+            self._error = exc
+
+    def finish_quietly(self) -> None:
+        """Wait for the take half and drop it (the report turned out not to be needed)."""
+        self._thread.join()
+
+    def finish(self, fail_on: str = "fail") -> ValidateResult:
+        """Wait for the take half, then check the datasets and write ``qc/``; the take half's error, if any."""
+        if fail_on not in FAIL_ON:
+            raise ValueError(f"fail_on must be one of {FAIL_ON}")
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._done is not None
+        return _finish(self.layout, self.th, fail_on, self.plot_takes, self._done)
+
+
+@dataclass
+class _TakePass:
+    """What the take half of the report found: sessions, per-take records, rows and figures."""
+
+    session_problems: list[str]
+    takes_out: list[dict[str, Any]]
+    rows: list[dict[str, Any]]
+    refs: list[dict[str, Any]]
+    take_figs: dict[str, list[Figure]]
+    plot_notes: list[str]
+
+
 def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int) -> ValidateResult:
+    return _finish(layout, th, fail_on, plot_takes, _take_pass(layout, th, plot_takes))
+
+
+def _take_pass(layout: OutLayout, th: C.Thresholds, plot_takes: int) -> _TakePass:
     sessions, session_problems = load_sessions(layout)
     states = unit_states(layout) if not session_problems else None
     takes_out: list[dict[str, Any]] = []
@@ -309,7 +366,12 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int
         plot_notes.insert(0, f"plots drawn for the {plot_takes} worst of {len(entries)} takes (--plot-takes)")
     elif plot_takes == 0 and entries:
         plot_notes.insert(0, "plots left out (--no-plots)")
+    return _TakePass(session_problems, takes_out, rows, refs, take_figs, plot_notes)
 
+
+def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, tp: _TakePass) -> ValidateResult:
+    session_problems, takes_out, rows, refs = tp.session_problems, tp.takes_out, tp.rows, list(tp.refs)
+    take_figs, plot_notes = tp.take_figs, tp.plot_notes
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
     splits: dict[str, dict[str, str]] = {}
@@ -364,4 +426,4 @@ def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int
                           notes=plot_notes)
 
 
-__all__ = ["FAIL_ON", "ValidateResult", "dataset_checks", "take_checks", "validate_output"]
+__all__ = ["FAIL_ON", "ReportInBackground", "ValidateResult", "dataset_checks", "take_checks", "validate_output"]
