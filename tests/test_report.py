@@ -258,7 +258,7 @@ def test_report_is_byte_identical_on_a_second_run(clean_out: Path) -> None:
 
 
 def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) -> None:
-    """A run starts the report's take half when its takes are done (before any dataset exists), finishes it
+    """A run starts the report's take checks when its takes are done (before any dataset exists), finishes it
     after the datasets, and writes what `gazepipe validate` writes; a run with nothing to do keeps it."""
     import io
 

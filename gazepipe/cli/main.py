@@ -70,9 +70,9 @@ REPORT_PLOT_TAKES = 6
 
 
 class _RunReport:
-    """The QC report of a full run. Its take half starts as soon as the takes are done, in a thread, while the
-    datasets are built; it is finished under the run's lock, unless it already describes exactly these
-    outputs."""
+    """The QC report of a full run. The checks of every take start as soon as the takes are done, in a thread,
+    while the datasets are built; the report is finished under the run's lock, unless it already describes
+    exactly these outputs."""
 
     def __init__(self, out: Path, log) -> None:
         self.out = out

@@ -26,7 +26,7 @@ from gazepipe.io.datasets import StagedDatasetWriter
 from gazepipe.io.parquet import read_schema
 from gazepipe.model import Session, Take
 from gazepipe.pipeline.hashing import sha256_json
-from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _alive, _loader
+from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _alive, _loader, release_memory
 from gazepipe.pipeline.state import OutLayout, read_json
 from gazepipe.schemas.base import read_meta
 from gazepipe.schemas.datasets import DATASETS
@@ -155,6 +155,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     ``parent_pid``: the run's process when this runs in a local worker; when that process is gone (its lock
     with it) the build stops before publishing anything or writing its record.
     """
+    release_memory()  # what the takes run before in this process left behind
     t0 = time.perf_counter()
     load = _loader(layout)
     outcome = UnitOutcome("-", "-", f"build:{plan.name}", "ok", reason=plan.reason)

@@ -183,6 +183,18 @@ def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None):
     return load
 
 
+def release_memory() -> None:
+    """Hand memory freed by earlier work back to the system: Arrow's pool, then the C heap (glibc only). A
+    worker that ran many takes otherwise keeps its high-water mark through the dataset builds."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    pa.default_memory_pool().release_unused()
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+
+
 def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     """Run a take's units in order; record each; a failure blocks the units that depend on it."""
     layout = OutLayout(Path(job.out))

@@ -23,7 +23,6 @@ from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
-from gazepipe.report import plots
 from gazepipe.report.collect import (
     DatasetData,
     TakeEntry,
@@ -138,6 +137,8 @@ def take_row(e: TakeEntry, checks: list[C.Check], severity: str) -> dict[str, An
 
 def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list[Figure], list[str]]:
     """The take's plots and notes on plots that could not be drawn."""
+    from gazepipe.report import plots  # matplotlib: loaded only when something is drawn
+
     figs: list[Figure] = []
     notes: list[str] = []
     clean = e.qc("clean")
@@ -221,6 +222,7 @@ def dataset_figures(d: DatasetData) -> list[Figure]:
     smp = d.all_rows
     if smp is None:
         return []
+    from gazepipe.report import plots
     names = d.info.get("features") or {}
     how = f"over {smp.pose.size} sampled rows of every split (mirrored copies included), one colour per pose"
     scalars = [c for c, v in smp.columns.items() if v.shape[1] == 1]
@@ -279,9 +281,9 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
 
 
 class ReportInBackground:
-    """The take half of the report (every take's checks, the worst takes' plots) computed in a thread from now
-    on, while the caller does other work (a run builds its datasets); :meth:`finish` adds the datasets and
-    writes the files, as :func:`validate_output` would have.
+    """The checks of every take computed in a thread from now on, while the caller does other work (a run builds
+    its datasets); :meth:`finish` adds the plots (drawn then: matplotlib's memory is not added to the caller's
+    peak) and the datasets and writes the files, as :func:`validate_output` would have.
 
     The caller keeps every take's outputs as they are until :meth:`finish` (a run holds the folder's lock; only
     the datasets may change meanwhile) and holds the lock itself when it needs one.
@@ -305,11 +307,12 @@ class ReportInBackground:
             self._error = exc
 
     def finish_quietly(self) -> None:
-        """Wait for the take half and drop it (the report turned out not to be needed)."""
+        """Wait for the take checks and drop them (the report turned out not to be needed)."""
         self._thread.join()
 
     def finish(self, fail_on: str = "fail") -> ValidateResult:
-        """Wait for the take half, then check the datasets and write ``qc/``; the take half's error, if any."""
+        """Wait for the take checks (raising their error, if any), then draw the plots, check the datasets and
+        write ``qc/``."""
         if fail_on not in FAIL_ON:
             raise ValueError(f"fail_on must be one of {FAIL_ON}")
         self._thread.join()
@@ -321,14 +324,14 @@ class ReportInBackground:
 
 @dataclass
 class _TakePass:
-    """What the take half of the report found: sessions, per-take records, rows and figures."""
+    """What the checks of every take found: sessions, takes, their report entries, rows and check references."""
 
+    sessions: dict[str, Any]
     session_problems: list[str]
+    entries: list[TakeEntry]
     takes_out: list[dict[str, Any]]
     rows: list[dict[str, Any]]
     refs: list[dict[str, Any]]
-    take_figs: dict[str, list[Figure]]
-    plot_notes: list[str]
 
 
 def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int) -> ValidateResult:
@@ -353,25 +356,30 @@ def _take_pass(layout: OutLayout, th: C.Thresholds, plot_takes: int) -> _TakePas
         refs.extend(_ref("take", e.key, c) for c in checks)
         del tables
 
-    # plots: a second pass over the worst takes only (tables are read again, one take at a time)
+    return _TakePass(sessions, session_problems, entries, takes_out, rows, refs)
+
+
+def _take_plots(layout: OutLayout, tp: _TakePass, plot_takes: int) -> tuple[dict[str, list[Figure]], list[str]]:
+    """The plots of the ``plot_takes`` worst takes (their tables read again, one take at a time), and notes."""
     take_figs: dict[str, list[Figure]] = {}
     plot_notes: list[str] = []
-    ranked = sorted(zip(entries, takes_out, strict=True), key=lambda et: (-C.RANK[et[1]["severity"]], et[0].key))
+    ranked = sorted(zip(tp.entries, tp.takes_out, strict=True),
+                    key=lambda et: (-C.RANK[et[1]["severity"]], et[0].key))
     for e, _ in ranked[:plot_takes]:
-        s = sessions.get(e.session)
+        s = tp.sessions.get(e.session)
         figs, fig_notes = take_figures(e, load_take_tables(layout, e), s.markerset if s is not None else None)
         take_figs[e.key] = figs
         plot_notes.extend(f"{e.key}: {n}" for n in fig_notes)
-    if 0 < plot_takes < len(entries):
-        plot_notes.insert(0, f"plots drawn for the {plot_takes} worst of {len(entries)} takes (--plot-takes)")
-    elif plot_takes == 0 and entries:
+    if 0 < plot_takes < len(tp.entries):
+        plot_notes.insert(0, f"plots drawn for the {plot_takes} worst of {len(tp.entries)} takes (--plot-takes)")
+    elif plot_takes == 0 and tp.entries:
         plot_notes.insert(0, "plots left out (--no-plots)")
-    return _TakePass(session_problems, takes_out, rows, refs, take_figs, plot_notes)
+    return take_figs, plot_notes
 
 
 def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, tp: _TakePass) -> ValidateResult:
     session_problems, takes_out, rows, refs = tp.session_problems, tp.takes_out, tp.rows, list(tp.refs)
-    take_figs, plot_notes = tp.take_figs, tp.plot_notes
+    take_figs, plot_notes = _take_plots(layout, tp, plot_takes)
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
     splits: dict[str, dict[str, str]] = {}
