@@ -438,3 +438,36 @@ def test_pca_local_frame_needs_three_spread_markers():
     valid = np.ones((n_t, 5), bool)
     model = PcaModel(xyz, valid, 4, np.arange(4), np.arange(n_t), local_frame="steady")
     assert model.frame is None
+
+
+def test_packed_edge_correction_equals_the_per_interval_one() -> None:
+    """The one-pass edge correction of many predictions and intervals gives, bit for bit, what correcting each
+    interval on its own gives: both edges known, one, none (take boundaries, unknown or unpredicted edge
+    frames), partly predicted intervals with and without ``partial``."""
+    from gazepipe.stages.gapfill_methods import _edge_correct, _edge_correct_packed
+
+    rng = np.random.default_rng(7)
+    n_t = 60
+    xyz_m = rng.normal(size=(n_t, 3)) * 100.0
+    known = rng.random(n_t) > 0.2
+    intervals = [(0, 4), (5, 9), (12, 13), (20, 27), (30, 31), (40, 48), (55, 60)]
+    spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b in intervals]
+    jobs = [(a, b, known, bool(i % 2)) for i, (a, b) in enumerate(intervals)]
+    preds = rng.normal(size=(4, sum(hi - lo for lo, hi in spans), 3)) * 100.0
+    preds[1, 3] = np.nan                              # an unpredicted edge frame
+    preds[2, 10:12] = np.nan                          # unpredicted frames inside intervals
+    preds[3, :] = np.nan                              # a prediction with nothing
+    filled, none = _edge_correct_packed(preds, xyz_m, spans, jobs)
+    off = o_in = 0
+    for j, ((lo, hi), (a, b, km, partial)) in enumerate(zip(spans, jobs, strict=True)):
+        for k in range(preds.shape[0]):
+            ref = _edge_correct(preds[k, off:off + hi - lo], xyz_m, km, a, b, lo, hi, partial)
+            got = filled[k, o_in:o_in + b - a]
+            assert none[k, j] == (ref is None), (k, j)
+            if ref is None:
+                assert np.isnan(got).all()
+            else:
+                assert np.array_equal(got, ref, equal_nan=True), (k, j)
+        off += hi - lo
+        o_in += b - a
+    assert none[3].all() and not none[0].any()

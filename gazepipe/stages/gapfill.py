@@ -315,7 +315,7 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
     if not models:
         return None, None, {}
     wins = [w for w in wins if w in used]
-    # the hidden stretches and the gap in one prediction per model (they share the gap's occlusion patterns)
+    # the hidden stretches and the gap in one prediction (they share the gap's occlusion patterns)
     jobs = [(a, b, valid_v, known, True) for a, b in wins] + [(s, e, valid, valid_m, False)]
     cands = [(mod, k) for mod in models for k in mod.ks]
     # every candidate's prediction of the stretches then the gap (C, frames, 3), NaN where it has none
@@ -352,7 +352,7 @@ def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m:
     with np.errstate(invalid="ignore", divide="ignore"):
         mixed = (np.where(ok[..., None], q, 0.0) * wf[..., None]).sum(axis=0) / wf.sum(axis=0)[:, None]
     offs = np.cumsum([0] + [b - a for a, b in wins]).tolist()
-    stretches = {w_: mixed[o:o + w_[1] - w_[0]] for w_, o in zip(wins, offs, strict=False)}
+    stretches = {(a, b): mixed[o:o + b - a] for (a, b), o in zip(wins, offs[:-1], strict=True)}
     return model, mixed[n_hidden:], stretches
 
 
