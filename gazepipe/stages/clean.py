@@ -14,7 +14,7 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.gapfill import G_MM_S2, METHODS, fill_gaps, remove_spikes
-from gazepipe.stages.rotations import up_vector
+from gazepipe.stages.vectors import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
 

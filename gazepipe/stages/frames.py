@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
@@ -22,8 +21,8 @@ from gazepipe.stages.rotations import (
     kabsch,
     six_from_matrix,
     to_wxyz,
-    up_vector,
 )
+from gazepipe.stages.vectors import up_vector
 
 
 @dataclass(frozen=True)
@@ -194,6 +193,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
     Raises :class:`~gazepipe.errors.StageError` when a marker is missing, a segment has fewer than three
     markers, or the neutral pose is absent or too short to calibrate a segment.
     """
+    from scipy.spatial.transform import Rotation  # here: planning a run imports this module
+
     params = params or FramesParams()
     if params.triangle not in ("rigid_fit", "gram_schmidt"):
         raise ValueError(f"FramesParams.triangle must be 'rigid_fit' or 'gram_schmidt', not {params.triangle!r}")

@@ -7,10 +7,14 @@ Everything is batched over a leading axis of frames; no Python loops over frames
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from gazepipe.stages.vectors import cross3
+
+if TYPE_CHECKING:  # scipy is imported where it is used: planning a run (no rotation computed) goes without it
+    from scipy.spatial.transform import Rotation
 
 _EPS = 1e-12
 
@@ -22,6 +26,8 @@ def to_wxyz(rot: Rotation) -> np.ndarray:
 
 def from_wxyz(q: np.ndarray) -> Rotation:
     """Rotation from quaternions ``w, x, y, z`` (normalised on the way), shape (..., 4)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_quat(np.asarray(q, dtype=np.float64), scalar_first=True)
 
 
@@ -53,6 +59,8 @@ def matrix_from_six(six: np.ndarray) -> np.ndarray:
 
 def rotation_from_six(six: np.ndarray) -> Rotation:
     """Rotation from the 6-number form (see :func:`matrix_from_six`)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_matrix(matrix_from_six(six))
 
 
@@ -101,16 +109,6 @@ def kabsch(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
     d[d == 0] = 1.0
     v[:, :, 2] *= d[:, None]
     return v @ u.transpose(0, 2, 1)
-
-
-def up_vector(up_axis: str) -> np.ndarray:
-    """Unit lab vertical for ``up_axis`` ``"y"`` or ``"z"`` (a leading ``-`` flips it)."""
-    ax = up_axis.strip().lower()
-    sign = -1.0 if ax.startswith("-") else 1.0
-    ax = ax.lstrip("+-")
-    v = np.zeros(3)
-    v["xyz".index(ax)] = sign
-    return v
 
 
 def heading_frames(left_raw: np.ndarray, up: np.ndarray) -> np.ndarray:

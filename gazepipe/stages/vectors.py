@@ -25,3 +25,13 @@ def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     np.multiply(a0, b1, out=out[..., 2])
     out[..., 2] -= a1 * b0
     return out
+
+
+def up_vector(up_axis: str) -> np.ndarray:
+    """Unit lab vertical for ``up_axis`` ``"y"`` or ``"z"`` (a leading ``-`` flips it)."""
+    ax = up_axis.strip().lower()
+    sign = -1.0 if ax.startswith("-") else 1.0
+    ax = ax.lstrip("+-")
+    v = np.zeros(3)
+    v["xyz".index(ax)] = sign
+    return v
