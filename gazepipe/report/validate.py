@@ -223,6 +223,7 @@ def dataset_figures(d: DatasetData) -> list[Figure]:
     if smp is None:
         return []
     from gazepipe.report import plots
+
     names = d.info.get("features") or {}
     how = f"over {smp.pose.size} sampled rows of every split (mirrored copies included), one colour per pose"
     scalars = [c for c, v in smp.columns.items() if v.shape[1] == 1]
@@ -302,7 +303,7 @@ class ReportInBackground:
 
     def _run(self) -> None:
         try:
-            self._done = _take_pass(self.layout, self.th, self.plot_takes)
+            self._done = _take_pass(self.layout, self.th)
         except BaseException as exc:  # handed to the caller by finish()
             self._error = exc
 
@@ -335,10 +336,11 @@ class _TakePass:
 
 
 def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int) -> ValidateResult:
-    return _finish(layout, th, fail_on, plot_takes, _take_pass(layout, th, plot_takes))
+    return _finish(layout, th, fail_on, plot_takes, _take_pass(layout, th))
 
 
-def _take_pass(layout: OutLayout, th: C.Thresholds, plot_takes: int) -> _TakePass:
+def _take_pass(layout: OutLayout, th: C.Thresholds) -> _TakePass:
+    """Every take's checks (tables read one take at a time)."""
     sessions, session_problems = load_sessions(layout)
     states = unit_states(layout) if not session_problems else None
     takes_out: list[dict[str, Any]] = []
