@@ -440,11 +440,38 @@ def test_pca_local_frame_needs_three_spread_markers():
     assert model.frame is None
 
 
+def _edge_correct_one(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
+                  lo: int, hi: int, partial: bool = False) -> np.ndarray | None:
+    """Reference: one interval at a time. Blend the mismatch at the known frames ``a - 1`` and ``b`` linearly across ``[a, b)``.
+
+    ``pred`` covers frames ``[lo, hi)`` with ``lo <= a - 1`` where possible and ``hi >= b + 1`` where possible;
+    NaN rows are frames the method could not predict. Returns the ``[a, b)`` part, or ``None`` when any frame
+    of it is NaN (unless ``partial``: then NaN rows stay NaN and ``None`` means no frame at all).
+    """
+    core = pred[a - lo:b - lo]
+    bad = np.isnan(core).any(axis=1)
+    if bad.all() or (bad.any() and not partial):
+        return None
+    res_l = res_r = None
+    if a - 1 >= lo and known_m[a - 1] and not np.isnan(pred[a - 1 - lo]).any():
+        res_l = xyz_m[a - 1] - pred[a - 1 - lo]
+    if b < hi and known_m[b] and not np.isnan(pred[b - lo]).any():
+        res_r = xyz_m[b] - pred[b - lo]
+    if res_l is None and res_r is None:
+        return core
+    if res_l is None:
+        return core + res_r
+    if res_r is None:
+        return core + res_l
+    w = ((np.arange(a, b) - (a - 1)) / (b - (a - 1)))[:, None]
+    return core + (1.0 - w) * res_l + w * res_r
+
+
 def test_packed_edge_correction_equals_the_per_interval_one() -> None:
     """The one-pass edge correction of many predictions and intervals gives, bit for bit, what correcting each
     interval on its own gives: both edges known, one, none (take boundaries, unknown or unpredicted edge
     frames), partly predicted intervals with and without ``partial``."""
-    from gazepipe.stages.gapfill_methods import _edge_correct, _edge_correct_packed
+    from gazepipe.stages.gapfill_methods import _edge_correct_packed
 
     rng = np.random.default_rng(7)
     n_t = 60
@@ -461,7 +488,7 @@ def test_packed_edge_correction_equals_the_per_interval_one() -> None:
     off = o_in = 0
     for j, ((lo, hi), (a, b, km, partial)) in enumerate(zip(spans, jobs, strict=True)):
         for k in range(preds.shape[0]):
-            ref = _edge_correct(preds[k, off:off + hi - lo], xyz_m, km, a, b, lo, hi, partial)
+            ref = _edge_correct_one(preds[k, off:off + hi - lo], xyz_m, km, a, b, lo, hi, partial)
             got = filled[k, o_in:o_in + b - a]
             assert none[k, j] == (ref is None), (k, j)
             if ref is None:

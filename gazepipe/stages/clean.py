@@ -14,7 +14,7 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.gapfill import G_MM_S2, METHODS, fill_gaps, remove_spikes
-from gazepipe.stages.vectors import up_vector
+from gazepipe.stages.vectors import cross3, up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
 
@@ -369,7 +369,7 @@ def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
     left = left - (left @ up)[:, None] * up
     ex = np.zeros(3)
     ex[int(np.argmax(np.abs(up) < 0.5))] = 1.0  # lab X (or Y when X is vertical)
-    ey = np.cross(up, ex)
+    ey = cross3(up, ex)
     ang = np.arctan2(left @ ey, left @ ex)           # heading of "left" about up, from ex
     ok = np.isfinite(ang) & (np.linalg.norm(left, axis=1) > 1e-9)
     res = np.full_like(out, np.nan)

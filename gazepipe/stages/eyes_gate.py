@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from gazepipe.stages.vectors import cross3
 from gazepipe.timebase import snap_rate
 
 __all__ = ["GATE_REASONS", "Gated", "angle_between", "cyclopean", "gate", "slerp_vectors"]
@@ -109,7 +110,7 @@ def slerp_vectors(p: np.ndarray, q: np.ndarray, f: np.ndarray) -> np.ndarray:
     f = np.asarray(f, dtype=np.float64)
     if p.shape[0] == 0:
         return np.empty((0, 3))
-    axis = np.cross(p, q)
+    axis = cross3(p, q)
     s = np.linalg.norm(axis, axis=1)
     ang = np.arctan2(s, np.sum(p * q, axis=1))
     with np.errstate(invalid="ignore", divide="ignore"):

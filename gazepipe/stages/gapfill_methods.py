@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from gazepipe.stages.rotations import frame_from_points, kabsch
 from gazepipe.stages.vectors import cross3, norm3
 
 # scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
@@ -124,41 +125,12 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
     return out
 
 
-def _edge_correct(pred: np.ndarray, xyz_m: np.ndarray, known_m: np.ndarray, a: int, b: int,
-                  lo: int, hi: int, partial: bool = False) -> np.ndarray | None:
-    """Blend the mismatch at the known frames ``a - 1`` and ``b`` linearly across ``[a, b)``.
-
-    ``pred`` covers frames ``[lo, hi)`` with ``lo <= a - 1`` where possible and ``hi >= b + 1`` where possible;
-    NaN rows are frames the method could not predict. Returns the ``[a, b)`` part, or ``None`` when any frame
-    of it is NaN (unless ``partial``: then NaN rows stay NaN and ``None`` means no frame at all).
-    """
-    core = pred[a - lo:b - lo]
-    bad = np.isnan(core).any(axis=1)
-    if bad.all() or (bad.any() and not partial):
-        return None
-    res_l = res_r = None
-    if a - 1 >= lo and known_m[a - 1] and not np.isnan(pred[a - 1 - lo]).any():
-        res_l = xyz_m[a - 1] - pred[a - 1 - lo]
-    if b < hi and known_m[b] and not np.isnan(pred[b - lo]).any():
-        res_r = xyz_m[b] - pred[b - lo]
-    if res_l is None and res_r is None:
-        return core
-    if res_l is None:
-        return core + res_r
-    if res_r is None:
-        return core + res_l
-    w = ((np.arange(a, b) - (a - 1)) / (b - (a - 1)))[:, None]
-    return core + (1.0 - w) * res_l + w * res_r
-
-
 def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
     least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.rotations.kabsch`).
 
     ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
     """
-    from gazepipe.stages.rotations import kabsch
-
     rot = kabsch(ref, cur)
     return (rot @ (p - ref.mean(axis=1))[..., None])[..., 0] + cur.mean(axis=1)
 
@@ -372,8 +344,6 @@ class PcaModel:
         (n, 3, 3) of the three points (:func:`gazepipe.stages.rotations.frame_from_points`) at their centroid
         ``c`` (n, 3); returns ``(local, rot, c)``, ``local = rotᵀ (x − c)``. (As good as a least-squares fit of
         the three for the PCA, which only needs the frame to move with them, and several times cheaper.)"""
-        from gazepipe.stages.rotations import frame_from_points
-
         rot = frame_from_points(frame_pts[:, 0], frame_pts[:, 1], frame_pts[:, 2])
         c = frame_pts.mean(axis=1)
         return np.matmul(x - c[:, None], rot), rot, c  # (x − c) · rot, row vectors; matmul: 2x einsum's speed
@@ -545,25 +515,19 @@ def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.nd
     """PCA reconstruction of the model's marker over ``[a, b)`` for each component count in ``ks`` (default
     the model's ``k``), each corrected to meet the known edge samples. With ``partial``, frames without enough
     measured predictors are NaN instead of making that result ``None``."""
-    return pca_fill_many(model, xyz, [(a, b, valid, known_m, partial)], ks)[0]
-
-
-def pca_fill_many(model: PcaModel, xyz: np.ndarray,
-                  jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
-                  ks: list[int] | None = None) -> list[list[np.ndarray | None]]:
-    """:func:`pca_fill` for several intervals at once, ``jobs`` = ``[(a, b, valid, known_m, partial), ...]``:
-    one prediction over all their frames, so intervals with the same occlusion pattern share its least-squares
-    factorisation. Returns one list (over ``ks``) per job."""
-    return _unpack(*pca_fill_packed(model, xyz, jobs, ks), jobs)
+    jobs = [(a, b, valid, known_m, partial)]
+    return _unpack(*pca_fill_packed(model, xyz, jobs, ks), jobs)[0]
 
 
 def pca_fill_packed(models: PcaModel | list[PcaModel], xyz: np.ndarray,
                     jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
                     ks: list[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`pca_fill_many` as one array, for one model (its ``ks``, default its ``k``) or for several
-    models of the same marker (each with all its ``ks``, in order): ``(filled, none)``, ``filled``
-    (predictions, Σ (b − a), 3) the jobs' intervals one after the other (NaN where not predicted), ``none``
-    (predictions, len(jobs)) True where :func:`pca_fill_many` gives None."""
+    """:func:`pca_fill` of several intervals at once, ``jobs`` = ``[(a, b, valid, known_m, partial), ...]``,
+    for one model (its ``ks``, default its ``k``) or for several models of the same marker (each with all its
+    ``ks``, in order): one prediction over all their frames, so intervals with the same occlusion pattern share
+    its least-squares factorisation. Returns ``(filled, none)``: ``filled`` (predictions, Σ (b − a), 3) the
+    intervals one after the other (NaN where not predicted), ``none`` (predictions, len(jobs)) True where
+    :func:`pca_fill` would give None."""
     if isinstance(models, PcaModel):
         models, kss = [models], [ks]
     else:
@@ -586,11 +550,15 @@ def _unpack(filled: np.ndarray, none: np.ndarray, jobs: list[tuple]) -> list[lis
 
 def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple[int, int]],
                          jobs: list[tuple[int, int, np.ndarray, bool]]) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_edge_correct` of each of ``preds`` (K, F, 3) on each interval, all at once: ``jobs`` =
-    ``[(a, b, known_m, partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` lie one after the
-    other along F. Returns ``(filled, none)`` as :func:`pca_fill_packed` does, with the same arithmetic as
-    :func:`_edge_correct` (a one-sided correction is the two-sided formula with weight 0 or 1 on a zero residual,
-    which adds exact zeros)."""
+    """Each of ``preds`` (K, F, 3) corrected to meet the known samples next to each interval, all at once:
+    ``jobs`` = ``[(a, b, known_m, partial), ...]`` whose predictions over ``spans`` ``[(lo, hi), ...]`` (``lo =
+    a - 1`` and ``hi = b + 1`` inside the take) lie one after the other along F.
+
+    The mismatches at frames ``a - 1`` and ``b`` (where ``known_m`` and predicted) are blended linearly across
+    ``[a, b)``; with one of them only, it is added throughout (the two-sided formula with weight 0 or 1 on a
+    zero residual, which adds exact zeros). An interval with an unpredicted (NaN) frame is None unless
+    ``partial`` (its NaN rows then stay NaN); with no predicted frame it is None. Returns ``(filled, none)`` as
+    :func:`pca_fill_packed` does."""
     n_k = preds.shape[0]
     lo_l, hi_l = [lo for lo, _ in spans], [hi for _, hi in spans]
     a_l, b_l = [j[0] for j in jobs], [j[1] for j in jobs]

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from gazepipe.stages.vectors import cross3
+
 if TYPE_CHECKING:
     from gazepipe.stages.sync_clap import Clap
     from gazepipe.stages.sync_video import VideoClap
@@ -76,7 +78,7 @@ def clock_map(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | Non
 def _slerp_vectors(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Great-circle interpolation between unit vectors a and b (N, 3) at fractions u (N,): a rotated about
     a × b by u times the angle between them. Antipodal pairs (no unique great circle) give NaN."""
-    cross = np.cross(a, b)
+    cross = cross3(a, b)
     s = np.linalg.norm(cross, axis=1)
     c = np.einsum("ij,ij->i", a, b)
     angle = np.arctan2(s, c)
