@@ -165,6 +165,25 @@ def test_slerp_vectors_moves_along_the_great_arc():
     assert np.allclose(out[1], [0, 0, 1])
 
 
+def test_slerp_vectors_antipodal_and_missing_rows():
+    """An antipodal pair has no unique arc: the eye gate keeps the first vector, the video resampling (which
+    must not invent a direction) gives NaN; a NaN input row is NaN either way, the other rows are unaffected."""
+    from gazepipe.stages.rotations import slerp_vectors as slerp
+
+    p = np.array([[1.0, 0, 0], [np.nan, 0, 0], [0, 1.0, 0]])
+    q = np.array([[-1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    f = np.array([0.5, 0.5, 0.5])
+    first, nan = slerp(p, q, f), slerp(p, q, f, antipodal="nan")
+    assert np.array_equal(first[0], [1.0, 0, 0])
+    assert np.isnan(nan[0]).all()
+    assert np.isnan(first[1]).all() and np.isnan(nan[1]).all()
+    half = [0, np.sqrt(0.5), np.sqrt(0.5)]
+    assert np.allclose(first[2], half) and np.allclose(nan[2], half)
+    assert slerp(np.empty((0, 3)), np.empty((0, 3)), np.empty(0)).shape == (0, 3)
+    with pytest.raises(ValueError, match="antipodal"):
+        slerp(p, q, f, antipodal="zero")
+
+
 def test_camera_in_front_of_the_face_worked_example():
     """A camera facing the subject: R = Ry(180°) · Rz(180°) = diag(1, −1, −1), quaternion (0, 1, 0, 0)."""
     r = Rotation.from_euler("Y", 180, degrees=True) * Rotation.from_euler("Z", 180, degrees=True)

@@ -13,9 +13,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from gazepipe.stages.vectors import cross3
+from gazepipe.stages.rotations import slerp_vectors
 from gazepipe.timebase import snap_rate
 
 __all__ = ["GATE_REASONS", "Gated", "angle_between", "cyclopean", "gate", "slerp_vectors"]
@@ -92,30 +91,6 @@ def _unit(v: np.ndarray) -> np.ndarray:
     n = _norm(v)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > _EPS, v / n, np.nan)
-
-
-def slerp_vectors(p: np.ndarray, q: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """Spherical interpolation of unit vectors: the point a fraction ``f`` along the great arc from p to q.
-
-    Parameters
-    ----------
-    p, q : (N, 3) unit vectors (finite).
-    f : (N,) fractions (0 gives p, 1 gives q).
-
-    The arc is the rotation about p × q by f times the angle between them; antipodal pairs (no unique arc) and
-    identical vectors give p.
-    """
-    p = np.asarray(p, dtype=np.float64)
-    q = np.asarray(q, dtype=np.float64)
-    f = np.asarray(f, dtype=np.float64)
-    if p.shape[0] == 0:
-        return np.empty((0, 3))
-    axis = cross3(p, q)
-    s = np.linalg.norm(axis, axis=1)
-    ang = np.arctan2(s, np.sum(p * q, axis=1))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        axis = np.where((s > _EPS)[:, None], axis / s[:, None], 0.0)
-    return Rotation.from_rotvec(axis * (f * ang)[:, None]).apply(p)
 
 
 def cyclopean(left: np.ndarray, right: np.ndarray) -> np.ndarray:

@@ -64,6 +64,41 @@ def rotation_from_six(six: np.ndarray) -> Rotation:
     return Rotation.from_matrix(matrix_from_six(six))
 
 
+def slerp_vectors(p: np.ndarray, q: np.ndarray, f: np.ndarray, *, antipodal: str = "first") -> np.ndarray:
+    """Spherical interpolation of unit vectors: the point a fraction ``f`` along the great arc from p to q.
+
+    Parameters
+    ----------
+    p, q : (N, 3) unit vectors.
+    f : (N,) fractions (0 gives p, 1 gives q).
+    antipodal : what a pair with no unique arc (p = −q) gives: ``"first"``, p; ``"nan"``, NaN.
+
+    The arc is the rotation about p × q by f times the angle between them; identical vectors give p. Rows with
+    a non-finite input give NaN.
+    """
+    from scipy.spatial.transform import Rotation
+
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    f = np.asarray(f, dtype=np.float64)
+    if antipodal not in ("first", "nan"):
+        raise ValueError(f"antipodal must be 'first' or 'nan', not {antipodal!r}")
+    out = np.full(p.shape, np.nan)
+    axis = cross3(p, q)
+    s = np.linalg.norm(axis, axis=1)
+    c = np.sum(p * q, axis=1)
+    ang = np.arctan2(s, c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where((s > _EPS)[:, None], axis / s[:, None], 0.0)
+    rotvec = axis * (f * ang)[:, None]
+    ok = np.isfinite(rotvec).all(axis=1) & np.isfinite(p).all(axis=1)
+    if antipodal == "nan":
+        ok &= ~((s <= _EPS) & (c < 0))
+    if ok.any():
+        out[ok] = Rotation.from_rotvec(rotvec[ok]).apply(p[ok])
+    return out
+
+
 def frame_from_points(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
     """Orthonormal frames (N, 3, 3) from three points per frame, (N, 3) each, by Gram–Schmidt.
 

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from gazepipe.stages.vectors import cross3
+from gazepipe.stages.rotations import slerp_vectors
 
 if TYPE_CHECKING:
     from gazepipe.stages.sync_clap import Clap
@@ -75,23 +74,6 @@ def clock_map(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | Non
                     residual_ms=float(np.max(np.abs(res)) * 1000.0))
 
 
-def _slerp_vectors(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Great-circle interpolation between unit vectors a and b (N, 3) at fractions u (N,): a rotated about
-    a × b by u times the angle between them. Antipodal pairs (no unique great circle) give NaN."""
-    cross = cross3(a, b)
-    s = np.linalg.norm(cross, axis=1)
-    c = np.einsum("ij,ij->i", a, b)
-    angle = np.arctan2(s, c)
-    # rotvec = axis · angle, with angle / sin(angle) → 1 for nearly equal vectors
-    scale = np.divide(angle, s, out=np.ones_like(angle), where=s > 1e-12)
-    rotvec = cross * (u * scale)[:, None]
-    out = np.full_like(a, np.nan)
-    ok = np.all(np.isfinite(rotvec), axis=1) & np.all(np.isfinite(a), axis=1) & ~((s <= 1e-12) & (c < 0))
-    if np.any(ok):
-        out[ok] = Rotation.from_rotvec(rotvec[ok]).apply(a[ok])
-    return out
-
-
 def resample_to_mocap(t_video: np.ndarray, values: np.ndarray, kind: str, mocap_times: np.ndarray,
                       clock: ClockMap) -> tuple[np.ndarray, np.ndarray]:
     """Put a video-clock signal on the mocap frames.
@@ -128,7 +110,7 @@ def resample_to_mocap(t_video: np.ndarray, values: np.ndarray, kind: str, mocap_
     lo = lo.astype(np.float64)
     hi = hi.astype(np.float64)
     if kind == "direction":
-        out = _slerp_vectors(lo, hi, u)
+        out = slerp_vectors(lo, hi, u, antipodal="nan")
     elif kind == "scalar":
         uu = u.reshape((-1,) + (1,) * (vals.ndim - 1))
         out = lo + uu * (hi - lo)
