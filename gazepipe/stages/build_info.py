@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from gazepipe import __version__
 from gazepipe.model import SPLITS
@@ -109,8 +108,8 @@ class DatasetSummary:
         self.per_take[tid] = {**qc, "split": split, "rows": n}
         self.inputs[tid] = dict(sorted(hashes.items()))
         if self.window is not None and self.name != "face_clean":
-            self.segment_lengths.append(
-                np.bincount(table.filter(pc.invert(table.column("mirrored"))).column("segment").to_numpy()))
+            original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
+            self.segment_lengths.append(np.bincount(table.column("segment").to_numpy()[original]))
         if split != "train":
             return
         groups = [self.overall, self.per_pose.setdefault(pose, _Group())]
