@@ -88,7 +88,7 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
     if jobs:
         cmd += ["-j", str(jobs)]
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    log = out.parent / f"{out.name}.log"
+    log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
         proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
@@ -100,6 +100,28 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
         print(f"warning: {' '.join(cmd[-8:])} exited {rc}; see {log}", file=sys.stderr)
     return {"wall_s": wall, "rc": rc, "peak_tree_mb": mem.peak_total / 2**20,
             "peak_process_mb": mem.peak_single / 2**20, "log": str(log)}
+
+
+def timeline(log: Path) -> dict[str, float] | None:
+    """Seconds from a run's start (its JSON log; times have 1 s resolution) to its last take unit, to its last
+    dataset build and to the QC report: where the time after the takes goes."""
+    from datetime import datetime
+
+    try:
+        events = [json.loads(line) for line in log.read_text().splitlines() if line.startswith("{")]
+    except (OSError, ValueError):
+        return None
+    if not events:
+        return None
+
+    def at(e: dict) -> float:
+        return datetime.fromisoformat(e["time"].replace("Z", "+00:00")).timestamp()
+
+    t0 = at(events[0])
+    last = {k: max((at(e) - t0 for e in events if e.get("event") == k), default=float("nan"))
+            for k in ("unit", "dataset", "qc_report", "run_end")}
+    return {"takes_done_s": last["unit"], "datasets_done_s": last["dataset"], "report_done_s": last["qc_report"],
+            "end_s": last["run_end"]}
 
 
 def stage_times(out: Path) -> dict[str, float]:
@@ -220,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
         speed = f"{serial / r['wall_s']:.2f}x" if name not in ("noop", "profiled") else ""
         print(f"{label:<22}{r['wall_s']:9.2f}{r['wall_s'] / floor['total_s']:9.2f}{speed:>10}"
               f"{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}")
+    print("\ntimeline from the run's start (s, 1 s resolution): last take unit, last dataset, QC report")
+    for name, r in results.items():
+        tl = timeline(Path(r["log"])) if name not in ("noop", "profiled") else None
+        if tl:
+            r["timeline"] = tl
+            print(f"  {name:<20}{tl['takes_done_s']:7.0f}{tl['datasets_done_s']:7.0f}{tl['report_done_s']:7.0f}")
     st = stage_times(work / "serial")
     total = sum(st.values())
     print(f"\nper stage (serial run; unit records, {total:.1f} s in all):")
