@@ -44,10 +44,10 @@ from gazepipe.stages.eyes_camera import (
     fixation_frames,
     head_to_character,
 )
-from gazepipe.stages.eyes_gate import GATE_REASONS, Gated, angle_between, cyclopean, gate, slerp_vectors
+from gazepipe.stages.eyes_gate import GATE_REASONS, Gated, angle_between, cyclopean, gate
 from gazepipe.stages.eyes_lag import check_camera_rotation, estimate_camera_rotation_lagged, world_targets
 from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.rotations import from_wxyz, slerp_vectors, to_wxyz
 from gazepipe.stages.sync import ClockMap, resample_to_mocap
 
 __all__ = [

@@ -17,7 +17,7 @@ import numpy as np
 from gazepipe.stages.rotations import slerp_vectors
 from gazepipe.timebase import snap_rate
 
-__all__ = ["GATE_REASONS", "Gated", "angle_between", "cyclopean", "gate", "slerp_vectors"]
+__all__ = ["GATE_REASONS", "Gated", "angle_between", "cyclopean", "gate"]
 
 #: why a video sample is gated out, by code (first failing rule in this order wins)
 GATE_REASONS = ("valid", "success", "confidence", "blink", "no_gaze")
