@@ -340,6 +340,32 @@ def test_movement_during_gap_between_still_phases_not_interpolated():
     assert gap_error(res, truth, m, s, e) < 3.0
 
 
+
+def test_pca_novelty_flags_poses_the_model_never_saw():
+    """The PCA model's fit residual on its predictors is about as large in a gap as in the stretches beside it
+    when the gap shows the same kind of motion, and far larger when the gap holds a movement that training never
+    saw (the take is still before and after it)."""
+    from gazepipe.stages.gapfill import _PCA_NOVELTY_MIN
+    from gazepipe.stages.gapfill_methods import fit_pca_models, pca_novelty
+
+    m, s, e = 5, 275, 315
+    wins = [(230, 270), (320, 360)]
+
+    def ratio(measured: np.ndarray) -> float:
+        valid = np.ones(measured.shape[:2], bool)
+        known = valid[:, m].copy()
+        for a, b in [(s, e), *wins]:
+            known[a:b] = False
+        model = fit_pca_models(measured, valid, m, known, s, e, (None,))[0]
+        return pca_novelty(model, measured, valid, valid, wins, s, e)
+
+    truth, measured, _ = body()
+    assert 0.5 < ratio(measured) < _PCA_NOVELTY_MIN / 1.5
+    truth0, _, _ = body(noise=0.0)
+    idx = np.concatenate([np.full(280, 100), np.linspace(100, 400, 30).round().astype(int), np.full(290, 400)])
+    still = truth0[idx] + np.random.default_rng(5).normal(0, NOISE, (600, truth0.shape[1], 3))
+    assert ratio(still) > 1.5 * _PCA_NOVELTY_MIN
+
 def test_pca_body_frame_with_some_predictors_hidden():
     """In the body frame (predictors' mean trajectory subtracted) the centroid of the predictors measured in a
     frame is shifted by their mean offset from all predictors' centroid: a translating shape is predicted

@@ -23,7 +23,8 @@ judged with the donors they will really have; methods are compared on the frames
 can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the
 gap's own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
 larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
-do not show); PCA is then checked the same way on the nearest such marker. The gap is filled with a convex
+do not show); PCA's error is then scaled by how much worse its components explain the predictors in the gap
+than in the stretches (:func:`~gazepipe.stages.gapfill_methods.pca_novelty`), when clearly worse. The gap is filled with a convex
 blend of the best methods, weighted by inverse squared validation error (:func:`blend_weights`), and coded
 by the method with the largest weight. When no sample can be hidden the first applicable method in
 ``methods`` is used.
@@ -43,12 +44,12 @@ from gazepipe.model import FILL_CODES
 from gazepipe.stages.gapfill_methods import (
     PcaModel,
     donor_interp_errors,
-    donor_pca_error,
     find_steady_mates,
     fit_pca_models,
     interp_fill,
     norm3,
     pca_fill_packed,
+    pca_novelty,
     rigid_fill,
     rigid_fill_many,
 )
@@ -68,10 +69,10 @@ _INTERP = ("pchip", "linear")
 #: the donors' interpolation error replaces the validation error when more than this many times larger (the
 #: larger of two noisy estimates of the same error would be biased up)
 _INTERP_DONOR_FACTOR = 1.5
-#: the nearest marker's PCA error replaces PCA's validation error when more than this many times larger (the
-#: model has clearly not seen the gap's poses: 400x on a movement between two still phases; at 2 to 10 the
-#: donor's noisy error misled the choice on the real files, e.g. ART 16-30 frames 0.62 -> 0.73 mm at 10)
-_PCA_DONOR_FACTOR = 30.0
+#: PCA's validation error is multiplied by :func:`pca_novelty` when that is above this: the model has clearly
+#: not seen the gap's poses (131 on a movement between two still phases; 0.6 to 2.1 between the gaps and their
+#: stretches on the ART file, where nothing unseen happens)
+_PCA_NOVELTY_MIN = 3.0
 #: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
 _MATES_WINDOW_S = 2.0
 #: at most this many methods are blended per gap
@@ -194,8 +195,7 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
 
 def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
                 cluster: list[int] | None, *, validate: bool = True,
-                pca_window: int | None = None,
-                cache: dict | None = None
+                pca_window: int | None = None
                 ) -> tuple[dict[str, np.ndarray], dict[str, float],
                            tuple[np.ndarray, dict[str, np.ndarray]] | None]:
     """Every applicable method's prediction of gap ``[s, e)`` of marker ``m``, and its validation error (mm).
@@ -276,13 +276,12 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
                 errors[meth] = err_d
                 novel = True
         # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
-        # hidden through them). Where the donors show motion that the stretches do not, the same kind of model,
-        # built for the nearest marker measured through the gap with that marker hidden there, predicts it.
-        # (Checked only then: on continuous motion the donor's error is a noisy guess that misleads the choice.)
+        # hidden through them). Its own predictors show it: the components explain them much worse in the gap
+        # than in the stretches. (Checked only where the donors show motion the stretches do not.)
         if novel and "pca" in preds and model is not None:
-            err_d = donor_pca_error(xyz, valid, m, s, e, model, pca_window, cache)
-            if np.isfinite(err_d) and not err_d <= _PCA_DONOR_FACTOR * errors.get("pca", np.nan):
-                errors["pca"] = err_d
+            ratio = pca_novelty(model, xyz, valid, valid_v, list(pca_wins), s, e)
+            if ratio > _PCA_NOVELTY_MIN:
+                errors["pca"] *= ratio
     return preds, errors, stretches
 
 
@@ -476,8 +475,6 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             cluster_of.setdefault(int(j), [int(k) for k in c])
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
-    #: models and predictions shared by the gaps of one call (the donor checks of gaps with the same frames)
-    cache: dict = {}
     from threadpoolctl import threadpool_limits
 
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
@@ -496,7 +493,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                                                             or not valid[s:e][:, cluster].any(axis=1).all()):
                     cluster = find_steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
                 preds, errors, stretches = predict_gap(src, valid, m, s, e, methods, cluster,
-                                                       validate=validation, pca_window=pca_window, cache=cache)
+                                                       validate=validation, pca_window=pca_window)
                 if blend:
                     weights = blend_weights(errors, methods)
                     if len(weights) > 1 and stretches is not None:

@@ -349,13 +349,19 @@ class PcaModel:
         return np.matmul(x - c[:, None], rot), rot, c  # (x − c) · rot, row vectors; matmul: 2x einsum's speed
 
     def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray,
-                ks: list[int] | None = None, vis: np.ndarray | None = None) -> np.ndarray:
+                ks: list[int] | None = None, vis: np.ndarray | None = None, *, residuals: bool = False
+                ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Target positions (len(ks), n, 3) in ``frames`` from the first ``k`` components for each ``k`` in
         ``ks`` (default ``[self.k]``); NaN rows where too few predictors are measured. ``vis`` (n, M) replaces
-        ``valid[frames]`` as the markers measured in each of those frames (frames may repeat)."""
+        ``valid[frames]`` as the markers measured in each of those frames (frames may repeat).
+
+        With ``residuals``, also the RMS residual (len(ks), n) of the least-squares fit to the measured
+        predictors' weighted coordinates in each frame (NaN where not predicted): how far the frame's pose is
+        from what the components can express."""
         ks = [self.k] if ks is None else ks
         n_p = self.predictors.size
         out = np.full((len(ks), frames.size, 3), np.nan)
+        res = np.full((len(ks), frames.size), np.nan) if residuals else None
         vis = (valid[frames] if vis is None else vis)[:, self.predictors]
         x_all = _flat(xyz)[frames][:, _cols3(self.predictors)]
         if self.frame is not None:
@@ -399,9 +405,13 @@ class PcaModel:
                 maps[u, :, :k] = self.v_all[3 * n_p:, :k] @ rinv[:k, :k]
             zm = np.swapaxes(maps @ qz, 1, 2)
             out[np.ix_(use, rows)] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
+            if res is not None:
+                # |z|² minus the part the first k orthonormal columns explain
+                left = np.square(z).sum(axis=0) - np.cumsum(np.square(qz), axis=0)[[ks[i] - 1 for i in use]]
+                res[np.ix_(use, rows)] = np.sqrt(np.maximum(left, 0.0) / kcols.size)
         if self.frame is not None:
             out = (rot @ out[..., None])[..., 0] + c0  # rot · local, per frame
-        return out
+        return (out, res) if residuals else out
 
 
 def _median(v: np.ndarray) -> float:
@@ -442,27 +452,19 @@ def _frame_markers(xt: np.ndarray, dist: np.ndarray, kind: str) -> np.ndarray | 
     return pick
 
 
-def fit_pca(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
-            *, window: tuple[int, int] | None = None, min_train: int = 20, max_predictors: int = 12,
-            **kw) -> PcaModel | None:
-    """PCA model for marker ``m`` whose predictors are the markers measured in every frame of ``[a, b)``.
-
-    Only the ``max_predictors`` markers nearest to ``m`` (mean distance over the window) are used: the distance
-    weighting makes far markers contribute next to nothing, and the model stays small and fast. Training frames:
-    ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When fewer than
-    ``min_train`` frames remain, the predictor measured least often is dropped, and so on. ``kw`` go to
-    :class:`PcaModel`.
-    """
-    chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
-    return None if chosen is None else PcaModel(xyz, valid, m, *chosen, **kw)
-
-
 def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
                    local_frames: tuple[str | None, ...], *, window: tuple[int, int] | None = None,
                    min_train: int = 20, max_predictors: int = 12) -> list[PcaModel]:
-    """:func:`fit_pca` for each of ``local_frames`` (see :class:`PcaModel`), on the same predictors and training
-    frames; a moving frame that cannot be set up (collinear markers), or that is made of the same three markers
-    as an earlier model's, gives no model."""
+    """PCA models (:class:`PcaModel`) of marker ``m``, one for each of ``local_frames``, on the same predictors
+    and training frames; a moving frame that cannot be set up (collinear markers), or that is made of the same
+    three markers as an earlier model's, gives no model.
+
+    Predictors: the markers measured in every frame of ``[a, b)``, only the ``max_predictors`` nearest to ``m``
+    (mean distance over the window): the distance weighting makes far markers contribute next to nothing, and
+    the model stays small and fast. Training frames: ``known_m`` and every predictor measured, inside ``window``
+    (half-open) when given. When fewer than ``min_train`` frames remain, the predictor measured least often is
+    dropped, and so on.
+    """
     chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
     models: list[PcaModel] = []
     if chosen is None:
@@ -482,7 +484,7 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
 def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
                   window: tuple[int, int] | None, min_train: int, max_predictors: int
                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Predictors and training frames of :func:`fit_pca` (None when fewer than ``min_train`` frames remain)."""
+    """Predictors and training frames of :func:`fit_pca_models` (None when fewer than ``min_train`` frames remain)."""
     n_t, n_m = valid.shape
     lo, hi = (0, n_t) if window is None else window
     through = valid[a:b].all(axis=0)
@@ -510,24 +512,16 @@ def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarra
     return None
 
 
-def pca_fill(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray,
-             a: int, b: int, partial: bool = False, ks: list[int] | None = None) -> list[np.ndarray | None]:
-    """PCA reconstruction of the model's marker over ``[a, b)`` for each component count in ``ks`` (default
-    the model's ``k``), each corrected to meet the known edge samples. With ``partial``, frames without enough
-    measured predictors are NaN instead of making that result ``None``."""
-    jobs = [(a, b, valid, known_m, partial)]
-    return _unpack(*pca_fill_packed(model, xyz, jobs, ks), jobs)[0]
-
-
 def pca_fill_packed(models: PcaModel | list[PcaModel], xyz: np.ndarray,
                     jobs: list[tuple[int, int, np.ndarray, np.ndarray, bool]],
                     ks: list[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`pca_fill` of several intervals at once, ``jobs`` = ``[(a, b, valid, known_m, partial), ...]``,
-    for one model (its ``ks``, default its ``k``) or for several models of the same marker (each with all its
+    """PCA reconstruction of the model's marker over several intervals, ``jobs`` = ``[(a, b, valid, known_m,
+    partial), ...]``, each corrected to meet the known samples next to it (:func:`_edge_correct_packed`), for
+    one model (its ``ks``, default its ``k``) or for several models of the same marker (each with all its
     ``ks``, in order): one prediction over all their frames, so intervals with the same occlusion pattern share
     its least-squares factorisation. Returns ``(filled, none)``: ``filled`` (predictions, Σ (b − a), 3) the
-    intervals one after the other (NaN where not predicted), ``none`` (predictions, len(jobs)) True where
-    :func:`pca_fill` would give None."""
+    intervals one after the other (NaN where not predicted; with ``partial`` false an interval with such a frame
+    has none), ``none`` (predictions, len(jobs)) True where an interval has no prediction."""
     if isinstance(models, PcaModel):
         models, kss = [models], [ks]
     else:
@@ -626,42 +620,6 @@ def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
     return out
 
 
-def donor_pca_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, model: PcaModel,
-                     pca_window: int | None, cache: dict | None = None) -> float:
-    """Mean error (mm) of the PCA fill of gap ``[s, e)`` for the marker nearest to ``m`` that is measured
-    through it and next to it, hidden there like ``m`` (NaN when there is none or it cannot be predicted).
-
-    ``cache`` (a dict kept for one set of ``xyz``, ``valid`` and ``pca_window``) keeps that marker's errors for
-    every component count, for the other gaps of the same frames that check the same marker."""
-    n_t = valid.shape[0]
-    lo, hi = max(s - 1, 0), min(e + 1, n_t)
-    cand = np.flatnonzero(valid[lo:hi].all(axis=0))
-    cand = cand[cand != m]
-    near = [t for t in (s - 1, e) if 0 <= t < n_t and valid[t, m]]
-    if cand.size == 0 or not near:
-        return float("nan")
-    d = norm3(xyz[near][:, cand] - xyz[near][:, [m]]).mean(axis=0)
-    j = int(cand[np.argmin(d)])
-    key = ("donor_pca", j, s, e, model.local_frame)
-    errs = None if cache is None else cache.get(key)
-    if errs is None:
-        errs = []
-        valid_j = valid.copy()
-        valid_j[s:e, j] = False
-        win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-        model_j = fit_pca(xyz, valid_j, j, valid_j[:, j], s, e, window=win, local_frame=model.local_frame)
-        if model_j is not None:
-            qs = pca_fill(model_j, xyz, valid_j, valid_j[:, j], s, e, False, model_j.ks)
-            errs = [float("nan") if q is None else float(norm3(q - xyz[s:e, j]).mean())
-                    for q in qs]
-        if cache is not None:
-            cache[key] = errs
-    if not errs:
-        return float("nan")
-    rank = model.ks.index(model.k) if model.k in model.ks else len(model.ks) // 2
-    return errs[min(rank, len(errs) - 1)]
-
-
 def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
                   n_mates: int = 3, max_std_mm: float = _MATES_MAX_STD_MM) -> list[int] | None:
     """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
@@ -683,3 +641,21 @@ def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int
     order = np.argsort(sd, kind="stable")[:n_mates]
     mates = cand[order[sd[order] < max_std_mm]]
     return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
+
+
+def pca_novelty(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray,
+                wins: list[tuple[int, int]], s: int, e: int) -> float:
+    """How much worse ``model`` (its ``k``) explains its predictors in gap ``[s, e)`` than in the hidden
+    stretches ``wins``: RMS fit residual over the gap's frames (measured as in ``valid``) over that of the
+    stretches' frames (measured as in ``valid_v``). Above 1 when the gap's poses are unlike the training frames,
+    which the stretches' validation error cannot show. NaN when either has no predicted frame."""
+    fh = np.concatenate([np.arange(a, b) for a, b in wins]) if wins else np.empty(0, dtype=np.int64)
+    fg = np.arange(s, e)
+    _, r = model.predict(xyz, None, np.concatenate([fh, fg]), [model.k],
+                         vis=np.concatenate([valid_v[fh], valid[fg]]), residuals=True)
+    rh, rg = r[0, :fh.size], r[0, fh.size:]
+    rh, rg = rh[np.isfinite(rh)], rg[np.isfinite(rg)]
+    if not rh.size or not rg.size:
+        return float("nan")
+    den = float(np.sqrt(np.mean(np.square(rh))))
+    return float(np.sqrt(np.mean(np.square(rg)))) / den if den > 0 else float("nan")
