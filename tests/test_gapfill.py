@@ -341,6 +341,30 @@ def test_movement_during_gap_between_still_phases_not_interpolated():
 
 
 
+
+def test_interpolation_donors_must_move_with_the_marker():
+    """A foot stands still through its gap while the other foot, 300 mm away, swings: the swinging foot is not
+    a donor for the standing one's interpolation check (its error would say the gap is full of motion); a marker
+    on the standing foot is."""
+    from gazepipe.stages.gapfill_methods import donor_interp_errors
+
+    f = np.arange(300.0)
+    t = f / RATE
+    stand = np.zeros((300, 3))
+    # moving up to frame 135, still from 135 to 165 (through the gap [140, 160)), moving again after
+    stand[:, 0] = 0.005 * (np.minimum(f - 135, 0) ** 3 + np.maximum(f - 165, 0) ** 3)
+    swing = np.stack([300 + 250 * np.sin(2 * np.pi * 1.7 * t), 100 * np.cos(2 * np.pi * 1.7 * t),
+                      np.zeros(300)], axis=1)
+    xyz = np.stack([stand, stand + [0.0, 60.0, 0.0], swing], axis=1)
+    valid = np.ones((300, 3), bool)
+    valid[140:160, 0] = False
+    m, s, e = 0, 140, 160
+    with_mate = donor_interp_errors(xyz, valid, m, s, e, ["linear"], window=120)
+    assert with_mate["linear"] < 1.0  # the mate on the same foot stands still too
+    valid[:, 1] = False  # only the swinging foot is left
+    assert donor_interp_errors(xyz, valid, m, s, e, ["linear"])["linear"] > 20.0  # it would mislead
+    assert np.isnan(donor_interp_errors(xyz, valid, m, s, e, ["linear"], window=120)["linear"])
+
 def test_pca_novelty_flags_poses_the_model_never_saw():
     """The PCA model's fit residual on its predictors is about as large in a gap as in the stretches beside it
     when the gap shows the same kind of motion, and far larger when the gap holds a movement that training never

@@ -19,15 +19,15 @@ samples of the same marker next to the gap (two stretches as long as the gap on 
 more for gaps under eight frames, so that at least 16 samples per side are hidden) are hidden and every
 method predicts them (its validation error: the mean error there). The hidden stretches are given the gap's
 own occlusion pattern (markers missing during the gap are treated as missing there too), so rigid and PCA are
-judged with the donors they will really have; methods are compared on the frames all of them
-can predict. The same stretches pick the PCA models and component counts. Interpolation is also judged on the
-gap's own frames: the nearest markers measured through the gap are interpolated over it, and when their error is
-larger it is the interpolation methods' validation error (motion during the gap that the stretches beside it
-do not show); PCA's error is then scaled by how much worse its components explain the predictors in the gap
-than in the stretches (:func:`~gazepipe.stages.gapfill_methods.pca_novelty`), when clearly worse. The gap is filled with a convex
-blend of the best methods, weighted by inverse squared validation error (:func:`blend_weights`), and coded
-by the method with the largest weight. When no sample can be hidden the first applicable method in
-``methods`` is used.
+judged with the donors they will really have; methods are compared on the frames all of them can predict. The
+same stretches pick the PCA models and component counts. Interpolation is also judged on the gap's own frames: the
+nearest markers measured through the gap that move with the marker (steady distance) are interpolated over it,
+and when their error is larger it is the interpolation methods' validation error (motion during the gap that the
+stretches beside it do not show); PCA's error is then scaled by how much worse its components explain the
+predictors in the gap than in the stretches (:func:`~gazepipe.stages.gapfill_methods.pca_novelty`), when clearly
+worse. The gap is filled with a convex blend of the best methods, weighted by inverse squared validation error
+(:func:`blend_weights`), and coded by the method with the largest weight. When no sample can be hidden the first
+applicable method in ``methods`` is used.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
@@ -73,7 +73,8 @@ _INTERP_DONOR_FACTOR = 1.5
 #: not seen the gap's poses (131 on a movement between two still phases; 0.6 to 2.1 between the gaps and their
 #: stretches on the ART file, where nothing unseen happens)
 _PCA_NOVELTY_MIN = 3.0
-#: frames each side of a gap (in s) over which a marker without a cluster gets its steadiest mates
+#: time each side of a gap (s) over which a marker without a cluster gets its steadiest mates, and over which
+#: a donor of the interpolation check must keep its distance to the gap's marker
 _MATES_WINDOW_S = 2.0
 #: at most this many methods are blended per gap
 _BLEND_TOP = 3
@@ -195,7 +196,7 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
 
 def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
                 cluster: list[int] | None, *, validate: bool = True,
-                pca_window: int | None = None
+                pca_window: int | None = None, mates_window: int | None = None
                 ) -> tuple[dict[str, np.ndarray], dict[str, float],
                            tuple[np.ndarray, dict[str, np.ndarray]] | None]:
     """Every applicable method's prediction of gap ``[s, e)`` of marker ``m``, and its validation error (mm).
@@ -203,7 +204,9 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     Returns ``(predictions, errors, stretches)``: predictions maps method -> (e - s, 3); errors maps method ->
     mean Euclidean error over the hidden validation samples (NaN when nothing could be hidden or the method could
     not predict them); stretches is ``(truth, hidden)``, the hidden samples (n, 3) and each method's prediction
-    of them (NaN where it could not predict), or None when nothing was hidden.
+    of them (NaN where it could not predict), or None when nothing was hidden. ``pca_window``: frames each side
+    of the gap the PCA models train on (None: the whole take); ``mates_window``: frames each side over which a
+    marker must keep its distance to ``m`` to serve as a donor (None: any marker).
     """
     n_t = xyz.shape[0]
     valid_m = valid[:, m]
@@ -267,8 +270,10 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     if validate:
         # interpolation knows nothing of the gap's own frames: its error there is what the motion during the
         # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
-        # The nearest markers measured through the gap, interpolated over the same frames, show it.
-        donor_err = donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP])
+        # The nearest markers measured through the gap that move with the marker, interpolated over the same
+        # frames, show it.
+        donor_err = donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP],
+                                        window=mates_window)
         novel = False
         for meth, err_d in donor_err.items():
             # another marker's error is a rough guess of this one's: believed only when clearly larger
@@ -469,6 +474,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
     max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
     pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
+    mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
     cluster_of: dict[int, list[int]] = {}
     for c in clusters or []:
         for j in c:
@@ -491,9 +497,10 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
                 if steady_mates and "rigid" in methods and (cluster is None
                                                             or not valid[s:e][:, cluster].any(axis=1).all()):
-                    cluster = find_steady_mates(src, valid, m, s, e, max(1, int(round(_MATES_WINDOW_S * rate_hz))))
+                    cluster = find_steady_mates(src, valid, m, s, e, mates_window)
                 preds, errors, stretches = predict_gap(src, valid, m, s, e, methods, cluster,
-                                                       validate=validation, pca_window=pca_window)
+                                                       validate=validation, pca_window=pca_window,
+                                                       mates_window=mates_window)
                 if blend:
                     weights = blend_weights(errors, methods)
                     if len(weights) > 1 and stretches is not None:

@@ -587,15 +587,22 @@ def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple
 
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
-                         methods: list[str], n_donors: int = _N_DONORS) -> dict[str, float]:
+                         methods: list[str], n_donors: int = _N_DONORS, *, window: int | None = None,
+                         max_std_mm: float = _MATES_MAX_STD_MM) -> dict[str, float]:
     """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
-    to ``m`` that are measured there and on both sides (NaN when there is none)."""
+    to ``m`` that are measured there and on both sides (NaN when there is none).
+
+    With ``window``, only markers that move with ``m`` count: those whose distance to it has a standard deviation
+    below ``max_std_mm`` over ``window`` frames each side (:func:`distance_sd`). A marker on another body part
+    (the other foot, 300 mm away, swinging while this one stands) says nothing of this one's motion."""
     n_t = valid.shape[0]
     lo, hi = s - _N_ANCHORS, e + _N_ANCHORS
     if not methods or lo < 0 or hi > n_t:
         return {}
     cand = np.flatnonzero(valid[lo:hi].all(axis=0))
     cand = cand[cand != m]
+    if window is not None and cand.size:
+        cand = cand[distance_sd(xyz, valid, m, cand, s, e, window) < max_std_mm]
     if cand.size == 0:
         return {meth: float("nan") for meth in methods}
     # distance to the target on the measured frames next to the gap
@@ -625,11 +632,21 @@ def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int
     """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
     through the gap whose distance to ``m`` varied least (standard deviation below ``max_std_mm``) over the
     ``window`` frames on each side where both are measured. ``None`` when fewer than two qualify."""
-    n_t = valid.shape[0]
     cand = np.flatnonzero(valid[s:e].all(axis=0))
     cand = cand[cand != m]
     if cand.size < 2:
         return None
+    sd = distance_sd(xyz, valid, m, cand, s, e, window)
+    order = np.argsort(sd, kind="stable")[:n_mates]
+    mates = cand[order[sd[order] < max_std_mm]]
+    return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
+
+
+def distance_sd(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray, s: int, e: int,
+                window: int) -> np.ndarray:
+    """Standard deviation (mm) of each of markers ``cand``'s distance to marker ``m`` over the frames from
+    ``window`` before gap ``[s, e)`` to ``window`` after it where both are measured (inf with fewer than 10)."""
+    n_t = valid.shape[0]
     lo, hi = max(0, s - window), min(n_t, e + window)
     both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
     d = norm3(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]))
@@ -638,9 +655,7 @@ def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int
         mu = np.where(both, d, 0.0).sum(axis=0) / n
         sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
     sd[(n < 10) | ~np.isfinite(sd)] = np.inf
-    order = np.argsort(sd, kind="stable")[:n_mates]
-    mates = cand[order[sd[order] < max_std_mm]]
-    return None if mates.size < 2 else [m, *sorted(int(j) for j in mates)]
+    return sd
 
 
 def pca_novelty(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray,
