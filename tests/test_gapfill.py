@@ -365,6 +365,20 @@ def test_interpolation_donors_must_move_with_the_marker():
     assert donor_interp_errors(xyz, valid, m, s, e, ["linear"])["linear"] > 20.0  # it would mislead
     assert np.isnan(donor_interp_errors(xyz, valid, m, s, e, ["linear"], window=120)["linear"])
 
+
+def test_pca_predictors_are_measured_at_the_gap_edges_too():
+    """The PCA fill is corrected to meet the marker at the frames just before and after the gap, so those frames
+    must be predicted from the same markers as the gap: a marker missing at an edge frame is no predictor (on
+    the ART file, one body missing in the frame before a 2-frame gap put 13 mm into it)."""
+    from gazepipe.stages.gapfill_methods import fit_pca_models
+
+    _, measured, _ = body()
+    m, s, e = 5, 300, 302
+    x, valid = hide(measured, [(m, s, e), (9, s - 1, s), (2, e, e + 1), (7, s, e)])
+    models = fit_pca_models(x, valid, m, valid[:, m], s, e, (None,))
+    preds = set(models[0].predictors.tolist())
+    assert preds == set(range(12)) - {m, 9, 2, 7}
+
 def test_pca_novelty_flags_poses_the_model_never_saw():
     """The PCA model's fit residual on its predictors is about as large in a gap as in the stretches beside it
     when the gap shows the same kind of motion, and far larger when the gap holds a movement that training never

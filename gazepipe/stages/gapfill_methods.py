@@ -459,11 +459,11 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
     and training frames; a moving frame that cannot be set up (collinear markers), or that is made of the same
     three markers as an earlier model's, gives no model.
 
-    Predictors: the markers measured in every frame of ``[a, b)``, only the ``max_predictors`` nearest to ``m``
-    (mean distance over the window): the distance weighting makes far markers contribute next to nothing, and
-    the model stays small and fast. Training frames: ``known_m`` and every predictor measured, inside ``window``
-    (half-open) when given. When fewer than ``min_train`` frames remain, the predictor measured least often is
-    dropped, and so on.
+    Predictors: the markers measured in every frame of ``[a - 1, b + 1)`` (the gap and the edge frames its
+    correction uses), only the ``max_predictors`` nearest to ``m`` (mean distance over the window): the
+    distance weighting makes far markers contribute next to nothing, and the model stays small and fast.
+    Training frames: ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When
+    fewer than ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
     """
     chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
     models: list[PcaModel] = []
@@ -487,7 +487,9 @@ def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarra
     """Predictors and training frames of :func:`fit_pca_models` (None when fewer than ``min_train`` frames remain)."""
     n_t, n_m = valid.shape
     lo, hi = (0, n_t) if window is None else window
-    through = valid[a:b].all(axis=0)
+    # measured in the gap's edge frames too: the edge correction compares the prediction there with the
+    # measured marker, and a prediction from other predictors can be off by more than the gap's own
+    through = valid[max(a - 1, 0):min(b + 1, n_t)].all(axis=0)
     through[m] = False
     preds = np.flatnonzero(through)
     rows = known_m[lo:hi]
