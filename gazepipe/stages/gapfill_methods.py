@@ -484,11 +484,12 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
 def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
                   window: tuple[int, int] | None, min_train: int, max_predictors: int
                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Predictors and training frames of :func:`fit_pca_models` (None when fewer than ``min_train`` frames remain)."""
+    """Predictors and training frames of :func:`fit_pca_models` (None when fewer than ``min_train`` frames
+    remain)."""
     n_t, n_m = valid.shape
     lo, hi = (0, n_t) if window is None else window
     # measured in the gap's edge frames too: the edge correction compares the prediction there with the
-    # measured marker, and a prediction from other predictors can be off by more than the gap's own
+    # measured marker, and a prediction there from fewer predictors would carry its own error into the gap
     through = valid[max(a - 1, 0):min(b + 1, n_t)].all(axis=0)
     through[m] = False
     preds = np.flatnonzero(through)
