@@ -44,9 +44,11 @@ from gazepipe.model import FILL_CODES
 from gazepipe.stages.gapfill_methods import (
     PcaModel,
     donor_interp_errors,
+    edge_speed,
     find_steady_mates,
     fit_pca_models,
     interp_fill,
+    mean_speed,
     norm3,
     pca_fill_packed,
     pca_novelty,
@@ -73,6 +75,10 @@ _INTERP_DONOR_FACTOR = 1.5
 #: not seen the gap's poses (131 on a movement between two still phases; 0.6 to 2.1 between the gaps and their
 #: stretches on the ART file, where nothing unseen happens)
 _PCA_NOVELTY_MIN = 3.0
+#: a gap whose marker moves at its edges (and across it) at less than this fraction of its speed in the hidden
+#: stretches is taken as still: interpolation's validation error is scaled by the speed ratio (long gaps on the
+#: Walking file: 0.03-0.10 for foot markers in stance, 0.29 and up for the others)
+_STILL_EDGE_RATIO = 0.25
 #: time each side of a gap (s) over which a marker without a cluster gets its steadiest mates, and over which
 #: a donor of the interpolation check must keep its distance to the gap's marker
 _MATES_WINDOW_S = 2.0
@@ -280,6 +286,15 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
             if np.isfinite(err_d) and not err_d <= _INTERP_DONOR_FACTOR * errors.get(meth, np.nan):
                 errors[meth] = err_d
                 novel = True
+        # the opposite blind spot: the marker stands still through the gap (a foot in stance) while the stretches
+        # beside it hold motion (the steps), so interpolation validates far worse than it will fill. Its speed at
+        # the gap's edges and its net displacement across the gap show it; interpolation's error is scaled by
+        # that speed over the stretches'. (Not where the donors saw motion in the gap: a reach between holds.)
+        if not novel and wins:
+            speed_gap, speed_str = edge_speed(xyz_m, valid_m, s, e), mean_speed(xyz_m, wins)
+            if speed_gap < _STILL_EDGE_RATIO * speed_str:
+                for meth in donor_err:
+                    errors[meth] *= max(speed_gap, _ERR_FLOOR_MM) / speed_str
         # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
         # hidden through them). Its own predictors show it: the components explain them much worse in the gap
         # than in the stretches. (Checked only where the donors show motion the stretches do not.)

@@ -677,3 +677,26 @@ def pca_novelty(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, valid_v: np
         return float("nan")
     den = float(np.sqrt(np.mean(np.square(rh))))
     return float(np.sqrt(np.mean(np.square(rg)))) / den if den > 0 else float("nan")
+
+
+def edge_speed(xyz_m: np.ndarray, valid_m: np.ndarray, s: int, e: int) -> float:
+    """How fast a marker moves about gap ``[s, e)``, mm per frame: the largest of its mean speed over the
+    ``_N_ANCHORS`` measured frames before the gap, over those after it, and its net displacement across the gap
+    per frame (inf when none of them can be measured)."""
+    n_t = xyz_m.shape[0]
+    n = _N_ANCHORS
+    sp = []
+    if s >= n + 1 and valid_m[s - n - 1:s].all():
+        sp.append(float(norm3(np.diff(xyz_m[s - n - 1:s], axis=0)).mean()))
+    if e + n + 1 <= n_t and valid_m[e:e + n + 1].all():
+        sp.append(float(norm3(np.diff(xyz_m[e:e + n + 1], axis=0)).mean()))
+    if s > 0 and e < n_t and valid_m[s - 1] and valid_m[e]:
+        sp.append(float(norm3(xyz_m[e] - xyz_m[s - 1])) / (e - s + 1))
+    return max(sp) if sp else float("inf")
+
+
+def mean_speed(xyz_m: np.ndarray, intervals: list[tuple[int, int]]) -> float:
+    """A marker's mean speed (mm per frame) over the measured ``intervals`` ``[(a, b), ...]`` (0 when none has
+    two frames)."""
+    d = [norm3(np.diff(xyz_m[a:b], axis=0)) for a, b in intervals if b - a >= 2]
+    return float(np.concatenate(d).mean()) if d else 0.0
