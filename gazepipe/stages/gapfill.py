@@ -48,12 +48,12 @@ from gazepipe.stages.gapfill_methods import (
     find_steady_mates,
     fit_pca_models,
     interp_fill,
-    mean_speed,
     norm3,
     pca_fill_packed,
     pca_novelty,
     rigid_fill,
     rigid_fill_many,
+    speed_over,
 )
 
 METHODS = ("rigid", "pca", "pchip", "linear")
@@ -291,7 +291,7 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         # the gap's edges and its net displacement across the gap show it; interpolation's error is scaled by
         # that speed over the stretches'. (Not where the donors saw motion in the gap: a reach between holds.)
         if not novel and wins:
-            speed_gap, speed_str = edge_speed(xyz_m, valid_m, s, e), mean_speed(xyz_m, wins)
+            speed_gap, speed_str = edge_speed(xyz_m, valid_m, s, e), speed_over(xyz_m, wins)
             if speed_gap < _STILL_EDGE_RATIO * speed_str:
                 for meth in donor_err:
                     errors[meth] *= max(speed_gap, _ERR_FLOOR_MM) / speed_str

@@ -685,17 +685,14 @@ def edge_speed(xyz_m: np.ndarray, valid_m: np.ndarray, s: int, e: int) -> float:
     per frame (inf when none of them can be measured)."""
     n_t = xyz_m.shape[0]
     n = _N_ANCHORS
-    sp = []
-    if s >= n + 1 and valid_m[s - n - 1:s].all():
-        sp.append(float(norm3(np.diff(xyz_m[s - n - 1:s], axis=0)).mean()))
-    if e + n + 1 <= n_t and valid_m[e:e + n + 1].all():
-        sp.append(float(norm3(np.diff(xyz_m[e:e + n + 1], axis=0)).mean()))
+    sp = [speed_over(xyz_m, [(a, b)]) for a, b in ((s - n - 1, s), (e, e + n + 1))
+          if a >= 0 and b <= n_t and valid_m[a:b].all()]
     if s > 0 and e < n_t and valid_m[s - 1] and valid_m[e]:
         sp.append(float(norm3(xyz_m[e] - xyz_m[s - 1])) / (e - s + 1))
     return max(sp) if sp else float("inf")
 
 
-def mean_speed(xyz_m: np.ndarray, intervals: list[tuple[int, int]]) -> float:
+def speed_over(xyz_m: np.ndarray, intervals: list[tuple[int, int]]) -> float:
     """A marker's mean speed (mm per frame) over the measured ``intervals`` ``[(a, b), ...]`` (0 when none has
     two frames)."""
     d = [norm3(np.diff(xyz_m[a:b], axis=0)) for a, b in intervals if b - a >= 2]
