@@ -75,7 +75,13 @@ def test_export_csv_round_trip(cleaned, tmp_path):
 
 def test_export_unknown_take_is_one_line(cleaned, tmp_path):
     res = invoke("export", str(cleaned), "nope", "--to", str(tmp_path / "x.c3d"))
-    assert res.exit_code == 1 and "nope" in res.stderr and "Traceback" not in res.stderr
+    assert res.exit_code == 2 and "nope" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_export_to_a_missing_folder_is_a_usage_error(cleaned, tmp_path):
+    res = invoke("export", str(cleaned), "neutral", "--to", str(tmp_path / "nodir" / "x.csv"))
+    assert res.exit_code == 2 and "does not exist" in res.stderr
+    assert not (tmp_path / "nodir").exists()
 
 
 def test_fill_command_fills_hidden_samples_of_real_data(tmp_path):
@@ -113,3 +119,117 @@ def test_fill_command_fills_hidden_samples_of_real_data(tmp_path):
 def test_fill_refuses_a_different_output_format(tmp_path):
     res = invoke("fill", str(CORPUS / "c3d" / "gait-raw.c3d"), str(tmp_path / "x.csv"))
     assert res.exit_code == 2 and "x.csv" in res.stderr
+
+
+def _sample_blocks(path: Path, samples: np.ndarray) -> np.ndarray:
+    """Byte offsets of the four point words of each (frame, point) in ``samples`` (n, 2) of a C3D file."""
+    from gazepipe.io.c3d_meta import parse_c3d_meta
+
+    data = path.read_bytes()
+    lay = parse_c3d_meta(data).layout(len(data))
+    start = lay.data_offset + (samples[:, 0] * lay.frame_words + 4 * samples[:, 1]) * lay.word_bytes
+    return (start[:, None] + np.arange(4 * lay.word_bytes)).ravel()
+
+
+@pytest.mark.parametrize("name", ["gait-raw", "Eb015pr", "Eb015si", "Walking_Hybrid_2"])
+def test_fill_c3d_changes_only_the_filled_samples(name, tmp_path):
+    """Integer/DEC, DEC float, MIPS float and Intel float files: the output is the input with the filled samples'
+    words rewritten and nothing else (analog data, parameters, model outputs, residuals kept byte for byte); the
+    filled positions read back as the filler computed them, to the file's storage precision."""
+    from gazepipe.io.c3d import read_c3d_info
+    from gazepipe.stages.standalone_fill import fill_capture
+
+    src, out = CORPUS / "c3d" / f"{name}.c3d", tmp_path / f"{name}.c3d"
+    res = invoke("fill", str(src), str(out))
+    assert res.exit_code == 0, res.stderr
+    before, after = src.read_bytes(), out.read_bytes()
+    assert len(before) == len(after)
+    m0, info = read_c3d_info(src)
+    m1 = read_c3d(out)
+    new = m1.valid & ~m0.valid
+    assert new.any()
+    expected, _ = fill_capture(m0)
+    np.testing.assert_array_equal(m1.valid, expected.valid)
+    assert np.array_equal(m1.xyz[m0.valid], m0.xyz[m0.valid])  # measured samples bit for bit
+    # storage precision: float32 (relative), or the integer scale (half a step)
+    if info["storage"] == "float":
+        tol = 1e-6 * np.abs(expected.xyz[new]) + 1e-4
+    else:
+        from gazepipe.io.c3d_meta import parse_c3d_meta
+
+        tol = 0.5 * abs(parse_c3d_meta(before).layout(len(before)).scale) + 1e-6
+    assert (np.abs(m1.xyz[new] - expected.xyz[new]) <= tol).all()
+    assert not m0.model_outputs  # so marker i is point i of the file
+    changed = np.flatnonzero(np.frombuffer(before, np.uint8) != np.frombuffer(after, np.uint8))
+    t, m = np.nonzero(new)
+    allowed = _sample_blocks(src, np.stack([t, m], axis=1))
+    assert np.isin(changed, allowed).all()
+
+
+def test_fill_never_keeps_an_implausibly_fast_fill(tmp_path):
+    """At the end of Walking_Hybrid_2 the whole right leg is hidden; PCA from the other markers moved a toe
+    marker 256 mm in one frame (60 m/s). No filled step may exceed the limit the filler states."""
+    from gazepipe.stages.gapfill import step_limits
+
+    src = CORPUS / "c3d" / "Walking_Hybrid_2.c3d"
+    out = tmp_path / "w.c3d"
+    res = invoke("fill", str(src), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    m0, m1 = read_c3d(src), read_c3d(out)
+    limits = step_limits(m0.xyz, m0.valid)
+    steps = np.linalg.norm(np.diff(m1.xyz, axis=0), axis=2)
+    touched = (m1.valid & ~m0.valid)
+    near_fill = (touched[1:] | touched[:-1]) & m1.valid[1:] & m1.valid[:-1]
+    assert near_fill.any()
+    assert (steps[near_fill] <= np.broadcast_to(limits, steps.shape)[near_fill]).all()
+    gaps = summary["gap_list"]
+    implausible = [g for g in gaps if g["reason"] == "every fill implausibly fast"]
+    assert implausible and all(g["method"] == "unfilled" and g["at_edge"] for g in implausible)
+    assert summary["unfilled_reasons"]["every fill implausibly fast"] == len(implausible)
+    assert summary["gaps"]["edge_filled"] == sum(g["at_edge"] and g["method"] != "unfilled" for g in gaps)
+    assert len(gaps) == summary["gaps"]["total"]
+    assert "at the file's start or end" in invoke("fill", str(src), str(tmp_path / "x.c3d")).stdout
+
+
+def test_plausible_fill_falls_back_then_gives_up():
+    """The blend is kept when smooth; a jumping first choice gives way to the next method by validation error;
+    with every method jumping the gap stays unfilled."""
+    from gazepipe.stages.gapfill import REASON_IMPLAUSIBLE, _plausible_fill
+
+    t = np.arange(40, dtype=float)
+    xyz = np.stack([t, 0 * t, 0 * t], axis=1)  # 1 mm per frame
+    xyz[10:20] = np.nan
+    smooth = np.stack([np.arange(10, 20.0), np.zeros(10), np.zeros(10)], axis=1)
+    jump = smooth.copy()
+    jump[5, 0] += 50.0
+    methods = ("rigid", "pca", "pchip", "linear")
+    w, fill, note = _plausible_fill(xyz, 10, 20, {"pca": smooth}, {"pca": 1.0}, {"pca": 1.0}, methods, 3.0)
+    assert fill is smooth and note == ""
+    errors = {"pca": 0.5, "pchip": 2.0, "linear": 1.0}
+    preds = {"pca": jump, "pchip": smooth + 0.1, "linear": smooth}
+    w, fill, note = _plausible_fill(xyz, 10, 20, preds, {"pca": 1.0}, errors, methods, 3.0)
+    assert w == {"linear": 1.0} and fill is preds["linear"] and "linear used" in note
+    w, fill, note = _plausible_fill(xyz, 10, 20, {"pca": jump}, {"pca": 1.0}, {"pca": 0.5}, methods, 3.0)
+    assert fill is None and note == REASON_IMPLAUSIBLE
+
+
+def test_step_limits_cover_a_still_marker_with_the_fastest_markers_steps():
+    from gazepipe.stages.gapfill import step_limits
+
+    t = np.arange(100, dtype=float)
+    fast = np.stack([10.0 * t, 0 * t, 0 * t], axis=1)   # 10 mm per frame
+    still = np.zeros((100, 3)) + 5.0
+    xyz = np.stack([fast, still], axis=1)
+    lim = step_limits(xyz, np.ones((100, 2), bool))
+    np.testing.assert_allclose(lim, [25.0, 15.0])
+
+
+def test_fill_refuses_to_overwrite_its_input_or_write_into_a_missing_folder(tmp_path):
+    src = tmp_path / "in.c3d"
+    src.write_bytes((CORPUS / "c3d" / "gait-raw.c3d").read_bytes())
+    res = invoke("fill", str(src), str(src))
+    assert res.exit_code == 2 and "input file" in res.stderr
+    assert src.read_bytes() == (CORPUS / "c3d" / "gait-raw.c3d").read_bytes()
+    res = invoke("fill", str(src), str(tmp_path / "nodir" / "out.c3d"))
+    assert res.exit_code == 2 and "does not exist" in res.stderr and not (tmp_path / "nodir").exists()

@@ -17,6 +17,11 @@ Exit codes: 0 ok; 1 a take failed (the others finished); 2 usage or configuratio
 error; 3 the QC gate failed; 75 another run holds the output folder's lock.
 """
 
+#: exit codes of the commands that read or write single files
+FILE_EPILOG = """\b
+Exit codes: 0 ok; 1 a file could not be read or written; 2 usage error.
+"""
+
 
 @click.group(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="gazepipe")
@@ -128,7 +133,7 @@ _stage_command("clean", "frames", "Ingest, then clean the markers (spikes, gap f
                "cropping) and compute segment frames (markers.parquet, joints.parquet).")
 
 
-@cli.command(epilog=EPILOG)
+@cli.command(epilog=FILE_EPILOG)
 @click.argument("out", type=click.Path(exists=True, file_okay=False))
 @click.argument("take")
 @click.option("--session", default=None, help="Session id (needed only when OUT holds several sessions).")
@@ -144,29 +149,36 @@ def export(out: str, take: str, session: str | None, dest: str, table: str) -> N
     """
     from gazepipe.io.export import export_markers
 
+    _check_destination(None, Path(dest))
     path, n = export_markers(Path(out), take, session, Path(dest), table)
     click.echo(f"wrote {path} ({n} frames)")
 
 
-@cli.command(epilog=EPILOG)
+@cli.command(epilog=FILE_EPILOG)
 @click.argument("src", metavar="IN", type=click.Path())
 @click.argument("dest", metavar="OUT", type=click.Path(dir_okay=False))
 @click.option("--max-gap-s", type=click.FloatRange(min=0), default=1.0, show_default=True,
-              help="Longest gap to fill, in seconds; longer gaps stay gaps.")
-@click.option("--rate-hz", type=float, default=None, help="Rate for CSV files that do not carry one.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+              help="Longest gap to fill, in seconds; longer gaps stay gaps (0: fill nothing).")
+@click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Rate for CSV files that do not carry one.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
 @handle_errors
 def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: bool) -> None:
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
     Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
-    fill, chosen by hiding known samples next to it. OUT is written in the input's format (.c3d in, .c3d out;
-    a text export in, a wide .csv out) with the gaps it could not fill left as gaps.
+    fill, chosen by hiding known samples next to it. OUT is written in the input's format with the gaps it could
+    not fill left as gaps: a .c3d input is copied with only the filled samples changed (residual 0, the C3D
+    mark of a sample not reconstructed from cameras; analog data, events, model outputs and parameters kept);
+    a text export (Vicon CSV, QTM TSV, wide CSV) gives a wide .csv in millimetres. Gaps at the start or end of
+    the file are filled only from other markers (rigid or PCA), never extrapolated in time, and are counted
+    apart in the summary.
 
     \b
       gazepipe fill walk.c3d walk_filled.c3d
       gazepipe fill trial.csv trial_filled.csv --max-gap-s 0.5 --json
     """
+    from gazepipe.io.c3d import write_filled_c3d
     from gazepipe.io.capture import read_markers
     from gazepipe.io.export import write_markers
     from gazepipe.pipeline.atomic import atomic_path
@@ -176,10 +188,14 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
     want = ".c3d" if src_p.suffix.lower() == ".c3d" else ".csv"
     if dest_p.suffix.lower() != want:
         raise ConfigError(dest, f"OUT must be a {want} file like IN (the filler writes the input's format)")
+    _check_destination(src_p, dest_p)
     markers = read_markers(src_p, rate_hz=rate_hz)
     filled, summary = fill_capture(markers, max_gap_s=max_gap_s)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
-        write_markers(tmp, filled)
+        if want == ".c3d":
+            write_filled_c3d(src_p, tmp, filled)
+        else:
+            write_markers(tmp, filled)
     summary = {"input": str(src_p), "output": str(dest_p), **summary}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
@@ -188,14 +204,32 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
     click.echo(f"{dest_p}: {g['filled']} of {g['total']} gaps filled "
                f"({', '.join(f'{s[k]} {k}' for k in ('rigid', 'pca', 'pchip', 'linear'))} samples); "
                f"{g['unfilled']} gaps ({s['unfilled']} samples) left as gaps")
+    if g["edge_filled"]:
+        click.echo(f"  {g['edge_filled']} of the filled gaps are at the file's start or end (filled from other "
+                   "markers only: check them)")
+    for reason, n in summary["unfilled_reasons"].items():
+        click.echo(f"  left as gaps: {n} {reason}")
     if summary["clusters"]:
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 
 
-@cli.command(epilog=EPILOG)
+def _check_destination(src: Path | None, dest: Path) -> None:
+    """Refuse to write over the input or into a folder that does not exist (ConfigError, exit 2)."""
+    if src is not None and dest.exists() and src.exists() and dest.resolve() == src.resolve():
+        raise ConfigError(dest, "OUT is the input file: write the filled capture to another file")
+    if dest.is_dir():
+        raise ConfigError(dest, "OUT is a folder: give a file name")
+    parent = dest.parent
+    if not parent.is_dir():
+        what = "is not a folder" if parent.exists() else "does not exist: create it first"
+        raise ConfigError(dest, f"{parent} {what}")
+
+
+@cli.command(epilog=FILE_EPILOG)
 @click.argument("file", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a summary.")
-@click.option("--rate-hz", type=float, default=None, help="Rate for CSV files that do not carry one.")
+@click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Rate for CSV files that do not carry one.")
 @handle_errors
 def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
     """Summarise a capture file: format, rate, frames, first frame, units, markers and their gap share."""
@@ -215,7 +249,7 @@ def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
         click.echo(f"  warning: {w}")
 
 
-@cli.command(epilog=EPILOG)
+@cli.command(epilog=FILE_EPILOG)
 @click.argument("out", type=click.Path(exists=True, file_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 @handle_errors

@@ -269,10 +269,7 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
         raise InputError(p, f"unknown point units {units!r}", key="POINT:UNITS") from None
 
     raw_labels = meta.point_labels(lay.n_points)
-    model_names = set()
-    for name in MODEL_OUTPUT_PARAMS:
-        model_names.update(s.strip() for s in meta.get_strings("POINT", name) if s.strip())
-    is_model = np.array([lab.strip() in model_names for lab in raw_labels], dtype=bool)
+    is_model = _model_points(meta, raw_labels)
     marker_idx = np.flatnonzero(~is_model)
 
     labels, renamed = make_unique([raw_labels[i] for i in marker_idx])
@@ -303,6 +300,14 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
     info = {"reader": reader, "processor": lay.processor, "storage": "float" if lay.is_float else "int",
             "units": units, "n_points": lay.n_points, "analog_channels": lay.analog_channels}
     return markers, info
+
+
+def _model_points(meta: C3DMeta, raw_labels: list[str]) -> np.ndarray:
+    """(P,) bool: the points that are model outputs (listed in a POINT parameter of ``MODEL_OUTPUT_PARAMS``)."""
+    model_names = set()
+    for name in MODEL_OUTPUT_PARAMS:
+        model_names.update(s.strip() for s in meta.get_strings("POINT", name) if s.strip())
+    return np.array([lab.strip() in model_names for lab in raw_labels], dtype=bool)
 
 
 def read_c3d(path: str | Path, *, default_units: str = "mm") -> Markers:
@@ -356,3 +361,56 @@ def write_c3d(path: str | Path, markers: Markers) -> None:
         c.write(str(p))
     except Exception as e:
         raise InputError(p, f"cannot write C3D file ({e})") from None
+
+
+def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, default_units: str = "mm") -> int:
+    """Write ``dest`` as a copy of the C3D file ``src`` in which only the samples that ``markers`` fills are
+    changed; return how many samples were written.
+
+    ``markers`` must be what :func:`read_c3d` returns for ``src`` (same markers, same order), with more valid
+    samples: each sample that is a gap in ``src`` and valid in ``markers`` gets its coordinates (in the file's
+    units, storage and processor format) and a fourth word of 0 (residual 0, no cameras: C3D's mark of a point
+    that was not reconstructed from cameras, as a filled one). Every other byte (header, parameters, analog
+    data, events, model outputs, measured samples and their residuals) is kept as it is.
+
+    Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file or a filled value does
+    not fit the file's integer storage.
+    """
+    p = Path(src)
+    orig, info = read_c3d_info(p, default_units=default_units)
+    data = p.read_bytes()
+    meta = parse_c3d_meta(data)
+    lay = meta.layout(len(data))
+    if markers.labels != orig.labels or markers.xyz.shape != orig.xyz.shape:
+        raise InputError(p, "the filled markers do not match the file's markers")
+    new = np.asarray(markers.valid, dtype=bool) & ~orig.valid
+    if new.any() and not np.isfinite(markers.xyz[new]).all():
+        raise InputError(p, "a filled sample has no coordinates")
+    if not new.any():
+        Path(dest).write_bytes(data)
+        return 0
+    marker_idx = np.flatnonzero(~_model_points(meta, meta.point_labels(lay.n_points)))
+    to_mm = unit_scale_to_mm(info["units"], default_units)
+    t_idx, m_idx = np.nonzero(new)
+    values = markers.xyz[t_idx, m_idx] / to_mm  # (n, 3) in the file's units
+    # the four words of each sample, in the file's encoding
+    if lay.is_float:
+        quad = np.concatenate([values, np.zeros((len(values), 1))], axis=1)
+        if lay.processor == "dec":  # DEC floats: 4x the IEEE value, 16-bit halves swapped
+            words = (quad * 4.0).astype("<f4").view("<u2").reshape(-1, 2)[:, ::-1]
+            raw = np.ascontiguousarray(words).astype("<u2").tobytes()
+        else:
+            raw = quad.astype(">f4" if lay.processor == "mips" else "<f4").tobytes()
+    else:
+        ints = np.rint(values / abs(lay.scale))
+        if not (np.abs(ints) <= 32767).all():
+            raise InputError(p, "a filled position does not fit the file's 16-bit integer storage "
+                                f"(POINT:SCALE {lay.scale:g})")
+        quad = np.concatenate([ints, np.zeros((len(ints), 1))], axis=1)
+        raw = quad.astype(">i2" if lay.processor == "mips" else "<i2").tobytes()
+    sample_bytes = 4 * lay.word_bytes
+    offsets = lay.data_offset + (t_idx * lay.frame_words + 4 * marker_idx[m_idx]) * lay.word_bytes
+    out = np.frombuffer(data, dtype=np.uint8).copy()
+    out[offsets[:, None] + np.arange(sample_bytes)] = np.frombuffer(raw, dtype=np.uint8).reshape(-1, sample_bytes)
+    Path(dest).write_bytes(out.tobytes())
+    return int(new.sum())

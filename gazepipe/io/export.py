@@ -35,7 +35,7 @@ def export_markers(out: Path, take: str, session: str | None, dest: Path, table:
     if session is None:
         found = sorted(p.parent.name for p in base.glob(f"*/{take}"))
         if not found:
-            raise InputError(out, f"no take {take!r} in this output folder")
+            raise ConfigError(out, f"no take {take!r} in this output folder (`gazepipe status {out}` lists them)")
         if len(found) > 1:
             raise ConfigError(out, f"take {take!r} is in several sessions ({', '.join(found)}): pass --session")
         session = found[0]

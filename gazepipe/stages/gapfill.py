@@ -32,6 +32,12 @@ applicable method in ``methods`` is used.
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
 mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled.
+
+Every fill is checked for plausible speed before it is kept (:func:`step_limits`): no step from frame to frame,
+into, across or out of the gap, may exceed both 2.5x the marker's own 99th-percentile measured step and 1.5x
+the largest such percentile of any marker. A fill that does (seen for PCA at the end of a take whose last
+poses the training frames never held: a foot marker moving 120 mm per frame) is replaced by the next method
+by validation error that passes, or the gap stays unfilled (``GapRecord.reason``).
 """
 
 from __future__ import annotations
@@ -93,6 +99,16 @@ _PCA_MODELS = (None, "steady", "near")
 _BLEND_MAX_RATIO = 3.0
 #: validation errors below this (mm) are treated as equal: below the noise of any capture
 _ERR_FLOOR_MM = 0.01
+#: a filled step above this many times the marker's 99th-percentile measured step, and above
+#: ``_STEP_FACTOR_ANY`` times the largest such percentile of any marker (a marker seen only still may move as
+#: fast as the others, a little faster at the end of a longer lever), is implausible
+_STEP_FACTOR = 2.5
+_STEP_FACTOR_ANY = 1.5
+#: reasons a gap stays unfilled (``GapRecord.reason``)
+REASON_TOO_LONG = "longer than max_gap_s"
+REASON_NEVER_MEASURED = "marker never measured"
+REASON_NO_METHOD = "no method applies"
+REASON_IMPLAUSIBLE = "every fill implausibly fast"
 #: standard gravity, mm/s²
 G_MM_S2 = 9806.65
 
@@ -110,6 +126,8 @@ class GapRecord:
     errors: dict[str, float] = field(default_factory=dict)
     #: blend weights of the methods combined to fill the gap (summing to 1; one entry when a single method)
     weights: dict[str, float] = field(default_factory=dict)
+    #: why the gap stays unfilled (a ``REASON_*``), or why its first choice was replaced; empty otherwise
+    reason: str = ""
 
     @property
     def length(self) -> int:
@@ -496,6 +514,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             cluster_of.setdefault(int(j), [int(k) for k in c])
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
+    limits = step_limits(src, valid)
     from threadpoolctl import threadpool_limits
 
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
@@ -505,8 +524,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             filled = {k: 0 for k in METHODS}
             longest = max((e - s for s, e in gaps), default=0)
             for s, e in gaps:
-                if e - s > max_len or valid[:, m].sum() == 0:
-                    records.append(GapRecord(m, s, e, "unfilled"))
+                if e - s > max_len or not valid[:, m].any():
+                    records.append(GapRecord(m, s, e, "unfilled", reason=REASON_TOO_LONG if e - s > max_len
+                                             else REASON_NEVER_MEASURED))
                     continue
                 cluster = cluster_of.get(m)
                 # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
@@ -525,16 +545,67 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                     weights = {} if one is None else {one: 1.0}
                 full_errors = {k: errors.get(k, float("nan")) for k in methods}
                 if not weights:
-                    records.append(GapRecord(m, s, e, "unfilled", full_errors))
+                    records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=REASON_NO_METHOD))
+                    continue
+                weights, fill, note = _plausible_fill(src[:, m], s, e, preds, weights, full_errors, methods,
+                                                      limits[m])
+                if fill is None:
+                    records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=note))
                     continue
                 best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
-                out[s:e, m] = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
+                out[s:e, m] = fill
                 code[s:e, m] = FILL_CODES[best]
                 filled[best] += e - s
-                records.append(GapRecord(m, s, e, best, full_errors, weights))
+                records.append(GapRecord(m, s, e, best, full_errors, weights, note))
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records)
+
+
+def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR,
+                factor_any: float = _STEP_FACTOR_ANY) -> np.ndarray:
+    """Largest plausible step (mm per frame) of each marker's filled samples, (M,): the larger of ``factor``
+    times the marker's 99th-percentile step between consecutive measured frames and ``factor_any`` times the
+    largest such percentile of any marker (so a marker seen only still may still be filled moving as fast as
+    the others). Inf where nothing was measured twice in a row anywhere."""
+    n_m = valid.shape[1]
+    if valid.shape[0] < 2:
+        return np.full(n_m, np.inf)
+    step = norm3(xyz[1:] - xyz[:-1])
+    both = valid[1:] & valid[:-1]
+    enough = both.sum(axis=0) >= 10
+    p99 = np.full(n_m, np.nan)
+    if enough.any():
+        p99[enough] = np.nanpercentile(np.where(both, step, np.nan)[:, enough], 99, axis=0)
+    if not enough.any():
+        return np.full(n_m, np.inf)
+    return np.fmax(factor * p99, factor_any * np.nanmax(p99))
+
+
+def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarray], weights: dict[str, float],
+                    errors: dict[str, float], methods: tuple[str, ...], limit: float
+                    ) -> tuple[dict[str, float], np.ndarray | None, str]:
+    """The fill of gap ``[s, e)`` of a marker (``xyz_m`` (T, 3), NaN in gaps) from ``weights``, or when one of
+    its steps (into, across and out of the gap) exceeds ``limit`` mm, the first single method (by validation
+    error, then ``methods`` order) whose steps do not. Returns ``(weights, fill or None, note)``."""
+    lo, hi = max(s - 1, 0), min(e + 1, xyz_m.shape[0])
+
+    def ok(fill: np.ndarray) -> bool:
+        seg = np.concatenate([xyz_m[lo:s], fill, xyz_m[e:hi]])
+        steps = norm3(seg[1:] - seg[:-1])
+        return bool(np.all(np.isfinite(fill)) and not (steps > limit).any())
+
+    best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
+    first = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
+    if ok(first):
+        return weights, first, ""
+    order = sorted(preds, key=lambda k: (not np.isfinite(errors.get(k, np.nan)), errors.get(k, np.nan)
+                                         if np.isfinite(errors.get(k, np.nan)) else 0.0, methods.index(k)))
+    for k in order:
+        if k != best or len(weights) > 1:
+            if ok(preds[k]):
+                return {k: 1.0}, preds[k], f"{best} fill implausibly fast; {k} used"
+    return weights, None, REASON_IMPLAUSIBLE
 
 
 def remove_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *,

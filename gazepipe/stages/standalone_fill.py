@@ -19,8 +19,10 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0,
                  methods: tuple[str, ...] = METHODS) -> tuple[Markers, dict[str, Any]]:
     """Fill the gaps of ``markers``; return the filled markers and a summary of what was filled, by method.
 
-    Summary: ``samples`` per fill code over all markers, ``gaps`` (total, filled, unfilled), ``clusters`` (the
-    rigid clusters found, by label), and per marker the samples filled by each method and those left unfilled.
+    Summary: ``samples`` per fill code over all markers, ``gaps`` (total, filled, unfilled, and filled gaps at
+    the start or end: filled from other markers only), ``unfilled_reasons`` (gaps per reason), ``clusters``
+    (the rigid clusters found, by label), per marker the samples filled by each method and those left unfilled,
+    and ``gap_list``: every gap with its file frame numbers, method, weights and validation errors.
     """
     clusters = find_rigid_clusters(markers.xyz, markers.valid)
     res = fill_gaps(markers.xyz, markers.valid, markers.rate_hz, clusters=clusters, max_gap_s=max_gap_s,
@@ -34,12 +36,33 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0,
                   for i, lab in enumerate(markers.labels)}
     n_gaps = len(res.gaps)
     n_unfilled = sum(g.method == "unfilled" for g in res.gaps)
+    n_t = markers.n_frames
+    at_edge = [g.start == 0 or g.stop == n_t for g in res.gaps]
+    reasons: dict[str, int] = {}
+    for g in res.gaps:
+        if g.method == "unfilled":
+            reasons[g.reason or "unknown"] = reasons.get(g.reason or "unknown", 0) + 1
     summary = {
         "frames": markers.n_frames, "markers": markers.n_markers, "rate_hz": markers.rate_hz,
-        "max_gap_s": max_gap_s,
+        "first_frame": markers.first_frame, "max_gap_s": max_gap_s,
         "samples": {name: int(counts[:, c].sum()) for c, name in enumerate(FILL_NAMES)},
-        "gaps": {"total": n_gaps, "filled": n_gaps - n_unfilled, "unfilled": n_unfilled},
+        "gaps": {"total": n_gaps, "filled": n_gaps - n_unfilled, "unfilled": n_unfilled,
+                 "edge_filled": sum(e and g.method != "unfilled" for g, e in zip(res.gaps, at_edge, strict=True))},
+        "unfilled_reasons": dict(sorted(reasons.items())),
         "clusters": [[markers.labels[i] for i in c] for c in clusters],
         "per_marker": per_marker,
+        "gap_list": [_gap_entry(markers, g, e) for g, e in zip(res.gaps, at_edge, strict=True)],
     }
     return filled, summary
+
+
+def _gap_entry(markers: Markers, g: Any, at_edge: bool) -> dict[str, Any]:
+    """One gap for the JSON summary: marker, file frame numbers (first, last), length, method, blend weights,
+    validation errors (mm), whether it touches the start or end, and the reason when not filled as chosen."""
+    return {
+        "marker": markers.labels[g.marker], "first_frame": markers.first_frame + g.start,
+        "last_frame": markers.first_frame + g.stop - 1, "frames": g.length, "method": g.method,
+        "weights": {k: round(v, 4) for k, v in g.weights.items()},
+        "validation_mm": {k: round(v, 3) for k, v in g.errors.items() if np.isfinite(v)},
+        "at_edge": at_edge, "reason": g.reason,
+    }
