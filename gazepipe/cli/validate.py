@@ -15,6 +15,10 @@ wrong; 3 the QC gate failed (a check at or above --fail-on); 75 a run holds OUT'
 """
 
 
+#: failing checks printed one per line before the rest are only counted
+_MAX_LISTED = 25
+
+
 def _thresholds(pairs: tuple[str, ...]):
     import dataclasses
     import tomllib
@@ -49,8 +53,8 @@ def _thresholds(pairs: tuple[str, ...]):
               help="Exit 3 when a check is at this severity or worse (error counts as fail).")
 @click.option("--threshold", "thresholds", multiple=True, metavar="NAME=VALUE",
               help="Override a check threshold, e.g. --threshold unfilled_warn=0.1 (repeatable; 'none' disables).")
-@click.option("--no-plots", is_flag=True, help="Leave the plots out of report.html (faster; report.json and "
-              "takes.parquet are the same).")
+@click.option("--no-plots", is_flag=True, help="Leave the plots out of report.html (faster; it replaces the page "
+              "with plots; report.json and takes.parquet are the same).")
 @click.option("--plot-takes", type=click.IntRange(0), default=100, show_default=True,
               help="Plot at most this many takes, the worst first (every take keeps its checks table).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
@@ -85,11 +89,15 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool
         s = rep["summary"]
         counts = ", ".join(f"{n} {k}" for k, n in s["checks"].items() if n)
         click.echo(f"{s['takes']} take(s), {s['datasets']} dataset(s): {counts}")
-        for r in s["failing"]:
-            if r["severity"] in ("fail", "error"):
-                click.echo(f"  {r['severity']:<7} {r['target']}: {r['id']}: {r['message']}")
+        # the checks that fail the gate are listed (warnings too with --fail-on warning), the rest counted
+        shown = ("fail", "error", "warning") if fail_on == "warning" else ("fail", "error")
+        listed = [r for r in s["failing"] if r["severity"] in shown]
+        for r in listed[:_MAX_LISTED]:
+            click.echo(f"  {r['severity']:<7} {r['target']}: {r['id']}: {r['message']}")
+        if len(listed) > _MAX_LISTED:
+            click.echo(f"  … and {len(listed) - _MAX_LISTED} more (all in {res.paths[0]}, or --json)")
         warn = sum(r["severity"] == "warning" for r in s["failing"])
-        if warn:
+        if warn and "warning" not in shown:
             click.echo(f"  {warn} warning(s): see {res.paths[2]}")
         click.echo(f"wrote {res.paths[0]}, {res.paths[1].name}, {res.paths[2].name}")
         click.echo(f"QC gate (--fail-on {fail_on}): " + ("passed" if res.passed else
