@@ -189,7 +189,10 @@ def test_fill_never_keeps_an_implausibly_fast_fill(tmp_path):
     assert summary["unfilled_reasons"]["every fill implausibly fast"] == len(implausible)
     assert summary["gaps"]["edge_filled"] == sum(g["at_edge"] and g["method"] != "unfilled" for g in gaps)
     assert len(gaps) == summary["gaps"]["total"]
-    assert "at the file's start or end" in invoke("fill", str(src), str(tmp_path / "x.c3d")).stdout
+    text = invoke("fill", str(src), str(tmp_path / "x.c3d")).stdout
+    assert "at the file's start or end" in text
+    assert "warning: 25 groups of bit-identical trajectories" in text  # what inspect says, fill says too
+    assert any("bit-identical" in w for w in summary["warnings"])
 
 
 def test_plausible_fill_falls_back_then_gives_up():
@@ -233,3 +236,22 @@ def test_fill_refuses_to_overwrite_its_input_or_write_into_a_missing_folder(tmp_
     assert src.read_bytes() == (CORPUS / "c3d" / "gait-raw.c3d").read_bytes()
     res = invoke("fill", str(src), str(tmp_path / "nodir" / "out.c3d"))
     assert res.exit_code == 2 and "does not exist" in res.stderr and not (tmp_path / "nodir").exists()
+
+
+def test_status_compares_with_the_parameters_given(cleaned, tmp_path):
+    res = invoke("status", str(cleaned), "--json")
+    assert res.exit_code == 0
+    rows = json.loads(res.stdout)
+    assert rows and not any(r["state"] == "stale" for r in rows if r["stage"] == "clean")
+    rows = json.loads(invoke("status", str(cleaned), "--json", "--param", "clean.max_gap_s=0.5").stdout)
+    stale = [r for r in rows if r["stage"] == "clean" and r["state"] == "stale"]
+    assert stale and all("param" in r["detail"] for r in stale)
+    res = invoke("status", str(tmp_path))
+    assert res.exit_code == 2 and "not a gazepipe output folder" in res.stderr
+
+
+@pytest.mark.parametrize("path, what", [("openface/pyfeat_OpenFace_Test.csv", "OpenFace"),
+                                        ("livelinkface/alex_rom_3_first300.csv", "Live Link Face")])
+def test_inspect_names_eye_and_face_tracks_instead_of_misreading_them(path, what):
+    res = invoke("inspect", str(CORPUS / path))
+    assert res.exit_code == 1 and what in res.stderr and "not a marker capture" in res.stderr

@@ -196,10 +196,12 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
             write_filled_c3d(src_p, tmp, filled)
         else:
             write_markers(tmp, filled)
-    summary = {"input": str(src_p), "output": str(dest_p), **summary}
+    summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
+    for w in markers.warnings:
+        click.echo(f"  warning: {w}")
     s, g = summary["samples"], summary["gaps"]
     click.echo(f"{dest_p}: {g['filled']} of {g['total']} gaps filled "
                f"({', '.join(f'{s[k]} {k}' for k in ('rigid', 'pca', 'pchip', 'linear'))} samples); "
@@ -250,14 +252,27 @@ def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
 
 
 @cli.command(epilog=FILE_EPILOG)
-@click.argument("out", type=click.Path(exists=True, file_okay=False))
+@click.argument("out", type=click.Path(file_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@click.option("--param", "params", multiple=True, metavar="STAGE.NAME=VALUE",
+              help="The parameters the next run would use (as given to `gazepipe run`): units run with others "
+              "show as stale.")
+@click.option("--params", "params_file", type=click.Path(dir_okay=False), default=None,
+              help="TOML file of parameters: one table per stage.")
 @handle_errors
-def status(out: str, as_json: bool) -> None:
-    """What ran in OUT, what failed, and what is stale (inputs, parameters or code changed since)."""
-    from gazepipe.pipeline.status import collect_status
+def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | None) -> None:
+    """What ran in OUT, what failed, and what is stale (inputs, parameters or code changed since), compared
+    with the default parameters or those given.
 
-    rows = collect_status(Path(out))
+    \b
+      gazepipe status out/
+      gazepipe status out/ --params studio.toml --json
+    """
+    from gazepipe.pipeline.status import collect_status
+    from gazepipe.report.collect import open_output
+
+    open_output(out)
+    rows = collect_status(Path(out), parse_params(params, params_file))
     if as_json:
         click.echo(json.dumps(rows, indent=1, default=str))
         return

@@ -30,6 +30,13 @@ def sniff_format(path: str | Path) -> str:
     if ext == ".c3d" or (len(head) >= 2 and head[1] == 0x50 and b"\x00" in head):
         return "c3d"
     text = head.decode("latin-1").lstrip("\ufeff\xef\xbb\xbf")
+    header = [c.strip() for c in text.split("\n", 1)[0].split(",")]
+    if {"gaze_0_x", "confidence"} <= set(header):
+        raise InputError(p, "an OpenFace eye-tracking CSV, not a marker capture (give it to a session's takes "
+                            "as `eyes`; inspect and fill read C3D, Vicon CSV, QTM TSV and wide CSV)")
+    if {"Timecode", "BlendShapeCount"} <= set(header) or {"Timecode", "BlendshapeCount"} <= set(header):
+        raise InputError(p, "a Live Link Face blendshape CSV, not a marker capture (give it to a `face` "
+                            "take as `tracked` or `clean`; inspect and fill read C3D, Vicon CSV, QTM TSV and wide CSV)")
     first_cells = [ln.split(",", 1)[0].split("\t", 1)[0].strip() for ln in text.splitlines()[:20]]
     if any(c in VICON_BLOCKS for c in first_cells[:1]) or "Trajectories" in first_cells:
         return "vicon_csv"

@@ -11,8 +11,9 @@ from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.state import OutLayout, all_records, read_json
 
 
-def collect_status(out: Path) -> list[dict[str, Any]]:
-    """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration."""
+def collect_status(out: Path, params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration; units
+    are compared with ``params`` (stage -> name -> value overrides; default: every default)."""
     from gazepipe.io.session_toml import load_session
 
     layout = OutLayout(out)
@@ -26,7 +27,7 @@ def collect_status(out: Path) -> list[dict[str, Any]]:
         except GazepipeError as exc:
             rows.append({"session": sid, "take": "-", "stage": "-", "state": "stale",
                          "detail": f"session cannot be read now: {exc.one_line()}"})
-    _, failures, plans = plan_run(sessions, out, hashes=HashCache(layout.hashes))
+    _, failures, plans = plan_run(sessions, out, params=params, hashes=HashCache(layout.hashes))
     for f in failures:
         rows.append({"session": f.session, "take": f.take, "stage": f.stage, "state": "failed", "detail": f.error})
         seen.add((f.session, f.take, f.stage))
