@@ -78,6 +78,14 @@ def test_export_unknown_take_is_one_line(cleaned, tmp_path):
     assert res.exit_code == 2 and "nope" in res.stderr and "Traceback" not in res.stderr
 
 
+def test_export_of_a_face_take_says_it_has_no_markers(tmp_path):
+    out = tmp_path / "out"
+    (out / "takes" / "s1" / "face_01").mkdir(parents=True)
+    (out / "takes" / "s1" / "face_01" / "face.parquet").write_bytes(b"")  # only its existence is looked at
+    res = invoke("export", str(out), "face_01", "--to", str(tmp_path / "f.csv"))
+    assert res.exit_code == 2 and "face take" in res.stderr and not (tmp_path / "f.csv").exists()
+
+
 def test_export_to_a_missing_folder_is_a_usage_error(cleaned, tmp_path):
     res = invoke("export", str(cleaned), "neutral", "--to", str(tmp_path / "nodir" / "x.csv"))
     assert res.exit_code == 2 and "does not exist" in res.stderr

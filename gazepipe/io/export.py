@@ -40,6 +40,8 @@ def export_markers(out: Path, take: str, session: str | None, dest: Path, table:
             raise ConfigError(out, f"take {take!r} is in several sessions ({', '.join(found)}): pass --session")
         session = found[0]
     path = base / session / take / f"{table}.parquet"
+    if not path.is_file() and (path.parent / "face.parquet").is_file():
+        raise ConfigError(out, f"take {take!r} is a face take: it has blendshape tracks (face.parquet), no markers")
     if not path.is_file():
         raise InputError(path, f"not found: has `gazepipe {'clean' if table == 'markers' else 'ingest'}` run?")
     markers, frames, _, _ = table_to_markers(read_table(path, MARKERS_CLEAN if table == "markers" else MARKERS_RAW))
