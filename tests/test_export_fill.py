@@ -156,7 +156,7 @@ def test_fill_c3d_changes_only_the_filled_samples(name, tmp_path):
     m1 = read_c3d(out)
     new = m1.valid & ~m0.valid
     assert new.any()
-    expected, _ = fill_capture(m0)
+    expected, _, _ = fill_capture(m0)
     np.testing.assert_array_equal(m1.valid, expected.valid)
     assert np.array_equal(m1.xyz[m0.valid], m0.xyz[m0.valid])  # measured samples bit for bit
     # storage precision: float32 (relative), or the integer scale (half a step)
@@ -263,3 +263,53 @@ def test_status_compares_with_the_parameters_given(cleaned, tmp_path):
 def test_inspect_names_eye_and_face_tracks_instead_of_misreading_them(path, what):
     res = invoke("inspect", str(CORPUS / path))
     assert res.exit_code == 1 and what in res.stderr and "not a marker capture" in res.stderr
+
+
+@pytest.mark.parametrize("ext", [".c3d", ".csv"])
+def test_fill_remove_spikes_replaces_a_spike_only_when_asked(ext, tmp_path):
+    """A 300 mm one-frame spike in a gap-free real trajectory: counted and kept by default; with
+    --remove-spikes it becomes a gap and is filled near the truth, and nothing else changes."""
+    from gazepipe.model import Markers
+
+    src = read_c3d(CORPUS / "c3d" / "Walking_Hybrid_2.c3d")
+    _, keep = np.unique(np.nan_to_num(src.xyz).transpose(1, 0, 2).reshape(src.n_markers, -1), axis=0,
+                        return_index=True)
+    keep = np.sort(keep)
+    keep = keep[src.valid[:, keep].all(axis=0)]
+    truth = src.xyz[:, keep]
+    spiked = truth.copy()
+    spiked[200, 3, 2] += 300.0
+    m = Markers(labels=[src.labels[i] for i in keep], xyz=spiked, valid=np.ones(truth.shape[:2], bool),
+                rate_hz=src.rate_hz, first_frame=src.first_frame)
+    inp = tmp_path / f"in{ext}"
+    write_markers(inp, m)
+    res = invoke("fill", str(inp), str(tmp_path / f"kept{ext}"), "--json")
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["spikes"] == {"samples": 1, "removed": False, "per_marker": {m.labels[3]: 1}}
+    if ext == ".c3d":
+        assert (tmp_path / f"kept{ext}").read_bytes() == inp.read_bytes()
+    np.testing.assert_allclose(read_markers(tmp_path / f"kept{ext}").xyz, read_markers(inp).xyz)
+    res = invoke("fill", str(inp), str(tmp_path / f"out{ext}"), "--remove-spikes")
+    assert res.exit_code == 0, res.stderr
+    assert "turned into gaps before filling" in res.stdout
+    back, before = read_markers(tmp_path / f"out{ext}"), read_markers(inp)
+    assert back.valid.all()
+    assert np.linalg.norm(back.xyz[200, 3] - truth[200, 3]) < 5.0   # was 300 mm off
+    other = np.ones(truth.shape[:2], bool)
+    other[200, 3] = False
+    np.testing.assert_array_equal(back.xyz[other], before.xyz[other])
+
+
+def test_fill_writes_a_position_its_integer_c3d_cannot_hold_as_a_gap(tmp_path):
+    """ART-Human stores 16-bit integers at 0.049 mm (±1605 mm): the head marker's refilled corrupt stretch lies
+    above that, so it is written as gaps, said in a warning, and the file stays readable."""
+    src, out = CORPUS / "c3d" / "ART-Human_2persons_integer.c3d", tmp_path / "a.c3d"
+    res = invoke("fill", str(src), str(out), "--remove-spikes", "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["samples_written_as_gaps"] == summary["spikes"]["samples"] == 10
+    assert any("16-bit integer range" in w for w in summary["warnings"])
+    m0, m1 = read_c3d(src), read_c3d(out)
+    gone = m0.valid & ~m1.valid
+    assert gone.sum() == 10 and (m1.valid | gone).all()
+    assert np.array_equal(m1.xyz[m1.valid], m0.xyz[m1.valid])

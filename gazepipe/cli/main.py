@@ -161,9 +161,12 @@ def export(out: str, take: str, session: str | None, dest: str, table: str) -> N
               help="Longest gap to fill, in seconds; longer gaps stay gaps (0: fill nothing).")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Rate for CSV files that do not carry one.")
+@click.option("--remove-spikes", is_flag=True, help="Turn samples with implausible acceleration (over 50 g) "
+              "into gaps first, as `gazepipe clean` does (default: measured samples are kept; spikes are counted).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
 @handle_errors
-def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: bool) -> None:
+def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool,
+         as_json: bool) -> None:
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
     Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
@@ -177,6 +180,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
     \b
       gazepipe fill walk.c3d walk_filled.c3d
       gazepipe fill trial.csv trial_filled.csv --max-gap-s 0.5 --json
+      gazepipe fill noisy.c3d noisy_filled.c3d --remove-spikes
     """
     from gazepipe.io.c3d import write_filled_c3d
     from gazepipe.io.capture import read_markers
@@ -190,10 +194,14 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
         raise ConfigError(dest, f"OUT must be a {want} file like IN (the filler writes the input's format)")
     _check_destination(src_p, dest_p)
     markers = read_markers(src_p, rate_hz=rate_hz)
-    filled, summary = fill_capture(markers, max_gap_s=max_gap_s)
+    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if want == ".c3d":
-            write_filled_c3d(src_p, tmp, filled)
+            _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed)
+            if n_wide:
+                markers.warnings.append(f"{n_wide} filled samples lie beyond the file's 16-bit integer range "
+                                        "and are written as gaps (counted as filled below)")
+            summary["samples_written_as_gaps"] = n_wide
         else:
             write_markers(tmp, filled)
     summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
@@ -211,6 +219,12 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, as_json: 
                    "markers only: check them)")
     for reason, n in summary["unfilled_reasons"].items():
         click.echo(f"  left as gaps: {n} {reason}")
+    sp = summary["spikes"]
+    if sp["samples"]:
+        what = ("turned into gaps before filling" if sp["removed"]
+                else "kept as measured (--remove-spikes turns them into gaps first)")
+        click.echo(f"  {sp['samples']} samples of {len(sp['per_marker'])} markers have implausible acceleration "
+                   f"(spikes): {what}")
     if summary["clusters"]:
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 

@@ -363,18 +363,21 @@ def write_c3d(path: str | Path, markers: Markers) -> None:
         raise InputError(p, f"cannot write C3D file ({e})") from None
 
 
-def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, default_units: str = "mm") -> int:
-    """Write ``dest`` as a copy of the C3D file ``src`` in which only the samples that ``markers`` fills are
-    changed; return how many samples were written.
+def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, removed: np.ndarray | None = None,
+                     default_units: str = "mm") -> tuple[int, int]:
+    """Write ``dest`` as a copy of the C3D file ``src`` in which only the samples that ``markers`` fills (or
+    ``removed`` takes out) are changed; return how many samples were written, and how many filled samples were
+    written as gaps instead because the file's 16-bit integer storage cannot hold them.
 
-    ``markers`` must be what :func:`read_c3d` returns for ``src`` (same markers, same order), with more valid
-    samples: each sample that is a gap in ``src`` and valid in ``markers`` gets its coordinates (in the file's
-    units, storage and processor format) and a fourth word of 0 (residual 0, no cameras: C3D's mark of a point
-    that was not reconstructed from cameras, as a filled one). Every other byte (header, parameters, analog
-    data, events, model outputs, measured samples and their residuals) is kept as it is.
+    ``markers`` must be what :func:`read_c3d` returns for ``src`` (same markers, same order), with gaps
+    filled: each sample that is a gap in ``src`` and valid in ``markers``, or marked in ``removed`` (T, M) and
+    valid in ``markers``, gets its coordinates (in the file's units, storage and processor format) and a fourth
+    word of 0 (residual 0, no cameras: C3D's mark of a point that was not reconstructed from cameras, as a
+    filled one); a sample marked in ``removed`` and invalid in ``markers`` becomes a gap (zeros, residual -1).
+    Every other byte (header, parameters, analog data, events, model outputs, measured samples and their
+    residuals) is kept as it is.
 
-    Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file or a filled value does
-    not fit the file's integer storage.
+    Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file.
     """
     p = Path(src)
     orig, info = read_c3d_info(p, default_units=default_units)
@@ -383,19 +386,26 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, def
     lay = meta.layout(len(data))
     if markers.labels != orig.labels or markers.xyz.shape != orig.xyz.shape:
         raise InputError(p, "the filled markers do not match the file's markers")
-    new = np.asarray(markers.valid, dtype=bool) & ~orig.valid
+    valid = np.asarray(markers.valid, dtype=bool)
+    gone = np.zeros_like(valid) if removed is None else np.asarray(removed, dtype=bool) & orig.valid
+    new = (valid & ~orig.valid) | (gone & valid)
     if new.any() and not np.isfinite(markers.xyz[new]).all():
         raise InputError(p, "a filled sample has no coordinates")
-    if not new.any():
+    write = new | (gone & ~valid)
+    if not write.any():
         Path(dest).write_bytes(data)
-        return 0
+        return 0, 0
     marker_idx = np.flatnonzero(~_model_points(meta, meta.point_labels(lay.n_points)))
     to_mm = unit_scale_to_mm(info["units"], default_units)
-    t_idx, m_idx = np.nonzero(new)
-    values = markers.xyz[t_idx, m_idx] / to_mm  # (n, 3) in the file's units
+    t_idx, m_idx = np.nonzero(write)
+    filled = valid[t_idx, m_idx]
+    values = np.where(filled[:, None], markers.xyz[t_idx, m_idx] / to_mm, 0.0)  # (n, 3) in the file's units
+    # fourth word: 0 (residual 0, no cameras) for a filled sample, -1 for a gap
+    word4 = np.where(filled, 0.0, -1.0)[:, None]
     # the four words of each sample, in the file's encoding
+    n_wide = 0
     if lay.is_float:
-        quad = np.concatenate([values, np.zeros((len(values), 1))], axis=1)
+        quad = np.concatenate([values, word4], axis=1)
         if lay.processor == "dec":  # DEC floats: 4x the IEEE value, 16-bit halves swapped
             words = (quad * 4.0).astype("<f4").view("<u2").reshape(-1, 2)[:, ::-1]
             raw = np.ascontiguousarray(words).astype("<u2").tobytes()
@@ -403,14 +413,16 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, def
             raw = quad.astype(">f4" if lay.processor == "mips" else "<f4").tobytes()
     else:
         ints = np.rint(values / abs(lay.scale))
-        if not (np.abs(ints) <= 32767).all():
-            raise InputError(p, "a filled position does not fit the file's 16-bit integer storage "
-                                f"(POINT:SCALE {lay.scale:g})")
-        quad = np.concatenate([ints, np.zeros((len(ints), 1))], axis=1)
+        # a position beyond ±32767 steps cannot be stored: that sample is written as a gap
+        wide = ~(np.abs(ints) <= 32767).all(axis=1)
+        ints[wide] = 0.0
+        word4[wide] = -1.0
+        n_wide = int(wide.sum())
+        quad = np.concatenate([ints, word4], axis=1)
         raw = quad.astype(">i2" if lay.processor == "mips" else "<i2").tobytes()
     sample_bytes = 4 * lay.word_bytes
     offsets = lay.data_offset + (t_idx * lay.frame_words + 4 * marker_idx[m_idx]) * lay.word_bytes
     out = np.frombuffer(data, dtype=np.uint8).copy()
     out[offsets[:, None] + np.arange(sample_bytes)] = np.frombuffer(raw, dtype=np.uint8).reshape(-1, sample_bytes)
     Path(dest).write_bytes(out.tobytes())
-    return int(new.sum())
+    return int(write.sum()) - n_wide, n_wide

@@ -12,20 +12,28 @@ from typing import Any
 import numpy as np
 
 from gazepipe.model import FILL_CODES, FILL_NAMES, Markers
-from gazepipe.stages.gapfill import METHODS, fill_gaps, find_rigid_clusters
+from gazepipe.stages.gapfill import METHODS, fill_gaps, find_rigid_clusters, remove_spikes
 
 
-def fill_capture(markers: Markers, *, max_gap_s: float = 1.0,
-                 methods: tuple[str, ...] = METHODS) -> tuple[Markers, dict[str, Any]]:
-    """Fill the gaps of ``markers``; return the filled markers and a summary of what was filled, by method.
+def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS,
+                 spikes: bool = False) -> tuple[Markers, dict[str, Any], np.ndarray]:
+    """Fill the gaps of ``markers``; return the filled markers, a summary of what was filled, by method, and
+    the (T, M) mask of measured samples taken out as spikes.
+
+    Spikes (implausible acceleration, :func:`~gazepipe.stages.gapfill.remove_spikes` with the clean stage's
+    defaults) are always counted; with ``spikes`` they become gaps before filling (else the measured samples
+    are kept as they are).
 
     Summary: ``samples`` per fill code over all markers, ``gaps`` (total, filled, unfilled, and filled gaps at
     the start or end: filled from other markers only), ``unfilled_reasons`` (gaps per reason), ``clusters``
     (the rigid clusters found, by label), per marker the samples filled by each method and those left unfilled,
     and ``gap_list``: every gap with its file frame numbers, method, weights and validation errors.
     """
-    clusters = find_rigid_clusters(markers.xyz, markers.valid)
-    res = fill_gaps(markers.xyz, markers.valid, markers.rate_hz, clusters=clusters, max_gap_s=max_gap_s,
+    kept, n_spiky = remove_spikes(markers.xyz, markers.valid, markers.rate_hz)
+    spiky = markers.valid & ~kept
+    valid = kept if spikes else markers.valid
+    clusters = find_rigid_clusters(markers.xyz, valid)
+    res = fill_gaps(markers.xyz, valid, markers.rate_hz, clusters=clusters, max_gap_s=max_gap_s,
                     methods=methods)
     code = np.asarray(res.fill_code)
     unfilled = code == FILL_CODES["unfilled"]
@@ -49,11 +57,13 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0,
         "gaps": {"total": n_gaps, "filled": n_gaps - n_unfilled, "unfilled": n_unfilled,
                  "edge_filled": sum(e and g.method != "unfilled" for g, e in zip(res.gaps, at_edge, strict=True))},
         "unfilled_reasons": dict(sorted(reasons.items())),
+        "spikes": {"samples": int(spiky.sum()), "removed": bool(spikes),
+                   "per_marker": {markers.labels[i]: int(n) for i, n in enumerate(n_spiky) if n}},
         "clusters": [[markers.labels[i] for i in c] for c in clusters],
         "per_marker": per_marker,
         "gap_list": [_gap_entry(markers, g, e) for g, e in zip(res.gaps, at_edge, strict=True)],
     }
-    return filled, summary
+    return filled, summary, (spiky if spikes else np.zeros_like(spiky))
 
 
 def _gap_entry(markers: Markers, g: Any, at_edge: bool) -> dict[str, Any]:
