@@ -114,8 +114,29 @@ class _RunReport:
                       path=str(res.paths[2]))
 
 
+def _stage_examples(name: str) -> str:
+    """Usage examples and the --params file format, appended to a stage command's help."""
+    return f"""
+
+    \b
+    Examples:
+      gazepipe {name} sample_data/session01 --out out/
+      gazepipe {name} sessions/s01 sessions/s02 --out out/ --executor dask -j 4
+      gazepipe {name} sessions/s01 --out out/ --param clean.max_gap_s=0.5 --dry-run
+      gazepipe {name} sessions/s01 --out out/ --params studio.toml
+
+    \b
+    A --params file has one table per stage (`gazepipe params` lists every name and default):
+      [clean]
+      max_gap_s = 0.5
+      fill_methods = ["rigid", "pca", "pchip"]
+      [build]
+      train_frac = 0.8
+    """
+
+
 def _stage_command(name: str, until: str | None, summary: str) -> None:
-    @cli.command(name, help=summary, epilog=EPILOG)
+    @cli.command(name, help=summary + _stage_examples(name), epilog=EPILOG)
     @click.argument("sessions", nargs=-1, required=True, type=click.Path(exists=True))
     @run_options
     @handle_errors
