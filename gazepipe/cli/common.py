@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import functools
 import sys
 import tomllib
@@ -48,6 +49,14 @@ def handle_errors(fn: Callable) -> Callable:
     return wrapper
 
 
+def raise_all(problems: list[GazepipeError]) -> None:
+    """Print every problem but the last as an ``error:`` line, then raise the last (nothing when none)."""
+    if problems:
+        for e in problems[:-1]:
+            click.echo(f"error: {e.one_line()}", err=True)
+        raise problems[-1]
+
+
 def load_sessions(paths: tuple[str, ...]):
     """Load and validate every session; print every configuration problem, then exit 2 if there was one."""
     from gazepipe.io.session_toml import load_session, validate_session
@@ -60,10 +69,7 @@ def load_sessions(paths: tuple[str, ...]):
             problems.extend(errs)
             continue
         sessions.append(load_session(p))
-    if problems:
-        for e in problems[:-1]:
-            click.echo(f"error: {e.one_line()}", err=True)
-        raise problems[-1]
+    raise_all(problems)
     ids = [s.id for s in sessions]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:
@@ -71,13 +77,30 @@ def load_sessions(paths: tuple[str, ...]):
     return sessions
 
 
+def _unknown_name(key: str, known: dict[str, Any]) -> str:
+    """The problem of an unknown parameter name, with the closest known name when there is one."""
+    stage, _, name = key.partition(".")
+    same_stage = [k.partition(".")[2] for k in known if k.partition(".")[0] == stage]
+    close = [f"{stage}.{n}" for n in difflib.get_close_matches(name, same_stage, n=1, cutoff=0.6)]
+    close = close or difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
+    close = close or [k for k in known if k.partition(".")[2] == name]
+    hint = f" (did you mean {close[0]}?)" if close else ""
+    return f"unknown parameter {key}{hint}; `gazepipe params` lists them"
+
+
 def parse_params(pairs: tuple[str, ...], params_file: str | None) -> dict[str, Any]:
     """``--param stage.name=value`` (TOML values: 0.5, true, "text") and ``--params FILE.toml`` merged,
-    checked against the parameters the stages declare."""
-    from gazepipe.pipeline.registry import default_params
+    checked against the parameters the stages declare: their names, kinds and allowed values.
+
+    Every problem is printed, one line each, before the last is raised (:class:`ConfigError`, exit 2).
+    """
+    from gazepipe.pipeline.registry import allowed_values, default_params, param_problems, param_rules
 
     known = default_params()
+    stage_names = list(dict.fromkeys(k.partition(".")[0] for k in known))
+    problems: list[ConfigError] = []
     values: dict[str, Any] = {}
+    source: dict[str, str | None] = {}      # the file a value came from (None: the command line)
     if params_file:
         try:
             data = tomllib.loads(Path(params_file).read_text())
@@ -85,29 +108,39 @@ def parse_params(pairs: tuple[str, ...], params_file: str | None) -> dict[str, A
             raise ConfigError(params_file, f"cannot read parameters ({' '.join(str(exc).split())})") from None
         for stage, table in data.items():
             if not isinstance(table, dict):
-                raise ConfigError(params_file, "expected one table per stage, e.g. [clean] max_gap_s = 0.5",
-                                  key=stage)
+                problems.append(ConfigError(params_file, "expected one table per stage, e.g. [clean] "
+                                                         "max_gap_s = 0.5", key=stage))
+                continue
+            if stage not in stage_names:
+                close = difflib.get_close_matches(stage, stage_names, n=1, cutoff=0.6)
+                hint = f" (did you mean [{close[0]}]?)" if close else ""
+                problems.append(ConfigError(params_file, f"unknown table [{stage}]{hint}; the stages with "
+                                                         f"parameters are {', '.join(stage_names)}"))
+                continue
             for k, v in table.items():
                 values[f"{stage}.{k}"] = v
+                source[f"{stage}.{k}"] = params_file
     for pair in pairs:
         key, sep, raw = pair.partition("=")
         if not sep:
-            raise ConfigError(None, f"--param {pair}: expected STAGE.NAME=VALUE")
+            problems.append(ConfigError(None, f"--param {pair}: expected STAGE.NAME=VALUE"))
+            continue
+        key = key.strip()
         try:
-            values[key.strip()] = tomllib.loads(f"v = {raw.strip()}")["v"]
+            values[key] = tomllib.loads(f"v = {raw.strip()}")["v"]
         except tomllib.TOMLDecodeError:
-            values[key.strip()] = raw.strip()
-    for key, v in values.items():
+            values[key] = raw.strip()
+        source[key] = None
+    for key in values:
         if key not in known:
-            close = [k for k in known if k.split(".")[-1] == key.split(".")[-1]]
-            hint = f" (did you mean {close[0]}?)" if close else ""
-            raise ConfigError(params_file, f"unknown parameter {key}{hint}; `gazepipe params` lists them")
-        default = known[key]
-        if isinstance(default, bool) != isinstance(v, bool) or (
-                isinstance(default, int | float) and not isinstance(v, int | float)):
-            if default is not None:
-                raise ConfigError(params_file, f"parameter {key} must be like {default!r}, got {v!r}")
-        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
+            problems.append(ConfigError(source[key], _unknown_name(key, known)))
+    checked = {k: v for k, v in values.items() if k in known}
+    problems.extend(ConfigError(source[key], problem) for key, problem in param_problems(checked))
+    raise_all(problems)
+    rules = param_rules()
+    for key, v in values.items():   # 1 and 1.0 are the same number: the same fingerprint
+        number = allowed_values(known[key], rules[key])[0] == "float"
+        if number and isinstance(v, int) and not isinstance(v, bool):
             values[key] = float(v)
     return values
 

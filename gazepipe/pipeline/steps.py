@@ -18,7 +18,7 @@ import pyarrow as pa
 
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
-from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register
+from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register, rules_of
 from gazepipe.schemas.base import attach_meta
 from gazepipe.schemas.face_table import face_to_table
 from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, joints_to_table
@@ -146,6 +146,7 @@ register(Stage(
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,
     help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
+    rules=rules_of(CleanParams),
 ))
 
 
@@ -206,6 +207,7 @@ register(Stage(
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,
     help="segment orientations in the character frame, head centre, target direction",
+    rules=rules_of(FramesParams),
 ))
 
 
@@ -236,6 +238,7 @@ register(Stage(
     sources=lambda s, t: [t.tracked, t.clean],
     run=run_face,
     help="tracked and clean Live Link Face tracks aligned on timecode, dt and derivatives",
+    rules={"k": {"min": 1}},
 ))
 
 
@@ -250,13 +253,15 @@ class SyncParams:
     max_drift : largest accepted |ratio − 1| between the clocks.
     min_confidence : video claps below this confidence count as not found.
     video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    window_s: float = 1.5
-    search_s: float = 20.0
-    max_drift: float = 0.005
-    min_confidence: float = 0.05
-    video_scale: float = 0.5
+    window_s: float = dataclasses.field(default=1.5, metadata={"gt": 0})
+    search_s: float = dataclasses.field(default=20.0, metadata={"gt": 0})
+    max_drift: float = dataclasses.field(default=0.005, metadata={"min": 0, "lt": 1})
+    min_confidence: float = dataclasses.field(default=0.05, metadata={"min": 0, "max": 1})
+    video_scale: float = dataclasses.field(default=0.5, metadata={"gt": 0, "max": 1})
 
 
 def _sync_take(session: Session, take: Take) -> bool:
@@ -304,6 +309,7 @@ register(Stage(
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,
     help="clapper claps on the mocap and video clocks, the clock map between them",
+    rules=rules_of(SyncParams),
 ))
 
 
@@ -358,4 +364,5 @@ register(Stage(
     sources=lambda s, t: [t.eyes, *_markerset_file(s)],
     run=run_eyes,
     help="OpenFace gaze gated, blink-masked, bridged and rotated into the character frame",
+    rules=rules_of(EyesParams),
 ))

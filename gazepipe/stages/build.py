@@ -67,24 +67,34 @@ class BuildParams:
         (1/15 s = 2 frames at 30 Hz: a single-frame noise excursion does not count).
     overshoot_window_s : gaze_map overshoot confirmation window each side (s).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    train_frac: float = 0.8
-    val_frac: float = 0.1
+    train_frac: float = field(default=0.8, metadata={"min": 0, "max": 1})
+    val_frac: float = field(default=0.1, metadata={"min": 0, "max": 1})
     split_salt: str = ""
     mirror: bool = True
-    rnn_window: int = 120
-    rnn_stride: int = 30
-    face_window: int = 200
-    face_stride: int = 50
-    start_speed_deg_s: float = 18.0
-    start_filter_hz: float | None = 2.0
-    start_min_s: float = 1.0 / 15.0
-    overshoot_window_s: float = 0.1
+    rnn_window: int = field(default=120, metadata={"min": 1})
+    rnn_stride: int = field(default=30, metadata={"min": 1})
+    face_window: int = field(default=200, metadata={"min": 1})
+    face_stride: int = field(default=50, metadata={"min": 1})
+    start_speed_deg_s: float = field(default=18.0, metadata={"gt": 0})
+    start_filter_hz: float | None = field(default=2.0, metadata={"gt": 0})
+    start_min_s: float = field(default=1.0 / 15.0, metadata={"min": 0})
+    overshoot_window_s: float = field(default=0.1, metadata={"min": 0})
     head_segment: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+    def problems(self) -> list[str]:
+        """What is wrong between parameters, one line each (each one's own range is in its field's
+        metadata)."""
+        if self.train_frac + self.val_frac > 1.0:
+            return [f"parameters build.train_frac + build.val_frac must add up to at most 1, "
+                    f"got {self.train_frac:g} + {self.val_frac:g}"]
+        return []
 
 
 @dataclass

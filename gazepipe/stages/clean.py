@@ -7,7 +7,7 @@ frame is the ``frames`` stage's business); after stabilisation the root marker s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -54,20 +54,22 @@ class CleanParams:
         noise floor) do not change.
     remove_heading : also rotate every frame about the lab vertical so the root segment's left direction
         (its first marker minus its second, horizontal part) points along lab +X.
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    max_gap_s: float = 1.0
+    max_gap_s: float = field(default=1.0, metadata={"min": 0})
     remove_spikes: bool = True
-    spike_max_accel_mm_s2: float = 50.0 * G_MM_S2
-    spike_min_step_mm: float = 100.0
-    spike_max_piece_s: float = 0.5
-    fill_methods: tuple[str, ...] = METHODS
-    lowpass_hz: float | None = None
-    lowpass_order: int = 2
-    rest_speed_mm_s: float = 6.0
-    rest_merge_s: float = 1.0 / 6.0
-    rest_min_s: float = 0.25
-    rest_filter_hz: float = 1.75
+    spike_max_accel_mm_s2: float = field(default=50.0 * G_MM_S2, metadata={"gt": 0})
+    spike_min_step_mm: float = field(default=100.0, metadata={"min": 0})
+    spike_max_piece_s: float = field(default=0.5, metadata={"min": 0})
+    fill_methods: tuple[str, ...] = field(default=METHODS, metadata={"choices": METHODS})
+    lowpass_hz: float | None = field(default=None, metadata={"gt": 0})
+    lowpass_order: int = field(default=2, metadata={"min": 1})
+    rest_speed_mm_s: float = field(default=6.0, metadata={"gt": 0})
+    rest_merge_s: float = field(default=1.0 / 6.0, metadata={"min": 0})
+    rest_min_s: float = field(default=0.25, metadata={"min": 0})
+    rest_filter_hz: float = field(default=1.75, metadata={"gt": 0})
     rest_refine: bool = True
     remove_heading: bool = False
 

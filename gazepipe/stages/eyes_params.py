@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 __all__ = ["EyesParams"]
 
@@ -32,18 +32,20 @@ class EyesParams:
     min_fixation_frames : fewest fixation frames needed to estimate the camera rotation.
     min_target_spread_deg : below this RMS spread of the target directions the estimate is poorly conditioned
         (a warning in QC).
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    min_confidence: float = 0.8
-    max_eye_gap_s: float = 0.1
+    min_confidence: float = field(default=0.8, metadata={"min": 0, "max": 1})
+    max_eye_gap_s: float = field(default=0.1, metadata={"min": 0})
     head_segment: str | None = None
-    smooth_s: float = 0.2
-    max_target_speed_deg_s: float = 30.0
-    max_gaze_speed_deg_s: float = 60.0
-    settle_s: float = 0.15
-    max_eccentricity_deg: float = 50.0
-    max_lag_s: float = 0.5
-    keep_percentile: float = 75.0
-    refit_iterations: int = 3
-    min_fixation_frames: int = 30
-    min_target_spread_deg: float = 5.0
+    smooth_s: float = field(default=0.2, metadata={"min": 0})
+    max_target_speed_deg_s: float = field(default=30.0, metadata={"gt": 0})
+    max_gaze_speed_deg_s: float = field(default=60.0, metadata={"gt": 0})
+    settle_s: float = field(default=0.15, metadata={"min": 0})
+    max_eccentricity_deg: float = field(default=50.0, metadata={"gt": 0, "max": 180})
+    max_lag_s: float = field(default=0.5, metadata={"min": 0})
+    keep_percentile: float = field(default=75.0, metadata={"gt": 0, "max": 100})
+    refit_iterations: int = field(default=3, metadata={"min": 0})
+    min_fixation_frames: int = field(default=30, metadata={"min": 1})
+    min_target_spread_deg: float = field(default=5.0, metadata={"min": 0})

@@ -45,12 +45,14 @@ class FramesParams:
         the second singular value of the centred reference subset must be at least this share of the first
         (the rotation about a line through the markers is undetermined when it is 0; at 0.2 it is still
         known to within a few times the noise of a full cluster).
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    min_neutral_frames: int = 3
+    min_neutral_frames: int = field(default=3, metadata={"min": 1})
     head_segment: str | None = None
-    triangle: str = "rigid_fit"
-    min_plane_ratio: float = 0.2
+    triangle: str = field(default="rigid_fit", metadata={"choices": ("rigid_fit", "gram_schmidt")})
+    min_plane_ratio: float = field(default=0.2, metadata={"min": 0, "max": 1})
 
 
 @dataclass
