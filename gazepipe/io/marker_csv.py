@@ -22,6 +22,9 @@ Layouts read here:
 
 The rate comes from the file; the ``rate_hz`` argument is used when the file has none (a file rate that
 disagrees with ``rate_hz`` is kept and noted in ``Markers.warnings``).
+
+In every layout a data row must have as many fields as the header (trailing empty fields aside): a shorter
+row is a truncated file or a broken row, and its missing values are not gaps to fill; blank lines are skipped.
 """
 
 from __future__ import annotations
@@ -128,6 +131,60 @@ def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
         r, c = np.argwhere(bad.to_numpy())[0]
         raise _Bad(f"non-numeric value {df.iat[r, c][:20]!r} in data row {r + 1}, column {c + 1}")
     return num.to_numpy(dtype=np.float64)
+
+
+def _check_fields(raw: bytes, start: int, stop: int, sep: str, first_line: int, header: int,
+                  required: int | None = None, expected: str | None = None) -> None:
+    """Raise :class:`_Bad` naming the first data row with fewer or more fields than the header.
+
+    Parameters
+    ----------
+    raw : the whole file; the data rows are ``raw[start:stop]``, the first of them on line ``first_line``
+        (1-based).
+    sep : the field separator.
+    header : the number of fields of the header row.
+    required : fewest fields a row may have (default ``header``; less when the header ends in empty fields).
+    expected : how to name the count in the message (default ``header has <header>``).
+
+    Blank lines are skipped. Trailing empty fields beyond ``header`` are allowed (exporters end rows with a
+    separator); a short row is not: it is a truncated file or a broken row, whose missing values must not
+    become gaps. A short last row of the file is named as a probable truncation.
+    """
+    required = header if required is None else required
+    sep_b = sep.encode()
+    pos, k = start, 0
+    while pos < stop:
+        end = raw.find(b"\n", pos, stop)
+        end = stop if end < 0 else end
+        n_seps = raw.count(sep_b, pos, end)
+        if not required - 1 <= n_seps <= header - 1:
+            line = raw[pos:end].rstrip(b"\r")
+            if line.strip():                                # not a blank line
+                _field_problem(raw, end, line, sep, first_line + k, header, required, expected)
+        pos, k = end + 1, k + 1
+
+
+def _field_problem(raw: bytes, end: int, line: bytes, sep: str, line_no: int, header: int, required: int,
+                   expected: str | None) -> None:
+    """Raise :class:`_Bad` for a row whose field count is off, unless only trailing empty fields are extra."""
+    text = _text(line)
+    cells = next(csv.reader([text], delimiter=sep)) if '"' in text else text.split(sep)
+    n = len(cells)
+    while n > header and not cells[n - 1].strip():
+        n -= 1                                              # trailing separators
+    if required <= n <= header:
+        return
+    what = expected or f"header has {header if n > header else required}"
+    if n > header:
+        hint = f" (the row does not fit {header} columns)"
+    else:
+        hint = " (file truncated?)" if not raw[end:].strip() else ""
+    raise _Bad(f"line {line_no}: {len(cells)} fields, {what}{hint}")
+
+
+def _last_named(header: list[str]) -> int:
+    """The number of header fields up to the last non-empty one."""
+    return max((j + 1 for j, c in enumerate(header) if c.strip()), default=0)
 
 
 def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str]) -> float:
@@ -251,6 +308,8 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     blank = _BLANK_LINE.search(raw, data_start)
     stop = blank.start() if blank is not None else len(raw)
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
+    _check_fields(raw, data_start, stop, ",", raw.count(b"\n", 0, found.start()) + 6, n_cols,
+                  required=_last_named(comps))
     arr = _numbers(raw[data_start:stop], ",", n_cols)
     xyz = arr[:, np.asarray(cols)] if arr.shape[0] else np.zeros((0, len(labels), 3))
     if xyz.shape[0] == 0:
@@ -331,6 +390,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
         lead = [c.lower() for c in col_names[:2]]
         n_lead = 2 if lead == ["frame", "time"] else 1
         n_cols = max(len(col_names), n_lead + 3 * m)
+        _check_fields(raw, lines.offset(i), len(raw), "\t", i + 1, n_cols,
+                      required=max(_last_named(col_names), n_lead + 3 * m))
     else:
         # rows are the coordinates, optionally after Frame and Time, optionally with a trailing tab
         extra = n_cells - 3 * m
@@ -338,6 +399,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
             raise _Bad(f"data rows have {n_cells} cells, expected {3 * m} (+ Frame, Time)")
         n_lead = extra - extra % 2
         n_cols = n_lead + 3 * m
+        _check_fields(raw, lines.offset(i), len(raw), "\t", i + 1, n_cols,
+                      expected=f"expected {n_cols} ({'Frame, Time and ' if n_lead else ''}3 per marker)")
     arr = _numbers(body, "\t", n_cols)
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
@@ -405,6 +468,7 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
     for name in labels:
         if set(where[name]) != {"x", "y", "z"}:
             raise _Bad(f"marker {name!r} lacks one of its _x/_y/_z columns")
+    _check_fields(raw, lines.offset(1), len(raw), ",", 2, len(cols), required=_last_named(cols))
     arr = _numbers(raw[lines.offset(1):], ",", len(cols))
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
