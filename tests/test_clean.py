@@ -126,6 +126,12 @@ def test_lowpass_never_crosses_gaps():
     np.testing.assert_array_equal(out[292:, 1], xyz[292:, 1])
 
 
+def test_clean_lowpass_at_or_above_half_the_rate_is_a_stage_error_naming_the_parameter():
+    mk, _ = take(120.0, [(240, 360, 200.0)], 720)
+    with pytest.raises(StageError, match=r"clean.lowpass_hz 60 Hz is not below half this take's rate \(120 Hz\)"):
+        clean_markers(mk, markerset(), "gaze_shift", CleanParams(remove_spikes=False, lowpass_hz=60.0), take="t")
+
+
 def test_clean_lowpass_option_filters_and_reports():
     mk, _ = take(120.0, [(240, 360, 200.0)], 720)
     raw = clean_markers(mk, markerset(), "gaze_shift", P)

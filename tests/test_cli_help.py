@@ -21,3 +21,31 @@ def test_stage_help_shows_examples_and_a_valid_params_file(name, tmp_path):
     values = parse_params((), str(path))
     assert values["clean.max_gap_s"] == 0.5 and values["build.train_frac"] == 0.8
     assert values["clean.fill_methods"] == ["rigid", "pca", "pchip"]
+
+
+def test_params_lists_every_default_with_what_it_accepts_as_loadable_toml(tmp_path):
+    """`gazepipe params` prints TOML (dotted keys, comments): a file of it loads back as the defaults."""
+    from gazepipe.pipeline.registry import default_params
+
+    text = CliRunner().invoke(cli, ["params"]).output
+    assert "clean.max_gap_s = 1.0" in text and "# a number >= 0" in text
+    path = tmp_path / "all.toml"
+    path.write_text(text)
+    values = parse_params((), str(path))
+    assert values == {k: v for k, v in default_params().items() if v is not None}
+    assert "# clean.lowpass_hz = (off by default)" in text
+
+
+def test_a_file_system_refusal_is_one_line_naming_the_file_not_an_internal_error():
+    import click
+
+    from gazepipe.cli.common import handle_errors
+
+    @click.command()
+    @handle_errors
+    def cmd() -> None:
+        raise FileExistsError(17, "File exists", "/some/out")
+
+    res = CliRunner().invoke(cmd, [])
+    assert res.exit_code == 1
+    assert res.output.strip() == "error: /some/out: File exists"

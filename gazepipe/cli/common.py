@@ -34,17 +34,22 @@ def handle_errors(fn: Callable) -> Callable:
                 traceback.print_exc()
             fail(exc.one_line(), exc.exit_code)
         except KeyboardInterrupt:
-            fail("interrupted", 130)
+            fail("interrupted (what finished is kept; the same command resumes)", 130)
         except BrokenPipeError:  # output piped into `head` and the like
             sys.stderr.close()
             sys.exit(0)
         except (click.exceptions.Exit, click.ClickException, SystemExit):
             raise
+        except OSError as exc:  # the file system refused (permissions, a full disk, a file where a folder goes)
+            if debug:
+                traceback.print_exc()
+            where = f"{exc.filename}: " if exc.filename else ""
+            fail(f"{where}{exc.strerror or type(exc).__name__}", 1)
         except Exception as exc:
             if debug:
                 traceback.print_exc()
-            fail(f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())} "
-                 "(run with --debug for the traceback)", 1)
+            hint = "" if debug else " (run with --debug for the traceback)"
+            fail(f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())}{hint}", 1)
 
     return wrapper
 

@@ -325,11 +325,17 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
 
 @cli.command("params")
 def params_cmd() -> None:
-    """List every stage parameter with its default (set them with --param or --params)."""
-    from gazepipe.pipeline.registry import default_params
+    """List every stage parameter with its default and the values it accepts, as TOML that `--params` reads
+    (set them with --param STAGE.NAME=VALUE or --params FILE)."""
+    from gazepipe.pipeline.registry import allowed_values, default_params, param_rules
 
-    for k, v in default_params().items():
-        click.echo(f"{k} = {json.dumps(v)}")
+    rules = param_rules()
+    # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is
+    lines = [(f"{k} = {json.dumps(v)}" if v is not None else f"# {k} = (off by default)",
+              allowed_values(v, rules.get(k, {}))[1]) for k, v in default_params().items()]
+    width = max(len(a) for a, _ in lines)
+    for a, b in lines:
+        click.echo(f"{a:<{width}}  # {b}")
 
 
 def _register_commands() -> None:

@@ -493,6 +493,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
 
     # 4. optional low-pass
     if params.lowpass_hz is not None:
+        if not params.lowpass_hz < rate / 2.0:
+            raise StageError(path, f"clean.lowpass_hz {params.lowpass_hz:g} Hz is not below half this take's rate "
+                                   f"({rate:g} Hz): lower it", take=take)
         sos = zero_phase_sos(params.lowpass_hz, rate, params.lowpass_order)
         xyz, short = lowpass_runs(xyz, valid, sos)
         qc["lowpass"] = {"cutoff_hz": float(params.lowpass_hz), "order_per_pass": params.lowpass_order,
