@@ -12,51 +12,12 @@ from gazepipe.errors import InputError
 from gazepipe.io.capture import read_markers
 from gazepipe.io.marker_csv import read_qtm_tsv, read_vicon_csv, read_wide_csv
 from tests.conftest import write_wide_csv
+from tests.test_io_marker_csv import QTM, QTM_OLD
+from tests.test_io_marker_csv import VICON as NEXUS
 
-VICON = """Devices
-1000
-,,Plate - Force,,
-Frame,Sub Frame,Fx,Fy,Fz
-,,N,N,N
-1,0,0.1,0.2,0.3
-
-Trajectories
-100
-,,Ann:LASI,,,Ann:RASI,,,Ann:HEADC,,
-Frame,Sub Frame,X,Y,Z,X,Y,Z,X,Y,Z
-,,mm,mm,mm,mm,mm,mm,mm,mm,mm
-12,0,101.5,-20.25,950,,,,0,0,1600
-13,0,102.5,-20.5,951,230.125,25,948.5,0.5,0,1601
-14,0,103.5,-20.75,952,231.125,25.5,949,1,0,1602
-"""
-VICON_AFTER = """
-Model Outputs
-100
-,,Ann:LHipAngles,,
-Frame,Sub Frame,X,Y,Z
-,,deg,deg,deg
-12,0,1,2,3
-"""
-
-QTM = """NO_OF_FRAMES\t3
-NO_OF_MARKERS\t2
-FREQUENCY\t120
-MARKER_NAMES\tHFL\tHFR
-Frame\tTime\tHFL X\tHFL Y\tHFL Z\tHFR X\tHFR Y\tHFR Z
-1\t0.00000\t10.000\t20.000\t1700.000\t0.000\t0.000\t0.000
-2\t0.00833\t10.500\t20.500\t1700.500\t60.000\t20.000\t1699.000
-3\t0.01667\t\t\t\t61.000\t21.000\t1698.000
-"""
-
-QTM_OLD = """NO_OF_FRAMES\t3
-NO_OF_MARKERS\t1
-FREQUENCY\t100
-MARKER_NAMES\tTOP
-1.5\t2.5\t3.5
-1.25\t2.25\t3.25
-1.0\t2.0\t3.0
-"""
-
+# the readers' own Nexus fixture (Devices, Trajectories, Model Outputs), cut before its Model Outputs block
+_CUT = NEXUS.index("\nModel Outputs")
+VICON, VICON_AFTER = NEXUS[:_CUT], NEXUS[_CUT:]
 
 def _write(tmp_path, name, text):
     p = tmp_path / name
@@ -167,9 +128,9 @@ def test_qtm_short_and_long_rows(tmp_path):
     p = _write(tmp_path, "q.tsv", QTM[:QTM.rindex("\t21.000")])
     with pytest.raises(InputError) as err:
         read_qtm_tsv(p)
-    assert str(err.value) == f"{p}: line 8: 6 fields, header has 8 (file truncated?)"
+    assert str(err.value) == f"{p}: line 15: 6 fields, header has 8 (file truncated?)"
     p = _write(tmp_path, "q2.tsv", QTM.replace("\t1700.500\t", "\t1700.500\t5\t"))
-    with pytest.raises(InputError, match=r"q2.tsv: line 7: 9 fields, header has 8 \(the row does not fit 8"):
+    with pytest.raises(InputError, match=r"q2.tsv: line 14: 9 fields, header has 8 \(the row does not fit 8"):
         read_qtm_tsv(p)
     tabbed = "\n".join(ln + "\t" if ln[:1].isdigit() else ln for ln in QTM.splitlines()) + "\n\n"
     np.testing.assert_array_equal(read_qtm_tsv(_write(tmp_path, "tab.tsv", tabbed)).xyz,
@@ -177,8 +138,8 @@ def test_qtm_short_and_long_rows(tmp_path):
 
 
 def test_qtm_old_layout_short_row(tmp_path):
-    assert read_qtm_tsv(_write(tmp_path, "ok.tsv", QTM_OLD)).n_frames == 3
+    assert read_qtm_tsv(_write(tmp_path, "ok.tsv", QTM_OLD)).n_frames == 2
     p = _write(tmp_path, "old.tsv", QTM_OLD.replace("1.25\t2.25\t3.25", "1.25\t2.25"))
     with pytest.raises(InputError) as err:
         read_qtm_tsv(p)
-    assert str(err.value) == f"{p}: line 6: 2 fields, expected 3 (3 per marker)"
+    assert str(err.value) == f"{p}: line 12: 2 fields, expected 3 (3 per marker) (file truncated?)"
