@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
@@ -71,6 +72,11 @@ def test_export_csv_round_trip(cleaned, tmp_path):
     markers, _, _, _ = table_to_markers(table)
     np.testing.assert_array_equal(back.valid, markers.valid)
     np.testing.assert_allclose(back.xyz[back.valid], markers.xyz[markers.valid], rtol=0, atol=1e-9)
+    # frame and time columns say what the take's tables say: source frame, seconds since the capture's start
+    csv = np.genfromtxt(dest, delimiter=",", names=True, usecols=(0, 1))
+    rows = table.filter(pc.equal(table["marker"], table["marker"][0])).sort_by("frame")
+    np.testing.assert_array_equal(csv["time"], rows["time_s"].to_numpy())
+    np.testing.assert_array_equal(csv["frame"], rows["source_frame"].to_numpy())
 
 
 def test_export_unknown_take_is_one_line(cleaned, tmp_path):

@@ -14,13 +14,14 @@ from gazepipe.model import Markers
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, table_to_markers
 
 
-def write_markers(path: Path, markers: Markers) -> None:
-    """Write ``markers`` as C3D (``.c3d``) or a plain wide CSV (``.csv``); invalid samples become gaps."""
+def write_markers(path: Path, markers: Markers, times: np.ndarray | None = None) -> None:
+    """Write ``markers`` as C3D (``.c3d``) or a plain wide CSV (``.csv``; ``times``: its time column, s);
+    invalid samples become gaps."""
     suffix = path.suffix.lower()
     if suffix == ".c3d":
         write_c3d(path, markers)
     elif suffix == ".csv":
-        write_wide_csv(path, markers)
+        write_wide_csv(path, markers, times)
     else:
         raise ConfigError(path, f"cannot write '{suffix or 'no extension'}': use .c3d or .csv")
 
@@ -49,5 +50,6 @@ def export_markers(out: Path, take: str, session: str | None, dest: Path, table:
         raise InputError(path, "rows are not consecutive frames")
     if len(frames):
         markers.first_frame = int(markers.first_frame + frames[0])
-    write_markers(dest, markers)
+    # the CSV's time column as in the take's tables: seconds since the capture's first frame
+    write_markers(dest, markers, np.asarray(frames, dtype=np.float64) / markers.rate_hz)
     return dest, markers.n_frames

@@ -494,15 +494,16 @@ def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_uni
     return _guard(p, _parse_wide, p, _read_raw(p), rate_hz, default_units)
 
 
-def write_wide_csv(path: str | Path, markers: Markers) -> None:
-    """Write markers as a wide CSV: ``frame`` (source frame), ``time`` (s), ``<label>_x/_y/_z`` in mm.
+def write_wide_csv(path: str | Path, markers: Markers, times: np.ndarray | None = None) -> None:
+    """Write markers as a wide CSV: ``frame`` (source frame), ``time`` (s; ``times``, default 0 at the first
+    row), ``<label>_x/_y/_z`` in mm.
 
     Gaps are empty cells. Floats are written in shortest round-trip form, so a read gives the same values.
     """
     t, m = markers.valid.shape
     xyz = np.where(markers.valid[..., None], markers.xyz, np.nan).reshape(t, 3 * m)
     columns = ["frame", "time"] + [f"{lab}_{a}" for lab in markers.labels for a in "xyz"]
-    arrays = [pa.array(markers.source_frame), pa.array(markers.time_s)]
+    arrays = [pa.array(markers.source_frame), pa.array(markers.time_s if times is None else times)]
     arrays += [pa.array(xyz[:, j], from_pandas=True) for j in range(3 * m)]
     table = pa.table(arrays, names=[f"c{j}" for j in range(len(columns))])
     head = io.StringIO()
