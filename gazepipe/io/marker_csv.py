@@ -195,7 +195,7 @@ def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[st
     if rate_hz is not None and not (math.isfinite(float(rate_hz)) and float(rate_hz) > 0):
         raise _Bad(f"rate_hz must be a positive number, got {rate_hz!r}")
     if file_rate is None and rate_hz is None:
-        raise _Bad("no frame rate in the file and none given (rate_hz)")
+        raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
     if file_rate is None:
         return snap_rate(float(rate_hz))
     rate = snap_rate(file_rate)
