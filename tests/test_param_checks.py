@@ -133,3 +133,15 @@ def test_allowed_values_pass_and_numbers_are_normalised():
     assert values["clean.lowpass_hz"] == 6.0 and isinstance(values["clean.lowpass_hz"], float)
     assert isinstance(values["clean.max_gap_s"], float) and isinstance(values["eyes.refit_iterations"], int)
     assert values["clean.fill_methods"] == ["pchip"] and values["frames.triangle"] == "gram_schmidt"
+
+
+def test_run_pipeline_refuses_bad_parameters_before_anything_runs(tmp_path):
+    from gazepipe.errors import ConfigError
+    from gazepipe.pipeline.engine import run_pipeline
+
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError) as err:
+        run_pipeline([], out, params={"clean.nope": 1, "clean.max_gap_s": -1})
+    assert "unknown parameter clean.nope" in str(err.value)
+    assert "parameter clean.max_gap_s must be a number >= 0, got -1" in str(err.value)
+    assert err.value.exit_code == 2 and not out.exists()

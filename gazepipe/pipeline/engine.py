@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-from gazepipe.errors import GazepipeError
+from gazepipe.errors import ConfigError, GazepipeError
 from gazepipe.model import Session
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
@@ -76,6 +76,7 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
     ``report``: told when the takes are done (``takes_done``, only when units ran: the datasets are built
     next) and, at the end, still under the output folder's lock, ``finish`` (every run that is not a dry run).
     """
+    _check_params(params or {})
     layout = OutLayout(Path(out))
     log = log or EventLog()
     summary = RunSummary(run_id=log.run_id or new_run_id())
@@ -139,6 +140,16 @@ def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | N
         if report is not None:
             report.finish()
     return summary
+
+
+def _check_params(params: dict[str, Any]) -> None:
+    """Refuse unknown parameter names and values a parameter does not accept (ConfigError, exit 2), before
+    anything runs: the command line checks them too, this is for callers of :func:`run_pipeline`."""
+    defaults = registry.default_params()
+    lines = [f"unknown parameter {k}; `gazepipe params` lists them" for k in params if k not in defaults]
+    lines += [p for _, p in registry.param_problems({k: v for k, v in params.items() if k in defaults})]
+    if lines:
+        raise ConfigError(None, "; ".join(lines))
 
 
 class RunReport(Protocol):
