@@ -190,3 +190,34 @@ def test_stale_temporaries_and_staging_folders_are_cleared(tmp_path):
     (tmp / "keep.txt").write_bytes(b"z")
     assert clear_stale_temporaries(tmp) == 2
     assert [p.name for p in tmp.iterdir()] == ["keep.txt"]
+
+
+def test_an_interrupted_run_logs_how_far_it_got_and_keeps_finished_takes(tiny_session, tmp_path, monkeypatch):
+    """Ctrl-C while the second take runs: an `interrupted` event says one of three takes was reported done, the
+    interrupt propagates, the first take's outputs stay, and the same command then resumes from there."""
+    import io
+
+    import gazepipe.pipeline.engine as engine
+    from gazepipe.cli.common import load_sessions
+    from gazepipe.pipeline.events import EventLog
+
+    real, calls = engine.run_take_job, []
+
+    def interrupt_second(job):
+        calls.append(job.take.id)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(job)
+
+    monkeypatch.setattr(engine, "run_take_job", interrupt_second)
+    out, stream = tmp_path / "out", io.StringIO()
+    sessions = load_sessions((str(tiny_session),))
+    with pytest.raises(KeyboardInterrupt):
+        engine.run_pipeline(sessions, out, until="ingest", executor="serial", log=EventLog("json", stream))
+    ev = [e for e in events(stream.getvalue()) if e["event"] == "interrupted"]
+    assert len(ev) == 1 and ev[0]["done"] == 1 and ev[0]["total"] == 3 and "resumes" in ev[0]["message"]
+    assert (out / "takes" / "tiny" / calls[0] / "markers_raw.parquet").is_file()
+    monkeypatch.setattr(engine, "run_take_job", real)
+    code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
+    ran = {e["take"] for e in events(err) if e["event"] == "unit" and e.get("status") == "ok"}
+    assert code == 0 and ran == {"t0", "t1", "t2"} - {calls[0]}

@@ -243,31 +243,38 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _
     else:
         futures = {ex.submit(run_take_job, job): job for job in todo}
         pending = ((fut, futures[fut]) for fut in as_completed(futures))
-    for fut, job in pending:
-        try:
-            outcomes = fut.result()
-        except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
-            outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
-                                    error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
-                        for u in job.units if u.run]
-        done += 1
-        summary.outcomes.extend(outcomes)
-        for o in outcomes:
-            if o.status == "ok":
-                log.emit("info", "unit", f"[{done}/{len(todo)}] {o.session}/{o.take} {o.stage}: ok "
-                         f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
-                         status="ok", duration_s=round(o.duration_s, 4))
-                for w in o.warnings:
-                    log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
-            elif o.status == "failed":
-                log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
-                         status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
-            elif o.status == "blocked":
-                log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
-                         take=o.take, stage=o.stage, status="blocked")
-        log.progress(done, len(todo))
-        if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
-            log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
+    try:
+        for fut, job in pending:
+            try:
+                outcomes = fut.result()
+            except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
+                outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
+                                        error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
+                            for u in job.units if u.run]
+            done += 1
+            summary.outcomes.extend(outcomes)
+            for o in outcomes:
+                if o.status == "ok":
+                    log.emit("info", "unit", f"[{done}/{len(todo)}] {o.session}/{o.take} {o.stage}: ok "
+                             f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
+                             status="ok", duration_s=round(o.duration_s, 4))
+                    for w in o.warnings:
+                        log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
+                elif o.status == "failed":
+                    log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
+                             status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
+                elif o.status == "blocked":
+                    log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
+                             take=o.take, stage=o.stage, status="blocked")
+            log.progress(done, len(todo))
+            if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
+                log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))
+    except KeyboardInterrupt:
+        # workers may have finished more than reported here: their records and files are kept all the same
+        log.emit("error", "interrupted", f"interrupted after {done} of {len(todo)} takes reported done; "
+                 "units that finished are kept and the same command resumes", done=done, total=len(todo),
+                 status="interrupted")
+        raise
 
 
 def _not_run(u: UnitPlan) -> UnitOutcome:
