@@ -519,3 +519,17 @@ def test_stats_recomputation_detects_a_biased_mean() -> None:
     assert D.check_stats(info, full, th).severity == "fail"
     info["stats"]["overall"]["f"]["mean"][2] = float("nan")
     assert D.check_stats(info, None, th).severity == "fail"
+
+
+def test_windowed_rows_warns_when_most_rows_feed_no_training_window() -> None:
+    from gazepipe.report import checks_datasets as D
+
+    info = {"window": 120, "counts": {"rows": 5128, "segments": 47, "segments_with_a_window": 3,
+                                      "rows_in_segments_with_a_window": 492}}
+    c = D.check_windowed_rows(info, C.Thresholds())
+    assert c.severity == "warning" and c.value == pytest.approx(492 / 5128)
+    assert "3 of 47 segments (492 of 5128 rows, 10 %)" in c.message
+    info["counts"]["rows_in_segments_with_a_window"] = 4000
+    assert D.check_windowed_rows(info, C.Thresholds()).severity == "pass"
+    assert D.check_windowed_rows(info, C.Thresholds(windowed_rows_warn=0.9)).severity == "warning"
+    assert D.check_windowed_rows({"window": None, "counts": {"rows": 10}}, C.Thresholds()).severity == "skipped"

@@ -89,6 +89,7 @@ class Thresholds:
     face_unmatched_warn: float | None = 0.05
     face_unmatched_fail: float | None = 0.50
     face_dropped_warn: float | None = 0.05
+    windowed_rows_warn: float | None = 0.5
     stats_sample_rows: int = 20000
     stats_max_z: float = 6.0
     stats_seed: int = 0

@@ -18,6 +18,9 @@ check                  warning                                    fail
                                                                   fewer than ``stats_sample_rows``) differs by
                                                                   more than ``stats_max_z`` standard errors
 ``skipped_takes``      takes left out of the build                –
+``windowed_rows``      under ``windowed_rows_warn`` of the rows   –
+                       lie in segments at least one window long
+                       (the rest feed no training window)
 ``split_consistent``   –                                          (output scope) a take in different splits in
                                                                   two datasets
 =====================  =========================================  ===============================================
@@ -281,6 +284,22 @@ def check_skipped(info: dict[str, Any]) -> Check:
     first = sk[0]
     return Check("skipped_takes", "warning", f"{len(sk)} take(s) left out, e.g. {first.get('take')}: "
                  f"{first.get('reason')}", value=len(sk), details={"skipped": sk})
+
+
+def check_windowed_rows(info: dict[str, Any], th: Thresholds) -> Check:
+    """Share of a windowed dataset's rows in segments (runs of usable frames) at least one window long: a
+    window never spans a break, so the other rows feed no training window."""
+    counts, window = info.get("counts") or {}, info.get("window")
+    if window is None or "rows_in_segments_with_a_window" not in counts or not counts.get("rows"):
+        return skipped("windowed_rows", "no windows in this dataset")
+    rows, inside = int(counts["rows"]), int(counts["rows_in_segments_with_a_window"])
+    share = inside / rows
+    sev = "warning" if th.windowed_rows_warn is not None and share < th.windowed_rows_warn else "pass"
+    return Check("windowed_rows", sev, f"{counts.get('segments_with_a_window')} of {counts.get('segments')} "
+                 f"segments ({inside} of {rows} rows, {100 * share:.0f} %) are at least one {window}-frame window "
+                 "long" + ("; the other rows feed no training window (longer takes, or fewer gaps in the eyes and "
+                           "video, give more)" if sev == "warning" else ""), value=share,
+                 threshold={"warning": th.windowed_rows_warn, "fail": None})
 
 
 def check_split_consistency(splits: dict[str, dict[str, str]]) -> Check:
