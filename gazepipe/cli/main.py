@@ -218,7 +218,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if want == ".c3d":
-            _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed)
+            _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
             if n_wide:
                 markers.warnings.append(f"{n_wide} filled samples lie beyond the file's 16-bit integer range "
                                         "and are written as gaps (counted as filled below)")

@@ -364,7 +364,7 @@ def write_c3d(path: str | Path, markers: Markers) -> None:
 
 
 def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, removed: np.ndarray | None = None,
-                     default_units: str = "mm") -> tuple[int, int]:
+                     original: Markers | None = None, default_units: str = "mm") -> tuple[int, int]:
     """Write ``dest`` as a copy of the C3D file ``src`` in which only the samples that ``markers`` fills (or
     ``removed`` takes out) are changed; return how many samples were written, and how many filled samples were
     written as gaps instead because the file's 16-bit integer storage cannot hold them.
@@ -377,10 +377,12 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, rem
     Every other byte (header, parameters, analog data, events, model outputs, measured samples and their
     residuals) is kept as it is.
 
+    ``original``: what :func:`read_c3d` returned for ``src`` (read again when not given).
+
     Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file.
     """
     p = Path(src)
-    orig, info = read_c3d_info(p, default_units=default_units)
+    orig = read_c3d(p, default_units=default_units) if original is None else original
     data = p.read_bytes()
     meta = parse_c3d_meta(data)
     lay = meta.layout(len(data))
@@ -396,7 +398,7 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, rem
         Path(dest).write_bytes(data)
         return 0, 0
     marker_idx = np.flatnonzero(~_model_points(meta, meta.point_labels(lay.n_points)))
-    to_mm = unit_scale_to_mm(info["units"], default_units)
+    to_mm = unit_scale_to_mm(orig.units, default_units)
     t_idx, m_idx = np.nonzero(write)
     filled = valid[t_idx, m_idx]
     values = np.where(filled[:, None], markers.xyz[t_idx, m_idx] / to_mm, 0.0)  # (n, 3) in the file's units
