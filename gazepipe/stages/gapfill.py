@@ -574,11 +574,10 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     step = norm3(xyz[1:] - xyz[:-1])
     both = valid[1:] & valid[:-1]
     enough = both.sum(axis=0) >= 10
-    p99 = np.full(n_m, np.nan)
-    if enough.any():
-        p99[enough] = np.nanpercentile(np.where(both, step, np.nan)[:, enough], 99, axis=0)
     if not enough.any():
         return np.full(n_m, np.inf)
+    p99 = np.full(n_m, np.nan)
+    p99[enough] = np.nanpercentile(np.where(both, step, np.nan)[:, enough], 99, axis=0)
     return np.fmax(factor * p99, factor_any * np.nanmax(p99))
 
 
@@ -599,8 +598,8 @@ def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarr
     first = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
     if ok(first):
         return weights, first, ""
-    order = sorted(preds, key=lambda k: (not np.isfinite(errors.get(k, np.nan)), errors.get(k, np.nan)
-                                         if np.isfinite(errors.get(k, np.nan)) else 0.0, methods.index(k)))
+    err = {k: errors.get(k, np.nan) for k in preds}
+    order = sorted(preds, key=lambda k: (err[k] if np.isfinite(err[k]) else np.inf, methods.index(k)))
     for k in order:
         if k != best or len(weights) > 1:
             if ok(preds[k]):
