@@ -84,6 +84,26 @@ class Markers:
         return 1.0 - self.valid.mean(axis=0)
 
 
+def filled_samples(orig: Markers, filled: Markers, removed: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The samples a gap filler changed in a capture, for writers that copy the file and rewrite only those.
+
+    ``orig`` is the capture as read, ``filled`` the same markers after filling, ``removed`` (T, M) the measured
+    samples taken out first (spikes). Returns ``(write, valid)``, (T, M) bool each: ``write`` where ``filled``
+    gives a sample ``orig`` lacks or ``removed`` takes one out, ``valid`` the filled mask (a sample to write that
+    is not valid becomes a gap). Raises ValueError when the two are not the same markers or a filled sample has
+    no coordinates.
+    """
+    if filled.labels != orig.labels or filled.xyz.shape != orig.xyz.shape:
+        raise ValueError("the filled markers do not match the file's markers")
+    valid = np.asarray(filled.valid, dtype=bool)
+    gone = np.zeros_like(valid) if removed is None else np.asarray(removed, dtype=bool) & orig.valid
+    new = (valid & ~orig.valid) | (gone & valid)
+    if new.any() and not np.isfinite(filled.xyz[new]).all():
+        raise ValueError("a filled sample has no coordinates")
+    return new | (gone & ~valid), valid
+
+
 TAKE_KINDS = ("gaze_follow", "gaze_shift", "face", "neutral")
 KNOWN_POSES = ("standing", "sitting", "laying", "walking")
 SPLITS = ("train", "val", "test")

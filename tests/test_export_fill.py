@@ -98,22 +98,31 @@ def test_export_to_a_missing_folder_is_a_usage_error(cleaned, tmp_path):
     assert not (tmp_path / "nodir").exists()
 
 
-def test_fill_command_fills_hidden_samples_of_real_data(tmp_path):
-    """Hide samples of a gap-free real capture, fill with the stand-alone filler, compare with the truth."""
+def _walking_truth():
+    """Walking_Hybrid_2 as read, and its gap-free distinct trajectories (T, M, 3) mm with their labels
+    (PROVENANCE: each trajectory is stored 2-3 times bit for bit; the copies are dropped)."""
     src = read_c3d(CORPUS / "c3d" / "Walking_Hybrid_2.c3d")
-    # de-duplicate bit-identical trajectories (PROVENANCE: each is stored 2-3 times)
     _, keep = np.unique(np.nan_to_num(src.xyz).transpose(1, 0, 2).reshape(src.n_markers, -1), axis=0,
                         return_index=True)
     keep = np.sort(keep)
-    full = src.valid[:, keep].all(axis=0)
-    keep = keep[full]
-    truth = src.xyz[:, keep]
-    labels = [src.labels[i] for i in keep]
-    valid = np.ones(truth.shape[:2], bool)
-    rng = np.random.default_rng(3)
-    for m in rng.choice(len(keep), 6, replace=False):
-        start = int(rng.integers(30, truth.shape[0] - 60))
+    keep = keep[src.valid[:, keep].all(axis=0)]
+    return src, src.xyz[:, keep], [src.labels[i] for i in keep]
+
+
+def _six_gaps(shape: tuple[int, int], seed: int) -> np.ndarray:
+    """A (T, M) valid mask with 24-frame gaps (0.1 s at 240 Hz) in six random markers."""
+    valid = np.ones(shape, bool)
+    rng = np.random.default_rng(seed)
+    for m in rng.choice(shape[1], 6, replace=False):
+        start = int(rng.integers(30, shape[0] - 60))
         valid[start:start + 24, m] = False
+    return valid
+
+
+def test_fill_command_fills_hidden_samples_of_real_data(tmp_path):
+    """Hide samples of a gap-free real capture, fill with the stand-alone filler, compare with the truth."""
+    src, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=3)
     from gazepipe.model import Markers
     holed = Markers(labels=labels, xyz=np.where(valid[..., None], truth, np.nan), valid=valid,
                     rate_hz=src.rate_hz, first_frame=src.first_frame)
@@ -277,15 +286,10 @@ def test_fill_remove_spikes_replaces_a_spike_only_when_asked(ext, tmp_path):
     --remove-spikes it becomes a gap and is filled near the truth, and nothing else changes."""
     from gazepipe.model import Markers
 
-    src = read_c3d(CORPUS / "c3d" / "Walking_Hybrid_2.c3d")
-    _, keep = np.unique(np.nan_to_num(src.xyz).transpose(1, 0, 2).reshape(src.n_markers, -1), axis=0,
-                        return_index=True)
-    keep = np.sort(keep)
-    keep = keep[src.valid[:, keep].all(axis=0)]
-    truth = src.xyz[:, keep]
+    src, truth, labels = _walking_truth()
     spiked = truth.copy()
     spiked[200, 3, 2] += 300.0
-    m = Markers(labels=[src.labels[i] for i in keep], xyz=spiked, valid=np.ones(truth.shape[:2], bool),
+    m = Markers(labels=labels, xyz=spiked, valid=np.ones(truth.shape[:2], bool),
                 rate_hz=src.rate_hz, first_frame=src.first_frame)
     inp = tmp_path / f"in{ext}"
     write_markers(inp, m)
@@ -319,3 +323,73 @@ def test_fill_writes_a_position_its_integer_c3d_cannot_hold_as_a_gap(tmp_path):
     gone = m0.valid & ~m1.valid
     assert gone.sum() == 10 and (m1.valid | gone).all()
     assert np.array_equal(m1.xyz[m1.valid], m0.xyz[m1.valid])
+
+
+def _text_export(fmt: str, truth: np.ndarray, valid: np.ndarray, labels: list[str]) -> tuple[str, bytes]:
+    """The Walking capture as a third-party text export with gaps: a Vicon Nexus CSV in metres with CRLF
+    line ends and Devices and Model Outputs blocks around the trajectories; an older QTM TSV writing gaps as
+    0.000; a wide CSV with an extra numeric column. Returns (file name, bytes)."""
+    n_t, n_m, _ = truth.shape
+
+    def cells(t: int, scale: float, dec: int, gap: str) -> list[str]:
+        return [f"{truth[t, m, a] * scale:.{dec}f}" if valid[t, m] else gap for m in range(n_m) for a in range(3)]
+
+    if fmt == "vicon":
+        rows = ["Devices", "1000", ",,Plate - Force,,", "Frame,Sub Frame,Fx,Fy,Fz", ",,N,N,N", "330,0,0.1,0.2,0.3",
+                "", "Trajectories", "240", ",," + ",".join(f"Sub:{lab},," for lab in labels),
+                "Frame,Sub Frame," + ",".join("X,Y,Z" for _ in labels), ",," + ",".join("m,m,m" for _ in labels)]
+        rows += [f"{330 + t},0," + ",".join(cells(t, 1e-3, 6, "")) for t in range(n_t)]
+        rows += ["", "Model Outputs", "240", ",,Sub:LHipAngles,,", "Frame,Sub Frame,X,Y,Z", ",,deg,deg,deg",
+                 "330,0,1,2,3", ""]
+        return "v.csv", "\r\n".join(rows).encode()
+    if fmt == "qtm":
+        rows = [f"NO_OF_FRAMES\t{n_t}", "NO_OF_CAMERAS\t8", f"NO_OF_MARKERS\t{n_m}", "FREQUENCY\t240",
+                "NO_OF_ANALOG\t0", "ANALOG_FREQUENCY\t0", "DESCRIPTION\t--", "TIME_STAMP\t2019-11-28, 13:43:42",
+                "DATA_INCLUDED\t3D", "MARKER_NAMES\t" + "\t".join(labels),
+                "Frame\tTime\t" + "\t".join(f"{lab} {a}" for lab in labels for a in "XYZ")]
+        rows += [f"{t + 1}\t{t / 240:.5f}\t" + "\t".join(cells(t, 1.0, 3, "0.000")) for t in range(n_t)]
+        return "q.tsv", ("\n".join(rows) + "\n").encode()
+    rows = ["frame,time,cond," + ",".join(f"{lab}_{a}" for lab in labels for a in "xyz")]
+    rows += [f"{t},{t / 240:.6f},1," + ",".join(cells(t, 1.0, 4, "")) for t in range(n_t)]
+    return "w.csv", ("\n".join(rows) + "\n").encode()
+
+
+@pytest.mark.parametrize(("fmt", "mm_per_unit", "decimals"), [("vicon", 1000.0, 6), ("qtm", 1.0, 3), ("wide", 1.0, 4)])
+def test_fill_text_export_changes_only_the_filled_cells(fmt, mm_per_unit, decimals, tmp_path):
+    """A Vicon CSV, a QTM TSV and a wide CSV come back in their own layout (extension, header, other blocks,
+    units, decimals, line ends): only the data rows holding a filled sample differ, measured values read
+    back bit for bit, and the filled values are the filler's own to the file's precision."""
+    from gazepipe.stages.standalone_fill import fill_capture
+
+    _, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=4)
+    name, data = _text_export(fmt, truth, valid, labels)
+    inp, out = tmp_path / name, tmp_path / f"filled_{name}"
+    inp.write_bytes(data)
+    res = invoke("fill", str(inp), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    gaps = json.loads(res.stdout)["gaps"]
+    assert gaps["total"] == 6 and gaps["filled"] == 6
+    before, after = data.split(b"\n"), out.read_bytes().split(b"\n")
+    assert len(after) == len(before)
+    changed = [i for i, (a, b) in enumerate(zip(before, after, strict=True)) if a != b]
+    # the rows of frames with a gap, nothing else (header lines and other blocks come before or after them)
+    first = before.index(b"Trajectories\r") + 5 if fmt == "vicon" else 11 if fmt == "qtm" else 1
+    assert changed == (first + np.flatnonzero(~valid.all(axis=1))).tolist()
+    assert all(b.endswith(b"\r") for b in after[first:first + truth.shape[0]]) == (fmt == "vicon")
+    orig, back = read_markers(inp), read_markers(out)
+    assert back.valid.all() and back.labels == orig.labels
+    np.testing.assert_array_equal(back.xyz[valid], orig.xyz[valid])
+    filled, _, _ = fill_capture(orig, max_gap_s=1.0, spikes=False)
+    step = mm_per_unit * 10.0 ** -decimals     # one unit in the last written decimal, mm
+    np.testing.assert_allclose(back.xyz[~valid], filled.xyz[~valid], rtol=0, atol=0.5 * step + 1e-9)
+    err = np.linalg.norm(back.xyz[~valid] - truth[~valid], axis=-1)
+    assert err.mean() < 10.0          # 0.1 s gaps in gait at 240 Hz, as for the C3D above
+
+
+def test_fill_keeps_the_input_extension(tmp_path):
+    _, truth, labels = _walking_truth()
+    name, data = _text_export("qtm", truth, np.ones(truth.shape[:2], bool), labels)
+    (tmp_path / name).write_bytes(data)
+    res = invoke("fill", str(tmp_path / name), str(tmp_path / "out.csv"))
+    assert res.exit_code == 2 and "out.csv" in res.stderr and ".tsv" in res.stderr

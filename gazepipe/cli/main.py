@@ -191,12 +191,13 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
     Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
-    fill, chosen by hiding known samples next to it. OUT is written in the input's format with the gaps it could
-    not fill left as gaps: a .c3d input is copied with only the filled samples changed (residual 0, the C3D
-    mark of a sample not reconstructed from cameras; analog data, events, model outputs and parameters kept);
-    a text export (Vicon CSV, QTM TSV, wide CSV) gives a wide .csv in millimetres. Gaps at the start or end of
-    the file are filled only from other markers (rigid or PCA), never extrapolated in time, and are counted
-    apart in the summary.
+    fill, chosen by hiding known samples next to it. OUT is a copy of IN, in its format and with its extension,
+    in which only the filled samples changed; gaps it could not fill stay gaps. A .c3d keeps its analog data,
+    events, model outputs and parameters, and a filled sample gets residual 0 (the C3D mark of a sample not
+    reconstructed from cameras). A text export (Vicon Nexus CSV, QTM TSV, wide CSV) keeps its header, other
+    blocks, columns and line endings; filled cells are written in the file's units with its number of
+    decimals. Gaps at the start or end of the file are filled only from other markers (rigid or PCA), never
+    extrapolated in time, and are counted apart in the summary.
 
     \b
       gazepipe fill walk.c3d walk_filled.c3d
@@ -204,27 +205,29 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
       gazepipe fill noisy.c3d noisy_filled.c3d --remove-spikes
     """
     from gazepipe.io.c3d import write_filled_c3d
-    from gazepipe.io.capture import read_markers
-    from gazepipe.io.export import write_markers
+    from gazepipe.io.capture import read_markers, sniff_format
+    from gazepipe.io.filled_text import write_filled_text
     from gazepipe.pipeline.atomic import atomic_path
     from gazepipe.stages.standalone_fill import fill_capture
 
     src_p, dest_p = Path(src), Path(dest)
-    want = ".c3d" if src_p.suffix.lower() == ".c3d" else ".csv"
+    want = src_p.suffix.lower()
     if dest_p.suffix.lower() != want:
-        raise ConfigError(dest, f"OUT must be a {want} file like IN (the filler writes the input's format)")
+        raise ConfigError(dest, f"OUT must be a {want or 'extension-less'} file like IN (the filler writes a copy "
+                                "of the input in its own format)")
     _check_destination(src_p, dest_p)
     markers = read_markers(src_p, rate_hz=rate_hz)
+    fmt = sniff_format(src_p)
     filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
-        if want == ".c3d":
+        if fmt == "c3d":
             _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
             if n_wide:
                 markers.warnings.append(f"{n_wide} filled samples lie beyond the file's 16-bit integer range "
                                         "and are written as gaps (counted as filled below)")
             summary["samples_written_as_gaps"] = n_wide
         else:
-            write_markers(tmp, filled)
+            write_filled_text(src_p, tmp, filled, fmt, removed=removed)
     summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))

@@ -30,7 +30,7 @@ import numpy as np
 
 from gazepipe.errors import InputError
 from gazepipe.io.c3d_meta import C3DMeta, Layout, MetaError, parse_c3d_meta
-from gazepipe.model import Markers
+from gazepipe.model import Markers, filled_samples
 from gazepipe.timebase import snap_rate, unit_scale_to_mm
 
 #: POINT parameters listing model outputs (angles, forces, …): those points are not markers.
@@ -386,14 +386,10 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, rem
     data = p.read_bytes()
     meta = parse_c3d_meta(data)
     lay = meta.layout(len(data))
-    if markers.labels != orig.labels or markers.xyz.shape != orig.xyz.shape:
-        raise InputError(p, "the filled markers do not match the file's markers")
-    valid = np.asarray(markers.valid, dtype=bool)
-    gone = np.zeros_like(valid) if removed is None else np.asarray(removed, dtype=bool) & orig.valid
-    new = (valid & ~orig.valid) | (gone & valid)
-    if new.any() and not np.isfinite(markers.xyz[new]).all():
-        raise InputError(p, "a filled sample has no coordinates")
-    write = new | (gone & ~valid)
+    try:
+        write, valid = filled_samples(orig, markers, removed)
+    except ValueError as e:
+        raise InputError(p, str(e)) from None
     if not write.any():
         Path(dest).write_bytes(data)
         return 0, 0

@@ -34,6 +34,7 @@ import io
 import math
 import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,23 @@ _PARSE_ERRORS = (ValueError, KeyError, IndexError, TypeError, OverflowError, Uni
 
 class _Bad(Exception):
     """A format problem found while parsing (message: short phrase)."""
+
+
+@dataclass(frozen=True)
+class TextLayout:
+    """Where a text export keeps its marker coordinates (what :mod:`gazepipe.io.filled_text` rewrites).
+
+    The data rows are the non-blank lines of ``raw[start:stop]``, fields separated by ``sep``; row ``t`` holds
+    marker ``m``'s X, Y, Z in fields ``cols[m]`` ((M, 3) int), in ``units`` (as found; None when the file does
+    not say).
+    """
+
+    fmt: str
+    sep: str
+    start: int
+    stop: int
+    cols: np.ndarray
+    units: str | None
 
 
 def _read_raw(path: Path) -> bytes:
@@ -233,7 +251,7 @@ def _first_frame(frames: np.ndarray) -> int:
     return 1
 
 
-def _guard(path: Path, fn, *args, **kwargs) -> Markers:
+def _guard(path: Path, fn, *args, **kwargs):
     try:
         return fn(*args, **kwargs)
     except InputError:
@@ -272,7 +290,7 @@ _BLANK_LINE = re.compile(rb"(?m)^[ \t,\r]*$")
 
 
 def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bool | list[str],
-                 default_units: str) -> Markers:
+                 default_units: str) -> tuple[Markers, TextLayout]:
     found = _TRAJ_LINE.search(raw)
     if found is None:
         raise _Bad("no 'Trajectories' block (export trajectories from Nexus)")
@@ -322,8 +340,9 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
         labels = strip_subject_prefix(labels)
     elif isinstance(strip_prefix, list | tuple):
         labels = strip_subject_prefix(labels, strip_prefix)
-    return _finish(labels, xyz, rate=rate, first_frame=_first_frame(arr[:, 0]), units=units,
-                   default_units=default_units, fmt="vicon_csv", notes=notes)
+    markers = _finish(labels, xyz, rate=rate, first_frame=_first_frame(arr[:, 0]), units=units,
+                      default_units=default_units, fmt="vicon_csv", notes=notes)
+    return markers, TextLayout("vicon_csv", ",", data_start, stop, np.asarray(cols, dtype=np.int64), units)
 
 
 def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
@@ -343,7 +362,7 @@ def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
     Markers in mm (NaN at gaps); ``first_frame`` is the first row's Frame number.
     """
     p = Path(path)
-    return _guard(p, _parse_vicon, p, _read_raw(p), rate_hz, strip_prefix, default_units)
+    return _guard(p, _parse_vicon, p, _read_raw(p), rate_hz, strip_prefix, default_units)[0]
 
 
 # ------------------------------------------------------------------------------------------------ QTM
@@ -351,7 +370,7 @@ def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
 _QTM_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
 
 
-def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> Markers:
+def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:
     lines = _Lines(raw)
     header: dict[str, list[str]] = {}
     i = 0
@@ -414,14 +433,16 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     rate = _resolve_rate(file_rate, rate_hz, notes)
     has_frame = n_lead == 2 if col_names is None else col_names[0].lower() == "frame"
     first = _first_frame(arr[:, 0]) if has_frame else 1
-    return _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
-                   fmt="qtm_tsv", notes=notes, zero_gaps=True)
+    markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
+                      fmt="qtm_tsv", notes=notes, zero_gaps=True)
+    cols = n_lead + np.arange(3 * m, dtype=np.int64).reshape(m, 3)
+    return markers, TextLayout("qtm_tsv", "\t", lines.offset(i), len(raw), cols, None)
 
 
 def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
     """Read a Qualisys QTM 3D TSV export (mm unless ``default_units`` says otherwise; QTM writes mm)."""
     p = Path(path)
-    return _guard(p, _parse_qtm, p, _read_raw(p), rate_hz, default_units)
+    return _guard(p, _parse_qtm, p, _read_raw(p), rate_hz, default_units)[0]
 
 
 # ----------------------------------------------------------------------------------------- wide CSV
@@ -446,7 +467,7 @@ def rate_from_times(t: np.ndarray) -> tuple[float, bool]:
     return snap_rate(r), even
 
 
-def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> Markers:
+def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:
     lines = _Lines(raw)
     if lines[0] is None or not lines[0].strip():
         raise _Bad("empty file or empty header line")
@@ -484,14 +505,32 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
             notes.append("uneven steps in the time column")
     rate = _resolve_rate(file_rate, rate_hz, notes)
     first = _first_frame(arr[:, low.index("frame")]) if "frame" in low else 1
-    return _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
-                   fmt="wide_csv", notes=notes)
+    markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
+                      fmt="wide_csv", notes=notes)
+    return markers, TextLayout("wide_csv", ",", lines.offset(1), len(raw), idx.astype(np.int64), None)
 
 
 def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
     """Read a wide marker CSV (``frame``, ``time``, ``<marker>_x/_y/_z``); rate from ``time`` or ``rate_hz``."""
     p = Path(path)
-    return _guard(p, _parse_wide, p, _read_raw(p), rate_hz, default_units)
+    return _guard(p, _parse_wide, p, _read_raw(p), rate_hz, default_units)[0]
+
+
+def read_text_export(path: str | Path, fmt: str, *, rate_hz: float | None = None,
+                     default_units: str = "mm") -> tuple[Markers, TextLayout, bytes]:
+    """Read a Vicon CSV, QTM TSV or wide CSV (``fmt``: ``vicon_csv``, ``qtm_tsv``, ``wide_csv``) as its reader
+    does, with the layout of its data rows and the file's bytes (labels keep Vicon's ``Subject:`` prefix)."""
+    p = Path(path)
+    raw = _read_raw(p)
+    if fmt == "vicon_csv":
+        markers, layout = _guard(p, _parse_vicon, p, raw, rate_hz, False, default_units)
+    elif fmt == "qtm_tsv":
+        markers, layout = _guard(p, _parse_qtm, p, raw, rate_hz, default_units)
+    elif fmt == "wide_csv":
+        markers, layout = _guard(p, _parse_wide, p, raw, rate_hz, default_units)
+    else:
+        raise ValueError(f"not a text export format: {fmt!r}")
+    return markers, layout, raw
 
 
 def write_wide_csv(path: str | Path, markers: Markers, times: np.ndarray | None = None) -> None:
