@@ -76,8 +76,9 @@ class TreeMemory:
 
 
 def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = None, fresh: bool = True,
-            profile: Path | None = None) -> dict:
-    """``python -m gazepipe run`` in a fresh process; wall time, exit code, peak memory of the process tree."""
+            profile: Path | None = None, params: list[str] | None = None) -> dict:
+    """``python -m gazepipe run`` in a fresh process (``params``: its ``--param`` values); wall time, exit code,
+    peak memory of the process tree."""
     if fresh and out.exists():
         shutil.rmtree(out)
     cmd = [sys.executable]
@@ -87,6 +88,8 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
             "--log-format", "json"]
     if jobs:
         cmd += ["-j", str(jobs)]
+    for kv in params or []:
+        cmd += ["--param", kv]
     env = dict(os.environ, PYTHONPATH=str(REPO))
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
@@ -192,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="Comma-separated: which end-to-end runs to time (serial is always run).")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--profile", action="store_true", help="Also profile a serial run with cProfile.")
+    p.add_argument("--param", action="append", default=[], metavar="STAGE.NAME=VALUE",
+                   help="Passed to every run as gazepipe's --param (repeatable), e.g. to see what a cheaper gap "
+                        "filler buys: --param 'clean.fill_methods=[\"linear\"]'.")
     a = p.parse_args(argv)
 
     corpus = Path(a.corpus)
@@ -202,7 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     size_mb = sum(f.stat().st_size for s in sessions for f in s.rglob("*") if f.is_file() and "truth" not in f.parts)
     print(f"corpus {corpus}: {len(sessions)} sessions, {size_mb / 2**20:.0f} MB of inputs; "
-          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}", flush=True)
+          f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
+          + "".join(f"; --param {kv}" for kv in a.param), flush=True)
 
     # the package's bytecode, as a pip install compiles it: with PYTHONDONTWRITEBYTECODE set (as on some CI and
     # container images) an editable checkout would otherwise recompile every module in every run (~0.15 s,
@@ -211,10 +218,10 @@ def main(argv: list[str] | None = None) -> int:
 
     compileall.compile_dir(str(REPO / "gazepipe"), quiet=1)
     results: dict[str, dict] = {}
-    results["serial"] = run_cli(sessions, work / "serial", "serial")
+    results["serial"] = run_cli(sessions, work / "serial", "serial", params=a.param)
     print(f"serial run: {results['serial']['wall_s']:.1f} s", flush=True)
     # a no-op lasts under a second: the median of five, with their range (one run is at the mercy of the machine)
-    noops = sorted((run_cli(sessions, work / "serial", "serial", fresh=False) for _ in range(5)),
+    noops = sorted((run_cli(sessions, work / "serial", "serial", fresh=False, params=a.param) for _ in range(5)),
                    key=lambda r: r["wall_s"])
     results["noop"] = noops[2]
     print(f"no-op re-run: {noops[2]['wall_s']:.2f} s (median of 5; {noops[0]['wall_s']:.2f}-{noops[-1]['wall_s']:.2f} s)",
@@ -222,12 +229,12 @@ def main(argv: list[str] | None = None) -> int:
     floor = io_floor(sessions, work / "serial")
     print(f"I/O floor: {floor['total_s']:.1f} s", flush=True)
     for ex in [e for e in a.executors.split(",") if e and e != "serial"]:
-        results[ex] = run_cli(sessions, work / ex, ex, jobs=a.jobs)
+        results[ex] = run_cli(sessions, work / ex, ex, jobs=a.jobs, params=a.param)
         print(f"{ex} run (-j {a.jobs}): {results[ex]['wall_s']:.1f} s", flush=True)
     prof_rows: list[str] = []
     if a.profile:
         prof = work / "serial.prof"
-        results["profiled"] = run_cli(sessions, work / "profiled", "serial", profile=prof)
+        results["profiled"] = run_cli(sessions, work / "profiled", "serial", profile=prof, params=a.param)
         prof_rows = top_profile(prof)
 
     serial = results["serial"]["wall_s"]
