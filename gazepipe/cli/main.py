@@ -207,6 +207,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     from gazepipe.io.c3d import write_filled_c3d
     from gazepipe.io.capture import read_markers, sniff_format
     from gazepipe.io.filled_text import write_filled_text
+    from gazepipe.io.marker_csv import read_text_export
     from gazepipe.pipeline.atomic import atomic_path
     from gazepipe.stages.standalone_fill import fill_capture
 
@@ -216,8 +217,10 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
         raise ConfigError(dest, f"OUT must be a {want or 'extension-less'} file like IN (the filler writes a copy "
                                 "of the input in its own format)")
     _check_destination(src_p, dest_p)
-    markers = read_markers(src_p, rate_hz=rate_hz)
     fmt = sniff_format(src_p)
+    # a text export is read once, with the layout its copy is written from
+    text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
+    markers = read_markers(src_p, rate_hz=rate_hz) if text is None else text[0]
     filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if fmt == "c3d":
@@ -227,7 +230,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                                         "and are written as gaps (counted as filled below)")
             summary["samples_written_as_gaps"] = n_wide
         else:
-            write_filled_text(src_p, tmp, filled, fmt, removed=removed)
+            write_filled_text(src_p, tmp, filled, fmt, removed=removed, original=text)
     summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))

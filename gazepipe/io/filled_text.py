@@ -27,7 +27,8 @@ _DECIMALS = re.compile(rb"\.(\d+)")
 
 
 def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: str, *,
-                      removed: np.ndarray | None = None, default_units: str = "mm") -> int:
+                      removed: np.ndarray | None = None, original: tuple[Markers, TextLayout, bytes] | None = None,
+                      default_units: str = "mm") -> int:
     """Write ``dest`` as a copy of the text export ``src`` (``fmt``: ``vicon_csv``, ``qtm_tsv`` or
     ``wide_csv``) in which only the samples that ``markers`` fills, or that ``removed`` (T, M) takes out, are
     changed; return how many samples were written.
@@ -37,10 +38,15 @@ def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: 
     ``removed`` and valid in ``markers``, gets its three cells rewritten in the file's units; a sample marked in
     ``removed`` and invalid in ``markers`` gets empty cells (a gap in every one of these formats).
 
+    ``original``: what :func:`gazepipe.io.marker_csv.read_text_export` returned for ``src`` (read again when
+    not given).
+
     Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file.
     """
     p = Path(src)
-    orig, layout, raw = read_text_export(p, fmt, rate_hz=markers.rate_hz, default_units=default_units)
+    if original is None:
+        original = read_text_export(p, fmt, rate_hz=markers.rate_hz, default_units=default_units)
+    orig, layout, raw = original
     try:
         write, valid = filled_samples(orig, markers, removed)
     except ValueError as e:

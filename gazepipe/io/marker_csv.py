@@ -66,7 +66,6 @@ class TextLayout:
     not say).
     """
 
-    fmt: str
     sep: str
     start: int
     stop: int
@@ -342,7 +341,7 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
         labels = strip_subject_prefix(labels, strip_prefix)
     markers = _finish(labels, xyz, rate=rate, first_frame=_first_frame(arr[:, 0]), units=units,
                       default_units=default_units, fmt="vicon_csv", notes=notes)
-    return markers, TextLayout("vicon_csv", ",", data_start, stop, np.asarray(cols, dtype=np.int64), units)
+    return markers, TextLayout(",", data_start, stop, np.asarray(cols, dtype=np.int64), units)
 
 
 def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
@@ -436,7 +435,7 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="qtm_tsv", notes=notes, zero_gaps=True)
     cols = n_lead + np.arange(3 * m, dtype=np.int64).reshape(m, 3)
-    return markers, TextLayout("qtm_tsv", "\t", lines.offset(i), len(raw), cols, None)
+    return markers, TextLayout("\t", lines.offset(i), len(raw), cols, None)
 
 
 def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
@@ -507,7 +506,7 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
     first = _first_frame(arr[:, low.index("frame")]) if "frame" in low else 1
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="wide_csv", notes=notes)
-    return markers, TextLayout("wide_csv", ",", lines.offset(1), len(raw), idx.astype(np.int64), None)
+    return markers, TextLayout(",", lines.offset(1), len(raw), idx.astype(np.int64), None)
 
 
 def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
