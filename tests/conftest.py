@@ -10,7 +10,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_data" / "session01"
-CORPUS = REPO.parent / "shared" / "corpus"
+CORPUS = REPO / "tests" / "data" / "corpus"
 
 
 def write_wide_csv(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:

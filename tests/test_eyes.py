@@ -351,7 +351,6 @@ def test_params_are_honoured():
 
 
 
-@pytest.mark.skipif(not (SAMPLE / "truth" / "truth.json").exists(), reason="sample session not generated")
 @pytest.mark.parametrize("take", ["follow_standing_01", "follow_sitting_01"])
 def test_against_the_sample_sessions_truth(take):
     sc, truth_char = sample_scene(take)
@@ -375,10 +374,9 @@ def test_combine_camera_estimates():
     assert np.allclose(np.abs(q1), np.abs(quats[0])) and worst1 < 1e-6
 
 
-CORPUS_OPENFACE = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
+CORPUS_OPENFACE = Path(__file__).resolve().parent / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
 
 
-@pytest.mark.skipif(not CORPUS_OPENFACE.exists(), reason="corpus not available")
 def test_real_openface_file_gates_by_its_own_columns():
     import pandas as pd
 
@@ -427,7 +425,6 @@ def check_generated_openface(session: Path, take: str) -> None:
     assert err.max() < 10.0
 
 
-@pytest.mark.skipif(not (SAMPLE / "eyes").is_dir(), reason="sample session has no OpenFace CSVs yet")
 @pytest.mark.parametrize("take", ["follow_standing_01", "follow_standing_02", "follow_sitting_01"])
 def test_generated_openface_against_truth(take):
     check_generated_openface(SAMPLE, take)

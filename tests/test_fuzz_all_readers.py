@@ -35,7 +35,7 @@ from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.session import DEFAULT_SHIFTS
 
 REPO = Path(__file__).resolve().parents[1]
-CORPUS = REPO.parent / "shared" / "corpus"
+CORPUS = REPO / "tests" / "data" / "corpus"
 CASES = {"openface": 120, "livelinkface": 120, "video": 80, "parquet": 120, "dataset": 80}
 CASE_TIMEOUT_S = 15      # per case (an alarm in the child)
 BATCH_TIMEOUT_S = 240    # per child process

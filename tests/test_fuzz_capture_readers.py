@@ -25,7 +25,7 @@ from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
 
 REPO = Path(__file__).resolve().parents[1]
-CORPUS = REPO.parent / "shared" / "corpus" / "c3d"
+CORPUS = REPO / "tests" / "data" / "corpus" / "c3d"
 C3D_FILES = sorted(CORPUS.glob("*.c3d"))
 C3D_BYTES = [p.read_bytes() for p in C3D_FILES]
 

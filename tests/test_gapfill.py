@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.gapfill import fill_gaps, find_gaps, find_rigid_clusters, remove_spikes
 
-CORPUS = Path("/work/shared/corpus/c3d")
+CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
 RATE = 60.0
 NOISE = 0.5
 
@@ -212,8 +212,6 @@ def test_spikes_real_files():
 
     for name, expect in (("ART-Human_2persons_integer", {"Human1:HEADZ": 10}), ("Walking_Hybrid_2", None)):
         path = CORPUS / f"{name}.c3d"
-        if not path.exists():
-            pytest.skip(f"{path} absent")
         c = ezc3d.c3d(str(path))
         xyz = c["data"]["points"][:3].transpose(2, 1, 0).astype(np.float64)
         labels = c["parameters"]["POINT"]["LABELS"]["value"]
@@ -243,8 +241,6 @@ def test_accuracy_on_real_walking_slice():
     import ezc3d  # noqa: PLC0415
 
     path = CORPUS / "Walking_Hybrid_2.c3d"
-    if not path.exists():
-        pytest.skip(f"{path} absent")
     c = ezc3d.c3d(str(path))
     xyz = c["data"]["points"][:3].transpose(2, 1, 0).astype(np.float64)[30:430]
     keep = []

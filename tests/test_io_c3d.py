@@ -18,7 +18,7 @@ from gazepipe.io.c3d import duplicate_trajectories, read_c3d, read_c3d_info, wri
 from gazepipe.io.capture import inspect_capture, read_markers
 from gazepipe.model import Markers
 
-CORPUS = Path(__file__).resolve().parents[1].parent / "shared" / "corpus" / "c3d"
+CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
 
 
 def _provenance() -> dict[str, dict[str, str]]:

@@ -13,7 +13,7 @@ from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, mirror_permutatio
 from gazepipe.errors import InputError
 from gazepipe.io.livelinkface import read_livelinkface
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "livelinkface" / "alex_rom_3_first300.csv"
+CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "livelinkface" / "alex_rom_3_first300.csv"
 
 
 def _tc_frames(tc: str, fps: int = 60) -> Fraction:

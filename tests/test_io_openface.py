@@ -11,7 +11,7 @@ import pytest
 from gazepipe.errors import InputError
 from gazepipe.io.openface import read_openface
 
-CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
+CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
 
 
 def _raw(path: Path) -> pd.DataFrame:

@@ -249,8 +249,6 @@ def test_trainers_on_the_sample_session_run(tmp_path_factory):
     from gazepipe.cli.main import cli
 
     sample = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
-    if not (sample / "session.toml").is_file():
-        pytest.skip("no sample session")
     root = tmp_path_factory.mktemp("sample_run")
     out = root / "out"
     res = CliRunner().invoke(cli, ["run", str(sample), "--out", str(out), "--executor", "serial",
