@@ -25,8 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from gazepipe.io.tracks import EyeTrack
 from gazepipe.io.video import FrameReader
-from gazepipe.stages.eyes import slerp_vectors
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.geometry import from_wxyz, slerp_vectors, to_wxyz
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
 
@@ -315,7 +314,7 @@ def eyes_on_truth(session: Path, take: str):
     """The eyes stage on a generated session's own OpenFace CSV of ``take``, with the truth's joints and clock map
     as its inputs: ``(truth, eye track, EyesResult)``."""
     from gazepipe.io.openface import read_openface
-    from gazepipe.stages.eyes import eyes_take
+    from gazepipe.stages.eyes.stage import eyes_take
     from gazepipe.synth import load_truth
 
     tr = load_truth(session, take)

@@ -22,8 +22,9 @@ import time
 import numpy as np
 from _av import SAMPLE, eyes_on_truth, make_scene, sample_scene  # bench/_av.py
 
-from gazepipe.stages.eyes import EyesParams, angle_between, eyes_take
-from gazepipe.stages.rotations import from_wxyz
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.eyes.stage import eyes_take
+from gazepipe.stages.geometry import angle_between, from_wxyz
 
 
 def run(seed: int, noise_deg: float, centre_error_mm=(0.0, 0.0, 0.0), duration_s: float = 60.0,

@@ -20,8 +20,9 @@ import numpy as np
 
 from gazepipe.io.capture import read_markers
 from gazepipe.io.session_toml import load_markerset
-from gazepipe.stages.clean import CleanParams
-from gazepipe.stages.gapfill import fill_gaps, remove_spikes
+from gazepipe.stages.clean.gapfill import fill_gaps
+from gazepipe.stages.clean.spikes import remove_spikes
+from gazepipe.stages.clean.stage import CleanParams
 
 ROOT = Path(__file__).resolve().parents[1]
 KLEIN = ROOT / "bench" / "_work" / "klein_x10" / "klein_laying"

@@ -3,7 +3,7 @@
 From complete marker data, hide samples in realistic occlusion patterns (several markers at once,
 gap lengths in bins of 1–5, 6–15, 16–30 and 31–90 frames, capped at ``max_gap_s``), fill, and report the error of
 the hidden samples only (mean and 95th percentile, mm) per bin for every method forced on every gap, for the
-per-gap choice of :func:`gazepipe.stages.gapfill.fill_gaps`, for the best method in hindsight per gap, and for
+per-gap choice of :func:`gazepipe.stages.clean.gapfill.fill_gaps`, for the best method in hindsight per gap, and for
 kineticstoolkit's cubic fill when it is installed.
 
 Data: the sample session's truth (``sample_data/session01``, with 0.5 mm noise added to the input and errors
@@ -23,10 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from gazepipe.model import FILL_CODES
-from gazepipe.stages.gapfill import METHODS, fill_gaps, find_gaps, find_rigid_clusters, remove_spikes
+from gazepipe.stages.clean.gapfill import METHODS, fill_gaps, find_gaps, find_rigid_clusters
+from gazepipe.stages.clean.spikes import remove_spikes
 
 ROOT = Path(__file__).resolve().parents[1]
-CORPUS = Path("/work/shared/corpus/c3d")
+CORPUS = ROOT / "tests" / "data" / "corpus" / "c3d"
 BINS = ((1, 5), (6, 15), (16, 30), (31, 90))
 MAX_GAP_S = 1.0
 LONG_S = 0.25

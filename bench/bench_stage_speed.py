@@ -1,7 +1,7 @@
 """Time of the sync and eyes stages per take, on a generated corpus (default: Klein's, ``bench/_work/klein_x1``).
 
 The stages' inputs are the tables ``gazepipe run`` writes: when ``--out`` has none, the sessions are run once
-(serial) into it. Then, per take, the registered stages (``gazepipe.pipeline.steps`` ``run_sync`` and
+(serial) into it. Then, per take, the registered stages (``gazepipe.dag.takes`` ``run_sync`` and
 ``run_eyes``) run on those tables ``--repeats`` times, with one BLAS thread as in a run, and the minimum is kept:
 
 - ``sync``: the whole unit as the pipeline wires it (video probe, frame reading, clap search, table);
@@ -42,6 +42,7 @@ import numpy as np
 import pyarrow as pa
 from threadpoolctl import threadpool_limits
 
+import gazepipe.dag  # noqa: F401  (registers the stages)
 from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import load_session
 from gazepipe.io.video import probe_video, read_frames
@@ -50,11 +51,12 @@ from gazepipe.pipeline import registry
 from gazepipe.pipeline.registry import UnitContext
 from gazepipe.pipeline.runner import _loader, stage_params
 from gazepipe.pipeline.state import OutLayout
-from gazepipe.pipeline.steps import EyesParams, SyncParams
 from gazepipe.schemas.joints import joints_arrays
 from gazepipe.schemas.markers import table_to_markers
-from gazepipe.stages.eyes import eyes_take
-from gazepipe.stages.sync import ClockMap, sync_take
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.eyes.stage import eyes_take
+from gazepipe.stages.sync.clock import ClockMap
+from gazepipe.stages.sync.stage import SyncParams, sync_take
 
 try:
     from gazepipe.io.video import FrameReader

@@ -29,7 +29,7 @@ import numpy as np
 from _av import FPS, CountingReader, clapper_markers, write_clapper_video  # bench/_av.py
 
 from gazepipe.io.video import probe_video
-from gazepipe.stages.sync import sync_take
+from gazepipe.stages.sync.stage import sync_take
 
 WORK = Path(__file__).resolve().parent / "_work"
 

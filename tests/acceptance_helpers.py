@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from gazepipe.io.datasets import read_dataset
 from gazepipe.schemas.joints import joints_arrays
 from gazepipe.schemas.markers import table_to_markers
-from gazepipe.stages.build import feature_values
+from gazepipe.stages.build.summary import feature_values
 from gazepipe.synth import load_truth
 
 REPO = Path(__file__).resolve().parents[1]
@@ -172,8 +172,8 @@ def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg
     """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
     gaze_map start threshold (the root: its turn in the character frame held fixed at the crop start). With
     a few deg/s of speed noise left after the low-pass, whether such a segment "starts" cannot be decided."""
-    from gazepipe.stages.build_gaze import angular_speed
-    from gazepipe.stages.rotations import from_wxyz
+    from gazepipe.stages.build.gaze import angular_speed
+    from gazepipe.stages.geometry import from_wxyz
 
     c0, c1 = tr["scalars"]["crop"]
     c = from_wxyz(tr["char_quat_lab"][c0:c1])
@@ -191,8 +191,8 @@ def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg
 def truth_joints(tr: dict, frames: np.ndarray):
     """A joints table of a take's true rotations on ``frames`` (rows of the uncropped take), for dataset tests."""
     from gazepipe.schemas.joints import joints_to_table
-    from gazepipe.stages.frames import Joints
-    from gazepipe.stages.rotations import from_wxyz, six_from_rotation
+    from gazepipe.stages.frames.stage import Joints
+    from gazepipe.stages.geometry import from_wxyz, six_from_rotation
 
     q = tr["seg_quat_char"][frames].astype(np.float64)
     n, s = q.shape[:2]

@@ -31,8 +31,8 @@ from acceptance_helpers import (
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-from gazepipe.stages.build import feature_values
-from gazepipe.stages.mirror import mirror_quat
+from gazepipe.stages.build.mirror import mirror_quat
+from gazepipe.stages.build.summary import feature_values
 
 FOLLOW = take_ids("gaze_follow")
 SHIFT = take_ids("gaze_shift")

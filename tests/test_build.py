@@ -33,10 +33,10 @@ from gazepipe.model import Take
 from gazepipe.schemas.base import with_identity
 from gazepipe.schemas.joints import joints_to_table, list_to_numpy
 from gazepipe.schemas.tracks import EYES
-from gazepipe.stages.build import BuildParams, TakeTables, build_dataset
-from gazepipe.stages.frames import Joints
-from gazepipe.stages.rotations import from_wxyz, matrix_from_six, six_from_rotation
-from gazepipe.stages.splits import assign_split
+from gazepipe.stages.build.splits import assign_split
+from gazepipe.stages.build.stage import BuildParams, TakeTables, build_dataset
+from gazepipe.stages.frames.stage import Joints
+from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation
 from gazepipe.synth import load_truth
 from tests.acceptance_helpers import near_threshold, truth_joints
 from tests.conftest import SAMPLE  # noqa: E402
@@ -488,8 +488,8 @@ def _fixed_head(tr: dict) -> Rotation:
 def pipeline_shift_takes(session):
     """The gaze_shift takes through the real stages: read → clean → frames (neutral take calibration)."""
     from gazepipe.io.capture import read_markers
-    from gazepipe.stages.clean import clean_markers
-    from gazepipe.stages.frames import compute_frames
+    from gazepipe.stages.clean.stage import clean_markers
+    from gazepipe.stages.frames.stage import compute_frames
 
     ms = session.markerset
     neutral_take = next(t for t in session.takes if t.kind == "neutral")
@@ -537,7 +537,7 @@ def test_gaze_map_on_pipeline_output(pipeline_shift_takes, session):
 def face_take(tid: str, n: int, seed: int, k: int = 1) -> TakeTables:
     from gazepipe.arkit import ARKIT_NAMES
     from gazepipe.schemas.face_table import face_to_table
-    from gazepipe.stages.face import FaceAligned, forward_derivatives
+    from gazepipe.stages.face.stage import FaceAligned, forward_derivatives
 
     rng = np.random.default_rng(seed)
     t = np.cumsum(np.where(rng.random(n + k) < 0.05, 2, 1)) / 60.0      # a few dropped frames
@@ -555,7 +555,7 @@ def face_take(tid: str, n: int, seed: int, k: int = 1) -> TakeTables:
 
 def test_face_clean():
     from gazepipe.arkit import ARKIT_NAMES
-    from gazepipe.stages.face import mirror_face
+    from gazepipe.stages.face.stage import mirror_face
 
     takes = [face_take("face_01", 300, 1), face_take("face_02", 250, 2)]
     built = build_dataset("face_clean", takes)
@@ -583,7 +583,7 @@ def test_face_clean_from_the_face_stage(session):
     one row plus its mirror; takes at different rates give no single fps."""
     from gazepipe.io.livelinkface import read_livelinkface
     from gazepipe.schemas.face_table import face_to_table
-    from gazepipe.stages.face import align_face
+    from gazepipe.stages.face.stage import align_face
 
     takes = []
     for t in (t for t in session.takes if t.kind == "face"):
@@ -639,7 +639,7 @@ def test_start_times_robust_to_orientation_noise():
     """With ~1° of orientation noise (0.6° per axis, the sample session's parent-relative level) the default
     low-pass start rule finds a fast turn's start within 2 frames of the noise-free crossing of 18°/s, and no
     start for a slow turn (peak ~11°/s); raw central differences fire on the noise alone."""
-    from gazepipe.stages.build_gaze import angular_speed, start_frame
+    from gazepipe.stages.build.gaze import angular_speed, start_frame
 
     rate = 30000 / 1001
     p = BuildParams()
@@ -661,7 +661,7 @@ def test_start_times_robust_to_orientation_noise():
 
 def test_start_time_needs_min_duration():
     """A one-frame excursion above the threshold is not a start; two frames are (the default minimum at 30 Hz)."""
-    from gazepipe.stages.build_gaze import start_frame
+    from gazepipe.stages.build.gaze import start_frame
 
     rate = 30.0
     rv = np.zeros((40, 3))

@@ -8,15 +8,10 @@ from scipy import signal
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet, Segment
-from gazepipe.stages.clean import (
-    CleanParams,
-    clean_markers,
-    crop_bounds,
-    lowpass_runs,
-    rest_periods,
-    stabilise,
-    zero_phase_sos,
-)
+from gazepipe.stages.clean.filters import lowpass_runs, zero_phase_sos
+from gazepipe.stages.clean.rests import crop_bounds, rest_periods
+from gazepipe.stages.clean.stabilise import stabilise
+from gazepipe.stages.clean.stage import CleanParams, clean_markers
 
 NOISE = 0.5   # mm, per coordinate
 THRESH = 6.0  # mm/s, Pejsa's rest threshold (the default)
@@ -297,7 +292,7 @@ def test_refine_onset_on_a_known_speed():
     first frame where the unsmoothed speed reaches the threshold, while the smoothed speed crosses earlier."""
     from scipy import ndimage
 
-    from gazepipe.stages.clean import refine_onset, rest_periods
+    from gazepipe.stages.clean.rests import refine_onset, rest_periods
 
     rate = 30.0
     sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * 1.75) * rate

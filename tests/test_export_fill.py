@@ -160,7 +160,7 @@ def test_fill_c3d_changes_only_the_filled_samples(name, tmp_path):
     words rewritten and nothing else (analog data, parameters, model outputs, residuals kept byte for byte); the
     filled positions read back as the filler computed them, to the file's storage precision."""
     from gazepipe.io.c3d import read_c3d_info
-    from gazepipe.stages.standalone_fill import fill_capture
+    from gazepipe.stages.clean.standalone import fill_capture
 
     src, out = CORPUS / "c3d" / f"{name}.c3d", tmp_path / f"{name}.c3d"
     res = invoke("fill", str(src), str(out))
@@ -192,7 +192,7 @@ def test_fill_c3d_changes_only_the_filled_samples(name, tmp_path):
 def test_fill_never_keeps_an_implausibly_fast_fill(tmp_path):
     """At the end of Walking_Hybrid_2 the whole right leg is hidden; PCA from the other markers moved a toe
     marker 256 mm in one frame (60 m/s). No filled step may exceed the limit the filler states."""
-    from gazepipe.stages.gapfill import step_limits
+    from gazepipe.stages.clean.gapfill import step_limits
 
     src = CORPUS / "c3d" / "Walking_Hybrid_2.c3d"
     out = tmp_path / "w.c3d"
@@ -221,7 +221,7 @@ def test_fill_never_keeps_an_implausibly_fast_fill(tmp_path):
 def test_plausible_fill_falls_back_then_gives_up():
     """The blend is kept when smooth; a jumping first choice gives way to the next method by validation error;
     with every method jumping the gap stays unfilled."""
-    from gazepipe.stages.gapfill import REASON_IMPLAUSIBLE, _plausible_fill
+    from gazepipe.stages.clean.gapfill import REASON_IMPLAUSIBLE, _plausible_fill
 
     t = np.arange(40, dtype=float)
     xyz = np.stack([t, 0 * t, 0 * t], axis=1)  # 1 mm per frame
@@ -241,7 +241,7 @@ def test_plausible_fill_falls_back_then_gives_up():
 
 
 def test_step_limits_cover_a_still_marker_with_the_fastest_markers_steps():
-    from gazepipe.stages.gapfill import step_limits
+    from gazepipe.stages.clean.gapfill import step_limits
 
     t = np.arange(100, dtype=float)
     fast = np.stack([10.0 * t, 0 * t, 0 * t], axis=1)   # 10 mm per frame
@@ -359,7 +359,7 @@ def test_fill_text_export_changes_only_the_filled_cells(fmt, mm_per_unit, decima
     """A Vicon CSV, a QTM TSV and a wide CSV come back in their own layout (extension, header, other blocks,
     units, decimals, line ends): only the data rows holding a filled sample differ, measured values read
     back bit for bit, and the filled values are the filler's own to the file's precision."""
-    from gazepipe.stages.standalone_fill import fill_capture
+    from gazepipe.stages.clean.standalone import fill_capture
 
     _, truth, labels = _walking_truth()
     valid = _six_gaps(truth.shape[:2], seed=4)

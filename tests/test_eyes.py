@@ -29,20 +29,17 @@ from bench._av import (
 )
 from gazepipe.errors import StageError
 from gazepipe.io.tracks import EyeTrack
-from gazepipe.stages.eyes import (
+from gazepipe.stages.eyes.camera import (
     CAMERA_FACING_FACE,
-    EyesParams,
-    angle_between,
     camera_to_character,
     camera_to_head,
     combine_camera_estimates,
-    cyclopean,
     estimate_camera_rotation,
-    eyes_take,
-    gate,
-    slerp_vectors,
 )
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.eyes.gate import cyclopean, gate
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.eyes.stage import eyes_take
+from gazepipe.stages.geometry import angle_between, from_wxyz, slerp_vectors, to_wxyz
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -168,7 +165,7 @@ def test_slerp_vectors_moves_along_the_great_arc():
 def test_slerp_vectors_antipodal_and_missing_rows():
     """An antipodal pair has no unique arc: the eye gate keeps the first vector, the video resampling (which
     must not invent a direction) gives NaN; a NaN input row is NaN either way, the other rows are unaffected."""
-    from gazepipe.stages.rotations import slerp_vectors as slerp
+    from gazepipe.stages.geometry import slerp_vectors as slerp
 
     p = np.array([[1.0, 0, 0], [np.nan, 0, 0], [0, 1.0, 0]])
     q = np.array([[-1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])

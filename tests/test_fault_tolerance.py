@@ -31,7 +31,7 @@ import pytest
 
 from gazepipe.cli.common import load_sessions
 from gazepipe.cli.main import cli
-from gazepipe.pipeline.engine import run_pipeline
+from gazepipe.dag import run_pipeline
 from gazepipe.pipeline.events import EventLog
 from gazepipe.report.validate import validate_output
 from gazepipe.synth import SynthConfig, generate_session

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet, Segment
-from gazepipe.stages.frames import FramesParams, character_frame, compute_frames
-from gazepipe.stages.rotations import (
+from gazepipe.stages.frames.stage import FramesParams, character_frame, compute_frames
+from gazepipe.stages.geometry import (
     from_wxyz,
     kabsch,
     matrix_from_six,
@@ -276,7 +276,7 @@ def sample_joints(tmp_path_factory):
     low-pass; the gaze_shift takes also with the defaults."""
     from gazepipe.io.capture import read_markers
     from gazepipe.io.session_toml import load_session
-    from gazepipe.stages.clean import CleanParams, clean_markers
+    from gazepipe.stages.clean.stage import CleanParams, clean_markers
     from gazepipe.synth.truth import load_truth
 
     root = SAMPLE

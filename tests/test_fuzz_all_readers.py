@@ -28,8 +28,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from gazepipe.cli.common import load_sessions
+from gazepipe.dag import run_pipeline
 from gazepipe.io.parquet import WRITE_OPTIONS
-from gazepipe.pipeline.engine import run_pipeline
 from gazepipe.pipeline.events import EventLog
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.session import DEFAULT_SHIFTS
@@ -76,6 +76,7 @@ def run(case):
             if v.n_frames > 12:
                 read_frames(p, 10, 12, timestamps_s=v.timestamps_s)
     elif kind == "parquet":
+        import gazepipe.dag  # noqa: F401  (the table store the loader reads with)
         from gazepipe.pipeline.runner import _loader
         from gazepipe.pipeline.state import OutLayout
         from gazepipe.schemas.joints import joints_arrays

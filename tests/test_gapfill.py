@@ -9,7 +9,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gazepipe.model import FILL_CODES
-from gazepipe.stages.gapfill import fill_gaps, find_gaps, find_rigid_clusters, remove_spikes
+from gazepipe.stages.clean.gapfill import fill_gaps, find_gaps, find_rigid_clusters
+from gazepipe.stages.clean.spikes import remove_spikes
 
 CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
 RATE = 60.0
@@ -96,7 +97,7 @@ def test_choice_without_clusters_uses_other_methods():
 
 
 def test_without_clusters_rigid_fill_finds_the_steady_mates():
-    from gazepipe.stages.gapfill_methods import find_steady_mates  # noqa: PLC0415
+    from gazepipe.stages.clean.fill_methods import find_steady_mates  # noqa: PLC0415
 
     truth, measured, clusters = body()
     m, s, e = 7, 280, 330  # a swinging segment: its own mates are the only markers at a steady distance
@@ -125,7 +126,7 @@ def test_long_gaps_stay_unfilled():
 
 
 def test_validation_stretches_hide_enough_samples_next_to_short_gaps():
-    from gazepipe.stages.gapfill import _validation_windows  # noqa: PLC0415
+    from gazepipe.stages.clean.gapfill import _validation_windows  # noqa: PLC0415
 
     valid = np.ones(400, bool)
     for length, per_side in ((1, 16), (3, 6), (5, 4), (8, 2), (40, 2)):
@@ -267,7 +268,7 @@ def test_accuracy_on_real_walking_slice():
 
 # ------------------------------------------------------------------------------------------- blending
 def test_blend_weights_inverse_square_and_cutoffs():
-    from gazepipe.stages.gapfill import METHODS, blend_weights  # noqa: PLC0415
+    from gazepipe.stages.clean.gapfill import METHODS, blend_weights  # noqa: PLC0415
 
     w = blend_weights({"rigid": 1.0, "pca": 2.0, "pchip": 2.5, "linear": 10.0}, METHODS)
     # linear is more than 3x worse than the best and is left out; the rest by 1/err²
@@ -280,7 +281,7 @@ def test_blend_weights_inverse_square_and_cutoffs():
 
 
 def test_blend_kept_only_when_it_validates_no_worse_than_its_best_member():
-    from gazepipe.stages.gapfill import check_blend  # noqa: PLC0415
+    from gazepipe.stages.clean.gapfill import check_blend  # noqa: PLC0415
 
     truth = np.zeros((4, 3))
     # two methods erring alike (+1 and +1.2 mm in x): their blend is worse than the better one alone
@@ -342,7 +343,7 @@ def test_interpolation_donors_must_move_with_the_marker():
     """A foot stands still through its gap while the other foot, 300 mm away, swings: the swinging foot is not
     a donor for the standing one's interpolation check (its error would say the gap is full of motion); a marker
     on the standing foot is."""
-    from gazepipe.stages.gapfill_methods import donor_interp_errors
+    from gazepipe.stages.clean.fill_methods import donor_interp_errors
 
     f = np.arange(300.0)
     t = f / RATE
@@ -366,7 +367,7 @@ def test_pca_predictors_are_measured_at_the_gap_edges_too():
     """The PCA fill is corrected to meet the marker at the frames just before and after the gap, so those frames
     must be predicted from the same markers as the gap: a marker missing at an edge frame is no predictor (on
     the ART file, one body missing in the frame before a 2-frame gap put 13 mm into it)."""
-    from gazepipe.stages.gapfill_methods import fit_pca_models
+    from gazepipe.stages.clean.fill_methods import fit_pca_models
 
     _, measured, _ = body()
     m, s, e = 5, 300, 302
@@ -380,7 +381,7 @@ def test_marker_standing_through_its_gap_is_interpolated(monkeypatch):
     """A foot stands still through its gap while the stretches beside the gap hold its steps, and the other
     markers (another body) swing: the stretches make interpolation look poor, but the foot's speed at the gap's
     edges shows it stood, and interpolation fills the gap."""
-    from gazepipe.stages import gapfill
+    from gazepipe.stages.clean import gapfill
 
     f = np.arange(400.0)
     t = f / RATE
@@ -409,8 +410,8 @@ def test_pca_novelty_flags_poses_the_model_never_saw():
     """The PCA model's fit residual on its predictors is about as large in a gap as in the stretches beside it
     when the gap shows the same kind of motion, and far larger when the gap holds a movement that training never
     saw (the take is still before and after it)."""
-    from gazepipe.stages.gapfill import _PCA_NOVELTY_MIN
-    from gazepipe.stages.gapfill_methods import fit_pca_models, pca_novelty
+    from gazepipe.stages.clean.fill_methods import fit_pca_models, pca_novelty
+    from gazepipe.stages.clean.gapfill import _PCA_NOVELTY_MIN
 
     m, s, e = 5, 275, 315
     wins = [(230, 270), (320, 360)]
@@ -434,7 +435,7 @@ def test_pca_body_frame_with_some_predictors_hidden():
     """In the body frame (predictors' mean trajectory subtracted) the centroid of the predictors measured in a
     frame is shifted by their mean offset from all predictors' centroid: a translating shape is predicted
     exactly from any subset of its markers."""
-    from gazepipe.stages.gapfill_methods import PcaModel
+    from gazepipe.stages.clean.fill_methods import PcaModel
 
     rng = np.random.default_rng(3)
     n_t = 300
@@ -457,7 +458,7 @@ def test_pchip_eval_is_scipys_pchip_bit_for_bit():
     changes of the slope, uneven knot spacing, two knots)."""
     from scipy.interpolate import PchipInterpolator
 
-    from gazepipe.stages.gapfill_methods import pchip_eval
+    from gazepipe.stages.clean.fill_methods import pchip_eval
 
     rng = np.random.default_rng(5)
     for trial in range(300):
@@ -476,7 +477,7 @@ def test_pchip_eval_is_scipys_pchip_bit_for_bit():
 def test_two_mate_rotation_moves_a_rigid_point():
     """With two mates the fill rotates the reference the least way onto each frame's axis: a point on a body
     turning about an axis perpendicular to the mates' axis, through their midpoint, is recovered exactly."""
-    from gazepipe.stages.gapfill_methods import min_rotation_apply
+    from gazepipe.stages.clean.fill_methods import min_rotation_apply
 
     ref = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])
     p = np.array([50.0, 0.0, 80.0])  # above the midpoint, in the plane the rotation keeps
@@ -494,7 +495,7 @@ def test_pca_local_frame_follows_a_turning_body_part():
     """A body part turning through large angles: in the lab frame (even with its translation removed) its
     markers are far from linear in the pose, so a few components cannot reconstruct one of them; in the moving
     frame of three steady markers its shape is constant and any other marker on it is reconstructed exactly."""
-    from gazepipe.stages.gapfill_methods import PcaModel
+    from gazepipe.stages.clean.fill_methods import PcaModel
 
     rng = np.random.default_rng(4)
     n_t = 400
@@ -516,7 +517,7 @@ def test_pca_local_frame_follows_a_turning_body_part():
 
 def test_pca_local_frame_needs_three_spread_markers():
     """Three steadiest predictors on a line cannot fix a rotation: the model keeps the lab frame."""
-    from gazepipe.stages.gapfill_methods import PcaModel
+    from gazepipe.stages.clean.fill_methods import PcaModel
 
     n_t = 200
     t = np.arange(n_t) / RATE
@@ -561,7 +562,7 @@ def test_packed_edge_correction_equals_the_per_interval_one() -> None:
     """The one-pass edge correction of many predictions and intervals gives, bit for bit, what correcting each
     interval on its own gives: both edges known, one, none (take boundaries, unknown or unpredicted edge
     frames), partly predicted intervals with and without ``partial``."""
-    from gazepipe.stages.gapfill_methods import _edge_correct_packed
+    from gazepipe.stages.clean.fill_methods import _edge_correct_packed
 
     rng = np.random.default_rng(7)
     n_t = 60

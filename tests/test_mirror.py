@@ -12,9 +12,7 @@ from scipy.spatial.transform import Rotation
 from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet, Segment
-from gazepipe.stages.face import mirror_face
-from gazepipe.stages.frames import FramesParams, Joints, character_frame, compute_frames
-from gazepipe.stages.mirror import (
+from gazepipe.stages.build.mirror import (
     marker_pairs,
     mirror_eyes,
     mirror_joints,
@@ -25,7 +23,9 @@ from gazepipe.stages.mirror import (
     mirror_yaw_pitch,
     mirror_yaw_pitch_roll,
 )
-from gazepipe.stages.rotations import from_wxyz, matrix_from_six, six_from_rotation
+from gazepipe.stages.face.stage import mirror_face
+from gazepipe.stages.frames.stage import FramesParams, Joints, character_frame, compute_frames
+from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation
 
 M = np.diag([-1.0, 1.0, 1.0])
 FAST = settings(max_examples=60, deadline=None, derandomize=True)

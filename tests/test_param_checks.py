@@ -12,11 +12,11 @@ from gazepipe.cli.common import parse_params
 from gazepipe.cli.main import cli
 from gazepipe.errors import ConfigError
 from gazepipe.pipeline.registry import default_params, param_problems, param_rules, value_problem
-from gazepipe.pipeline.steps import SyncParams
-from gazepipe.stages.build import BuildParams
-from gazepipe.stages.clean import CleanParams
-from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.frames import FramesParams
+from gazepipe.stages.build.stage import BuildParams
+from gazepipe.stages.clean.stage import CleanParams
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.frames.stage import FramesParams
+from gazepipe.stages.sync.stage import SyncParams
 from tests.conftest import SAMPLE
 
 
@@ -136,8 +136,8 @@ def test_allowed_values_pass_and_numbers_are_normalised():
 
 
 def test_run_pipeline_refuses_bad_parameters_before_anything_runs(tmp_path):
+    from gazepipe.dag import run_pipeline
     from gazepipe.errors import ConfigError
-    from gazepipe.pipeline.engine import run_pipeline
 
     out = tmp_path / "out"
     with pytest.raises(ConfigError) as err:

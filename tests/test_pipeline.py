@@ -66,7 +66,7 @@ def test_planning_a_run_does_not_import_the_heavy_libraries():
     """A run with nothing to do plans and stops: the CLI, the engine and every stage's parameters load without
     scipy, matplotlib, Dask or pyarrow.compute (scipy.spatial alone costs about 0.3 s, a third of the no-op re-run;
     pyarrow.compute 60 ms)."""
-    code = ("import sys, gazepipe.cli.main, gazepipe.pipeline.engine, gazepipe.pipeline.steps, "
+    code = ("import sys, gazepipe.cli.main, gazepipe.pipeline.engine, gazepipe.dag, "
             "gazepipe.pipeline.registry as r; r.default_params(); "
             "print(sorted(({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib', 'dask', 'distributed', "
             "'cv2', 'torch', 'pandas'}) | ({'pyarrow.compute'} & set(sys.modules))))")

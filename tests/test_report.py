@@ -269,7 +269,7 @@ def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) ->
     import io
 
     from gazepipe.cli.main import REPORT_PLOT_TAKES, _RunReport
-    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.dag import run_pipeline
     from gazepipe.pipeline.events import EventLog
     from gazepipe.report.validate import validate_output
 

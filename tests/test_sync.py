@@ -14,16 +14,10 @@ import pytest
 from bench._av import FPS, OPEN_MM, SHUT_MM, CountingReader, clapper_markers, write_clapper_video
 from gazepipe.errors import StageError
 from gazepipe.io.video import probe_video
-from gazepipe.stages.sync import (
-    Clap,
-    ClockMap,
-    VideoClap,
-    clock_map,
-    mocap_claps,
-    resample_to_mocap,
-    sync_take,
-    video_claps,
-)
+from gazepipe.stages.sync.clap import Clap, mocap_claps
+from gazepipe.stages.sync.clock import ClockMap, clock_map, resample_to_mocap
+from gazepipe.stages.sync.stage import sync_take
+from gazepipe.stages.sync.video import VideoClap, video_claps
 
 
 # ----------------------------------------------------------------------------------------- mocap claps

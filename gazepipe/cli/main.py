@@ -1,4 +1,4 @@
-"""``gazepipe``: the command line (a thin layer over :mod:`gazepipe.pipeline`, :mod:`gazepipe.io`)."""
+"""``gazepipe``: the command line (a thin layer over :mod:`gazepipe.dag`, :mod:`gazepipe.pipeline`, :mod:`gazepipe.io`)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def cli(debug: bool) -> None:
 def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dry_run: bool, executor: str,
          jobs: int | None, scheduler: str | None, params: tuple[str, ...], params_file: str | None,
          log_format: str, heartbeat: int) -> None:
-    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.dag import run_pipeline
     from gazepipe.pipeline.events import EventLog
     from gazepipe.pipeline.runner import new_run_id
 
@@ -209,7 +209,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     from gazepipe.io.filled_text import write_filled_text
     from gazepipe.io.marker_csv import read_text_export
     from gazepipe.pipeline.atomic import atomic_path
-    from gazepipe.stages.standalone_fill import fill_capture
+    from gazepipe.stages.clean.standalone import fill_capture
 
     src_p, dest_p = Path(src), Path(dest)
     want = src_p.suffix.lower()
@@ -309,7 +309,7 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
       gazepipe status out/
       gazepipe status out/ --params studio.toml --json
     """
-    from gazepipe.pipeline.status import collect_status
+    from gazepipe.dag import collect_status
     from gazepipe.report.collect import open_output
 
     open_output(out)
@@ -333,6 +333,7 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
 def params_cmd() -> None:
     """List every stage parameter with its default and the values it accepts, as TOML that `--params` reads
     (set them with --param STAGE.NAME=VALUE or --params FILE)."""
+    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
     from gazepipe.pipeline.registry import allowed_values, default_params, param_rules
 
     rules = param_rules()

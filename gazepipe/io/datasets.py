@@ -87,7 +87,7 @@ def stored_schema(built) -> pa.Schema:
 
 
 def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | None = None) -> list[Path]:
-    """Write a :class:`gazepipe.stages.build.BuiltDataset` (tables in memory) under ``datasets_dir/<name>``.
+    """Write a :class:`gazepipe.stages.build.stage.BuiltDataset` (tables in memory) under ``datasets_dir/<name>``.
 
     Parameters
     ----------
@@ -111,7 +111,7 @@ def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | Non
 
 
 class StagedDatasetWriter:
-    """Writes a dataset's take files as a streaming build emits them (:data:`gazepipe.stages.build.TakeSink`).
+    """Writes a dataset's take files as a streaming build emits them (:data:`gazepipe.stages.build.stage.TakeSink`).
 
     Take files go to ``staging`` (a folder on the same file system, e.g. under ``OUT/.gazepipe/tmp``), each
     fsynced; :meth:`commit` renames them into ``datasets_dir/<name>`` and then writes ``_common_metadata`` and

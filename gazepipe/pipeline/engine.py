@@ -1,4 +1,6 @@
-"""A whole run: lock the output folder, plan every unit, run the takes that have work, record the run."""
+"""A whole run: lock the output folder, plan every unit, run the takes that have work, build the datasets, record
+the run. The stages and datasets are those registered (:mod:`gazepipe.pipeline.registry`; gazepipe's are
+registered by :mod:`gazepipe.dag`)."""
 
 from __future__ import annotations
 
@@ -10,7 +12,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from gazepipe.errors import ConfigError, GazepipeError
-from gazepipe.model import Session
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
 from gazepipe.pipeline.datasets import DatasetPlan, plan_datasets, run_dataset
@@ -18,6 +19,7 @@ from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import make_executor
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.lock import OutputLock
+from gazepipe.pipeline.registry import SessionLike
 from gazepipe.pipeline.runner import TakeJob, UnitOutcome, UnitPlan, new_run_id, plan_take, run_take_job
 from gazepipe.pipeline.state import OutLayout, read_json
 
@@ -43,7 +45,7 @@ class RunSummary:
         return 1 if self.failed else 0
 
 
-def plan_run(sessions: Sequence[Session], out: Path, *, until: str | None = None,
+def plan_run(sessions: Sequence[SessionLike], out: Path, *, until: str | None = None,
              params: dict[str, Any] | None = None, force: bool = False,
              hashes: HashCache | None = None) -> tuple[list[TakeJob], list[UnitOutcome], list[UnitPlan]]:
     """Plan every take: jobs for takes with work, outcomes for takes that failed while planning, all plans."""
@@ -62,11 +64,11 @@ def plan_run(sessions: Sequence[Session], out: Path, *, until: str | None = None
                 continue
             plans.extend(take_plans)
             if take_plans:
-                jobs.append(TakeJob(str(layout.root), session, take, take_plans, params))
+                jobs.append(TakeJob(str(layout.root), session, take, take_plans, params, dag=registry.modules()))
     return jobs, failures, plans
 
 
-def run_pipeline(sessions: Sequence[Session], out: str | Path, *, until: str | None = None,
+def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str | None = None,
                  params: dict[str, Any] | None = None, executor: str = "process", jobs: int | None = None,
                  scheduler: str | None = None, force: bool = False, dry_run: bool = False,
                  log: EventLog | None = None, heartbeat_every: int = 10,
@@ -189,7 +191,7 @@ class _Workers:
             self._ex.shutdown(wait=True)
 
 
-def _build_datasets(sessions: Sequence[Session], layout: OutLayout, plans: list[UnitPlan], params: dict[str, Any],
+def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: list[UnitPlan], params: dict[str, Any],
                     force: bool, summary: RunSummary, log: EventLog, workers: _Workers) -> int:
     """Build the datasets that are not up to date (on the workers when there are several); the number built."""
     todo = []
@@ -283,7 +285,7 @@ def _not_run(u: UnitPlan) -> UnitOutcome:
     return UnitOutcome(u.session, u.take, u.stage, status, reason=u.reason, error=u.error)
 
 
-def _remember_sessions(layout: OutLayout, sessions: Sequence[Session]) -> None:
+def _remember_sessions(layout: OutLayout, sessions: Sequence[SessionLike]) -> None:
     known = read_json(layout.sessions) or {}
     new = dict(known)
     new.update({s.id: s.path for s in sessions})

@@ -1,23 +1,64 @@
-"""The stage registry: what each stage is, what it reads, which parameters it uses.
+"""The engine's registry: the stages a DAG registers, the datasets built from them, their parameters, and how
+tables are read and written.
 
-A stage runs once per take (a *unit of work*). Its ``run`` receives a :class:`UnitContext` (the take, its
-parameters, and a loader for upstream tables) and returns a :class:`UnitResult` (Arrow tables to write and a QC
-record); the engine does all reading and writing, so the functions in :mod:`gazepipe.stages` stay pure.
+The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers:
+
+- take stages (:func:`register`): a stage runs once per take (a *unit of work*); its ``run`` receives a
+  :class:`UnitContext` (the take, its parameters, and a loader for upstream tables) and returns a
+  :class:`UnitResult` (Arrow tables to write and a QC record); the engine does all reading and writing, so the
+  stage functions stay pure;
+- datasets built from many takes' tables (:func:`register_dataset`, :mod:`gazepipe.pipeline.datasets`);
+- parameter groups that belong to no take stage (:func:`register_params`: the datasets' parameters);
+- the table store (:func:`set_table_store`): how a table is written and read back schema-checked.
+
+Sessions and takes are the DAG's own objects; the engine reads only the attributes of :class:`SessionLike`
+and :class:`TakeLike`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import pyarrow as pa
 
-from gazepipe.model import Session, Take
+
+class TakeLike(Protocol):
+    """A take as the engine sees it: an id unique in its session, and its settings as dataclass fields (part of
+    every unit's fingerprint; absolute paths among them are made relative to the session folder)."""
+
+    id: str
+
+
+class SessionLike(Protocol):
+    """A session as the engine sees it: an id, the folder its relative paths start from (``root``), the path it
+    was loaded from (remembered for ``gazepipe status``), and its takes."""
+
+    id: str
+    root: str
+    path: str
+    takes: Sequence[TakeLike]
+
+
+@dataclass(frozen=True)
+class TableStore:
+    """How the engine writes a stage's tables and reads them back.
+
+    write(table, path, schema) : write ``table`` to ``path``, checked against ``schema``.
+    read(path) : the table at ``path``.
+    check(table, path, name) : raise when table ``name`` (read from, or just written to, ``path``) is not what
+        a table of that name must be.
+    """
+
+    write: Callable[[pa.Table, Path, pa.Schema], None]
+    read: Callable[[Path], pa.Table]
+    check: Callable[[pa.Table, Path, str], None]
 
 
 @dataclass
@@ -33,8 +74,8 @@ class UnitResult:
 class UnitContext:
     """Everything a stage may use while running on one take."""
 
-    session: Session
-    take: Take
+    session: SessionLike
+    take: TakeLike
     params: dict[str, Any]
     out_dir: Path
     loader: Callable[[str, str, str], pa.Table]
@@ -72,18 +113,60 @@ class Stage:
     requires: tuple[str, ...]
     params: Mapping[str, Any]
     outputs: tuple[str, ...]
-    applies: Callable[[Session, Take], bool]
-    sources: Callable[[Session, Take], Sequence[str]]
+    applies: Callable[[SessionLike, TakeLike], bool]
+    sources: Callable[[SessionLike, TakeLike], Sequence[str]]
     run: Callable[[UnitContext], UnitResult]
     help: str = ""
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Dataset:
+    """A registered dataset: built from every take that feeds it, after the takes ran
+    (:mod:`gazepipe.pipeline.datasets`).
+
+    Attributes
+    ----------
+    name, version : bump ``version`` whenever the dataset for the same inputs changes.
+    needs : stages whose tables it reads from each contributing take. A take contributes when each of them has
+        an up-to-date ``ok`` unit, except an ``optional`` one that does not apply to the take.
+    applies : which takes may feed it.
+    run : the build: a :class:`~gazepipe.pipeline.datasets.DatasetContext` in, a
+        :class:`~gazepipe.pipeline.datasets.DatasetResult` out.
+    params : the parameter group (:func:`register_params`) whose values it uses; part of its fingerprint.
+    """
+
+    name: str
+    version: str
+    needs: tuple[str, ...]
+    applies: Callable[[SessionLike, TakeLike], bool]
+    run: Callable[[Any], Any]
+    params: str = ""
+    optional: tuple[str, ...] = ()
+    help: str = ""
+
+
+@dataclass(frozen=True)
+class ParamGroup:
+    """Parameters that belong to no take stage (``"<name>.<param>"``), with their defaults and value rules, and
+    the rules between them: ``problems(values)`` gives one line per broken rule (values: every parameter of the
+    group, defaults overridden)."""
+
+    name: str
+    params: Mapping[str, Any]
+    rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    problems: Callable[[dict[str, Any]], list[str]] | None = None
+
+
 _STAGES: dict[str, Stage] = {}
+_DATASETS: dict[str, Dataset] = {}
+_GROUPS: dict[str, ParamGroup] = {}
+_TABLES: list[TableStore] = []
 
 
 def register(stage: Stage) -> Stage:
-    if stage.name in _STAGES:
+    """Add a take stage; the stages it requires must be registered before it."""
+    if stage.name in _STAGES or stage.name in _GROUPS:
         raise ValueError(f"stage {stage.name} registered twice")
     for up in stage.requires:
         if up not in _STAGES:
@@ -92,20 +175,64 @@ def register(stage: Stage) -> Stage:
     return stage
 
 
+def register_params(group: ParamGroup) -> ParamGroup:
+    """Add a parameter group that belongs to no take stage."""
+    if group.name in _GROUPS or group.name in _STAGES:
+        raise ValueError(f"parameter group {group.name} registered twice")
+    _GROUPS[group.name] = group
+    return group
+
+
+def register_dataset(dataset: Dataset) -> Dataset:
+    """Add a dataset; the stages it needs and its parameter group must be registered before it."""
+    if dataset.name in _DATASETS:
+        raise ValueError(f"dataset {dataset.name} registered twice")
+    unknown = [s for s in dataset.needs if s not in _STAGES]
+    if unknown or (dataset.params and dataset.params not in _GROUPS):
+        raise ValueError(f"dataset {dataset.name} needs unknown stages or parameters: {unknown or dataset.params}")
+    _DATASETS[dataset.name] = dataset
+    return dataset
+
+
+def set_table_store(store: TableStore) -> None:
+    """How the engine writes and reads tables (once per process; the last call wins)."""
+    _TABLES[:] = [store]
+
+
+def _loaded() -> None:
+    if not _STAGES or not _TABLES:
+        raise RuntimeError("no stages registered: import the module that registers them first (gazepipe.dag)")
+
+
+def modules() -> tuple[str, ...]:
+    """The modules whose functions the registered stages and datasets run, in registration order: importing
+    them registers the same stages and datasets in another process (:func:`ensure`)."""
+    runs = [st.run for st in _STAGES.values()] + [ds.run for ds in _DATASETS.values()]
+    return tuple(dict.fromkeys(f.__module__ for f in runs))
+
+
+def ensure(names: Sequence[str]) -> None:
+    """In a process where nothing is registered yet (a worker started afresh), import the modules
+    :func:`modules` named in the process that planned the run."""
+    if not _STAGES:
+        for name in names:
+            importlib.import_module(name)
+
+
 def stages() -> list[Stage]:
     """Registered stages in dependency order (registration order)."""
-    _ensure_loaded()
+    _loaded()
     return list(_STAGES.values())
 
 
 def get(name: str) -> Stage:
-    _ensure_loaded()
+    _loaded()
     return _STAGES[name]
 
 
 def upto(name: str) -> list[Stage]:
     """``name`` and every stage it depends on, in order."""
-    _ensure_loaded()
+    _loaded()
     need = {name}
     for st in reversed(list(_STAGES.values())):
         if st.name in need:
@@ -113,12 +240,29 @@ def upto(name: str) -> list[Stage]:
     return [st for st in _STAGES.values() if st.name in need]
 
 
-def default_params() -> dict[str, Any]:
-    """Every parameter as ``"stage.param": default`` (the take stages', then the dataset build's)."""
-    from gazepipe.pipeline.datasets import default_build_params
+def datasets() -> list[Dataset]:
+    """Registered datasets in registration order."""
+    _loaded()
+    return list(_DATASETS.values())
 
+
+def table_store() -> TableStore:
+    _loaded()
+    return _TABLES[0]
+
+
+def group_values(name: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    """The values of parameter group ``name`` (a stage or a :class:`ParamGroup`), defaults overridden by
+    ``params`` (``"group.param": value``)."""
+    _loaded()
+    defaults = _STAGES[name].params if name in _STAGES else _GROUPS[name].params
+    return {k: params.get(f"{name}.{k}", v) for k, v in defaults.items()}
+
+
+def default_params() -> dict[str, Any]:
+    """Every parameter as ``"group.param": default`` (the take stages', then the other groups')."""
     out = {f"{st.name}.{k}": v for st in stages() for k, v in st.params.items()}
-    out.update(default_build_params())
+    out.update({f"{g.name}.{k}": v for g in _GROUPS.values() for k, v in g.params.items()})
     return out
 
 
@@ -198,35 +342,26 @@ def value_problem(value: Any, default: Any, rule: Mapping[str, Any]) -> str | No
 
 
 def param_rules() -> dict[str, Mapping[str, Any]]:
-    """The value rule of every parameter as ``"stage.param": rule`` (empty: any value of the default's
+    """The value rule of every parameter as ``"group.param": rule`` (empty: any value of the default's
     kind)."""
-    from gazepipe.stages.build import BuildParams
-
     out: dict[str, Mapping[str, Any]] = {f"{st.name}.{k}": st.rules.get(k, {})
                                          for st in stages() for k in st.params}
-    out.update({f"build.{f.name}": dict(f.metadata) for f in dataclasses.fields(BuildParams)})
+    out.update({f"{g.name}.{k}": g.rules.get(k, {}) for g in _GROUPS.values() for k in g.params})
     return out
 
 
 def param_problems(values: Mapping[str, Any]) -> list[tuple[str, str]]:
-    """Every value among ``values`` (``"stage.param": value``, known parameters only) that is not allowed, as
-    ``(parameter, one-line problem)`` naming the parameter, the value and what is allowed; then the rules
-    between parameters (:meth:`~gazepipe.stages.build.BuildParams.problems`) when each value is fine."""
-    from gazepipe.stages.build import BuildParams
-
+    """Every value among ``values`` (``"group.param": value``, known parameters only) that is not allowed, as
+    ``(parameter, one-line problem)`` naming the parameter, the value and what is allowed; then, for each group
+    whose given values are each fine, the rules between its parameters (:attr:`ParamGroup.problems`)."""
     defaults, rules = default_params(), param_rules()
     out = []
     for key, value in values.items():
         allowed = value_problem(value, defaults[key], rules.get(key, {}))
         if allowed:
             out.append((key, f"parameter {key} must be {allowed}, got {show_value(value)}"))
-    given = [k for k in values if k.startswith("build.")]
-    if given and not any(k.startswith("build.") for k, _ in out):
-        build = BuildParams(**{k: values.get(f"build.{k}", v) for k, v in BuildParams().to_dict().items()})
-        out.extend((given[0], p) for p in build.problems())
+    for g in _GROUPS.values():
+        given = [k for k in values if k.startswith(f"{g.name}.")]
+        if g.problems and given and not any(k.startswith(f"{g.name}.") for k, _ in out):
+            out.extend((given[0], p) for p in g.problems(group_values(g.name, values)))
     return out
-
-
-def _ensure_loaded() -> None:
-    if not _STAGES:
-        import gazepipe.pipeline.steps  # noqa: F401  (registers the built-in stages)

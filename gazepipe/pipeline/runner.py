@@ -23,19 +23,11 @@ from threadpoolctl import threadpool_limits
 
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError, InputError, SchemaError
-from gazepipe.io.parquet import read_table, write_table
-from gazepipe.model import Session, Take
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.hashing import HashCache, sha256_json
-from gazepipe.pipeline.registry import Stage, UnitContext
+from gazepipe.pipeline.registry import SessionLike, Stage, TakeLike, UnitContext
 from gazepipe.pipeline.state import OutLayout, read_json
-from gazepipe.schemas import expected_schema
-from gazepipe.schemas.base import check_table
-from gazepipe.schemas.markers import check_markers_meta
-
-#: tables in the long markers layout, whose metadata must agree with their rows
-MARKERS_TABLES = ("markers_raw", "markers", "neutral")
 
 
 @dataclass
@@ -70,11 +62,12 @@ class TakeJob:
     """A take's units in stage order; picklable, so any executor can run it."""
 
     out: str
-    session: Session
-    take: Take
+    session: SessionLike
+    take: TakeLike
     units: list[UnitPlan]
     params: dict[str, Any]
     parent_pid: int | None = None   # the run's process, for local workers: they stop when it is gone
+    dag: tuple[str, ...] = ()       # the modules that register the stages (:func:`registry.modules`)
 
 
 # --------------------------------------------------------------------------------------------- planning
@@ -84,7 +77,7 @@ def stage_params(stage: Stage, params: dict[str, Any]) -> dict[str, Any]:
     return {k: params.get(f"{stage.name}.{k}", v) for k, v in stage.params.items()}
 
 
-def _take_config(session: Session, take: Take) -> dict[str, Any]:
+def _take_config(session: SessionLike, take: TakeLike) -> dict[str, Any]:
     """The take's settings with paths relative to the session folder (moving the folder changes nothing)."""
     cfg = asdict(take)
     for k, v in cfg.items():
@@ -93,7 +86,7 @@ def _take_config(session: Session, take: Take) -> dict[str, Any]:
     return cfg
 
 
-def plan_take(session: Session, take: Take, stages: Sequence[Stage], params: dict[str, Any],
+def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], params: dict[str, Any],
               layout: OutLayout, hashes: HashCache, force: bool = False) -> list[UnitPlan]:
     """Fingerprint every applicable stage of ``take`` and decide whether it must run."""
     plans: list[UnitPlan] = []
@@ -167,18 +160,17 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
 # -------------------------------------------------------------------------------------------- execution
 
 def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None):
-    """A function reading a take's table by name, schema-checked; ``written`` holds tables this process just wrote
-    (by path), returned instead of reading the file back."""
+    """A function reading a take's table by name, schema-checked (by the registered table store); ``written``
+    holds tables this process just wrote (by path), returned instead of reading the file back, checked as
+    well."""
+    store = registry.table_store()
+
     def load(session_id: str, take_id: str, name: str) -> pa.Table:
         path = layout.table(session_id, take_id, name)
         table = written.get(path) if written else None
         if table is None:
-            table = read_table(path)
-        schema = expected_schema(name, table)
-        if schema is not None:
-            check_table(table, schema, path=str(path))
-        if name in MARKERS_TABLES:
-            check_markers_meta(table, str(path))
+            table = store.read(path)
+        store.check(table, path, name)
         return table
     return load
 
@@ -197,6 +189,7 @@ def release_memory() -> None:
 
 def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     """Run a take's units in order; record each; a failure blocks the units that depend on it."""
+    registry.ensure(job.dag)
     layout = OutLayout(Path(job.out))
     outcomes: list[UnitOutcome] = []
     failed: set[str] = set()
@@ -228,6 +221,7 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
 def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
               written: dict[Path, pa.Table] | None = None) -> UnitOutcome:
     t0 = time.perf_counter()
+    store = registry.table_store()
     ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written),
                       job.params)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
@@ -246,7 +240,7 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
         for name, (table, schema) in sorted(result.tables.items()):
             final = layout.table(plan.session, plan.take, name)
             with atomic_path(final, layout.tmp) as tmp:
-                write_table(table, tmp, schema)
+                store.write(table, tmp, schema)
             sizes[final.name] = final.stat().st_size
             if written is not None:
                 written[final] = table

@@ -2,20 +2,24 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import GazepipeError
+from gazepipe.pipeline.datasets import plan_datasets
 from gazepipe.pipeline.engine import plan_run
 from gazepipe.pipeline.hashing import HashCache
+from gazepipe.pipeline.registry import SessionLike
 from gazepipe.pipeline.state import OutLayout, all_records, read_json
 
 
-def collect_status(out: Path, params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+def collect_status(out: Path, load_session: Callable[[str], SessionLike],
+                   params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration; units
-    are compared with ``params`` (stage -> name -> value overrides; default: every default)."""
-    from gazepipe.io.session_toml import load_session
-
+    are compared with ``params`` (stage -> name -> value overrides; default: every default). Each session the
+    output folder remembers is loaded again with ``load_session(path)`` (a :class:`GazepipeError` makes its row
+    stale)."""
     layout = OutLayout(out)
     records = {(r.get("session"), r.get("take"), r.get("stage")): r for r in all_records(layout)}
     rows: list[dict[str, Any]] = []
@@ -47,8 +51,6 @@ def collect_status(out: Path, params: dict[str, Any] | None = None) -> list[dict
         if rec is not None:
             row["duration_s"] = rec.get("duration_s")
         rows.append(row)
-    from gazepipe.pipeline.datasets import plan_datasets
-
     planned = {d.name: d for d in plan_datasets(sessions, layout, plans, {})}
     for path in sorted((layout.state / "datasets").glob("*.json")):
         rec = read_json(path) or {}

@@ -25,7 +25,7 @@ from gazepipe.schemas import expected_schema
 from gazepipe.schemas.base import check_table
 from gazepipe.schemas.joints import list_to_numpy
 from gazepipe.schemas.markers import check_markers_meta, fill_codes, table_to_markers
-from gazepipe.stages.clean import mean_speed
+from gazepipe.stages.clean.rests import mean_speed
 
 
 def open_output(out: str | Path) -> OutLayout:
@@ -81,9 +81,9 @@ def load_sessions(layout: OutLayout) -> tuple[dict[str, Any], list[str]]:
 
 
 def unit_states(layout: OutLayout) -> dict[str, list[dict[str, Any]]] | None:
-    """Per take (``session/take``), its units' states now (:func:`gazepipe.pipeline.status.collect_status`:
+    """Per take (``session/take``), its units' states now (:func:`gazepipe.dag.collect_status`:
     ok | failed | stale | pending); ``None`` when they cannot be worked out."""
-    from gazepipe.pipeline.status import collect_status
+    from gazepipe.dag import collect_status
 
     try:
         rows = collect_status(layout.root)

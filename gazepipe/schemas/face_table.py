@@ -1,4 +1,4 @@
-"""Conversion of an aligned face take (:class:`gazepipe.stages.face.FaceAligned`) to the ``face`` table."""
+"""Conversion of an aligned face take (:class:`gazepipe.stages.face.stage.FaceAligned`) to the ``face`` table."""
 
 from __future__ import annotations
 

@@ -53,7 +53,7 @@ def list_to_numpy(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
 
 
 def joints_to_table(joints, frames: np.ndarray, meta: dict[str, Any] | None = None) -> pa.Table:
-    """Arrow table of a :class:`gazepipe.stages.frames.Joints`; ``frames`` = original frame index of each row."""
+    """Arrow table of a :class:`gazepipe.stages.frames.stage.Joints`; ``frames`` = original frame index of each row."""
     n, s = joints.quat.shape[:2]
     frames = np.asarray(frames, dtype=np.int64)
     cols = {

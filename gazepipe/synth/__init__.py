@@ -8,7 +8,8 @@ eyes/*.csv of it; Live Link Face face/*_clean.csv and face/*_tracked.csv per fac
 
 from gazepipe.synth.headcam import head_camera_writer
 from gazepipe.synth.livelinkface import face_writer
-from gazepipe.synth.session import ModalityWriter, SynthConfig, TakeRecord, generate_session, klein_config
+from gazepipe.synth.record import ModalityWriter, TakeRecord
+from gazepipe.synth.session import SynthConfig, generate_session, klein_config
 from gazepipe.synth.skeleton import Placement
 from gazepipe.synth.truth import load_truth
 from gazepipe.synth.video import CameraClock

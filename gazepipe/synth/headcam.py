@@ -12,7 +12,7 @@ from gazepipe.synth.openface import CONF_THRESHOLD, EYE_NOISE_DEG, eye_rows, wri
 from gazepipe.synth.video import EXPOSURE_S, HEIGHT, WIDTH, camera_clock, write_head_video
 
 if TYPE_CHECKING:
-    from gazepipe.synth.session import TakeRecord
+    from gazepipe.synth.record import TakeRecord
 
 #: no blink from this long before a clap to this long after it (mocap seconds): the clap stays the only motion
 QUIET_BEFORE_S = 1.5

@@ -22,7 +22,7 @@ from scipy import signal
 from gazepipe.arkit import ARKIT_NAMES, normalise_name
 
 if TYPE_CHECKING:
-    from gazepipe.synth.session import TakeRecord
+    from gazepipe.synth.record import TakeRecord
 
 TIMECODE_FPS = 60
 #: Live Link Face's blendshape columns, in its file order (corpus/livelinkface)

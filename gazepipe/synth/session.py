@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from gazepipe.synth.markers import Kinematics, build_kinematics, gap_runs, make_gaps
-from gazepipe.synth.motion import TakeMotion, follow_motion, neutral_motion, shift_motion
+from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps
+from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
+from gazepipe.synth.record import ModalityWriter, TakeRecord
 from gazepipe.synth.skeleton import (
     CLAPPER_MARKERS,
     HEAD_CENTRE_MARKER,
@@ -71,39 +71,6 @@ def klein_config(scale: float = 1.0, take_s: float = 60.0, seed_session: str = "
         poses.extend([pose] * max(1, int(round(secs * scale / take_s))))
     return SynthConfig(follow_poses=tuple(poses), follow_duration_s=take_s, shift_targets=(), neutral_s=4.0,
                        session_id=seed_session, face_takes=())
-
-
-@dataclass
-class TakeRecord:
-    """Everything known about one generated take; handed to every modality writer.
-
-    ``face`` takes have no motion capture: their ``motion`` and ``kinematics`` are ``None`` and ``rate_hz`` is
-    the face capture rate.
-    """
-
-    id: str
-    kind: str
-    pose: str
-    index: int
-    rate_hz: float
-    motion: TakeMotion | None
-    kinematics: Kinematics | None
-    truth_arrays: dict[str, np.ndarray]
-    truth_scalars: dict[str, Any]
-    rng: np.random.Generator          # a stream of its own, for the writer's noise
-    camera_to_head: Rotation          # true head-camera rotation, v_head = R · v_cam
-    entries: dict[str, Any] = field(default_factory=dict)   # the take's session.toml keys
-
-
-class ModalityWriter(Protocol):
-    """Writes one more file of a take (video, eyes CSV, face CSVs …).
-
-    Called once per take after the mocap file and truth exist; returns session.toml keys to add to the take
-    (paths relative to the session folder), e.g. ``{"video": "video/<take>.mp4"}``, and may add entries to
-    ``take.truth_scalars``.
-    """
-
-    def __call__(self, session_dir: Path, take: TakeRecord) -> dict[str, Any]: ...
 
 
 def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:

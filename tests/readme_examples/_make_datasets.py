@@ -1,7 +1,7 @@
 """Small but real datasets for the reading-API, trainer and README-example tests.
 
 Generated sessions (:mod:`gazepipe.synth`) go through the dataset builder's pure API
-(:func:`gazepipe.stages.build.build_dataset`) and the dataset writer, as ``gazepipe run`` does:
+(:func:`gazepipe.stages.build.stage.build_dataset`) and the dataset writer, as ``gazepipe run`` does:
 
 - gaze_rnn / gaze_rnn_lod: five 40 s gaze_follow takes from the generator's truth (segment rotations, target and
   eye directions); four train, one val;
@@ -58,8 +58,8 @@ def make_datasets(out: Path) -> Path:
     from gazepipe.io.livelinkface import read_livelinkface
     from gazepipe.io.session_toml import load_session
     from gazepipe.schemas.face_table import face_to_table
-    from gazepipe.stages.build import BuildParams, TakeTables, build_dataset
-    from gazepipe.stages.face import align_face
+    from gazepipe.stages.build.stage import BuildParams, TakeTables, build_dataset
+    from gazepipe.stages.face.stage import align_face
     from gazepipe.synth import load_truth
     from gazepipe.synth.session import SynthConfig, generate_session
 

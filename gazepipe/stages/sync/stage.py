@@ -17,9 +17,7 @@ callable returning ``(timestamps_s, frames)`` for the frames [start, stop) (a ``
 for the take, typically with a small ``scale``: it decodes the windows, asked for mostly in increasing order,
 through one open capture).
 
-The steps live in their own modules, re-exported here: :mod:`~gazepipe.stages.sync_clap` (mocap claps),
-:mod:`~gazepipe.stages.sync_video` (video claps), :mod:`~gazepipe.stages.sync_fit` (clock map, resampling).
-This module pairs them per take (:func:`sync_take`).
+The steps live in their own modules (see the package); this module pairs them per take (:func:`sync_take`).
 """
 
 from __future__ import annotations
@@ -29,12 +27,29 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gazepipe.errors import StageError
-from gazepipe.stages.sync_clap import Clap, clapper_distance, mocap_claps
-from gazepipe.stages.sync_fit import ClockMap, clock_map, resample_to_mocap
-from gazepipe.stages.sync_video import ReadWindow, VideoClap, motion_energy, video_claps
+from gazepipe.stages.sync.clap import Clap, mocap_claps
+from gazepipe.stages.sync.clock import ClockMap, clock_map
+from gazepipe.stages.sync.video import ReadWindow, VideoClap, video_claps
 
-__all__ = ["Clap", "ClockMap", "ReadWindow", "SyncResult", "VideoClap", "clapper_distance", "clock_map",
-           "mocap_claps", "motion_energy", "resample_to_mocap", "sync_take", "video_claps"]
+
+@dataclass(frozen=True)
+class SyncParams:
+    """Parameters of the sync stage (see :func:`sync_take`).
+
+    window_s : half-width (s) of each video window searched around a predicted clap.
+    search_s : without a prior, the first clap is looked for in the first (or last) ``search_s`` of the video.
+    max_drift : largest accepted |ratio − 1| between the clocks.
+    min_confidence : video claps below this confidence count as not found.
+    video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    """
+
+    window_s: float = field(default=1.5, metadata={"gt": 0})
+    search_s: float = field(default=20.0, metadata={"gt": 0})
+    max_drift: float = field(default=0.005, metadata={"min": 0, "lt": 1})
+    min_confidence: float = field(default=0.05, metadata={"min": 0, "max": 1})
+    video_scale: float = field(default=0.5, metadata={"gt": 0, "max": 1})
 
 
 @dataclass

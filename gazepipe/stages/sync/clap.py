@@ -2,7 +2,7 @@
 
 A clapper carrying one marker on each arm is snapped shut in view of the head camera; the clap is the contact
 instant, when the closing of the clapper arms ends (:func:`mocap_claps`). The robust-statistics helpers here are
-shared with the video side (:mod:`gazepipe.stages.sync_video`).
+shared with the video side (:mod:`gazepipe.stages.sync.video`).
 """
 
 from __future__ import annotations

@@ -14,15 +14,14 @@ from typing import Any
 
 import numpy as np
 
-from gazepipe.stages.rotations import slerp_vectors
+from gazepipe.stages.geometry import slerp_vectors, unit_or_nan
 from gazepipe.timebase import snap_rate
 
-__all__ = ["GATE_REASONS", "Gated", "angle_between", "cyclopean", "gate"]
+__all__ = ["GATE_REASONS", "Gated", "cyclopean", "gate"]
 
 #: why a video sample is gated out, by code (first failing rule in this order wins)
 GATE_REASONS = ("valid", "success", "confidence", "blink", "no_gaze")
 
-_EPS = 1e-12
 
 @dataclass
 class Gated:
@@ -62,43 +61,12 @@ class Gated:
         return int(self.time_s.shape[0])
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# vector helpers
-
-
-def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angle in radians between vectors (..., 3), robust near 0 and π; NaN where either is NaN."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    return _angle(a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2])
-
-
-def _angle(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, b0: np.ndarray, b1: np.ndarray, b2: np.ndarray
-           ) -> np.ndarray:
-    """:func:`angle_between` on the vectors' components. |a × b| and a · b are written out: the same sums as
-    np.cross and np.linalg.norm, several times faster."""
-    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
-
-
-def _norm(v: np.ndarray) -> np.ndarray:
-    """Euclidean norm over the last axis of (..., 3), kept as (..., 1)."""
-    x, y, z = v[..., 0:1], v[..., 1:2], v[..., 2:3]
-    return np.sqrt(x * x + y * y + z * z)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = _norm(v)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > _EPS, v / n, np.nan)
-
-
 def cyclopean(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """The cyclopean gaze direction: the normalised mean of both eyes' unit vectors, (N, 3).
 
     Any axes (camera axes in this stage). NaN where either eye is NaN or the mean vanishes.
     """
-    return _unit(np.asarray(left, dtype=np.float64) + np.asarray(right, dtype=np.float64))
+    return unit_or_nan(np.asarray(left, dtype=np.float64) + np.asarray(right, dtype=np.float64))
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -1,8 +1,9 @@
-"""Rotation helpers shared by the stages (SPEC §2).
+"""Geometry shared by every stage (SPEC §2): 3-vectors and rotations, batched over a leading axis of frames.
 
 Conventions: quaternions are ``w, x, y, z`` (scipy's own order is ``x, y, z, w``; the conversion lives only
 here); the 6-number form of a rotation R is its forward vector R·ẑ followed by its up vector R·ŷ (Klein 6.1).
-Everything is batched over a leading axis of frames; no Python loops over frames.
+No Python loops over frames. numpy only at import: scipy is imported where a rotation is computed, so planning
+a run (which imports the stages' parameters) goes without it.
 """
 
 from __future__ import annotations
@@ -11,12 +12,75 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gazepipe.stages.vectors import cross3
-
 if TYPE_CHECKING:  # scipy is imported where it is used: planning a run (no rotation computed) goes without it
     from scipy.spatial.transform import Rotation
 
 _EPS = 1e-12
+
+
+# ------------------------------------------------------------------------------------------------ vectors
+
+def norm3(v: np.ndarray) -> np.ndarray:
+    """Euclidean norm over the last axis (of length 3): the same result as ``np.linalg.norm(v, axis=-1)``,
+    several times faster on many short vectors."""
+    sq = v * v
+    return np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
+
+
+def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products over the last axis (length 3) of broadcastable arrays: the same arithmetic as
+    ``np.cross`` (so the same bits), without its axis handling, which dominates on short batches."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    np.multiply(a1, b2, out=out[..., 0])
+    out[..., 0] -= a2 * b1
+    np.multiply(a2, b0, out=out[..., 1])
+    out[..., 1] -= a0 * b2
+    np.multiply(a0, b1, out=out[..., 2])
+    out[..., 2] -= a1 * b0
+    return out
+
+
+def up_vector(up_axis: str) -> np.ndarray:
+    """Unit lab vertical for ``up_axis`` ``"y"`` or ``"z"`` (a leading ``-`` flips it)."""
+    ax = up_axis.strip().lower()
+    sign = -1.0 if ax.startswith("-") else 1.0
+    ax = ax.lstrip("+-")
+    v = np.zeros(3)
+    v["xyz".index(ax)] = sign
+    return v
+
+
+def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle in radians between vectors (..., 3), robust near 0 and π; NaN where either is NaN."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    return angle_from_components(a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2])
+
+
+def angle_from_components(a0: np.ndarray, a1: np.ndarray, a2: np.ndarray, b0: np.ndarray, b1: np.ndarray,
+                          b2: np.ndarray) -> np.ndarray:
+    """:func:`angle_between` on the vectors' components. |a × b| and a · b are written out: the same sums as
+    np.cross and np.linalg.norm, several times faster."""
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    return np.arctan2(np.sqrt(c0 * c0 + c1 * c1 + c2 * c2), a0 * b0 + a1 * b1 + a2 * b2)
+
+
+def norm_keepdims(v: np.ndarray) -> np.ndarray:
+    """Euclidean norm over the last axis of (..., 3), kept as (..., 1)."""
+    x, y, z = v[..., 0:1], v[..., 1:2], v[..., 2:3]
+    return np.sqrt(x * x + y * y + z * z)
+
+
+def unit_or_nan(v: np.ndarray) -> np.ndarray:
+    """Unit vectors over the last axis of (..., 3); NaN where the norm is below 1e-12 (or NaN)."""
+    n = norm_keepdims(v)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > _EPS, v / n, np.nan)
+
+
+# ---------------------------------------------------------------------------------------------- rotations
 
 
 def to_wxyz(rot: Rotation) -> np.ndarray:

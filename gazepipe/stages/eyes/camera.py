@@ -16,7 +16,7 @@ image axes "right, down" to "left, up"): Ry(180°) · Rz(180°) = diag(1, −1, 
 (w, x, y, z) = (0, 1, 0, 0), :data:`CAMERA_FACING_FACE`. A real mount adds its tilt and turn: R = R_mount · that.
 
 The fixation rules and the robust fit work on a stack of target series at once (one per candidate eye lag, see
-:mod:`gazepipe.stages.eyes_lag`): the gaze's own speed is computed once, and every fit is a batched Kabsch
+:mod:`gazepipe.stages.eyes.lag`): the gaze's own speed is computed once, and every fit is a batched Kabsch
 solution (one SVD per candidate) rather than a Rotation object per fit.
 """
 
@@ -27,9 +27,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from gazepipe.stages.eyes_gate import _angle, _unit, angle_between
-from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.geometry import angle_between, angle_from_components, from_wxyz, to_wxyz, unit_or_nan
 
 __all__ = ["CAMERA_FACING_FACE", "CameraEstimate", "camera_to_character", "camera_to_head",
            "combine_camera_estimates", "estimate_camera_rotation", "fixation_frames", "head_to_character"]
@@ -106,7 +105,7 @@ def _smooth_dirs(v: np.ndarray, k: int) -> np.ndarray:
     vz = np.where(ok[..., None], v, 0.0)
     s = uniform_filter1d(vz, k, axis=-2, mode="constant", cval=0.0)
     cnt = uniform_filter1d(ok.astype(np.float64), k, axis=-1, mode="constant", cval=0.0)
-    return np.where((cnt > 1.0 - 1e-9)[..., None], _unit(s), np.nan)
+    return np.where((cnt > 1.0 - 1e-9)[..., None], unit_or_nan(s), np.nan)
 
 
 def _angular_speed(v: np.ndarray, rate_hz: float) -> np.ndarray:
@@ -173,7 +172,7 @@ def _kabsch(target: np.ndarray, gaze: np.ndarray, weights: np.ndarray) -> np.nda
 def _rotated_error(rot: np.ndarray, gaze: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Angle (L, N) radians between R_l · gaze_n and target (3, L, N) by component."""
     r = rot @ gaze.T                                     # (L, 3, N)
-    return _angle(r[:, 0], r[:, 1], r[:, 2], target[0], target[1], target[2])
+    return angle_from_components(r[:, 0], r[:, 1], r[:, 2], target[0], target[1], target[2])
 
 
 def _sorted_rows(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -338,6 +337,6 @@ def combine_camera_estimates(quats: np.ndarray, weights: np.ndarray | None = Non
 
 def _target_spread_deg(v: np.ndarray) -> float:
     """RMS angle of directions (N, 3) from their normalised mean, degrees."""
-    m = _unit(v.mean(axis=0))
+    m = unit_or_nan(v.mean(axis=0))
     return float(np.rad2deg(np.sqrt(np.mean(angle_between(v, m[None, :]) ** 2))))
 

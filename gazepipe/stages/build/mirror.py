@@ -22,9 +22,9 @@ import numpy as np
 from gazepipe.arkit import EYE_NAMES, HEAD_NAMES
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
-from gazepipe.stages.face import mirror_face
-from gazepipe.stages.frames import Joints, character_frame
-from gazepipe.stages.rotations import from_wxyz
+from gazepipe.stages.face.stage import mirror_face
+from gazepipe.stages.frames.stage import Joints, character_frame
+from gazepipe.stages.geometry import from_wxyz
 
 __all__ = [
     "marker_pairs",
@@ -94,7 +94,7 @@ def mirror_yaw_pitch_roll(angles: np.ndarray, names: Iterable[str] | None = None
     names : optional channel names of the last axis (any spelling :func:`gazepipe.arkit.normalise_name`
         accepts), for other layouts; may include blendshapes.
 
-    The work is done by :func:`gazepipe.stages.face.mirror_face`, so angles and blendshapes follow one rule.
+    The work is done by :func:`gazepipe.stages.face.stage.mirror_face`, so angles and blendshapes follow one rule.
     Exact involution.
     """
     a = np.asarray(angles)
@@ -226,8 +226,8 @@ def mirror_markers(markers: Markers, markerset: MarkerSet, char_origin: np.ndarr
     markers : positions in mm, lab frame.
     markerset : the session's markerset (root marker and root segment).
     char_origin, char_rot : that take's character frame per frame, (T, 3) mm and (T, 4) ``w, x, y, z`` or
-        (T, 3, 3) lab-from-character, as from :func:`gazepipe.stages.frames.character_frame` or
-        :class:`~gazepipe.stages.frames.Joints`; computed from ``markers`` when omitted.
+        (T, 3, 3) lab-from-character, as from :func:`gazepipe.stages.frames.stage.character_frame` or
+        :class:`~gazepipe.stages.frames.stage.Joints`; computed from ``markers`` when omitted.
     pairs : explicit left/right pairs (a mapping or (a, b) tuples), replacing :func:`marker_pairs`.
 
     Frames without a character frame cannot be mirrored: every marker there becomes NaN and invalid.

@@ -14,11 +14,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gazepipe.stages.rotations import slerp_vectors
+from gazepipe.stages.geometry import slerp_vectors
 
 if TYPE_CHECKING:
-    from gazepipe.stages.sync_clap import Clap
-    from gazepipe.stages.sync_video import VideoClap
+    from gazepipe.stages.sync.clap import Clap
+    from gazepipe.stages.sync.video import VideoClap
 
 __all__ = ["ClockMap", "clock_map", "resample_to_mocap"]
 

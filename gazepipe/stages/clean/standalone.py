@@ -1,7 +1,7 @@
 """`gazepipe fill`: the gap filler on any capture, with no session or markerset.
 
 Rigid clusters are found from the data (markers whose mutual distances stay stable); every gap gets the
-per-gap method choice of :func:`gazepipe.stages.gapfill.fill_gaps`; gaps it cannot fill stay gaps.
+per-gap method choice of :func:`gazepipe.stages.clean.gapfill.fill_gaps`; gaps it cannot fill stay gaps.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from gazepipe.model import FILL_CODES, FILL_NAMES, Markers
-from gazepipe.stages.gapfill import METHODS, fill_gaps, find_rigid_clusters, remove_spikes
+from gazepipe.stages.clean.gapfill import METHODS, fill_gaps, find_rigid_clusters
+from gazepipe.stages.clean.spikes import remove_spikes
 
 
 def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS,
@@ -20,7 +21,7 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
     """Fill the gaps of ``markers``; return the filled markers, a summary of what was filled, by method, and
     the (T, M) mask of measured samples taken out as spikes.
 
-    Spikes (implausible acceleration, :func:`~gazepipe.stages.gapfill.remove_spikes` with the clean stage's
+    Spikes (implausible acceleration, :func:`~gazepipe.stages.clean.spikes.remove_spikes` with the clean stage's
     defaults) are always counted; with ``spikes`` they become gaps before filling (else the measured samples
     are kept as they are).
 

@@ -1,4 +1,4 @@
-"""The built-in stages, registered in dependency order.
+"""gazepipe's take stages, registered with the engine in dependency order, and the table store they write with.
 
 Each entry wires a pure function of :mod:`gazepipe.stages` to the engine: which takes it applies to, which raw
 files it reads (through :mod:`gazepipe.io`), which upstream tables it loads and which tables it returns.
@@ -11,22 +11,57 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pyarrow as pa
 
+from gazepipe.io.parquet import read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
-from gazepipe.pipeline.registry import Stage, UnitContext, UnitResult, register, rules_of
-from gazepipe.schemas.base import attach_meta
+from gazepipe.pipeline.registry import (
+    Stage,
+    TableStore,
+    UnitContext,
+    UnitResult,
+    register,
+    rules_of,
+    set_table_store,
+)
+from gazepipe.schemas import expected_schema
+from gazepipe.schemas.base import attach_meta, check_table
 from gazepipe.schemas.face_table import face_to_table
 from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, joints_to_table
-from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, markers_to_table, table_to_markers
+from gazepipe.schemas.markers import (
+    MARKERS_CLEAN,
+    MARKERS_RAW,
+    check_markers_meta,
+    markers_to_table,
+    table_to_markers,
+)
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
-from gazepipe.stages.clean import CleanParams
-from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.frames import FramesParams
+from gazepipe.stages.clean.stage import CleanParams
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.frames.stage import FramesParams
+from gazepipe.stages.sync.stage import SyncParams
+
+#: tables in the long markers layout, whose metadata must agree with their rows
+MARKERS_TABLES = ("markers_raw", "markers", "neutral")
+
+
+def check_stored_table(table: pa.Table, path: Path, name: str) -> None:
+    """Raise :class:`~gazepipe.errors.SchemaError` when a take's table ``name`` does not have the schema a table
+    of that name must have (sized tables: from their metadata), or a markers table's metadata disagrees with
+    its rows."""
+    schema = expected_schema(name, table)
+    if schema is not None:
+        check_table(table, schema, path=str(path))
+    if name in MARKERS_TABLES:
+        check_markers_meta(table, str(path))
+
+
+set_table_store(TableStore(write=write_table, read=read_table, check=check_stored_table))
 
 
 def _has_mocap(session: Session, take: Take) -> bool:
@@ -120,7 +155,7 @@ def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tu
 
 
 def run_clean(ctx: UnitContext) -> UnitResult:
-    from gazepipe.stages.clean import clean_markers
+    from gazepipe.stages.clean.stage import clean_markers
 
     raw, _, _ = _load_markers(ctx, "markers_raw")
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
@@ -165,7 +200,7 @@ def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int,
     """The neutral take's cleaned markers (``file_id`` = size, mtime, inode of its capture: a changed file is
     read again)."""
     from gazepipe.io.capture import read_markers
-    from gazepipe.stages.clean import clean_markers
+    from gazepipe.stages.clean.stage import clean_markers
 
     raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
     mapping = check_capture_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))
@@ -174,7 +209,7 @@ def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int,
 
 
 def run_frames(ctx: UnitContext) -> UnitResult:
-    from gazepipe.stages.frames import compute_frames
+    from gazepipe.stages.frames.stage import compute_frames
 
     ms = ctx.session.markerset
     markers, frames, _ = _load_markers(ctx, "markers")
@@ -219,7 +254,7 @@ def _face_take(session: Session, take: Take) -> bool:
 
 def run_face(ctx: UnitContext) -> UnitResult:
     from gazepipe.io.livelinkface import read_livelinkface
-    from gazepipe.stages.face import align_face
+    from gazepipe.stages.face.stage import align_face
 
     take = ctx.take
     tracked = read_livelinkface(take.tracked, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
@@ -244,24 +279,6 @@ register(Stage(
 
 # -------------------------------------------------------------------------------------------------- sync
 
-@dataclasses.dataclass(frozen=True)
-class SyncParams:
-    """Parameters of the sync stage (see :func:`gazepipe.stages.sync.sync_take`).
-
-    window_s : half-width (s) of each video window searched around a predicted clap.
-    search_s : without a prior, the first clap is looked for in the first (or last) ``search_s`` of the video.
-    max_drift : largest accepted |ratio − 1| between the clocks.
-    min_confidence : video claps below this confidence count as not found.
-    video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
-
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
-    """
-
-    window_s: float = dataclasses.field(default=1.5, metadata={"gt": 0})
-    search_s: float = dataclasses.field(default=20.0, metadata={"gt": 0})
-    max_drift: float = dataclasses.field(default=0.005, metadata={"min": 0, "lt": 1})
-    min_confidence: float = dataclasses.field(default=0.05, metadata={"min": 0, "max": 1})
-    video_scale: float = dataclasses.field(default=0.5, metadata={"gt": 0, "max": 1})
 
 
 def _sync_take(session: Session, take: Take) -> bool:
@@ -271,7 +288,7 @@ def _sync_take(session: Session, take: Take) -> bool:
 
 def run_sync(ctx: UnitContext) -> UnitResult:
     from gazepipe.io.video import FrameReader, probe_video
-    from gazepipe.stages.sync import sync_take
+    from gazepipe.stages.sync.stage import sync_take
 
     take, ms = ctx.take, ctx.session.markerset
     p = _build(SyncParams, ctx.params)
@@ -321,8 +338,8 @@ def _eyes_take(session: Session, take: Take) -> bool:
 
 def run_eyes(ctx: UnitContext) -> UnitResult:
     from gazepipe.io.openface import read_openface
-    from gazepipe.stages.eyes import eyes_take
-    from gazepipe.stages.sync import ClockMap, resample_to_mocap
+    from gazepipe.stages.eyes.stage import eyes_take
+    from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
     take, ms = ctx.take, ctx.session.markerset
     eye = read_openface(take.eyes)

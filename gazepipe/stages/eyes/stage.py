@@ -16,12 +16,10 @@ Steps, all pure functions on arrays:
    about 0.2 s, so the gaze at t is paired with the target at t − lag and the lag is fitted too; pairing with
    the current target biases R by degrees whenever the target keeps moving.
 
-The steps live in their own modules, re-exported here: :mod:`~gazepipe.stages.eyes_gate` (1, 2 and the vector
-helpers), :mod:`~gazepipe.stages.eyes_camera` (4, the axes, and the fixation rules and trimmed fit of 5),
-:mod:`~gazepipe.stages.eyes_lag` (the lag search of 5), :mod:`~gazepipe.stages.eyes_params` (the parameters).
-This module composes them per take (:func:`eyes_take`).
+The steps live in their own modules (see the package); this module composes them per take
+(:func:`eyes_take`).
 
-Axes: see :mod:`~gazepipe.stages.eyes_camera` (the camera of a head-mounted rig looks back at the face:
+Axes: see :mod:`~gazepipe.stages.eyes.camera` (the camera of a head-mounted rig looks back at the face:
 :data:`CAMERA_FACING_FACE`).
 """
 
@@ -33,43 +31,17 @@ from typing import Any
 import numpy as np
 
 from gazepipe.errors import StageError
-from gazepipe.stages.eyes_camera import (
-    CAMERA_FACING_FACE,
-    CameraEstimate,
+from gazepipe.stages.eyes.camera import (
     _target_spread_deg,
-    camera_to_character,
     camera_to_head,
-    combine_camera_estimates,
-    estimate_camera_rotation,
-    fixation_frames,
     head_to_character,
 )
-from gazepipe.stages.eyes_gate import GATE_REASONS, Gated, angle_between, cyclopean, gate
-from gazepipe.stages.eyes_lag import check_camera_rotation, estimate_camera_rotation_lagged, world_targets
-from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.rotations import from_wxyz, slerp_vectors, to_wxyz
-from gazepipe.stages.sync import ClockMap, resample_to_mocap
+from gazepipe.stages.eyes.gate import Gated, gate
+from gazepipe.stages.eyes.lag import check_camera_rotation, estimate_camera_rotation_lagged, world_targets
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.geometry import from_wxyz, to_wxyz
+from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
-__all__ = [
-    "CAMERA_FACING_FACE",
-    "GATE_REASONS",
-    "CameraEstimate",
-    "EyesParams",
-    "EyesResult",
-    "Gated",
-    "angle_between",
-    "camera_to_character",
-    "camera_to_head",
-    "combine_camera_estimates",
-    "cyclopean",
-    "estimate_camera_rotation",
-    "estimate_camera_rotation_lagged",
-    "eyes_take",
-    "fixation_frames",
-    "gate",
-    "head_to_character",
-    "slerp_vectors",
-]
 
 @dataclass
 class EyesResult:
@@ -124,7 +96,7 @@ def _resample(g: Gated, mocap_time_s: np.ndarray, clock: ClockMap
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Gated samples onto mocap times: (gaze (M, 3), valid (M,), confidence (M,), covered (M,)).
 
-    Directions and confidence through the sync stage's :func:`~gazepipe.stages.sync.resample_to_mocap` (slerp
+    Directions and confidence through the sync stage's :func:`~gazepipe.stages.sync.clock.resample_to_mocap` (slerp
     between the two neighbouring video samples; the smaller confidence of the two; nothing past either end).
     A frame is valid only when both neighbours are valid (measured or filled) and they are no further apart
     than a fillable gap (missing video rows); an exact hit on one sample still needs its neighbour.
@@ -162,7 +134,7 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     Parameters
     ----------
     eye : the take's :class:`~gazepipe.io.tracks.EyeTrack` (video clock).
-    joints : the take's :class:`~gazepipe.stages.frames.Joints` (``segments``, ``quat`` (N, S, 4) in the
+    joints : the take's :class:`~gazepipe.stages.frames.stage.Joints` (``segments``, ``quat`` (N, S, 4) in the
         character frame, ``target_dir`` (N, 3) from the eyes' centre, ``rate_hz``, and optionally ``char_rot``
         (N, 4), the lab-from-character rotation, so target motion is judged in lab axes).
     mocap_time_s : (N,) mocap-clock seconds of the joints' rows (0 at the mocap file's first frame).

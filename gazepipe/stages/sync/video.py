@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gazepipe.stages.sync_clap import _MAD, _robust_sigma, _score
+from gazepipe.stages.sync.clap import _MAD, _robust_sigma, _score
 
 __all__ = ["ReadWindow", "VideoClap", "motion_energy", "video_claps"]
 

@@ -1,4 +1,4 @@
-"""Marker cleaning (SPEC §3.2 steps 1–2): spike removal, gap filling with a per-gap choice of method, and the
+"""Gap filling (SPEC §3.2 step 2): every gap filled with a per-gap choice of method, and the
 rigid-cluster finder used when no markerset is given.
 
 Pure functions on arrays: positions are (T, M, 3) float64 millimetres in the lab frame, NaN where not measured;
@@ -24,7 +24,7 @@ same stretches pick the PCA models and component counts. Interpolation is also j
 nearest markers measured through the gap that move with the marker (steady distance) are interpolated over it,
 and when their error is larger it is the interpolation methods' validation error (motion during the gap that the
 stretches beside it do not show); PCA's error is then scaled by how much worse its components explain the
-predictors in the gap than in the stretches (:func:`~gazepipe.stages.gapfill_methods.pca_novelty`), when clearly
+predictors in the gap than in the stretches (:func:`~gazepipe.stages.clean.fill_methods.pca_novelty`), when clearly
 worse. The gap is filled with a convex blend of the best methods, weighted by inverse squared validation error
 (:func:`blend_weights`), and coded by the method with the largest weight. When no sample can be hidden the first
 applicable method in ``methods`` is used.
@@ -47,20 +47,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gazepipe.model import FILL_CODES
-from gazepipe.stages.gapfill_methods import (
+from gazepipe.stages.clean.fill_methods import (
     PcaModel,
     donor_interp_errors,
     edge_speed,
     find_steady_mates,
     fit_pca_models,
     interp_fill,
-    norm3,
     pca_fill_packed,
     pca_novelty,
     rigid_fill,
     rigid_fill_many,
     speed_over,
 )
+from gazepipe.stages.geometry import norm3
 
 METHODS = ("rigid", "pca", "pchip", "linear")
 #: measured frames kept between a hidden validation stretch and the gap, so interpolation has anchors
@@ -109,8 +109,6 @@ REASON_TOO_LONG = "longer than max_gap_s"
 REASON_NEVER_MEASURED = "marker never measured"
 REASON_NO_METHOD = "no method applies"
 REASON_IMPLAUSIBLE = "every fill implausibly fast"
-#: standard gravity, mm/s²
-G_MM_S2 = 9806.65
 
 
 @dataclass
@@ -605,59 +603,6 @@ def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarr
             if ok(preds[k]):
                 return {k: 1.0}, preds[k], f"{best} fill implausibly fast; {k} used"
     return weights, None, REASON_IMPLAUSIBLE
-
-
-def remove_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *,
-                  max_accel_mm_s2: float = 50.0 * G_MM_S2, min_step_mm: float = 100.0,
-                  max_piece_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Turn samples with implausible acceleration into gaps.
-
-    Rule: within each run of consecutive measured samples of a marker, the second difference
-    ``|x[t+1] - 2 x[t] + x[t-1]|`` (mm) is implausible when it exceeds
-    ``max(max_accel_mm_s2 / rate_hz², min_step_mm)``: 50 g is beyond body-marker accelerations, and the
-    displacement floor keeps centimetre jitter of fast cameras (seen in real 240 Hz data, where 50 g is only
-    8.5 mm per frame²) from counting. Two consecutive implausible second differences mark a break between
-    those samples (a single-sample spike makes two breaks, a jump or sign flip one). The run is cut at the
-    breaks; pieces shorter than ``max_piece_s`` become gaps, unless every piece is that short, in which case
-    the longest piece is kept.
-
-    Returns
-    -------
-    valid_new : (T, M) bool.
-    n_removed : (M,) int64, samples removed per marker.
-    """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=2)
-    n_t, n_m = valid.shape
-    thr = max(max_accel_mm_s2 / rate_hz ** 2, min_step_mm)
-    min_piece = max_piece_s * rate_hz
-    out = valid.copy()
-    if n_t < 3:
-        return out, np.zeros(n_m, dtype=np.int64)
-    d2 = np.linalg.norm(xyz[2:] - 2.0 * xyz[1:-1] + xyz[:-2], axis=2)  # centred on frames 1..T-2
-    ok3 = valid[2:] & valid[1:-1] & valid[:-2]
-    big = np.zeros((n_t, n_m), dtype=bool)
-    big[1:-1] = ok3 & (np.nan_to_num(d2, nan=0.0) > thr)
-    # break between t-1 and t when the second differences at both are implausible
-    brk = np.zeros((n_t, n_m), dtype=bool)
-    brk[1:] = big[1:] & big[:-1]
-    for m in np.flatnonzero(brk.any(axis=0)):
-        v = valid[:, m]
-        # piece ids: a new piece starts at every gap→measured transition and at every break
-        starts = v & (np.concatenate([[True], ~v[:-1]]) | brk[:, m])
-        pid = np.cumsum(starts)
-        pid[~v] = 0
-        run_id = np.cumsum(v & np.concatenate([[True], ~v[:-1]]))
-        run_id[~v] = 0
-        sizes = np.bincount(pid)
-        for r in np.unique(run_id[brk[:, m] & v]):
-            pieces = np.unique(pid[run_id == r])
-            lens = sizes[pieces]
-            drop = pieces[lens < min_piece]
-            if drop.size == pieces.size:
-                drop = pieces[pieces != pieces[np.argmax(lens)]]
-            out[np.isin(pid, drop) & (run_id == r), m] = False
-    return out, (valid & ~out).sum(axis=0).astype(np.int64)
 
 
 def find_rigid_clusters(xyz: np.ndarray, valid: np.ndarray, *, max_rel_std: float = 0.02,

@@ -7,8 +7,8 @@ import pyarrow as pa
 
 from gazepipe.schemas.joints import list_to_numpy
 from gazepipe.schemas.tracks import N_BLENDSHAPES
-from gazepipe.stages.build_gaze import TakeRows
-from gazepipe.stages.face import mirror_face
+from gazepipe.stages.build.gaze import TakeRows
+from gazepipe.stages.face.stage import mirror_face
 
 
 def face_columns(k: int) -> list[str]:

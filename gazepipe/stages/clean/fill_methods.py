@@ -1,4 +1,4 @@
-"""The gap-filling methods used by :mod:`gazepipe.stages.gapfill`.
+"""The gap-filling methods used by :mod:`gazepipe.stages.clean.gapfill`.
 
 Each method predicts one marker's positions (mm, lab frame) over a half-open frame interval ``[a, b)`` from the
 samples that are *known* for that marker (a boolean mask, so that validation can hide extra samples) and, for the
@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gazepipe.stages.rotations import frame_from_points, kabsch
-from gazepipe.stages.vectors import cross3, norm3
+from gazepipe.stages.geometry import cross3, frame_from_points, kabsch, norm3
 
 # scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
 # plan a run, and a run with nothing to do should not pay for scipy.interpolate and scipy.linalg
@@ -127,7 +126,7 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
 
 def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
-    least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.rotations.kabsch`).
+    least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.geometry.kabsch`).
 
     ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
     """
@@ -341,7 +340,7 @@ class PcaModel:
     @staticmethod
     def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): the Gram–Schmidt triad ``rot``
-        (n, 3, 3) of the three points (:func:`gazepipe.stages.rotations.frame_from_points`) at their centroid
+        (n, 3, 3) of the three points (:func:`gazepipe.stages.geometry.frame_from_points`) at their centroid
         ``c`` (n, 3); returns ``(local, rot, c)``, ``local = rotᵀ (x − c)``. (As good as a least-squares fit of
         the three for the PCA, which only needs the frame to move with them, and several times cheaper.)"""
         rot = frame_from_points(frame_pts[:, 0], frame_pts[:, 1], frame_pts[:, 2])

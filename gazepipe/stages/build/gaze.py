@@ -1,5 +1,5 @@
 """Rows of the gaze datasets (SPEC §3.6): ``gaze_rnn`` / ``gaze_rnn_lod`` (Klein 6.1, 7) and ``gaze_map``
-(Pejsa 5.1, 5.2.2.2). Pure functions on per-take arrays; :mod:`gazepipe.stages.build` assembles the tables.
+(Pejsa 5.1, 5.2.2.2). Pure functions on per-take arrays; :mod:`gazepipe.stages.build.stage` assembles the tables.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import StageError
-from gazepipe.stages.mirror import marker_pairs, mirror_quat, mirror_six, mirror_vectors
-from gazepipe.stages.rotations import from_wxyz, to_wxyz
+from gazepipe.stages.build.mirror import marker_pairs, mirror_quat, mirror_six, mirror_vectors
+from gazepipe.stages.geometry import from_wxyz, to_wxyz
 
 
 @dataclass
@@ -111,7 +111,7 @@ def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarra
 
 
 def segment_permutation(segments: list[str]) -> np.ndarray:
-    """Index of each segment's mirror partner (left/right names swap, :func:`gazepipe.stages.mirror.marker_pairs`
+    """Index of each segment's mirror partner (left/right names swap, :func:`gazepipe.stages.build.mirror.marker_pairs`
     rules; a central segment is its own partner)."""
     pairs = marker_pairs(segments)
     return np.array([segments.index(pairs.get(s, s)) for s in segments], dtype=np.int64)

@@ -7,7 +7,7 @@ axes at t. Pairing with the current target biases the camera rotation by degrees
 moving.
 
 Every candidate lag of a search step is scored in one batch: the delayed targets are a (L, N, 3) stack, the
-fixation rules and the trimmed fits of :mod:`gazepipe.stages.eyes_camera` run on the whole stack, and the lag with
+fixation rules and the trimmed fits of :mod:`gazepipe.stages.eyes.camera` run on the whole stack, and the lag with
 the smallest median residual wins. Whole frames from 0 to ``max_lag_s`` first, then quarter frames around the
 best whole frame: two batches per take.
 """
@@ -18,7 +18,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from gazepipe.stages.eyes_camera import (
+from gazepipe.stages.eyes.camera import (
     CameraEstimate,
     _candidates,
     _robust_fits,
@@ -27,9 +27,8 @@ from gazepipe.stages.eyes_camera import (
     estimate_camera_rotation,
     fixation_frames,
 )
-from gazepipe.stages.eyes_gate import _unit, angle_between
-from gazepipe.stages.eyes_params import EyesParams
-from gazepipe.stages.rotations import from_wxyz
+from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.geometry import angle_between, from_wxyz, unit_or_nan
 
 __all__ = ["check_camera_rotation", "estimate_camera_rotation_lagged", "world_targets"]
 
@@ -74,7 +73,7 @@ def _delayed(v: np.ndarray, shifts: np.ndarray) -> np.ndarray:
         f = (pos - i0)[:, None]
         ok = i0 >= 0
         lo, hi = v[i0[ok]], v[np.minimum(i0[ok] + 1, n - 1)]
-        out[j, ok] = _unit((1.0 - f[ok]) * lo + f[ok] * hi)
+        out[j, ok] = unit_or_nan((1.0 - f[ok]) * lo + f[ok] * hi)
     return out
 
 
@@ -117,7 +116,7 @@ def estimate_camera_rotation_lagged(gaze_cam: np.ndarray, head_rot_char: np.ndar
     """Camera → head rotation and the eyes' delay behind the target, fitted together.
 
     For each lag from 0 to ``max_lag_s`` (whole frames, then quarter frames around the best) the robust fit of
-    :func:`~gazepipe.stages.eyes_camera.estimate_camera_rotation` runs on that lag's fixation frames (all lags of
+    :func:`~gazepipe.stages.eyes.camera.estimate_camera_rotation` runs on that lag's fixation frames (all lags of
     a step in one batch); the lag with the smallest median residual wins.
 
     Parameters

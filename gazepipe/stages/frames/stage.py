@@ -15,14 +15,14 @@ import numpy as np
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
-from gazepipe.stages.rotations import (
+from gazepipe.stages.geometry import (
     frame_from_points,
     heading_frames,
     kabsch,
     six_from_matrix,
     to_wxyz,
+    up_vector,
 )
-from gazepipe.stages.vectors import up_vector
 
 
 @dataclass(frozen=True)
@@ -187,7 +187,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
     markers : cleaned (stabilised, cropped) markers of the take, mm, lab axes.
     markerset : the session's markerset.
     neutral : markers in the neutral pose, same labels (the ``neutral`` take's cleaned markers, or the take's
-        first rest period: :attr:`gazepipe.stages.clean.CleanResult.neutral`). Each segment's calibration is
+        first rest period: :attr:`gazepipe.stages.clean.stage.CleanResult.neutral`). Each segment's calibration is
         the mean (``Rotation.mean``) of its marker frame in the character frame over these frames, so the
         neutral pose maps to the identity.
     params : :class:`FramesParams`.

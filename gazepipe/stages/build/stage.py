@@ -4,7 +4,7 @@
 :func:`build_dataset` is pure: per-take Arrow tables in, per-take dataset tables and the ``dataset.json``
 object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
 
-- take-disjoint splits (:mod:`gazepipe.stages.splits`): a take's rows, mirrored copies included, all go to
+- take-disjoint splits (:mod:`gazepipe.stages.build.splits`): a take's rows, mirrored copies included, all go to
   its split;
 - a mirrored copy of every row (``mirrored`` = True; SPEC §2), after the take's original rows;
 - normalisation statistics (mean and population standard deviation per feature element) over the training
@@ -30,11 +30,11 @@ from gazepipe.model import MarkerSet, Take
 from gazepipe.schemas.base import attach_meta, check_table, read_meta
 from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
-from gazepipe.stages.build_info import DatasetSummary, feature_values, table_hash
-from gazepipe.stages.splits import assign_split, check_fractions
+from gazepipe.stages.build.splits import assign_split, check_fractions
+from gazepipe.stages.build.summary import DatasetSummary, feature_values, table_hash
 
 if TYPE_CHECKING:  # the row builders import scipy and pandas: loaded when a dataset is built, not when planned
-    from gazepipe.stages.build_gaze import TakeRows
+    from gazepipe.stages.build.gaze import TakeRows
 
 KINDS = {"gaze_rnn": "gaze_follow", "gaze_rnn_lod": "gaze_follow", "gaze_map": "gaze_shift", "face_clean": "face"}
 
@@ -172,7 +172,7 @@ class _Context:
 
 
 def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
-    from gazepipe.stages.build_gaze import align_eyes, rnn_feature_names, rnn_rows
+    from gazepipe.stages.build.gaze import align_eyes, rnn_feature_names, rnn_rows
 
     lod = ctx.name == "gaze_rnn_lod"
     if tt.joints is None:
@@ -206,7 +206,7 @@ def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
-    from gazepipe.stages.build_gaze import gaze_map_names, gaze_map_row
+    from gazepipe.stages.build.gaze import gaze_map_names, gaze_map_row
 
     take = tt.take
     if tt.joints is None:
@@ -236,7 +236,7 @@ def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
-    from gazepipe.stages.build_face import face_columns, face_rows
+    from gazepipe.stages.build.face import face_columns, face_rows
 
     if tt.face is None:
         raise StageError(None, "no face table", take=tt.take.id)
@@ -258,8 +258,8 @@ def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
 
 
 def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
-    from gazepipe.stages.build_face import mirror_face_rows
-    from gazepipe.stages.build_gaze import mirror_gaze_map, mirror_rnn, segment_permutation
+    from gazepipe.stages.build.face import mirror_face_rows
+    from gazepipe.stages.build.gaze import mirror_gaze_map, mirror_rnn, segment_permutation
 
     if name == "face_clean":
         return mirror_face_rows(rows.features, ctx.segments)

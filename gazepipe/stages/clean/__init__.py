@@ -1,0 +1,26 @@
+"""The ``clean`` stage (SPEC §3.2, Pejsa 5.2.2.1): a take's raw markers made fit to measure.
+
+Takes: a take's ``markers_raw`` (mm, lab axes, a validity mask) and the session's markerset. Gives: the
+``markers`` table (stabilised, cropped, each sample coded measured, filled by which method, or unfilled) and
+``neutral`` (the first rest period's frames, for the frames stage's calibration). Records in QC: per marker its
+gaps, longest gap, spikes removed and samples per fill method; every gap with its method and each method's
+validation error; frames without the root marker; the low-pass; the rest periods, the crop and the frames kept.
+
+Read top-down, in the order :func:`clean_markers` (:mod:`.stage`) runs them:
+
+- :mod:`.spikes`: samples with implausible acceleration become gaps;
+- :mod:`.gapfill`: every gap filled by the best of the methods of :mod:`.fill_methods` (rigid cluster, PCA,
+  PCHIP, linear), chosen by hiding measured samples beside it;
+- :mod:`.stabilise`: the root marker to the lab origin (optionally the heading removed);
+- :mod:`.filters`: the optional zero-phase low-pass, run by run (and the Gaussian smoothing of rest speeds);
+- :mod:`.rests`: rest periods from the subject's speed, and the crop the take's kind keeps.
+
+:mod:`.standalone` is the same spike removal and gap filling on any capture file, without a session
+(``gazepipe fill``).
+"""
+
+from gazepipe.stages import lazy_exports
+
+__all__ = ["CleanParams", "CleanResult", "clean_markers", "fill_capture"]
+__getattr__ = lazy_exports(__name__, {"CleanParams": ".stage", "CleanResult": ".stage", "clean_markers": ".stage",
+                                      "fill_capture": ".standalone"})

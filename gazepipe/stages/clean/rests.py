@@ -1,0 +1,186 @@
+"""Rest periods and the crop (SPEC §3.2 step 5, Pejsa 5.2.2.1 steps 2–3).
+
+The subject's mean marker speed per frame (mm/s, on Gaussian-smoothed positions), still runs below a threshold
+merged and kept when long enough, the end of each long rest moved to where the noise-free speed crosses the
+threshold, and the crop a take's kind keeps between its rests. Frames are rows of the uncropped take; ranges
+are half-open.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gazepipe.stages.clean.filters import gaussian_runs, true_runs
+
+
+def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
+    """Per-frame mean over markers of the speed (mm/s) by central differences, (T,); NaN where no marker has
+    a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
+    """
+    pos = xyz if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
+    pos = np.where(valid[..., None], pos, np.nan)
+    vel = np.full_like(pos, np.nan)
+    if len(pos) >= 3:
+        vel[1:-1] = (pos[2:] - pos[:-2]) * (rate_hz / 2.0)
+    if len(pos) >= 2:  # one-sided at the ends
+        vel[0] = (pos[1] - pos[0]) * rate_hz
+        vel[-1] = (pos[-1] - pos[-2]) * rate_hz
+    speed = np.linalg.norm(vel, axis=2)
+    n = np.sum(np.isfinite(speed), axis=1)
+    total = np.nansum(speed, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,
+                 min_s: float) -> list[tuple[int, int]]:
+    """Rest periods (start, stop), half-open rows, from a per-frame speed (Pejsa 5.2.2.1 steps 2–3).
+
+    Still = speed below ``threshold`` (NaN is not still); still runs separated by fewer than
+    ``merge_s · rate`` frames merge; merged rests shorter than ``min_s · rate`` frames are dropped.
+    """
+    still = np.nan_to_num(speed, nan=np.inf) < threshold
+    runs = true_runs(still)
+    merged: list[list[int]] = []
+    for a, b in runs:
+        if merged and (a - merged[-1][1]) < merge_s * rate_hz:
+            merged[-1][1] = b
+        else:
+            merged.append([a, b])
+    return [(a, b) for a, b in merged if (b - a) >= min_s * rate_hz - 1e-9]
+
+
+# Share of the subject's markers taken to be moving at a motion's onset, for how the noise floor f adds to the
+# noise-free mean speed g: a moving marker's speed adds to its noise in quadrature, a still one's noise is
+# added as it is, so the mean is √(g² + (q·f)²) + (1 − q)·f. A gaze shift starts with the head (a fifth to a
+# third of the markers); measured on the sample session and on whole-segment moves, q = 0.3 leaves a median
+# bias of 0 frames on both (q = 0: +1 frame on whole-segment moves; q = 1: −1 frame on the sample session).
+ONSET_MOVING_SHARE = 0.3
+
+
+_ONSET_TAUS = np.array([0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0])   # τ grid, in σ
+
+
+_ONSET_STEP = 0.02                                                         # fine grid, in σ
+
+
+def _onset_profiles(x_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian-smoothed (σ = 1) onset shapes h_τ(d) = d² for 0 ≤ d < τ, then on with the slope 2τ they
+    reached (τ² + 2τ(d − τ)); 0 before the onset. Returns the grid x (in σ) and the shapes (len(τ), len(x))."""
+    x = np.arange(-6.0, x_max + 6.0, _ONSET_STEP)
+    d = np.clip(x, 0.0, None)[None, :]
+    tau = _ONSET_TAUS[:, None]
+    h = np.where(d < tau, d * d, tau * tau + 2.0 * tau * (d - tau))
+    u = np.arange(-4.0, 4.0 + _ONSET_STEP / 2, _ONSET_STEP)
+    k = np.exp(-0.5 * u * u)
+    k /= k.sum()
+    return x, np.stack([np.convolve(row, k, mode="same") for row in h])
+
+
+def refine_onset(speed: np.ndarray, b: int, sigma: float, threshold: float, lo: int, hi: int) -> int:
+    """Unbiased first frame at or above ``threshold`` (the end of a rest) from a Gaussian-smoothed speed.
+
+    The smoothed speed crosses the threshold early: the Gaussian (σ samples) spreads the motion's onset back.
+    Model of the noise-free speed after the onset t0: A·((t − t0)/σ)² up to t0 + τσ, then on with the slope it
+    reached (a smooth start, then a steady rise); smoothed by the same Gaussian and combined with the rest's
+    noise floor f (the median speed of the rest before the window; see ``ONSET_MOVING_SHARE``), it is fitted to
+    the smoothed speed from b − 3σ to the end of its rise (4·threshold or its first maximum) by exhaustive
+    least squares over t0 (0.1-sample steps within 2σ of b), τ and A (log grids), which has no local minima to
+    fall into. Returns the first frame where the fitted noise-free speed reaches the threshold, within
+    [b − 1, b + 2σ]; ``b`` itself when the window is too short or not finite. ``lo``/``hi`` bound the frames
+    the fit may use (the rest's start, the next rest's start).
+    """
+    n = len(speed)
+    reach = int(np.ceil(3.0 * sigma))
+    w0 = max(lo, b - reach)
+    seg = speed[b:min(hi, b + 3 * reach)]
+    stop = np.flatnonzero((seg >= 4.0 * threshold) | (np.diff(seg, append=np.inf) < 0))   # rise ends
+    w1 = b + int(stop[0]) + 1 if len(stop) else b + len(seg)
+    step = max(1, int(sigma // 3))          # the smoothed speed varies over σ: a few samples per σ suffice
+    frames = np.arange(w0, w1, step)
+    y = speed[frames]
+    rest = speed[max(lo, w0 - 3 * reach):max(lo, b - reach)]
+    if len(frames) < 5 or w1 > n or not np.isfinite(y).all():
+        return b
+    floor = float(np.median(rest)) if len(rest) >= 3 and np.isfinite(rest).all() else float(speed[w0])
+    q = ONSET_MOVING_SHARE
+    t0 = np.arange(b - 2.0 * sigma - 1.0, b + 2.0 * sigma, min(0.1, 0.05 * sigma))
+    xd = (frames[None, :] - t0[:, None]) / sigma                             # (T0, F), in σ
+    xs, prof = _onset_profiles(float(xd.max()))
+    amp = threshold * np.geomspace(1e-3, 1e3, 161)                           # A, 4.4 % steps
+    best = (np.inf, 0, 0, 0)
+    for ik, p in enumerate(prof):
+        g = amp[:, None, None] * np.interp(xd, xs, p)[None]                  # (A, T0, F)
+        sse = np.sum((np.sqrt(g * g + (q * floor) ** 2) + (1.0 - q) * floor - y) ** 2, axis=-1)
+        ia, it = np.unravel_index(int(np.argmin(sse)), sse.shape)
+        if sse[ia, it] < best[0]:
+            best = (float(sse[ia, it]), ia, ik, it)
+    _, ia, ik, it = best
+    a, tau = amp[ia], _ONSET_TAUS[ik]
+    if a * tau * tau >= threshold:
+        d_c = np.sqrt(threshold / a)
+    else:
+        d_c = tau + (threshold - a * tau * tau) / (2.0 * a * tau)
+    t_c = t0[it] + d_c * sigma
+    return int(np.clip(np.ceil(t_c - 1e-9), b - 1, b + int(np.ceil(2.0 * sigma))))
+
+
+def refine_rests(rests: list[tuple[int, int]], speed: np.ndarray, rate_hz: float, filter_hz: float,
+                 threshold: float) -> list[tuple[int, int]]:
+    """Rest periods whose end (the onset of the motion after them) is moved to where the noise-free speed
+    reaches the threshold (:func:`refine_onset`), for rests long enough to give the noise floor (at least
+    9σ of the speed filter: 0.7 s at any rate; short pauses inside motion are left as found).
+
+    Only ends: a motion decelerating into a rest often settles with a slow tail rather than to a still floor,
+    and the smoothed speed's crossing there is already close (sample session: starts of the gaze shifts'
+    second rests median 0, −1..+1 frames; of the gaze_follow takes' last rests 0..+2). The same fit in reversed
+    time was measured and moved the gaze shifts' second-rest starts to a median of −1 (shortening the gaze_map
+    duration) and the gaze_follow ones to −2..−1, so it is not applied."""
+    sigma = np.sqrt(np.log(2.0)) / (2.0 * np.pi * filter_hz) * rate_hz
+    reach = int(np.ceil(3.0 * sigma))
+    n = len(speed)
+    out = []
+    for i, (a, b) in enumerate(rests):
+        if b < n and b - a >= 3 * reach:
+            nxt = rests[i + 1][0] if i + 1 < len(rests) else n
+            b = max(a + 1, min(refine_onset(speed, b, sigma, threshold, a, nxt), nxt))
+        out.append((a, b))
+    return out
+
+
+def crop_bounds(rests: list[tuple[int, int]], speed: np.ndarray, kind: str,
+                tolerance: int = 0) -> tuple[tuple[int, int], list[str]]:
+    """Crop (start, stop) for a take of ``kind`` and its QC warnings; raises ``ValueError`` with a short
+    phrase when the rests the kind needs are missing.
+
+    ``gaze_shift``: [end of the first rest, end of the second rest). ``neutral``: everything. Other kinds:
+    without the leading rest (one that starts at most ``tolerance`` frames after the first frame with a known
+    speed) and the trailing rest (likewise before the last).
+    """
+    n = len(speed)
+    warnings: list[str] = []
+    if kind == "neutral":
+        return (0, n), warnings
+    if kind == "gaze_shift":
+        if len(rests) < 2:
+            raise ValueError(f"found {len(rests)} rest period(s), a gaze_shift take needs two "
+                             "(the wait before the cue and the fixation on the target)")
+        if len(rests) > 2:
+            warnings.append(f"{len(rests)} rest periods; cropped between the first two")
+        return (rests[0][1], rests[1][1]), warnings
+    known = np.flatnonzero(np.isfinite(speed))
+    if len(known) == 0:
+        raise ValueError("no frame with a known marker speed")
+    first, last = int(known[0]), int(known[-1])
+    start, stop = 0, n
+    if rests and rests[0][0] <= first + tolerance:
+        start = rests[0][1]
+    else:
+        warnings.append("no leading rest period; kept from the first frame")
+    if rests and rests[-1][1] > last - tolerance:
+        stop = rests[-1][0]
+    else:
+        warnings.append("no trailing rest period; kept to the last frame")
+    if stop <= start:
+        raise ValueError("the whole take is at rest: no motion to keep")
+    return (start, stop), warnings

@@ -1,0 +1,258 @@
+"""The ``clean`` stage's entry point (SPEC §3.2, Pejsa 5.2.2.1): :func:`clean_markers` runs its steps in order.
+
+Spikes become gaps (:mod:`.spikes`), gaps are filled (:mod:`.gapfill`), the root is stabilised
+(:mod:`.stabilise`), the optional low-pass runs (:mod:`.filters`), then rests are found and the take is
+cropped (:mod:`.rests`). Pure functions on :class:`~gazepipe.model.Markers`; no file I/O. Positions stay on lab
+axes (the character frame is the ``frames`` stage's business); after stabilisation the root marker sits at the
+lab origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from gazepipe.errors import StageError
+from gazepipe.model import FILL_CODES, Markers, MarkerSet
+from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
+from gazepipe.stages.clean.gapfill import METHODS, fill_gaps
+from gazepipe.stages.clean.rests import crop_bounds, mean_speed, refine_rests, rest_periods
+from gazepipe.stages.clean.spikes import G_MM_S2, remove_spikes
+from gazepipe.stages.clean.stabilise import stabilise
+from gazepipe.stages.geometry import up_vector
+
+UNFILLED = FILL_CODES["unfilled"]
+
+
+@dataclass(frozen=True)
+class CleanParams:
+    """Parameters of :func:`clean_markers` (every threshold of SPEC §3.2).
+
+    Attributes
+    ----------
+    max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
+    remove_spikes : run spike removal before gap filling.
+    spike_max_accel_mm_s2, spike_min_step_mm, spike_max_piece_s : thresholds of
+        :func:`gazepipe.stages.clean.spikes.remove_spikes` (a second difference above
+        max(accel / rate², min_step) is implausible; pieces cut off by such breaks shorter than max_piece_s
+        become gaps). Defaults: 50 g, 100 mm, 0.5 s.
+    fill_methods : candidate gap-filling methods, best chosen per gap (:func:`gazepipe.stages.clean.gapfill.fill_gaps`).
+    lowpass_hz : cutoff (Hz, −3 dB of the whole zero-phase filter) of the optional low-pass; ``None`` = off.
+    lowpass_order : Butterworth order of *one* pass (2: the forward–backward pair is a 4th-order zero-phase
+        filter with a monotone magnitude response and little overshoot, Winter's usual choice for marker data).
+    rest_speed_mm_s : a frame is "still" when the subject's mean marker speed is below this (Pejsa: 6 mm/s).
+    rest_merge_s : rests separated by less than this merge (Pejsa: 1/6 s).
+    rest_min_s : rests shorter than this do not count.
+    rest_filter_hz : −3 dB frequency (Hz) of the Gaussian low-pass applied only to the positions used for
+        speeds (σ = √(ln 2) / (2π f)). Marker noise of 0.5 mm gives a mean speed of ~20 mm/s at 30 Hz on
+        raw positions and still ~10 mm/s after a 6 Hz low-pass: above the 6 mm/s threshold, so no rest would
+        ever be found. At 1.75 Hz the noise floor's 99.9th percentile is ~4 mm/s at 30 Hz (~2 mm/s at 120 Hz).
+        A Gaussian rather than a Butterworth because the threshold is ~1 % of a gaze shift's peak speed:
+        Butterworth ringing ahead of a fast movement crosses it and moves rest bounds by up to 0.5 s; the
+        Gaussian's smear moves them by ~2 frames at 30 Hz (≤ 0.1 s at any rate) against the noise-free
+        speed's crossing (early at the end of a rest: the smear spreads the motion's onset back; hence
+        ``rest_refine``). Measured by tests/test_clean.py.
+    rest_refine : move the end of every rest of at least 0.7 s to where the noise-free speed reaches the
+        threshold, from a fit of the smoothed speed's rise (:func:`refine_onset`). Without it the end of the
+        first rest of the sample session's gaze shifts comes 1–2 frames early (median −2); with it the
+        median error is 0 and every end is within 1 frame. The rests themselves (which frames are still, the
+        noise floor) do not change.
+    remove_heading : also rotate every frame about the lab vertical so the root segment's left direction
+        (its first marker minus its second, horizontal part) points along lab +X.
+
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    """
+
+    max_gap_s: float = field(default=1.0, metadata={"min": 0})
+    remove_spikes: bool = True
+    spike_max_accel_mm_s2: float = field(default=50.0 * G_MM_S2, metadata={"gt": 0})
+    spike_min_step_mm: float = field(default=100.0, metadata={"min": 0})
+    spike_max_piece_s: float = field(default=0.5, metadata={"min": 0})
+    fill_methods: tuple[str, ...] = field(default=METHODS, metadata={"choices": METHODS})
+    lowpass_hz: float | None = field(default=None, metadata={"gt": 0})
+    lowpass_order: int = field(default=2, metadata={"min": 1})
+    rest_speed_mm_s: float = field(default=6.0, metadata={"gt": 0})
+    rest_merge_s: float = field(default=1.0 / 6.0, metadata={"min": 0})
+    rest_min_s: float = field(default=0.25, metadata={"min": 0})
+    rest_filter_hz: float = field(default=1.75, metadata={"gt": 0})
+    rest_refine: bool = True
+    remove_heading: bool = False
+
+
+@dataclass
+class CleanResult:
+    """Output of :func:`clean_markers`.
+
+    Attributes
+    ----------
+    markers : cleaned, stabilised, cropped markers (mm, lab axes, root at the origin); ``first_frame`` is the
+        source frame number of the first kept row.
+    frames : (N,) int64 row indices of the kept rows in the uncropped take (``crop[0] .. crop[1]-1``).
+    fill_code : (N, M) int8 :data:`~gazepipe.model.FILL_CODES` of every kept sample.
+    crop : (start, stop) half-open, in rows of the uncropped take.
+    rests : rest periods (start, stop) half-open, in rows of the uncropped take.
+    speed_mm_s : (T,) mean subject-marker speed of the uncropped take (NaN where unknown).
+    neutral : the cleaned (uncropped) frames of the first rest period, for neutral calibration
+        (``None`` when no rest was found; for a take of kind ``neutral`` without a rest, the whole take, with a
+        QC warning). Give the ``neutral`` take's (else the take's own) to :func:`~gazepipe.stages.frames.stage.compute_frames`.
+    qc : JSON-ready record (see :func:`clean_markers`).
+    """
+
+    markers: Markers
+    frames: np.ndarray
+    fill_code: np.ndarray
+    crop: tuple[int, int]
+    rests: list[tuple[int, int]]
+    speed_mm_s: np.ndarray
+    neutral: Markers | None
+    qc: dict
+
+
+def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], rate_hz: float,
+               spikes: np.ndarray) -> dict:
+    """Per-marker QC from the gaps (after spike removal) and the fill codes."""
+    out: dict = {}
+    for m, lab in enumerate(labels):
+        gaps = true_runs(~valid_in[:, m])
+        longest = max((b - a for a, b in gaps), default=0)
+        counts = {name: int(np.sum(fill_code[:, m] == code)) for name, code in FILL_CODES.items()}
+        out[lab] = {
+            "gaps": len(gaps),
+            "longest_gap_frames": int(longest),
+            "longest_gap_s": longest / rate_hz,
+            "spikes_removed": int(spikes[m]),
+            "samples": {k: v for k, v in counts.items() if k != "unfilled"},
+            "unfilled": counts["unfilled"],
+        }
+    return out
+
+
+def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
+          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal)."""
+    valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
+    xyz = np.where(valid[..., None], markers.xyz, np.nan)
+    spikes = np.zeros(markers.n_markers, dtype=np.int64)
+    if params.remove_spikes:
+        valid, spikes = remove_spikes(xyz, valid, markers.rate_hz, max_accel_mm_s2=params.spike_max_accel_mm_s2,
+                                      min_step_mm=params.spike_min_step_mm, max_piece_s=params.spike_max_piece_s)
+        xyz = np.where(valid[..., None], xyz, np.nan)
+    qc["spikes_removed"] = int(spikes.sum())
+    qc["gaps"] = []
+    if valid.all():  # nothing to fill
+        code = np.zeros(valid.shape, dtype=np.int8)
+    else:
+        pos = {lab: i for i, lab in enumerate(markers.labels)}
+        clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
+        res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
+                        max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods))
+        code = np.asarray(res.fill_code, dtype=np.int8)
+        xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
+        qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
+                       "method": g.method,
+                       "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
+                       "weights": {k: float(v) for k, v in g.weights.items()}}
+                      for g in res.gaps]
+    qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
+    return xyz, code, valid
+
+
+def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
+                    subj: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """Subject positions for rest speeds: relative to the mean of the root marker and the root segment's
+    markers rather than to the root marker alone.
+
+    Both remove the body's translation (Pejsa's reason to stabilise first), but every stabilised marker carries
+    the root marker's noise; the mean of four markers has half of it, which lowers the speed noise floor by
+    about a third and lets the speed filter be lighter (closer rest bounds). Frames where one of those markers
+    is unfilled have no rest speed.
+    """
+    ref = [labels.index(n) for n in (markerset.root, *markerset.root_segment.markers) if n in labels]
+    offset = xyz[:, ref].mean(axis=1, keepdims=True)          # NaN where any of them is unfilled
+    pos = xyz[:, subj] - offset
+    return pos, valid[:, subj] & np.isfinite(pos).all(axis=2)
+
+
+def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
+                  *, path: str | None = None, take: str | None = None) -> CleanResult:
+    """Clean one take's markers (SPEC §3.2).
+
+    Steps: spike removal → gap filling (clusters = the markerset's segments) → root stabilisation (lab axes,
+    optional heading removal; frames without the root marker become unfilled) → optional zero-phase
+    low-pass per run of valid samples → rest detection on the subject's markers → cropping by ``kind``.
+
+    Raises :class:`~gazepipe.errors.StageError` (one line, naming ``path``/``take``) when the root marker is
+    missing or the rest periods the kind needs are not found.
+
+    ``qc`` holds: ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
+    removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
+    marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
+    runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
+    ``warnings`` and ``failures`` (lists of one-line strings; ``failures`` stays empty here because a failure
+    raises instead).
+    """
+    params = params or CleanParams()
+    qc: dict = {"warnings": [], "failures": []}
+    labels = list(markers.labels)
+    if markerset.root not in labels:
+        raise StageError(path, f"root marker {markerset.root!r} is not in the capture", take=take)
+    root = labels.index(markerset.root)
+    rate = float(markers.rate_hz)
+
+    xyz, code, _ = _fill(markers, markerset, params, qc)
+
+    # 3. stabilisation
+    up = left_pair = None
+    if params.remove_heading:
+        rs = markerset.root_segment
+        if len(rs.markers) < 2 or any(n not in labels for n in rs.markers[:2]):
+            raise StageError(path, f"heading removal needs the root segment {rs.name!r}'s first two markers",
+                             take=take)
+        up = up_vector(markerset.up_axis)
+        left_pair = (labels.index(rs.markers[0]), labels.index(rs.markers[1]))
+    xyz = stabilise(xyz, root, up, left_pair)
+    lost = ~np.isfinite(xyz).all(axis=2) & (code != UNFILLED)
+    code = np.where(lost, UNFILLED, code).astype(np.int8)
+    valid = code != UNFILLED
+    xyz[~valid] = np.nan
+    qc["root_missing_frames"] = int(np.sum(~valid[:, root]))
+
+    # 4. optional low-pass
+    if params.lowpass_hz is not None:
+        if not params.lowpass_hz < rate / 2.0:
+            raise StageError(path, f"clean.lowpass_hz {params.lowpass_hz:g} Hz is not below half this take's rate "
+                                   f"({rate:g} Hz): lower it", take=take)
+        sos = zero_phase_sos(params.lowpass_hz, rate, params.lowpass_order)
+        xyz, short = lowpass_runs(xyz, valid, sos)
+        qc["lowpass"] = {"cutoff_hz": float(params.lowpass_hz), "order_per_pass": params.lowpass_order,
+                         "runs_unfiltered": int(short)}
+        if short:
+            qc["warnings"].append(f"{short} run(s) of valid samples too short to low-pass, left unfiltered")
+
+    # 5. rests and crop
+    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
+    speed = mean_speed(*_rest_positions(xyz, valid, labels, markerset, subj), rate, params.rest_filter_hz)
+    rests = rest_periods(speed, rate, params.rest_speed_mm_s, params.rest_merge_s, params.rest_min_s)
+    if params.rest_refine and params.rest_filter_hz is not None:
+        rests = refine_rests(rests, speed, rate, params.rest_filter_hz, params.rest_speed_mm_s)
+    qc["rests"] = [[a, b] for a, b in rests]
+    try:
+        (start, stop), warns = crop_bounds(rests, speed, kind, int(params.rest_merge_s * rate))
+    except ValueError as e:
+        raise StageError(path, f"clean: {e}", take=take) from None
+    qc["warnings"].extend(warns)
+    qc["crop"] = [int(start), int(stop)]
+    qc["kept_frames"] = int(stop - start)
+
+    def _slice(a: int, b: int) -> Markers:
+        return replace(markers, xyz=xyz[a:b].copy(), valid=valid[a:b].copy(),
+                       first_frame=int(markers.first_frame) + a, warnings=list(markers.warnings))
+
+    neutral = _slice(*rests[0]) if rests else None
+    if kind == "neutral" and neutral is None and markers.n_frames:
+        neutral = _slice(0, markers.n_frames)
+        qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
+    return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
+                       fill_code=code[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
+                       speed_mm_s=speed, neutral=neutral, qc=qc)
