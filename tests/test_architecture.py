@@ -134,3 +134,39 @@ def test_every_stage_uses_the_shared_geometry_and_nothing_else_defines_it():
     assert {"clean", "frames", "sync", "eyes", "build"} <= users
     others = [m for m in MODULES if m.rsplit(".", 1)[-1] in ("rotations", "vectors")]
     assert others == []
+
+
+#: what each part of the package may import besides itself (README, "Development"); "gazepipe" is the
+#: package's own ``__init__`` (its version)
+MAY_IMPORT = {
+    "stages": {"model", "schemas", "io", "arkit", "timebase", "errors", "gazepipe"},
+    "pipeline": {"errors", "gazepipe"},
+    "dag": {"pipeline", "stages", "io", "schemas", "model", "arkit", "timebase", "errors", "gazepipe"},
+    "io": {"model", "schemas", "arkit", "timebase", "errors"},
+    "schemas": {"model", "errors"},
+    "report": {"dag", "pipeline", "io", "schemas", "stages", "model", "errors", "gazepipe"},
+    "cli": None,   # anything
+    "trainers": {"datasets", "errors", "gazepipe"},
+    "synth": {"arkit"},
+    "model": {"timebase"},
+    "datasets": {"io", "schemas", "errors"},
+    "arkit": set(), "timebase": set(), "errors": set(), "__main__": {"cli"}, "gazepipe": set(),
+}
+
+
+def _part(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "gazepipe"
+
+
+def test_each_part_imports_only_what_the_readme_says_it_may():
+    assert {_part(m) for m in MODULES} == set(MAY_IMPORT)
+    bad = {}
+    for module, deps in GRAPH.items():
+        allowed = MAY_IMPORT[_part(module)]
+        if allowed is None:
+            continue
+        wrong = sorted(d for d in deps if _part(d) != _part(module) and _part(d) not in allowed)
+        if wrong:
+            bad[module] = wrong
+    assert bad == {}
