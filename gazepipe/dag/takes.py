@@ -162,7 +162,8 @@ def run_clean(ctx: UnitContext) -> UnitResult:
                         path=ctx.take.mocap, take=ctx.take.id)
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)
     meta = {"crop": list(res.crop), "rests": [list(r) for r in res.rests], "stabilised": True}
-    tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, meta=meta),
+    tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, spike=res.spike,
+                                           meta=meta),
                           MARKERS_CLEAN)}
     if res.neutral is not None:
         a, b = res.rests[0]
@@ -176,7 +177,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="7", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="8", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,

@@ -18,6 +18,8 @@ from gazepipe.model import FILL_NAMES, Markers
 from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
 SCHEMA_VERSION = 1
+#: the cleaned table's own version: 2 added the ``spike`` column
+CLEAN_SCHEMA_VERSION = 2
 
 _COMMON = [
     pa.field("marker", pa.dictionary(pa.int32(), pa.string()), nullable=False),
@@ -32,12 +34,13 @@ _COMMON = [
 
 MARKERS_RAW = with_identity(pa.schema(_COMMON), "markers_raw", SCHEMA_VERSION)
 MARKERS_CLEAN = with_identity(
-    pa.schema([*_COMMON, pa.field("fill", pa.dictionary(pa.int8(), pa.string()), nullable=False)]),
-    "markers", SCHEMA_VERSION)
+    pa.schema([*_COMMON, pa.field("fill", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+               pa.field("spike", pa.bool_(), nullable=False)]),
+    "markers", CLEAN_SCHEMA_VERSION)
 
 
 def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill_code: np.ndarray | None = None,
-                     meta: dict[str, Any] | None = None) -> pa.Table:
+                     spike: np.ndarray | None = None, meta: dict[str, Any] | None = None) -> pa.Table:
     """Arrow table of ``markers``.
 
     Parameters
@@ -45,6 +48,7 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     frames : (T,) original 0-based frame index of each row (default ``0..T-1``); used after cropping.
     fill_code : (T, M) int8 codes of :data:`gazepipe.model.FILL_CODES`; given → a ``markers`` table, else
         ``markers_raw``.
+    spike : (T, M) bool, measured samples the clean stage removed as spikes (``markers`` tables; default none).
     meta : extra table-level facts stored with the rate, labels and source information.
     """
     T, M = markers.valid.shape
@@ -65,6 +69,8 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     if fill_code is not None:
         codes = np.asarray(fill_code, dtype=np.int8).T.reshape(-1)
         cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes), pa.array(FILL_NAMES, pa.string()))
+        cols["spike"] = pa.array(np.zeros(M * T, dtype=bool) if spike is None
+                                 else np.asarray(spike, dtype=bool).T.reshape(-1))
         schema = MARKERS_CLEAN
     table = pa.Table.from_pydict(cols, schema=schema)
     info = {

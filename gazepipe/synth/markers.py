@@ -163,6 +163,40 @@ def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
     return mask
 
 
+#: ghost reflections: displacement (mm) and length (frames) of a spike
+SPIKE_MM = (15.0, 50.0)
+SPIKE_FRAMES = (1, 2)
+
+
+def make_spikes(rng: np.random.Generator, labels: list[str], gap_mask: np.ndarray, rate_hz: float,
+                per_marker_min: float, clapper_busy: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Ghost-reflection spikes: on random measured samples of any marker (the root segment's and the target's
+    included; the clapper's only while it is not in use), a displacement of 15–50 mm in a random direction for
+    one or two frames. About ``per_marker_min`` spikes per marker per minute (Poisson).
+
+    Returns the (T, M, 3) offsets to add to the measured positions and the (T, M) bool mask of spiked samples.
+    """
+    n, m = gap_mask.shape
+    offsets = np.zeros((n, m, 3))
+    spiked = np.zeros((n, m), dtype=bool)
+    count = int(rng.poisson(per_marker_min * m * n / rate_hz / 60.0))
+    for _ in range(count):
+        col = int(rng.integers(0, m))
+        length = int(rng.integers(SPIKE_FRAMES[0], SPIKE_FRAMES[1] + 1))
+        if n < length + 6:
+            break
+        start = int(rng.integers(3, n - length - 2))
+        rows = slice(start - 2, start + length + 2)      # measured around it, so the spike is on the path
+        if gap_mask[rows, col].any() or spiked[rows, col].any():
+            continue
+        if labels[col] in CLAPPER_MARKERS and clapper_busy is not None and clapper_busy[rows].any():
+            continue
+        direction = rng.normal(size=3)
+        offsets[start:start + length, col] = rng.uniform(*SPIKE_MM) * direction / np.linalg.norm(direction)
+        spiked[start:start + length, col] = True
+    return offsets, spiked
+
+
 def gap_runs(mask: np.ndarray) -> np.ndarray:
     """Every run of True per column of a (T, M) mask as rows (marker, start, stop), stop exclusive, int64."""
     rows = []

@@ -36,6 +36,7 @@ header first frame 1. Frame `i` of a take is at `time_s = i * 1001 / 30000` s.
 | segments | (S,) str | pelvis, spine1..spine4, chest, neck1..neck3, head (each the parent of the next) |
 | markers_true | (T, M, 3) f4 | noise-free marker positions, lab mm (also inside gaps) |
 | gap_mask | (T, M) bool | True where the C3D sample is a gap |
+| spike_mask | (T, M) bool | True where a ghost-reflection spike (15–50 mm, 1–2 frames) displaces the C3D sample |
 | gaps | (K, 3) i8 | every gap as (marker column, start frame, stop frame) |
 | seg_quat_char | (T, S, 4) f4 | segment rotation in the per-frame character frame (calibrated to neutral) |
 | seg_quat_local | (T, S, 4) f4 | parent-relative rotation (the root's is its seg_quat_char) |
@@ -64,7 +65,8 @@ y down, z forward; markerset.toml deliberately has no [camera] so the pipeline m
 below and in front of the face looking back at it, tilted up 20 degrees and turned 5 degrees), `eye_offset_mm`
 (HEADC relative to the head markers' centroid, head axes; the same numbers as in markerset.toml), `segments`.
 
-Per take (`takes.<id>`): `kind`, `pose`, `mocap`, `rate_hz`, `n_frames`, `clap_times_s`, `rest_periods`, `crop`,
+Per take (`takes.<id>`): `kind`, `pose`, `mocap`, `rate_hz`, `n_frames`, `spike_samples`, `clap_times_s`,
+`rest_periods`, `crop`,
 `design` (the generating parameters: rest lengths, reaction delay, clap closing durations, target goals for
 gaze_follow; per-segment onset times in seconds, duration, overshoot beta and its time, final per-segment
 yaw/pitch for gaze_shift), and for gaze_shift takes the SPEC 3.6 gaze_map quantities:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps
+from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps, make_spikes
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
 from gazepipe.synth.record import ModalityWriter, TakeRecord
 from gazepipe.synth.skeleton import (
@@ -26,7 +26,7 @@ from gazepipe.synth.skeleton import (
 from gazepipe.synth.truth import quat_wxyz, take_truth, write_npz
 
 MOCAP_RATE_HZ = 30000.0 / 1001.0
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 #: the gaze_shift targets of the sample session (a part of Pejsa's 36° x 12° grid)
 DEFAULT_SHIFTS: tuple[tuple[float, float], ...] = (
@@ -43,7 +43,9 @@ class SynthConfig:
     ``follow_duration_s``: approximate length of each; ``shift_targets``: (yaw, pitch) degrees per gaze_shift
     take; ``neutral_s``: length of the neutral take (0: none); ``noise_mm``: marker noise sigma;
     ``head_camera``: write a head-camera video and an OpenFace CSV per gaze_follow take;
-    ``face_takes``: one ``face`` take (Live Link Face tracked/clean pair) per (capture rate Hz, seconds).
+    ``face_takes``: one ``face`` take (Live Link Face tracked/clean pair) per (capture rate Hz, seconds);
+    ``spikes_per_marker_min``: ghost-reflection spikes (15–50 mm, 1–2 frames) per marker per minute of capture,
+    on any marker (0: none; the truth marks them in ``spike_mask``); ``rate_hz``: the mocap capture rate.
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -57,6 +59,8 @@ class SynthConfig:
     placement: Placement = field(default_factory=Placement)
     head_camera: bool = True
     face_takes: tuple[tuple[float, float], ...] = ((60.0, 16.0), (30.0, 20.0))
+    spikes_per_marker_min: float = 0.0
+    rate_hz: float = MOCAP_RATE_HZ
 
 
 #: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
@@ -176,13 +180,14 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     out = Path(out_dir)
     (out / "mocap").mkdir(parents=True, exist_ok=True)
     (out / "truth").mkdir(exist_ok=True)
-    rate = MOCAP_RATE_HZ
+    rate = float(cfg.rate_hz)
     cam = camera_to_head()
     records: list[TakeRecord] = []
     meta_takes: dict[str, Any] = {}
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
-        r_motion, r_noise, r_gaps, r_writer = (np.random.default_rng(s) for s in
-                                               np.random.SeedSequence([seed, index]).spawn(4))
+        # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
+        r_motion, r_noise, r_gaps, r_writer, r_spikes = (np.random.default_rng(s) for s in
+                                                         np.random.SeedSequence([seed, index]).spawn(5))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -205,10 +210,15 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
                 else np.zeros((n, m), dtype=bool))
         noisy = kin.markers_true + r_noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
+        offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
+                                      motion.clapper_busy)
+        noisy += offsets
         noisy[mask] = np.nan
         mocap_rel = f"mocap/{take_id}.c3d"
         write_c3d(out / mocap_rel, kin.labels, noisy, rate)
         arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
+        arrays["spike_mask"] = spiked
+        scalars["spike_samples"] = int(spiked.sum())
         scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
         entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
         if target is not None:

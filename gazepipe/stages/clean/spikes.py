@@ -1,14 +1,122 @@
-"""Spike removal (SPEC §3.2 step 1): samples whose acceleration no body can reach become gaps.
+"""Spike removal (SPEC §3.2 step 1): samples no body could have produced become gaps.
 
-Positions are (T, M, 3) float64 mm in the lab frame; ``valid`` is (T, M) bool; frames are rows.
+Two detectors. :func:`find_glitches` finds short glitches (ghost reflections of one or two frames, 15 mm and up)
+by a robust test on each trajectory, confirmed or extended by the marker's distances to its rigid cluster;
+:func:`remove_spikes` cuts trajectories at implausible accelerations (jumps, swapped labels) and drops the
+short pieces. Positions are (T, M, 3) float64 mm in the lab frame; ``valid`` is (T, M) bool; frames are rows.
 """
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 #: standard gravity, mm/s²
 G_MM_S2 = 9806.65
+#: half-width (frames) of the running median a sample is compared with: five frames outvote a glitch of two
+_MEDIAN_HALF = 2
+#: half-width (frames) of the window whose median frame-to-frame step scales the trajectory test
+_STEP_HALF = 5
+#: a marker's distance to its cluster deviates significantly beyond this many times its typical deviation
+_CLUSTER_K = 6.0
+
+
+def running_median(a: np.ndarray, half: int, min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Median over the ``2·half + 1`` rows centred on each row of ``a`` (T, ...), NaNs left out, and the count
+    of finite values it used; NaN where fewer than ``min_count`` are finite. Sorting each short window is
+    vectorised (NaN sorts last), so a take costs a few array passes."""
+    pad = np.full((half, *a.shape[1:]), np.nan)
+    win = np.sort(sliding_window_view(np.concatenate([pad, a, pad]), 2 * half + 1, axis=0), axis=-1)
+    count = np.isfinite(win).sum(axis=-1)
+    lo = np.take_along_axis(win, np.maximum(count - 1, 0)[..., None] // 2, axis=-1)[..., 0]
+    hi = np.take_along_axis(win, count[..., None] // 2, axis=-1)[..., 0] if win.shape[-1] > 1 else lo
+    hi = np.where(count % 2 == 1, lo, hi)
+    med = np.where(count >= max(min_count, 1), 0.5 * (lo + hi), np.nan)
+    return med, count
+
+
+def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequence[int]]) -> np.ndarray:
+    """Per sample, how far (mm) the marker's distances to its cluster mates are from their values over the take:
+    the smallest deviation over the mates measured in that frame (a mate's own glitch moves one distance, the
+    marker's glitch moves all of them). (T, M); NaN for markers in no cluster of three or more and where fewer
+    than two mates are measured (one mate's glitch would look like the marker's own)."""
+    x = np.where(valid[..., None], xyz, np.nan)
+    dev = np.full(valid.shape, np.nan)
+    for cluster in clusters:
+        idx = np.asarray(cluster, dtype=np.int64)
+        if idx.size < 3:
+            continue
+        d = np.linalg.norm(x[:, idx, None, :] - x[:, None, idx, :], axis=-1)      # (T, k, k), NaN: unmeasured
+        e = np.abs(d - _nanmedian(d, axis=0)[None])
+        e[:, np.arange(idx.size), np.arange(idx.size)] = np.nan                    # not its own mate
+        best = np.fmin.reduce(e, axis=2)                                           # NaN only where all are
+        dev[:, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, best, np.nan)
+    return dev
+
+
+def find_glitches(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequence[int]] = (), *,
+                  residual_mm: float = 8.0, step_factor: float = 2.0, cluster_mm: float = 5.0) -> np.ndarray:
+    """Short glitches: measured samples a ghost reflection put off the marker's path for one or two frames.
+
+    Trajectory test: a sample's distance r to the running median of the five frames around it (which a glitch of
+    one or two frames cannot move) is implausible above ``max(residual_mm, step_factor · s)``, s being the median
+    frame-to-frame step of the marker over the eleven frames around it. Smooth motion at any speed stays near its
+    running median; a sharp turn or a rebound of a fast marker (a target carried from goal to goal) leaves the
+    median by about one step, which the step term allows for, at any capture rate. On a marker moving faster than
+    a ghost is far, the ghost can stay between its neighbours and the running median follows it. Cluster test,
+    for those: where the marker's distances to each of at least two mates measured in that frame
+    (:func:`cluster_deviation`) are off their values over the take by more than
+    ``max(cluster_mm, 6 ×`` its median deviation``)``, it is a glitch at any speed; a whole segment moving keeps
+    its distances. A ghost straight off the plane of a segment of three barely changes the distances: the
+    trajectory test is the one that sees it. Samples whose running median has fewer than three measured frames,
+    or none on one side, are not judged by the trajectory test.
+
+    Returns the (T, M) bool mask of glitches (measured samples only).
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=2)
+    if valid.shape[0] < 3:
+        return np.zeros(valid.shape, dtype=bool)
+    x = np.where(valid[..., None], xyz, np.nan)
+    med, _ = running_median(x, _MEDIAN_HALF, min_count=3)
+    r = np.linalg.norm(x - med, axis=-1)                                      # NaN where not judged
+    # a median from one side only (the edge of a gap or of the take) lags a moving marker by a step: not judged
+    h = _MEDIAN_HALF
+    around = sliding_window_view(np.pad(valid, ((h, h), (0, 0))), 2 * h + 1, axis=0)
+    r[~(around[..., :h].any(axis=-1) & around[..., h + 1:].any(axis=-1))] = np.nan
+    steps = np.linalg.norm(np.diff(x, axis=0), axis=-1)
+    typical_step, _ = running_median(np.vstack([steps, np.full((1, steps.shape[1]), np.nan)]), _STEP_HALF)
+    dev = cluster_deviation(xyz, valid, clusters)
+    floor = np.maximum(cluster_mm, _CLUSTER_K * np.nan_to_num(_nanmedian(dev, axis=0), nan=np.inf))
+    with np.errstate(invalid="ignore"):
+        glitch = r > np.maximum(residual_mm, step_factor * np.nan_to_num(typical_step, nan=0.0))
+        glitch |= dev > floor[None, :]
+    return glitch & valid
+
+
+def find_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, clusters: Sequence[Sequence[int]] = (), *,
+                residual_mm: float = 8.0, step_factor: float = 2.0, cluster_mm: float = 5.0,
+                max_accel_mm_s2: float = 50.0 * G_MM_S2, min_step_mm: float = 100.0,
+                max_piece_s: float = 0.5) -> np.ndarray:
+    """Every measured sample either detector rejects: the short pieces :func:`remove_spikes` cuts off at
+    implausible accelerations (first: its pieces are runs of the capture as measured), then the glitches of
+    :func:`find_glitches` among the rest. (T, M) bool."""
+    valid = np.asarray(valid, dtype=bool) & np.isfinite(np.asarray(xyz, dtype=np.float64)).all(axis=2)
+    kept, _ = remove_spikes(xyz, valid, rate_hz, max_accel_mm_s2=max_accel_mm_s2, min_step_mm=min_step_mm,
+                            max_piece_s=max_piece_s)
+    glitch = find_glitches(xyz, kept, clusters, residual_mm=residual_mm, step_factor=step_factor,
+                           cluster_mm=cluster_mm)
+    return valid & ~(kept & ~glitch)
+
+
+def _nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
+    """``np.nanmedian``, NaN for all-NaN slices without a warning (a marker or pair never measured)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(a, axis=axis)
 
 
 def remove_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *,

@@ -18,7 +18,7 @@ from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
 from gazepipe.stages.clean.gapfill import METHODS, fill_gaps
 from gazepipe.stages.clean.rests import crop_bounds, mean_speed, refine_rests, rest_periods
-from gazepipe.stages.clean.spikes import G_MM_S2, remove_spikes
+from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
 from gazepipe.stages.geometry import up_vector
 
@@ -32,7 +32,15 @@ class CleanParams:
     Attributes
     ----------
     max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
-    remove_spikes : run spike removal before gap filling.
+    remove_spikes : run spike removal before gap filling (:func:`gazepipe.stages.clean.spikes.find_spikes`).
+    spike_residual_mm, spike_step_factor, spike_cluster_mm : thresholds of the glitch test
+        (:func:`gazepipe.stages.clean.spikes.find_glitches`): a sample farther than
+        max(residual_mm, step_factor × the marker's typical step there) from the running median of the five
+        frames around it, or whose distances to every measured mate of its segment are off by more than
+        max(cluster_mm, 6 × their typical deviation) while it is also ``cluster_mm`` off its running median.
+        Defaults: 8 mm (16 times the running median residual of 0.5 mm marker noise, about half the smallest
+        ghost worth catching, 15 mm), 2 (a sharp turn of a fast marker leaves the median by about one step),
+        5 mm.
     spike_max_accel_mm_s2, spike_min_step_mm, spike_max_piece_s : thresholds of
         :func:`gazepipe.stages.clean.spikes.remove_spikes` (a second difference above
         max(accel / rate², min_step) is implausible; pieces cut off by such breaks shorter than max_piece_s
@@ -66,6 +74,9 @@ class CleanParams:
 
     max_gap_s: float = field(default=1.0, metadata={"min": 0})
     remove_spikes: bool = True
+    spike_residual_mm: float = field(default=8.0, metadata={"gt": 0})
+    spike_step_factor: float = field(default=2.0, metadata={"min": 0})
+    spike_cluster_mm: float = field(default=5.0, metadata={"gt": 0})
     spike_max_accel_mm_s2: float = field(default=50.0 * G_MM_S2, metadata={"gt": 0})
     spike_min_step_mm: float = field(default=100.0, metadata={"min": 0})
     spike_max_piece_s: float = field(default=0.5, metadata={"min": 0})
@@ -90,6 +101,7 @@ class CleanResult:
         source frame number of the first kept row.
     frames : (N,) int64 row indices of the kept rows in the uncropped take (``crop[0] .. crop[1]-1``).
     fill_code : (N, M) int8 :data:`~gazepipe.model.FILL_CODES` of every kept sample.
+    spike : (N, M) bool, the measured samples removed as spikes (each then filled, or left unfilled, as a gap).
     crop : (start, stop) half-open, in rows of the uncropped take.
     rests : rest periods (start, stop) half-open, in rows of the uncropped take.
     speed_mm_s : (T,) mean subject-marker speed of the uncropped take (NaN where unknown).
@@ -102,6 +114,7 @@ class CleanResult:
     markers: Markers
     frames: np.ndarray
     fill_code: np.ndarray
+    spike: np.ndarray
     crop: tuple[int, int]
     rests: list[tuple[int, int]]
     speed_mm_s: np.ndarray
@@ -129,22 +142,26 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
 
 
 def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
-          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal)."""
+          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal, spike mask)."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
     xyz = np.where(valid[..., None], markers.xyz, np.nan)
-    spikes = np.zeros(markers.n_markers, dtype=np.int64)
+    pos = {lab: i for i, lab in enumerate(markers.labels)}
+    clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
+    spike = np.zeros(valid.shape, dtype=bool)
     if params.remove_spikes:
-        valid, spikes = remove_spikes(xyz, valid, markers.rate_hz, max_accel_mm_s2=params.spike_max_accel_mm_s2,
-                                      min_step_mm=params.spike_min_step_mm, max_piece_s=params.spike_max_piece_s)
+        spike = find_spikes(xyz, valid, markers.rate_hz, clusters, residual_mm=params.spike_residual_mm,
+                            step_factor=params.spike_step_factor, cluster_mm=params.spike_cluster_mm,
+                            max_accel_mm_s2=params.spike_max_accel_mm_s2, min_step_mm=params.spike_min_step_mm,
+                            max_piece_s=params.spike_max_piece_s)
+        valid = valid & ~spike
         xyz = np.where(valid[..., None], xyz, np.nan)
+    spikes = spike.sum(axis=0)
     qc["spikes_removed"] = int(spikes.sum())
     qc["gaps"] = []
     if valid.all():  # nothing to fill
         code = np.zeros(valid.shape, dtype=np.int8)
     else:
-        pos = {lab: i for i, lab in enumerate(markers.labels)}
-        clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
         res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
                         max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods))
         code = np.asarray(res.fill_code, dtype=np.int8)
@@ -155,7 +172,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                        "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
-    return xyz, code, valid
+    return xyz, code, valid, spike
 
 
 def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
@@ -200,7 +217,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, _ = _fill(markers, markerset, params, qc)
+    xyz, code, _, spike = _fill(markers, markerset, params, qc)
 
     # 3. stabilisation
     up = left_pair = None
@@ -254,5 +271,5 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
         neutral = _slice(0, markers.n_frames)
         qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
     return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
-                       fill_code=code[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
+                       fill_code=code[start:stop].copy(), spike=spike[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
                        speed_mm_s=speed, neutral=neutral, qc=qc)

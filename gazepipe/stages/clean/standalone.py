@@ -13,7 +13,7 @@ import numpy as np
 
 from gazepipe.model import FILL_CODES, FILL_NAMES, Markers
 from gazepipe.stages.clean.gapfill import METHODS, fill_gaps, find_rigid_clusters
-from gazepipe.stages.clean.spikes import remove_spikes
+from gazepipe.stages.clean.spikes import find_spikes
 
 
 def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS,
@@ -21,19 +21,22 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
     """Fill the gaps of ``markers``; return the filled markers, a summary of what was filled, by method, and
     the (T, M) mask of measured samples taken out as spikes.
 
-    Spikes (implausible acceleration, :func:`~gazepipe.stages.clean.spikes.remove_spikes` with the clean stage's
-    defaults) are always counted; with ``spikes`` they become gaps before filling (else the measured samples
-    are kept as they are).
+    Spikes (glitches off a marker's path or its rigid cluster, and implausible accelerations:
+    :func:`~gazepipe.stages.clean.spikes.find_spikes` with the clean stage's defaults, clusters found from the
+    data) are always counted; with ``spikes`` they become gaps before filling (else the measured samples are
+    kept as they are).
 
     Summary: ``samples`` per fill code over all markers, ``gaps`` (total, filled, unfilled, and filled gaps at
     the start or end: filled from other markers only), ``unfilled_reasons`` (gaps per reason), ``clusters``
     (the rigid clusters found, by label), per marker the samples filled by each method and those left unfilled,
     and ``gap_list``: every gap with its file frame numbers, method, weights and validation errors.
     """
-    kept, n_spiky = remove_spikes(markers.xyz, markers.valid, markers.rate_hz)
-    spiky = markers.valid & ~kept
-    valid = kept if spikes else markers.valid
-    clusters = find_rigid_clusters(markers.xyz, valid)
+    clusters = find_rigid_clusters(markers.xyz, markers.valid)
+    spiky = find_spikes(markers.xyz, markers.valid, markers.rate_hz, clusters)
+    n_spiky = spiky.sum(axis=0)
+    valid = markers.valid & ~spiky if spikes else markers.valid
+    if spikes:
+        clusters = find_rigid_clusters(markers.xyz, valid)
     res = fill_gaps(markers.xyz, valid, markers.rate_hz, clusters=clusters, max_gap_s=max_gap_s,
                     methods=methods)
     code = np.asarray(res.fill_code)
