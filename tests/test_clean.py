@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import signal
@@ -386,7 +388,7 @@ def test_gaps_filled_and_root_gap_unfilled():
     valid[300:380, root] = False                    # 80 frames > max_gap_s = 1 s: stays a gap
     xyz[~valid] = np.nan
     gapped = Markers(labels=mk.labels, xyz=xyz, valid=valid, rate_hz=rate)
-    res = clean_markers(gapped, markerset(), "neutral", P)
+    res = clean_markers(gapped, markerset(), "neutral", replace(P, max_gap_s=1.0))
     code = res.fill_code
     assert np.all((code[150:160, hfl] >= 1) & (code[150:160, hfl] <= 4))
     # filled samples close to the truth (stabilised)
@@ -411,7 +413,7 @@ def test_lowpass_in_clean_respects_unfilled_gaps():
     valid[250:330, m] = False                       # longer than 1 s: unfilled
     xyz[~valid] = np.nan
     res = clean_markers(Markers(labels=mk.labels, xyz=xyz, valid=valid, rate_hz=rate), markerset(), "neutral",
-                        CleanParams(remove_spikes=False, lowpass_hz=6.0))
+                        CleanParams(remove_spikes=False, lowpass_hz=6.0, max_gap_s=1.0))
     out = res.markers.xyz[:, m]
     assert np.isnan(out[250:330]).all() and np.isfinite(out[:250]).all() and np.isfinite(out[330:]).all()
     # the run after the gap equals filtering that run alone

@@ -28,7 +28,7 @@ def test_params_lists_every_default_with_what_it_accepts_as_loadable_toml(tmp_pa
     from gazepipe.pipeline.registry import default_params
 
     text = CliRunner().invoke(cli, ["params"]).output
-    assert "clean.max_gap_s = 1.0" in text and "# a number >= 0" in text
+    assert "clean.max_gap_s = 3.0" in text and "# a number >= 0" in text
     path = tmp_path / "all.toml"
     path.write_text(text)
     values = parse_params((), str(path))

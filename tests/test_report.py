@@ -158,10 +158,11 @@ def test_thresholds_drive_the_gate(clean_out: Path) -> None:
     assert rep["thresholds"]["gap_share_warn"] == 0
     assert all(any(c["id"] == "gap_share" and c["severity"] == "warning" for c in t["checks"])
                for t in rep["takes"])
-    # a fail threshold below every take's unfilled share makes a take fail
-    res = _validate(clean_out, "--no-plots", "--threshold", "unfilled_warn=0", "--threshold", "unfilled_fail=0.0")
+    # a fail threshold below a take's camera residual makes that take fail
+    res = _validate(clean_out, "--no-plots", "--threshold", "camera_residual_warn_deg=0",
+                    "--threshold", "camera_residual_fail_deg=0.0")
     assert res.exit_code == 3
-    assert "unfilled" in res.output
+    assert "camera_residual" in res.output
     bad = _validate(clean_out, "--no-plots", "--threshold", "no_such=1")
     assert bad.exit_code == 2 and "no_such" in bad.output
 

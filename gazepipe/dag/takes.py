@@ -163,7 +163,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)
     meta = {"crop": list(res.crop), "rests": [list(r) for r in res.rests], "stabilised": True}
     tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, spike=res.spike,
-                                           meta=meta),
+                                           fill_error_mm=res.fill_error_mm, meta=meta),
                           MARKERS_CLEAN)}
     if res.neutral is not None:
         a, b = res.rests[0]

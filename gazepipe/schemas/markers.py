@@ -18,7 +18,7 @@ from gazepipe.model import FILL_NAMES, Markers
 from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
 SCHEMA_VERSION = 1
-#: the cleaned table's own version: 2 added the ``spike`` column
+#: the cleaned table's own version: 2 added the ``spike`` and ``fill_error_mm`` columns
 CLEAN_SCHEMA_VERSION = 2
 
 _COMMON = [
@@ -35,12 +35,13 @@ _COMMON = [
 MARKERS_RAW = with_identity(pa.schema(_COMMON), "markers_raw", SCHEMA_VERSION)
 MARKERS_CLEAN = with_identity(
     pa.schema([*_COMMON, pa.field("fill", pa.dictionary(pa.int8(), pa.string()), nullable=False),
-               pa.field("spike", pa.bool_(), nullable=False)]),
+               pa.field("spike", pa.bool_(), nullable=False), pa.field("fill_error_mm", pa.float32())]),
     "markers", CLEAN_SCHEMA_VERSION)
 
 
 def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill_code: np.ndarray | None = None,
-                     spike: np.ndarray | None = None, meta: dict[str, Any] | None = None) -> pa.Table:
+                     spike: np.ndarray | None = None, fill_error_mm: np.ndarray | None = None,
+                     meta: dict[str, Any] | None = None) -> pa.Table:
     """Arrow table of ``markers``.
 
     Parameters
@@ -49,6 +50,8 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     fill_code : (T, M) int8 codes of :data:`gazepipe.model.FILL_CODES`; given → a ``markers`` table, else
         ``markers_raw``.
     spike : (T, M) bool, measured samples the clean stage removed as spikes (``markers`` tables; default none).
+    fill_error_mm : (T, M) estimated error of each filled sample, mm (``markers`` tables; NaN, stored as null,
+        where measured, unfilled or without an estimate; default none).
     meta : extra table-level facts stored with the rate, labels and source information.
     """
     T, M = markers.valid.shape
@@ -71,6 +74,9 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
         cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes), pa.array(FILL_NAMES, pa.string()))
         cols["spike"] = pa.array(np.zeros(M * T, dtype=bool) if spike is None
                                  else np.asarray(spike, dtype=bool).T.reshape(-1))
+        err = (np.full(M * T, np.nan) if fill_error_mm is None
+               else np.asarray(fill_error_mm, dtype=np.float64).T.reshape(-1)).astype(np.float32)
+        cols["fill_error_mm"] = pa.array(err, mask=~np.isfinite(err))
         schema = MARKERS_CLEAN
     table = pa.Table.from_pydict(cols, schema=schema)
     info = {

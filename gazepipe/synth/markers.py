@@ -163,6 +163,47 @@ def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
     return mask
 
 
+#: segments whose markers get the long occlusions of :func:`make_long_gaps` (the trunk and the neck)
+LONG_GAP_SEGMENTS = ("spine1", "spine2", "spine3", "spine4", "chest", "neck1", "neck2", "neck3")
+#: length of those occlusions, seconds
+LONG_GAP_S = (1.0, 3.0)
+
+
+def make_long_gaps(rng: np.random.Generator, labels: list[str], n: int, rate_hz: float, count: int,
+                   per_marker_min: float, rests: np.ndarray, crop: tuple[int, int] | None) -> np.ndarray:
+    """The occlusions of a crowded capture volume, as a (T, M) mask to add to :func:`make_gaps`'.
+
+    ``count`` gaps of 1–3 s on trunk and neck markers: the first inside the first rest period (where the
+    neutral pose is measured), the next two across the crop's start and end, the rest anywhere; and interior
+    gaps of the usual lengths (1–120 frames) on any subject marker but the root's, about ``per_marker_min`` per
+    marker per minute (Poisson).
+    """
+    mask = np.zeros((n, len(labels)), dtype=bool)
+    trunk = [i for i, lab in enumerate(labels) if any(lab in SEGMENT_MARKERS[s] for s in LONG_GAP_SEGMENTS)]
+    free = [i for i, lab in enumerate(labels)
+            if lab not in ROOT_MARKERS and lab != TARGET_MARKER and lab not in CLAPPER_MARKERS]
+    anchors: list[int | None] = []
+    if len(rests):
+        anchors.append(int(rng.integers(rests[0, 0], max(rests[0, 0] + 1, rests[0, 1]))))
+    if crop is not None:
+        anchors.extend(crop)
+    for k in range(count):
+        length = min(n - 1, int(round(rng.uniform(*LONG_GAP_S) * rate_hz)))
+        if k < len(anchors):
+            start = anchors[k] - int(rng.integers(0, length)) if k > 0 else anchors[k]  # straddle a crop edge
+        else:
+            start = int(rng.integers(0, n - length + 1))
+        start = int(np.clip(start, 0, n - length))
+        mask[start:start + length, int(rng.choice(trunk))] = True
+    weights = np.array([c for _, _, c in GAP_CLASSES], dtype=float)
+    for _ in range(int(rng.poisson(per_marker_min * len(free) * n / rate_hz / 60.0))):
+        lo, hi, _ = GAP_CLASSES[int(rng.choice(len(GAP_CLASSES), p=weights / weights.sum()))]
+        length = min(n - 1, int(rng.integers(lo, hi + 1)))
+        start = int(rng.integers(1, max(2, n - length)))       # interior: not at the take's first frame
+        mask[start:start + length, int(rng.choice(free))] = True
+    return mask
+
+
 #: ghost reflections: displacement (mm) and length (frames) of a spike
 SPIKE_MM = (15.0, 50.0)
 SPIKE_FRAMES = (1, 2)

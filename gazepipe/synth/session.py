@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps, make_spikes
+from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps, make_long_gaps, make_spikes
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
 from gazepipe.synth.record import ModalityWriter, TakeRecord
 from gazepipe.synth.skeleton import (
@@ -23,7 +23,7 @@ from gazepipe.synth.skeleton import (
     camera_to_head,
     eye_offset_mm,
 )
-from gazepipe.synth.truth import quat_wxyz, take_truth, write_npz
+from gazepipe.synth.truth import crop_bounds, quat_wxyz, rest_periods, subject_columns, take_truth, write_npz
 
 MOCAP_RATE_HZ = 30000.0 / 1001.0
 GENERATOR_VERSION = 3
@@ -45,7 +45,10 @@ class SynthConfig:
     ``head_camera``: write a head-camera video and an OpenFace CSV per gaze_follow take;
     ``face_takes``: one ``face`` take (Live Link Face tracked/clean pair) per (capture rate Hz, seconds);
     ``spikes_per_marker_min``: ghost-reflection spikes (15–50 mm, 1–2 frames) per marker per minute of capture,
-    on any marker (0: none; the truth marks them in ``spike_mask``); ``rate_hz``: the mocap capture rate.
+    on any marker (0: none; the truth marks them in ``spike_mask``); ``long_gaps``: 1–3 s occlusions of trunk
+    and neck markers per mocap take (the first inside the first rest, the next two across the crop's edges);
+    ``gaps_per_marker_min``: further interior gaps of 1–120 frames per subject marker per minute;
+    ``rate_hz``: the mocap capture rate.
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -60,6 +63,8 @@ class SynthConfig:
     head_camera: bool = True
     face_takes: tuple[tuple[float, float], ...] = ((60.0, 16.0), (30.0, 20.0))
     spikes_per_marker_min: float = 0.0
+    long_gaps: int = 0
+    gaps_per_marker_min: float = 0.0
     rate_hz: float = MOCAP_RATE_HZ
 
 
@@ -186,8 +191,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     meta_takes: dict[str, Any] = {}
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes = (np.random.default_rng(s) for s in
-                                                         np.random.SeedSequence([seed, index]).spawn(5))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long = (np.random.default_rng(s) for s in
+                                                                 np.random.SeedSequence([seed, index]).spawn(6))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -210,6 +215,10 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
                 else np.zeros((n, m), dtype=bool))
         noisy = kin.markers_true + r_noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
+        if cfg.gaps and (cfg.long_gaps or cfg.gaps_per_marker_min):
+            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+            mask |= make_long_gaps(r_long, kin.labels, n, rate, cfg.long_gaps, cfg.gaps_per_marker_min, rests,
+                                   crop_bounds(rests, kind))
         offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
                                       motion.clapper_busy)
         noisy += offsets

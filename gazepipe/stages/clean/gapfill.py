@@ -109,6 +109,7 @@ REASON_TOO_LONG = "longer than max_gap_s"
 REASON_NEVER_MEASURED = "marker never measured"
 REASON_NO_METHOD = "no method applies"
 REASON_IMPLAUSIBLE = "every fill implausibly fast"
+REASON_UNCERTAIN = "estimated error above max_fill_error_mm"
 
 
 @dataclass
@@ -126,6 +127,8 @@ class GapRecord:
     weights: dict[str, float] = field(default_factory=dict)
     #: why the gap stays unfilled (a ``REASON_*``), or why its first choice was replaced; empty otherwise
     reason: str = ""
+    #: the fill's estimated error, mm: its mean error on the hidden stretches (NaN when nothing could be hidden)
+    error_mm: float = float("nan")
 
     @property
     def length(self) -> int:
@@ -151,12 +154,15 @@ class FillResult:
     fill_code : (T, M) int8, :data:`gazepipe.model.FILL_CODES`.
     qc : one :class:`MarkerQC` per marker.
     gaps : one :class:`GapRecord` per gap, in marker then time order.
+    error_mm : (T, M) float64, each filled sample's estimated error (its gap's ``error_mm``); NaN where measured,
+        unfilled, or filled without an estimate.
     """
 
     xyz: np.ndarray
     fill_code: np.ndarray
     qc: list[MarkerQC]
     gaps: list[GapRecord]
+    error_mm: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -461,9 +467,24 @@ def check_blend(weights: dict[str, float], truth: np.ndarray, hidden: dict[str, 
     return weights
 
 
+def fill_error(weights: dict[str, float], errors: dict[str, float],
+               stretches: tuple[np.ndarray, dict[str, np.ndarray]] | None) -> float:
+    """The estimated error (mm) of a fill with ``weights``: the method's validation error, or for a blend its
+    mean error on the hidden samples (over the frames every blended method predicts); NaN when unknown."""
+    if len(weights) == 1:
+        return float(errors.get(next(iter(weights)), np.nan))
+    if stretches is None or any(k not in stretches[1] for k in weights):
+        return float("nan")
+    truth, hidden = stretches
+    q = sum(w * hidden[k] for k, w in weights.items())
+    ok = np.isfinite(q).all(axis=1)
+    return float(norm3(q[ok] - truth[ok]).mean()) if ok.any() else float("nan")
+
+
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
-              pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True) -> FillResult:
+              pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
+              max_error_mm: float | None = None) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -477,6 +498,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         frames, rigid fill uses the (up to three) markers measured through the gap whose distance to it varied
         least around the gap (standard deviation under 20 mm over 2 s each side), when there are two or more.
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
+    max_error_mm : gaps whose fill's estimated error (:func:`fill_error`) is above this stay unfilled (None: no
+        limit; a fill without an estimate, when nothing beside the gap could be hidden, is kept).
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
     validation : when False, skip hiding samples and take the first applicable method in ``methods`` order.
@@ -503,6 +526,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     src = np.where(valid[..., None], xyz, np.nan)
     out = src.copy()
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
+    est = np.full((n_t, n_m), np.nan)
     max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
     pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
     mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
@@ -550,14 +574,19 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 if fill is None:
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=note))
                     continue
+                error = fill_error(weights, full_errors, stretches)
+                if max_error_mm is not None and error > max_error_mm:
+                    records.append(GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error))
+                    continue
                 best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
                 out[s:e, m] = fill
                 code[s:e, m] = FILL_CODES[best]
+                est[s:e, m] = error
                 filled[best] += e - s
-                records.append(GapRecord(m, s, e, best, full_errors, weights, note))
+                records.append(GapRecord(m, s, e, best, full_errors, weights, note, error))
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
-    return FillResult(out, code, qc, records)
+    return FillResult(out, code, qc, records, est)
 
 
 def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR,

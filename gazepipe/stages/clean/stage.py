@@ -32,6 +32,9 @@ class CleanParams:
     Attributes
     ----------
     max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
+    max_fill_error_mm : a gap is filled only when its fill's estimated error (its mean error on measured samples
+        of the gap's own length hidden beside it, :func:`gazepipe.stages.clean.gapfill.fill_error`) is at most
+        this; a gap too long to hide anything beside it is filled without an estimate.
     remove_spikes : run spike removal before gap filling (:func:`gazepipe.stages.clean.spikes.find_spikes`).
     spike_residual_mm, spike_step_factor, spike_cluster_mm : thresholds of the glitch test
         (:func:`gazepipe.stages.clean.spikes.find_glitches`): a sample farther than
@@ -72,7 +75,8 @@ class CleanParams:
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
-    max_gap_s: float = field(default=1.0, metadata={"min": 0})
+    max_gap_s: float = field(default=3.0, metadata={"min": 0})
+    max_fill_error_mm: float = field(default=5.0, metadata={"gt": 0})
     remove_spikes: bool = True
     spike_residual_mm: float = field(default=8.0, metadata={"gt": 0})
     spike_step_factor: float = field(default=2.0, metadata={"min": 0})
@@ -102,6 +106,8 @@ class CleanResult:
     frames : (N,) int64 row indices of the kept rows in the uncropped take (``crop[0] .. crop[1]-1``).
     fill_code : (N, M) int8 :data:`~gazepipe.model.FILL_CODES` of every kept sample.
     spike : (N, M) bool, the measured samples removed as spikes (each then filled, or left unfilled, as a gap).
+    fill_error_mm : (N, M) float64, each filled sample's estimated error (mm); NaN where measured, unfilled or
+        filled without an estimate.
     crop : (start, stop) half-open, in rows of the uncropped take.
     rests : rest periods (start, stop) half-open, in rows of the uncropped take.
     speed_mm_s : (T,) mean subject-marker speed of the uncropped take (NaN where unknown).
@@ -115,6 +121,7 @@ class CleanResult:
     frames: np.ndarray
     fill_code: np.ndarray
     spike: np.ndarray
+    fill_error_mm: np.ndarray
     crop: tuple[int, int]
     rests: list[tuple[int, int]]
     speed_mm_s: np.ndarray
@@ -142,8 +149,9 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
 
 
 def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
-          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal, spike mask)."""
+          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal, spike mask, estimated
+    fill error in mm)."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
     xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
@@ -159,20 +167,23 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
     spikes = spike.sum(axis=0)
     qc["spikes_removed"] = int(spikes.sum())
     qc["gaps"] = []
+    error = np.full(valid.shape, np.nan)
     if valid.all():  # nothing to fill
         code = np.zeros(valid.shape, dtype=np.int8)
     else:
         res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
-                        max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods))
+                        max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods),
+                        max_error_mm=params.max_fill_error_mm)
+        error = res.error_mm
         code = np.asarray(res.fill_code, dtype=np.int8)
         xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
         qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
-                       "method": g.method,
+                       "method": g.method, "error_mm": None if not np.isfinite(g.error_mm) else float(g.error_mm),
                        "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
                        "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
-    return xyz, code, valid, spike
+    return xyz, code, valid, spike, error
 
 
 def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
@@ -217,7 +228,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, _, spike = _fill(markers, markerset, params, qc)
+    xyz, code, _, spike, fill_error = _fill(markers, markerset, params, qc)
 
     # 3. stabilisation
     up = left_pair = None
@@ -271,5 +282,6 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
         neutral = _slice(0, markers.n_frames)
         qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
     return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
-                       fill_code=code[start:stop].copy(), spike=spike[start:stop].copy(), crop=(int(start), int(stop)), rests=rests,
+                       fill_code=code[start:stop].copy(), spike=spike[start:stop].copy(),
+                       fill_error_mm=np.where(code[start:stop] == UNFILLED, np.nan, fill_error[start:stop]), crop=(int(start), int(stop)), rests=rests,
                        speed_mm_s=speed, neutral=neutral, qc=qc)
