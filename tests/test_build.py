@@ -671,3 +671,31 @@ def test_start_time_needs_min_duration():
     thr = np.deg2rad(18.0)
     assert start_frame(r, rate, thr, None, 1) == 9
     assert start_frame(r, rate, thr, None, 2) == 25
+
+
+def test_gaze_rows_gate_on_the_segments_they_keep_and_count_every_dropped_frame():
+    """A segment outside the LOD set missing for 20 frames costs gaze_rnn_lod nothing and gaze_rnn those frames;
+    every frame either gives a row or is counted under the first reason it gives none."""
+    from gazepipe.stages.build.gaze import rnn_rows
+
+    n, segs = 100, 4
+    rot = Rotation.from_rotvec(np.random.default_rng(0).normal(0, 0.2, (n * segs, 3)))
+    six = six_from_rotation(rot).reshape(n, segs, 6)
+    six[40:60, 1] = np.nan                                   # segment 1 unsolvable for 20 frames
+    target = np.tile([0.0, 0.0, 1.0], (n, 1))
+    target[70:75] = np.nan                                   # the target occluded
+    char_rot = np.tile([1.0, 0, 0, 0], (n, 1))
+    char_rot[90] = np.nan                                    # no character frame once
+    joints = {"frame": np.arange(n), "six": six, "target_dir": target, "char_rot": char_rot,
+              "time_s": np.arange(n) / 30.0, "valid": np.isfinite(six).all(axis=(1, 2)) & (np.arange(n) != 90)}
+    lod = rnn_rows(joints, [0, 2, 3], None)
+    full = rnn_rows(joints, [0, 1, 2, 3], None)
+    assert lod.qc["dropped"] == {"no_character_frame": 1, "segment_missing": 0, "no_target": 5, "first_of_run": 3}
+    assert full.qc["dropped"] == {"no_character_frame": 1, "segment_missing": 20, "no_target": 5, "first_of_run": 4}
+    for rows in (lod, full):
+        assert len(rows.frame) + sum(rows.qc["dropped"].values()) == n
+    assert set(range(41, 60)) <= set(lod.frame.tolist()) and not set(range(40, 61)) & set(full.frame.tolist())
+    eyes_ok = np.ones(n, bool)
+    eyes_ok[10:13] = False
+    gr = rnn_rows(joints, [0, 1, 2, 3], (eyes_ok, target))
+    assert gr.qc["dropped"]["eyes_invalid"] == 3 and len(gr.frame) + sum(gr.qc["dropped"].values()) == n

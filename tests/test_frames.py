@@ -389,3 +389,54 @@ def test_partial_cluster_collinear_subset_undefined(take):
     n2 = Markers(labels=neutral.labels, xyz=nxyz, valid=neutral.valid, rate_hz=RATE)
     j = compute_frames(m2, markerset(), n2)
     assert not j.valid[20:30].any() and j.valid[30:40].all()
+
+
+# ------------------------------------------------------------------------------ missing root and neutral markers
+
+@pytest.mark.parametrize("up", ["z", "y"])
+@pytest.mark.parametrize("missing", ["PEL1", "PEL2"])
+def test_heading_from_the_root_segments_fit_when_one_of_its_markers_is_missing(up, missing):
+    """One of the two markers the heading is taken from is gone for 200 frames: the character frame there comes
+    from a rigid fit of the others and the root marker to their neutral geometry, within a degree of the truth,
+    and every segment keeps its orientation."""
+    n = 600
+    t = np.arange(n) / RATE
+    rots = random_rots(n, 5)
+    rots["pelvis"] = Rotation.identity(n)      # the test body's root marker is rigid with its pelvis only so
+    mk, truth = build(n, rots, 0.8 * np.sin(0.3 * t), np.tile([1000.0, -500, 950], (n, 1)), up=up, noise=0.5,
+                      seed=6)
+    neutral, _ = build(60, ident(60), np.full(60, 0.4), np.tile([300.0, 200, 940], (60, 1)), up=up, noise=0.5,
+                       seed=7)
+    xyz = mk.xyz.copy()
+    xyz[200:400, mk.index(missing)] = np.nan
+    gapped = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    j = compute_frames(gapped, markerset(up), neutral)
+    assert j.qc["heading_fitted_frames"] == 200 and j.valid.all()
+    # against the heading SPEC §2 defines, from the complete markers
+    full = compute_frames(mk, markerset(up), neutral)
+    err = np.degrees((from_wxyz(j.char_rot[200:400]) * from_wxyz(full.char_rot[200:400]).inv()).magnitude())
+    assert np.median(err) < 0.5 and err.max() < 1.5
+    for s, name in enumerate(j.segments):
+        assert np.percentile(angles_deg(j.quat[200:400, s], rots[name][200:400]), 99) < 3.0, name
+    # with the root marker gone as well only two markers are left: no fit, no character frame
+    xyz[250:260, mk.index("SACR")] = np.nan
+    j2 = compute_frames(Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE),
+                        markerset(up), neutral)
+    assert not j2.valid[250:260].any() and j2.valid[200:250].all()
+
+
+def test_a_marker_missing_from_the_neutral_pose_falls_back_to_the_next_source(take):
+    """The first neutral source lacks a spine marker throughout: the spine is calibrated on the second source
+    (QC says which), the other segments on the first, and the take does not fail."""
+    mk, neutral, rots, _ = take
+    xyz = neutral.xyz.copy()
+    xyz[:, neutral.index("SPN3")] = np.nan
+    holed = Markers(labels=neutral.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    j = compute_frames(mk, markerset(), [("neutral take", holed), ("first rest period", neutral)])
+    assert j.qc["neutral_sources"] == {"pelvis": "neutral take", "spine": "first rest period", "head": "neutral take"}
+    assert j.valid.all()
+    assert np.median(angles_deg(j.quat[:, 1], rots["spine"])) < 1.0
+    # no source for the spine at all: it has no orientation, the others do, and QC says why
+    j1 = compute_frames(mk, markerset(), [("neutral take", holed)])
+    assert np.isnan(j1.quat[:, 1]).all() and np.isfinite(j1.quat[:, [0, 2]]).all()
+    assert j1.qc["neutral_sources"]["spine"] is None and any("'spine'" in w for w in j1.qc["warnings"])

@@ -214,21 +214,22 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
     ms = ctx.session.markerset
     markers, frames, _ = _load_markers(ctx, "markers")
+    sources: list[tuple[str, Markers]] = []    # neutral poses, in order of preference (SPEC §3.3)
     neutral_take = _neutral_take(ctx.session)
     if neutral_take is not None:
         # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
         # cleans it once for all the takes it runs (keyed by the file's identity and the parameters)
         st = os.stat(neutral_take.mocap)
-        neutral = _clean_neutral(neutral_take, ms, _build(CleanParams, ctx.params_of("clean")),
-                                 (st.st_size, st.st_mtime_ns, st.st_ino))
-        source = f"neutral take {neutral_take.id}"
-    else:
-        neutral, nframes, nmeta = _load_markers(ctx, "neutral")
-        neutral = None if neutral.n_frames == 0 else neutral
-        source = f"first rest period {nmeta.get('rest')}"
+        sources.append((f"neutral take {neutral_take.id}",
+                        _clean_neutral(neutral_take, ms, _build(CleanParams, ctx.params_of("clean")),
+                                       (st.st_size, st.st_mtime_ns, st.st_ino))))
+    own, _, nmeta = _load_markers(ctx, "neutral")
+    if own.n_frames:
+        sources.append((f"first rest period {nmeta.get('rest')}", own))
+    source = sources[0][0] if sources else "none"
     if ctx.take.kind != "gaze_follow":  # only gaze_follow takes track the target marker
         ms = dataclasses.replace(ms, target=None)
-    joints = compute_frames(markers, ms, neutral, _build(FramesParams, ctx.params), path=ctx.take.mocap,
+    joints = compute_frames(markers, ms, sources, _build(FramesParams, ctx.params), path=ctx.take.mocap,
                             take=ctx.take.id)
     qc = dict(joints.qc)
     qc["neutral_source"] = source
@@ -238,7 +239,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="3", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="4", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

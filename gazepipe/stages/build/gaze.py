@@ -69,9 +69,12 @@ def align_eyes(frames: np.ndarray, eye_frame: np.ndarray, eye_valid: np.ndarray,
 def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarray] | None) -> TakeRows:
     """``gaze_rnn`` rows of one gaze_follow take (Klein 6.1).
 
-    A frame is usable when the joints are valid, the target direction is defined, the kept segments'
-    rotations are finite and (with ``eyes``) the eyes are valid. Consecutive usable frames (consecutive frame
-    numbers) form a segment; an unusable frame, an invalid-eyes frame included, ends it. The first frame of a
+    A frame is usable when it has a character frame, the kept segments' rotations are finite (other segments
+    may be missing), the target direction is defined and (with ``eyes``) the eyes are valid. Consecutive usable
+    frames (consecutive frame numbers) form a segment; an unusable frame, an invalid-eyes frame included, ends
+    it. QC ``dropped`` counts the frames that give no row by their first reason: ``no_character_frame``,
+    ``segment_missing``, ``no_target``, ``eyes_invalid``, ``first_of_run`` (a usable frame with no usable frame
+    before it). The first frame of a
     segment only provides the previous pose of the second: every segment of n frames gives n − 1 rows, the row
     of frame t holding x = (target_dir[t], 6-number rotations[t−1], eye_dir[t−1]) and y = (rotations[t],
     eye_dir[t]). Segment ids count 0, 1, … per take.
@@ -86,13 +89,20 @@ def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarra
     frame = np.asarray(joints["frame"], dtype=np.int64)
     six = np.asarray(joints["six"], dtype=np.float64)[:, seg_idx].reshape(len(frame), -1)
     target = _unit(np.asarray(joints["target_dir"], dtype=np.float64))
-    ok = np.asarray(joints["valid"], dtype=bool) & np.isfinite(target).all(axis=1) & np.isfinite(six).all(axis=1)
+    checks = [("no_character_frame", np.isfinite(np.asarray(joints["char_rot"], dtype=np.float64)).all(axis=1)),
+              ("segment_missing", np.isfinite(six).all(axis=1)),
+              ("no_target", np.isfinite(target).all(axis=1))]
     parts_prev, parts_cur = [six], [six]
     if eyes is not None:
         eye_ok, eye_dir = eyes
-        ok &= eye_ok
+        checks.append(("eyes_invalid", np.asarray(eye_ok, dtype=bool)))
         parts_prev.append(eye_dir)
         parts_cur.append(eye_dir)
+    ok = np.ones(len(frame), dtype=bool)
+    dropped: dict[str, int] = {}
+    for reason, passes in checks:
+        dropped[reason] = int((ok & ~passes).sum())
+        ok &= passes
     row = np.zeros(len(frame), dtype=bool)
     if len(frame) > 1:
         row[1:] = ok[1:] & ok[:-1] & (np.diff(frame) == 1)
@@ -104,7 +114,8 @@ def rnn_rows(joints: dict, seg_idx: list[int], eyes: tuple[np.ndarray, np.ndarra
     x = np.concatenate([target[t], prev], axis=1).astype(np.float32)
     y = cur.astype(np.float32)
     lengths = np.bincount(seg[t], minlength=int(starts.sum())) if len(t) else np.zeros(0, dtype=np.int64)
-    qc = {"frames": int(len(frame)), "usable_frames": int(ok.sum()),
+    dropped["first_of_run"] = int((ok & ~row).sum())
+    qc = {"frames": int(len(frame)), "usable_frames": int(ok.sum()), "dropped": dropped,
           "segments": int(starts.sum()), "longest_segment_rows": int(lengths.max()) if len(lengths) else 0}
     return TakeRows(segment=seg[t].astype(np.int32), frame=frame[t].astype(np.int32),
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[t], features={"x": x, "y": y}, qc=qc)

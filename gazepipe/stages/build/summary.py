@@ -86,6 +86,8 @@ class DatasetSummary:
     by_pose: dict[str, dict[str, int]] = field(default_factory=dict)
     split_takes: dict[str, list[str]] = field(default_factory=lambda: {s: [] for s in SPLITS})
     per_take: dict[str, Any] = field(default_factory=dict)
+    #: frames that gave no row, by reason, over every take (datasets whose rows say why)
+    dropped: dict[str, int] = field(default_factory=dict)
     inputs: dict[str, dict[str, str]] = field(default_factory=dict)
     segment_lengths: list[np.ndarray] = field(default_factory=list)
     overall: _Group = field(default_factory=_Group)
@@ -106,6 +108,8 @@ class DatasetSummary:
         bp["rows"] += n
         self.split_takes[split].append(tid)
         self.per_take[tid] = {**qc, "split": split, "rows": n}
+        for reason, frames in qc.get("dropped", {}).items():
+            self.dropped[reason] = self.dropped.get(reason, 0) + int(frames)
         self.inputs[tid] = dict(sorted(hashes.items()))
         if self.window is not None and self.name != "face_clean":
             original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
@@ -152,6 +156,8 @@ class DatasetSummary:
             counts["segments"] = int(sum(len(v) for v in lengths))
             counts["segments_with_a_window"] = int(sum(int((v >= w).sum()) for v in lengths))
             counts["rows_in_segments_with_a_window"] = int(sum(int(v[v >= w].sum()) for v in lengths))
+        if self.dropped:
+            counts["dropped_frames"] = dict(self.dropped)
         counts["per_take"] = self.per_take
         return {
             "name": self.name,

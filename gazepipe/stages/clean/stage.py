@@ -179,6 +179,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
         xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
         qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
                        "method": g.method, "error_mm": None if not np.isfinite(g.error_mm) else float(g.error_mm),
+                       "reason": g.reason,
                        "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
                        "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]

@@ -9,6 +9,7 @@ centre and the unit direction from it to the target. Pure functions; no file I/O
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -119,6 +120,56 @@ def character_frame(markers: Markers, markerset: MarkerSet, *, path: str | None 
     return origin, heading_frames(left, up_vector(markerset.up_axis))
 
 
+def root_reference(sources: Sequence[tuple[str, Markers]], markerset: MarkerSet,
+                   min_frames: int) -> np.ndarray | None:
+    """The neutral geometry of the root marker and the root segment's markers (K, 3), character coordinates: their
+    mean over the first neutral source's frames where all of them are measured (at least ``min_frames``);
+    ``None`` when no source has that many."""
+    names = [markerset.root, *markerset.root_segment.markers]
+    for _, neutral in sources:
+        if any(n not in neutral.labels for n in names):
+            continue
+        origin, cmat = character_frame(neutral, markerset)
+        pts = np.stack([neutral.xyz[:, neutral.index(n)] for n in names], axis=1)
+        ok = np.isfinite(pts).all(axis=(1, 2)) & np.isfinite(cmat).all(axis=(1, 2))
+        if ok.sum() >= min_frames:
+            return _to_char(pts[ok], origin[ok], cmat[ok]).mean(axis=0)
+    return None
+
+
+def fitted_character_frame(markers: Markers, markerset: MarkerSet, root_ref: np.ndarray | None,
+                           min_plane_ratio: float, *, path: str | None = None,
+                           take: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`character_frame`, and where one of the root segment's first two markers is missing but the root
+    marker is there, the heading from the root segment's orientation: a least-squares rigid fit of its markers
+    present and the root marker (three or more, not nearly collinear) to their neutral geometry ``root_ref``
+    (:func:`root_reference`), whose left direction is that of the first marker minus the second (SPEC §2).
+
+    Returns origin (T, 3) mm, lab-from-character matrices (T, 3, 3) and which frames' heading was fitted (T,).
+    """
+    origin, cmat = character_frame(markers, markerset, path=path, take=take)
+    fitted = np.zeros(markers.n_frames, dtype=bool)
+    need = ~np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
+    if root_ref is None or not need.any():
+        return origin, cmat, fitted
+    names = [markerset.root, *markerset.root_segment.markers]
+    pts = np.stack([_col(markers, n, path, take, "root segment") for n in names], axis=1)
+    seen = np.isfinite(pts).all(axis=2)
+    rows = np.flatnonzero(need & (seen.sum(axis=1) >= 3))
+    if not len(rows):
+        return origin, cmat, fitted
+    patterns, inverse = np.unique(seen[rows], axis=0, return_inverse=True)
+    up = up_vector(markerset.up_axis)
+    for p, pat in enumerate(patterns):
+        if not _well_conditioned(root_ref[pat], min_plane_ratio):
+            continue
+        r = rows[inverse.reshape(-1) == p]
+        rot = kabsch(root_ref[pat], pts[r][:, pat])              # lab from the reference's character axes
+        cmat[r] = heading_frames(rot @ (root_ref[1] - root_ref[2]), up)
+        fitted[r] = True
+    return origin, cmat, fitted
+
+
 def _to_char(p: np.ndarray, origin: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Lab points p (T, ..., 3) into character coordinates: Cᵀ (p − origin)."""
     d = p - origin.reshape(origin.shape[0], *([1] * (p.ndim - 2)), 3)
@@ -177,9 +228,9 @@ def _marker_frames(pts: np.ndarray, ref: np.ndarray | None, triangle: str = "rig
     return out, centre
 
 
-def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | None,
-                   params: FramesParams | None = None, *, path: str | None = None,
-                   take: str | None = None) -> Joints:
+def compute_frames(markers: Markers, markerset: MarkerSet,
+                   neutral: Markers | Sequence[tuple[str, Markers]] | None, params: FramesParams | None = None,
+                   *, path: str | None = None, take: str | None = None) -> Joints:
     """Segment orientations, head centre and target direction per frame (SPEC §3.3).
 
     Parameters
@@ -187,32 +238,47 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
     markers : cleaned (stabilised, cropped) markers of the take, mm, lab axes.
     markerset : the session's markerset.
     neutral : markers in the neutral pose, same labels (the ``neutral`` take's cleaned markers, or the take's
-        first rest period: :attr:`gazepipe.stages.clean.stage.CleanResult.neutral`). Each segment's calibration is
-        the mean (``Rotation.mean``) of its marker frame in the character frame over these frames, so the
-        neutral pose maps to the identity.
+        first rest period: :attr:`gazepipe.stages.clean.stage.CleanResult.neutral`), or several such sources as
+        ``(name, markers)`` in order of preference. Each segment's calibration is the mean (``Rotation.mean``)
+        of its marker frame in the character frame over the frames of the first source where the segment is
+        solvable (every marker measured or filled, and a character frame) in at least ``min_neutral_frames``,
+        so the neutral pose maps to the identity; QC ``neutral_sources`` says which source each segment used.
+        A segment no source can calibrate has no orientation in this take (a QC warning), and the take goes on.
     params : :class:`FramesParams`.
 
-    Raises :class:`~gazepipe.errors.StageError` when a marker is missing, a segment has fewer than three
-    markers, or the neutral pose is absent or too short to calibrate a segment.
+    The character frame's heading comes from the root segment's first two markers, or where one of them is
+    missing from a rigid fit of the root segment (:func:`fitted_character_frame`; QC ``heading_fitted_frames``).
+
+    Raises :class:`~gazepipe.errors.StageError` when a marker is missing from the capture, a segment has fewer
+    than three markers, or there is no neutral pose at all.
     """
     from scipy.spatial.transform import Rotation  # here: planning a run imports this module
 
     params = params or FramesParams()
     if params.triangle not in ("rigid_fit", "gram_schmidt"):
         raise ValueError(f"FramesParams.triangle must be 'rigid_fit' or 'gram_schmidt', not {params.triangle!r}")
-    if neutral is None:
+    sources = ([] if neutral is None else [("neutral", neutral)] if isinstance(neutral, Markers)
+               else [(name, m) for name, m in neutral if m is not None and m.n_frames])
+    if not sources:
         raise StageError(path, "frames: no neutral pose to calibrate the segments "
                          "(no neutral take and no rest period)", take=take)
     segs = markerset.segments
     names = [s.name for s in segs]
     parents = np.array([names.index(s.parent) if s.parent in names else -1 for s in segs], dtype=np.int64)
     n, ns = markers.n_frames, len(segs)
-    qc: dict = {"warnings": [], "neutral_frames": {}}
+    qc: dict = {"warnings": [], "neutral_frames": {}, "neutral_sources": {}}
 
-    origin, cmat = character_frame(markers, markerset, path=path, take=take)
-    n_origin, n_cmat = character_frame(neutral, markerset, path=path, take=take)
+    root_ref = root_reference(sources, markerset, params.min_neutral_frames)
+    origin, cmat, fitted = fitted_character_frame(markers, markerset, root_ref, params.min_plane_ratio, path=path,
+                                                  take=take)
+    qc["heading_fitted_frames"] = int(fitted.sum())
     has_char = np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
-    n_has_char = np.isfinite(n_cmat).all(axis=(1, 2)) & np.isfinite(n_origin).all(axis=1)
+    frames_of = []          # per source: (markers, origin, character matrices, has a character frame)
+    for _, nm in sources:
+        n_origin, n_cmat, _ = fitted_character_frame(nm, markerset, root_ref, params.min_plane_ratio, path=path,
+                                                     take=take)
+        frames_of.append((nm, n_origin, n_cmat,
+                          np.isfinite(n_cmat).all(axis=(1, 2)) & np.isfinite(n_origin).all(axis=1)))
     # rotations are composed as matrices (batched matmul) and turned into quaternions once per segment
     cmat_t = np.where(has_char[:, None, None], cmat, np.eye(3)).transpose(0, 2, 1)
 
@@ -223,22 +289,38 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
             raise StageError(path, f"frames: segment {s.name!r} has {len(s.markers)} markers, needs three",
                              take=take)
         pts = np.stack([_col(markers, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
-        npts = np.stack([_col(neutral, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
-        nok = n_has_char & np.isfinite(npts).all(axis=(1, 2))
-        qc["neutral_frames"][s.name] = int(nok.sum())
-        if nok.sum() < params.min_neutral_frames:
-            raise StageError(path, f"frames: only {int(nok.sum())} neutral frame(s) with every marker of "
-                             f"segment {s.name!r}; need {params.min_neutral_frames}", take=take)
+        chosen = None
+        for (label, _), (nm, n_origin, n_cmat, n_has_char) in zip(sources, frames_of, strict=True):
+            npts = np.stack([_col(nm, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
+            nok = n_has_char & np.isfinite(npts).all(axis=(1, 2))
+            if nok.sum() >= params.min_neutral_frames:
+                chosen = (label, npts, nok, n_origin, n_cmat)
+                break
+        qc["neutral_frames"][s.name] = int(chosen[2].sum()) if chosen else 0
+        qc["neutral_sources"][s.name] = chosen[0] if chosen else None
+        if chosen is None:
+            qc["warnings"].append(f"segment {s.name!r}: no neutral source has {params.min_neutral_frames} frames "
+                                  f"with every marker ({', '.join(lab for lab, _ in sources)}); it has no "
+                                  "orientation in this take")
+            centres[s.name] = np.full((n, 3), np.nan)
+            continue
+        _, npts, nok, n_origin, n_cmat = chosen
         # reference cluster for rigid fits: the neutral cluster's mean shape in character coordinates
         ref = _to_char(npts[nok], n_origin[nok], n_cmat[nok]).mean(axis=0)
         n_raw, _ = _marker_frames(npts[nok], ref, params.triangle)
         n_glob = Rotation.from_matrix(n_cmat[nok].transpose(0, 2, 1) @ n_raw)
         calib = n_glob.mean().inv().as_matrix()   # right-multiplied: neutral mean → identity
         raw, centres[s.name] = _marker_frames(pts, ref, params.triangle, params.min_plane_ratio)
+        if s.name == markerset.root_segment.name and params.triangle == "rigid_fit":
+            _root_segment_fit(raw, pts, npts, nok, n_origin, n_cmat, markers, chosen_neutral(chosen, sources),
+                              markerset, params)
         ok = has_char & np.isfinite(raw).all(axis=(1, 2))
         if ok.any():
             gmat[ok, j] = cmat_t[ok] @ raw[ok] @ calib
 
+    if not any(qc["neutral_sources"].values()):
+        raise StageError(path, f"frames: no segment has {params.min_neutral_frames} neutral frame(s) with every "
+                         f"marker ({', '.join(lab for lab, _ in sources)})", take=take)
     valid = has_char & np.isfinite(gmat).all(axis=(1, 2, 3))
     quat = np.full((n, ns, 4), np.nan)
     quat_local = np.full((n, ns, 4), np.nan)
@@ -277,6 +359,29 @@ def compute_frames(markers: Markers, markerset: MarkerSet, neutral: Markers | No
                   head_centre=head_centre, target_dir=target_dir,
                   char_origin=np.where(has_char[:, None], origin, np.nan), char_rot=char_rot, valid=valid,
                   rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame), qc=qc)
+
+
+def chosen_neutral(chosen: tuple, sources: Sequence[tuple[str, Markers]]) -> Markers:
+    """The neutral markers of the source a segment was calibrated on."""
+    return dict(sources)[chosen[0]]
+
+
+def _root_segment_fit(raw: np.ndarray, pts: np.ndarray, npts: np.ndarray, nok: np.ndarray, n_origin: np.ndarray,
+                      n_cmat: np.ndarray, markers: Markers, neutral: Markers, markerset: MarkerSet,
+                      params: FramesParams) -> None:
+    """Where the root segment's own markers cannot give its frame (one of three missing), fill ``raw`` in place
+    from a rigid fit of the markers present and the root marker to their neutral geometry (SPEC §3.3)."""
+    miss = ~np.isfinite(raw).all(axis=(1, 2))
+    root = markerset.root
+    if not miss.any() or root not in markers.labels or root not in neutral.labels:
+        return
+    ext_n = np.concatenate([npts, neutral.xyz[:, neutral.index(root)][:, None]], axis=1)
+    ok = nok & np.isfinite(ext_n).all(axis=(1, 2))
+    if ok.sum() < params.min_neutral_frames:
+        return
+    ref = _to_char(ext_n[ok], n_origin[ok], n_cmat[ok]).mean(axis=0)
+    ext = np.concatenate([pts[miss], markers.xyz[miss, markers.index(root)][:, None]], axis=1)
+    raw[miss], _ = _marker_frames(ext, ref, "rigid_fit", params.min_plane_ratio)
 
 
 def _head_centre(markers: Markers, markerset: MarkerSet, params: FramesParams, origin: np.ndarray,
