@@ -379,3 +379,35 @@ def test_module_entry_writes_the_default_session(tmp_path: Path) -> None:
     assert all("video" in t and "eyes" in t for t in doc["takes"] if t["kind"] == "gaze_follow")
     assert sum(t["target"]["yaw_deg"] < 0 for t in doc["takes"] if "target" in t) >= 3
     assert load_truth(tmp_path / "s", "neutral")["session"]["seed"] == 3
+
+
+def test_a_four_segment_layout_in_a_y_up_lab(tmp_path):
+    """Markers on four of the chain's segments, written in y-up lab axes: the markerset lists those segments
+    (each the parent of the next) with its [lod]; the C3D holds the truth's lab positions plus noise, the body
+    standing along +Y; the captures of the z-up, ten-segment default are not touched by the option."""
+    import dataclasses
+    import tomllib
+
+    from gazepipe.io.capture import read_markers
+    from gazepipe.synth.skeleton import FOUR_SEGMENTS
+
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=6.0, shift_targets=(), neutral_s=2.0,
+                      head_camera=False, face_takes=(), gaps=False)
+    out = generate_session(tmp_path / "y", seed=3, config=dataclasses.replace(cfg, segments=FOUR_SEGMENTS,
+                                                                               up_axis="y"))
+    ms = tomllib.loads((out / "markerset.toml").read_text())
+    assert ms["up_axis"] == "y" and list(ms["segments"]) == list(FOUR_SEGMENTS)
+    assert [ms["segments"][s].get("parent") for s in FOUR_SEGMENTS] == [None, "pelvis", "chest", "neck2"]
+    assert ms["lod"]["segments"] == ["pelvis", "chest", "head"]
+    mk = read_markers(out / "mocap" / "follow_standing_01.c3d")
+    truth = load_truth(out, "follow_standing_01")
+    arrays = truth
+    assert list(arrays["labels"]) == mk.labels and "SP1A" not in mk.labels and "NK2A" in mk.labels
+    err = np.linalg.norm(mk.xyz - arrays["markers_true"], axis=2)
+    assert np.median(err) < 1.5 and err.max() < 5.0                        # 0.5 mm noise per axis
+    pel = mk.xyz[:, mk.labels.index("PEL_L")]
+    assert 900 < np.median(pel[:, 1]) < 1200                                 # the pelvis stands along +Y
+    assert truth["session"]["marker_segments"] == list(FOUR_SEGMENTS) and truth["session"]["up_axis"] == "y"
+    z_up = generate_session(tmp_path / "z", seed=3, config=cfg)
+    assert (z_up / "mocap" / "follow_standing_01.c3d").read_bytes() != (out / "mocap" / "follow_standing_01.c3d").read_bytes()
+    assert "up_axis" not in load_truth(z_up, "follow_standing_01")["session"]

@@ -56,8 +56,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def build_kinematics(motion: TakeMotion, placement: Placement) -> Kinematics:
-    """Forward kinematics of the chain, every marker's noise-free position, and the eyes."""
+def build_kinematics(motion: TakeMotion, placement: Placement, segments: tuple[str, ...] = SEGMENTS) -> Kinematics:
+    """Forward kinematics of the chain, the noise-free position of every marker on ``segments``, and the eyes."""
     h = placement.h_lab
     n = len(motion.time_s)
     q = []
@@ -70,7 +70,7 @@ def build_kinematics(motion: TakeMotion, placement: Placement) -> Kinematics:
     for k in range(1, len(SEGMENTS)):
         joints[:, k] = joints[:, k - 1] + (h * q[k - 1]).apply(JOINTS_MM[k] - JOINTS_MM[k - 1])
 
-    labels, seg, off = subject_marker_layout()
+    labels, seg, off = subject_marker_layout(segments)
     cols = []
     for m in range(len(labels)):
         cols.append(joints[:, seg[m]] + (h * q[seg[m]]).apply(off[m]))
@@ -139,7 +139,9 @@ def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
         for _ in range(int(round(3 * scale))):
             place([idx[str(rng.choice(root))]], int(rng.integers(1, MAX_ROOT_GAP + 1)))
         for seg in ("head", "chest", "spine3"):
-            names = list(SEGMENT_MARKERS[seg])
+            names = [lab for lab in SEGMENT_MARKERS[seg] if lab in idx]
+            if len(names) < 2:
+                continue
             pick = rng.choice(len(names), size=2, replace=False)
             place([idx[names[i]] for i in sorted(pick)], int(rng.integers(6, 40)))
         for _ in range(int(round(2 * scale))):      # something passes in front: markers of several segments

@@ -64,6 +64,11 @@ Session: `seed`, `generator_version`, `rate_hz`, `noise_mm`, `subject_floor_lab_
 y down, z forward; markerset.toml deliberately has no [camera] so the pipeline must estimate it; the camera sits
 below and in front of the face looking back at it, tilted up 20 degrees and turned 5 degrees), `eye_offset_mm`
 (HEADC relative to the head markers' centroid, head axes; the same numbers as in markerset.toml), `segments`.
+With a reduced marker layout, `marker_segments` lists the segments that carry markers (the markerset's
+segments, each the parent of the next); `segments` and every per-segment truth array still hold the ten segments of
+the moving chain, so compare a markerset segment with the truth segment of the same name. With `up_axis` = "y" the
+C3D files and the lab arrays (`markers_true`, `joints_lab`, `char_origin_lab`, `fixation_lab`, `seg_quat_lab`,
+`char_quat_lab`) are in y-up lab axes (the z-up ones turned -90 degrees about x).
 
 Per take (`takes.<id>`): `kind`, `pose`, `mocap`, `rate_hz`, `n_frames`, `spike_samples`, `clap_times_s`,
 `rest_periods`, `crop`,

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps, make_long_gaps, make_spikes
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
@@ -48,7 +49,10 @@ class SynthConfig:
     on any marker (0: none; the truth marks them in ``spike_mask``); ``long_gaps``: 1–3 s occlusions of trunk
     and neck markers per mocap take (the first inside the first rest, the next two across the crop's edges);
     ``gaps_per_marker_min``: further interior gaps of 1–120 frames per subject marker per minute;
-    ``rate_hz``: the mocap capture rate.
+    ``rate_hz``: the mocap capture rate; ``segments``: the segments that carry markers (all ten, or a subset
+    with the pelvis and the head such as ``FOUR_SEGMENTS``; the truth keeps the ten segments of the moving
+    chain); ``up_axis``: the lab's vertical axis in the written files (``"z"`` or ``"y"``; truth lab arrays
+    follow it).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -66,6 +70,8 @@ class SynthConfig:
     long_gaps: int = 0
     gaps_per_marker_min: float = 0.0
     rate_hz: float = MOCAP_RATE_HZ
+    segments: tuple[str, ...] = SEGMENTS
+    up_axis: str = "z"
 
 
 #: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
@@ -97,12 +103,36 @@ def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) ->
     c.write(str(path))
 
 
-def markerset_toml(cam_known: bool = False) -> str:
-    """markerset.toml text (SPEC §1). The camera rotation is left out: the pipeline estimates it."""
+#: lab axes of a y-up capture from the generator's z-up ones: a right-handed turn of −90° about x
+Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+#: truth arrays of lab points and of lab-from-something rotations (w, x, y, z)
+_LAB_POINTS = ("markers_true", "joints_lab", "char_origin_lab", "fixation_lab")
+_LAB_ROTATIONS = ("seg_quat_lab", "char_quat_lab")
+
+
+def _lab_axes(up_axis: str) -> np.ndarray:
+    """Rotation from the generator's z-up lab axes to the written files' (identity for z-up)."""
+    return Y_UP if up_axis == "y" else np.eye(3)
+
+
+def _relabel_lab(arrays: dict[str, np.ndarray], axes: np.ndarray) -> None:
+    """Truth arrays in the written files' lab axes (in place)."""
+    turn = Rotation.from_matrix(axes)
+    for name in _LAB_POINTS:
+        arrays[name] = (arrays[name].astype(np.float64) @ axes.T).astype(arrays[name].dtype)
+    for name in _LAB_ROTATIONS:
+        q = arrays[name].astype(np.float64)
+        r = turn * Rotation.from_quat(q.reshape(-1, 4)[:, [1, 2, 3, 0]])
+        arrays[name] = quat_wxyz(r).reshape(q.shape).astype(arrays[name].dtype)
+
+
+def markerset_toml(segments: tuple[str, ...] = SEGMENTS, up_axis: str = "z") -> str:
+    """markerset.toml text (SPEC §1) for markers on ``segments``, each the parent of the next. The camera
+    rotation is left out: the pipeline estimates it."""
     off = eye_offset_mm()
     lines = [
         "schema = 1",
-        'up_axis = "z"',
+        f'up_axis = "{up_axis}"',
         'units = "mm"',
         f'root = "{ROOT_MARKER}"',
         f'target = "{TARGET_MARKER}"',
@@ -111,13 +141,14 @@ def markerset_toml(cam_known: bool = False) -> str:
         f"eye_offset_mm = [{off[0]:.1f}, {off[1]:.1f}, {off[2]:.1f}]",
         "",
     ]
-    for k, name in enumerate(SEGMENTS):
+    for k, name in enumerate(segments):
         lines.append(f"[segments.{name}]")
         lines.append("markers = [" + ", ".join(f'"{m}"' for m in SEGMENT_MARKERS[name]) + "]")
         if k:
-            lines.append(f'parent = "{SEGMENTS[k - 1]}"')
+            lines.append(f'parent = "{segments[k - 1]}"')
         lines.append("")
-    lines += ["[lod]", 'segments = ["pelvis", "chest", "head"]', ""]
+    lod = [s for s in ("pelvis", "chest", "head") if s in segments]
+    lines += ["[lod]", "segments = [" + ", ".join(f'"{s}"' for s in lod) + "]", ""]
     return "\n".join(lines)
 
 
@@ -210,7 +241,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             motion = shift_motion(r_motion, rate, cfg.placement, pose, *target)
         else:
             motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
-        kin = build_kinematics(motion, cfg.placement)
+        kin = build_kinematics(motion, cfg.placement, cfg.segments)
         n, m = kin.markers_true.shape[:2]
         mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
                 else np.zeros((n, m), dtype=bool))
@@ -224,8 +255,12 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         noisy += offsets
         noisy[mask] = np.nan
         mocap_rel = f"mocap/{take_id}.c3d"
+        if cfg.up_axis != "z":
+            noisy = noisy @ _lab_axes(cfg.up_axis).T
         write_c3d(out / mocap_rel, kin.labels, noisy, rate)
         arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
+        if cfg.up_axis != "z":
+            _relabel_lab(arrays, _lab_axes(cfg.up_axis))
         arrays["spike_mask"] = spiked
         scalars["spike_samples"] = int(spiked.sum())
         scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
@@ -239,19 +274,23 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         meta_takes[take_id] = rec.truth_scalars
         records.append(rec)
 
-    (out / "markerset.toml").write_text(markerset_toml())
+    (out / "markerset.toml").write_text(markerset_toml(cfg.segments, cfg.up_axis))
     (out / "session.toml").write_text(session_toml(cfg, records))
     meta = {
         "generator_version": GENERATOR_VERSION,
         "seed": int(seed),
         "rate_hz": rate,
         "noise_mm": cfg.noise_mm,
-        "subject_floor_lab_mm": list(cfg.placement.floor_mm),
+        "subject_floor_lab_mm": (list(cfg.placement.floor_mm) if cfg.up_axis == "z" else
+                                 (np.asarray(cfg.placement.floor_mm) @ _lab_axes(cfg.up_axis).T).tolist()),
         "heading_deg": cfg.placement.heading_deg,
-        "char_to_lab_quat": quat_wxyz(cfg.placement.h_lab)[0].tolist(),
+        "char_to_lab_quat": quat_wxyz(Rotation.from_matrix(_lab_axes(cfg.up_axis)) * cfg.placement.h_lab)[0].tolist()
+        if cfg.up_axis != "z" else quat_wxyz(cfg.placement.h_lab)[0].tolist(),
         "camera_to_head_quat": quat_wxyz(cam)[0].tolist(),
         "eye_offset_mm": eye_offset_mm().tolist(),
         "segments": list(SEGMENTS),
+        **({} if cfg.segments == SEGMENTS else {"marker_segments": list(cfg.segments)}),
+        **({} if cfg.up_axis == "z" else {"up_axis": cfg.up_axis}),
         "takes": meta_takes,
     }
     (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")

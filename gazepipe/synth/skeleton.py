@@ -78,8 +78,13 @@ def eye_offset_mm() -> np.ndarray:
     return head_centre_offset() - hat.mean(axis=0)
 
 
-def subject_marker_layout() -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Labels, owning segment index (M,) and offset from that segment's joint (M, 3) of every subject marker.
+#: a coarser marker layout: markers on four of the chain's segments only (the others move, unseen)
+FOUR_SEGMENTS: tuple[str, ...] = ("pelvis", "chest", "neck2", "head")
+
+
+def subject_marker_layout(segments: tuple[str, ...] = SEGMENTS) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Labels, owning segment index (M,) and offset from that segment's joint (M, 3) of every subject marker
+    on ``segments`` (a subset of :data:`SEGMENTS` with the pelvis and the head).
 
     Order: the root marker, each segment's markers from the root to the head, then the head centre.
     """
@@ -87,6 +92,8 @@ def subject_marker_layout() -> tuple[list[str], np.ndarray, np.ndarray]:
     seg = [0]
     off = [EXTRA_MARKERS[ROOT_MARKER][1]]
     for k, name in enumerate(SEGMENTS):
+        if name not in segments:
+            continue
         for lab, o in SEGMENT_MARKERS[name].items():
             labels.append(lab)
             seg.append(k)

@@ -1,0 +1,139 @@
+"""The gaze datasets built from hostile generated sessions, row by row against the ground truth.
+
+Sessions from ``gazepipe.synth`` with the hazards of real capture (ghost spikes on any marker, 1–3 s occlusions
+of trunk and neck markers inside the first rest and across the crop's edges, dense interior gaps), with the
+ten-segment marker layout in a z-up lab and the four-segment layout in a y-up lab, for ``--seeds`` seeds. Each is
+run through the whole pipeline (``gazepipe run``, serial). Printed per layout: takes that failed a stage; every
+segment rotation of every (unmirrored) ``gaze_rnn`` and ``gaze_rnn_lod`` row against the truth (median, p99, max
+degrees, and rows with a segment more than 5° off); the share of the frames with valid eyes inside the true crop
+that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds; the frames each dataset dropped,
+by reason.
+
+Usage: ``python bench/bench_datasets_truth.py [--seeds 2] [--duration 30]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+from scipy.spatial.transform import Rotation
+
+from gazepipe.dag import run_pipeline
+from gazepipe.io.session_toml import load_session
+from gazepipe.pipeline.events import EventLog
+from gazepipe.stages.geometry import from_wxyz, matrix_from_six
+from gazepipe.synth import SynthConfig, generate_session
+from gazepipe.synth.skeleton import FOUR_SEGMENTS, SEGMENTS
+
+LAYOUTS = {"10 segments, z up": (SEGMENTS, "z"), "4 segments, y up": (FOUR_SEGMENTS, "y")}
+
+
+def dataset_rows(out: Path, name: str) -> list[dict]:
+    """Unmirrored rows of a built dataset, per take: frames and the y features."""
+    root = out / "datasets" / name
+    if not (root / "dataset.json").is_file():
+        return []
+    info = json.loads((root / "dataset.json").read_text())
+    takes = []
+    for f in sorted(root.rglob("*.parquet")):
+        t = pq.read_table(f, columns=["take", "mirrored", "frame", "y"])
+        keep = ~t.column("mirrored").to_numpy(zero_copy_only=False)
+        if not keep.any():
+            continue
+        y = t.column("y").combine_chunks().flatten().to_numpy().reshape(t.num_rows, -1)[keep]
+        takes.append({"take": t.column("take")[0].as_py(), "frame": t.column("frame").to_numpy()[keep], "y": y,
+                      "segments": info["sizes"], "names": info["features"]["y"]})
+    return takes
+
+
+def segment_errors(folder: Path, rows: list[dict]) -> np.ndarray:
+    """Angle (deg) between each row's segment rotations and the truth, (rows, segments) stacked over takes."""
+    out = []
+    for r in rows:
+        truth = np.load(folder / "truth" / f"{r['take']}.npz")
+        names = [n.split(".")[0] for n in r["names"][0::6]]
+        names = [n for n in names if n in list(truth["segments"])]
+        idx = [list(truth["segments"]).index(n) for n in names]
+        six = r["y"][:, :6 * len(names)].reshape(len(r["frame"]), len(names), 6).astype(np.float64)
+        got = Rotation.from_matrix(matrix_from_six(six.reshape(-1, 6)))
+        want = from_wxyz(truth["seg_quat_char"][r["frame"]][:, idx].reshape(-1, 4).astype(np.float64))
+        out.append(np.degrees((got * want.inv()).magnitude()).reshape(len(r["frame"]), len(names)))
+    return np.concatenate(out) if out else np.zeros((0, 1))
+
+
+def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: bool) -> tuple[int, int]:
+    """(rows, usable frames): frames inside the true crop of every gaze_follow take, with valid eyes when
+    ``eyes``."""
+    truth = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
+    got = {r["take"]: len(r["frame"]) for r in rows}
+    have = need = 0
+    for take, t in truth.items():
+        if t["kind"] != "gaze_follow" or not t.get("crop"):
+            continue
+        a, b = t["crop"]
+        frames = set(range(a, b))
+        if eyes:
+            path = out / "takes" / session_id / take / "eyes.parquet"
+            if path.is_file():
+                e = pq.read_table(path, columns=["frame", "valid"]).to_pydict()
+                frames &= {f for f, v in zip(e["frame"], e["valid"], strict=True) if v}
+        need += len(frames)
+        have += got.get(take, 0)
+    return have, need
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--duration", type=float, default=30.0, help="seconds of each gaze_follow take")
+    args = ap.parse_args()
+    print(f"hazards: spikes 1/marker/min, 4 trunk/neck occlusions of 1-3 s per take, 3 gaps/marker/min; "
+          f"{args.seeds} seeds; two {args.duration:g} s gaze_follow takes and 10 gaze_shift takes per session")
+    for label, (segments, up) in LAYOUTS.items():
+        errs = {"gaze_rnn": [], "gaze_rnn_lod": []}
+        cover = {"gaze_rnn": [0, 0], "gaze_rnn_lod": [0, 0]}
+        dropped = {"gaze_rnn": Counter(), "gaze_rnn_lod": Counter()}
+        failed: list[str] = []
+        with tempfile.TemporaryDirectory() as tmp:
+            for seed in range(args.seeds):
+                cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=args.duration,
+                                  face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0,
+                                  segments=segments, up_axis=up)
+                folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
+                out = Path(tmp) / f"out{seed}"
+                summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",
+                                       log=EventLog(fmt="json", stream=io.StringIO()))
+                failed += [f"{o.take} {o.stage}: {o.error}" for o in summary.failed if o.take != "-"]
+                for name in errs:
+                    rows = dataset_rows(out, name)
+                    errs[name].append(segment_errors(folder, rows))
+                    h, n = coverage(folder, out, cfg.session_id, rows, eyes=name == "gaze_rnn")
+                    cover[name][0] += h
+                    cover[name][1] += n
+                    info = out / "datasets" / name / "dataset.json"
+                    if info.is_file():
+                        dropped[name].update(json.loads(info.read_text())["counts"].get("dropped_frames", {}))
+        print(f"\n{label}: takes failing a stage: {len(failed)}" + "".join(f"\n  {f}" for f in failed[:5]))
+        for name in errs:
+            e = np.concatenate([x for x in errs[name] if x.size]) if any(x.size for x in errs[name]) else None
+            h, n = cover[name]
+            what = "frames with valid eyes in the crop" if name == "gaze_rnn" else "crop frames"
+            if e is None or not e.size:
+                print(f"  {name:13s} no rows; {what}: {n}")
+                continue
+            worst = e.max(axis=1)
+            print(f"  {name:13s} {len(e):6d} rows: segment error median {np.median(e):.2f}°, p99 "
+                  f"{np.percentile(e, 99):.2f}°, max {e.max():.1f}°; rows with a segment > 5°: {(worst > 5).sum()}; "
+                  f"holds {100 * h / max(n, 1):.1f} % of the {n} {what}")
+            print(f"  {'':13s} dropped frames: {dict(dropped[name])}")
+
+
+if __name__ == "__main__":
+    main()
