@@ -281,3 +281,19 @@ def test_sync_take_without_prior_falls_back_to_the_tail(tmp_path):
     assert abs(res.clock.offset_s - offset) <= 0.005
     assert abs(res.mocap_claps[0].time_s - 0.5) < 0.002
     assert res.qc["warnings"] == [f"mocap clap at {res.mocap_claps[0].time_s:.3f} s has no video counterpart"]
+
+
+def test_a_ghost_spike_on_a_clapper_arm_does_not_move_the_clap(two_claps):
+    """A 30 mm ghost on one arm the frame after contact moves the mocap clap 32 ms when taken as measured;
+    sync leaves it out and finds the clap and clock map it finds without it."""
+    path, contacts, closing = two_claps
+    probe = probe_video(path)
+    a, b, va, vb, rate = _mocap_for(contacts, closing)
+    clean = sync_take(a, b, va, vb, rate, probe.timestamps_s, CountingReader(path, probe.timestamps_s))
+    ghost = a.copy()
+    ghost[int(contacts[0] * rate) + 1] += [0.0, -30.0, 0.0]
+    moved = mocap_claps(ghost, b, va, vb, rate)[0].time_s - mocap_claps(a, b, va, vb, rate)[0].time_s
+    assert abs(moved) > 0.02                                            # taken as measured, it moves the clap
+    res = sync_take(ghost, b, va, vb, rate, probe.timestamps_s, CountingReader(path, probe.timestamps_s))
+    assert abs(res.mocap_claps[0].time_s - clean.mocap_claps[0].time_s) < 0.003
+    assert res.clock.offset_s == pytest.approx(clean.clock.offset_s, abs=0.003)

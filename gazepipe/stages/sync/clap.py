@@ -93,8 +93,16 @@ def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit
     two frames around the crossing would put the contact up to a frame late. Instead the closing trajectory
     is fitted on its last ``n_fit`` frames before k0 and solved for ``shut``, within [k0 − 1, k0]. When that
     solution lies beyond k0 and frame k0 is still more than 2 σ_d above the shut value (closing, only within
-    the margin), the trajectory is refitted up to k0 and solved within [k0, k0 + 1].
+    the margin), the trajectory is refitted up to k0 and solved within [k0, k0 + 1]. When the frames just before
+    k0 are missing (a ghost sample taken out at contact), the trajectory up to the last measured frame is solved
+    within the gap.
     """
+    last = k0 - 1
+    while last > 0 and not np.isfinite(d[last]):
+        last -= 1
+    if last < k0 - 1:
+        root = _trajectory_root(d, last, shut, n_fit)
+        return float(k0) if root is None else float(last + np.clip(root, 0.0, k0 - last))
     root = _trajectory_root(d, k0 - 1, shut, n_fit)
     if root is None:
         return float(k0)

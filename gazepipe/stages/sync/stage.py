@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gazepipe.errors import StageError
+from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.sync.clap import Clap, mocap_claps
 from gazepipe.stages.sync.clock import ClockMap, clock_map
 from gazepipe.stages.sync.video import ReadWindow, VideoClap, video_claps
@@ -86,7 +87,8 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     Parameters
     ----------
     clap_a_xyz, clap_b_xyz, valid_a, valid_b, rate_hz : the clapper markers (see :func:`mocap_claps`); the
-        take has ``len(valid_a)`` frames at ``rate_hz``.
+        take has ``len(valid_a)`` frames at ``rate_hz``. Their ghost spikes are left out first
+        (:func:`gazepipe.stages.clean.spikes.find_spikes`): a one-frame jump of one arm is no clap.
     probe_timestamps, read_window : the video (see :func:`video_claps`).
     offset_guess_s, ratio_guess : prior t_mocap ≈ offset + ratio · t_video. Without one, the first mocap
         clap is looked for in the first ``search_s`` of the video (or, failing that, the last mocap clap in
@@ -113,7 +115,10 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
         counted[0] += len(fr)
         return t, fr
 
-    mc = mocap_claps(clap_a_xyz, clap_b_xyz, valid_a, valid_b, rate_hz, **mocap_kw)
+    pair = np.stack([np.asarray(clap_a_xyz, dtype=np.float64), np.asarray(clap_b_xyz, dtype=np.float64)], axis=1)
+    measured = np.stack([np.asarray(valid_a, dtype=bool), np.asarray(valid_b, dtype=bool)], axis=1)
+    kept = measured & ~find_spikes(pair, measured, rate_hz)
+    mc = mocap_claps(clap_a_xyz, clap_b_xyz, kept[:, 0], kept[:, 1], rate_hz, **mocap_kw)
     if not mc:
         raise StageError(mocap_path, "no clap found in the clapper markers (no fast closing that stays shut)",
                          take=take)
