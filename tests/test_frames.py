@@ -28,7 +28,9 @@ OFFSETS = {
 }
 NAMES = {"pelvis": ["PEL1", "PEL2", "PEL3"], "spine": ["SPN1", "SPN2", "SPN3"],
          "head": ["HFL", "HFR", "HBL", "HBR", "HTOP"]}
-HEADC_OFF = np.array([0.0, -40.0, 95.0])      # eyes' centre relative to the head segment's centre
+HEADC_OFF = np.array([0.0, -40.0, 95.0])
+#: what the markers alone give, without filling segment rotations across their gaps
+NO_ROT_FILL = FramesParams(max_fill_error_deg=0.0)      # eyes' centre relative to the head segment's centre
 TARGET_CHAR = np.array([600.0, 900.0, 1800.0])
 
 
@@ -223,7 +225,7 @@ def test_target_unfilled_is_nan_and_char_missing_invalid(take):
     xyz[30:35, mk.index("SACR")] = np.nan
     xyz[50, mk.index("SPN2")] = np.nan
     m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
-    j = compute_frames(m2, markerset(), neutral)
+    j = compute_frames(m2, markerset(), neutral, NO_ROT_FILL)
     assert np.isnan(j.target_dir[10:20]).all() and np.isfinite(j.target_dir[20:30]).all()
     assert not j.valid[30:35].any() and not j.valid[50]
     assert j.valid.sum() == len(j.valid) - 6
@@ -362,8 +364,8 @@ def test_partial_clusters_fitted_to_markers_present(take):
     xyz[400:410, mk.index("SPN2")] = np.nan       # a triangle loses a marker: undefined
     m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
     ms = markerset(headc=False, eye_offset=tuple(HEADC_OFF - np.mean(OFFSETS["head"], axis=0)))
-    j = compute_frames(m2, ms, neutral)
-    full = compute_frames(mk, ms, neutral)
+    j = compute_frames(m2, ms, neutral, NO_ROT_FILL)
+    full = compute_frames(mk, ms, neutral, NO_ROT_FILL)
     part = np.r_[100:200, 250:300]
     assert j.valid[part].all()
     assert not j.valid[350:360].any() and np.isnan(j.quat[350:360, 2]).all()
@@ -387,7 +389,7 @@ def test_partial_cluster_collinear_subset_undefined(take):
     xyz[20:30, [h[1], h[2]]] = np.nan
     m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
     n2 = Markers(labels=neutral.labels, xyz=nxyz, valid=neutral.valid, rate_hz=RATE)
-    j = compute_frames(m2, markerset(), n2)
+    j = compute_frames(m2, markerset(), n2, NO_ROT_FILL)
     assert not j.valid[20:30].any() and j.valid[30:40].all()
 
 
@@ -440,3 +442,32 @@ def test_a_marker_missing_from_the_neutral_pose_falls_back_to_the_next_source(ta
     j1 = compute_frames(mk, markerset(), [("neutral take", holed)])
     assert np.isnan(j1.quat[:, 1]).all() and np.isfinite(j1.quat[:, [0, 2]]).all()
     assert j1.qc["neutral_sources"]["spine"] is None and any("'spine'" in w for w in j1.qc["warnings"])
+
+
+def test_segment_rotations_are_filled_across_open_gaps_when_the_hold_out_allows(take):
+    """The spine loses a marker for 12 frames and the head for 30: their parent-relative rotations are filled
+    across (flagged in rot_filled) within the hold-out's estimate of the truth; with a limit below what the
+    hold-out shows, or a gap with no room beside it, they stay missing."""
+    mk, neutral, rots, _ = take
+    xyz = mk.xyz.copy()
+    xyz[300:312, mk.index("SPN2")] = np.nan
+    h = [mk.index(n) for n in NAMES["head"]]
+    xyz[400:430, h[:3]] = np.nan                     # two head markers left: the head has no rotation there
+    xyz[0:5, mk.index("SPN1")] = np.nan              # at the take's start: nothing to interpolate from
+    m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    j = compute_frames(m2, markerset(), neutral)
+    assert j.rot_filled[300:312, 1].all() and j.rot_filled[400:430, 2].all()
+    assert j.rot_filled.sum() == 12 + 30 and j.valid[300:312].all() and j.valid[400:430].all()
+    assert not j.valid[0:5].any()
+    gaps = {(g["segment"], g["start"]): g for g in j.qc["rotation_gaps"]}
+    assert gaps[(1, 300)]["filled"] and gaps[(2, 400)]["filled"] and not gaps[(1, 0)]["filled"]
+    for seg, rows in ((1, np.r_[300:312]), (2, np.r_[400:430])):
+        err = angles_deg(j.quat[rows, seg], rots[j.segments[seg]][rows])
+        assert err.mean() <= gaps[(seg, rows[0])]["error_deg"] + 1.0 and err.max() < 3.0
+    strict = compute_frames(m2, markerset(), neutral, FramesParams(max_fill_error_deg=1e-3))
+    assert not strict.rot_filled.any() and not strict.valid[300:312].any()
+    # the joints table says which rotations were filled
+    from gazepipe.schemas.joints import joints_arrays, joints_to_table
+
+    back = joints_arrays(joints_to_table(j, np.arange(mk.n_frames)))
+    np.testing.assert_array_equal(back["rot_filled"], j.rot_filled)

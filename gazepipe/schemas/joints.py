@@ -3,7 +3,8 @@
 Rotations are in the character frame of that frame (SPEC §2): ``quat`` global and ``quat_local``
 parent-relative (w, x, y, z per segment, segments in markerset order), ``six`` the 6-number form (forward then up
 per segment). ``head_centre`` mm and ``target_dir`` (unit) are in the character frame; ``char_origin`` (mm, lab)
-and ``char_rot`` (lab-from-character, w, x, y, z) place the character frame in the lab. The number of segments
+and ``char_rot`` (lab-from-character, w, x, y, z) place the character frame in the lab. ``rot_filled`` says per
+segment whether its rotation was filled across a gap of its markers rather than measured. The number of segments
 lives in the list sizes and in ``meta.segments``.
 """
 
@@ -16,7 +17,8 @@ import pyarrow as pa
 
 from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
-SCHEMA_VERSION = 1
+#: 2 added ``rot_filled``
+SCHEMA_VERSION = 2
 
 
 def _vec(n: int) -> pa.DataType:
@@ -37,6 +39,7 @@ def joints_schema(n_segments: int) -> pa.Schema:
         pa.field("target_dir", _vec(3)),
         pa.field("char_origin", _vec(3)),
         pa.field("char_rot", _vec(4)),
+        pa.field("rot_filled", pa.list_(pa.bool_(), s), nullable=False),
     ]), "joints", SCHEMA_VERSION)
 
 
@@ -68,6 +71,9 @@ def joints_to_table(joints, frames: np.ndarray, meta: dict[str, Any] | None = No
         "target_dir": fixed_list(joints.target_dir, 3),
         "char_origin": fixed_list(joints.char_origin, 3),
         "char_rot": fixed_list(joints.char_rot, 4),
+        "rot_filled": pa.FixedSizeListArray.from_arrays(pa.array(
+            (np.zeros((n, s), dtype=bool) if getattr(joints, "rot_filled", None) is None
+             else np.asarray(joints.rot_filled, dtype=bool)).reshape(-1)), s),
     }
     table = pa.Table.from_pydict(cols, schema=joints_schema(s))
     info = {"segments": list(joints.segments), "parents": [int(p) for p in joints.parents],
@@ -87,4 +93,6 @@ def joints_arrays(table: pa.Table) -> dict[str, Any]:
                         ("target_dir", (3,)), ("char_origin", (3,)), ("char_rot", (4,))):
         width = int(np.prod(shape))
         out[name] = list_to_numpy(table.column(name), width).reshape(-1, *shape)
+    out["rot_filled"] = (table.column("rot_filled").combine_chunks().flatten().to_numpy(zero_copy_only=False)
+                         .reshape(-1, s).astype(bool))
     return out
