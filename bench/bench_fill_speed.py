@@ -1,5 +1,5 @@
 """Speed of gap filling as the clean stage runs it (spike removal, then :func:`fill_gaps` with the markerset's
-segments as rigid clusters), on real-sized takes.
+segments as rigid clusters, ``max_gap_s`` and ``max_fill_error_mm``), on real-sized takes.
 
 Takes: every ``--step``-th C3D of ``bench/_work/klein_x10/klein_laying/mocap`` (written by ``bench/make_corpus.py``)
 up to ``--takes``, and the sample session's takes. Prints the time per take and per gap (minimum over
@@ -21,12 +21,13 @@ import numpy as np
 from gazepipe.io.capture import read_markers
 from gazepipe.io.session_toml import load_markerset
 from gazepipe.stages.clean.gapfill import fill_gaps
-from gazepipe.stages.clean.spikes import remove_spikes
+from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.clean.stage import CleanParams
 
 ROOT = Path(__file__).resolve().parents[1]
 KLEIN = ROOT / "bench" / "_work" / "klein_x10" / "klein_laying"
 SAMPLE = ROOT / "sample_data" / "session01"
+HOSTILE = ROOT / "bench" / "_work" / "hostile"
 
 
 def load_takes(folder: Path, n: int, step: int) -> list[dict]:
@@ -41,20 +42,24 @@ def load_takes(folder: Path, n: int, step: int) -> list[dict]:
         mk = read_markers(f, default_units=ms.units)
         valid = mk.valid & np.isfinite(mk.xyz).all(axis=2)
         xyz = np.where(valid[..., None], mk.xyz, np.nan)
-        valid, _ = remove_spikes(xyz, valid, mk.rate_hz, max_accel_mm_s2=p.spike_max_accel_mm_s2,
-                                 min_step_mm=p.spike_min_step_mm, max_piece_s=p.spike_max_piece_s)
-        xyz = np.where(valid[..., None], xyz, np.nan)
         pos = {lab.split(":")[-1]: i for i, lab in enumerate(mk.labels)}
         clusters = [[pos[x] for x in s.markers if x in pos] for s in ms.segments]
+        t0 = time.process_time()
+        valid &= ~find_spikes(xyz, valid, mk.rate_hz, clusters, residual_mm=p.spike_residual_mm,
+                              step_factor=p.spike_step_factor, cluster_mm=p.spike_cluster_mm,
+                              max_accel_mm_s2=p.spike_max_accel_mm_s2, min_step_mm=p.spike_min_step_mm,
+                              max_piece_s=p.spike_max_piece_s)
+        spike_s = time.process_time() - t0
+        xyz = np.where(valid[..., None], xyz, np.nan)
         out.append({"name": f"{folder.name}/{f.stem}", "xyz": xyz, "valid": valid, "rate": mk.rate_hz,
                     "clusters": [c for c in clusters if len(c) >= 2], "max_gap_s": p.max_gap_s,
-                    "methods": tuple(p.fill_methods)})
+                    "max_error_mm": p.max_fill_error_mm, "methods": tuple(p.fill_methods), "spike_s": spike_s})
     return out
 
 
 def fill(t: dict):
     return fill_gaps(t["xyz"], t["valid"], t["rate"], clusters=t["clusters"], max_gap_s=t["max_gap_s"],
-                     methods=t["methods"])
+                     methods=t["methods"], max_error_mm=t["max_error_mm"])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step", type=int, default=6, help="use every step-th Klein take")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--profile", action="store_true", help="cProfile one pass and print the top functions")
+    ap.add_argument("--hostile", action="store_true",
+                    help="also a generated session with spikes, long trunk occlusions and dense gaps")
     args = ap.parse_args(argv)
     sets = []
     if (KLEIN / "mocap").is_dir():
@@ -71,6 +78,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{KLEIN} absent (run bench/make_corpus.py): skipped")
     if (SAMPLE / "mocap").is_dir():
         sets.append(("sample session01", load_takes(SAMPLE, 0, 1)))
+    if args.hostile:
+        from gazepipe.synth import SynthConfig, generate_session
+
+        cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=45.0, head_camera=False,
+                          face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0)
+        sets.append(("hostile generated session", load_takes(generate_session(HOSTILE, seed=0, config=cfg), 0, 1)))
     from threadpoolctl import threadpool_limits
 
     # one BLAS thread, as the pipeline runs every unit
@@ -95,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{n_gaps / len(takes):.1f} filled gaps per take; fill_gaps {1000 * best / len(takes):.1f} ms per take, "
               f"{1000 * best / max(n_gaps, 1):.2f} ms per gap (min of {args.repeats}); "
               f"CPU {1000 * best_cpu / len(takes):.1f} ms per take; "
+              f"spike search {1000 * sum(t['spike_s'] for t in takes) / len(takes):.1f} ms CPU per take; "
               f"output digest {digest.hexdigest()[:16]}")
         if args.profile:
             import cProfile
