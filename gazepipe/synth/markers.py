@@ -190,7 +190,7 @@ def make_long_gaps(rng: np.random.Generator, labels: list[str], n: int, rate_hz:
     if crop is not None:
         anchors.extend(crop)
     for k in range(count):
-        length = min(n - 1, int(round(rng.uniform(*LONG_GAP_S) * rate_hz)))
+        length = min(n - 1, int(rng.uniform(*LONG_GAP_S) * rate_hz))     # whole frames within 3 s
         if k < len(anchors):
             start = anchors[k] - int(rng.integers(0, length)) if k > 0 else anchors[k]  # straddle a crop edge
         else:
