@@ -446,21 +446,24 @@ def test_a_marker_missing_from_the_neutral_pose_falls_back_to_the_next_source(ta
 
 def test_segment_rotations_are_filled_across_open_gaps_when_the_hold_out_allows(take):
     """The spine loses a marker for 12 frames and the head for 30: their parent-relative rotations are filled
-    across (flagged in rot_filled) within the hold-out's estimate of the truth; with a limit below what the
-    hold-out shows, or a gap with no room beside it, they stay missing."""
+    across (flagged in rot_filled) within the hold-out's estimate of the truth. At the take's start and end,
+    with nothing to meet on one side, the rotations stay missing."""
     mk, neutral, rots, _ = take
     xyz = mk.xyz.copy()
     xyz[300:312, mk.index("SPN2")] = np.nan
     h = [mk.index(n) for n in NAMES["head"]]
     xyz[400:430, h[:3]] = np.nan                     # two head markers left: the head has no rotation there
-    xyz[0:5, mk.index("SPN1")] = np.nan              # at the take's start: nothing to interpolate from
+    xyz[0:5, mk.index("SPN1")] = np.nan
+    xyz[595:, h[:3]] = np.nan
     m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
     j = compute_frames(m2, markerset(), neutral)
     assert j.rot_filled[300:312, 1].all() and j.rot_filled[400:430, 2].all()
-    assert j.rot_filled.sum() == 12 + 30 and j.valid[300:312].all() and j.valid[400:430].all()
-    assert not j.valid[0:5].any()
+    assert j.rot_filled.sum() == 12 + 30 and j.valid[5:595].all() and not j.valid[595:].any()
+    assert not j.valid[:5].any()
     gaps = {(g["segment"], g["start"]): g for g in j.qc["rotation_gaps"]}
-    assert gaps[(1, 300)]["filled"] and gaps[(2, 400)]["filled"] and not gaps[(1, 0)]["filled"]
+    assert gaps[(1, 300)]["filled"] and gaps[(2, 400)]["filled"]
+    assert not gaps[(2, 595)]["filled"] and not gaps[(1, 0)]["filled"]
+    assert gaps[(2, 400)]["method"] == "slerp"                  # the head has no child to span it
     for seg, rows in ((1, np.r_[300:312]), (2, np.r_[400:430])):
         err = angles_deg(j.quat[rows, seg], rots[j.segments[seg]][rows])
         assert err.mean() <= gaps[(seg, rows[0])]["error_deg"] + 1.0 and err.max() < 3.0

@@ -91,3 +91,27 @@ def test_spikes_are_marked_in_the_cleaned_markers(hostile_run):
         false += int((spike & ~want).sum())
         measured += int(want.size)
     assert total > 20 and caught >= 0.9 * total and false <= 0.001 * measured, (caught, total, false, measured)
+
+
+def test_filled_segment_rotations_are_close_to_the_truth(hostile_run):
+    """Rotations filled across their markers' gaps (by slerp or by the neighbour model): within 5° of the truth
+    everywhere, and the neighbour model used where it was the better guess."""
+    from gazepipe.schemas.joints import joints_arrays
+
+    folder, out, _ = hostile_run
+    errors, methods = [], set()
+    for path in sorted((out / "takes").glob("*/*/joints.parquet")):
+        j = joints_arrays(pq.read_table(path))
+        truth = np.load(folder / "truth" / f"{path.parent.name}.npz")
+        idx = [list(truth["segments"]).index(s) for s in j["segments"]]
+        rows, segs = np.nonzero(j["rot_filled"])
+        if len(rows):
+            got = from_wxyz(j["quat"][rows, segs])
+            want = from_wxyz(truth["seg_quat_char"][j["frame"][rows]][np.arange(len(rows)),
+                                                                       np.asarray(idx)[segs]].astype(np.float64))
+            errors.append(np.degrees((got * want.inv()).magnitude()))
+        rec = json.loads((out / ".gazepipe" / "units" / path.parts[-3] / path.parent.name / "frames.json").read_text())
+        methods |= {g["method"] for g in rec["qc"]["rotation_gaps"] if g["filled"]}
+    err = np.concatenate(errors)
+    assert len(err) > 50 and err.max() <= 5.0, (len(err), err.max())
+    assert methods <= {"slerp", "model"} and methods
