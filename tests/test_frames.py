@@ -474,3 +474,24 @@ def test_segment_rotations_are_filled_across_open_gaps_when_the_hold_out_allows(
 
     back = joints_arrays(joints_to_table(j, np.arange(mk.n_frames)))
     np.testing.assert_array_equal(back["rot_filled"], j.rot_filled)
+
+
+def test_the_rest_before_the_take_gives_a_gap_at_its_start_its_other_side(take):
+    """A spine marker is hidden from 10 frames before the take's first frame to 10 after: with the rest before
+    the take given, the spine's rotation is filled over the take's first 10 frames, close to the truth; without
+    it, those frames have nothing on one side and stay missing. Only the take's own frames come out."""
+    mk, neutral, rots, _ = take
+    xyz = mk.xyz.copy()
+    xyz[90:110, mk.index("SPN2")] = np.nan
+    def part(a, b):
+        return Markers(labels=mk.labels, xyz=xyz[a:b], valid=np.isfinite(xyz[a:b]).all(2), rate_hz=RATE,
+                       first_frame=a)
+    rest, own = part(0, 100), part(100, 600)
+    alone = compute_frames(own, markerset(), neutral)
+    assert not alone.valid[:10].any() and not alone.rot_filled.any()
+    j = compute_frames(own, markerset(), neutral, before=rest)
+    assert j.quat.shape[0] == 500 and j.first_frame == 100
+    assert j.rot_filled[:10, 1].all() and j.valid.all() and j.rot_filled.sum() == 10
+    assert angles_deg(j.quat[:10, 1], rots["spine"][100:110]).max() < 3.0
+    np.testing.assert_array_equal(j.quat[20:], alone.quat[20:])
+    assert [(g["start"], g["stop"]) for g in j.qc["rotation_gaps"]] == [(-10, 10)]

@@ -223,14 +223,16 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         sources.append((f"neutral take {neutral_take.id}",
                         _clean_neutral(neutral_take, ms, _build(CleanParams, ctx.params_of("clean")),
                                        (st.st_size, st.st_mtime_ns, st.st_ino))))
-    own, _, nmeta = _load_markers(ctx, "neutral")
+    own, own_frames, nmeta = _load_markers(ctx, "neutral")
     if own.n_frames:
         sources.append((f"first rest period {nmeta.get('rest')}", own))
+    # the first rest ends where the crop starts: its frames give rotation gaps open at the crop's start a side
+    before = own if own.n_frames and len(frames) and own_frames[-1] + 1 == frames[0] else None
     source = sources[0][0] if sources else "none"
     if ctx.take.kind != "gaze_follow":  # only gaze_follow takes track the target marker
         ms = dataclasses.replace(ms, target=None)
     joints = compute_frames(markers, ms, sources, _build(FramesParams, ctx.params), path=ctx.take.mocap,
-                            take=ctx.take.id)
+                            take=ctx.take.id, before=before)
     qc = dict(joints.qc)
     qc["neutral_source"] = source
     table = joints_to_table(joints, frames, meta={"neutral_source": source})
@@ -239,7 +241,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="4", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="5", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

@@ -10,7 +10,7 @@ centre and the unit direction from it to the target. Pure functions; no file I/O
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -42,8 +42,9 @@ class FramesParams:
         alike and is ~10 % less noisy (0.9° vs 1.05° median error on the sample session's 62 mm neck
         triangles with 0.5 mm noise).
     max_fill_error_deg : a segment whose markers stay unfilled gets its parent-relative rotation filled across
-        the gap (slerp between the rotations on either side, :func:`fill_rotation_gaps`) when the hold-out estimate of that fill's error, on stretches of the gap's
-        length beside it, is at most this many degrees; 0 turns it off.
+        the gap (:func:`fill_rotation_gaps`: slerp between the rotations on either side, or a model of its
+        neighbours' rotations) when the hold-out estimate of that fill's error, on stretches of the gap's length
+        beside it, is at most this many degrees; 0 turns it off.
     min_plane_ratio : a segment of more than three markers with some missing in a frame is fitted to the
         markers present when there are at least three and their neutral reference is not nearly collinear:
         the second singular value of the centred reference subset must be at least this share of the first
@@ -236,7 +237,7 @@ def _marker_frames(pts: np.ndarray, ref: np.ndarray | None, triangle: str = "rig
 
 def compute_frames(markers: Markers, markerset: MarkerSet,
                    neutral: Markers | Sequence[tuple[str, Markers]] | None, params: FramesParams | None = None,
-                   *, path: str | None = None, take: str | None = None) -> Joints:
+                   *, path: str | None = None, take: str | None = None, before: Markers | None = None) -> Joints:
     """Segment orientations, head centre and target direction per frame (SPEC §3.3).
 
     Parameters
@@ -255,6 +256,10 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
     The character frame's heading comes from the root segment's first two markers, or where one of them is
     missing from a rigid fit of the root segment (:func:`fitted_character_frame`; QC ``heading_fitted_frames``).
 
+    ``before``: the frames just before the take's first one (the rest the crop starts after), same labels and
+    axes; they give a segment's rotation gap that starts before the take its known side there
+    (:func:`fill_rotation_gaps`), and are not in the output. QC frame numbers count from the take's first frame.
+
     Raises :class:`~gazepipe.errors.StageError` when a marker is missing from the capture, a segment has fewer
     than three markers, or there is no neutral pose at all.
     """
@@ -263,6 +268,12 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
     params = params or FramesParams()
     if params.triangle not in ("rigid_fit", "gram_schmidt"):
         raise ValueError(f"FramesParams.triangle must be 'rigid_fit' or 'gram_schmidt', not {params.triangle!r}")
+    lead = 0
+    if before is not None and before.n_frames and list(before.labels) == list(markers.labels):
+        lead = before.n_frames
+        markers = replace(markers, xyz=np.concatenate([before.xyz, markers.xyz]),
+                          valid=np.concatenate([before.valid, markers.valid]),
+                          first_frame=int(markers.first_frame) - lead)
     sources = ([] if neutral is None else [("neutral", neutral)] if isinstance(neutral, Markers)
                else [(name, m) for name, m in neutral if m is not None and m.n_frames])
     if not sources:
@@ -364,12 +375,17 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
     char_rot = np.full((n, 4), np.nan)
     if has_char.any():
         char_rot[has_char] = to_wxyz(Rotation.from_matrix(cmat[has_char]))
-    qc["invalid_frames"] = int(np.sum(~valid))
-    return Joints(segments=names, parents=parents, quat=quat, quat_local=quat_local, six=six,
-                  head_centre=head_centre, target_dir=target_dir,
-                  char_origin=np.where(has_char[:, None], origin, np.nan), char_rot=char_rot, valid=valid,
-                  rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame), qc=qc,
-                  rot_filled=rot_filled)
+    k = slice(lead, None)                                     # the take's own frames
+    qc["invalid_frames"] = int(np.sum(~valid[k]))
+    qc["heading_fitted_frames"] = int(fitted[k].sum())
+    for g in qc.get("rotation_gaps", []):
+        g["start"], g["stop"] = g["start"] - lead, g["stop"] - lead
+    qc["rotation_gaps"] = [g for g in qc.get("rotation_gaps", []) if g["stop"] > 0]
+    return Joints(segments=names, parents=parents, quat=quat[k], quat_local=quat_local[k], six=six[k],
+                  head_centre=head_centre[k], target_dir=target_dir[k],
+                  char_origin=np.where(has_char[:, None], origin, np.nan)[k], char_rot=char_rot[k], valid=valid[k],
+                  rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame) + lead, qc=qc,
+                  rot_filled=rot_filled[k])
 
 
 #: known frames on each side a rotation gap is interpolated from (and that a hidden stretch keeps)
