@@ -182,8 +182,9 @@ def export(out: str, take: str, session: str | None, dest: str, table: str) -> N
               help="Longest gap to fill, in seconds; longer gaps stay gaps (0: fill nothing).")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Rate for CSV files that do not carry one.")
-@click.option("--remove-spikes", is_flag=True, help="Turn samples with implausible acceleration (over 50 g) "
-              "into gaps first, as `gazepipe clean` does (default: measured samples are kept; spikes are counted).")
+@click.option("--remove-spikes", is_flag=True, help="Turn spikes (ghosts of a frame or two off a marker's path or "
+              "its rigid cluster, and accelerations over 50 g) into gaps first, as `gazepipe clean` does (default: "
+              "measured samples are kept; spikes are counted).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
 @handle_errors
 def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool,
@@ -250,8 +251,8 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     if sp["samples"]:
         what = ("turned into gaps before filling" if sp["removed"]
                 else "kept as measured (--remove-spikes turns them into gaps first)")
-        click.echo(f"  {sp['samples']} samples of {len(sp['per_marker'])} markers have implausible acceleration "
-                   f"(spikes): {what}")
+        click.echo(f"  {sp['samples']} samples of {len(sp['per_marker'])} markers are spikes (off their path or "
+                   f"cluster, or implausibly accelerated): {what}")
     if summary["clusters"]:
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 

@@ -8,7 +8,8 @@ validation error; frames without the root marker; the low-pass; the rest periods
 
 Read top-down, in the order :func:`clean_markers` (:mod:`.stage`) runs them:
 
-- :mod:`.spikes`: samples with implausible acceleration become gaps;
+- :mod:`.spikes`: spikes become gaps (ghosts of a frame or two off the marker's path or its segment's
+  distances, and implausible accelerations);
 - :mod:`.gapfill`: every gap filled by the best of the methods of :mod:`.fill_methods` (rigid cluster, PCA,
   PCHIP, linear), chosen by hiding measured samples beside it;
 - :mod:`.stabilise`: the root marker to the lab origin (optionally the heading removed);
