@@ -21,11 +21,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _truth_takes import generated_takes, spikes_as_clean_finds_them  # bench/_truth_takes.py
 
-from gazepipe.io.capture import read_markers
-from gazepipe.io.session_toml import load_markerset
 from gazepipe.stages.clean.gapfill import fill_gaps, find_gaps
-from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.markers import LONG_GAP_SEGMENTS
@@ -37,11 +35,7 @@ BINS = ((1, 5), (6, 15), (16, 30), (31, 90), (91, 10_000))
 def clean_fill(markers, clusters, p: CleanParams):
     """Spikes removed, then gaps filled, as the clean stage does before stabilising."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
-    spike = find_spikes(markers.xyz, valid, markers.rate_hz, clusters, residual_mm=p.spike_residual_mm,
-                        step_factor=p.spike_step_factor, cluster_mm=p.spike_cluster_mm,
-                        max_accel_mm_s2=p.spike_max_accel_mm_s2, min_step_mm=p.spike_min_step_mm,
-                        max_piece_s=p.spike_max_piece_s)
-    valid &= ~spike
+    valid &= ~spikes_as_clean_finds_them(markers.xyz, valid, markers.rate_hz, clusters, p)
     return fill_gaps(np.where(valid[..., None], markers.xyz, np.nan), valid, markers.rate_hz,
                      clusters=[c for c in clusters if len(c) >= 2], max_gap_s=p.max_gap_s,
                      methods=tuple(p.fill_methods), max_error_mm=p.max_fill_error_mm), valid
@@ -67,12 +61,7 @@ def main() -> None:
                               face_takes=(), spikes_per_marker_min=args.spikes, long_gaps=args.long,
                               gaps_per_marker_min=args.gaps)
             folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
-            ms = load_markerset(folder / "markerset.toml")
-            for c3d in sorted((folder / "mocap").glob("*.c3d")):
-                truth = np.load(folder / "truth" / f"{c3d.stem}.npz")
-                mk = read_markers(c3d)
-                pos = {lab: i for i, lab in enumerate(mk.labels)}
-                clusters = [[pos[n] for n in s.markers if n in pos] for s in ms.segments]
+            for _, truth, mk, clusters in generated_takes(folder):
                 t0 = time.perf_counter()
                 res, valid = clean_fill(mk, clusters, p)
                 times.append(time.perf_counter() - t0)

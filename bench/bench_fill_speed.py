@@ -17,11 +17,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _truth_takes import spikes_as_clean_finds_them  # bench/_truth_takes.py
 
 from gazepipe.io.capture import read_markers
 from gazepipe.io.session_toml import load_markerset
 from gazepipe.stages.clean.gapfill import fill_gaps
-from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.clean.stage import CleanParams
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,10 +45,7 @@ def load_takes(folder: Path, n: int, step: int) -> list[dict]:
         pos = {lab.split(":")[-1]: i for i, lab in enumerate(mk.labels)}
         clusters = [[pos[x] for x in s.markers if x in pos] for s in ms.segments]
         t0 = time.process_time()
-        valid &= ~find_spikes(xyz, valid, mk.rate_hz, clusters, residual_mm=p.spike_residual_mm,
-                              step_factor=p.spike_step_factor, cluster_mm=p.spike_cluster_mm,
-                              max_accel_mm_s2=p.spike_max_accel_mm_s2, min_step_mm=p.spike_min_step_mm,
-                              max_piece_s=p.spike_max_piece_s)
+        valid &= ~spikes_as_clean_finds_them(xyz, valid, mk.rate_hz, clusters, p)
         spike_s = time.process_time() - t0
         xyz = np.where(valid[..., None], xyz, np.nan)
         out.append({"name": f"{folder.name}/{f.stem}", "xyz": xyz, "valid": valid, "rate": mk.rate_hz,

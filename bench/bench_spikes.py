@@ -20,37 +20,21 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from _truth_takes import generated_takes, spikes_as_clean_finds_them  # bench/_truth_takes.py
 
 from gazepipe.io.capture import read_markers
-from gazepipe.io.session_toml import load_markerset
 from gazepipe.stages.clean.gapfill import find_rigid_clusters
-from gazepipe.stages.clean.spikes import find_spikes
-from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.synth import SynthConfig, generate_session
 
 ROOT = Path(__file__).resolve().parents[1]
 CORPUS = ROOT / "tests" / "data" / "corpus" / "c3d"
 
 
-def spikes_as_clean_finds_them(markers, clusters) -> np.ndarray:
-    p = CleanParams()
-    valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
-    return find_spikes(markers.xyz, valid, markers.rate_hz, clusters, residual_mm=p.spike_residual_mm,
-                       step_factor=p.spike_step_factor, cluster_mm=p.spike_cluster_mm,
-                       max_accel_mm_s2=p.spike_max_accel_mm_s2, min_step_mm=p.spike_min_step_mm,
-                       max_piece_s=p.spike_max_piece_s)
-
-
 def session_figures(folder: Path) -> dict:
-    ms = load_markerset(folder / "markerset.toml")
     out = {"spikes": 0, "caught": 0, "other": 0, "flagged": 0, "missed": Counter(), "times": []}
-    for c3d in sorted((folder / "mocap").glob("*.c3d")):
-        truth = np.load(folder / "truth" / f"{c3d.stem}.npz")
-        markers = read_markers(c3d)
-        pos = {lab: i for i, lab in enumerate(markers.labels)}
-        clusters = [[pos[n] for n in s.markers if n in pos] for s in ms.segments]
+    for _, truth, markers, clusters in generated_takes(folder):
         t0 = time.perf_counter()
-        flagged = spikes_as_clean_finds_them(markers, clusters)
+        flagged = spikes_as_clean_finds_them(markers.xyz, markers.valid, markers.rate_hz, clusters)
         out["times"].append(time.perf_counter() - t0)
         spiked = truth["spike_mask"]
         measured = ~truth["gap_mask"]
@@ -90,7 +74,8 @@ def main() -> None:
         markers = read_markers(path)
         valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
         t0 = time.perf_counter()
-        flagged = spikes_as_clean_finds_them(markers, find_rigid_clusters(markers.xyz, valid))
+        flagged = spikes_as_clean_finds_them(markers.xyz, markers.valid, markers.rate_hz,
+                                             find_rigid_clusters(markers.xyz, valid))
         dt = time.perf_counter() - t0
         print(f"  {path.name:34s} {markers.rate_hz:6.1f} Hz  {int(flagged.sum()):5d} of {int(valid.sum()):7d} "
               f"measured samples ({100 * flagged.sum() / max(valid.sum(), 1):.3f} %), {1000 * dt:.0f} ms")
