@@ -458,8 +458,7 @@ def check_blend(weights: dict[str, float], truth: np.ndarray, hidden: dict[str, 
     top = max(weights, key=lambda k: weights[k])
     if any(k not in hidden for k in weights):
         return weights
-    q = sum(w * hidden[k] for k, w in weights.items())
-    ok = np.isfinite(q).all(axis=1)
+    q, ok = _blend_on_hidden(weights, hidden)
     if not ok.any():
         return weights
     if norm3(q[ok] - truth[ok]).mean() > norm3(hidden[top][ok] - truth[ok]).mean():
@@ -476,9 +475,14 @@ def fill_error(weights: dict[str, float], errors: dict[str, float],
     if stretches is None or any(k not in stretches[1] for k in weights):
         return float("nan")
     truth, hidden = stretches
-    q = sum(w * hidden[k] for k, w in weights.items())
-    ok = np.isfinite(q).all(axis=1)
+    q, ok = _blend_on_hidden(weights, hidden)
     return float(norm3(q[ok] - truth[ok]).mean()) if ok.any() else float("nan")
+
+
+def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The blend's prediction of the hidden samples (n, 3) and the frames where every blended method has one."""
+    q = sum(w * hidden[k] for k, w in weights.items())
+    return q, np.isfinite(q).all(axis=1)
 
 
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,

@@ -16,6 +16,7 @@ import numpy as np
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
+from gazepipe.stages.clean.filters import true_runs
 from gazepipe.stages.geometry import (
     frame_from_points,
     heading_frames,
@@ -311,7 +312,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
             npts = np.stack([_col(nm, m, path, take, f"segment {s.name!r}") for m in s.markers], axis=1)
             nok = n_has_char & np.isfinite(npts).all(axis=(1, 2))
             if nok.sum() >= params.min_neutral_frames:
-                chosen = (label, npts, nok, n_origin, n_cmat)
+                chosen = (label, npts, nok, n_origin, n_cmat, nm)
                 break
         qc["neutral_frames"][s.name] = int(chosen[2].sum()) if chosen else 0
         qc["neutral_sources"][s.name] = chosen[0] if chosen else None
@@ -321,7 +322,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
                                   "orientation in this take")
             centres[s.name] = np.full((n, 3), np.nan)
             continue
-        _, npts, nok, n_origin, n_cmat = chosen
+        _, npts, nok, n_origin, n_cmat, chosen_markers = chosen
         # reference cluster for rigid fits: the neutral cluster's mean shape in character coordinates
         ref = _to_char(npts[nok], n_origin[nok], n_cmat[nok]).mean(axis=0)
         n_raw, _ = _marker_frames(npts[nok], ref, params.triangle)
@@ -329,7 +330,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
         calib = n_glob.mean().inv().as_matrix()   # right-multiplied: neutral mean → identity
         raw, centres[s.name] = _marker_frames(pts, ref, params.triangle, params.min_plane_ratio)
         if s.name == markerset.root_segment.name and params.triangle == "rigid_fit":
-            _root_segment_fit(raw, pts, npts, nok, n_origin, n_cmat, markers, chosen_neutral(chosen, sources),
+            _root_segment_fit(raw, pts, npts, nok, n_origin, n_cmat, markers, chosen_markers,
                               markerset, params)
         ok = has_char & np.isfinite(raw).all(axis=(1, 2))
         if ok.any():
@@ -494,7 +495,7 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
                 sm = np.where(span_ok[:, None, None], np.swapaxes(gmat[:, p], 1, 2) @ sm, np.eye(3))
             span = Rotation.from_matrix(sm)
 
-        for s, e in _runs_of(missing):
+        for s, e in true_runs(missing):
             length = e - s
             if s < a or e + a > n or not loc_ok[s - a:s].all() or not loc_ok[e:e + a].all():
                 records.append({"segment": j, "start": s, "stop": e, "method": None, "error_deg": None,
@@ -521,17 +522,6 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
             ok_rot[s:e, j] = True
             filled[s:e, j] = True
     return filled, records
-
-
-def _runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Half-open runs of True in a (N,) bool array."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
-
-
-def chosen_neutral(chosen: tuple, sources: Sequence[tuple[str, Markers]]) -> Markers:
-    """The neutral markers of the source a segment was calibrated on."""
-    return dict(sources)[chosen[0]]
 
 
 def _root_segment_fit(raw: np.ndarray, pts: np.ndarray, npts: np.ndarray, nok: np.ndarray, n_origin: np.ndarray,
