@@ -63,11 +63,17 @@ class TableStore:
 
 @dataclass
 class UnitResult:
-    """What a unit produced: tables by name (each with the schema it must match) and a JSON-able QC record."""
+    """What a unit produced: tables by name (each with the schema it must match) and a JSON-able QC record.
+
+    ``read`` lists input files the unit chose to read beyond its stage's declared ``sources`` (known only
+    while it ran, such as a fallback it needed); their content hashes join the unit's record, and a later run
+    re-runs the unit when one of them changed.
+    """
 
     tables: dict[str, tuple[pa.Table, pa.Schema]] = field(default_factory=dict)
     qc: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    read: list[str] = field(default_factory=list)
 
 
 @dataclass

@@ -13,7 +13,7 @@ import os
 import time
 import traceback
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +25,7 @@ from gazepipe import __version__
 from gazepipe.errors import GazepipeError, InputError, SchemaError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
-from gazepipe.pipeline.hashing import HashCache, sha256_json
+from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
 from gazepipe.pipeline.registry import SessionLike, Stage, TakeLike, UnitContext
 from gazepipe.pipeline.state import OutLayout, read_json
 
@@ -105,7 +105,7 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
         fps[st.name] = fp
         record_path = layout.record(session.id, take.id, st.name)
         reason = _why(st, comp, fp, record_path, [layout.table(session.id, take.id, o) for o in st.outputs],
-                      running, force)
+                      running, force, lambda rel: hashes.hash(os.path.join(session.root, rel)))
         error = ""
         if reason:
             running.add(st.name)
@@ -120,8 +120,9 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
 
 
 def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: list[Path],
-         running: set[str], force: bool) -> str:
-    """Why a unit must run, or '' when it is up to date."""
+         running: set[str], force: bool, hash_of: Callable[[str], str]) -> str:
+    """Why a unit must run, or '' when it is up to date (``hash_of`` hashes a path relative to the session,
+    for the inputs the unit's last run found it needed, :attr:`UnitResult.read`)."""
     if force:
         return "--force"
     rec = read_json(record_path)
@@ -132,6 +133,12 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
             return ""   # an input problem: the same inputs fail the same way
         return "failed last time"
     if rec["fingerprint"] == fp:
+        for rel, digest in (rec.get("read") or {}).items():
+            try:
+                if hash_of(rel) != digest:
+                    return f"input changed: {rel}"
+            except GazepipeError:
+                return f"input {rel} unreadable"
         sizes = rec.get("outputs", {})
         for p in outputs:
             try:
@@ -244,7 +251,8 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
             sizes[final.name] = final.stat().st_size
             if written is not None:
                 written[final] = table
-        record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings)
+        record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings,
+                      read={os.path.relpath(p, job.session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)
     except GazepipeError as exc:
         if exc.take is None:
