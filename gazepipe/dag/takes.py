@@ -17,6 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow as pa
 
+from gazepipe.errors import GazepipeError, StageError
 from gazepipe.io.parquet import read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
@@ -177,7 +178,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="8", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="9", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,
@@ -196,52 +197,105 @@ def _frames_take(session: Session, take: Take) -> bool:
     return _subject_take(session, take) and take.kind in ("gaze_follow", "gaze_shift")
 
 
-@functools.lru_cache(maxsize=4)
-def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int]) -> Markers:
-    """The neutral take's cleaned markers (``file_id`` = size, mtime, inode of its capture: a changed file is
-    read again)."""
+@functools.lru_cache(maxsize=8)
+def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int]) -> Markers | None:
+    """A take's neutral pose, cleaned from its capture: the whole take for the ``neutral`` take, else its
+    first rest period (None when it has none). ``file_id`` = size, mtime, inode of the capture: a changed
+    file is read again."""
     from gazepipe.io.capture import read_markers
     from gazepipe.stages.clean.stage import clean_markers
 
     raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
     mapping = check_capture_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))
     raw.labels = _renamed(raw.labels, mapping)
-    return clean_markers(raw, ms, "neutral", params, path=take.mocap, take=take.id).markers
+    res = clean_markers(raw, ms, take.kind, params, path=take.mocap, take=take.id)
+    return res.markers if take.kind == "neutral" else res.neutral
+
+
+def _neutral_of(take: Take, ms, params: CleanParams) -> Markers | None:
+    st = os.stat(take.mocap)
+    return _clean_neutral(take, ms, params, (st.st_size, st.st_mtime_ns, st.st_ino))
+
+
+def _other_rests(ctx: UnitContext, ms, params: CleanParams, missing: list[str],
+                 min_frames: int) -> list[tuple[str, Markers, str]]:
+    """Neutral sources of last resort (SPEC §3.3): the first rest periods of the session's other mocap takes,
+    in session order, that hold ``min_frames`` frames with every marker of a segment in ``missing``; as
+    (label, markers, capture path). A take that cannot be read or cleaned is passed over."""
+    out: list[tuple[str, Markers, str]] = []
+    need = {seg: ms.segment(seg).markers for seg in missing}
+    for other in ctx.session.takes:
+        if other.id == ctx.take.id or other.kind == "neutral" or not _subject_take(ctx.session, other):
+            continue
+        try:
+            rest = _neutral_of(other, ms, params)
+        except GazepipeError:
+            continue
+        if rest is None or not rest.n_frames:
+            continue
+        solved = [seg for seg, names in need.items() if all(n in rest.labels for n in names)
+                  and int(np.isfinite(rest.xyz[:, [rest.index(n) for n in names]]).all(axis=(1, 2)).sum())
+                  >= min_frames]
+        if solved:
+            out.append((f"first rest period of take {other.id}", rest, other.mocap))
+            for seg in solved:
+                need.pop(seg)
+        if not need:
+            break
+    return out
 
 
 def run_frames(ctx: UnitContext) -> UnitResult:
     from gazepipe.stages.frames.stage import compute_frames
 
     ms = ctx.session.markerset
+    clean_params = _build(CleanParams, ctx.params_of("clean"))
+    params = _build(FramesParams, ctx.params)
     markers, frames, _ = _load_markers(ctx, "markers")
     sources: list[tuple[str, Markers]] = []    # neutral poses, in order of preference (SPEC §3.3)
     neutral_take = _neutral_take(ctx.session)
     if neutral_take is not None:
         # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
         # cleans it once for all the takes it runs (keyed by the file's identity and the parameters)
-        st = os.stat(neutral_take.mocap)
-        sources.append((f"neutral take {neutral_take.id}",
-                        _clean_neutral(neutral_take, ms, _build(CleanParams, ctx.params_of("clean")),
-                                       (st.st_size, st.st_mtime_ns, st.st_ino))))
+        neutral = _neutral_of(neutral_take, ms, clean_params)
+        if neutral is not None:
+            sources.append((f"neutral take {neutral_take.id}", neutral))
     own, own_frames, nmeta = _load_markers(ctx, "neutral")
     if own.n_frames:
         sources.append((f"first rest period {nmeta.get('rest')}", own))
     # the first rest ends where the crop starts: its frames give rotation gaps open at the crop's start a side
     before = own if own.n_frames and len(frames) and own_frames[-1] + 1 == frames[0] else None
-    source = sources[0][0] if sources else "none"
     if ctx.take.kind != "gaze_follow":  # only gaze_follow takes track the target marker
         ms = dataclasses.replace(ms, target=None)
-    joints = compute_frames(markers, ms, sources, _build(FramesParams, ctx.params), path=ctx.take.mocap,
-                            take=ctx.take.id, before=before)
+
+    def solve(srcs: list[tuple[str, Markers]]):
+        return compute_frames(markers, ms, srcs, params, path=ctx.take.mocap, take=ctx.take.id, before=before)
+
+    read: list[str] = []
+    failure: StageError | None = None
+    try:
+        joints = solve(sources)
+        missing = [seg for seg, src in joints.qc["neutral_sources"].items() if src is None]
+    except StageError as exc:      # no segment has a neutral pose among these sources
+        joints, missing, failure = None, [seg.name for seg in ms.segments], exc
+    if missing:
+        # last resort: another take's first rest; only read when needed, so the unit records what it read
+        extra = _other_rests(ctx, ms, clean_params, missing, params.min_neutral_frames)
+        if extra:
+            joints = solve(sources + [(label, m) for label, m, _ in extra])
+            read = [path for _, _, path in extra]
+        elif failure is not None:
+            raise failure
+    source = sources[0][0] if sources else "none"
     qc = dict(joints.qc)
     qc["neutral_source"] = source
     table = joints_to_table(joints, frames, meta={"neutral_source": source})
     return UnitResult(tables={"joints": (table, joints_schema(len(joints.segments)))}, qc=qc,
-                      warnings=list(qc.get("warnings", [])))
+                      warnings=list(qc.get("warnings", [])), read=read)
 
 
 register(Stage(
-    name="frames", version="5", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="6", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,
