@@ -495,3 +495,19 @@ def test_the_rest_before_the_take_gives_a_gap_at_its_start_its_other_side(take):
     assert angles_deg(j.quat[:10, 1], rots["spine"][100:110]).max() < 3.0
     np.testing.assert_array_equal(j.quat[20:], alone.quat[20:])
     assert [(g["start"], g["stop"]) for g in j.qc["rotation_gaps"]] == [(-10, 10)]
+
+
+def test_a_missing_head_centre_marker_is_carried_by_the_heads_fit(take):
+    """Where the head-centre marker is unfilled but the head is solved, the head centre (and so the target
+    direction) comes from the head's rigid fit, within the accuracy of the measured marker."""
+    mk, neutral, _, truth = take
+    xyz = mk.xyz.copy()
+    xyz[100:250, mk.index("HEADC")] = np.nan
+    m2 = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(2), rate_hz=RATE)
+    j = compute_frames(m2, markerset(), neutral)
+    assert j.qc["head_centre_carried_frames"] == 150
+    gap = slice(100, 250)
+    assert np.isfinite(j.head_centre[gap]).all() and np.isfinite(j.target_dir[gap]).all()
+    assert np.linalg.norm(j.head_centre[gap] - truth["headc"][gap], axis=1).max() < 3.0
+    err = np.degrees(np.arccos(np.clip(np.sum(j.target_dir[gap] * truth["target_dir"][gap], 1), -1, 1)))
+    assert err.max() < 1.0

@@ -547,12 +547,26 @@ def _head_centre(markers: Markers, markerset: MarkerSet, params: FramesParams, o
                  qc: dict, path: str | None, take: str | None) -> np.ndarray:
     """Eyes' centre (T, 3) mm in the character frame: the head-centre marker, else the head markers'
     centroid (carried by the rigid fit where a marker is missing, ``centres``) plus ``eye_offset_mm`` in the
-    head segment's axes."""
-    if markerset.head_centre:
-        return _to_char(_col(markers, markerset.head_centre, path, take, "head centre"), origin, cmat)
+    head segment's axes.
+
+    The head-centre marker moves with the head, so where it is missing (unfilled) and the head segment is
+    solved, it is carried by the head's fit: the head centroid plus its median offset in the head's axes over
+    the frames that have both (``qc["head_centre_carried_frames"]``).
+    """
     head = params.head_segment or ("head" if "head" in names else names[-1])
     j = names.index(head)
     centre = _to_char(centres[head], origin, cmat)
+    if markerset.head_centre:
+        marker = _to_char(_col(markers, markerset.head_centre, path, take, "head centre"), origin, cmat)
+        rot = gmat[:, j]
+        both = np.isfinite(marker).all(axis=1) & np.isfinite(centre).all(axis=1) & np.isfinite(rot).all(axis=(1, 2))
+        lost = ~np.isfinite(marker).all(axis=1) & np.isfinite(centre).all(axis=1) & np.isfinite(rot).all(axis=(1, 2))
+        qc["head_centre_carried_frames"] = 0
+        if both.any() and lost.any():
+            off = np.median(np.einsum("tji,tj->ti", rot[both], marker[both] - centre[both]), axis=0)
+            marker[lost] = centre[lost] + np.einsum("tij,j->ti", rot[lost], off)
+            qc["head_centre_carried_frames"] = int(lost.sum())
+        return marker
     if markerset.eye_offset_mm is None:
         qc["warnings"].append("no head_centre marker and no eye_offset_mm: eyes' centre = head markers' centroid")
         return centre
