@@ -5,7 +5,7 @@ of trunk and neck markers inside the first rest and across the crop's edges, den
 ten-segment marker layout in a z-up lab and the four-segment layout in a y-up lab, for ``--seeds`` seeds. Each is
 run through the whole pipeline (``gazepipe run``, serial). Printed per layout: takes that failed a stage; every
 segment rotation of every (unmirrored) ``gaze_rnn`` and ``gaze_rnn_lod`` row against the truth (median, p99, max
-degrees, and rows with a segment more than 5° off); the share of the frames with valid eyes inside the true crop
+degrees, and rows with a segment more than 5° off), and its target direction; the share of the frames with valid eyes inside the true crop
 that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds; the frames each dataset dropped,
 by reason.
 
@@ -43,12 +43,14 @@ def dataset_rows(out: Path, name: str) -> list[dict]:
     info = json.loads((root / "dataset.json").read_text())
     takes = []
     for f in sorted(root.rglob("*.parquet")):
-        t = pq.read_table(f, columns=["take", "mirrored", "frame", "y"])
+        t = pq.read_table(f, columns=["take", "mirrored", "frame", "x", "y"])
         keep = ~t.column("mirrored").to_numpy(zero_copy_only=False)
         if not keep.any():
             continue
         y = t.column("y").combine_chunks().flatten().to_numpy().reshape(t.num_rows, -1)[keep]
+        x = t.column("x").combine_chunks().flatten().to_numpy().reshape(t.num_rows, -1)[keep]
         takes.append({"take": t.column("take")[0].as_py(), "frame": t.column("frame").to_numpy()[keep], "y": y,
+                      "target": x[:, :3],
                       "segments": info["sizes"], "names": info["features"]["y"]})
     return takes
 
@@ -66,6 +68,18 @@ def segment_errors(folder: Path, rows: list[dict]) -> np.ndarray:
         want = from_wxyz(truth["seg_quat_char"][r["frame"]][:, idx].reshape(-1, 4).astype(np.float64))
         out.append(np.degrees((got * want.inv()).magnitude()).reshape(len(r["frame"]), len(names)))
     return np.concatenate(out) if out else np.zeros((0, 1))
+
+
+def target_errors(folder: Path, rows: list[dict]) -> np.ndarray:
+    """Angle (deg) between each row's target direction (x's first three numbers) and the truth's."""
+    out = []
+    for r in rows:
+        want = np.load(folder / "truth" / f"{r['take']}.npz")["target_dir_char"][r["frame"]].astype(np.float64)
+        got = r["target"].astype(np.float64)
+        got = got / np.linalg.norm(got, axis=1, keepdims=True)
+        want = want / np.linalg.norm(want, axis=1, keepdims=True)
+        out.append(np.degrees(np.arccos(np.clip((got * want).sum(axis=1), -1.0, 1.0))))
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: bool) -> tuple[int, int]:
@@ -98,6 +112,7 @@ def main() -> None:
           f"{args.seeds} seeds; two {args.duration:g} s gaze_follow takes and 10 gaze_shift takes per session")
     for label, (segments, up) in LAYOUTS.items():
         errs = {"gaze_rnn": [], "gaze_rnn_lod": []}
+        terrs: dict[str, list[np.ndarray]] = {"gaze_rnn": [], "gaze_rnn_lod": []}
         cover = {"gaze_rnn": [0, 0], "gaze_rnn_lod": [0, 0]}
         dropped = {"gaze_rnn": Counter(), "gaze_rnn_lod": Counter()}
         failed: list[str] = []
@@ -114,6 +129,7 @@ def main() -> None:
                 for name in errs:
                     rows = dataset_rows(out, name)
                     errs[name].append(segment_errors(folder, rows))
+                    terrs[name].append(target_errors(folder, rows))
                     h, n = coverage(folder, out, cfg.session_id, rows, eyes=name == "gaze_rnn")
                     cover[name][0] += h
                     cover[name][1] += n
@@ -132,6 +148,9 @@ def main() -> None:
             print(f"  {name:13s} {len(e):6d} rows: segment error median {np.median(e):.2f}°, p99 "
                   f"{np.percentile(e, 99):.2f}°, max {e.max():.1f}°; rows with a segment > 5°: {(worst > 5).sum()}; "
                   f"holds {100 * h / max(n, 1):.1f} % of the {n} {what}")
+            te = np.concatenate(terrs[name])
+            print(f"  {'':13s} target direction error median {np.median(te):.2f}°, p99 {np.percentile(te, 99):.2f}°, "
+                  f"max {te.max():.1f}°")
             print(f"  {'':13s} dropped frames: {dict(dropped[name])}")
 
 

@@ -83,3 +83,51 @@ def test_a_gap_whose_estimated_error_is_above_the_limit_stays_a_gap(hostile):
         assert (res.fill_code[g.start:g.stop, g.marker] == FILL_CODES["unfilled"]).all()
     short = fill_gaps(mk.xyz, mk.valid, mk.rate_hz, max_gap_s=0.5)
     assert all(g.method == "unfilled" for g in short.gaps if g.length > 0.5 * mk.rate_hz)
+
+
+def test_a_straight_fill_across_a_hidden_turn_is_held_to_the_edge_velocities():
+    """A target moving straight on both sides of a gap, but turning inside it: hiding samples beside the gap
+    validates the straight fill at noise level; the edge velocities show the turn and the fill is refused."""
+    from gazepipe.stages.clean.gapfill import edge_velocity_error, fill_gaps
+
+    rate = 30.0
+    t = np.arange(300) / rate
+    corner = 5.0
+    path = np.stack([np.where(t < corner, 300 * t, 300 * corner), np.where(t < corner, 0.0, 300 * (t - corner)),
+                     np.full_like(t, 1500.0)], axis=1)                  # 300 mm/s along x, then along y
+    rng = np.random.default_rng(0)
+    xyz = (path + rng.normal(0, 0.5, path.shape))[:, None, :]
+    valid = np.ones((300, 1), dtype=bool)
+    valid[135:165] = False                                              # 1 s gap around the corner
+    res = fill_gaps(xyz, valid, rate, max_gap_s=3.0, methods=("pchip", "linear"), max_error_mm=5.0)
+    assert (res.fill_code[135:165, 0] == FILL_CODES["unfilled"]).all()
+    gap = res.gaps[0]
+    assert gap.error_mm > 20.0, gap
+    # the same gap on the straight part: filled, and the bound is at noise level
+    valid[:] = True
+    valid[35:65] = False
+    res = fill_gaps(xyz, valid, rate, max_gap_s=3.0, methods=("pchip", "linear"), max_error_mm=5.0)
+    assert (res.fill_code[35:65, 0] != FILL_CODES["unfilled"]).all()
+    line = np.linspace(path[34], path[65], 32)[1:-1]
+    assert edge_velocity_error(np.where(valid[:, :1], xyz[:, 0], np.nan), 35, 65, {"linear": line},
+                               {"linear": 1.0}, 6) < 3.0       # noise on six samples a side: ~1.5 mm
+
+
+def test_the_target_is_held_to_an_angle_seen_from_the_head():
+    """The target marker's fills may err by what clean.max_target_fill_error_deg subtends at the head-to-target
+    distance (2° at 2 m: 70 mm), every other marker by clean.max_fill_error_mm."""
+    from gazepipe.model import MarkerSet, Segment
+    from gazepipe.stages.clean.gapfill import gap_limit
+    from gazepipe.stages.clean.stage import CleanParams, _error_limits
+
+    ms = MarkerSet(path="m.toml", up_axis="z", units="mm", root="R", target="T", clapper=(),
+                   segments=(Segment("pelvis", ("R", "P1", "P2"), None), Segment("head", ("H1", "H2", "H3"), "pelvis")))
+    labels = ["R", "P1", "P2", "H1", "H2", "H3", "T"]
+    xyz = np.zeros((10, 7, 3))
+    xyz[:, 3:6] = [0.0, 0.0, 1700.0]
+    xyz[:, 6] = [2000.0, 0.0, 1700.0]
+    xyz[4:6, 6] = np.nan
+    lim = _error_limits(xyz, labels, ms, CleanParams())
+    assert gap_limit(lim, 6, 4, 6) == pytest.approx(2000.0 * np.tan(np.radians(2.0)))
+    assert gap_limit(lim, 3, 4, 6) == 5.0
+    assert _error_limits(xyz, labels, ms, CleanParams(max_target_fill_error_deg=0.0)) == 5.0

@@ -488,7 +488,7 @@ def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
-              max_error_mm: float | None = None) -> FillResult:
+              max_error_mm: float | np.ndarray | None = None) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -503,7 +503,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         least around the gap (standard deviation under 20 mm over 2 s each side), when there are two or more.
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
     max_error_mm : gaps whose fill's estimated error (:func:`fill_error`) is above this stay unfilled (None: no
-        limit; a fill without an estimate, when nothing beside the gap could be hidden, is kept).
+        limit; a fill without an estimate, when nothing beside the gap could be hidden, is kept). A (T, M) array
+        gives a limit per sample; a gap's limit is the smaller of those of the measured frames on either side.
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
     validation : when False, skip hiding samples and take the first applicable method in ``methods`` order.
@@ -534,6 +535,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
     pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
     mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
+    edge_window = max(_EDGE_MIN_SAMPLES, int(round(_EDGE_WINDOW_S * rate_hz)))
     cluster_of: dict[int, list[int]] = {}
     for c in clusters or []:
         for j in c:
@@ -578,8 +580,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 if fill is None:
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=note))
                     continue
-                error = fill_error(weights, full_errors, stretches)
-                if max_error_mm is not None and error > max_error_mm:
+                error = max(fill_error(weights, full_errors, stretches),
+                            edge_velocity_error(src[:, m], s, e, preds, weights, edge_window))
+                if max_error_mm is not None and error > gap_limit(max_error_mm, m, s, e):
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error))
                     continue
                 best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
@@ -591,6 +594,65 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records, est)
+
+
+#: the trajectory-only methods, blind to a turn inside the gap that the samples beside it do not show
+TRAJECTORY_METHODS = ("linear", "pchip")
+#: samples (and seconds) beside a gap from which its edge velocities are estimated
+_EDGE_MIN_SAMPLES = 3
+_EDGE_WINDOW_S = 0.2
+
+
+def edge_velocity_error(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarray],
+                        weights: dict[str, float], window: int) -> float:
+    """A lower bound (mm) on the error of the trajectory-only part of a fill of gap ``[s, e)``.
+
+    Hiding samples beside a gap cannot see a turn inside it: a target moving straight on both sides validates a
+    straight fill at noise level even when it turned in between. The velocities at the gap's edges (least-squares
+    slopes over ``window`` measured samples on each side) do see it. The cubic Hermite curve that meets both edge
+    positions with those velocities is the least the motion inside must bend; a linear or PCHIP member of the
+    fill that strays from it by d mm on average adds its weight times d. Returns 0 when either side has fewer
+    than ``_EDGE_MIN_SAMPLES`` measured samples in a row, or the fill has no trajectory-only member.
+    """
+    share = {k: w for k, w in weights.items() if k in TRAJECTORY_METHODS}
+    n = xyz_m.shape[0]
+    if not share or s < _EDGE_MIN_SAMPLES or n - e < _EDGE_MIN_SAMPLES:
+        return 0.0
+    before = xyz_m[max(0, s - window):s]
+    after = xyz_m[e:e + window]
+    ok_b = np.isfinite(before).all(axis=1)
+    ok_a = np.isfinite(after).all(axis=1)
+    # the run of measured samples that touches the gap on each side
+    nb = len(ok_b) - (np.flatnonzero(~ok_b)[-1] + 1 if (~ok_b).any() else 0)
+    na = int(np.argmin(ok_a)) if (~ok_a).any() else len(ok_a)
+    if nb < _EDGE_MIN_SAMPLES or na < _EDGE_MIN_SAMPLES:
+        return 0.0
+
+    def line(seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.arange(len(seg), dtype=np.float64) - (len(seg) - 1) / 2.0
+        slope = (t[:, None] * (seg - seg.mean(axis=0))).sum(axis=0) / (t * t).sum()
+        return seg.mean(axis=0), slope
+
+    mb, vb = line(before[len(before) - nb:])
+    ma, va = line(after[:na])
+    p0 = mb + vb * (nb - 1) / 2.0                      # the fitted line at frame s - 1
+    p1 = ma - va * (na - 1) / 2.0                      # and at frame e
+    span = float(e - s + 1)
+    u = (np.arange(s, e, dtype=np.float64) - (s - 1)) / span
+    h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+    h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+    bend = (h00[:, None] * p0 + h10[:, None] * vb * span + h01[:, None] * p1 + h11[:, None] * va * span)
+    return float(sum(w * norm3(preds[k] - bend).mean() for k, w in share.items()))
+
+
+def gap_limit(max_error_mm: float | np.ndarray, m: int, s: int, e: int) -> float:
+    """The error limit (mm) of the gap [s, e) of marker ``m``: a scalar as is; from a (T, M) array, the smaller
+    finite limit of the frames just before and just after the gap (+inf when neither has one)."""
+    if np.ndim(max_error_mm) == 0:
+        return float(max_error_mm)
+    lim = np.asarray(max_error_mm)
+    edges = [lim[i, m] for i in (s - 1, e) if 0 <= i < lim.shape[0] and np.isfinite(lim[i, m])]
+    return float(min(edges)) if edges else float("inf")
 
 
 def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR,

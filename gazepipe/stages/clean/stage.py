@@ -9,6 +9,7 @@ lab origin.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -35,6 +36,10 @@ class CleanParams:
     max_fill_error_mm : a gap is filled only when its fill's estimated error (its mean error on measured samples
         of the gap's own length hidden beside it, :func:`gazepipe.stages.clean.gapfill.fill_error`) is at most
         this; a gap too long to hide anything beside it is filled without an estimate.
+    max_target_fill_error_deg : the target marker is used only as a direction from the head, so its fills are
+        held to an angle instead: a target gap is filled when its estimated error is at most the larger of
+        ``max_fill_error_mm`` and the head-to-target distance beside the gap times tan(this angle) (2° at 2 m:
+        70 mm). The head is the head centre marker, else the mean of the last segment's markers.
     remove_spikes : run spike removal before gap filling (:func:`gazepipe.stages.clean.spikes.find_spikes`).
     spike_residual_mm, spike_step_factor, spike_cluster_mm : thresholds of the glitch test
         (:func:`gazepipe.stages.clean.spikes.find_glitches`): a sample farther than
@@ -77,6 +82,7 @@ class CleanParams:
 
     max_gap_s: float = field(default=3.0, metadata={"min": 0})
     max_fill_error_mm: float = field(default=5.0, metadata={"gt": 0})
+    max_target_fill_error_deg: float = field(default=2.0, metadata={"min": 0, "max": 45})
     remove_spikes: bool = True
     spike_residual_mm: float = field(default=8.0, metadata={"gt": 0})
     spike_step_factor: float = field(default=2.0, metadata={"min": 0})
@@ -173,7 +179,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
     else:
         res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
                         max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods),
-                        max_error_mm=params.max_fill_error_mm)
+                        max_error_mm=_error_limits(xyz, markers.labels, markerset, params))
         error = res.error_mm
         code = np.asarray(res.fill_code, dtype=np.int8)
         xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
@@ -185,6 +191,28 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                       for g in res.gaps]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
     return xyz, code, valid, spike, error
+
+
+def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
+                  params: CleanParams) -> float | np.ndarray:
+    """The fill error limit (mm): ``max_fill_error_mm``, or a (T, M) array when the target marker is captured,
+    whose target column allows the error that ``max_target_fill_error_deg`` subtends at the head-to-target
+    distance of each frame."""
+    if markerset.target not in labels or not params.max_target_fill_error_deg:
+        return params.max_fill_error_mm
+    head = [markerset.head_centre] if markerset.head_centre in labels else list(markerset.segments[-1].markers)
+    cols = [labels.index(n) for n in head if n in labels]
+    if not cols:
+        return params.max_fill_error_mm
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)        # frames without any head marker: NaN
+        centre = np.nanmean(xyz[:, cols], axis=1)
+    t = labels.index(markerset.target)
+    dist = np.linalg.norm(xyz[:, t] - centre, axis=1)
+    limits = np.full(xyz.shape[:2], params.max_fill_error_mm)
+    angular = dist * np.tan(np.radians(params.max_target_fill_error_deg))
+    limits[:, t] = np.fmax(params.max_fill_error_mm, angular)   # fmax: NaN distance gives the mm limit
+    return limits
 
 
 def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
