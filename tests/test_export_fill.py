@@ -33,10 +33,10 @@ def cleaned(tmp_path_factory) -> Path:
 
 
 def test_exported_c3d_reingests_with_same_coordinates_and_gap_mask(cleaned, tmp_path):
-    take = "follow_standing_01"
+    take = "follow_sitting_01"
     table = pq.read_table(cleaned / "takes" / "session01" / take / "markers.parquet")
     markers, frames, fill, _ = table_to_markers(table)
-    assert (fill == FILL_CODES["unfilled"]).any()  # the take has gaps longer than max_gap_s: the mask matters
+    assert (fill == FILL_CODES["unfilled"]).any()  # a target gap the filler refused: the mask matters
     dest = tmp_path / "t.c3d"
     res = invoke("export", str(cleaned), take, "--to", str(dest))
     assert res.exit_code == 0, res.stderr

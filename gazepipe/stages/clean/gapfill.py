@@ -109,7 +109,7 @@ REASON_TOO_LONG = "longer than max_gap_s"
 REASON_NEVER_MEASURED = "marker never measured"
 REASON_NO_METHOD = "no method applies"
 REASON_IMPLAUSIBLE = "every fill implausibly fast"
-REASON_UNCERTAIN = "estimated error above max_fill_error_mm"
+REASON_UNCERTAIN = "estimated error above its limit (clean.max_fill_error_mm; the target's, max_target_fill_error_deg)"
 
 
 @dataclass
