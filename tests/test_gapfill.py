@@ -299,7 +299,7 @@ def test_blended_gap_is_the_weighted_sum_of_the_methods():
     truth, measured, clusters = body()
     gaps = [(5, 250, 280), (2, 100, 110), (9, 400, 406)]
     x, valid = hide(measured, gaps)
-    res = fill_gaps(x, valid, RATE, clusters=clusters)
+    res = fill_gaps(x, valid, RATE, clusters=clusters, framewise=False)   # the per-gap blend (test_framewise)
     single = {m: fill_gaps(x, valid, RATE, clusters=clusters, methods=(m,)) for m in ("rigid", "pca", "pchip",
                                                                                      "linear")}
     n_blended = 0

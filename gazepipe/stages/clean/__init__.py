@@ -11,7 +11,8 @@ Read top-down, in the order :func:`clean_markers` (:mod:`.stage`) runs them:
 - :mod:`.spikes`: spikes become gaps (ghosts of a frame or two off the marker's path or its segment's
   distances, and implausible accelerations);
 - :mod:`.gapfill`: every gap filled by the best of the methods of :mod:`.fill_methods` (rigid cluster, PCA,
-  PCHIP, linear), chosen by hiding measured samples beside it;
+  PCHIP, linear), chosen by hiding measured samples beside it, or for long gaps their frame-by-frame average
+  (:mod:`.framewise`); a gap whose estimated error is above its limit stays a gap;
 - :mod:`.stabilise`: the root marker to the lab origin (optionally the heading removed);
 - :mod:`.filters`: the optional zero-phase low-pass, run by run (and the Gaussian smoothing of rest speeds);
 - :mod:`.rests`: rest periods from the subject's speed, and the crop the take's kind keeps.

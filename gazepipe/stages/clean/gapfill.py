@@ -26,8 +26,16 @@ and when their error is larger it is the interpolation methods' validation error
 stretches beside it do not show); PCA's error is then scaled by how much worse its components explain the
 predictors in the gap than in the stretches (:func:`~gazepipe.stages.clean.fill_methods.pca_novelty`), when clearly
 worse. The gap is filled with a convex blend of the best methods, weighted by inverse squared validation error
-(:func:`blend_weights`), and coded by the method with the largest weight. When no sample can be hidden the first
-applicable method in ``methods`` is used.
+(:func:`blend_weights`), and coded by the method with the largest weight. Gaps of 16 frames or more are also
+filled by averaging the candidates frame by frame (:mod:`.framewise`: each frame weights them by how well they
+keep the marker's distances to its most rigidly linked neighbours there); that average replaces the blend when
+it predicts the hidden stretches better. When no sample can be hidden the first applicable method in
+``methods`` is used.
+
+A fill is kept when its estimated error is within the limit (``max_error_mm``): the larger of its mean error on
+the hidden stretches and, for the part of it that comes from interpolation, how far it strays from the curve
+that meets the gap's edges with the marker's velocities there (:func:`edge_velocity_error`: a turn inside the
+gap that the stretches beside it cannot show).
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
@@ -47,6 +55,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gazepipe.model import FILL_CODES
+from gazepipe.stages.clean import framewise
 from gazepipe.stages.clean.fill_methods import (
     PcaModel,
     donor_interp_errors,
@@ -133,6 +142,24 @@ class GapRecord:
     @property
     def length(self) -> int:
         return self.stop - self.start
+
+
+@dataclass
+class Stretches:
+    """The measured samples hidden beside a gap for validation, and what each method made of them."""
+
+    #: (n, 3) the hidden samples, mm, stretch after stretch
+    truth: np.ndarray
+    #: method -> (n, 3) its prediction of them (NaN where it could not predict)
+    hidden: dict[str, np.ndarray]
+    #: (n,) their frame indices
+    frames: np.ndarray
+    #: (T, M) the visibility the methods saw (the gap's occlusion pattern laid over each stretch)
+    vis: np.ndarray
+    #: (T,) the marker's samples the methods could use (measured, not in the gap or a stretch)
+    known: np.ndarray
+    #: start of each stretch in ``truth``
+    cuts: np.ndarray
 
 
 @dataclass
@@ -225,14 +252,13 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
 def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
                 cluster: list[int] | None, *, validate: bool = True,
                 pca_window: int | None = None, mates_window: int | None = None
-                ) -> tuple[dict[str, np.ndarray], dict[str, float],
-                           tuple[np.ndarray, dict[str, np.ndarray]] | None]:
+                ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None]:
     """Every applicable method's prediction of gap ``[s, e)`` of marker ``m``, and its validation error (mm).
 
     Returns ``(predictions, errors, stretches)``: predictions maps method -> (e - s, 3); errors maps method ->
     mean Euclidean error over the hidden validation samples (NaN when nothing could be hidden or the method could
-    not predict them); stretches is ``(truth, hidden)``, the hidden samples (n, 3) and each method's prediction
-    of them (NaN where it could not predict), or None when nothing was hidden. ``pca_window``: frames each side
+    not predict them); stretches (:class:`Stretches`) holds the hidden samples and each method's prediction of
+    them, or is None when nothing was hidden. ``pca_window``: frames each side
     of the gap the PCA models train on (None: the whole take); ``mates_window``: frames each side over which a
     marker must keep its distance to ``m`` to serve as a donor (None: any marker).
     """
@@ -287,7 +313,9 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
         truth = np.concatenate([xyz_m[a:b] for a, b in wins])
         hidden = {meth: np.concatenate([_or_nan(run(meth, a, b, known, True), b - a) for a, b in wins])
                   for meth in preds}
-        stretches = (truth, hidden)
+        frames = np.concatenate([np.arange(a, b) for a, b in wins])
+        cuts = np.cumsum([0] + [b - a for a, b in wins[:-1]])
+        stretches = Stretches(truth, hidden, frames, valid_v, known, cuts)
         err = norm3(np.stack(list(hidden.values())) - truth)
         common = np.isfinite(err).all(axis=0)
         for i, meth in enumerate(preds):
@@ -466,15 +494,14 @@ def check_blend(weights: dict[str, float], truth: np.ndarray, hidden: dict[str, 
     return weights
 
 
-def fill_error(weights: dict[str, float], errors: dict[str, float],
-               stretches: tuple[np.ndarray, dict[str, np.ndarray]] | None) -> float:
+def fill_error(weights: dict[str, float], errors: dict[str, float], stretches: Stretches | None) -> float:
     """The estimated error (mm) of a fill with ``weights``: the method's validation error, or for a blend its
     mean error on the hidden samples (over the frames every blended method predicts); NaN when unknown."""
     if len(weights) == 1:
         return float(errors.get(next(iter(weights)), np.nan))
-    if stretches is None or any(k not in stretches[1] for k in weights):
+    if stretches is None or any(k not in stretches.hidden for k in weights):
         return float("nan")
-    truth, hidden = stretches
+    truth, hidden = stretches.truth, stretches.hidden
     q, ok = _blend_on_hidden(weights, hidden)
     return float(norm3(q[ok] - truth[ok]).mean()) if ok.any() else float("nan")
 
@@ -488,7 +515,7 @@ def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
-              max_error_mm: float | np.ndarray | None = None) -> FillResult:
+              max_error_mm: float | np.ndarray | None = None, framewise: bool = True) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -512,6 +539,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         (:func:`blend_weights`; samples coded by the largest weight), unless the combination predicts the hidden
         samples worse than its best member (:func:`check_blend`); when False, the single best method.
     pca_window_s : PCA models are fitted on frames within this many seconds of the gap (None: the whole take).
+    framewise : for gaps of at least ``_FRAMEWISE_MIN_FRAMES``, also average the candidate fills frame by frame
+        (:mod:`.framewise`) and keep that average where it predicts the hidden samples better than the per-gap
+        blend (``GapRecord.reason`` says so; ``weights`` are then its priors).
 
     Returns
     -------
@@ -567,7 +597,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 if blend:
                     weights = blend_weights(errors, methods)
                     if len(weights) > 1 and stretches is not None:
-                        weights = check_blend(weights, *stretches)
+                        weights = check_blend(weights, stretches.truth, stretches.hidden)
                 else:
                     one = choose(errors, methods)
                     weights = {} if one is None else {one: 1.0}
@@ -580,8 +610,14 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 if fill is None:
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=note))
                     continue
-                error = max(fill_error(weights, full_errors, stretches),
-                            edge_velocity_error(src[:, m], s, e, preds, weights, edge_window))
+                error = fill_error(weights, full_errors, stretches)
+                if framewise and blend and stretches is not None and e - s >= _FRAMEWISE_MIN_FRAMES:
+                    averaged = _framewise_fill(src, valid, m, s, e, preds, full_errors, methods, stretches,
+                                               mates_window, limits[m])
+                    if averaged is not None and not averaged[1] >= error:     # better, or the blend has no estimate
+                        fill, error, weights = averaged
+                        note = NOTE_FRAMEWISE
+                error = max(error, edge_velocity_error(src[:, m], s, e, preds, weights, edge_window))
                 if max_error_mm is not None and error > gap_limit(max_error_mm, m, s, e):
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error))
                     continue
@@ -594,6 +630,34 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records, est)
+
+
+#: gaps shorter than this (frames) keep the per-gap blend: over a few frames every method agrees
+_FRAMEWISE_MIN_FRAMES = 16
+NOTE_FRAMEWISE = "averaged frame by frame"
+
+
+def _framewise_fill(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, preds: dict[str, np.ndarray],
+                    errors: dict[str, float], methods: tuple[str, ...], st: Stretches, window: int,
+                    step_limit: float) -> tuple[np.ndarray, float, dict[str, float]] | None:
+    """The frame-by-frame average (:func:`gazepipe.stages.clean.framewise.average`) of gap ``[s, e)`` and its
+    mean error on the hidden stretches, with its prior weights; None when it cannot be formed, cannot be
+    validated on every hidden sample, or steps implausibly fast."""
+    prior = blend_weights(errors, methods, top=len(methods))
+    if len(prior) < 2 or any(k not in st.hidden for k in prior):
+        return None
+    links = framewise.linked_neighbours(xyz, valid, st.known, m, s, e, window)
+    on_hidden = framewise.average(st.hidden, prior, st.frames, xyz, st.vis, links, st.cuts)
+    if on_hidden is None or not np.isfinite(on_hidden).all():
+        return None
+    fill = framewise.average(preds, prior, np.arange(s, e), xyz, valid, links)
+    if fill is None or not np.isfinite(fill).all():
+        return None
+    _, ok, _ = _plausible_fill(xyz[:, m], s, e, {"average": fill}, {"average": 1.0}, {}, ("average",),
+                               step_limit)
+    if ok is None:
+        return None
+    return fill, float(norm3(on_hidden - st.truth).mean()), prior
 
 
 #: the trajectory-only methods, blind to a turn inside the gap that the samples beside it do not show
