@@ -188,6 +188,22 @@ def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg
     return tuple(out)
 
 
+def overshoot_amplitude_deg(tr: dict) -> float:
+    """How far (deg) the head's noise-free displacement in the crop (character frame held fixed at the crop
+    start) passes its final value along the final axis: β times the final angle. Below the head's orientation
+    noise (a few tenths of a degree from 0.5 mm marker noise) the overshoot's instant cannot be resolved."""
+    from gazepipe.stages.geometry import from_wxyz
+
+    c0, c1 = tr["scalars"]["crop"]
+    head = list(tr["segments"]).index("head")
+    c = from_wxyz(tr["char_quat_lab"][c0:c1])
+    g = c[0].inv() * c * from_wxyz(tr["seg_quat_char"][c0:c1, head].astype(np.float64))
+    rv = (g * g[0].inv()).as_rotvec()
+    axis = rv[-1] / np.linalg.norm(rv[-1])
+    theta = rv @ axis
+    return float(np.degrees(theta.max() - theta[-1]))
+
+
 def truth_joints(tr: dict, frames: np.ndarray):
     """A joints table of a take's true rotations on ``frames`` (rows of the uncropped take), for dataset tests."""
     from gazepipe.schemas.joints import joints_to_table

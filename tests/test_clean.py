@@ -144,7 +144,7 @@ def test_clean_lowpass_option_filters_and_reports():
 
 def test_stabilisation_puts_root_at_origin_and_keeps_shape():
     mk, _ = take(120.0, [(240, 360, 200.0)], 720, drift=(300.0, -150.0))
-    res = clean_markers(mk, markerset(), "gaze_shift", P)
+    res = clean_markers(mk, markerset(), "gaze_follow", P)     # a walking subject: never at rest
     out = res.markers
     np.testing.assert_array_equal(out.xyz[:, out.index("SACR")], 0.0)
     src = mk.xyz[res.frames]
@@ -231,7 +231,7 @@ def test_gaze_shift_crop_bounds(rate, amp, dur):
     n = int(6 * rate)
     a = int(1.5 * rate)
     mk, speed = take(rate, [(a, a + int(dur * rate), amp), (int(4.5 * rate), int((4.5 + dur) * rate), -amp)], n,
-                     seed=3, drift=(40.0, 0.0))
+                     seed=3)
     res = clean_markers(mk, markerset(), "gaze_shift", P)
     truth = truth_bounds(speed)
     tol = TOL_S * rate
@@ -251,6 +251,49 @@ def test_gaze_shift_crop_bounds(rate, amp, dur):
     assert np.nanmax(res.speed_mm_s[far]) < 0.9 * THRESH
 
 
+def test_a_whole_body_step_is_motion():
+    """Rests are the subject still in the room (SPEC §3.2): a whole-body step of 40 mm right after the gaze
+    shift (the markers still relative to each other, 30–60 mm/s in the room) is motion, so the second rest
+    starts after the step and the crop runs to its end, instead of a short "rest" during the step ending it."""
+    rate = 29.97
+    n = int(8 * rate)
+    a, b = int(1.5 * rate), int(2.3 * rate)
+    mk, _ = take(rate, [(a, b, 150.0)], n, seed=4)
+    step1 = b + int(1.3 * rate)
+    s, _ = min_jerk(n, rate, b, step1)
+    xyz = mk.xyz.copy()
+    xyz[:, : len(SUBJECT), 0] += 40.0 * s[:, None]          # the whole subject, not the target or clapper
+    res = clean_markers(Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=rate), markerset(),
+                        "gaze_shift", P)
+    assert len(res.rests) == 2, res.rests
+    assert abs(res.rests[0][1] - a) <= 2 and res.rests[1][0] >= step1 - 8, res.rests
+    assert res.crop == (res.rests[0][1], res.rests[1][1])
+
+
+def test_missing_markers_do_not_end_a_rest():
+    """A frame's speed is the mean over the markers present: one unfilled marker changes nothing; a stretch
+    with fewer than half the subject's markers is unknown and does not split the rest around it."""
+    rate = 29.97
+    n = int(6 * rate)
+    a = int(1.5 * rate)
+    mk, speed = take(rate, [(a, a + int(0.6 * rate), 120.0), (int(4.0 * rate), int(4.6 * rate), -120.0)], n,
+                     seed=5)
+    full = clean_markers(mk, markerset(), "gaze_shift", P)
+    xyz = mk.xyz.copy()
+    one = mk.labels.index("PEL2")
+    xyz[100:140, one] = np.nan                               # in the second rest, left unfilled below
+    half = [mk.labels.index(lab) for lab in list(SUBJECT)[: len(SUBJECT) // 2 + 1]]
+    xyz[int(3.0 * rate):int(3.3 * rate), half] = np.nan    # inside the second rest: most markers lost
+    cut = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(axis=2), rate_hz=rate)
+    res = clean_markers(cut, markerset(), "gaze_shift", replace(P, max_gap_s=0.0))
+    assert np.isnan(res.speed_mm_s[int(3.0 * rate) + 2:int(3.3 * rate) - 2]).all()
+    assert np.isfinite(res.speed_mm_s[100:140]).all()
+    assert len(res.rests) == len(full.rests) == 3
+    for (ga, gb), (fa, fb) in zip(res.rests, full.rests, strict=True):
+        assert abs(ga - fa) <= 1 and abs(gb - fb) <= 1
+    assert abs(res.crop[0] - full.crop[0]) <= 1 and abs(res.crop[1] - full.crop[1]) <= 1
+
+
 @pytest.mark.parametrize(("amp", "dur"), [(120.0, 0.6), (60.0, 0.5)])
 def test_rest_end_refined_without_bias(amp, dur):
     """The end of a rest (a motion's onset) against the noise-free speed's first frame at the threshold, over
@@ -265,7 +308,7 @@ def test_rest_end_refined_without_bias(amp, dur):
     raw, ref = [], []
     for seed in range(10):
         mk, speed = take(rate, [(a, a + int(dur * rate), amp), (int(4.5 * rate), int((4.5 + dur) * rate), -amp)],
-                         n, seed=seed, drift=(40.0, 0.0))
+                         n, seed=seed)
         truth = truth_bounds(speed)
         r0 = clean_markers(mk, markerset(), "gaze_shift", replace(P, rest_refine=False)).rests
         r1 = clean_markers(mk, markerset(), "gaze_shift", P).rests

@@ -202,21 +202,21 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True) ->
 def speed_trace(raw: Markers, markerset: MarkerSet | None, filter_hz: float | None) -> np.ndarray | None:
     """Per-frame mean subject-marker speed (mm/s) of the uncropped take, recomputed from the raw markers.
 
-    Like the clean stage: subject markers relative to the mean of the root marker and the root segment's
-    markers, smoothed at ``filter_hz``, central differences. Unlike it, gaps are not filled and spikes not
-    removed (the clean stage does not store its speed), so near gaps the trace can differ slightly.
+    Like the clean stage (SPEC §3.2 step 5): the subject's markers in the lab frame, smoothed at ``filter_hz``,
+    central differences, unknown where fewer than half of them are there. Unlike it, gaps are not filled and
+    spikes not removed (a failed take has no cleaned markers), so near gaps the trace can differ slightly.
     """
+    from gazepipe.stages.clean.stage import REST_MIN_PRESENT
+
     if markerset is None:
         return None
     labels = list(raw.labels)
-    ref = [labels.index(n) for n in (markerset.root, *markerset.root_segment.markers) if n in labels]
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    if not ref or not subj:
+    if not subj:
         return None
-    xyz = np.where(raw.valid[..., None], raw.xyz, np.nan)
-    pos = xyz[:, subj] - xyz[:, ref].mean(axis=1, keepdims=True)
-    valid = np.isfinite(pos).all(axis=2)
-    return mean_speed(np.nan_to_num(pos), valid, raw.rate_hz, filter_hz)
+    valid = raw.valid[:, subj] & np.isfinite(raw.xyz[:, subj]).all(axis=2)
+    pos = np.where(valid[..., None], raw.xyz[:, subj], 0.0)
+    return mean_speed(pos, valid, raw.rate_hz, filter_hz, min_share=REST_MIN_PRESENT)
 
 
 # ---------------------------------------------------------------------------------------------- datasets

@@ -150,14 +150,17 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
                                raw.labels, raw.n_frames, raw.rate_hz, (clean or {}).get("gaps", []),
                                (clean or {}).get("crop"), raw.valid if clean is None else None, salt + "gaps")))
         cp = e.params("clean")
-        speed = speed_trace(raw, markerset, cp.get("rest_filter_hz", 1.75)) if clean is not None else None
+        # drawn for a take whose clean stage failed too: a take whose rests were not found shows why
+        speed = speed_trace(raw, markerset, cp.get("rest_filter_hz", 1.75))
         if speed is not None and np.isfinite(speed).any():
-            figs.append(Figure("Speed and crop", "Mean speed of the subject's markers relative to the pelvis, "
-                               "recomputed from the raw markers (gaps unfilled, so it can differ slightly from the "
-                               "speed the crop used), with the rests and the crop bounds.", plots.speed_plot(
-                                   speed, raw.rate_hz, clean.get("crop"), clean.get("rests", []),
-                                   cp.get("rest_speed_mm_s"), salt + "speed")))
-        elif clean is not None:
+            failed = "" if clean is not None else " The clean stage failed on this take: no rests or crop."
+            figs.append(Figure("Speed and crop", "Mean speed of the subject's markers in the room, recomputed from "
+                               "the raw markers (gaps unfilled, so it can differ slightly from the speed the crop "
+                               "used), with the rest threshold, the rests and the crop bounds." + failed,
+                               plots.speed_plot(speed, raw.rate_hz, (clean or {}).get("crop"),
+                                                (clean or {}).get("rests", []), cp.get("rest_speed_mm_s"),
+                                                salt + "speed")))
+        else:
             notes.append("speed trace not drawn: the session's markerset cannot be read")
     sync = e.qc("sync")
     if sync is not None and raw is not None and markerset is not None and len(markerset.clapper) == 2 \

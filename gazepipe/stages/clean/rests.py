@@ -13,9 +13,11 @@ import numpy as np
 from gazepipe.stages.clean.filters import gaussian_runs, true_runs
 
 
-def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
-    """Per-frame mean over markers of the speed (mm/s) by central differences, (T,); NaN where no marker has
-    a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
+def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
+               min_share: float = 0.0) -> np.ndarray:
+    """Per-frame mean over markers of the speed (mm/s) by central differences, (T,); NaN (unknown) where no
+    marker, or fewer than ``min_share`` of them, has a speed. Positions are first smoothed by
+    :func:`gaussian_runs` at ``filter_hz`` when it is given.
     """
     pos = xyz if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
     pos = np.where(valid[..., None], pos, np.nan)
@@ -28,18 +30,25 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
     speed = np.linalg.norm(vel, axis=2)
     n = np.sum(np.isfinite(speed), axis=1)
     total = np.nansum(speed, axis=1)
+    enough = (n > 0) & (n >= min_share * xyz.shape[1])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+        return np.where(enough, total / np.maximum(n, 1), np.nan)
 
 
 def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,
                  min_s: float) -> list[tuple[int, int]]:
     """Rest periods (start, stop), half-open rows, from a per-frame speed (Pejsa 5.2.2.1 steps 2–3).
 
-    Still = speed below ``threshold`` (NaN is not still); still runs separated by fewer than
-    ``merge_s · rate`` frames merge; merged rests shorter than ``min_s · rate`` frames are dropped.
+    Still = speed below ``threshold``. A frame of unknown speed (NaN: too few markers there) is neither still nor
+    moving: a run of them between two still frames does not split the rest (it joins it), elsewhere it is not
+    still. Still runs separated by fewer than ``merge_s · rate`` frames merge; merged rests shorter than
+    ``min_s · rate`` frames are dropped.
     """
     still = np.nan_to_num(speed, nan=np.inf) < threshold
+    unknown = np.isnan(speed)
+    for a, b in true_runs(unknown):
+        if a > 0 and b < len(speed) and still[a - 1] and still[b]:
+            still[a:b] = True
     runs = true_runs(still)
     merged: list[list[int]] = []
     for a, b in runs:

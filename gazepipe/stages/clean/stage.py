@@ -24,6 +24,8 @@ from gazepipe.stages.clean.stabilise import stabilise
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
+#: a frame where fewer than this share of the subject's markers are present has no rest speed (SPEC §3.2)
+REST_MIN_PRESENT = 0.5
 
 
 @dataclass(frozen=True)
@@ -215,22 +217,6 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
     return limits
 
 
-def _rest_positions(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
-                    subj: list[int]) -> tuple[np.ndarray, np.ndarray]:
-    """Subject positions for rest speeds: relative to the mean of the root marker and the root segment's
-    markers rather than to the root marker alone.
-
-    Both remove the body's translation (Pejsa's reason to stabilise first), but every stabilised marker carries
-    the root marker's noise; the mean of four markers has half of it, which lowers the speed noise floor by
-    about a third and lets the speed filter be lighter (closer rest bounds). Frames where one of those markers
-    is unfilled have no rest speed.
-    """
-    ref = [labels.index(n) for n in (markerset.root, *markerset.root_segment.markers) if n in labels]
-    offset = xyz[:, ref].mean(axis=1, keepdims=True)          # NaN where any of them is unfilled
-    pos = xyz[:, subj] - offset
-    return pos, valid[:, subj] & np.isfinite(pos).all(axis=2)
-
-
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
                   *, path: str | None = None, take: str | None = None) -> CleanResult:
     """Clean one take's markers (SPEC §3.2).
@@ -258,6 +244,10 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     rate = float(markers.rate_hz)
 
     xyz, code, _, spike, fill_error = _fill(markers, markerset, params, qc)
+    # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
+    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
+    speed = mean_speed(xyz[:, subj], code[:, subj] != UNFILLED, rate, params.rest_filter_hz,
+                       min_share=REST_MIN_PRESENT)
 
     # 3. stabilisation
     up = left_pair = None
@@ -288,8 +278,6 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
             qc["warnings"].append(f"{short} run(s) of valid samples too short to low-pass, left unfiltered")
 
     # 5. rests and crop
-    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    speed = mean_speed(*_rest_positions(xyz, valid, labels, markerset, subj), rate, params.rest_filter_hz)
     rests = rest_periods(speed, rate, params.rest_speed_mm_s, params.rest_merge_s, params.rest_min_s)
     if params.rest_refine and params.rest_filter_hz is not None:
         rests = refine_rests(rests, speed, rate, params.rest_filter_hz, params.rest_speed_mm_s)
