@@ -31,7 +31,7 @@ from gazepipe.io.datasets import (
 from gazepipe.io.session_toml import load_session
 from gazepipe.model import Take
 from gazepipe.schemas.base import with_identity
-from gazepipe.schemas.joints import joints_to_table, list_to_numpy
+from gazepipe.schemas.joints import joints_arrays, joints_to_table, list_to_numpy
 from gazepipe.schemas.tracks import EYES
 from gazepipe.stages.build.splits import assign_split
 from gazepipe.stages.build.stage import BuildParams, TakeTables, build_dataset
@@ -264,7 +264,37 @@ def test_splits_pinned_hashed_and_disjoint(follow_takes, rnn):
     assert where == {"follow_standing_01": {"train"}, "follow_standing_02": {"val"},
                      "follow_sitting_01": {"train"}}
     assert built.info["splits"]["takes"]["val"] == ["session01/follow_standing_02"]
-    assert "split 'test' is empty" in built.info["warnings"]
+    assert "split 'test' is empty: every take is pinned to another split" in built.info["warnings"]
+
+
+def test_splits_never_empty_when_a_take_can_fill_them(follow_takes):
+    """SPEC §3.6: the train split is never empty while an unpinned take exists, and a take changes split only to
+    fill a split that would otherwise be empty; a moved take's rows carry its new split, the statistics follow,
+    and a warning says why it moved."""
+    from gazepipe.stages.build.splits import rebalance
+
+    takes, _ = follow_takes
+    # every take hashed out of train: the one nearest train's share moves there
+    salted = next(salt for salt in (f"s{i}" for i in range(500))
+                  if all(assign_split(f"{t.session}/{t.take.id}", None, salt=salt) != "train" for t in takes))
+    built = build_dataset("gaze_rnn_lod", takes, BuildParams(split_salt=salted))
+    info = built.info
+    assert info["counts"]["by_split"]["train"]["takes"] == 1
+    moved = [w for w in info["warnings"] if " moved from " in w]
+    assert len(moved) == 1 and "to train: the train split would be empty" in moved[0]
+    for table in built.tables.values():
+        take = f"session01/{table.column('take')[0].as_py()}"
+        want = next(s for s, v in info["splits"]["takes"].items() if take in v)
+        assert set(table.column("split").to_pylist()) == {want}
+    assert info["stats"]["overall"]["rows"] == info["counts"]["by_split"]["train"]["rows"] > 0
+    # with five or more takes every split gets one, moved from a split that keeps one; few takes are left be
+    keys = [f"s/take_{i}" for i in range(6)]
+    moves = rebalance([(k, "train", False) for k in keys])
+    assert sorted(m[2] for m in moves) == ["test", "val"] and all(m[1] == "train" for m in moves)
+    assert rebalance([(k, "train", False) for k in keys[:4]]) == []
+    assert rebalance([("a", "val", True), ("b", "test", True)]) == []          # pinned takes stay
+    assert rebalance([("a", "val", True), ("b", "test", False)])[0][:3] == ("b", "test", "train")
+    assert rebalance([(k, "train", False) for k in keys]) == moves            # deterministic
 
 
 def test_no_training_take_is_an_error(follow_takes):
@@ -699,3 +729,44 @@ def test_gaze_rows_gate_on_the_segments_they_keep_and_count_every_dropped_frame(
     eyes_ok[10:13] = False
     gr = rnn_rows(joints, [0, 1, 2, 3], (eyes_ok, target))
     assert gr.qc["dropped"]["eyes_invalid"] == 3 and len(gr.frame) + sum(gr.qc["dropped"].values()) == n
+
+
+def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
+    """Frames inside the crop without a rotation are bridged in rotation space up to build.max_bridge_s
+    (0.5 s): the row stays within the truth's tolerances and QC counts them; a longer hole, or a hole at the
+    crop's first or last frame, leaves the take out with that reason."""
+    from gazepipe.stages.build.gaze import gaze_map_row
+    from gazepipe.stages.geometry import from_wxyz
+
+    t = _shift_takes(session)[0]
+    tr = load_truth(session.root, t.id)
+    c0, c1 = tr["scalars"]["crop"]
+    base = truth_joints(tr, np.arange(c0, c1))
+    tab = joints_arrays(base)
+    rests = tr["scalars"]["rest_periods"]
+    yaw, pitch = tr["scalars"]["target"]["yaw_deg"], tr["scalars"]["target"]["pitch_deg"]
+
+    def row(quat_holes=(), char_holes=(), **kw):
+        j = {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in tab.items()}
+        for seg, a, b in quat_holes:
+            j["quat"][a:b, seg] = np.nan
+        for a, b in char_holes:
+            j["char_rot"][a:b] = np.nan
+        return gaze_map_row(j, rests, RATE, yaw, pitch, head=9, start_filter_hz=None, start_min_s=0.0, **kw)
+
+    whole = row()
+    n = len(tab["frame"])
+    mid = n // 2
+    holed = row(quat_holes=[(9, mid - 6, mid + 6), (3, 10, 20)], char_holes=[(mid + 10, mid + 14)])
+    assert holed.qc["bridged_frames"] == 12 + 10 + 4 and whole.qc["bridged_frames"] == 0
+    for k in ("duration_s", "p_plus"):
+        np.testing.assert_allclose(holed.features[k], whole.features[k], atol=1e-6)
+    assert abs(holed.features["overshoot"][0] - whole.features["overshoot"][0]) < 0.02
+    pp = from_wxyz(holed.features["p_plus"].reshape(-1, 4).astype(np.float64))
+    assert np.degrees(pp.magnitude()).max() < 180
+    with pytest.raises(StageError, match=r"more than build.max_bridge_s \(0.5 s\)"):
+        row(quat_holes=[(9, mid - 10, mid + 10)])
+    with pytest.raises(StageError, match="crop's first frame has no segment 'pelvis' rotation"):
+        row(quat_holes=[(0, 0, 3)])
+    with pytest.raises(StageError, match="crop's last frame has no character frame rotation"):
+        row(char_holes=[(n - 2, n)])

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
 from gazepipe.errors import StageError
 from gazepipe.stages.build.mirror import marker_pairs, mirror_quat, mirror_six, mirror_vectors
@@ -230,6 +230,25 @@ def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, f
     return (j - 1 + frac) / rate_hz, float(th / theta[-1] - 1.0), j
 
 
+def bridge_rotations(q: np.ndarray, max_run: int) -> tuple[np.ndarray, int]:
+    """Quaternions (n, 4) wxyz with their missing (NaN) runs of at most ``max_run`` frames filled by slerp
+    between the frames on either side; longer runs, and runs at either end, stay NaN. Returns the filled copy
+    and the longest missing run (frames)."""
+    ok = np.isfinite(q).all(axis=1)
+    out = q.copy()
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], (~ok).astype(np.int8), [0]])))
+    runs = list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+    longest = max((b - a for a, b in runs), default=0)
+    keys = np.flatnonzero(ok)
+    if len(keys) < 2 or not runs:
+        return out, longest
+    slerp = Slerp(keys.astype(np.float64), from_wxyz(q[keys]))
+    for a, b in runs:
+        if a > 0 and b < len(q) and b - a <= max_run:
+            out[a:b] = to_wxyz(slerp(np.arange(a, b, dtype=np.float64)))
+    return out, longest
+
+
 def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
     """Element names of the gaze_map feature columns."""
     return {"yaw_deg": ["yaw_deg"], "pitch_deg": ["pitch_deg"], "duration_s": ["duration_s"],
@@ -239,8 +258,8 @@ def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
 
 def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
                  head: int, start_speed_deg_s: float = 18.0, start_filter_hz: float | None = 2.0,
-                 start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, path: str | None = None,
-                 take: str | None = None) -> TakeRows:
+                 start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, max_bridge_s: float = 0.5,
+                 path: str | None = None, take: str | None = None) -> TakeRows:
     """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6).
 
     Rotations are taken in the character frame held fixed at the crop's first frame: G(t) = C(0)ᵀ·C(t)·Q(t)
@@ -263,22 +282,43 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     rests : rest periods [start, stop) in frames of the uncropped take (the clean stage's ``rests``).
     head : index of the head segment.
 
-    Raises :class:`StageError` when fewer than two rests are given, l ≤ 0, or a frame of the crop lacks a
-    character frame or a segment rotation.
+    Raises :class:`StageError` (the reason the row cannot be computed) when fewer than two rests are given,
+    l ≤ 0, the crop's first or last frame lacks the character frame or a segment rotation (filled rotations
+    count), or a run of frames inside the crop lacks one for longer than ``max_bridge_s``; shorter runs are
+    bridged in rotation space (:func:`bridge_rotations`) for the angular speeds and counted in QC
+    (``bridged_frames``).
     """
     if len(rests) < 2:
         raise StageError(path, f"gaze_map: {len(rests)} rest period(s), need two", take=take)
-    quat = np.asarray(joints["quat"], dtype=np.float64)
+    quat = np.array(joints["quat"], dtype=np.float64)         # a copy: bridged below
     n, ns = quat.shape[:2]
-    valid = np.asarray(joints["valid"], dtype=bool) & np.isfinite(joints["char_rot"]).all(axis=1)
-    if n < 3 or not valid.all():
-        raise StageError(path, f"gaze_map: {int((~valid).sum())} of {n} crop frames have no character frame or "
-                               "segment rotation; every frame is needed", take=take)
+    if n < 3:
+        raise StageError(path, f"gaze_map: the crop has {n} frame(s)", take=take)
     duration = (int(rests[1][0]) - int(rests[0][1])) / rate_hz
     if duration <= 0:
         raise StageError(path, f"gaze_map: rests {rests[:2]} give a duration of {duration:.3f} s", take=take)
+    names = list(joints["segments"])
+    max_run = int(np.floor(max_bridge_s * rate_hz + 1e-9))
+    char_rot = np.array(joints["char_rot"], dtype=np.float64)
+    series = {"character frame": char_rot,
+              **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
+    bridged = np.zeros(n, dtype=bool)
+    for what, q in series.items():
+        ok = np.isfinite(q).all(axis=1)
+        for end, i in (("first", 0), ("last", n - 1)):
+            if not ok[i]:
+                raise StageError(path, f"gaze_map: the crop's {end} frame has no {what} rotation (P+ needs it)",
+                                 take=take)
+        if ok.all():
+            continue
+        q[:], longest = bridge_rotations(q, max_run)
+        if longest > max_run:
+            raise StageError(path, f"gaze_map: {longest} crop frames in a row ({longest / rate_hz:.2f} s) have no "
+                                   f"{what} rotation, more than build.max_bridge_s ({max_bridge_s:g} s) can "
+                                   "bridge for the start times and the overshoot", take=take)
+        bridged |= ~ok
     parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
-    rc = from_wxyz(joints["char_rot"])
+    rc = from_wxyz(char_rot)
     fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]
     local = [fixed[k] if parents[k] < 0 else fixed[parents[k]].inv() * fixed[k] for k in range(ns)]
 
@@ -306,7 +346,8 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
     }
     frame = np.asarray(joints["frame"], dtype=np.int64)
-    qc = {"crop_frames": int(n), "overshoot_frame": int(frame[j]) if j >= 0 else None,
+    qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
+          "overshoot_frame": int(frame[j]) if j >= 0 else None,
           "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1]))}
     return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
