@@ -124,7 +124,7 @@ class StagedDatasetWriter:
         self.root = Path(datasets_dir) / name
         self.staging = Path(staging)
         self.write = write_bytes or _plain_write
-        self.staged: list[tuple[Path, Path]] = []
+        self.staged: dict[Path, Path] = {}     # final path -> staged file (a take emitted again replaces it)
 
     def __call__(self, key: tuple[str, str, str], table: pa.Table) -> None:
         rel = take_path(*key)
@@ -134,12 +134,12 @@ class StagedDatasetWriter:
             fh.write(table_bytes(table))
             fh.flush()
             os.fsync(fh.fileno())
-        self.staged.append((tmp, self.root / rel))
+        self.staged[self.root / rel] = tmp
 
     def commit(self, built) -> list[Path]:
         """Publish the staged take files, then the schema file and dataset.json of ``built``; the paths written."""
         written: list[Path] = []
-        for tmp, final in sorted(self.staged, key=lambda p: p[1]):
+        for final, tmp in sorted(self.staged.items()):
             final.parent.mkdir(parents=True, exist_ok=True)
             os.replace(tmp, final)
             written.append(final)

@@ -41,3 +41,42 @@ def assign_split(key: str, pinned: str | None, train: float = 0.8, val: float = 
     if u < train + val:
         return "val"
     return "test"
+
+
+def rebalance(takes: list[tuple[str, str, bool]], train: float = 0.8, val: float = 0.1,
+              salt: str = "") -> list[tuple[str, str, str, str]]:
+    """The moves that keep a dataset's splits from emptying (SPEC §3.6), as ``(take, from, to, why)``.
+
+    ``takes`` are the takes that gave rows: ``(key, split, pinned)`` with ``key`` the ``<session>/<take>`` of
+    :func:`assign_split`. The train split is never empty while an unpinned take exists; with five or more takes,
+    an empty val or test split takes one. A take moves only to fill a split that would otherwise be empty, and
+    only out of a split that keeps at least one take; of those that may move, the one whose hash lies nearest
+    the empty split's share of [0, 1) moves (ties by key), so the choice is as deterministic as the hash.
+    """
+    split = {k: s for k, s, _ in takes}
+    pinned = {k for k, _, p in takes if p}
+    bounds = {"train": (0.0, train), "val": (train, train + val), "test": (train + val, 1.0)}
+    moves: list[tuple[str, str, str, str]] = []
+
+    def fill(target: str, why: str) -> None:
+        counts = {s: sum(v == s for v in split.values()) for s in SPLITS}
+        if counts[target]:
+            return
+        movable = [k for k in split if k not in pinned and counts[split[k]] >= 2 - (target == "train")]
+        if not movable:
+            return
+        lo, hi = bounds[target]
+
+        def distance(k: str) -> tuple[float, str]:
+            u = hash_unit(k, salt)
+            return (0.0 if lo <= u < hi else min(abs(u - lo), abs(u - hi)), k)
+
+        k = min(movable, key=distance)
+        moves.append((k, split[k], target, why))
+        split[k] = target
+
+    fill("train", "the train split would be empty (statistics need a training take)")
+    if len(takes) >= 5:
+        for s in ("val", "test"):
+            fill(s, f"the {s} split would be empty with {len(takes)} takes")
+    return moves

@@ -30,7 +30,7 @@ from gazepipe.model import MarkerSet, Take
 from gazepipe.schemas.base import attach_meta, check_table, read_meta
 from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
-from gazepipe.stages.build.splits import assign_split, check_fractions
+from gazepipe.stages.build.splits import assign_split, check_fractions, rebalance
 from gazepipe.stages.build.summary import DatasetSummary, feature_values, table_hash
 
 if TYPE_CHECKING:  # the row builders import scipy and pandas: loaded when a dataset is built, not when planned
@@ -66,6 +66,8 @@ class BuildParams:
     start_min_s : the low-passed speed must stay above the threshold at least this long (s) for a start
         (1/15 s = 2 frames at 30 Hz: a single-frame noise excursion does not count).
     overshoot_window_s : gaze_map overshoot confirmation window each side (s).
+    max_bridge_s : gaze_map: runs of crop frames without a rotation up to this long (s) are bridged in rotation
+        space for the start times and the overshoot; a longer run leaves the take out (SPEC §3.6).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
@@ -83,6 +85,7 @@ class BuildParams:
     start_filter_hz: float | None = field(default=2.0, metadata={"gt": 0})
     start_min_s: float = field(default=1.0 / 15.0, metadata={"min": 0})
     overshoot_window_s: float = field(default=0.1, metadata={"min": 0})
+    max_bridge_s: float = field(default=0.5, metadata={"min": 0})
     head_segment: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
@@ -232,7 +235,7 @@ def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
     return gaze_map_row(j, tt.meta["rests"], rate, float(take.target_yaw_deg), float(take.target_pitch_deg),
                         head=segs.index(head_name), start_speed_deg_s=p.start_speed_deg_s,
                         start_filter_hz=p.start_filter_hz, start_min_s=p.start_min_s,
-                        overshoot_window_s=p.overshoot_window_s, take=take.id)
+                        overshoot_window_s=p.overshoot_window_s, max_bridge_s=p.max_bridge_s, take=take.id)
 
 
 def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
@@ -343,6 +346,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
     skipped: list[dict[str, str]] = []
     schema: pa.Schema | None = None
     summary: DatasetSummary | None = None
+    by_id: dict[str, TakeTables] = {}
     for ref in mine:
         try:
             t = ref.loaded()
@@ -360,17 +364,25 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
             summary = DatasetSummary(name, feature_columns(schema), window)
         mirrored = _mirror(name, rows, ctx) if params.mirror else None
         table = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
-        summary.add_take(f"{t.session}/{t.take.id}", t.take.pose, split, table, rows.qc, _input_hashes(t, name))
+        summary.add_take(f"{t.session}/{t.take.id}", t.take.pose, split, table, rows.qc, _input_hashes(t, name),
+                         pinned=t.take.split is not None)
         emit(t.key, table)
+        by_id[f"{t.session}/{t.take.id}"] = ref
         del t, rows, mirrored, table
     if summary is None:
         reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in skipped[:3])
         raise StageError(_where(name), f"no take gave rows ({reasons})")
+    # no split left empty when a take can fill it (SPEC §3.6): the few takes that move are built again
+    for tid, _, new, why in rebalance([(k, v.split, v.pinned) for k, v in summary.takes.items()],
+                                      params.train_frac, params.val_frac, params.split_salt):
+        t = by_id[tid].loaded()
+        rows = build(t, ctx)
+        mirrored = _mirror(name, rows, ctx) if params.mirror else None
+        emit(t.key, _take_table(t, new, rows, mirrored, schema, ctx.sizes))
+        summary.move(tid, new, why)
     if not summary.train_takes:
-        splits = sorted(s for s, v in summary.by_split.items() if v["takes"])
-        raise StageError(_where(name), f"no training take among {summary.n_takes} (splits: {', '.join(splits)}); "
-                                       "statistics need at least one: pin a take with split = \"train\" or change "
-                                       "the split fractions")
+        raise StageError(_where(name), f"no training take among {summary.n_takes}: every take is pinned to "
+                                       "another split; statistics need one (pin a take with split = \"train\")")
     info = summary.info(params=params.to_dict(), names=ctx.names, sizes=ctx.sizes, fps=sorted(ctx.fps),
                         stride=stride, mirror=params.mirror, salt=params.split_salt, train_frac=params.train_frac,
                         val_frac=params.val_frac, skipped=skipped)

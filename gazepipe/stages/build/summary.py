@@ -63,6 +63,19 @@ class RunningMoments:
         self.m2 = self.m2 + m2b + delta ** 2 * (self.n * nb / n)
         self.n = n
 
+    def merge(self, other: RunningMoments) -> None:
+        """Merge another set of moments (the same update as :meth:`add` with its rows)."""
+        if other.n == 0:
+            return
+        if self.n == 0:
+            self.n, self.mean, self.m2 = other.n, other.mean.copy(), other.m2.copy()
+            return
+        n = self.n + other.n
+        delta = other.mean - self.mean
+        self.mean = self.mean + delta * (other.n / n)
+        self.m2 = self.m2 + other.m2 + delta ** 2 * (self.n * other.n / n)
+        self.n = n
+
     def result(self) -> dict[str, list[float]]:
         if self.n == 0:
             return {"mean": [], "std": []}
@@ -73,6 +86,18 @@ class RunningMoments:
 class _Group:
     rows: int = 0
     moments: dict[str, RunningMoments] = field(default_factory=dict)
+
+
+@dataclass
+class _Take:
+    """What the statistics need of one take: its pose, split, row count and per-column moments (partial sums,
+    so the statistics are exact whichever takes end up in train)."""
+
+    pose: str
+    split: str
+    rows: int
+    moments: dict[str, RunningMoments]
+    pinned: bool = False
 
 
 @dataclass
@@ -90,14 +115,15 @@ class DatasetSummary:
     dropped: dict[str, int] = field(default_factory=dict)
     inputs: dict[str, dict[str, str]] = field(default_factory=dict)
     segment_lengths: list[np.ndarray] = field(default_factory=list)
-    overall: _Group = field(default_factory=_Group)
-    per_pose: dict[str, _Group] = field(default_factory=dict)
+    takes: dict[str, _Take] = field(default_factory=dict)
+    #: takes moved out of their hashed split so that no split is empty: (take, from, to, why)
+    moves: list[tuple[str, str, str, str]] = field(default_factory=list)
     n_takes: int = 0
     n_rows: int = 0
 
     def add_take(self, tid: str, pose: str, split: str, table: pa.Table, qc: dict[str, Any],
-                 hashes: dict[str, str]) -> None:
-        """Count one take's table (its rows, mirrored ones included) and, for a training take, its statistics."""
+                 hashes: dict[str, str], pinned: bool = False) -> None:
+        """Count one take's table (its rows, mirrored ones included) and keep its statistics' partial sums."""
         n = table.num_rows
         self.n_takes += 1
         self.n_rows += n
@@ -114,29 +140,47 @@ class DatasetSummary:
         if self.window is not None and self.name != "face_clean":
             original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
             self.segment_lengths.append(np.bincount(table.column("segment").to_numpy()[original]))
-        if split != "train":
-            return
-        groups = [self.overall, self.per_pose.setdefault(pose, _Group())]
-        for g in groups:
-            g.rows += n
+        moments = {}
         for c in self.columns:
-            v = feature_values(table, c)
-            for g in groups:
-                g.moments.setdefault(c, RunningMoments()).add(v)
+            moments[c] = RunningMoments()
+            moments[c].add(feature_values(table, c))
+        self.takes[tid] = _Take(pose, split, n, moments, pinned)
+
+    def move(self, tid: str, split: str, why: str) -> None:
+        """Move take ``tid`` to ``split`` (its table re-emitted by the caller with that split)."""
+        t = self.takes[tid]
+        old = t.split
+        self.moves.append((tid, old, split, why))
+        for s, sign in ((old, -1), (split, 1)):
+            self.by_split[s]["takes"] += sign
+            self.by_split[s]["rows"] += sign * t.rows
+        self.split_takes[old].remove(tid)
+        self.split_takes[split].append(tid)
+        t.split = split
+        self.per_take[tid]["split"] = split
 
     @property
     def train_takes(self) -> int:
         return self.by_split["train"]["takes"]
 
     def _stats(self) -> dict[str, Any]:
+        overall, per_pose = _Group(), {}
+        for t in self.takes.values():             # in build order: the merge is the same whatever moved
+            if t.split != "train":
+                continue
+            for g in (overall, per_pose.setdefault(t.pose, _Group())):
+                g.rows += t.rows
+                for c in self.columns:
+                    g.moments.setdefault(c, RunningMoments()).merge(t.moments[c])
+
         def summary(g: _Group) -> dict[str, Any]:
             out: dict[str, Any] = {"rows": g.rows}
             for c in self.columns:
                 out[c] = g.moments.get(c, RunningMoments()).result()
             return out
 
-        stats = {"overall": summary(self.overall),
-                 "per_pose": {p: summary(self.per_pose[p]) for p in sorted(self.per_pose)}}
+        stats = {"overall": summary(overall),
+                 "per_pose": {p: summary(per_pose[p]) for p in sorted(per_pose)}}
         stats["rows_used"] = "training rows only, mirrored copies included"
         stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
         return stats
@@ -145,7 +189,14 @@ class DatasetSummary:
              stride: int | None, mirror: bool, salt: str, train_frac: float, val_frac: float,
              skipped: list[dict[str, str]]) -> dict[str, Any]:
         """The dataset.json object."""
-        warnings = [f"split {s!r} is empty" for s in SPLITS if self.by_split[s]["takes"] == 0]
+        warnings = [f"take {k} moved from {a} to {b}: {why}" for k, a, b, why in self.moves]
+        pinned_only = all(t.pinned for t in self.takes.values())
+        for s in SPLITS:
+            if self.by_split[s]["takes"] == 0:
+                why = ("every take is pinned to another split" if pinned_only and self.n_takes else
+                       f"{self.n_takes} take(s): a split is filled from the others only with five or more"
+                       if s != "train" else "no take could move there")
+                warnings.append(f"split {s!r} is empty: {why}")
         if len(fps) > 1 and self.name != "face_clean":
             warnings.append(f"takes have different frame rates {fps} Hz: a window of frames spans different times")
         counts: dict[str, Any] = {"takes": self.n_takes, "rows": self.n_rows, "mirrored": bool(mirror),
