@@ -113,12 +113,28 @@ def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit
     return float(k0 - 1 + np.clip(root, 0.0, 1.0))
 
 
+def _plateau_start(d: np.ndarray, s: int, shut: float, margin: float, near: float, n_shut: int) -> int | None:
+    """First frame from ``s`` within ``near`` of ``shut`` from which the next ``n_shut`` measured frames all stay
+    that near, moved on while the distance is still falling by more than ``margin`` a frame (the arms closing
+    into the band); None when there is none."""
+    close = np.abs(d - shut) <= near                # NaN compares False
+    measured = np.isfinite(d)
+    for k in np.flatnonzero(close[s:]) + s:
+        ahead = slice(k, min(k + n_shut, d.size))
+        if not (close[ahead] | ~measured[ahead]).all() or not measured[ahead].any():
+            continue
+        while k + 1 < d.size and measured[k + 1] and d[k + 1] < d[k] - margin and close[k + 1]:
+            k += 1
+        return int(k)
+    return None
+
+
 def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray, valid_b: np.ndarray,
                 rate_hz: float, *, speed_k: float = 8.0, min_speed_mm_s: float = 100.0,
                 min_depth_mm: float = 20.0, margin_mm: float = 1.0, margin_k: float = 5.0,
                 plateau_s: float = 0.3, open_s: float = 0.3, fit_s: float = 0.08,
                 min_separation_s: float = 1.0, lag_s: float = 0.02, z_lo: float = 8.0,
-                z_hi: float = 40.0) -> list[Clap]:
+                z_hi: float = 40.0, min_shut_s: float = 0.1, bounce_mm: float = 8.0) -> list[Clap]:
     """Every clap in the clapper markers' trajectories.
 
     Parameters
@@ -141,12 +157,16 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
     min_separation_s : two claps closer than this are one (the faster closing is kept).
     z_lo, z_hi : confidence = the smaller of the closing speed over σ_v and the depth over σ_d, mapped
         linearly so that ``z_lo`` (the detection floor) gives 0 and ``z_hi`` or more gives 1.
+    min_shut_s, bounce_mm : the contact is the start of the shut plateau: the first frame, after the fastest
+        closing, within ``bounce_mm`` (or the margin, when larger) of the shut value from which the distance
+        stays that near for ``min_shut_s``. A stick that rebounds or chatters a few millimetres for a frame or
+        two right after contact neither ends the plateau nor moves the contact after the bounce.
 
     Returns
     -------
-    The claps in time order. Each is the first time, after the fastest closing of its event, that the
-    distance comes within the margin of its shut value, refined below one frame by solving the fitted
-    closing trajectory for the shut value (see :func:`_contact_crossing`).
+    The claps in time order. Each is the start of the shut plateau after the fastest closing of its event,
+    refined below one frame by solving the fitted closing trajectory for the shut value (see
+    :func:`_contact_crossing`).
     """
     d = clapper_distance(clap_a_xyz, clap_b_xyz, valid_a, valid_b)
     T = d.size
@@ -182,10 +202,9 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
         opened = float(np.nanmax(before))
         if opened - shut < min_depth_mm:
             continue
-        within = np.flatnonzero(d[s:] <= shut + margin)
-        if within.size == 0:
+        k0 = _plateau_start(d, s, shut, margin, max(bounce_mm, margin), max(2, round(min_shut_s * rate)))
+        if k0 is None:
             continue
-        k0 = s + int(within[0])
         frame = _contact_crossing(d, k0, shut, sigma_d, n_fit)
         speed = float(-v[f])
         z = min(speed / max(sigma_v, 1e-12), (opened - shut) / max(sigma_d, 1e-12))

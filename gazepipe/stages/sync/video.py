@@ -153,8 +153,9 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, or None.
 
     Decodes the ``n_before`` frames before the edge and ``n_shut`` still frames after it (their median is the
-    shut image), fits the displacement of the last three moving frames (a quadratic) and solves it for zero
-    between that last moving frame and the next; the fractional frame becomes a time by interpolating the
+    shut image), follows the displacement down from its largest value to the last frame where it still falls
+    (a rebound after contact rises again), fits that frame and the two before it (a quadratic) and solves it
+    for zero between that frame and the next; the fractional frame becomes a time by interpolating the
     two frames' timestamps.
     """
     k_e = int(np.searchsorted(ts, t_edge, side="right")) - 1  # the frame at or before the edge
@@ -177,7 +178,11 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     moving = np.flatnonzero(s > 0.02 * s.max())
     if moving.size == 0:
         return None
-    k = int(moving[-1])
+    # the approach: from the largest displacement down to where it stops falling (a stick that bounces open
+    # after contact moves again, and those frames are not the approach)
+    k = int(np.argmax(s[: n_before + 1]))
+    while k + 1 < s.size and s[k + 1] < s[k] and s[k + 1] > 0.02 * s.max():
+        k += 1
     if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
         return None  # not a clean approach to the shut position
     y = s[k - 2: k + 1]
