@@ -499,7 +499,8 @@ def test_gaze_map_on_truth_rotations(session):
         d_head = fixed[-1] * fixed[0].inv()
         gaze = Rotation.from_rotvec([0, np.deg2rad(row["yaw_deg"]), 0]) * \
             Rotation.from_rotvec([-np.deg2rad(row["pitch_deg"]), 0, 0])
-        assert np.rad2deg(((d_head * from_wxyz(pp[-1])).inv() * gaze).magnitude()) < 0.01
+        # (the row's last pose is the mean over the crop's last 0.5 s, where the noise-free head has all but settled)
+        assert np.rad2deg(((d_head * from_wxyz(pp[-1])).inv() * gaze).magnitude()) < 0.05
         # mirror: yaw negated, quaternions (w, x, −y, −z)
         mrow = rows[1]
         assert mrow["yaw_deg"] == -row["yaw_deg"] and mrow["pitch_deg"] == row["pitch_deg"]
@@ -769,4 +770,5 @@ def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     with pytest.raises(StageError, match="crop's first frame has no segment 'pelvis' rotation"):
         row(quat_holes=[(0, 0, 3)])
     with pytest.raises(StageError, match="crop's last frame has no character frame rotation"):
-        row(char_holes=[(n - 2, n)])
+        row(char_holes=[(int(rests[1][0]) - c0, n)])   # the last pose is a mean over the second rest's frames
+    assert row(char_holes=[(n - 2, n)]).qc["bridged_frames"] == 1   # the last from the mean, n − 2 bridged

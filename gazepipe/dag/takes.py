@@ -289,13 +289,16 @@ def run_frames(ctx: UnitContext) -> UnitResult:
     source = sources[0][0] if sources else "none"
     qc = dict(joints.qc)
     qc["neutral_source"] = source
-    table = joints_to_table(joints, frames, meta={"neutral_source": source})
+    meta = {"neutral_source": source}
+    if joints.rest_before is not None:
+        meta["rest_before"] = joints.rest_before
+    table = joints_to_table(joints, frames, meta=meta)
     return UnitResult(tables={"joints": (table, joints_schema(len(joints.segments)))}, qc=qc,
                       warnings=list(qc.get("warnings", [])), read=read)
 
 
 register(Stage(
-    name="frames", version="6", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="7", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

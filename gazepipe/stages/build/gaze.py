@@ -230,6 +230,16 @@ def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, f
     return (j - 1 + frac) / rate_hz, float(th / theta[-1] - 1.0), j
 
 
+#: seconds of a rest, next to the crop's first or last frame, whose mean pose stands for that frame's
+REST_POSE_S = 0.5
+
+
+def _mean_rotation(q: np.ndarray) -> np.ndarray | None:
+    """``Rotation.mean`` of the known quaternions (n, 4) wxyz, or None when fewer than three are known."""
+    ok = np.isfinite(q).all(axis=1)
+    return to_wxyz(from_wxyz(q[ok]).mean()).reshape(4) if ok.sum() >= 3 else None
+
+
 def bridge_rotations(q: np.ndarray, max_run: int) -> tuple[np.ndarray, int]:
     """Quaternions (n, 4) wxyz with their missing (NaN) runs of at most ``max_run`` frames filled by slerp
     between the frames on either side; longer runs, and runs at either end, stay NaN. Returns the filled copy
@@ -267,6 +277,11 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     turn counts; parent-relative L = G_parentᵀ·G (the root's L is its G).
 
     - duration l = (start of the second rest − end of the first rest) / rate, seconds;
+    - the first and last frames' rotations (segments and character frame) are the subject's still pose there:
+      the mean over the last ``REST_POSE_S`` of the first rest (the joints' ``rest_before``, when the frames
+      stage had that rest) and over the crop's last ``REST_POSE_S``, inside the second rest (each over the
+      whole rest where those frames lack it); a single frame carries the markers' noise (1–2° on a small
+      three-marker segment);
     - P+ per segment L(last)·L(first)⁻¹, and the eyes' D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·
       G_head(first)⁻¹: the eyes' global displacement is the requested change;
     - start time per segment: first crop frame where the angular speed of L (central differences of L
@@ -302,21 +317,35 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     char_rot = np.array(joints["char_rot"], dtype=np.float64)
     series = {"character frame": char_rot,
               **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
+    # the crop starts where the first rest ends and ends with the second rest, where the subject is still: the
+    # first and last poses are the means over those rests (a single frame carries the markers' noise)
+    before = joints["meta"].get("rest_before") or {}
+    second = max(0, min(n - 1, int(rests[1][0]) - int(np.asarray(joints["frame"])[0])))
+    tail = max(second, n - int(round(REST_POSE_S * rate_hz)))
+    ends: dict[str, tuple[np.ndarray | None, np.ndarray | None]] = {}
+    for (what, q), first in zip(series.items(), [before.get("char_rot"), *(before.get("quat") or [None] * ns)],
+                                strict=True):
+        last = _mean_rotation(q[tail:])
+        ends[what] = (None if first is None else np.asarray(first, dtype=np.float64),
+                      last if last is not None else _mean_rotation(q[second:]))
     bridged = np.zeros(n, dtype=bool)
     for what, q in series.items():
         ok = np.isfinite(q).all(axis=1)
-        for end, i in (("first", 0), ("last", n - 1)):
+        for end, i, mean in (("first", 0, ends[what][0]), ("last", n - 1, ends[what][1])):
+            if mean is not None:
+                q[i], ok[i] = mean, True
             if not ok[i]:
                 raise StageError(path, f"gaze_map: the crop's {end} frame has no {what} rotation (P+ needs it)",
                                  take=take)
         if ok.all():
             continue
+        ok_before = ok.copy()
         q[:], longest = bridge_rotations(q, max_run)
         if longest > max_run:
             raise StageError(path, f"gaze_map: {longest} crop frames in a row ({longest / rate_hz:.2f} s) have no "
                                    f"{what} rotation, more than build.max_bridge_s ({max_bridge_s:g} s) can "
                                    "bridge for the start times and the overshoot", take=take)
-        bridged |= ~ok
+        bridged |= ~ok_before
     parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
     rc = from_wxyz(char_rot)
     fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]

@@ -19,6 +19,7 @@ from gazepipe.model import Markers, MarkerSet
 from gazepipe.stages.clean.filters import true_runs
 from gazepipe.stages.geometry import (
     frame_from_points,
+    from_wxyz,
     heading_frames,
     kabsch,
     six_from_matrix,
@@ -80,6 +81,8 @@ class Joints:
     char_rot : (N, 4) w, x, y, z lab-from-character rotation.
     valid : (N,) bool, True where the character frame and every segment are defined.
     rot_filled : (N, S) bool, segment rotations filled across a gap of its markers (not measured).
+    rest_before : the still pose just before the first frame when the rest before it was given
+        (:func:`rest_pose`: ``quat`` per segment, ``char_rot``, each a mean over its last frames), else None.
     rate_hz, first_frame : as in the input :class:`~gazepipe.model.Markers` (source frame of row 0).
     qc : JSON-ready record (neutral frames used per segment, invalid frames, warnings).
     All arrays are float64 and NaN where undefined.
@@ -99,6 +102,7 @@ class Joints:
     first_frame: int = 1
     qc: dict = field(default_factory=dict)
     rot_filled: np.ndarray | None = None
+    rest_before: dict | None = None
 
     @property
     def n_frames(self) -> int:
@@ -382,11 +386,36 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
     for g in qc.get("rotation_gaps", []):
         g["start"], g["stop"] = g["start"] - lead, g["stop"] - lead
     qc["rotation_gaps"] = [g for g in qc.get("rotation_gaps", []) if g["stop"] > 0]
+    rest = rest_pose(quat[:lead], char_rot[:lead], int(round(REST_POSE_S * markers.rate_hz))) if lead else None
     return Joints(segments=names, parents=parents, quat=quat[k], quat_local=quat_local[k], six=six[k],
                   head_centre=head_centre[k], target_dir=target_dir[k],
                   char_origin=np.where(has_char[:, None], origin, np.nan)[k], char_rot=char_rot[k], valid=valid[k],
                   rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame) + lead, qc=qc,
-                  rot_filled=rot_filled[k])
+                  rot_filled=rot_filled[k], rest_before=rest)
+
+
+#: seconds at the end of the rest before the take over which :func:`rest_pose` averages the pose
+REST_POSE_S = 0.5
+
+
+def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int) -> dict | None:
+    """The still pose just before the take: each segment's rotation (S, 4) wxyz and the character frame's (4,),
+    each the mean (``Rotation.mean``) over the last ``n_last`` rest frames where it is known, else over every
+    rest frame where it is (None where never). The subject is still there by definition, so the mean is the
+    pose at the take's first frame with the noise of a single frame averaged out; None without any rest frame.
+    """
+    if not len(quat):
+        return None
+
+    def mean(q: np.ndarray) -> list[float] | None:
+        for part in (q[-n_last:], q):
+            ok = np.isfinite(part).all(axis=1)
+            if ok.any():
+                return [float(x) for x in np.asarray(to_wxyz(from_wxyz(part[ok]).mean())).reshape(4)]
+        return None
+
+    return {"quat": [mean(quat[:, j]) for j in range(quat.shape[1])], "char_rot": mean(char_rot),
+            "frames": int(min(n_last, len(quat)))}
 
 
 #: known frames on each side a rotation gap is interpolated from (and that a hidden stretch keeps)
