@@ -206,6 +206,23 @@ def make_long_gaps(rng: np.random.Generator, labels: list[str], n: int, rate_hz:
     return mask
 
 
+def make_root_rest_gap(rng: np.random.Generator, labels: list[str], n: int, rate_hz: float,
+                       rests: np.ndarray) -> np.ndarray:
+    """One 0.5–1.5 s gap on a root-segment marker (not the root marker) inside one of the take's rests, as a
+    (T, M) mask: the hazard that used to end a rest when rest speeds needed every root-segment marker."""
+    mask = np.zeros((n, len(labels)), dtype=bool)
+    cols = [i for i, lab in enumerate(labels) if lab in SEGMENT_MARKERS["pelvis"]]
+    if not len(rests) or not cols:
+        return mask
+    a, b = (int(x) for x in rests[int(rng.integers(0, len(rests)))])
+    length = min(b - a, int(rng.uniform(0.5, 1.5) * rate_hz))
+    if length < 1:
+        return mask
+    start = int(rng.integers(a, b - length + 1))
+    mask[start:start + length, cols[int(rng.integers(0, len(cols)))]] = True
+    return mask
+
+
 #: ghost reflections: displacement (mm) and length (frames) of a spike
 SPIKE_MM = (15.0, 50.0)
 SPIKE_FRAMES = (1, 2)

@@ -43,7 +43,7 @@ class TakeMotion:
     ----------
     time_s : (T,) seconds.
     local : S rotation stacks (each length T), parent-relative rotation of each segment, initial character axes.
-    floor_lab : (3,) the subject's floor point in the lab, mm.
+    floor_lab : (3,) the subject's floor point in the lab, mm; (T, 3) when the whole body steps.
     fixation_lab : (T, 3) the point the eyes aim at, lab mm.
     target_lab : (T, 3) or None, the pole tip (gaze_follow) in lab mm.
     sign_lab : (3,) or None, the gaze-shift target sign in lab mm (gaze_shift).
@@ -116,9 +116,17 @@ def floor_point(placement: Placement, pose: str) -> np.ndarray:
     return np.asarray(placement.floor_mm, dtype=float) - np.array([0.0, 0.0, drop])
 
 
-def _clapper_distance(t: np.ndarray, contact: np.ndarray, closing_s: np.ndarray) -> np.ndarray:
-    """Distance between the clapper markers: shut, opened over 0.3 s, held, closed fast (accelerating)."""
+def _clapper_distance(t: np.ndarray, contact: np.ndarray, closing_s: np.ndarray,
+                      rebound: np.ndarray | None = None) -> np.ndarray:
+    """Distance between the clapper markers: shut, opened over 0.3 s, held, closed fast (accelerating).
+    ``rebound`` (claps, 2): per clap, how far (mm) and how long (s) the stick bounces open right after contact
+    (a half sine; 0 mm: none)."""
     d = np.full_like(t, CLAP_SHUT_MM)
+    if rebound is not None:
+        for tc, (mm, dur) in zip(contact, np.asarray(rebound, dtype=np.float64), strict=True):
+            if mm > 0 and dur > 0:
+                u = (t - tc) / dur
+                d = d + np.where((u > 0) & (u < 1), mm * np.sin(np.pi * np.clip(u, 0.0, 1.0)), 0.0)
     for tc, tcl in zip(contact, closing_s, strict=True):
         t_open = tc - tcl - 0.6
         opening = smoothstep((t - t_open) / 0.3)
@@ -130,10 +138,10 @@ def _clapper_distance(t: np.ndarray, contact: np.ndarray, closing_s: np.ndarray)
 
 
 def _clapper(t: np.ndarray, eye_lab: np.ndarray, h: Rotation, contact: np.ndarray,
-             closing_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+             closing_s: np.ndarray, rebound: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Clapper markers (T, 2, 3) held ~0.5 m in front of the face, and the frames where it is in use."""
     centre = eye_lab + h.apply([40.0, -150.0, 500.0])
-    d = _clapper_distance(t, contact, closing_s)
+    d = _clapper_distance(t, contact, closing_s, rebound)
     c1 = np.broadcast_to(centre, (len(t), 3))
     c2 = centre + d[:, None] * h.apply([0.0, 1.0, 0.0])[None, :]
     busy = np.zeros(len(t), dtype=bool)
@@ -186,7 +194,7 @@ def sway(rng: np.random.Generator, n: int, rate_hz: float, amp_deg: float) -> np
 
 
 def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement, pose: str,
-                  duration_s: float) -> TakeMotion:
+                  duration_s: float, clap_rebound: np.ndarray | None = None) -> TakeMotion:
     """A gaze_follow take (Klein 5.1): rest, the pole moving between random goals, settle, rest.
 
     The gaze follows the pole with a ~0.2 s reaction delay; the body's part of the gaze change goes through an
@@ -247,20 +255,24 @@ def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement
 
     contact = np.array([rng.uniform(1.1, 1.4), a1 + settle + rng.uniform(0.6, 0.9)])
     closing = rng.uniform(0.06, 0.10, size=2)
-    clap, busy = _clapper(t, eye_lab, h, contact, closing)
+    clap, busy = _clapper(t, eye_lab, h, contact, closing, clap_rebound)
+    design = {"rest1_s": rest1, "rest2_s": rest2, "active_s": [a0, a1], "n_legs": n_legs, "leg_s": LEG_S,
+              "reaction_s": reaction, "clap_closing_s": closing.tolist(), "goals_lab": knots.tolist()}
+    if clap_rebound is not None:
+        design["clap_rebound"] = np.asarray(clap_rebound, dtype=np.float64).tolist()
     return TakeMotion(time_s=t, local=local, floor_lab=floor, fixation_lab=fix, target_lab=target,
-                      clapper_lab=clap, clap_times_s=contact, clapper_busy=busy,
-                      design={"rest1_s": rest1, "rest2_s": rest2, "active_s": [a0, a1], "n_legs": n_legs,
-                              "leg_s": LEG_S, "reaction_s": reaction, "clap_closing_s": closing.tolist(),
-                              "goals_lab": knots.tolist()})
+                      clapper_lab=clap, clap_times_s=contact, clapper_busy=busy, design=design)
 
 
 def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement, pose: str,
-                 yaw_deg: float, pitch_deg: float) -> TakeMotion:
+                 yaw_deg: float, pitch_deg: float, step: tuple[float, float, np.ndarray] | None = None
+                 ) -> TakeMotion:
     """A gaze_shift take (Pejsa 5.2.1): rest ≥ 1 s, one gaze change with a cascade and an overshoot, rest ≥ 1 s.
 
     The eyes start first (saccade), then head, neck3 … neck1, chest, spine4 … spine1, pelvis, each after a
-    known delay; every segment follows the same overshooting profile of duration ``D``.
+    known delay; every segment follows the same overshooting profile of duration ``D``. ``step`` = (start
+    relative to the end of the gaze change, s; duration, s; displacement (3,) lab mm): the whole body also
+    steps (its floor point moves, smoothly) as the change ends; the take grows by the step's length.
     """
     h = placement.h_lab
     floor = floor_point(placement, pose)
@@ -289,8 +301,12 @@ def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement,
 
     rest1 = float(rng.uniform(1.2, 1.6))
     t_end = rest1 + (onset[moving].max() if moving.any() else 0.0) + dur
-    n = int(np.ceil((t_end + rng.uniform(1.3, 1.6)) * rate_hz))
+    tail = rng.uniform(1.3, 1.6)
+    extra = 0.0 if step is None else max(0.0, step[0] + step[1])
+    n = int(np.ceil((t_end + extra + tail) * rate_hz))
     t = np.arange(n) / rate_hz
+    if step is not None:
+        floor = floor + smoothstep((t - t_end - step[0]) / step[1])[:, None] * np.asarray(step[2])[None, :]
 
     local = []
     for k in range(S):
@@ -306,9 +322,11 @@ def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement,
     gaze_dir = gaze.apply(FORWARD)
     sign = eye_lab + h.apply(3000.0 * goal)
     fix = eye_lab + h.apply(3000.0 * gaze_dir)
+    step_design = {} if step is None else {"step": {"start_s": t_end + step[0], "duration_s": step[1],
+                                                    "lab_mm": np.asarray(step[2]).tolist()}}
     return TakeMotion(time_s=t, local=local, floor_lab=floor, fixation_lab=fix, sign_lab=sign,
                       gaze_goal_char=goal, gaze_dir_char=gaze_dir,
-                      design={"rest1_s": rest1, "eye_onset_s": rest1, "onset_s": (rest1 + onset).tolist(),
+                      design={**step_design, "rest1_s": rest1, "eye_onset_s": rest1, "onset_s": (rest1 + onset).tolist(),
                               "moving": moving.tolist(), "duration_s": dur, "beta": beta, "u_beta": u_beta,
                               "t_beta_s": rest1 + head_onset + u_beta * dur, "saccade_s": sacc,
                               "final_yaw_deg": np.rad2deg(fin_yaw).tolist(),

@@ -10,7 +10,14 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from gazepipe.synth.markers import build_kinematics, gap_runs, make_gaps, make_long_gaps, make_spikes
+from gazepipe.synth.markers import (
+    build_kinematics,
+    gap_runs,
+    make_gaps,
+    make_long_gaps,
+    make_root_rest_gap,
+    make_spikes,
+)
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
 from gazepipe.synth.record import ModalityWriter, TakeRecord
 from gazepipe.synth.skeleton import (
@@ -52,7 +59,10 @@ class SynthConfig:
     ``rate_hz``: the mocap capture rate; ``segments``: the segments that carry markers (all ten, or a subset
     with the pelvis and the head such as ``FOUR_SEGMENTS``; the truth keeps the ten segments of the moving
     chain); ``up_axis``: the lab's vertical axis in the written files (``"z"`` or ``"y"``; truth lab arrays
-    follow it).
+    follow it); ``body_steps``: share of gaze_shift takes in which the whole body steps 40–150 mm over
+    0.8–1.4 s as the gaze change ends (the truth's rests follow the body in the room); ``root_rest_gaps``: one
+    0.5–1.5 s gap per mocap take on a root-segment marker inside a rest; ``clap_rebounds``: share of claps whose
+    stick bounces open 3–6 mm for one to two mocap frames right after contact (on the mocap and the video).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -72,6 +82,9 @@ class SynthConfig:
     rate_hz: float = MOCAP_RATE_HZ
     segments: tuple[str, ...] = SEGMENTS
     up_axis: str = "z"
+    body_steps: float = 0.0
+    root_rest_gaps: bool = False
+    clap_rebounds: float = 0.0
 
 
 #: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
@@ -222,8 +235,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     meta_takes: dict[str, Any] = {}
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long = (np.random.default_rng(s) for s in
-                                                                 np.random.SeedSequence([seed, index]).spawn(6))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(7))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -235,10 +248,21 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             records.append(rec)
             continue
         if kind == "gaze_follow":
-            motion = follow_motion(r_motion, rate, cfg.placement, pose, cfg.follow_duration_s)
+            rebound = None
+            if cfg.clap_rebounds > 0:
+                bounce = r_hazard.random(2) < cfg.clap_rebounds
+                rebound = np.stack([np.where(bounce, r_hazard.uniform(3.0, 6.0, 2), 0.0),
+                                    r_hazard.uniform(1.0, 2.0, 2) / rate], axis=1)
+            motion = follow_motion(r_motion, rate, cfg.placement, pose, cfg.follow_duration_s, rebound)
         elif kind == "gaze_shift":
             assert target is not None
-            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target)
+            step = None
+            if cfg.body_steps > 0 and r_hazard.random() < cfg.body_steps:
+                ang = r_hazard.uniform(0.0, 2.0 * np.pi)
+                mm = r_hazard.uniform(40.0, 150.0)
+                step = (float(r_hazard.uniform(-0.3, 0.2)), float(r_hazard.uniform(0.8, 1.4)),
+                        mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
+            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step)
         else:
             motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
         kin = build_kinematics(motion, cfg.placement, cfg.segments)
@@ -250,6 +274,9 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
             mask |= make_long_gaps(r_long, kin.labels, n, rate, cfg.long_gaps, cfg.gaps_per_marker_min, rests,
                                    crop_bounds(rests, kind))
+        if cfg.gaps and cfg.root_rest_gaps:
+            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+            mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
         offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
                                       motion.clapper_busy)
         noisy += offsets

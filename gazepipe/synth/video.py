@@ -102,7 +102,9 @@ def render_frames(bg: np.ndarray, frame_idx: np.ndarray, clock: CameraClock, mot
     sub = ((np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * EXPOSURE_S
     t_m = clock.to_mocap(frame_idx[:, None] / clock.fps + sub[None, :])        # (F, ns) mocap seconds
     closing = np.asarray(motion.design.get("clap_closing_s", []), dtype=np.float64)
-    d = _clapper_distance(t_m, np.asarray(motion.clap_times_s, dtype=np.float64), closing)
+    rebound = motion.design.get("clap_rebound")
+    d = _clapper_distance(t_m, np.asarray(motion.clap_times_s, dtype=np.float64), closing,
+                          None if rebound is None else np.asarray(rebound, dtype=np.float64))
     bottom = LOWER_ARM_ROWS[0] - (d - CLAP_SHUT_MM) * PX_PER_MM
     cover = _arm_cover(bottom, bottom - ARM_HEIGHT_PX).mean(axis=1).astype(np.float32)   # (F, H)
     img = np.repeat(bg.astype(np.float32)[None], frame_idx.size, axis=0)
