@@ -45,6 +45,32 @@ def test_mocap_clap_instants(rate, closing):
     assert errs.max() <= 0.2, errs.max()
 
 
+@pytest.mark.parametrize("rate,closing", [(29.97, (0.10, 0.20)), (120.0, (0.06, 0.12))])
+def test_a_stick_that_bounces_after_contact_does_not_move_the_clap(rate, closing):
+    """SPEC §3.4: the contact is the start of the shut plateau. A stick that bounces open 3–6 mm for one to two
+    frames right after contact (a half sine) leaves the contact within 1/5 frame (closings over three frames or
+    more, as test_mocap_clap_instants), where taking the first frame within the tight shut margin would put it
+    after the bounce (up to 1.2 frames late on these draws)."""
+    from gazepipe.synth.motion import CLAP_SHUT_MM, _clapper_distance
+
+    rng = np.random.default_rng(7)
+    errs = []
+    for _ in range(10):
+        n = int(12 * rate)
+        contacts = np.array([rng.uniform(1.5, 3.0), rng.uniform(8.0, 10.0)])
+        closing_s = rng.uniform(*closing, size=2)
+        bounce = np.stack([rng.uniform(3.0, 6.0, 2), rng.uniform(1.0, 2.0, 2) / rate], axis=1)
+        t = np.arange(n) / rate
+        d = _clapper_distance(t, contacts, closing_s, bounce)
+        assert (d > CLAP_SHUT_MM + 2.5).any() and d.min() >= CLAP_SHUT_MM
+        a = np.zeros((n, 3)) + rng.normal(0, 0.3, (n, 3))
+        b = np.column_stack([np.zeros(n), np.zeros(n), d]) + rng.normal(0, 0.3, (n, 3))
+        found = mocap_claps(a, b, np.ones(n, bool), np.ones(n, bool), rate)
+        assert len(found) == 2
+        errs.extend((np.array([c.time_s for c in found]) - contacts) * rate)
+    assert np.abs(errs).max() <= 0.2, errs
+
+
 def test_mocap_no_clap_and_gaps():
     rng = np.random.default_rng(3)
     rate, n = 100.0, 2000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import struct
 import tomllib
 from pathlib import Path
@@ -411,3 +412,40 @@ def test_a_four_segment_layout_in_a_y_up_lab(tmp_path):
     z_up = generate_session(tmp_path / "z", seed=3, config=cfg)
     assert (z_up / "mocap" / "follow_standing_01.c3d").read_bytes() != (out / "mocap" / "follow_standing_01.c3d").read_bytes()
     assert "up_axis" not in load_truth(z_up, "follow_standing_01")["session"]
+
+
+def test_gaze_shift_capture_hazards(tmp_path):
+    """body_steps, root_rest_gaps and clap_rebounds (SynthConfig): the whole body steps in the room as the gaze
+    change ends (and the truth's second rest starts after it), a pelvis marker is lost inside a rest, and the
+    clapper stick bounces open right after contact; the defaults stay without them."""
+    from gazepipe.synth import load_truth
+    from gazepipe.synth.motion import CLAP_SHUT_MM
+    from gazepipe.synth.skeleton import SEGMENT_MARKERS
+
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=8.0, head_camera=False, face_takes=(),
+                      shift_targets=((36.0, 12.0), (-72.0, 0.0)), neutral_s=0.0, body_steps=1.0,
+                      root_rest_gaps=True, clap_rebounds=1.0)
+    folder = generate_session(tmp_path / "s", seed=1, config=cfg)
+    meta = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
+    for take, t in meta.items():
+        tr = load_truth(folder, take)
+        labels = list(tr["labels"])
+        x = tr["markers_true"].astype(np.float64)
+        rate = float(t["rate_hz"])
+        pelvis = [labels.index(n) for n in SEGMENT_MARKERS["pelvis"] if n in labels]
+        rests = np.asarray(t["rest_periods"])
+        lost = tr["gap_mask"][:, pelvis]
+        assert any(lost[a:b].any(axis=0).max() and lost[a:b].sum() >= 0.5 * rate - 1 for a, b in rests), take
+        if t["kind"] == "gaze_shift":
+            step = t["design"]["step"]
+            root = x[:, labels.index("SACR")]
+            moved = np.linalg.norm(root[-1] - root[0])
+            # (the sacrum also swings with the pelvis' own turn in the shift: up to ~15 mm)
+            assert moved == pytest.approx(np.linalg.norm(step["lab_mm"]), abs=20.0)
+            assert rests[1][0] / rate >= step["start_s"] + 0.8 * step["duration_s"], (rests, step)
+        else:
+            bounce = np.asarray(t["design"]["clap_rebound"])
+            d = np.linalg.norm(x[:, labels.index("CLAP2")] - x[:, labels.index("CLAP1")], axis=1)
+            for tc, (mm, dur) in zip(t["clap_times_s"], bounce, strict=True):
+                after = d[int(np.ceil(tc * rate)):int(np.ceil((tc + dur) * rate))]
+                assert 3.0 <= mm <= 6.0 and CLAP_SHUT_MM + 1e-3 < after.max() <= CLAP_SHUT_MM + mm   # noise-free

@@ -260,7 +260,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             if cfg.body_steps > 0 and r_hazard.random() < cfg.body_steps:
                 ang = r_hazard.uniform(0.0, 2.0 * np.pi)
                 mm = r_hazard.uniform(40.0, 150.0)
-                step = (float(r_hazard.uniform(-0.3, 0.2)), float(r_hazard.uniform(0.8, 1.4)),
+                step = (float(r_hazard.uniform(-0.8, -0.2)), float(r_hazard.uniform(0.8, 1.4)),
                         mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
             motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step)
         else:

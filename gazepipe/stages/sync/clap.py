@@ -115,16 +115,14 @@ def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit
 
 def _plateau_start(d: np.ndarray, s: int, shut: float, margin: float, near: float, n_shut: int) -> int | None:
     """First frame from ``s`` within ``near`` of ``shut`` from which the next ``n_shut`` measured frames all stay
-    that near, moved on while the distance is still falling by more than ``margin`` a frame (the arms closing
-    into the band); None when there is none."""
+    that near; None when there is none. (A frame still closing inside the band, at a high rate, is told apart
+    from the contact by :func:`_contact_crossing`.)"""
     close = np.abs(d - shut) <= near                # NaN compares False
     measured = np.isfinite(d)
     for k in np.flatnonzero(close[s:]) + s:
         ahead = slice(k, min(k + n_shut, d.size))
         if not (close[ahead] | ~measured[ahead]).all() or not measured[ahead].any():
             continue
-        while k + 1 < d.size and measured[k + 1] and d[k + 1] < d[k] - margin and close[k + 1]:
-            k += 1
         return int(k)
     return None
 
