@@ -131,3 +131,28 @@ def test_the_target_is_held_to_an_angle_seen_from_the_head():
     assert gap_limit(lim, 6, 4, 6) == pytest.approx(2000.0 * np.tan(np.radians(2.0)))
     assert gap_limit(lim, 3, 4, 6) == 5.0
     assert _error_limits(xyz, labels, ms, CleanParams(max_target_fill_error_deg=0.0)) == 5.0
+
+
+def test_a_rigid_fill_on_two_mates_owns_the_twist_it_cannot_see():
+    """A three-marker segment loses one marker while it turns about the axis through the other two (and is
+    still before and after, so the samples hidden beside the gap show nothing): the two mates cannot see that
+    twist, the steadiest neighbours can. The fill's estimated error says so and the gap stays unfilled, instead
+    of a confident fill 40 mm off."""
+    rate, n = 30.0, 240
+    t = np.arange(n) / rate
+    ang = np.radians(60.0) * np.clip((t - 3.0) / 2.0, 0.0, 1.0) ** 2 * (3 - 2 * np.clip((t - 3.0) / 2.0, 0, 1))
+    body = np.array([[0.0, 60.0, 40.0],      # A: off the B–C axis
+                     [0.0, 0.0, 0.0], [120.0, 0.0, 0.0],          # B, C: the axis (x)
+                     [60.0, -80.0, 90.0], [-40.0, 50.0, -70.0]])  # D, E: the same rigid body, not in the cluster
+    c, s = np.cos(ang), np.sin(ang)
+    rot = np.stack([np.stack([np.ones(n), 0 * c, 0 * c], 1), np.stack([0 * c, c, -s], 1),
+                    np.stack([0 * c, s, c], 1)], 1)                # about x
+    truth = np.einsum("tij,mj->tmi", rot, body) + [500.0, 200.0, 1000.0]
+    xyz = truth + np.random.default_rng(3).normal(0, 0.3, truth.shape)
+    valid = np.ones((n, 5), dtype=bool)
+    valid[80:160, 0] = False                    # A hidden through the whole turn (2.7 s)
+    res = fill_gaps(xyz, valid, rate, clusters=[[0, 1, 2]], max_gap_s=3.0, methods=("rigid",),
+                    max_error_mm=5.0)
+    gap = res.gaps[0]
+    assert gap.reason == REASON_UNCERTAIN and gap.error_mm > 10.0, gap
+    assert (res.fill_code[80:160, 0] == FILL_CODES["unfilled"]).all()

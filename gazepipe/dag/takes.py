@@ -178,7 +178,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="10", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="11", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,

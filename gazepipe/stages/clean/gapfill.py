@@ -618,6 +618,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                         fill, error, weights = averaged
                         note = NOTE_FRAMEWISE
                 error = max(error, edge_velocity_error(src[:, m], s, e, preds, weights, edge_window))
+                if weights.get("rigid", 0.0) > 0 and cluster and _two_mates_somewhere(valid, cluster, m, s, e):
+                    error = max(error, weights["rigid"] * _twist_error(src, valid, m, s, e, cluster, preds["rigid"],
+                                                                       mates_window))
                 if max_error_mm is not None and error > gap_limit(max_error_mm, m, s, e):
                     records.append(GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error))
                     continue
@@ -707,6 +710,28 @@ def edge_velocity_error(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.n
     h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
     bend = (h00[:, None] * p0 + h10[:, None] * vb * span + h01[:, None] * p1 + h11[:, None] * va * span)
     return float(sum(w * norm3(preds[k] - bend).mean() for k, w in share.items()))
+
+
+def _two_mates_somewhere(valid: np.ndarray, cluster: list[int], m: int, s: int, e: int) -> bool:
+    """Whether some frame of gap ``[s, e)`` has at most two of ``cluster``'s other markers measured."""
+    mates = [j for j in cluster if j != m]
+    return bool((valid[s:e][:, mates].sum(axis=1) <= 2).any())
+
+
+def _twist_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int],
+                 rigid: np.ndarray, window: int) -> float:
+    """How far (mm, mean) a rigid fill that rests on two mates in some frames could be off: two points leave the
+    twist about their axis unseen (taken as none), which the samples hidden beside the gap cannot show when the
+    segment only twists inside it. The same fill with the marker's steadiest neighbours added to its mates sees
+    the twist; their disagreement is the error that fill cannot rule out (0 without such neighbours)."""
+    extra = find_steady_mates(xyz, valid, m, s, e, window)
+    if extra is None:
+        return 0.0
+    wider = [*cluster, *(j for j in extra if j not in cluster)]
+    other = rigid_fill(xyz, valid, m, wider, valid[:, m], s, e)
+    if other is None:
+        return 0.0
+    return float(norm3(other - rigid).mean())
 
 
 def gap_limit(max_error_mm: float | np.ndarray, m: int, s: int, e: int) -> float:
