@@ -73,8 +73,9 @@ C3D files and the lab arrays (`markers_true`, `joints_lab`, `char_origin_lab`, `
 Per take (`takes.<id>`): `kind`, `pose`, `mocap`, `rate_hz`, `n_frames`, `spike_samples`, `clap_times_s`,
 `rest_periods`, `crop`,
 `design` (the generating parameters: rest lengths, reaction delay, clap closing durations, target goals for
-gaze_follow; per-segment onset times in seconds, duration, overshoot beta and its time, final per-segment
-yaw/pitch for gaze_shift), and for gaze_shift takes the SPEC 3.6 gaze_map quantities:
+gaze_follow, and `clap_rebound` (mm, s per clap) when the stick bounces; per-segment onset times in seconds,
+duration, overshoot beta and its time, final per-segment yaw/pitch for gaze_shift, and `step` (start_s,
+duration_s, lab_mm) when the whole body steps), and for gaze_shift takes the SPEC 3.6 gaze_map quantities:
 
 * `target`: requested `yaw_deg`, `pitch_deg`.
 * `l_s`: (start of the second rest - end of the first rest) / rate, seconds.
