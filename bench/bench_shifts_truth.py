@@ -207,7 +207,7 @@ def main() -> None:
             if not a.size:
                 print(f"  {name}: none")
                 return
-            print(f"  {name}: max {a.max():.2f} {unit}, median {np.median(a):.2f}; {int((a > tol).sum())} of "
+            print(f"  {name}: max {a.max():.2f} {unit}, median {np.median(a):.2f}; {int((a > tol + 1e-6).sum())} of "
                   f"{a.size} beyond {tol:g}")
 
         stat("l", l_err, "frames", 2.0)
