@@ -648,16 +648,25 @@ def distance_sd(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray, s:
                 window: int) -> np.ndarray:
     """Standard deviation (mm) of each of markers ``cand``'s distance to marker ``m`` over the frames from
     ``window`` before gap ``[s, e)`` to ``window`` after it where both are measured (inf with fewer than 10)."""
+    return distance_stats(xyz, valid, m, cand, s, e, window)[1]
+
+
+def distance_stats(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray, s: int, e: int, window: int,
+                   known_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (mm) of each of markers ``cand``'s distance to marker ``m`` over the frames
+    within ``window`` of gap ``[s, e)`` where both are measured (and ``known_m``, when given, is True); the
+    deviation is inf with fewer than 10 such frames."""
     n_t = valid.shape[0]
     lo, hi = max(0, s - window), min(n_t, e + window)
-    both = valid[lo:hi][:, cand] & valid[lo:hi, m][:, None]
+    own = valid[lo:hi, m] if known_m is None else known_m[lo:hi]
+    both = valid[lo:hi][:, cand] & own[:, None]
     d = norm3(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]))
     n = both.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mu = np.where(both, d, 0.0).sum(axis=0) / n
         sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
     sd[(n < 10) | ~np.isfinite(sd)] = np.inf
-    return sd
+    return mu, sd
 
 
 def pca_novelty(model: PcaModel, xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray,

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gazepipe.stages.geometry import norm3
+from gazepipe.stages.clean.fill_methods import distance_stats
 
 #: neighbours whose distance to the marker is checked: the most rigidly linked ones, at most this many
 N_LINKED = 4
@@ -37,20 +37,12 @@ def linked_neighbours(xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray, m
     excluded). Returns ``(markers (K,), mean distance (K,) mm, spread (K,) mm)``, the ``N_LINKED`` with the
     smallest spread under ``MAX_LINK_SD_MM``; empty when none qualify.
     """
-    n_t = valid.shape[0]
-    lo, hi = max(0, s - window), min(n_t, e + window)
     cand = np.flatnonzero(valid[s:e].mean(axis=0) >= 0.5)
     cand = cand[cand != m]
     empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     if cand.size == 0:
         return empty
-    both = valid[lo:hi][:, cand] & known_m[lo:hi, None]
-    d = norm3(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]))
-    n = both.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mu = np.where(both, d, 0.0).sum(axis=0) / n
-        sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
-    sd[(n < 10) | ~np.isfinite(sd)] = np.inf
+    mu, sd = distance_stats(xyz, valid, m, cand, s, e, window, known_m)
     order = np.argsort(sd, kind="stable")[:N_LINKED]
     order = order[sd[order] <= MAX_LINK_SD_MM]
     if order.size == 0:
