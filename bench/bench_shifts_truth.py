@@ -155,7 +155,7 @@ def main() -> None:
                     if sync is not None and t.get("video"):
                         v = t["video"]
                         tv = np.linspace(0.0, v["n_frames"] / v["fps"], 200)
-                        got = sync["offset_s"] + sync["ratio"] * tv
+                        got = sync["offset_at_video_zero_s"] + sync["ratio"] * tv
                         want = v["offset_s"] + v["ratio"] * tv
                         clock_err.append(float(np.abs(got - want).max() * 1e3))
                     if t["kind"] != "gaze_shift":
