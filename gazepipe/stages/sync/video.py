@@ -147,6 +147,10 @@ def _displacement(frames: np.ndarray, shut: np.ndarray, thr: float) -> np.ndarra
     return np.linalg.norm(cp - cn, axis=1) * (mass / mass.max())
 
 
+#: a displacement under this share of the approach's largest is "nearly shut" (about the last tenth of the stroke)
+_NEARLY_SHUT = 0.1
+
+
 def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: float,
                             roi: tuple[int, int, int, int] | None, n_before: int = 6,
                             n_shut: int = 10) -> float | None:
@@ -185,14 +189,19 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
         k += 1
     if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
         return None  # not a clean approach to the shut position
+    # a last frame already (nearly) shut says little of the approach's shape, and it may be a bounce just after
+    # contact: the three frames before it are fitted, and the contact sought up to two frames on
+    span = 1.0
+    if s[k] < _NEARLY_SHUT * s.max() and k >= 3 and s[k - 3] > s[k - 2]:
+        k, span = k - 1, 2.0
     y = s[k - 2: k + 1]
     r = np.roots(np.polyfit([-2.0, -1.0, 0.0], y, 2))
     r = r[np.abs(r.imag) < 1e-9].real
-    r = r[(r >= 0.0) & (r <= 1.5)]
+    r = r[(r >= 0.0) & (r <= span + 0.5)]
     root = float(r.min()) if r.size else float(y[2] / (y[1] - y[2]))
-    root = min(max(root, 0.0), 1.0)
+    root = min(max(root, 0.0), span)
     j = a + k
-    return float(ts[j] + root * (ts[j + 1] - ts[j]))
+    return float(np.interp(j + root, np.arange(ts.size, dtype=float), ts))
 
 
 class _Kept:
