@@ -189,10 +189,12 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
         k += 1
     if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
         return None  # not a clean approach to the shut position
-    # a last frame already (nearly) shut says little of the approach's shape, and it may be a bounce just after
-    # contact: the three frames before it are fitted, and the contact sought up to two frames on
+    # the arms close accelerating: a fit that decelerates into a last frame already (nearly) shut says that frame
+    # is past the contact (a stick bouncing open after it), so the three frames before it are fitted instead and
+    # the contact sought up to two frames on, when they do accelerate
     span = 1.0
-    if s[k] < _NEARLY_SHUT * s.max() and k >= 3 and s[k - 3] > s[k - 2]:
+    if (s[k] < _NEARLY_SHUT * s.max() and k >= 3 and s[k - 3] > s[k - 2]
+            and s[k] - 2.0 * s[k - 1] + s[k - 2] > 0 >= s[k - 1] - 2.0 * s[k - 2] + s[k - 3]):
         k, span = k - 1, 2.0
     y = s[k - 2: k + 1]
     r = np.roots(np.polyfit([-2.0, -1.0, 0.0], y, 2))
