@@ -95,6 +95,15 @@ def from_wxyz(q: np.ndarray) -> Rotation:
     return Rotation.from_quat(np.asarray(q, dtype=np.float64), scalar_first=True)
 
 
+def mean_wxyz(q: np.ndarray, min_count: int = 1) -> np.ndarray | None:
+    """``Rotation.mean`` of the known (finite) quaternions among ``q`` (n, 4) wxyz, as (4,) wxyz; None when
+    fewer than ``min_count`` are known."""
+    ok = np.isfinite(q).all(axis=1)
+    if ok.sum() < max(min_count, 1):
+        return None
+    return np.asarray(to_wxyz(from_wxyz(q[ok]).mean())).reshape(4)
+
+
 def six_from_matrix(m: np.ndarray) -> np.ndarray:
     """6-number form of rotation matrices (..., 3, 3): forward R·ẑ then up R·ŷ, shape (..., 6)."""
     m = np.asarray(m, dtype=np.float64)

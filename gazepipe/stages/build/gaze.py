@@ -11,7 +11,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from gazepipe.errors import StageError
 from gazepipe.stages.build.mirror import marker_pairs, mirror_quat, mirror_six, mirror_vectors
-from gazepipe.stages.geometry import from_wxyz, to_wxyz
+from gazepipe.stages.clean.filters import true_runs
+from gazepipe.stages.geometry import from_wxyz, mean_wxyz, to_wxyz
 
 
 @dataclass
@@ -234,20 +235,13 @@ def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, f
 REST_POSE_S = 0.5
 
 
-def _mean_rotation(q: np.ndarray) -> np.ndarray | None:
-    """``Rotation.mean`` of the known quaternions (n, 4) wxyz, or None when fewer than three are known."""
-    ok = np.isfinite(q).all(axis=1)
-    return to_wxyz(from_wxyz(q[ok]).mean()).reshape(4) if ok.sum() >= 3 else None
-
-
 def bridge_rotations(q: np.ndarray, max_run: int) -> tuple[np.ndarray, int]:
     """Quaternions (n, 4) wxyz with their missing (NaN) runs of at most ``max_run`` frames filled by slerp
     between the frames on either side; longer runs, and runs at either end, stay NaN. Returns the filled copy
     and the longest missing run (frames)."""
     ok = np.isfinite(q).all(axis=1)
     out = q.copy()
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], (~ok).astype(np.int8), [0]])))
-    runs = list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
+    runs = true_runs(~ok)
     longest = max((b - a for a, b in runs), default=0)
     keys = np.flatnonzero(ok)
     if len(keys) < 2 or not runs:
@@ -325,9 +319,9 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     ends: dict[str, tuple[np.ndarray | None, np.ndarray | None]] = {}
     for (what, q), first in zip(series.items(), [before.get("char_rot"), *(before.get("quat") or [None] * ns)],
                                 strict=True):
-        last = _mean_rotation(q[tail:])
+        last = mean_wxyz(q[tail:], 3)
         ends[what] = (None if first is None else np.asarray(first, dtype=np.float64),
-                      last if last is not None else _mean_rotation(q[second:]))
+                      last if last is not None else mean_wxyz(q[second:], 3))
     bridged = np.zeros(n, dtype=bool)
     for what, q in series.items():
         ok = np.isfinite(q).all(axis=1)

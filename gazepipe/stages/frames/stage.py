@@ -19,9 +19,9 @@ from gazepipe.model import Markers, MarkerSet
 from gazepipe.stages.clean.filters import true_runs
 from gazepipe.stages.geometry import (
     frame_from_points,
-    from_wxyz,
     heading_frames,
     kabsch,
+    mean_wxyz,
     six_from_matrix,
     to_wxyz,
     up_vector,
@@ -408,11 +408,9 @@ def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int) -> dict | Non
         return None
 
     def mean(q: np.ndarray) -> list[float] | None:
-        for part in (q[-n_last:], q):
-            ok = np.isfinite(part).all(axis=1)
-            if ok.any():
-                return [float(x) for x in np.asarray(to_wxyz(from_wxyz(part[ok]).mean())).reshape(4)]
-        return None
+        m = mean_wxyz(q[-n_last:])
+        m = mean_wxyz(q) if m is None else m
+        return None if m is None else [float(x) for x in m]
 
     return {"quat": [mean(quat[:, j]) for j in range(quat.shape[1])], "char_rot": mean(char_rot),
             "frames": int(min(n_last, len(quat)))}

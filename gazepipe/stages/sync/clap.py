@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gazepipe.stages.clean.filters import true_runs
+
 __all__ = ["Clap", "clapper_distance", "mocap_claps"]
 
 _MAD = 1.4826  # MAD → standard deviation for Gaussian noise
@@ -28,12 +30,6 @@ def _score(z: float, lo: float, hi: float) -> float:
     if not np.isfinite(z):
         return 1.0 if z > 0 else 0.0
     return float(np.clip((z - lo) / (hi - lo), 0.0, 1.0))
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Half-open [start, stop) runs of True."""
-    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(), strict=True))
 
 
 @dataclass
@@ -183,7 +179,7 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
     n_open = max(3, round(open_s * rate))
     n_fit = max(3, round(fit_s * rate))
     found: list[Clap] = []
-    for s, e in _runs(closing):
+    for s, e in true_runs(closing):
         f = s + int(np.nanargmin(v[s:e]))
         plat = d[f + 1: f + 1 + n_plat]
         if np.count_nonzero(np.isfinite(plat)) < 0.8 * n_plat:
