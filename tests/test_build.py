@@ -734,8 +734,9 @@ def test_gaze_rows_gate_on_the_segments_they_keep_and_count_every_dropped_frame(
 
 def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     """Frames inside the crop without a rotation are bridged in rotation space up to build.max_bridge_s
-    (0.5 s): the row stays within the truth's tolerances and QC counts them; a longer hole, or a hole at the
-    crop's first or last frame, leaves the take out with that reason."""
+    (0.5 s): the row stays within the truth's tolerances and QC counts them. After a longer hole nothing is
+    known: a start or overshoot found before it stands, one that may lie inside it leaves the take out with that
+    reason, as does a hole at the crop's first or last frame."""
     from gazepipe.stages.build.gaze import gaze_map_row
     from gazepipe.stages.geometry import from_wxyz
 
@@ -765,8 +766,21 @@ def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     assert abs(holed.features["overshoot"][0] - whole.features["overshoot"][0]) < 0.02
     pp = from_wxyz(holed.features["p_plus"].reshape(-1, 4).astype(np.float64))
     assert np.degrees(pp.magnitude()).max() < 180
-    with pytest.raises(StageError, match=r"more than build.max_bridge_s \(0.5 s\)"):
-        row(quat_holes=[(9, mid - 10, mid + 10)])
+    # a longer hole: events found before it stand, one that may lie inside it leaves the take out
+    starts = np.rint(whole.features["start_times"][0] * whole.features["duration_s"][0] * RATE).astype(int)
+    late = max(int(starts.max()), whole.qc["overshoot_frame"] - c0 + 4) + 2
+    assert late + 20 < n - 2
+    after = row(quat_holes=[(9, late, late + 20)])
+    assert after.qc["unbridged_frames"] == 20 and after.qc["bridged_frames"] == 0
+    for k in whole.features:
+        np.testing.assert_allclose(after.features[k], whole.features[k], atol=1e-6)
+    head_start = max(1, int(starts[9]))          # frame 0 is P+'s: it needs a rotation
+    with pytest.raises(StageError, match=r"start time of 'head' cannot be computed: crop frames "
+                                         rf"{head_start}–{head_start + 19} .*more than build.max_bridge_s \(0.5 s\)"):
+        row(quat_holes=[(9, head_start, head_start + 20)])
+    with pytest.raises(StageError, match=r"the overshoot cannot be computed"):
+        ov = whole.qc["overshoot_frame"] - c0
+        row(quat_holes=[(9, ov - 5, ov + 20)])
     with pytest.raises(StageError, match="crop's first frame has no segment 'pelvis' rotation"):
         row(quat_holes=[(0, 0, 3)])
     with pytest.raises(StageError, match="crop's last frame has no character frame rotation"):

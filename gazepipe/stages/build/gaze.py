@@ -198,13 +198,15 @@ def start_frame(r: Rotation, rate_hz: float, threshold_rad_s: float, filter_hz: 
     return int(hit[0]) if len(hit) else -1
 
 
-def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, float, int]:
+def overshoot(disp: Rotation, rate_hz: float, window_s: float, known: int | None = None
+              ) -> tuple[float, float, int]:
     """Overshoot of a displacement sequence D(t) (D(0) = identity): (t_β in s from the first frame, β, frame).
 
     θ(t) = rotvec(D(t))·n with n the unit axis of D(last); ω = dθ/dt by central differences. t_β is the first
     frame j where ω changes sign from + to − and the mean ω over the ``window_s`` before j is > 0 and after it
     < 0 (Pejsa 5.2.2.2), placed between j − 1 and j by linear interpolation; β = θ(t_β)/θ(last) − 1. With no
-    such change: (duration, 0, −1).
+    such change: (duration, 0, −1). ``known``: D is only known on its first ``known`` frames (and the last):
+    the change is sought where both windows lie inside them.
     """
     n = len(disp)
     rv = disp.as_rotvec()
@@ -217,7 +219,7 @@ def overshoot(disp: Rotation, rate_hz: float, window_s: float) -> tuple[float, f
     omega = np.gradient(theta) * rate_hz
     m = max(1, int(round(window_s * rate_hz)))
     cs = np.concatenate([[0.0], np.cumsum(omega)])
-    i = np.arange(max(1, m), n - m)
+    i = np.arange(max(1, m), (n if known is None else min(n, known)) - m)
     if not len(i):
         return end, 0.0, -1
     before = (cs[i] - cs[i - m]) / m
@@ -293,9 +295,11 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
 
     Raises :class:`StageError` (the reason the row cannot be computed) when fewer than two rests are given,
     l ≤ 0, the crop's first or last frame lacks the character frame or a segment rotation (filled rotations
-    count), or a run of frames inside the crop lacks one for longer than ``max_bridge_s``; shorter runs are
-    bridged in rotation space (:func:`bridge_rotations`) for the angular speeds and counted in QC
-    (``bridged_frames``).
+    count), or a start time or the overshoot cannot be read: runs of crop frames without a rotation up to
+    ``max_bridge_s`` are bridged in rotation space (:func:`bridge_rotations`) for the angular speeds and counted
+    in QC (``bridged_frames``); a longer run leaves the frames from it on unknown, and an event (a segment's
+    start, the head's overshoot) must then be found before it (it is the first one there; after it, it may have
+    happened unseen). QC ``unbridged_frames`` counts the frames left unknown.
     """
     if len(rests) < 2:
         raise StageError(path, f"gaze_map: {len(rests)} rest period(s), need two", take=take)
@@ -323,6 +327,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         ends[what] = (None if first is None else np.asarray(first, dtype=np.float64),
                       last if last is not None else mean_wxyz(q[second:], 3))
     bridged = np.zeros(n, dtype=bool)
+    unknown: dict[str, np.ndarray] = {}          # frames a bridge cannot reach: longer runs without a rotation
     for what, q in series.items():
         ok = np.isfinite(q).all(axis=1)
         for end, i, mean in (("first", 0, ends[what][0]), ("last", n - 1, ends[what][1])):
@@ -334,30 +339,53 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         if ok.all():
             continue
         ok_before = ok.copy()
-        q[:], longest = bridge_rotations(q, max_run)
-        if longest > max_run:
-            raise StageError(path, f"gaze_map: {longest} crop frames in a row ({longest / rate_hz:.2f} s) have no "
-                                   f"{what} rotation, more than build.max_bridge_s ({max_bridge_s:g} s) can "
-                                   "bridge for the start times and the overshoot", take=take)
-        bridged |= ~ok_before
+        q[:], _ = bridge_rotations(q, max_run)
+        gone = ~np.isfinite(q).all(axis=1)
+        bridged |= ~ok_before & ~gone
+        if gone.any():
+            unknown[what] = gone
+            q[gone] = (1.0, 0.0, 0.0, 0.0)       # placeholders: no event is read at or after them
     parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
     rc = from_wxyz(char_rot)
     fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]
     local = [fixed[k] if parents[k] < 0 else fixed[parents[k]].inv() * fixed[k] for k in range(ns)]
+
+    def known_until(*whats: str) -> tuple[int, str | None]:
+        """The first frame none of ``whats`` can be bridged to (n when all are known), and which one."""
+        firsts = [(int(np.argmax(unknown[w])), w) for w in whats if w in unknown]
+        return min(firsts) if firsts else (n, None)
+
+    def cannot(quantity: str, stop: int, what: str) -> StageError:
+        run = true_runs(unknown[what])[0]
+        return StageError(path, f"gaze_map: {quantity} cannot be computed: crop frames {run[0]}–{run[1] - 1} "
+                                f"({(run[1] - run[0]) / rate_hz:.2f} s) have no {what} rotation, more than "
+                                f"build.max_bridge_s ({max_bridge_s:g} s) can bridge, and the event is not "
+                                f"found before them", take=take)
 
     p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) for loc in local]
     d_head = fixed[head][n - 1] * fixed[head][0].inv()
     eyes = d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg))
     p_plus.append(to_wxyz(eyes))
 
+    # an event (a start, the overshoot) read before the first frame that cannot be bridged is the first one;
+    # after it, it could have happened unseen
     thr = np.deg2rad(start_speed_deg_s)
     starts = []
     min_frames = max(1, int(round(start_min_s * rate_hz)))
-    for loc in local:
-        j0 = start_frame(loc, rate_hz, thr, start_filter_hz, min_frames)
+    for k, loc in enumerate(local):
+        chain = ["character frame", f"segment {names[k]!r}"]
+        if parents[k] >= 0:
+            chain.append(f"segment {names[parents[k]]!r}")
+        stop, what = known_until(*chain)
+        j0 = start_frame(loc[:stop], rate_hz, thr, start_filter_hz, min_frames) if stop >= 2 else -1
+        if j0 < 0 and what is not None:
+            raise cannot(f"the start time of {names[k]!r}", stop, what)
         starts.append(j0 / rate_hz / duration if j0 >= 0 else 0.0)
     disp = fixed[head] * fixed[head][0].inv()
-    t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s)
+    stop, what = known_until("character frame", f"segment {names[head]!r}")
+    t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s, known=stop)
+    if j < 0 and what is not None:
+        raise cannot("the overshoot", stop, what)
     t_frac = t_beta / duration if j >= 0 else 1.0
 
     f32 = np.float32
@@ -370,6 +398,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     }
     frame = np.asarray(joints["frame"], dtype=np.int64)
     qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
+          "unbridged_frames": int(np.logical_or.reduce([*unknown.values(), np.zeros(n, bool)]).sum()),
           "overshoot_frame": int(frame[j]) if j >= 0 else None,
           "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1]))}
     return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
