@@ -369,17 +369,26 @@ def test_modality_writers_plug_in(tmp_path: Path) -> None:
     assert seen[0][2] == (4,)
 
 
-def test_module_entry_writes_the_default_session(tmp_path: Path) -> None:
+def test_module_entry_writes_the_bundled_sample(tmp_path: Path) -> None:
+    """``python -m gazepipe.synth OUT`` writes the bundled sample byte for byte (so it can be regenerated), with
+    five gaze_follow and five face takes (every split of every dataset gets one)."""
+    import filecmp
+
     from gazepipe.synth.__main__ import main
 
-    assert main([str(tmp_path / "s"), "--seed", "3"]) == 0
+    assert main([str(tmp_path / "s")]) == 0
     doc = tomllib.loads((tmp_path / "s" / "session.toml").read_text())
     kinds = [t["kind"] for t in doc["takes"]]
-    assert kinds.count("gaze_follow") == 3 and kinds.count("gaze_shift") >= 8 and "neutral" in kinds
-    assert kinds.count("face") == 2
+    assert kinds.count("gaze_follow") == 5 and kinds.count("gaze_shift") >= 8 and "neutral" in kinds
+    assert kinds.count("face") == 5
     assert all("video" in t and "eyes" in t for t in doc["takes"] if t["kind"] == "gaze_follow")
     assert sum(t["target"]["yaw_deg"] < 0 for t in doc["takes"] if "target" in t) >= 3
-    assert load_truth(tmp_path / "s", "neutral")["session"]["seed"] == 3
+    sample = Path(__file__).parents[1] / "sample_data" / "session01"
+    ours = sorted(p.relative_to(tmp_path / "s") for p in (tmp_path / "s").rglob("*") if p.is_file())
+    theirs = sorted(p.relative_to(sample) for p in sample.rglob("*") if p.is_file())
+    assert ours == theirs
+    _, mismatch, errors = filecmp.cmpfiles(tmp_path / "s", sample, [str(p) for p in ours], shallow=False)
+    assert not mismatch and not errors, mismatch[:5]
 
 
 def test_a_four_segment_layout_in_a_y_up_lab(tmp_path):

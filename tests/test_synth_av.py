@@ -184,7 +184,7 @@ def test_livelinkface_header_is_the_real_apps(session: Path, takes: list[dict]) 
 
 def test_livelinkface_pairs_read_back_with_their_dropped_frames(session: Path, takes: list[dict]) -> None:
     face = [t for t in takes if t["kind"] == "face"]
-    assert sorted(t["rate_hz"] for t in face) == [30, 60] and all(t["timecode_fps"] == 60 for t in face)
+    assert sorted(set(t["rate_hz"] for t in face)) == [30, 60] and all(t["timecode_fps"] == 60 for t in face)
     for t in face:
         tr = load_truth(session, t["id"])
         assert tr["face_names"] == list(ARKIT_NAMES)
@@ -254,12 +254,12 @@ def test_same_seed_gives_identical_video_and_csv_bytes(session: Path, tmp_path: 
 # ------------------------------------------------------------------------------------------- sample data
 def test_sample_session_has_every_modality_within_the_size_budget() -> None:
     total = sum(p.stat().st_size for p in SAMPLE.parent.rglob("*") if p.is_file())
-    assert total < 15 * 2**20
+    assert total < 21 * 2**20          # five gaze_follow takes with video and eyes, nine shifts, five face takes
     takes = tomllib.loads((SAMPLE / "session.toml").read_text())["takes"]
     follow = _follow(takes)
     assert follow and all((SAMPLE / t["video"]).is_file() and (SAMPLE / t["eyes"]).is_file() for t in follow)
     face = [t for t in takes if t["kind"] == "face"]
-    assert sorted(t["rate_hz"] for t in face) == [30, 60]
+    assert sorted(set(t["rate_hz"] for t in face)) == [30, 60]
     assert all((SAMPLE / t["tracked"]).is_file() and (SAMPLE / t["clean"]).is_file() for t in face)
     for t in follow:
         assert probe_video(SAMPLE / t["video"]).n_frames == load_truth(SAMPLE, t["id"])["scalars"]["video"]["n_frames"]

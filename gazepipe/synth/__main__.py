@@ -1,10 +1,11 @@
-"""``python -m gazepipe.synth OUT_DIR [--seed N]``: write a sample session."""
+"""``python -m gazepipe.synth OUT_DIR [--seed N]``: write a session like the bundled sample
+(:func:`gazepipe.synth.session.sample_config`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from gazepipe.synth.session import generate_session
+from gazepipe.synth.session import generate_session, sample_config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -12,7 +13,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("out_dir")
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args(argv)
-    out = generate_session(a.out_dir, seed=a.seed)
+    out = generate_session(a.out_dir, seed=a.seed, config=sample_config())
     print(out)
     return 0
 

@@ -8,7 +8,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gazepipe.synth.openface import CONF_THRESHOLD, EYE_NOISE_DEG, eye_rows, write_openface_csv
+from gazepipe.synth.openface import (
+    BLINK_EVERY_S,
+    CONF_THRESHOLD,
+    DIP_EVERY_S,
+    EYE_NOISE_DEG,
+    eye_rows,
+    write_openface_csv,
+)
 from gazepipe.synth.video import EXPOSURE_S, HEIGHT, WIDTH, camera_clock, write_head_video
 
 if TYPE_CHECKING:
@@ -19,7 +26,8 @@ QUIET_BEFORE_S = 1.5
 QUIET_AFTER_S = 1.0
 
 
-def head_camera_writer(session_dir: Path, take: TakeRecord) -> dict[str, Any]:
+def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple[float, float] = BLINK_EVERY_S,
+                       dip_every_s: tuple[float, float] = DIP_EVERY_S) -> dict[str, Any]:
     """Write ``video/<take>.mp4`` and ``eyes/<take>.csv`` for a gaze_follow take; add their truth to the take.
 
     The clock variant cycles with the take's index (see :func:`gazepipe.synth.video.camera_clock`); the take
@@ -40,7 +48,7 @@ def head_camera_writer(session_dir: Path, take: TakeRecord) -> dict[str, Any]:
         quiet |= (t_m >= tc - QUIET_BEFORE_S) & (t_m <= tc + QUIET_AFTER_S)
 
     cam = take.camera_to_head
-    rows = eye_rows(r_eyes, kin, time_s, t_m, clock.fps, cam, quiet)
+    rows = eye_rows(r_eyes, kin, time_s, t_m, clock.fps, cam, quiet, blink_every_s, dip_every_s)
     video_rel = f"video/{take.id}.mp4"
     eyes_rel = f"eyes/{take.id}.csv"
     to_cam = cam.inv()

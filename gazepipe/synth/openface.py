@@ -93,11 +93,13 @@ def _noisy(rng: np.random.Generator, v: np.ndarray, sigma_deg: np.ndarray) -> np
 
 
 def eye_rows(rng: np.random.Generator, kin: Kinematics, time_s: np.ndarray, t_mocap: np.ndarray, fps: float,
-             cam_to_head: Rotation, quiet: np.ndarray) -> EyeRows:
+             cam_to_head: Rotation, quiet: np.ndarray, blink_every_s: tuple[float, float] = BLINK_EVERY_S,
+             dip_every_s: tuple[float, float] = DIP_EVERY_S) -> EyeRows:
     """Synthesise OpenFace rows for video frames seen at mocap times ``t_mocap`` (N,).
 
     ``quiet`` (N,) bool: frames where no blink may start or run (around the claps, so the video clap stays
-    the only motion there).
+    the only motion there). ``blink_every_s``, ``dip_every_s``: the range of seconds between blinks and between
+    confidence dips.
     """
     n = t_mocap.size
     q_head = kin.q_char0[HEAD]
@@ -108,8 +110,8 @@ def eye_rows(rng: np.random.Generator, kin: Kinematics, time_s: np.ndarray, t_mo
     tc = _interp_dirs(t_mocap, time_s, kin.eye_in_head)
     to_cam = cam_to_head.inv()
 
-    blink = _runs(rng, n, fps, BLINK_EVERY_S, (int(BLINK_S[0] * fps), int(BLINK_S[1] * fps)), forbid=quiet)
-    low = _runs(rng, n, fps, DIP_EVERY_S, DIP_FRAMES)
+    blink = _runs(rng, n, fps, blink_every_s, (int(BLINK_S[0] * fps), int(BLINK_S[1] * fps)), forbid=quiet)
+    low = _runs(rng, n, fps, dip_every_s, DIP_FRAMES)
     fail = _runs(rng, n, fps, (4.0, 12.0), (1, 6), forbid=blink)
     free = np.flatnonzero(~blink[n // 2:])
     if not fail.any() and free.size:     # at least one failed row in every file, however short

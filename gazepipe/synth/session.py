@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,7 +63,11 @@ class SynthConfig:
     follow it); ``body_steps``: share of gaze_shift takes in which the whole body steps 40–150 mm over
     0.8–1.4 s as the gaze change ends (the truth's rests follow the body in the room); ``root_rest_gaps``: one
     0.5–1.5 s gap per mocap take on a root-segment marker inside a rest; ``clap_rebounds``: share of claps whose
-    stick bounces open 3–6 mm for one to two mocap frames right after contact (on the mocap and the video).
+    stick bounces open 3–6 mm for one to two mocap frames right after contact (on the mocap and the video);
+    ``blink_every_s``, ``eye_dip_every_s``: the range of seconds between blinks and between OpenFace confidence
+    dips (each blink longer than the eyes stage bridges ends a run of usable gaze_follow frames);
+    ``more_follow`` (pose, seconds) and ``more_face_takes`` (rate Hz, seconds): takes generated after all the
+    others, so the others stay as they were.
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -85,6 +90,22 @@ class SynthConfig:
     body_steps: float = 0.0
     root_rest_gaps: bool = False
     clap_rebounds: float = 0.0
+    blink_every_s: tuple[float, float] = (2.0, 6.0)
+    eye_dip_every_s: tuple[float, float] = (1.5, 5.0)
+    more_follow: tuple[tuple[str, float], ...] = ()
+    more_face_takes: tuple[tuple[float, float], ...] = ()
+
+
+def sample_config() -> SynthConfig:
+    """The bundled sample session (``sample_data/session01``): small, but fair to every dataset. The default
+    capture (neutral, three 45 s gaze_follow takes, nine gaze_shift takes, two face takes) plus two 24 s
+    gaze_follow and three short face takes generated after them (five of each, so train, val and test each get
+    one), with eye tracking as a well-lit head camera gives it during a visual-following task (blinks every
+    7–15 s, fewer than at rest; confidence dips every 15–30 s: Klein 5.2's LED-lit camera), so 4-second training
+    windows fit between them."""
+    return SynthConfig(more_follow=(("standing", 24.0), ("sitting", 24.0)),
+                       more_face_takes=((60.0, 10.0), (30.0, 12.0), (60.0, 8.0)),
+                       blink_every_s=(7.0, 15.0), eye_dip_every_s=(15.0, 30.0))
 
 
 #: Klein, Table 1: seconds of gaze-following capture per pose (60,800 frames in all)
@@ -202,6 +223,12 @@ def _take_plan(cfg: SynthConfig) -> list[tuple[str, str, str, tuple[float, float
                      (float(yaw), float(pitch))))
     for k, (rate, secs) in enumerate(cfg.face_takes):
         plan.append((f"face_{k + 1:02d}", "face", "", (float(rate), float(secs))))
+    # takes added after the others keep the others' random streams (a stream per take index) as they were
+    for pose, secs in cfg.more_follow:
+        counts[pose] = counts.get(pose, 0) + 1
+        plan.append((f"follow_{pose}_{counts[pose]:02d}", "gaze_follow", pose, (float(secs), 0.0)))
+    for k, (rate, secs) in enumerate(cfg.more_face_takes, start=len(cfg.face_takes)):
+        plan.append((f"face_{k + 1:02d}", "face", "", (float(rate), float(secs))))
     return plan
 
 
@@ -212,7 +239,8 @@ def builtin_writers(cfg: SynthConfig) -> list[ModalityWriter]:
 
     out: list[ModalityWriter] = []
     if cfg.head_camera:
-        out.append(head_camera_writer)
+        out.append(functools.partial(head_camera_writer, blink_every_s=cfg.blink_every_s,
+                                     dip_every_s=cfg.eye_dip_every_s))
     if cfg.face_takes:
         out.append(face_writer)
     return out
@@ -253,7 +281,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
                 bounce = r_hazard.random(2) < cfg.clap_rebounds
                 rebound = np.stack([np.where(bounce, r_hazard.uniform(3.0, 6.0, 2), 0.0),
                                     r_hazard.uniform(1.0, 2.0, 2) / rate], axis=1)
-            motion = follow_motion(r_motion, rate, cfg.placement, pose, cfg.follow_duration_s, rebound)
+            secs = cfg.follow_duration_s if target is None else target[0]
+            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound)
         elif kind == "gaze_shift":
             assert target is not None
             step = None
@@ -292,7 +321,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         scalars["spike_samples"] = int(spiked.sum())
         scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
         entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
-        if target is not None:
+        if kind == "gaze_shift" and target is not None:
             entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
         rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, cam, entries)
         for w in all_writers:
