@@ -9,6 +9,10 @@ import click
 
 from gazepipe.cli.common import handle_errors
 
+#: `gazepipe validate`'s default --plot-takes (gazepipe.report.validate.DEFAULT_PLOT_TAKES, not imported here:
+#: `gazepipe --help` stays quick)
+DEFAULT_PLOT_TAKES = 6
+
 EPILOG = """\b
 Exit codes: 0 the gate passed; 2 OUT is not a gazepipe output folder or an option is
 wrong; 3 the QC gate failed (a check at or above --fail-on); 75 a run holds OUT's lock.
@@ -17,6 +21,26 @@ wrong; 3 the QC gate failed (a check at or above --fail-on); 75 a run holds OUT'
 
 #: failing checks printed one per line before the rest are only counted
 _MAX_LISTED = 25
+
+
+class _TakeCount(click.ParamType):
+    """A number of takes (0 or more) or ``all`` (→ ``None``)."""
+
+    name = "N|all"
+
+    def convert(self, value, param, ctx):
+        if value is None or isinstance(value, int):
+            return value
+        text = str(value).strip().lower()
+        if text == "all":
+            return None
+        try:
+            n = int(text)
+        except ValueError:
+            self.fail(f"{value!r} is not a number of takes or 'all'", param, ctx)
+        if n < 0:
+            self.fail(f"{value!r}: a number of takes is 0 or more", param, ctx)
+        return n
 
 
 def _thresholds(pairs: tuple[str, ...]):
@@ -53,14 +77,19 @@ def _thresholds(pairs: tuple[str, ...]):
               help="Exit 3 when a check is at this severity or worse (error counts as fail).")
 @click.option("--threshold", "thresholds", multiple=True, metavar="NAME=VALUE",
               help="Override a check threshold, e.g. --threshold unfilled_warn=0.1 (repeatable; 'none' disables).")
-@click.option("--no-plots", is_flag=True, help="Leave the plots out of report.html (faster; it replaces the page "
-              "with plots; report.json and takes.parquet are the same).")
-@click.option("--plot-takes", type=click.IntRange(0), default=100, show_default=True,
-              help="Plot at most this many takes, the worst first (every take keeps its checks table).")
+@click.option("--plot-takes", type=_TakeCount(), metavar="N|all", default=DEFAULT_PLOT_TAKES, show_default=True,
+              help="Draw the plots of the N worst takes (failed first, then most failing checks, most warnings, "
+              "check nearest its threshold; face takes and others with nothing to draw are passed over), or of "
+              "every take with 'all' (a tenth of a second or more a take). Every take is checked whatever N.")
+@click.option("--plot-take", "plot_named", multiple=True, metavar="SESSION/TAKE",
+              help="Also draw this take's plots: SESSION/TAKE, a take id (in any session) or a pattern such as "
+              "'shift_*' (repeatable; --plot-takes 0 --plot-take X draws only X).")
+@click.option("--no-plots", is_flag=True, help="No plots at all, datasets' included (the fastest page; "
+              "report.json and takes.parquet are the same with or without plots).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
 @handle_errors
-def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool, plot_takes: int,
-             as_json: bool) -> None:
+def validate(out: str, fail_on: str, thresholds: tuple[str, ...], plot_takes: int | None,
+             plot_named: tuple[str, ...], no_plots: bool, as_json: bool) -> None:
     """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and a
     self-contained OUT/qc/report.html.
 
@@ -73,14 +102,23 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool
     could not be evaluated), skipped (not applicable). Thresholds: see report.json.
 
     \b
+    Plots: every dataset's, and those of the 6 worst takes (--plot-takes N|all and
+    --plot-take SESSION/TAKE ask for others; the page says which takes it plotted).
+
+    \b
       gazepipe validate out/
       gazepipe validate out/ --fail-on warning --threshold unfilled_warn=0.1
+      gazepipe validate out/ --plot-takes all
+      gazepipe validate out/ --plot-take session01/follow_sitting_01 --plot-take 'shift_*'
     """
     import json
 
     from gazepipe.report.validate import validate_output
 
-    res = validate_output(Path(out), _thresholds(thresholds), fail_on, plots_on=not no_plots, plot_takes=plot_takes)
+    if no_plots and plot_named:
+        raise click.UsageError("--no-plots leaves every plot out: it cannot go with --plot-take")
+    res = validate_output(Path(out), _thresholds(thresholds), fail_on, plots_on=not no_plots, plot_takes=plot_takes,
+                          plot_named=plot_named)
     rep = res.report
     if as_json:
         click.echo(json.dumps({"gate": rep["gate"], "summary": rep["summary"],
@@ -100,6 +138,9 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], no_plots: bool
         if warn and "warning" not in shown:
             click.echo(f"  {warn} warning(s): see {res.paths[2]}")
         click.echo(f"wrote {res.paths[0]}, {res.paths[1].name}, {res.paths[2].name}")
+        if not no_plots and plot_takes is not None and len(res.plotted) < s["takes"]:
+            click.echo(f"  plots of the {len(res.plotted)} worst of {s['takes']} take(s) (--plot-takes all, or "
+                       "--plot-take SESSION/TAKE, for the others)")
         click.echo(f"QC gate (--fail-on {fail_on}): " + ("passed" if res.passed else
                                                          f"FAILED ({len(rep['gate']['hit'])} check(s))"))
     if not res.passed:

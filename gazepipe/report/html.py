@@ -1,12 +1,14 @@
 """``qc/report.html``: one self-contained page (inline CSS and SVG, no script, no external URL) rendered from
 the ``report.json`` object and the plots.
 
-Layout: the gate's verdict; a summary table of takes and datasets, worst first, naming their failing checks; a
-table of every check at warning or worse; then one section per dataset and per take (checks worst first, plots).
+Layout: the gate's verdict; which takes have plots and how to plot the others; a summary table of takes and
+datasets, worst first, naming their failing checks; a table of every check at warning or worse; then one section
+per dataset and per take (checks worst first, plots, or why there are none).
 """
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass
 from html import escape
@@ -22,6 +24,47 @@ class Figure:
     title: str
     caption: str
     svg: str
+
+
+@dataclass(frozen=True)
+class PlotSelection:
+    """Which takes the page has plots of, and why the others have none.
+
+    ``enabled`` false: no plots at all (``--no-plots``). ``limit``: the number of worst takes asked for
+    (``None``: every take). ``ranked``: every take key (``session/take``), worst first. ``plotted``: the takes
+    drawn, worst first. ``named``: the takes asked for by name. ``nothing_to_draw``: the takes without a table to
+    draw from (face takes, takes whose ingest failed). ``failed``: takes asked for of which nothing could be drawn.
+    """
+
+    enabled: bool
+    limit: int | None
+    ranked: tuple[str, ...]
+    plotted: tuple[str, ...] = ()
+    named: tuple[str, ...] = ()
+    nothing_to_draw: tuple[str, ...] = ()
+    failed: tuple[str, ...] = ()
+
+    @functools.cached_property
+    def _sets(self) -> tuple[frozenset[str], frozenset[str], frozenset[str]]:
+        return frozenset(self.plotted), frozenset(self.nothing_to_draw), frozenset(self.failed)
+
+    def status(self, key: str) -> str:
+        """``drawn``, ``nothing to draw``, ``left out`` (no plots at all), ``failed`` or ``not drawn`` (not among
+        the takes asked for)."""
+        plotted, nothing, failed = self._sets
+        if key in plotted:
+            return "drawn"
+        if key in nothing:
+            return "nothing to draw"
+        if not self.enabled:
+            return "left out"
+        return "failed" if key in failed else "not drawn"
+
+
+#: how to ask for the plots of other takes (the page names no folder: it is the same wherever the output is)
+HOW_TO_PLOT = ("<code>gazepipe validate OUT --plot-takes all</code> (every take), <code>--plot-takes N</code> (the "
+               "N worst) or <code>--plot-take SESSION/TAKE</code> (one take by name, or a pattern such as "
+               "<code>'shift_*'</code>; repeatable)")
 
 
 CSS = """
@@ -75,10 +118,62 @@ def _figures(figs: list[Figure]) -> str:
     return "\n".join(out)
 
 
+def _n(count: int, noun: str) -> str:
+    return f"{count} {noun}" + ("" if count == 1 else "s")
+
+
+def _plots_paragraph(sel: PlotSelection) -> str:
+    """Which takes have plots (links, worst first), how the takes were ranked, and how to plot the others."""
+    items: list[str] = []
+    if not sel.enabled:
+        head = ("<b>Plots</b>: left out (--no-plots); every check is in the page. <code>gazepipe validate OUT</code> "
+                "draws the datasets&rsquo; plots and those of the worst takes.")
+        items.append(f"To plot takes: {HOW_TO_PLOT}.")
+    else:
+        links = ", ".join(f'<a href="#{anchor("take", k)}">{escape(k)}</a>' for k in sel.plotted) or "none"
+        which = "every take with something to draw" if sel.limit is None else \
+            f"the {sel.limit} worst with something to draw"
+        if sel.named:
+            which += f", and {_n(len(sel.named), 'take')} asked for by name"
+        head = f"<b>Plots</b> drawn for {len(sel.plotted)} of {_n(len(sel.ranked), 'take')} ({escape(which)}), " \
+               f"worst first: {links}."
+        items.append("Worst: the highest severity, then the most checks at fail or error, then the most warnings, "
+                     "then the check nearest to (or furthest past) its threshold.")
+        rest = [k for k in sel.ranked if sel.status(k) == "not drawn"]
+        if rest:
+            items.append(f"Not drawn for {_n(len(rest), 'other take')} (&lsquo;not drawn&rsquo; in the summary; every "
+                         f"check of theirs is in the page). To plot them: {HOW_TO_PLOT}.")
+        if sel.failed:
+            items.append(f"Nothing could be drawn for {_n(len(sel.failed), 'take')} asked for: see the notes below.")
+    if sel.nothing_to_draw:
+        items.append(f"Nothing to draw for {_n(len(sel.nothing_to_draw), 'take')} (no raw markers or eye-tracking "
+                     "table: face takes, takes whose ingest failed).")
+    return f'<div id="plots"><p>{head}</p><ul>' + "".join(f"<li>{i}</li>" for i in items) + "</ul></div>"
+
+
+def _take_plots_note(sel: PlotSelection | None, key: str) -> str:
+    """The line a take section without plots has instead: why, and how to draw them."""
+    if sel is None:
+        return ""
+    status = sel.status(key)
+    if status == "nothing to draw":
+        return ('<p class="muted plots-note">No plots: nothing to draw for this take (no raw markers or '
+                "eye-tracking table).</p>")
+    if status == "left out":
+        return '<p class="muted plots-note">Plots left out (--no-plots).</p>'
+    if status == "failed":
+        return '<p class="muted plots-note">No plot could be drawn for this take (see the notes above).</p>'
+    worst = "" if sel.limit is None else f" (not among the {sel.limit} worst takes)"
+    return (f'<p class="muted plots-note">Plots not drawn{worst}: <code>gazepipe validate OUT --plot-take '
+            f"{escape(key)}</code> draws them.</p>")
+
+
 def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
-                dataset_figs: dict[str, list[Figure]], plot_notes: list[str] | None = None) -> str:
+                dataset_figs: dict[str, list[Figure]], plot_notes: list[str] | None = None,
+                plots: PlotSelection | None = None) -> str:
     """The page for ``report`` (the report.json object) with the plots of each take (key ``session/take``) and
-    dataset (key: its name), and notes on plots left out."""
+    dataset (key: its name), notes on plots that could not be drawn, and (``plots``) which takes were plotted and
+    why the others were not."""
     gate = report["gate"]
     summ = report["summary"]
     p: list[str] = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -90,6 +185,8 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
              f"(--fail-on {escape(gate['fail_on'])}) {escape(verdict)}</div>")
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summ["checks"].items(), key=lambda kv: -RANK[kv[0]]) if n)
     p.append(f"<p>Checks: {escape(counts)}.</p>")
+    if plots is not None:
+        p.append(_plots_paragraph(plots))
 
     # summary: one row per take and dataset, worst first
     entries = [("dataset", d["name"], "dataset", "", d["severity"], d["checks"]) for d in report["datasets"]]
@@ -98,14 +195,19 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
     entries.sort(key=lambda e: (-RANK[e[4]], e[0] != "dataset", e[1]))
     p.append('<h2 id="summary-heading">Summary</h2>')
     p.append('<table id="summary"><tr><th>severity</th><th>take / dataset</th><th>kind</th><th>pose</th>'
-             "<th>fail</th><th>warning</th><th>checks at warning or worse</th></tr>")
+             "<th>fail</th><th>warning</th><th>checks at warning or worse</th><th>plots</th></tr>")
     for scope, key, kind, pose, sev, checks in entries:
         bad = [c for c in checks if RANK[c["severity"]] >= RANK["warning"]]
         nf = sum(c["severity"] in ("fail", "error") for c in checks)
         nw = sum(c["severity"] == "warning" for c in checks)
+        if scope == "dataset":
+            drawn = "drawn" if dataset_figs.get(key) else ""
+        else:
+            drawn = plots.status(key) if plots is not None else ("drawn" if take_figs.get(key) else "")
         p.append(f"<tr><td>{_sev(sev)}</td><td><a href=\"#{anchor(scope, key)}\">{escape(key)}</a></td>"
                  f"<td>{escape(kind)}</td><td>{escape(pose)}</td><td class=\"num\">{nf}</td>"
-                 f"<td class=\"num\">{nw}</td><td>{escape(', '.join(c['id'] for c in bad))}</td></tr>")
+                 f"<td class=\"num\">{nw}</td><td>{escape(', '.join(c['id'] for c in bad))}</td>"
+                 f"<td>{escape(drawn)}</td></tr>")
     p.append("</table>")
 
     failing = summ["failing"]
@@ -141,7 +243,8 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
         stages = ", ".join(f"{k} {v}" for k, v in t["stages"].items()) or "none ran"
         p.append(f"<p>Stages: {escape(stages)}</p>")
         p.append(_checks_table(t["checks"]))
-        p.append(_figures(take_figs.get(key, [])))
+        figs = take_figs.get(key, [])
+        p.append(_figures(figs) if figs else _take_plots_note(plots, key))
     p.append("<p class=\"muted\">Thresholds: " + escape(", ".join(f"{k} = {v}" for k, v in
                                                                   sorted(report["thresholds"].items()))) + "</p>")
     p.append("</body></html>")

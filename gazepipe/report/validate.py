@@ -4,11 +4,20 @@ and ``qc/report.html``.
 Takes are processed one at a time (their tables are dropped after their checks and plots), datasets one at a
 time. Same output folder, same thresholds → byte-identical files: nothing in them depends on the clock, the
 machine or the folder's absolute path.
+
+Every take and dataset is checked; plots are drawn for every dataset but, by default, only for the
+:data:`DEFAULT_PLOT_TAKES` worst takes (:func:`take_rank_key`: failed first): drawing is most of a validation's
+time (a tenth of a second or more a take), checking is not. ``plot_takes`` / ``--plot-takes N|all`` and
+``plot_named`` / ``--plot-take SESSION/TAKE`` ask for more, and the page names the takes plotted and says how.
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +26,7 @@ import numpy as np
 import pyarrow as pa
 
 from gazepipe import __version__
+from gazepipe.errors import ConfigError
 from gazepipe.io.parquet import write_table
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.lock import OutputLock
@@ -24,11 +34,13 @@ from gazepipe.pipeline.state import OutLayout
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
 from gazepipe.report.collect import (
+    PLOT_TABLES,
     DatasetData,
     TakeEntry,
     TakeTables,
     dataset_dirs,
     dataset_records,
+    has_plot_tables,
     load_dataset,
     load_sessions,
     load_take_tables,
@@ -37,7 +49,7 @@ from gazepipe.report.collect import (
     take_entries,
     unit_states,
 )
-from gazepipe.report.html import Figure, render_html
+from gazepipe.report.html import Figure, PlotSelection, render_html
 from gazepipe.report.schema import REPORT_SCHEMA_VERSION, TAKES_SCHEMA
 
 FAIL_ON = ("warning", "fail")
@@ -55,6 +67,8 @@ class ValidateResult:
     html: str = ""
     figures: int = 0
     notes: list[str] = field(default_factory=list)
+    #: the takes whose plots the page has (``session/take``), worst first
+    plotted: list[str] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------------------------- takes
@@ -206,11 +220,11 @@ def dataset_checks(d: DatasetData, th: C.Thresholds, record: dict[str, Any] | No
     if not built:
         return out
     if not d.info:
-        return out + [C.Check("dataset_read", "error", "; ".join(d.errors) or "dataset.json unreadable")]
+        return out + [C.Check("dataset_read", "error", "; ".join(d.errors) or "_dataset.json unreadable")]
     if d.errors:
         out.append(C.Check("dataset_read", "error", d.errors[0], value=len(d.errors), details={"errors": d.errors}))
     else:
-        out.append(C.Check("dataset_read", "pass", f"dataset.json, _common_metadata and {len(d.files)} take "
+        out.append(C.Check("dataset_read", "pass", f"_dataset.json, _common_metadata and {len(d.files)} take "
                            "file(s) read", value=0))
     out.append(D.check_schema(d.expected, d.common, d.files, d.common_error))
     out.append(D.check_splits(d.info, d.files))
@@ -245,6 +259,17 @@ def dataset_figures(d: DatasetData) -> list[Figure]:
     return figs
 
 
+def _dataset_figures(d: DatasetData, cache: FigureCache) -> list[Figure]:
+    """:func:`dataset_figures`, read back from ``cache`` when drawn before."""
+    key = cache.dataset_key(d)
+    cached = cache.get(key)
+    if cached is not None:
+        return cached[0]
+    figs = dataset_figures(d)
+    cache.put(key, figs, [])
+    return figs
+
+
 # ----------------------------------------------------------------------------------------------- report
 
 def _ref(scope: str, target: str, c: C.Check) -> dict[str, Any]:
@@ -256,8 +281,195 @@ def _sorted_checks(checks: list[C.Check]) -> list[C.Check]:
     return sorted(checks, key=lambda c: (-C.RANK[c.severity], order[c.id]))
 
 
+#: takes plotted when nothing else is asked for: the worst ones (``gazepipe run`` plots as many)
+DEFAULT_PLOT_TAKES = 6
+#: checks whose value is worse the lower it is (the others: the higher)
+_LOWER_IS_WORSE = frozenset({"clap_confidence"})
+
+
+def _threshold_reach(c: dict[str, Any]) -> float:
+    """How far a check's value has gone towards its warning threshold (its fail threshold when it has no
+    warning one): 0.5 halfway, 1 at it, 2 twice past it; 0 for a check without a number or a threshold."""
+    value, thr = c.get("value"), c.get("threshold") or {}
+    limit = thr.get("warning") if thr.get("warning") is not None else thr.get("fail")
+    if isinstance(value, bool) or not isinstance(value, int | float) or not isinstance(limit, int | float) \
+            or not np.isfinite(value) or limit <= 0:
+        return 0.0
+    if c["id"] in _LOWER_IS_WORSE:
+        return float(limit) / value if value > 0 else float("inf")
+    return max(float(value), 0.0) / float(limit)
+
+
+def take_rank_key(take: dict[str, Any]) -> tuple:
+    """Sort key of a take (an entry of report.json's ``takes``), worst first: its severity (error, fail,
+    warning, pass), then its number of checks at fail or error, then of warnings, then the check nearest to (or
+    furthest past) its threshold (:func:`_threshold_reach`), then its name."""
+    checks = take["checks"]
+    return (-C.RANK[take["severity"]], -sum(c["severity"] in ("fail", "error") for c in checks),
+            -sum(c["severity"] == "warning" for c in checks), -max(map(_threshold_reach, checks), default=0.0),
+            f"{take['session']}/{take['take']}")
+
+
+def rank_takes(takes: list[dict[str, Any]]) -> list[str]:
+    """The keys (``session/take``) of report.json's ``takes``, worst first (:func:`take_rank_key`)."""
+    return [f"{t['session']}/{t['take']}" for t in sorted(takes, key=take_rank_key)]
+
+
+def plot_limit(value: int | str | None) -> int | None:
+    """``plot_takes`` as a number of takes, ``None`` for all (``"all"`` or ``None``)."""
+    if value is None or (isinstance(value, str) and value.strip().lower() == "all"):
+        return None
+    n = int(value)
+    if n < 0:
+        raise ValueError(f"plot_takes must be 0 or more, or 'all' (got {value!r})")
+    return n
+
+
+def match_takes(patterns: Sequence[str], keys: Sequence[str]) -> list[str]:
+    """The take keys (``session/take``) that ``patterns`` name: a key, a take id (in any session) or a shell
+    pattern of either (``shift_*``, ``session01/follow_*``); in the order of ``keys``. A pattern that names no
+    take is a :class:`~gazepipe.errors.ConfigError` (exit 2)."""
+    from fnmatch import fnmatchcase
+
+    found: set[str] = set()
+    for pat in patterns:
+        hits = [k for k in keys if fnmatchcase(k, pat) or fnmatchcase(k.split("/", 1)[-1], pat)]
+        if not hits:
+            example = f" (e.g. {keys[0]})" if keys else " (it has none)"
+            raise ConfigError(None, f"--plot-take {pat}: no take of the output folder is called that; name one as "
+                              f"SESSION/TAKE or TAKE{example}, or a pattern such as 'shift_*'")
+        found.update(hits)
+    return [k for k in keys if k in found]
+
+
+# ------------------------------------------------------------------------------------------- figure cache
+
+@functools.lru_cache(maxsize=1)
+def _code_version() -> bytes:
+    """What the figures depend on besides their data: every source file of gazepipe (the plots, the captions, the
+    speed trace, the table readers…) and the versions of the libraries that draw and compute them."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import gazepipe
+
+    h = hashlib.sha256(f"gazepipe {__version__} report figures 1\0".encode())
+    root = Path(gazepipe.__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    for lib in ("matplotlib", "numpy", "scipy", "pyarrow"):
+        try:
+            h.update(f"{lib} {version(lib)}\0".encode())
+        except PackageNotFoundError:
+            h.update(f"{lib} -\0".encode())
+    return h.digest()
+
+
+def _feed(h: Any, v: Any) -> None:
+    """Hash ``v`` (arrays, numbers, strings, lists, dicts, None) with its types and shapes."""
+    if isinstance(v, np.ndarray):
+        if v.dtype == object:
+            v = v.astype(str)
+        h.update(f"nd {v.dtype.str} {v.shape}\0".encode())
+        h.update(np.ascontiguousarray(v).tobytes())
+    elif isinstance(v, dict):
+        h.update(f"dict {len(v)}\0".encode())
+        for k in sorted(v, key=str):
+            _feed(h, str(k))
+            _feed(h, v[k])
+    elif isinstance(v, list | tuple):
+        h.update(f"list {len(v)}\0".encode())
+        for x in v:
+            _feed(h, x)
+    else:
+        h.update(f"{type(v).__name__} {v!r}\0".encode())
+
+
+class FigureCache:
+    """Figures drawn before, under ``OUT/.gazepipe/report_plots/``, one file per take or dataset, named by a hash
+    of everything its plots are drawn from: the bytes of the tables (a take) or the sampled rows (a dataset), the
+    unit records and markerset they use, the source of gazepipe and the versions of matplotlib, numpy, scipy and
+    pyarrow. Drawing is most of a validation's time, and a run draws the plots its report has: a ``gazepipe
+    validate`` after it reads them back (no matplotlib at all) with the same bytes as drawing them again. What
+    the report written last does not use is deleted.
+    """
+
+    DIRNAME = "report_plots"
+
+    def __init__(self, layout: OutLayout) -> None:
+        self.layout = layout
+        self.dir = layout.state / self.DIRNAME
+        self.used: set[str] = set()
+
+    def take_key(self, e: TakeEntry, markerset: Any) -> str | None:
+        """The key of a take's plots (``None``: a table cannot be read, so nothing is cached)."""
+        h = hashlib.sha256(_code_version() + b"take\0")
+        _feed(h, e.key)
+        for name in PLOT_TABLES:
+            path = self.layout.table(e.session, e.take, name)
+            _feed(h, name)
+            try:
+                _feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
+            except OSError:
+                return None
+        _feed(h, {stage: {k: r.get(k) for k in ("status", "qc", "components")} for stage, r in e.records.items()})
+        _feed(h, repr(markerset))
+        return h.hexdigest()[:40]
+
+    def dataset_key(self, d: DatasetData) -> str:
+        h = hashlib.sha256(_code_version() + b"dataset\0")
+        _feed(h, d.name)
+        _feed(h, d.info.get("features"))
+        smp = d.all_rows
+        _feed(h, None if smp is None else [smp.columns, smp.pose, smp.n_total, smp.n_total_by_pose])
+        return h.hexdigest()[:40]
+
+    def get(self, key: str | None) -> tuple[list[Figure], list[str]] | None:
+        if key is None:
+            return None
+        self.used.add(key)
+        try:
+            entry = json.loads((self.dir / f"{key}.json").read_text(encoding="utf-8"))
+            figs = [Figure(f["title"], f["caption"], f["svg"]) for f in entry["figures"]]
+            notes = [str(n) for n in entry["notes"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        return figs, notes
+
+    def put(self, key: str | None, figs: list[Figure], notes: list[str]) -> None:
+        if key is None:
+            return
+        self.used.add(key)
+        entry = {"figures": [{"title": f.title, "caption": f.caption, "svg": f.svg} for f in figs], "notes": notes}
+        # written whole then renamed (a reader never sees half a file), not synced: losing it only costs time
+        tmp = self.layout.tmp / f".{key}.{os.getpid()}.part"
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self.layout.tmp.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(json.dumps(entry, ensure_ascii=False).encode())
+            os.replace(tmp, self.dir / f"{key}.json")
+        except OSError:
+            tmp.unlink(missing_ok=True)
+
+    def prune(self) -> None:
+        """Delete the figures the report written last does not use."""
+        for path in sorted(self.dir.glob("*.json")) if self.dir.is_dir() else []:
+            if path.stem not in self.used:
+                path.unlink(missing_ok=True)
+
+
+@dataclass(frozen=True)
+class PlotRequest:
+    """Which plots the page gets: none (``on`` false), else every dataset's and those of the ``limit`` worst
+    takes (``None``: every take) plus the takes ``named`` (keys or patterns, :func:`match_takes`)."""
+
+    on: bool = True
+    limit: int | None = DEFAULT_PLOT_TAKES
+    named: tuple[str, ...] = ()
+
+
 def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fail_on: str = "fail",
-                    lock: bool = True, plots_on: bool = True, plot_takes: int = 100) -> ValidateResult:
+                    lock: bool = True, plots_on: bool = True, plot_takes: int | str | None = DEFAULT_PLOT_TAKES,
+                    plot_named: Sequence[str] = ()) -> ValidateResult:
     """Check everything in the output folder ``out`` and write ``out/qc/{report.json,takes.parquet,report.html}``.
 
     Parameters
@@ -267,22 +479,26 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     lock : hold the output folder's lock while reading and writing (a running ``gazepipe run`` makes this raise
         :class:`~gazepipe.errors.LockedError`, exit 75).
     plots_on : draw the plots (off: the HTML page has the tables only).
-    plot_takes : draw the plots of at most this many takes, the worst first (the page of a corpus of thousands
-        of takes stays readable and small); every take keeps its checks table.
+    plot_takes : draw the plots of this many takes, the worst first (:func:`take_rank_key`; takes with nothing
+        to draw, such as face takes, are passed over), or of every take (``"all"`` or ``None``). Every take is
+        checked and keeps its checks table whatever the number; the page names the takes plotted and says how to
+        plot the others. Drawing is most of a validation's time, so the default is a few.
+    plot_named : also draw these takes (``session/take``, a take id or a shell pattern; :func:`match_takes`).
 
-    report.json and takes.parquet do not depend on ``plots_on`` and ``plot_takes``.
+    report.json and takes.parquet do not depend on ``plots_on``, ``plot_takes`` and ``plot_named``.
 
-    Raises :class:`~gazepipe.errors.ConfigError` when ``out`` is not a gazepipe output folder.
+    Raises :class:`~gazepipe.errors.ConfigError` when ``out`` is not a gazepipe output folder, or a name in
+    ``plot_named`` matches no take.
     """
     if fail_on not in FAIL_ON:
         raise ValueError(f"fail_on must be one of {FAIL_ON}")
+    request = PlotRequest(bool(plots_on), plot_limit(plot_takes), tuple(plot_named))
     layout = open_output(out)
     th = thresholds or C.Thresholds()
-    limit = int(plot_takes) if plots_on else 0
     if lock:
         with OutputLock(layout.lock):
-            return _validate(layout, th, fail_on, limit)
-    return _validate(layout, th, fail_on, limit)
+            return _validate(layout, th, fail_on, request)
+    return _validate(layout, th, fail_on, request)
 
 
 class ReportInBackground:
@@ -294,12 +510,13 @@ class ReportInBackground:
     the datasets may change meanwhile) and holds the lock itself when it needs one.
     """
 
-    def __init__(self, out: str | Path, thresholds: C.Thresholds | None = None, plot_takes: int = 100) -> None:
+    def __init__(self, out: str | Path, thresholds: C.Thresholds | None = None,
+                 plot_takes: int | str | None = DEFAULT_PLOT_TAKES) -> None:
         import threading
 
         self.layout = open_output(out)
         self.th = thresholds or C.Thresholds()
-        self.plot_takes = int(plot_takes)
+        self.plots = PlotRequest(limit=plot_limit(plot_takes))
         self._done: _TakePass | None = None
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="gazepipe-report-takes", daemon=True)
@@ -324,7 +541,7 @@ class ReportInBackground:
         if self._error is not None:
             raise self._error
         assert self._done is not None
-        return _finish(self.layout, self.th, fail_on, self.plot_takes, self._done)
+        return _finish(self.layout, self.th, fail_on, self.plots, self._done)
 
 
 @dataclass
@@ -339,8 +556,8 @@ class _TakePass:
     refs: list[dict[str, Any]]
 
 
-def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int) -> ValidateResult:
-    return _finish(layout, th, fail_on, plot_takes, _take_pass(layout, th))
+def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest) -> ValidateResult:
+    return _finish(layout, th, fail_on, plots, _take_pass(layout, th))
 
 
 def _take_pass(layout: OutLayout, th: C.Thresholds) -> _TakePass:
@@ -365,27 +582,51 @@ def _take_pass(layout: OutLayout, th: C.Thresholds) -> _TakePass:
     return _TakePass(sessions, session_problems, entries, takes_out, rows, refs)
 
 
-def _take_plots(layout: OutLayout, tp: _TakePass, plot_takes: int) -> tuple[dict[str, list[Figure]], list[str]]:
-    """The plots of the ``plot_takes`` worst takes (their tables read again, one take at a time), and notes."""
+def _take_plots(layout: OutLayout, tp: _TakePass, plots: PlotRequest,
+                cache: FigureCache) -> tuple[dict[str, list[Figure]], list[str], PlotSelection]:
+    """The plots of the takes ``plots`` asks for (their tables read again, one take at a time), notes on plots
+    that could not be drawn, and what the page says about the takes plotted and the others."""
+    keys = [e.key for e in tp.entries]
+    named = match_takes(plots.named, keys)        # raises before anything is drawn or written
+    ranked = rank_takes(tp.takes_out)
+    drawable = {e.key for e in tp.entries if has_plot_tables(layout, e)}
+    if not plots.on:
+        return {}, [], PlotSelection(False, plots.limit, tuple(ranked), named=tuple(named),
+                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable))
+    worst = [k for k in ranked if k in drawable]
+    chosen = set(worst if plots.limit is None else worst[:plots.limit]) | (set(named) & drawable)
+    by_key = {e.key: e for e in tp.entries}
     take_figs: dict[str, list[Figure]] = {}
     plot_notes: list[str] = []
-    ranked = sorted(zip(tp.entries, tp.takes_out, strict=True),
-                    key=lambda et: (-C.RANK[et[1]["severity"]], et[0].key))
-    for e, _ in ranked[:plot_takes]:
+    for key in (k for k in ranked if k in chosen):
+        e = by_key[key]
         s = tp.sessions.get(e.session)
-        figs, fig_notes = take_figures(e, load_take_tables(layout, e), s.markerset if s is not None else None)
-        take_figs[e.key] = figs
-        plot_notes.extend(f"{e.key}: {n}" for n in fig_notes)
-    if 0 < plot_takes < len(tp.entries):
-        plot_notes.insert(0, f"plots drawn for the {plot_takes} worst of {len(tp.entries)} takes (--plot-takes)")
-    elif plot_takes == 0 and tp.entries:
-        plot_notes.insert(0, "plots left out (--no-plots)")
-    return take_figs, plot_notes
+        markerset = s.markerset if s is not None else None
+        cache_key = cache.take_key(e, markerset)
+        cached = cache.get(cache_key)
+        if cached is not None:
+            figs, fig_notes = cached
+        else:
+            tables = load_take_tables(layout, e, only=PLOT_TABLES)
+            figs, fig_notes = take_figures(e, tables, markerset)
+            if not figs:
+                why = "; ".join(f"{n} table unreadable" for n in sorted(tables.errors)) or "no frames"
+                fig_notes.append(f"nothing drawn ({why})")
+            del tables
+            cache.put(cache_key, figs, fig_notes)
+        if figs:
+            take_figs[key] = figs
+        plot_notes.extend(f"{key}: {n}" for n in fig_notes)
+    return take_figs, plot_notes, PlotSelection(
+        True, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
+        nothing_to_draw=tuple(k for k in ranked if k not in drawable),
+        failed=tuple(k for k in ranked if k in chosen and k not in take_figs))
 
 
-def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, tp: _TakePass) -> ValidateResult:
+def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest, tp: _TakePass) -> ValidateResult:
     session_problems, takes_out, rows, refs = tp.session_problems, tp.takes_out, tp.rows, list(tp.refs)
-    take_figs, plot_notes = _take_plots(layout, tp, plot_takes)
+    cache = FigureCache(layout)
+    take_figs, plot_notes, selection = _take_plots(layout, tp, plots, cache)
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
     splits: dict[str, dict[str, str]] = {}
@@ -395,7 +636,7 @@ def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, 
         d = load_dataset(dirs[name], th) if name in dirs else DatasetData(name)
         checks = _sorted_checks(dataset_checks(d, th, records.get(name), name in dirs))
         splits[d.name] = d.take_splits
-        ds_figs[d.name] = dataset_figures(d) if plot_takes > 0 else []
+        ds_figs[d.name] = _dataset_figures(d, cache) if plots.on else []
         counts = d.info.get("counts") or {}
         datasets_out.append({"name": d.name, "severity": C.worst([c.severity for c in checks]),
                              "schema_hash": D.schema_hash(d.expected) if d.expected is not None else None,
@@ -425,7 +666,7 @@ def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, 
         "notes": list(session_problems),
     }
     table = pa.Table.from_pylist(rows, schema=TAKES_SCHEMA) if rows else TAKES_SCHEMA.empty_table()
-    html = render_html(report, take_figs, ds_figs, plot_notes)
+    html = render_html(report, take_figs, ds_figs, plot_notes, plots=selection)
     qc = layout.root / "qc"
     qc.mkdir(exist_ok=True)
     layout.tmp.mkdir(parents=True, exist_ok=True)
@@ -435,9 +676,12 @@ def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plot_takes: int, 
     with atomic_path(paths[1], layout.tmp) as tmp:
         write_table(table, tmp, TAKES_SCHEMA)
     layout.write_bytes(paths[2], html.encode())
+    if plots.on:
+        cache.prune()
     n_figs = sum(len(v) for v in take_figs.values()) + sum(len(v) for v in ds_figs.values())
     return ValidateResult(report=report, paths=paths, passed=not hit, takes=table, html=html, figures=n_figs,
-                          notes=plot_notes)
+                          notes=plot_notes, plotted=list(selection.plotted))
 
 
-__all__ = ["FAIL_ON", "ReportInBackground", "ValidateResult", "dataset_checks", "take_checks", "validate_output"]
+__all__ = ["DEFAULT_PLOT_TAKES", "FAIL_ON", "ReportInBackground", "ValidateResult", "dataset_checks", "match_takes",
+           "rank_takes", "take_checks", "take_rank_key", "validate_output"]
