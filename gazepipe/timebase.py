@@ -41,3 +41,30 @@ def snap_rate(rate_hz: float) -> float:
 def frame_times(n_frames: int, rate_hz: float) -> np.ndarray:
     """Time in seconds of each frame, 0 at the first frame (float64, shape (n_frames,))."""
     return np.arange(n_frames, dtype=np.float64) / float(rate_hz)
+
+
+def video_rate(rate_hz: float) -> float:
+    """A measured video rate snapped to N·1000/1001 (:func:`snap_rate`) or to a whole N within 0.05 %: OpenFace
+    writes timestamps rounded to the millisecond, which alone moves a 60 Hz estimate off 60."""
+    r = snap_rate(rate_hz)
+    n = round(r)
+    return float(n) if r == rate_hz and n >= 1 and abs(r - n) <= 5e-4 * n else r
+
+
+def video_frames(t: np.ndarray, frame: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Video frame index per row and the frame period in seconds, from a video track's timestamps.
+
+    With frame numbers, the period is the time span over the frame span; without, the median positive time
+    step, and indices follow from the timestamps. The rate is snapped by :func:`video_rate`. The period is NaN
+    when the timestamps never advance.
+    """
+    n = t.shape[0]
+    if frame is not None and n >= 2 and frame[-1] > frame[0] and t[-1] > t[0]:
+        rate = video_rate((frame[-1] - frame[0]) / (t[-1] - t[0]))
+        return np.asarray(frame, dtype=np.int64), 1.0 / rate
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return np.arange(n, dtype=np.int64), float("nan")
+    dt = 1.0 / video_rate(1.0 / float(np.median(steps)))
+    return np.round((t - t[0]) / dt).astype(np.int64), dt

@@ -264,9 +264,9 @@ def test_fill_refuses_to_overwrite_its_input_or_write_into_a_missing_folder(tmp_
 def test_status_compares_with_the_parameters_given(cleaned, tmp_path):
     res = invoke("status", str(cleaned), "--json")
     assert res.exit_code == 0
-    rows = json.loads(res.stdout)
+    rows = json.loads(res.stdout)["units"]
     assert rows and not any(r["state"] == "stale" for r in rows if r["stage"] == "clean")
-    rows = json.loads(invoke("status", str(cleaned), "--json", "--param", "clean.max_gap_s=0.5").stdout)
+    rows = json.loads(invoke("status", str(cleaned), "--json", "--param", "clean.max_gap_s=0.5").stdout)["units"]
     stale = [r for r in rows if r["stage"] == "clean" and r["state"] == "stale"]
     assert stale and all("param" in r["detail"] for r in stale)
     res = invoke("status", str(tmp_path))
@@ -275,9 +275,10 @@ def test_status_compares_with_the_parameters_given(cleaned, tmp_path):
 
 @pytest.mark.parametrize("path, what", [("openface/pyfeat_OpenFace_Test.csv", "OpenFace"),
                                         ("livelinkface/alex_rom_3_first300.csv", "Live Link Face")])
-def test_inspect_names_eye_and_face_tracks_instead_of_misreading_them(path, what):
-    res = invoke("inspect", str(CORPUS / path))
+def test_fill_names_eye_and_face_tracks_instead_of_misreading_them(path, what, tmp_path):
+    res = invoke("fill", str(CORPUS / path), str(tmp_path / "out.csv"))
     assert res.exit_code == 1 and what in res.stderr and "not a marker capture" in res.stderr
+    assert not (tmp_path / "out.csv").exists()
 
 
 @pytest.mark.parametrize("ext", [".c3d", ".csv"])

@@ -75,10 +75,15 @@ def load_sessions(paths: tuple[str, ...]):
             continue
         sessions.append(load_session(p))
     raise_all(problems)
-    ids = [s.id for s in sessions]
-    dup = sorted({i for i in ids if ids.count(i) > 1})
-    if dup:
-        raise ConfigError(None, f"two sessions share the id {dup[0]}: give one a different [session] id")
+    by_id: dict[str, list[str]] = {}
+    for s in sessions:
+        by_id.setdefault(s.id, []).append(s.path)
+    for sid, tomls in sorted(by_id.items()):
+        if len(tomls) > 1 and tomls[0] == tomls[1]:
+            raise ConfigError(tomls[0], "this session is given twice")
+        if len(tomls) > 1:
+            raise ConfigError(tomls[1], f"session id {sid!r} is also the id of {tomls[0]}: a take is (session, take), "
+                                        "so give each capture day its own [session] id", key="session.id")
     return sessions
 
 
@@ -159,7 +164,8 @@ def run_options(fn: Callable) -> Callable:
         click.option("--force", is_flag=True, help="Re-run every unit even when it is up to date."),
         click.option("--dry-run", is_flag=True, help="Say which units would run and why; change nothing."),
         click.option("--executor", type=click.Choice(["serial", "process", "dask"]), default="process",
-                     show_default=True, help="Where takes run: this process, local worker processes, or Dask."),
+                     show_default=True, help="Where takes run: this process, local worker processes, or Dask (the gazepipe[dask] "
+                     "extra)."),
         click.option("--jobs", "-j", type=click.IntRange(1, 512), default=None,
                      help="Worker processes (default: the number of cores)."),
         click.option("--scheduler", default=None, metavar="ADDRESS",

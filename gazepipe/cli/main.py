@@ -41,6 +41,9 @@ def cli(debug: bool) -> None:
 def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dry_run: bool, executor: str,
          jobs: int | None, scheduler: str | None, params: tuple[str, ...], params_file: str | None,
          log_format: str, heartbeat: int) -> None:
+    from gazepipe.pipeline.executors import check_executor
+
+    check_executor(executor, scheduler)   # before anything else, --dry-run too: a missing extra is exit 2 at once
     from gazepipe.dag import run_pipeline
     from gazepipe.pipeline.events import EventLog
     from gazepipe.pipeline.runner import new_run_id
@@ -58,15 +61,10 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
             if o.traceback:
                 click.echo(o.traceback, err=True)
     if not dry_run:
-        ran = summary.count("ok")
-        failed = len(summary.failed)
-        skipped = summary.count("skipped")
-        blocked = summary.count("blocked")
-        msg = f"done: {ran} units ran, {skipped} up to date, {failed} failed"
-        if blocked:
-            msg += f", {blocked} not run after a failure"
+        msg, counts = summary.end_message()
+        failed = bool(summary.failed)
         log.emit("error" if failed else "info", "run_end", msg, status="failed" if failed else "ok",
-                 ran=ran, skipped=skipped, failed=failed, blocked=blocked)
+                 skipped=counts["up_to_date"], **counts)
     sys.exit(summary.exit_code)
 
 
@@ -186,9 +184,10 @@ def export(out: str, take: str, session: str | None, dest: str, table: str) -> N
               "its rigid cluster, and accelerations over 50 g) into gaps first, as `gazepipe clean` does (default: "
               "measured samples are kept; spikes are counted).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
+@click.option("--force", is_flag=True, help="Overwrite OUT when it exists (default: refuse).")
 @handle_errors
 def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool,
-         as_json: bool) -> None:
+         as_json: bool, force: bool) -> None:
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
     Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
@@ -204,6 +203,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
       gazepipe fill walk.c3d walk_filled.c3d
       gazepipe fill trial.csv trial_filled.csv --max-gap-s 0.5 --json
       gazepipe fill noisy.c3d noisy_filled.c3d --remove-spikes
+      gazepipe fill walk.c3d walk_filled.c3d --force     # write over an earlier walk_filled.c3d
     """
     from gazepipe.io.c3d import write_filled_c3d
     from gazepipe.io.capture import read_markers, sniff_format
@@ -217,7 +217,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     if dest_p.suffix.lower() != want:
         raise ConfigError(dest, f"OUT must be a {want or 'extension-less'} file like IN (the filler writes a copy "
                                 "of the input in its own format)")
-    _check_destination(src_p, dest_p)
+    _check_destination(src_p, dest_p, overwrite=force)
     fmt = sniff_format(src_p)
     # a text export is read once, with the layout its copy is written from
     text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
@@ -257,12 +257,15 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 
 
-def _check_destination(src: Path | None, dest: Path) -> None:
-    """Refuse to write over the input or into a folder that does not exist (ConfigError, exit 2)."""
+def _check_destination(src: Path | None, dest: Path, overwrite: bool = True) -> None:
+    """Refuse to write over the input, over an existing file unless ``overwrite``, or into a folder that does
+    not exist (ConfigError, exit 2)."""
     if src is not None and dest.exists() and src.exists() and dest.resolve() == src.resolve():
         raise ConfigError(dest, "OUT is the input file: write the filled capture to another file")
     if dest.is_dir():
         raise ConfigError(dest, "OUT is a folder: give a file name")
+    if not overwrite and (dest.exists() or dest.is_symlink()):
+        raise ConfigError(dest, "OUT exists: give --force to overwrite it, or another file name")
     parent = dest.parent
     if not parent.is_dir():
         what = "is not a folder" if parent.exists() else "does not exist: create it first"
@@ -271,31 +274,41 @@ def _check_destination(src: Path | None, dest: Path) -> None:
 
 @cli.command(epilog=FILE_EPILOG)
 @click.argument("file", type=click.Path())
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a summary.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON object instead of a summary (floats rounded "
+              "to what they mean: rates to 6 significant digits, seconds to 1 µs, shares to 1e-6).")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Rate for CSV files that do not carry one.")
+              help="Rate for CSV files that do not carry one (marker CSVs, Live Link Face).")
+@click.option("--timecode-fps", type=click.FloatRange(min=0, min_open=True), default=60.0, show_default=True,
+              help="Frames a second a Live Link Face timecode counts.")
 @handle_errors
-def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
-    """Summarise a capture file: format, rate, frames, first frame, units, markers and their gap share."""
-    from gazepipe.io.capture import inspect_capture
+def inspect(file: str, as_json: bool, rate_hz: float | None, timecode_fps: float) -> None:
+    """Summarise a capture file: format, rate, frames, first frame, units, markers and their gap share.
 
-    info = inspect_capture(file, rate_hz=rate_hz)
+    \b
+    Also eye and face tracks:
+      OpenFace CSV     rows, rate, duration, valid share (success == 1 and confidence >= eyes.min_confidence),
+                       blink share (AU45_c == 1, as the eyes stage masks blinks)
+      Live Link Face   rows, rate, duration, dropped frames, valid share (some blendshape not zero), blink share
+                       (eyeBlinkLeft or eyeBlinkRight > 0.5), head tracking on or off
+    """
+    from gazepipe.cli.inspect_view import text_lines
+    from gazepipe.cli.jsonout import dumps
+    from gazepipe.io.inspect_tracks import inspect_file
+    from gazepipe.stages.eyes.params import EyesParams
+
+    info = inspect_file(file, rate_hz=rate_hz, timecode_fps=timecode_fps,
+                        min_confidence=EyesParams().min_confidence)
     if as_json:
-        click.echo(json.dumps(info, indent=1, default=str))
+        click.echo(dumps(info))
         return
-    click.echo(f"{info['path']}")
-    click.echo(f"  format {info['format']}, {info['frames']} frames at {info['rate_hz']:g} Hz, "
-               f"first frame {info['first_frame']}, units {info['units'] or 'not stated'}")
-    click.echo(f"  {len(info['markers'])} markers, {len(info['model_outputs'])} model outputs")
-    for m in info["markers"]:
-        click.echo(f"    {m['label']:<24} gaps {100 * m['gap_fraction']:6.2f} %")
-    for w in info["warnings"]:
-        click.echo(f"  warning: {w}")
+    for line in text_lines(info):
+        click.echo(line)
 
 
 @cli.command(epilog=FILE_EPILOG)
 @click.argument("out", type=click.Path(file_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table: an object with the lock's "
+              "holder, the take units, the datasets and their counts (seconds rounded to 1 µs).")
 @click.option("--param", "params", multiple=True, metavar="STAGE.NAME=VALUE",
               help="The parameters the next run would use (as given to `gazepipe run`): units run with others "
               "show as stale.")
@@ -304,45 +317,50 @@ def inspect(file: str, as_json: bool, rate_hz: float | None) -> None:
 @handle_errors
 def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | None) -> None:
     """What ran in OUT, what failed, and what is stale (inputs, parameters or code changed since), compared
-    with the default parameters or those given.
+    with the default parameters or those given; and whether a run holds OUT now (its pid and start time).
 
     \b
       gazepipe status out/
       gazepipe status out/ --params studio.toml --json
     """
+    from gazepipe.cli.jsonout import dumps
+    from gazepipe.cli.status_view import status_json, table_lines
     from gazepipe.dag import collect_status
+    from gazepipe.pipeline.lock import lock_state
+    from gazepipe.pipeline.state import OutLayout
     from gazepipe.report.collect import open_output
 
     open_output(out)
+    holder = lock_state(OutLayout(Path(out)).lock)
     rows = collect_status(Path(out), parse_params(params, params_file))
     if as_json:
-        click.echo(json.dumps(rows, indent=1, default=str))
+        click.echo(dumps(status_json(out, rows, holder)))
         return
-    if not rows:
-        click.echo("nothing has run in this output folder yet")
-        return
-    for r in rows:
-        line = f"{r['session']}/{r['take']:<28} {r['stage']:<8} {r['state']:<7}"
-        if r.get("detail"):
-            line += f" {r['detail']}"
+    for line in table_lines(rows, holder):
         click.echo(line)
-    counts = {s: sum(r["state"] == s for r in rows) for s in ("ok", "failed", "stale", "pending")}
-    click.echo(", ".join(f"{n} {s}" for s, n in counts.items() if n))
 
 
 @cli.command("params")
 def params_cmd() -> None:
-    """List every stage parameter with its default and the values it accepts, as TOML that `--params` reads
-    (set them with --param STAGE.NAME=VALUE or --params FILE)."""
+    """List every stage parameter with what it means, its default and the values it accepts, as TOML that
+    `--params` reads (set them with --param STAGE.NAME=VALUE or --params FILE)."""
     import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
-    from gazepipe.pipeline.registry import allowed_values, default_params, param_rules
+    from gazepipe.cli.param_help import param_meanings
+    from gazepipe.pipeline.registry import allowed_values, default_params, param_rules, show_value
 
-    rules = param_rules()
-    # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is
-    lines = [(f"{k} = {json.dumps(v)}" if v is not None else f"# {k} = (off by default)",
+    rules, meanings = param_rules(), param_meanings()
+    # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is;
+    # each parameter under a comment saying what it means
+    lines = [(k, f"{k} = {show_value(v)}" if v is not None else f"# {k} = (off by default)",
               allowed_values(v, rules.get(k, {}))[1]) for k, v in default_params().items()]
-    width = max(len(a) for a, _ in lines)
-    for a, b in lines:
+    width = max(len(a) for _, a, _ in lines)
+    group = None
+    for key, a, b in lines:
+        if key.partition(".")[0] != group:
+            if group is not None:
+                click.echo("")
+            group = key.partition(".")[0]
+        click.echo(f"# {meanings.get(key, '(not documented)')}")
         click.echo(f"{a:<{width}}  # {b}")
 
 

@@ -35,7 +35,7 @@ def parse_options(pairs: tuple[str, ...]) -> dict[str, Any]:
 
 
 def dataset_header(data_dir: Path) -> tuple[dict[str, Any], list[str]]:
-    """dataset.json and the column names of ``_common_metadata``, read without the rows; a folder that is not a
+    """_dataset.json and the column names of ``_common_metadata``, read without the rows; a folder that is not a
     dataset is a usage error (exit 2)."""
     import pyarrow as pa
     import pyarrow.parquet as pq

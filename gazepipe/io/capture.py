@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,28 @@ from gazepipe.io.marker_csv import VICON_BLOCKS, read_qtm_tsv, read_vicon_csv, r
 from gazepipe.model import Markers
 
 FORMATS = ("c3d", "vicon_csv", "qtm_tsv", "wide_csv")
+
+
+def track_format(header: Iterable[str]) -> str | None:
+    """``"openface"`` or ``"livelinkface"`` when a CSV's header cells are those of an OpenFace eye-tracking or a
+    Live Link Face blendshape file, else ``None``."""
+    cells = {c.strip() for c in header}
+    if {"gaze_0_x", "confidence"} <= cells:
+        return "openface"
+    if "Timecode" in cells and cells & {"BlendShapeCount", "BlendshapeCount"}:
+        return "livelinkface"
+    return None
+
+
+def track_file_format(path: str | Path) -> str | None:
+    """:func:`track_format` of a file's first line; ``None`` when it cannot be read (the marker readers then
+    say why)."""
+    try:
+        with open(path, "rb") as fh:
+            first = fh.read(4096).decode("latin-1").lstrip("\ufeff\xef\xbb\xbf").split("\n", 1)[0]
+    except OSError:
+        return None
+    return track_format(first.split(","))
 
 
 def sniff_format(path: str | Path) -> str:
@@ -30,13 +53,13 @@ def sniff_format(path: str | Path) -> str:
     if ext == ".c3d" or (len(head) >= 2 and head[1] == 0x50 and b"\x00" in head):
         return "c3d"
     text = head.decode("latin-1").lstrip("\ufeff\xef\xbb\xbf")
-    header = [c.strip() for c in text.split("\n", 1)[0].split(",")]
-    if {"gaze_0_x", "confidence"} <= set(header):
+    track = track_format(text.split("\n", 1)[0].split(","))
+    if track == "openface":
         raise InputError(p, "an OpenFace eye-tracking CSV, not a marker capture (give it to a session's takes "
-                            "as `eyes`; inspect and fill read C3D, Vicon CSV, QTM TSV and wide CSV)")
-    if {"Timecode", "BlendShapeCount"} <= set(header) or {"Timecode", "BlendshapeCount"} <= set(header):
+                            "as `eyes`; fill reads C3D, Vicon CSV, QTM TSV and wide CSV)")
+    if track == "livelinkface":
         raise InputError(p, "a Live Link Face blendshape CSV, not a marker capture (give it to a `face` "
-                            "take as `tracked` or `clean`; inspect and fill read C3D, Vicon CSV, QTM TSV and wide CSV)")
+                            "take as `tracked` or `clean`; fill reads C3D, Vicon CSV, QTM TSV and wide CSV)")
     first_cells = [ln.split(",", 1)[0].split("\t", 1)[0].strip() for ln in text.splitlines()[:20]]
     if any(c in VICON_BLOCKS for c in first_cells[:1]) or "Trajectories" in first_cells:
         return "vicon_csv"

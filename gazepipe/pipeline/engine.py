@@ -16,7 +16,7 @@ from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
 from gazepipe.pipeline.datasets import DatasetPlan, plan_datasets, run_dataset
 from gazepipe.pipeline.events import EventLog
-from gazepipe.pipeline.executors import make_executor
+from gazepipe.pipeline.executors import check_executor, make_executor
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.registry import SessionLike
@@ -33,8 +33,28 @@ class RunSummary:
     outcomes: list[UnitOutcome] = field(default_factory=list)
     plans: list[UnitPlan] = field(default_factory=list)
 
-    def count(self, status: str) -> int:
-        return sum(o.status == status for o in self.outcomes)
+    def count(self, status: str, *, datasets: bool | None = None) -> int:
+        """Outcomes with ``status``: of take units only (``datasets=False``), datasets only (``True``), or
+        both (``None``)."""
+        return sum(o.status == status for o in self.outcomes if datasets is None or is_dataset(o) == datasets)
+
+    def end_message(self) -> tuple[str, dict[str, int]]:
+        """The line that ends a run and its counts. Take units (a stage on a take, what ``run_start`` counts)
+        and datasets are counted apart: ``ran``, ``up_to_date``, ``failed``, ``blocked`` (not run after an
+        upstream failure) are take units; ``datasets_built``, ``datasets_up_to_date``, ``datasets_failed``
+        datasets."""
+        n = {"ran": self.count("ok", datasets=False), "up_to_date": self.count("skipped", datasets=False),
+             "failed": self.count("failed", datasets=False), "blocked": self.count("blocked", datasets=False),
+             "datasets_built": self.count("ok", datasets=True),
+             "datasets_up_to_date": self.count("skipped", datasets=True),
+             "datasets_failed": self.count("failed", datasets=True)}
+        msg = f"done: {n['ran']} take units ran, {n['up_to_date']} up to date, {n['failed']} failed"
+        if n["blocked"]:
+            msg += f", {n['blocked']} not run after a failure"
+        if any(n[k] for k in ("datasets_built", "datasets_up_to_date", "datasets_failed")):
+            msg += (f"; datasets: {n['datasets_built']} built, {n['datasets_up_to_date']} up to date, "
+                    f"{n['datasets_failed']} failed")
+        return msg, n
 
     @property
     def failed(self) -> list[UnitOutcome]:
@@ -43,6 +63,11 @@ class RunSummary:
     @property
     def exit_code(self) -> int:
         return 1 if self.failed else 0
+
+
+def is_dataset(outcome: UnitOutcome) -> bool:
+    """Whether an outcome is a dataset's build (``build:NAME``) rather than a take unit (a stage on a take)."""
+    return outcome.stage.startswith("build:")
 
 
 def plan_run(sessions: Sequence[SessionLike], out: Path, *, until: str | None = None,
@@ -78,6 +103,7 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
     ``report``: told when the takes are done (``takes_done``, only when units ran: the datasets are built
     next) and, at the end, still under the output folder's lock, ``finish`` (every run that is not a dry run).
     """
+    check_executor(executor, scheduler)
     _check_params(params or {})
     layout = OutLayout(Path(out))
     log = log or EventLog()
@@ -94,7 +120,7 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                      + (f" ({p.reason})" if p.run else ""), session=p.session, take=p.take, stage=p.stage,
                      status="run" if p.run else "skip", reason=p.reason)
         for f in failures:
-            log.emit("error", "plan_failed", f.error, take=f.take, stage=f.stage, status="failed")
+            log.emit("error", "plan_failed", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
         if until in (None, BUILD):
             for d in plan_datasets(sessions, layout, plans, params or {}, force, optimistic=True):
                 what = f"would build ({d.reason})" if d.run else "up to date"
@@ -112,7 +138,7 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
         summary.plans = plans
         summary.outcomes.extend(failures)
         for f in failures:
-            log.emit("error", "unit", f.error, take=f.take, stage=f.stage, status="failed")
+            log.emit("error", "unit", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
         todo = [j for j in take_jobs if any(u.run for u in j.units)]
         for j in take_jobs:
             if j not in todo:
@@ -122,10 +148,14 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                 log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
                          session=u.session, take=u.take, stage=u.stage, status="failed")
         n_units = sum(u.run for j in todo for u in j.units)
+        n_before = sum(bool(u.error) for u in plans)   # failed before on the same inputs: not retried
         with _Workers(executor, jobs, scheduler, len(todo)) as workers:
             if todo:
-                log.emit("info", "run_start", f"running {n_units} units on {len(todo)} takes "
-                         f"({len(plans) - n_units} up to date)", takes=len(todo), units=n_units)
+                before = f", {n_before} failed before on the same inputs" if n_before else ""
+                later = ", then the datasets" if until in (None, BUILD) else ""
+                log.emit("info", "run_start", f"running {n_units} take units on {len(todo)} takes "
+                         f"({len(plans) - n_units - n_before} up to date{before}){later}", takes=len(todo),
+                         units=n_units, up_to_date=len(plans) - n_units - n_before, failed_before=n_before)
                 _execute(todo, summary, log, workers, heartbeat_every)
                 if report is not None:
                     hashes.save(layout.write_bytes)  # what the report's unit states are worked out with
@@ -134,8 +164,11 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
             if until in (None, BUILD):
                 built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers)
         if not todo and not built:
-            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans)} units up to date",
-                     status="up_to_date", units=len(plans))
+            n_ds = summary.count("skipped", datasets=True)
+            also = f" and {n_ds} datasets" if n_ds else ""
+            before = f" ({n_before} take units failed before on the same inputs)" if n_before else ""
+            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans) - n_before} take units{also} up to "
+                     f"date{before}", status="up_to_date", units=len(plans) - n_before, datasets=n_ds)
         hashes.save(layout.write_bytes)
         layout.write_json(layout.runs() / f"{summary.run_id}.json", {
             "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]})
@@ -251,7 +284,7 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _
                 outcomes = fut.result()
             except Exception as exc:  # the worker itself died (killed, out of memory): the take fails
                 outcomes = [UnitOutcome(u.session, u.take, u.stage, "failed",
-                                        error=f"take {u.take}: worker died while running ({type(exc).__name__}: {exc})")
+                                        error=f"take {u.session}/{u.take}: worker died while running ({type(exc).__name__}: {exc})")
                             for u in job.units if u.run]
             done += 1
             summary.outcomes.extend(outcomes)
@@ -261,13 +294,14 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _
                              f"({o.duration_s:.2f} s)", session=o.session, take=o.take, stage=o.stage,
                              status="ok", duration_s=round(o.duration_s, 4))
                     for w in o.warnings:
-                        log.emit("warning", "qc_warning", f"{o.take} {o.stage}: {w}", take=o.take, stage=o.stage)
+                        log.emit("warning", "qc_warning", f"{o.session}/{o.take} {o.stage}: {w}", session=o.session,
+                                 take=o.take, stage=o.stage)
                 elif o.status == "failed":
                     log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage,
                              status="failed", duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
                 elif o.status == "blocked":
                     log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
-                             take=o.take, stage=o.stage, status="blocked")
+                             session=o.session, take=o.take, stage=o.stage, status="blocked")
             log.progress(done, len(todo))
             if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
                 log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))

@@ -5,6 +5,7 @@ Each submits the same picklable job function; results are identical whatever run
 
 from __future__ import annotations
 
+import importlib.util
 import multiprocessing
 import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
@@ -12,6 +13,9 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from gazepipe.errors import ConfigError
 
 EXECUTORS = ("serial", "process", "dask")
+
+#: how to get the Dask executor, said when it is asked for and missing
+DASK_INSTALL = "pip install 'gazepipe[dask]' (in a source checkout: pip install -e \".[dask]\")"
 
 
 class SerialExecutor(Executor):
@@ -45,7 +49,7 @@ class DaskExecutor(Executor):
         try:
             from distributed import Client, LocalCluster
         except ImportError:
-            raise ConfigError(None, "--executor dask needs the dask extra: pip install 'gazepipe[dask]'") from None
+            raise ConfigError(None, f"--executor dask needs the dask extra: {DASK_INSTALL}") from None
         if scheduler:
             self._cluster = None
             try:
@@ -89,6 +93,24 @@ class DaskExecutor(Executor):
         if self._cluster is not None:
             self._cluster.close()
             self._config.__exit__(None, None, None)
+
+
+def check_executor(kind: str, scheduler: str | None = None) -> None:
+    """Refuse at once (:class:`ConfigError`, exit 2) an executor that cannot start here: ``dask`` (or any
+    ``scheduler``) without dask and distributed installed. Looks the modules up without importing them."""
+    if kind != "dask" and not scheduler:
+        return
+    missing = [m for m in ("dask", "distributed") if not _importable(m)]
+    if missing:
+        raise ConfigError(None, f"--executor dask needs the dask extra ({' and '.join(missing)} not installed): "
+                                f"{DASK_INSTALL}")
+
+
+def _importable(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):   # a broken install, or a module set to None in sys.modules
+        return False
 
 
 def default_workers() -> int:

@@ -255,8 +255,8 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
                       read={os.path.relpath(p, job.session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)
     except GazepipeError as exc:
-        if exc.take is None:
-            exc.take = plan.take
+        if exc.take is None or exc.take == plan.take:   # a take is (session, take): name both
+            exc.take = f"{plan.session}/{plan.take}"
         outcome.status, outcome.error = "failed", exc.one_line()
         record["retry"] = False   # the inputs are at fault: the same inputs fail the same way
         if isinstance(exc, SchemaError | InputError):
@@ -264,7 +264,7 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
     except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
         record["retry"] = True
         outcome.status = "failed"
-        outcome.error = f"take {plan.take}: stage {st.name}: internal error: {type(exc).__name__}: {exc}"
+        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
     if outcome.status == "failed":
         record.update(status="failed", error=outcome.error)

@@ -16,10 +16,10 @@ from gazepipe.pipeline.state import OutLayout, all_records, read_json
 
 def collect_status(out: Path, load_session: Callable[[str], SessionLike],
                    params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
-    """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration; units
-    are compared with ``params`` (stage -> name -> value overrides; default: every default). Each session the
-    output folder remembers is loaded again with ``load_session(path)`` (a :class:`GazepipeError` makes its row
-    stale)."""
+    """One row per unit: session, take, stage, state (ok | failed | stale | pending), detail, duration; a
+    dataset's row also has ``dataset`` (its name; session ``-``, take ``dataset NAME``). Units are compared
+    with ``params`` (stage -> name -> value overrides; default: every default). Each session the output folder
+    remembers is loaded again with ``load_session(path)`` (a :class:`GazepipeError` makes its row stale)."""
     layout = OutLayout(out)
     records = {(r.get("session"), r.get("take"), r.get("stage")): r for r in all_records(layout)}
     rows: list[dict[str, Any]] = []
@@ -55,7 +55,8 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
     for path in sorted((layout.state / "datasets").glob("*.json")):
         rec = read_json(path) or {}
         name = path.stem
-        row = {"session": "-", "take": f"dataset {name}", "stage": "build", "duration_s": rec.get("duration_s")}
+        row = {"session": "-", "take": f"dataset {name}", "stage": "build", "dataset": name,
+               "duration_s": rec.get("duration_s")}
         if rec.get("status") == "failed":
             row.update(state="failed", detail=rec.get("error", ""))
         elif name in planned and planned[name].run:

@@ -16,7 +16,7 @@ import importlib
 import io
 import json
 import os
-import tempfile
+import uuid
 import zipfile
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -68,8 +68,8 @@ class Trainer(Protocol):
     Attributes
     ----------
     name : the name ``gazepipe train NAME`` uses.
-    dataset : the dataset name(s) it trains on (dataset.json ``name``); a string or a tuple of accepted names.
-    schema_version : the dataset schema version it reads (dataset.json ``schema_version``).
+    dataset : the dataset name(s) it trains on (_dataset.json ``name``); a string or a tuple of accepted names.
+    schema_version : the dataset schema version it reads (_dataset.json ``schema_version``).
     required_columns : columns the dataset's files must have.
     options : known ``--option`` keys → one-line help (unknown keys are refused).
     knobs : optional; which of ``epochs``, ``hidden``, ``lr`` it uses (default all three; others are refused).
@@ -152,16 +152,39 @@ def check_options(trainer: Trainer, options: TrainOptions) -> None:
 # ------------------------------------------------------------------------------------------- saving models
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
+    """Write ``data`` to ``path`` atomically, as the pipeline writes its outputs
+    (:func:`gazepipe.pipeline.atomic.atomic_path`, which trainers may not import): a temporary file in the same
+    folder, fsynced, renamed into place, the folder fsynced.
+
+    The file gets mode 0666 less the umask (0644 under the usual 022), like every other output: the temporary
+    file is created with ``open``, not ``mkstemp`` (whose 0600 the rename would keep).
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    tmp = path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part"
     try:
-        with os.fdopen(fd, "wb") as f:
+        with open(tmp, "xb") as f:
             f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        _fsync_dir(path.parent)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a rename in ``path`` durable (best effort: some file systems refuse)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from gazepipe.stages.geometry import slerp_vectors, unit_or_nan
-from gazepipe.timebase import snap_rate
+from gazepipe.timebase import video_frames
 
 __all__ = ["GATE_REASONS", "Gated", "cyclopean", "gate"]
 
@@ -73,32 +73,6 @@ def cyclopean(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 # gating
 
 
-def _video_rate(rate: float) -> float:
-    """A measured video rate snapped to N·1000/1001 (SPEC §1) or to a whole N within 0.05 %: OpenFace writes
-    timestamps rounded to the millisecond, which alone moves a 60 Hz estimate off 60."""
-    r = snap_rate(rate)
-    n = round(r)
-    return float(n) if r == rate and n >= 1 and abs(r - n) <= 5e-4 * n else r
-
-
-def _video_frames(t: np.ndarray, frame: np.ndarray | None) -> tuple[np.ndarray, float]:
-    """Video frame index per row and the frame period in seconds.
-
-    With frame numbers, the period is the time span over the frame span; without, the median positive time
-    step, and indices follow from the timestamps. The rate is snapped by :func:`_video_rate`.
-    """
-    n = t.shape[0]
-    if frame is not None and n >= 2 and frame[-1] > frame[0] and t[-1] > t[0]:
-        rate = _video_rate((frame[-1] - frame[0]) / (t[-1] - t[0]))
-        return np.asarray(frame, dtype=np.int64), 1.0 / rate
-    steps = np.diff(t)
-    steps = steps[steps > 0]
-    if steps.size == 0:
-        return np.arange(n, dtype=np.int64), float("nan")
-    dt = 1.0 / _video_rate(1.0 / float(np.median(steps)))
-    return np.round((t - t[0]) / dt).astype(np.int64), dt
-
-
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start and stop (exclusive) rows of the runs of True in a 1-D mask."""
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
@@ -134,7 +108,7 @@ def gate(eye: Any, *, min_confidence: float = 0.8, max_eye_gap_s: float = 0.1) -
     blink_raw = getattr(eye, "blink", None)
     blink = np.zeros(n, dtype=bool) if blink_raw is None else np.asarray(blink_raw, dtype=bool)
     frame_raw = getattr(eye, "frame", None)
-    fidx, dt = _video_frames(t, None if frame_raw is None else np.asarray(frame_raw))
+    fidx, dt = video_frames(t, None if frame_raw is None else np.asarray(frame_raw))
 
     finite = np.isfinite(left).all(axis=1) & np.isfinite(right).all(axis=1)
     reason = np.zeros(n, dtype=np.uint8)
