@@ -38,9 +38,9 @@ LAYOUTS = {"10 segments, z up": (SEGMENTS, "z"), "4 segments, y up": (FOUR_SEGME
 def dataset_rows(out: Path, name: str) -> list[dict]:
     """Unmirrored rows of a built dataset, per take: frames and the y features."""
     root = out / "datasets" / name
-    if not (root / "dataset.json").is_file():
+    if not (root / "_dataset.json").is_file():
         return []
-    info = json.loads((root / "dataset.json").read_text())
+    info = json.loads((root / "_dataset.json").read_text())
     takes = []
     for f in sorted(root.rglob("*.parquet")):
         t = pq.read_table(f, columns=["take", "mirrored", "frame", "x", "y"])
@@ -133,7 +133,7 @@ def main() -> None:
                     h, n = coverage(folder, out, cfg.session_id, rows, eyes=name == "gaze_rnn")
                     cover[name][0] += h
                     cover[name][1] += n
-                    info = out / "datasets" / name / "dataset.json"
+                    info = out / "datasets" / name / "_dataset.json"
                     if info.is_file():
                         dropped[name].update(json.loads(info.read_text())["counts"].get("dropped_frames", {}))
         print(f"\n{label}: takes failing a stage: {len(failed)}" + "".join(f"\n  {f}" for f in failed[:5]))

@@ -135,7 +135,7 @@ def main() -> None:
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",
                                        log=EventLog(fmt="json", stream=io.StringIO()))
-                built.append([d for d in DATASETS if (out / "datasets" / d / "dataset.json").is_file()])
+                built.append([d for d in DATASETS if (out / "datasets" / d / "_dataset.json").is_file()])
                 truth = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
                 rate = float(cfg.rate_hz)
                 rows = gaze_map_rows(out)
@@ -163,7 +163,7 @@ def main() -> None:
                     n_shift += 1
                     if take not in rows:
                         why = [o.error for o in summary.failed if o.take == take]
-                        skipped = json.loads((out / "datasets" / "gaze_map" / "dataset.json").read_text()) \
+                        skipped = json.loads((out / "datasets" / "gaze_map" / "_dataset.json").read_text()) \
                             .get("skipped", []) if "gaze_map" in built[-1] else []
                         why += [s["reason"] for s in skipped if s["take"] == take]
                         left_out.append(f"s{seed} {take}: {why[0] if why else '?'}")
@@ -174,7 +174,7 @@ def main() -> None:
                     tr["crop"] = t["crop"]
                     gm = t
                     l_err.append((r["duration_s"] - gm["l_s"]) * rate)
-                    segs = json.loads((out / "datasets" / "gaze_map" / "dataset.json").read_text())[
+                    segs = json.loads((out / "datasets" / "gaze_map" / "_dataset.json").read_text())[
                         "features"]["start_times"]
                     local = chain_local(tr, segs)
                     want_start, skip = truth_starts(local, rate)

@@ -144,7 +144,7 @@ class Dataset:
     Attributes
     ----------
     path : the folder.
-    info : dataset.json.
+    info : _dataset.json.
     name : the dataset's name (``gaze_rnn``, ``gaze_rnn_lod``, ``gaze_map``, ``face_clean``).
     """
 
@@ -213,11 +213,11 @@ class Dataset:
         st = self.stats.get("overall" if pose is None else "per_pose", {})
         if pose is not None:
             if pose not in st:
-                raise ConfigError(self.path / "dataset.json", f"no statistics for pose {pose!r} "
+                raise ConfigError(self.path / "_dataset.json", f"no statistics for pose {pose!r} "
                                                               f"(poses: {', '.join(sorted(st))})")
             st = st[pose]
         if column not in st:
-            raise ConfigError(self.path / "dataset.json", f"no statistics for column {column!r}")
+            raise ConfigError(self.path / "_dataset.json", f"no statistics for column {column!r}")
         mean = np.asarray(st[column]["mean"], dtype=np.float32)
         std = np.asarray(st[column]["std"], dtype=np.float32)
         return mean, np.where(std < MIN_STD, np.float32(1.0), std).astype(np.float32)
@@ -240,7 +240,7 @@ class Dataset:
 
         Parameters
         ----------
-        window, stride : rows per window and step between window starts; default dataset.json's (gaze_rnn:
+        window, stride : rows per window and step between window starts; default _dataset.json's (gaze_rnn:
             120 frames; face_clean: 200 with a stride of 50).
         normalise : subtract the training mean and divide by the training standard deviation (overall
             statistics) for every column that has statistics; other columns (``dt_s``) stay as stored.

@@ -8,6 +8,7 @@ checked against the generator's truth both on the truth's own rotations and on t
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,6 @@ from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import SchemaError, StageError
 from gazepipe.io.datasets import (
-    IGNORE_PREFIXES,
     StagedDatasetWriter,
     open_dataset,
     read_dataset,
@@ -140,7 +140,7 @@ def test_y_is_next_x_within_segments(rnn, name):
 
 
 def test_rnn_matches_truth_and_directions_are_unit(rnn, session):
-    table = rnn["gaze_rnn"].tables[("p01", "standing", "follow_standing_01")]
+    table = rnn["gaze_rnn"].tables[("session01", "follow_standing_01")]
     x, y = xy(table)
     orig = ~table.column("mirrored").to_numpy()
     frames = table.column("frame").to_numpy()[orig]
@@ -160,7 +160,7 @@ def test_rnn_matches_truth_and_directions_are_unit(rnn, session):
 
 def test_invalid_eyes_end_segments(rnn, follow_takes):
     _, invalid = follow_takes
-    for (_, _, tid), table in rnn["gaze_rnn"].tables.items():
+    for (_, tid), table in rnn["gaze_rnn"].tables.items():
         orig = ~table.column("mirrored").to_numpy()
         frame = table.column("frame").to_numpy()[orig]
         seg = table.column("segment").to_numpy()[orig]
@@ -175,7 +175,7 @@ def test_invalid_eyes_end_segments(rnn, follow_takes):
                 assert before.max() < after.min()
         assert seg.max() + 1 == rnn["gaze_rnn"].info["counts"]["per_take"][f"session01/{tid}"]["segments"]
     # the LOD dataset has no eyes, so invalid eyes do not cut it
-    lod = rnn["gaze_rnn_lod"].tables[("p01", "standing", "follow_standing_01")]
+    lod = rnn["gaze_rnn_lod"].tables[("session01", "follow_standing_01")]
     assert lod.column("segment").to_numpy().max() == 0
 
 
@@ -218,7 +218,7 @@ def test_mirror_swaps_left_right_segments():
     eyes = eyes_table({"eye_dir_char": tgt}, frames, np.zeros(n, bool))
     tt = TakeTables(session="s", subject="p", take=Take(id="t", kind="gaze_follow", pose="standing", split="train"),
                     joints=joints_to_table(j, frames), eyes=eyes)
-    table = build_dataset("gaze_rnn", [tt]).tables[("p", "standing", "t")]
+    table = build_dataset("gaze_rnn", [tt]).tables[("s", "t")]
     _, y = xy(table)
     half = len(y) // 2
     blocks, mblocks = y[:half, :18].reshape(-1, 3, 6), y[half:, :18].reshape(-1, 3, 6)
@@ -237,9 +237,9 @@ def test_take_without_eyes_is_skipped_for_gaze_rnn_only(follow_takes):
     full = build_dataset("gaze_rnn", takes)
     assert [s["take"] for s in full.info["skipped"]] == ["follow_standing_01"]
     assert "eyes" in full.info["skipped"][0]["reason"]
-    assert ("p01", "standing", "follow_standing_01") not in full.tables
+    assert ("session01", "follow_standing_01") not in full.tables
     lod = build_dataset("gaze_rnn_lod", takes)
-    assert ("p01", "standing", "follow_standing_01") in lod.tables and not lod.info["skipped"]
+    assert ("session01", "follow_standing_01") in lod.tables and not lod.info["skipped"]
 
 
 # ------------------------------------------------------------------------------------------------ splits
@@ -334,7 +334,7 @@ def test_rebuild_is_byte_identical(follow_takes, tmp_path):
         write_dataset(build_dataset("gaze_rnn", fresh), tmp_path / run)
     files_a = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
     files_b = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*") if p.is_file())
-    assert files_a == files_b and len(files_a) == 5
+    assert files_a == files_b and len(files_a) == 3 + 4
     for rel in files_a:
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
 
@@ -355,20 +355,20 @@ def test_streaming_build_loads_one_take_at_a_time_and_writes_the_same_bytes(foll
     writer = StagedDatasetWriter(tmp_path / "stream", "gaze_rnn", tmp_path / "staging.part")
 
     def sink(key, table):
-        events.append(f"emit {key[2]}")
+        events.append(f"emit {key[1]}")
         writer(key, table)
 
     built = build_dataset("gaze_rnn", [_lazy(t, events) for t in takes], sink=sink)
     assert built.tables == {}
-    # in (subject, pose, take) order, each take is loaded only after the previous one was handed on
+    # in (session, take) order, each take is loaded only after the previous one was handed on
     order = ["follow_sitting_01", "follow_standing_01", "follow_standing_02"]
     assert events == [f"{what} {tid}" for tid in order for what in ("load", "emit")]
-    assert not (tmp_path / "stream" / "gaze_rnn" / "dataset.json").exists()   # nothing published before commit
+    assert not (tmp_path / "stream" / "gaze_rnn" / "_dataset.json").exists()   # nothing published before commit
     writer.commit(built)
     assert not (tmp_path / "staging.part").exists()
     a = sorted(p.relative_to(tmp_path / "memory") for p in (tmp_path / "memory").rglob("*") if p.is_file())
     b = sorted(p.relative_to(tmp_path / "stream") for p in (tmp_path / "stream").rglob("*") if p.is_file())
-    assert a == b and len(a) == 5
+    assert a == b and len(a) == 3 + 4   # the take files, then the side files
     for rel in a:
         assert (tmp_path / "memory" / rel).read_bytes() == (tmp_path / "stream" / rel).read_bytes(), rel
 
@@ -387,35 +387,50 @@ def test_failed_streaming_build_leaves_the_published_dataset_as_it_was(follow_ta
 
 
 def test_layout_and_loaders(rnn, tmp_path):
+    """<split>/<session>/<take>.parquet with the side files named so that pandas and pyarrow skip them: both
+    open the folder with no arguments, and the identifier columns come from the files alone."""
     built = rnn["gaze_rnn"]
     written = write_dataset(built, tmp_path)
     root = tmp_path / "gaze_rnn"
-    assert written[-1] == root / "dataset.json" and written[-2] == root / "_common_metadata"
-    assert (root / "subject=p01" / "pose=sitting" / "take=follow_sitting_01.parquet").is_file()
+    assert [p.name for p in written[-4:]] == ["_common_metadata", ".huggingface.yaml", "_README.md", "_dataset.json"]
+    split = built.tables[("session01", "follow_sitting_01")].column("split")[0].as_py()
+    assert (root / split / "session01" / "follow_sitting_01.parquet").is_file()
     table, info = read_dataset(root)
     assert table.num_rows == info["counts"]["rows"] == sum(t.num_rows for t in built.tables.values())
-    # pyarrow.dataset with hive partitioning: the folder keys agree with the columns stored in the files
-    d = ds.dataset(root, format="parquet", partitioning="hive", ignore_prefixes=IGNORE_PREFIXES)
+    d = ds.dataset(root)
     sitting = d.to_table(filter=ds.field("pose") == "sitting")
     assert set(sitting.column("take").to_pylist()) == {"follow_sitting_01"}
+    assert d.schema.field("subject").type == pa.string()          # no partition column clashing with it
     x = list_to_numpy(d.to_table(columns=["x"]).column("x"), 66)
     assert x.shape == (table.num_rows, 66) and x.dtype == np.float32
-    # pandas, with the schema stored in _common_metadata
-    df = pd.read_parquet(root, schema=pq.read_schema(root / "_common_metadata"), ignore_prefixes=IGNORE_PREFIXES)
+    df = pd.read_parquet(root)
     assert len(df) == table.num_rows and set(df["pose"]) == {"standing", "sitting"}
+    assert list(df.columns) == table.column_names
     assert df["mirrored"].sum() * 2 == len(df)
-    # a stale take file from an earlier build is removed by the next write
-    stale = root / take_path("p01", "standing", "old_take")
-    stale.write_bytes((root / take_path("p01", "sitting", "follow_sitting_01")).read_bytes())
+    # a stale take file from an earlier build, and an earlier layout's files, are removed by the next write
+    stale = root / take_path("test", "session01", "old_take")
+    stale.parent.mkdir(parents=True, exist_ok=True)
+    stale.write_bytes((root / take_path(split, "session01", "follow_sitting_01")).read_bytes())
+    (root / "dataset.json").write_text("{}")
+    (root / "subject=p01" / "pose=sitting").mkdir(parents=True)
     write_dataset(built, tmp_path)
-    assert not stale.exists()
+    assert not stale.exists() and not (root / "test").exists()
+    assert not (root / "dataset.json").exists() and not (root / "subject=p01").exists()
+
+
+def test_take_file_names_keep_readers_reading():
+    """Ids are URI-encoded, and a leading "_" too: pyarrow skips files and folders named "_…" or ".…"."""
+    assert take_path("val", "s 1", "_warmup") == Path("val") / "s%201" / "%5Fwarmup.parquet"
+    assert take_path("train", "_s", "t-1") == Path("train") / "%5Fs" / "t-1.parquet"
+    with pytest.raises(SchemaError, match="not one of"):
+        take_path("validation", "s", "t")
 
 
 def test_read_rejects_tampered_files(rnn, tmp_path):
     built = rnn["gaze_rnn_lod"]
     write_dataset(built, tmp_path)
     root = tmp_path / "gaze_rnn_lod"
-    path = root / take_path("p01", "standing", "follow_standing_02")
+    path = next(root.glob("*/session01/follow_standing_02.parquet"))
     good = pq.read_table(path)
     # x stored as float64: schema mismatch
     i = good.schema.get_field_index("x")
@@ -480,7 +495,7 @@ def test_gaze_map_on_truth_rotations(session):
     assert built.schema.field("p_plus").type == pa.list_(pa.float32(), 44)
     segs = list(load_truth(session.root, takes[0].take.id)["segments"])
     nonzero = 0
-    for (_, _, tid), table in built.tables.items():
+    for (_, tid), table in built.tables.items():
         rows = table.to_pylist()
         assert len(rows) == 2 and [r["mirrored"] for r in rows] == [False, True]
         row = rows[0]
@@ -552,7 +567,7 @@ def test_gaze_map_on_pipeline_output(pipeline_shift_takes, session):
     built = build_dataset("gaze_map", pipeline_shift_takes, BuildParams(train_frac=1.0, val_frac=0.0))
     assert len(built.tables) == 9 and not built.info["skipped"]
     checked = 0
-    for (_, _, tid), table in built.tables.items():
+    for (_, tid), table in built.tables.items():
         row = table.to_pylist()[0]
         tr = load_truth(session.root, tid)
         tol = 3.0 if tr["scalars"]["beta"] < 0.03 else 2.0
@@ -594,7 +609,7 @@ def test_face_clean():
     assert (info["window"], info["stride"]) == (200, 50) and info["fps"] == 60.0
     assert list(info["features"]) == ["tracked", "clean", "tracked_d1", "clean_d1"]
     assert info["features"]["tracked"][0] == "tracked.eyeBlinkLeft"
-    table = built.tables[("p01", "sitting", "face_01")]
+    table = built.tables[("s01", "face_01")]
     src = takes[0].face
     assert table.num_rows == 2 * src.num_rows
     half = src.num_rows
@@ -786,3 +801,62 @@ def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     with pytest.raises(StageError, match="crop's last frame has no character frame rotation"):
         row(char_holes=[(int(rests[1][0]) - c0, n)])   # the last pose is a mean over the second rest's frames
     assert row(char_holes=[(n - 2, n)]).qc["bridged_frames"] == 1   # the last from the mean, n − 2 bridged
+
+
+def test_a_rebuild_rewrites_only_the_take_files_that_changed(rnn, tmp_path):
+    """Publishing a rebuilt dataset leaves take files whose bytes did not change as they are (same inode and
+    modification time), replaces the changed one, and moves a take whose split changed."""
+    built = rnn["gaze_rnn"]
+
+    def publish(tables):
+        writer = StagedDatasetWriter(tmp_path, "gaze_rnn", tmp_path / f"staging{len(list(tmp_path.iterdir()))}")
+        for key, table in sorted(tables.items()):
+            writer(key, table)
+        return writer.commit(built)
+
+    publish(built.tables)
+    root = tmp_path / "gaze_rnn"
+    stamp = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in root.rglob("*.parquet")}
+    keys = sorted(built.tables)
+    changed = dict(built.tables)
+    t = changed[keys[0]]
+    i = t.schema.get_field_index("time_s")
+    changed[keys[0]] = t.set_column(i, t.schema.field("time_s"), pa.array(np.asarray(t.column("time_s")) + 1.0))
+    publish(changed)
+    after = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in root.rglob("*.parquet")}
+    first = next(p for p in after if p.stem == keys[0][1])
+    assert after.keys() == stamp.keys() and after[first] != stamp[first]
+    assert all(after[p] == stamp[p] for p in after if p != first)
+    # a take moved to another split: its old file goes, the new one appears under the new split's folder
+    moved = dict(built.tables)
+    t = moved[keys[1]]
+    new = "test" if t.column("split")[0].as_py() != "test" else "val"
+    j = t.schema.get_field_index("split")
+    moved[keys[1]] = t.set_column(j, t.schema.field("split"), pa.array([new] * t.num_rows))
+    publish(moved)
+    files = {p.relative_to(root) for p in root.rglob("*.parquet")}
+    assert Path(new) / keys[1][0] / f"{keys[1][1]}.parquet" in files and len(files) == len(keys)
+
+
+def test_one_subject_over_two_sessions_with_the_same_take_ids(follow_takes, tmp_path):
+    """Two capture days of one subject reuse their take ids: a take is (session, take), so every take gets its
+    own file, its own split by the hash of both, and the dataset checks see two takes, not one in two splits."""
+    from gazepipe.report.checks import Thresholds
+    from gazepipe.report.checks_datasets import check_counts, check_splits
+    from gazepipe.report.collect import load_dataset
+
+    takes, _ = follow_takes
+    again = [dataclasses.replace(t, session="s02") for t in takes]
+    built = build_dataset("gaze_rnn", [*takes, *again])
+    assert set(built.tables) == {(t.session, t.take.id) for t in [*takes, *again]} and len(built.tables) == 6
+    write_dataset(built, tmp_path)
+    root = tmp_path / "gaze_rnn"
+    assert len(list(root.glob("*/s02/*.parquet"))) == 3 and len(list(root.glob("*/session01/*.parquet"))) == 3
+    listed = {t for ts in built.info["splits"]["takes"].values() for t in ts}
+    assert {f"s02/{t.take.id}" for t in takes} <= listed
+    d = load_dataset(root, Thresholds())
+    assert check_splits(d.info, d.files).severity == "pass"
+    assert check_counts(d.info, d.files).severity in ("pass", "warning")
+    table, info = read_dataset(root)
+    assert set(zip(table.column("session").to_pylist(), table.column("take").to_pylist(), strict=True)) == \
+        set(built.tables)

@@ -64,6 +64,10 @@ def _check_complete(p: Path) -> None:
         pq.read_schema(p)
     elif p.suffix == ".json":
         json.loads(p.read_text())
+    elif p.name == ".huggingface.yaml":
+        assert p.read_text().splitlines()[-1].startswith("  download_size: "), f"{p} is cut short"
+    elif p.name == "_README.md":
+        assert p.read_text().rstrip().splitlines()[-1].startswith("Built by gazepipe"), f"{p} is cut short"
     elif p.suffix == ".html":
         assert p.read_text().rstrip().endswith("</html>"), f"{p} is cut short"
     else:
@@ -205,8 +209,8 @@ def _make_work(out: Path, rng: np.random.Generator, build_trial: bool) -> list[s
     take_items = sorted(out.glob("takes/*/*/*.parquet")) + sorted(out.glob(".gazepipe/units/*/*/*.json"))
     n = int(rng.integers(1, 4))
     picked = [take_items[i] for i in rng.choice(len(take_items), size=n, replace=False)]
-    ds_items = sorted(out.glob(".gazepipe/datasets/*.json")) + sorted(out.glob("datasets/*/dataset.json")) + \
-        sorted(out.glob("datasets/*/subject=*/pose=*/*.parquet"))
+    ds_items = sorted(out.glob(".gazepipe/datasets/*.json")) + sorted(out.glob("datasets/*/_dataset.json")) + \
+        sorted(out.glob("datasets/*/*/*/*.parquet"))
     n_ds = int(rng.integers(1, 3)) if build_trial else int(rng.integers(0, 2))
     picked += [ds_items[i] for i in rng.choice(len(ds_items), size=n_ds, replace=False)]
     for p in picked:

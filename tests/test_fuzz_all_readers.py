@@ -411,7 +411,7 @@ def _set_or_delete(node: dict | list, key, rng: np.random.Generator) -> None:
 
 def test_fuzz_datasets(tmp_path, pipeline_out):
     _, out = pipeline_out
-    bases = [d for d in sorted((out / "datasets").iterdir()) if (d / "dataset.json").is_file()]
+    bases = [d for d in sorted((out / "datasets").iterdir()) if (d / "_dataset.json").is_file()]
     assert len(bases) >= 2, bases
     rng = np.random.default_rng(5)
     cases = []
@@ -422,11 +422,11 @@ def test_fuzz_datasets(tmp_path, pipeline_out):
         if i >= len(bases):
             what = rng.choice(["json_bytes", "common", "take"])
             if what == "json_bytes":
-                (d / "dataset.json").write_bytes(_mutate_bytes((d / "dataset.json").read_bytes(), rng, text=True))
+                (d / "_dataset.json").write_bytes(_mutate_bytes((d / "_dataset.json").read_bytes(), rng, text=True))
             elif what == "common":
                 (d / "_common_metadata").write_bytes(_mutate_bytes((d / "_common_metadata").read_bytes(), rng))
             else:
-                f = sorted(d.glob("subject=*/pose=*/*.parquet"))[0]
+                f = sorted(d.glob("*/*/*.parquet"))[0]
                 if rng.random() < 0.5:
                     f.write_bytes(_mutate_bytes(f.read_bytes(), rng))
                 else:
@@ -456,14 +456,14 @@ def test_fuzz_non_utf8_text(tmp_path, pipeline_out):
             p = tmp_path / f"{kind}_{i:02d}.csv"
             p.write_bytes(bytes(b))
             cases.append({"kind": kind, "path": str(p), "rate_hz": 60.0})
-    ds = [d for d in sorted((out / "datasets").iterdir()) if (d / "dataset.json").is_file()]
+    ds = [d for d in sorted((out / "datasets").iterdir()) if (d / "_dataset.json").is_file()]
     for i in range(10):
         d = tmp_path / f"ds_{i:02d}" / ds[i % len(ds)].name
         shutil.copytree(ds[i % len(ds)], d)
-        b = bytearray((d / "dataset.json").read_bytes())
+        b = bytearray((d / "_dataset.json").read_bytes())
         at = int(rng.integers(0, len(b)))
         b[at:at] = bytes(rng.integers(128, 256, size=2, dtype=np.uint8))
-        (d / "dataset.json").write_bytes(bytes(b))
+        (d / "_dataset.json").write_bytes(bytes(b))
         cases.append({"kind": "dataset", "path": str(d)})
     _assert_clean(_run_batch(cases, tmp_path), min_ok=0)
 
@@ -485,11 +485,11 @@ def test_fuzz_tables_inconsistent_with_their_metadata(tmp_path, pipeline_out):
         pq.write_table(changed if changed is not None else pq.read_table(src), dest, **WRITE_OPTIONS)
         cases.append({"kind": "parquet", "path": str(dest), "out": str(fuzz_out), "session": "fz",
                       "take": f"c{i:03d}", "table": src.stem})
-    ds = [d for d in sorted((out / "datasets").iterdir()) if (d / "dataset.json").is_file()]
+    ds = [d for d in sorted((out / "datasets").iterdir()) if (d / "_dataset.json").is_file()]
     for i in range(20):
         d = tmp_path / f"ds_{i:02d}" / ds[i % len(ds)].name
         shutil.copytree(ds[i % len(ds)], d)
-        text = (d / "dataset.json").read_text()
-        (d / "dataset.json").write_bytes(_mutate_json(text, rng, only=[None, "sizes", "name", "counts"][i % 4]))
+        text = (d / "_dataset.json").read_text()
+        (d / "_dataset.json").write_bytes(_mutate_json(text, rng, only=[None, "sizes", "name", "counts"][i % 4]))
         cases.append({"kind": "dataset", "path": str(d)})
     _assert_clean(_run_batch(cases, tmp_path), min_ok=0)

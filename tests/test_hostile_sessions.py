@@ -46,7 +46,7 @@ def test_every_lod_row_is_within_five_degrees_of_the_truth(hostile_run):
     crop's frames."""
     folder, out, _ = hostile_run
     root = out / "datasets" / "gaze_rnn_lod"
-    info = json.loads((root / "dataset.json").read_text())
+    info = json.loads((root / "_dataset.json").read_text())
     names = [n.split(".")[0] for n in info["features"]["y"][0::6]]
     errors, target_errors, rows, crop_frames = [], [], 0, 0
     truth_meta = json.loads((folder / "truth" / "truth.json").read_text())["takes"]

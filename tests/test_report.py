@@ -183,6 +183,15 @@ def test_broken_take_fails_the_gate_and_is_named(broken_out: Path) -> None:
     html = (broken_out / "qc" / "report.html").read_text()
     summary = html[html.index('id="summary"'):]
     assert summary.index("shift_y036_p12") < summary.index("shift_ym036_p00"), "failing takes first"
+    # the failed take ranks first for the plots too, but its ingest failed: it has no table to draw from, so the
+    # plots go to the takes that have, and the page says why it has none
+    from gazepipe.report.validate import rank_takes
+
+    assert rank_takes(rep["takes"])[0] == "session01/shift_y036_p12"
+    row = summary[summary.index("shift_y036_p12"):]
+    assert row[:row.index("</tr>")].endswith("<td>nothing to draw</td>")
+    assert "No plots: nothing to draw for this take" in _section(html, "take-session01-shift_y036_p12")
+    assert "<svg" in _section(html, "take-session01-shift_ym036_p00")
 
 
 def test_unreadable_table_is_an_error_that_fails_the_gate(broken_out: Path, tmp_path: Path) -> None:
@@ -285,7 +294,7 @@ def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) ->
             super().takes_done()
 
         def finish(self) -> None:
-            calls.append(("finish", (out / "datasets" / "gaze_map" / "dataset.json").is_file()))
+            calls.append(("finish", (out / "datasets" / "gaze_map" / "_dataset.json").is_file()))
             super().finish()
 
     def run() -> None:
@@ -327,13 +336,16 @@ def test_html_is_self_contained(clean_out: Path) -> None:
     # feature distributions of every dataset
     assert _section(html, "dataset-gaze_rnn").count("<svg") == 2          # x and y
     assert _section(html, "dataset-gaze_map").count("<svg") == 3          # scalars, p_plus, start_times
-    # with a cap, only the worst take keeps its plots
+    # with a cap, only the worst take keeps its plots; the page names it and says how to plot the others (the
+    # default cap, 6, plots all five takes of this slice: tests/test_validate_speed.py covers a capped default)
     assert _validate(clean_out, "--plot-takes", "1").exit_code == 0
     html = (clean_out / "qc" / "report.html").read_text()
     plotted = [t for t in TAKES if "<svg" in _section(html, f"take-session01-{t}")]
     sev = {t["take"]: C.RANK[t["severity"]] for t in _report(clean_out)["takes"]}
     assert len(plotted) == 1 and sev[plotted[0]] == max(sev.values())
-    assert "plots drawn for the 1 worst of 5 takes" in html
+    assert "drawn for 1 of 5 takes (the 1 worst with something to draw)" in html
+    assert f'href="#take-session01-{plotted[0]}"' in html[html.index('<div id="plots">'):]
+    assert "--plot-takes all" in html
 
 
 def _chromium(args: list[str], tmp: Path) -> subprocess.CompletedProcess:
@@ -374,7 +386,7 @@ def dataset_out(clean_out: Path, tmp_path_factory) -> Path:
     """A copy of the sample output (it holds the datasets the engine built) to validate with other options."""
     out = tmp_path_factory.mktemp("report_ds") / "out"
     shutil.copytree(clean_out, out)
-    assert (out / "datasets" / "gaze_map" / "dataset.json").exists()
+    assert (out / "datasets" / "gaze_map" / "_dataset.json").exists()
     return out
 
 
@@ -405,16 +417,16 @@ def test_dataset_checks_catch_bad_statistics_split_and_schema(dataset_out: Path,
     import pyarrow as pa
 
     ds = _corrupt_copy(dataset_out, tmp_path / "a")
-    info = json.loads((ds / "dataset.json").read_text())
+    info = json.loads((ds / "_dataset.json").read_text())
     std = info["stats"]["overall"]["yaw_deg"]["std"][0]
     info["stats"]["overall"]["yaw_deg"]["mean"][0] += 10 * std + 1.0
-    (ds / "dataset.json").write_text(json.dumps(info))
+    (ds / "_dataset.json").write_text(json.dumps(info))
     checks = _ds_checks(ds.parents[1], "--fail-on", "fail")
     assert checks["stats_sanity"]["severity"] == "fail"
     assert "yaw_deg" in checks["stats_sanity"]["message"]
 
     ds = _corrupt_copy(dataset_out, tmp_path / "b")
-    rel = sorted(p.relative_to(ds) for p in ds.glob("subject=*/pose=*/take=*.parquet"))[0]
+    rel = sorted(p.relative_to(ds) for p in ds.glob("*/*/*.parquet"))[0]
     t = pq.read_table(ds / rel)
     split = t.column("split").to_pylist()
     other = "test" if split[0] != "test" else "val"

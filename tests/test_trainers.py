@@ -66,9 +66,9 @@ def test_wrong_dataset_is_refused(datasets, tmp_path, trainer, dataset, message)
 def test_schema_version_and_columns_are_checked(datasets, tmp_path):
     copy = tmp_path / "gaze_map"
     shutil.copytree(datasets / "gaze_map", copy)
-    info = json.loads((copy / "dataset.json").read_text())
+    info = json.loads((copy / "_dataset.json").read_text())
     info["schema_version"] = 99
-    (copy / "dataset.json").write_text(json.dumps(info))
+    (copy / "_dataset.json").write_text(json.dumps(info))
     res = run_train("gaze_map", "--data", str(copy), "--out", str(tmp_path / "m"))
     assert res.exit_code == 2 and "reads schema version 1, the dataset has 99" in res.output
 
@@ -84,7 +84,7 @@ def test_usage_errors(datasets, tmp_path):
     assert res.exit_code == 2 and "no such dataset folder" in res.output
     (tmp_path / "empty").mkdir()
     res = run_train("gaze_map", "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "m"))
-    assert res.exit_code == 2 and "dataset.json" in res.output
+    assert res.exit_code == 2 and "_dataset.json" in res.output
     res = run_train("gaze_map", "--data", str(datasets / "gaze_map"), "--out", str(tmp_path / "m"), "--option", "q=1")
     assert res.exit_code == 2 and "has no option q (options: k, train_split)" in res.output
     res = run_train("gaze_map", "--data", str(datasets / "gaze_map"), "--out", str(tmp_path / "m"), "--option", "k")

@@ -42,7 +42,7 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
     failure the staging folder is removed and nothing is published."""
     writer = StagedDatasetWriter(ctx.root, ctx.name, ctx.tmp, ctx.write_bytes)
 
-    def sink(key: tuple[str, str, str], table) -> None:
+    def sink(key: tuple[str, str], table) -> None:
         ctx.check_alive()
         writer(key, table)
 
@@ -58,7 +58,8 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
         raise
     skipped = built.info.get("skipped", [])
     return DatasetResult(outputs=written, record={"counts": built.info.get("counts"), "skipped": skipped},
-                         warnings=[f"{ctx.name}: take {s['take']} left out: {s['reason']}" for s in skipped])
+                         warnings=[f"{ctx.name}: take {s['session']}/{s['take']} left out: {s['reason']}"
+                                   for s in skipped])
 
 
 def _feeds(name: str):

@@ -298,7 +298,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="7", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="8", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,

@@ -1,27 +1,34 @@
-"""Writing and reading the hive-partitioned training datasets (SPEC §4).
+"""Writing and reading the training datasets (SPEC §4): a layout every Parquet reader opens as it is.
 
 Layout of one dataset ``<name>`` under ``OUT/datasets``::
 
-    <name>/subject=<s>/pose=<p>/take=<t>.parquet   one file per take (folder and file names URI-encoded)
-    <name>/_common_metadata                        the Arrow schema (pyarrow.parquet.write_metadata)
-    <name>/dataset.json                            features, statistics, counts, inputs, parameters
+    <name>/<split>/<session>/<take>.parquet   one file per take; split is train, val or test (its ``split``
+                                              column); session and take URI-encoded, a leading "_" too
+    <name>/_dataset.json                      features, statistics, counts, inputs, parameters
+    <name>/_README.md                         the dataset card (YAML front matter for Hugging Face, then text)
+    <name>/.huggingface.yaml                  the card's YAML alone: the splits Hugging Face ``datasets`` loads
+    <name>/_common_metadata                   the Arrow schema (pyarrow.parquet.write_metadata)
+
+Why so: folder names hold no ``key=value`` (pandas and pyarrow would add partition columns that clash with the
+identifier columns inside the files), and every other file starts with "_" or "." (pyarrow, and so pandas,
+skip those; a ``README.md`` in the folder makes them fail with "Could not read schema"). So, with no arguments::
+
+    pandas.read_parquet(root); pyarrow.parquet.read_table(root); pyarrow.dataset.dataset(root)
+    polars.read_parquet(f"{root}/**/*.parquet")           # polars refuses a folder holding other files
+    duckdb.sql(f"SELECT * FROM read_parquet('{root}/**/*.parquet')")
+    datasets.load_dataset(str(root))                       # splits train, validation, test
 
 Files are produced as bytes and handed to a ``write_bytes(path, data)`` callback (the engine's atomic writer;
-a plain file write by default), take files first, then ``_common_metadata``, then ``dataset.json`` last, so a
-dataset.json always describes complete take files. The engine's streaming build stages take files as they are
-built (:class:`StagedDatasetWriter`) and publishes them only when the whole dataset built. Take files of an earlier build that are no longer part of
-the dataset are removed afterwards. Every table is checked against its schema before it is written and after it
-is read.
-
-Loading with other tools: the folder holds dataset.json next to the Parquet files, so plain folder readers must
-skip it (:data:`IGNORE_PREFIXES`), and pandas, which types hive keys as dictionaries, needs the stored schema::
-
-    pyarrow.dataset.dataset(root, format="parquet", partitioning="hive", ignore_prefixes=IGNORE_PREFIXES)
-    pandas.read_parquet(root, schema=pq.read_schema(root / "_common_metadata"), ignore_prefixes=IGNORE_PREFIXES)
+a plain file write by default), take files first, then the side files, ``_dataset.json`` last, so it always
+describes complete take files. The engine's streaming build stages take files as they are built
+(:class:`StagedDatasetWriter`) and publishes them only when the whole dataset built; a take file whose bytes are
+unchanged is left as it is. Take files of an earlier build that are no longer part of the dataset are removed
+afterwards. Every table is checked against its schema before it is written and after it is read.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -34,15 +41,21 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from gazepipe.errors import InputError, SchemaError
+from gazepipe.io.dataset_card import card_text, hf_yaml
 from gazepipe.io.parquet import WRITE_OPTIONS, read_table
 from gazepipe.schemas.base import attach_meta, check_table
 from gazepipe.schemas.datasets import dataset_schema
 
 WriteBytes = Callable[[Path, bytes], None]
-INFO_NAME = "dataset.json"
+INFO_NAME = "_dataset.json"
+CARD_NAME = "_README.md"
+HF_CONFIG = ".huggingface.yaml"
 COMMON_METADATA = "_common_metadata"
-#: file-name prefixes a folder reader must skip in a dataset folder (pyarrow's defaults plus dataset.json)
-IGNORE_PREFIXES = [".", "_", INFO_NAME]
+SPLITS = ("train", "val", "test")
+#: names of an earlier layout, removed when a dataset is written again
+_OLD_NAMES = ("dataset.json",)
+#: a take key: (session, take)
+TakeKey = tuple[str, str]
 
 
 def _plain_write(path: Path, data: bytes) -> None:
@@ -50,11 +63,31 @@ def _plain_write(path: Path, data: bytes) -> None:
     path.write_bytes(data)
 
 
-def take_path(subject: str, pose: str, take: str) -> Path:
-    """Relative path of a take's file: ``subject=<s>/pose=<p>/take=<t>.parquet`` (values URI-encoded, as
-    pyarrow's hive partitioning decodes them)."""
-    return Path(f"subject={quote(subject, safe='')}") / f"pose={quote(pose, safe='')}" / \
-        f"take={quote(take, safe='')}.parquet"
+def _name(value: str) -> str:
+    """A path component for an id: URI-encoded, a leading "_" or "." too (readers skip such names)."""
+    enc = quote(value, safe="")
+    return "%" + format(ord(enc[0]), "02X") + enc[1:] if enc[:1] in ("_", ".") else enc
+
+
+def take_path(split: str, session: str, take: str) -> Path:
+    """Relative path of a take's file: ``<split>/<session>/<take>.parquet``."""
+    if split not in SPLITS:
+        raise SchemaError(None, f"split {split!r} is not one of {', '.join(SPLITS)}")
+    return Path(split) / _name(session) / f"{_name(take)}.parquet"
+
+
+def take_files(root: str | Path) -> list[Path]:
+    """The take files of a dataset folder, in path order (split, session, take)."""
+    root = Path(root)
+    return sorted(p for s in SPLITS for p in (root / s).glob("*/*.parquet"))
+
+
+def table_split(table: pa.Table) -> str:
+    """The one ``split`` value of a take's table."""
+    values = table.column("split").unique().to_pylist()
+    if len(values) != 1:
+        raise SchemaError(None, f"a take's table holds splits {sorted(values)}, expected one")
+    return str(values[0])
 
 
 def table_bytes(table: pa.Table) -> bytes:
@@ -72,7 +105,7 @@ def schema_bytes(schema: pa.Schema) -> bytes:
 
 
 def info_bytes(info: dict[str, Any]) -> bytes:
-    """dataset.json bytes: sorted keys, floats as Python's shortest round-trip repr, no NaN."""
+    """``_dataset.json`` bytes: sorted keys, floats as Python's shortest round-trip repr, no NaN."""
     try:
         text = json.dumps(info, indent=1, sort_keys=True, allow_nan=False, ensure_ascii=False)
     except ValueError as exc:
@@ -97,13 +130,13 @@ def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | Non
         write, creating folders).
 
     Returns the paths written, in writing order. Stale take files (from an earlier build, not in ``built``) are
-    deleted after dataset.json is written.
+    deleted after ``_dataset.json`` is written.
     """
     write = write_bytes or _plain_write
     root = Path(datasets_dir) / built.name
     written: list[Path] = []
-    for (subject, pose, take), table in sorted(built.tables.items()):
-        path = root / take_path(subject, pose, take)
+    for (session, take), table in sorted(built.tables.items()):
+        path = root / take_path(table_split(table), session, take)
         check_table(table, built.schema, path=str(path))
         write(path, table_bytes(table))
         written.append(path)
@@ -114,9 +147,9 @@ class StagedDatasetWriter:
     """Writes a dataset's take files as a streaming build emits them (:data:`gazepipe.stages.build.stage.TakeSink`).
 
     Take files go to ``staging`` (a folder on the same file system, e.g. under ``OUT/.gazepipe/tmp``), each
-    fsynced; :meth:`commit` renames them into ``datasets_dir/<name>`` and then writes ``_common_metadata`` and
-    dataset.json with ``write_bytes``; :meth:`abort` deletes the staging folder. A build that fails half-way
-    therefore leaves the published dataset as it was.
+    fsynced; :meth:`commit` renames them into ``datasets_dir/<name>`` (leaving a published file whose bytes are
+    the same untouched) and then writes the side files and ``_dataset.json`` with ``write_bytes``; :meth:`abort`
+    deletes the staging folder. A build that fails half-way therefore leaves the published dataset as it was.
     """
 
     def __init__(self, datasets_dir: str | Path, name: str, staging: str | Path,
@@ -124,24 +157,29 @@ class StagedDatasetWriter:
         self.root = Path(datasets_dir) / name
         self.staging = Path(staging)
         self.write = write_bytes or _plain_write
-        self.staged: dict[Path, Path] = {}     # final path -> staged file (a take emitted again replaces it)
+        self.staged: dict[TakeKey, tuple[Path, Path]] = {}   # take -> (final path, staged file)
 
-    def __call__(self, key: tuple[str, str, str], table: pa.Table) -> None:
-        rel = take_path(*key)
+    def __call__(self, key: TakeKey, table: pa.Table) -> None:
+        """Stage one take's table; a take emitted again (moved to another split) replaces its earlier file."""
+        rel = take_path(table_split(table), *key)
+        if key in self.staged:
+            self.staged.pop(key)[1].unlink(missing_ok=True)
         tmp = self.staging / rel
         tmp.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "wb") as fh:
             fh.write(table_bytes(table))
             fh.flush()
             os.fsync(fh.fileno())
-        self.staged[self.root / rel] = tmp
+        self.staged[key] = (self.root / rel, tmp)
 
     def commit(self, built) -> list[Path]:
-        """Publish the staged take files, then the schema file and dataset.json of ``built``; the paths written."""
+        """Publish the staged take files, then the side files and ``_dataset.json`` of ``built``; the paths
+        written (take files whose published bytes were already the same are kept as they are, and listed)."""
         written: list[Path] = []
-        for final, tmp in sorted(self.staged.items()):
-            final.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(tmp, final)
+        for final, tmp in sorted(self.staged.values()):
+            if not _same_bytes(final, tmp):
+                final.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(tmp, final)
             written.append(final)
         self.abort()
         return _finish(self.root, built, written, self.write)
@@ -150,31 +188,53 @@ class StagedDatasetWriter:
         shutil.rmtree(self.staging, ignore_errors=True)
 
 
+def _same_bytes(a: Path, b: Path) -> bool:
+    try:
+        return a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes()
+    except OSError:
+        return False
+
+
 def _finish(root: Path, built, written: list[Path], write: WriteBytes) -> list[Path]:
-    """Write ``_common_metadata`` and dataset.json after the take files, then delete stale take files."""
-    write(root / COMMON_METADATA, schema_bytes(stored_schema(built)))
-    written.append(root / COMMON_METADATA)
-    write(root / INFO_NAME, info_bytes(built.info))
-    written.append(root / INFO_NAME)
+    """Write the side files and ``_dataset.json`` after the take files, then delete stale take files (and the
+    files of an earlier layout)."""
+    files = {split: [p for p in written if p.parent.parent.name == split] for split in SPLITS}
+    rows = {split: int(built.info.get("counts", {}).get("by_split", {}).get(split, {}).get("rows", 0))
+            for split in SPLITS}
+    fingerprint = hashlib.sha256(b"".join(hashlib.sha256(p.read_bytes()).digest() for p in sorted(written))
+                                 ).hexdigest()
+    yaml = hf_yaml(built.name, {s: (rows[s], sum(p.stat().st_size for p in files[s])) for s in SPLITS},
+                   fingerprint)
+    for name, data in ((COMMON_METADATA, schema_bytes(stored_schema(built))),
+                       (HF_CONFIG, yaml.encode()),
+                       (CARD_NAME, card_text(built.info, yaml).encode()),
+                       (INFO_NAME, info_bytes(built.info))):
+        write(root / name, data)
+        written.append(root / name)
     keep = set(written)
-    for old in sorted(root.glob("subject=*/pose=*/take=*.parquet")):
+    for old in take_files(root):
         if old not in keep:
             old.unlink(missing_ok=True)
-    for d in sorted(root.glob("subject=*/pose=*"), reverse=True) + sorted(root.glob("subject=*"), reverse=True):
-        if d.is_dir() and not any(d.iterdir()):
-            d.rmdir()
+    for name in _OLD_NAMES:
+        (root / name).unlink(missing_ok=True)
+    for old in sorted(root.glob("subject=*")):       # an earlier, hive-partitioned layout
+        shutil.rmtree(old, ignore_errors=True)
+    for split in SPLITS:
+        for d in sorted((root / split).glob("*")) + [root / split]:
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
     return written
 
 
 def open_dataset(dataset_dir: str | Path):
-    """The dataset folder as a ``pyarrow.dataset.Dataset`` (hive partitioning, dataset.json skipped)."""
+    """The dataset folder as a ``pyarrow.dataset.Dataset`` (the side files are skipped by their names)."""
     import pyarrow.dataset as ds
 
-    return ds.dataset(str(dataset_dir), format="parquet", partitioning="hive", ignore_prefixes=IGNORE_PREFIXES)
+    return ds.dataset(str(dataset_dir), format="parquet")
 
 
 def read_info(dataset_dir: str | Path) -> dict[str, Any]:
-    """dataset.json of a dataset folder."""
+    """``_dataset.json`` of a dataset folder."""
     path = Path(dataset_dir) / INFO_NAME
     try:
         info = json.loads(path.read_text(encoding="utf-8"))
@@ -209,7 +269,7 @@ def _check_info(info: Any, path: Path) -> None:
 
 
 def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.Schema:
-    """The schema a dataset's files must match, rebuilt in code from dataset.json's name and sizes."""
+    """The schema a dataset's files must match, rebuilt in code from ``_dataset.json``'s name and sizes."""
     try:
         return dataset_schema(str(info.get("name")), dict(info.get("sizes", {})))
     except SchemaError as exc:
@@ -217,11 +277,11 @@ def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.
 
 
 def read_take(path: str | Path, schema: pa.Schema) -> pa.Table:
-    """Read one take file, check it against ``schema`` and its identifiers against its folder names."""
+    """Read one take file, check it against ``schema`` and its identifiers against its path
+    (``<split>/<session>/<take>.parquet``)."""
     path = Path(path)
     table = read_table(path, schema)
-    parts = {p.split("=", 1)[0]: unquote(p.split("=", 1)[1]) for p in (path.parent.parent.name,
-                                                                      path.parent.name, path.stem)}
+    parts = {"split": path.parent.parent.name, "session": unquote(path.parent.name), "take": unquote(path.stem)}
     for col, want in parts.items():
         got = set(table.column(col).unique().to_pylist())
         if table.num_rows and got != {want}:
@@ -232,8 +292,8 @@ def read_take(path: str | Path, schema: pa.Schema) -> pa.Table:
 def read_dataset(dataset_dir: str | Path) -> tuple[pa.Table, dict[str, Any]]:
     """Read a whole dataset folder with schema checks: (all take files concatenated in path order, info).
 
-    Checks ``_common_metadata`` and every take file against the schema rebuilt from dataset.json, and that the
-    take files are exactly the ones dataset.json counts.
+    Checks ``_common_metadata`` and every take file against the schema rebuilt from ``_dataset.json``, and that
+    the take files are exactly the ones it counts.
     """
     root = Path(dataset_dir)
     info = read_info(root)
@@ -244,9 +304,9 @@ def read_dataset(dataset_dir: str | Path) -> tuple[pa.Table, dict[str, Any]]:
         raise InputError(root / COMMON_METADATA, f"missing or unreadable ({exc})") from None
     check_table(pa.table({f.name: pa.array([], f.type) for f in common}, schema=common), schema,
                 path=str(root / COMMON_METADATA))
-    files = sorted(root.glob("subject=*/pose=*/take=*.parquet"))
+    files = take_files(root)
     n_takes = int(info.get("counts", {}).get("takes", -1))
     if len(files) != n_takes:
-        raise SchemaError(str(root), f"{len(files)} take files, dataset.json counts {n_takes}")
+        raise SchemaError(str(root), f"{len(files)} take files, {INFO_NAME} counts {n_takes}")
     tables = [read_take(f, schema) for f in files]
     return pa.concat_tables(tables) if tables else schema.empty_table(), info

@@ -159,8 +159,19 @@ def _probe(layout: OutLayout, e: TakeEntry, name: str, tables: TakeTables) -> No
         tables.errors[name] = f"{path}: {type(exc).__name__}: {exc}"
 
 
-def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True) -> TakeTables:
-    """Read the take's markers_raw, markers, eyes and sync tables (whichever exist).
+#: the take tables the plots draw from (the raw markers: gaps, speed, clapper; the eyes: confidence)
+PLOT_TABLES = ("markers_raw", "eyes")
+
+
+def has_plot_tables(layout: OutLayout, e: TakeEntry) -> bool:
+    """Whether the take has a table the plots draw from (a face take, or one whose ingest failed, has none)."""
+    return any(layout.table(e.session, e.take, name).exists() for name in PLOT_TABLES)
+
+
+def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
+                     only: tuple[str, ...] | None = None) -> TakeTables:
+    """Read the take's markers_raw, markers, eyes and sync tables (whichever exist; with ``only``, just those:
+    :data:`PLOT_TABLES` for the plots).
 
     With ``arrays=False`` (what the checks need) only the cleaned markers are decoded, for their fill codes; the
     other tables are probed (footer and schema) so an unreadable one is still reported.
@@ -180,20 +191,21 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True) ->
             except Exception as exc:
                 out.errors["markers"] = f"{path}: {type(exc).__name__}: {exc}"
         return out
-    t = _read(layout, e, "markers_raw", out)
+    wanted = set(only) if only is not None else {"markers_raw", "markers", "eyes", "sync"}
+    t = _read(layout, e, "markers_raw", out) if "markers_raw" in wanted else None
     if t is not None:
         out.raw = table_to_markers(t)[0]
-    t = _read(layout, e, "markers", out)
+    t = _read(layout, e, "markers", out) if "markers" in wanted else None
     if t is not None:
         m, frames, fill, _ = table_to_markers(t)
         out.fill, out.fill_labels, out.kept_frames = fill, list(m.labels), frames
-    t = _read(layout, e, "eyes", out)
+    t = _read(layout, e, "eyes", out) if "eyes" in wanted else None
     if t is not None:
         out.eyes = {"time_s": t.column("time_s").to_numpy(), "frame": t.column("frame").to_numpy(),
                     "valid": t.column("valid").to_numpy(zero_copy_only=False),
                     "filled": t.column("filled").to_numpy(zero_copy_only=False),
                     "confidence": t.column("confidence").to_numpy(zero_copy_only=False).astype(np.float64)}
-    t = _read(layout, e, "sync", out)
+    t = _read(layout, e, "sync", out) if "sync" in wanted else None
     if t is not None:
         out.sync = {c: t.column(c).to_numpy() for c in t.column_names}
     return out
@@ -257,7 +269,7 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     """Read dataset.json, ``_common_metadata`` and every take file's identifiers; sample the training rows."""
     from urllib.parse import unquote
 
-    from gazepipe.io.datasets import COMMON_METADATA, read_info
+    from gazepipe.io.datasets import COMMON_METADATA, read_info, take_files
     from gazepipe.io.datasets import expected_schema as ds_schema
 
     d = DatasetData(path.name)
@@ -278,22 +290,22 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     # pass 1: identifiers only (split, session) of every take file; pass 2 reads the feature columns of one file
     # at a time and keeps only the sampled rows, so memory holds one take whatever the dataset's size
     readable: list[tuple[Path, str, int, np.ndarray]] = []   # file, pose, rows, positions of training rows
-    for f in sorted(path.glob("subject=*/pose=*/take=*.parquet")):
+    for f in take_files(path):
         rel = str(f.relative_to(path))
-        parts = {p.split("=", 1)[0]: unquote(p.split("=", 1)[1]) for p in (f.parent.parent.name, f.parent.name,
-                                                                          f.stem)}
-        facts = FileFacts(rel, parts.get("subject", ""), parts.get("pose", ""), parts.get("take", ""))
+        facts = FileFacts(rel, session=unquote(f.parent.name), take=unquote(f.stem), folder=f.parent.parent.name)
         try:
             pf = pq.ParquetFile(str(f))
             names = pf.schema_arrow.names
             facts.schema_hash = schema_hash(pf.schema_arrow)
-            ident = pf.read(columns=[c for c in ("split", "session") if c in names])
+            ident = pf.read(columns=[c for c in ("split", "session", "take", "subject", "pose") if c in names])
             split = np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str) \
                 if "split" in ident.column_names else np.zeros(0, str)
             for sp, n in zip(*np.unique(split, return_counts=True), strict=True):
                 facts.rows_by_split[str(sp)] = int(n)
-            if "session" in ident.column_names and ident.num_rows:
-                facts.session = str(ident.column("session")[0].as_py())
+            for col in ("session", "take", "subject", "pose"):
+                values = ident.column(col).unique().to_pylist() if col in ident.column_names else []
+                if len(values) == 1:
+                    setattr(facts, col if col in ("subject", "pose") else f"{col}_column", str(values[0]))
             if all(c in names for c in feature_cols):
                 readable.append((f, facts.pose, pf.metadata.num_rows, np.flatnonzero(split == "train")))
         except (OSError, pa.ArrowException) as exc:
@@ -302,7 +314,7 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
         d.files.append(facts)
         splits = [s for s, n in facts.rows_by_split.items() if n]
         if len(splits) == 1:
-            d.take_splits[f"{facts.subject}/{facts.take}"] = splits[0]
+            d.take_splits[f"{facts.session}/{facts.take}"] = splits[0]
     if readable:
         train_pick = _choose([(pose, len(tr)) for _, pose, _, tr in readable], th)
         all_pick = _choose([(pose, n) for _, pose, n, _ in readable], th)

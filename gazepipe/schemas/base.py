@@ -27,6 +27,30 @@ def with_identity(schema: pa.Schema, name: str, version: int) -> pa.Schema:
     return schema.with_metadata(md)
 
 
+#: field-metadata key of a list column's element names (a JSON list: one name per value, in order)
+ELEMENTS_KEY = b"gazepipe.elements"
+
+
+def with_element_names(schema: pa.Schema, names: dict[str, list[str]]) -> pa.Schema:
+    """``schema`` with each fixed-size list column named in ``names`` carrying its element names in its field
+    metadata (:data:`ELEMENTS_KEY`), so a reader of the file alone knows what each value is."""
+    fields = []
+    for f in schema:
+        elems = names.get(f.name)
+        if elems is not None and pa.types.is_fixed_size_list(f.type):
+            if len(elems) != f.type.list_size:
+                raise SchemaError(None, f"column {f.name!r} holds {f.type.list_size} values, {len(elems)} names given")
+            f = f.with_metadata({**(f.metadata or {}), ELEMENTS_KEY: json.dumps(list(elems)).encode()})
+        fields.append(f)
+    return pa.schema(fields, metadata=schema.metadata)
+
+
+def element_names(field: pa.Field) -> list[str] | None:
+    """The element names a list column's field carries (:func:`with_element_names`), or None."""
+    raw = (field.metadata or {}).get(ELEMENTS_KEY)
+    return json.loads(raw) if raw else None
+
+
 def attach_meta(table: pa.Table, meta: dict[str, Any]) -> pa.Table:
     """Store ``meta`` (JSON-able, keys sorted so bytes are stable) in the table's schema metadata."""
     md = dict(table.schema.metadata or {})

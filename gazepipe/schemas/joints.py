@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.schemas.base import attach_meta, read_meta, with_identity
+from gazepipe.schemas.base import attach_meta, read_meta, with_element_names, with_identity
 
 #: 2 added ``rot_filled``
 SCHEMA_VERSION = 2
@@ -75,11 +75,21 @@ def joints_to_table(joints, frames: np.ndarray, meta: dict[str, Any] | None = No
             (np.zeros((n, s), dtype=bool) if getattr(joints, "rot_filled", None) is None
              else np.asarray(joints.rot_filled, dtype=bool)).reshape(-1)), s),
     }
-    table = pa.Table.from_pydict(cols, schema=joints_schema(s))
+    table = pa.Table.from_pydict(cols, schema=with_element_names(joints_schema(s), element_names(joints.segments)))
     info = {"segments": list(joints.segments), "parents": [int(p) for p in joints.parents],
             "rate_hz": float(joints.rate_hz), "first_frame": int(joints.first_frame)}
     info.update(meta or {})
     return attach_meta(table, info)
+
+
+def element_names(segments: list[str]) -> dict[str, list[str]]:
+    """The element names of the joints table's list columns, e.g. ``pelvis.w``, ``pelvis.fwd.x``, ``x``."""
+    segs = list(segments)
+    return {"quat": [f"{g}.{c}" for g in segs for c in "wxyz"],
+            "quat_local": [f"{g}.{c}" for g in segs for c in "wxyz"],
+            "six": [f"{g}.{a}.{c}" for g in segs for a in ("fwd", "up") for c in "xyz"],
+            "head_centre": list("xyz"), "target_dir": list("xyz"), "char_origin": list("xyz"),
+            "char_rot": list("wxyz"), "rot_filled": segs}
 
 
 def joints_arrays(table: pa.Table) -> dict[str, Any]:

@@ -103,8 +103,8 @@ class FaceCleanTrainer:
         "dropout": "dropout after the LSTM (default 0.3)",
         "w_der": "weight of the derivative loss (default 0.01)",
         "batch": "chunks per minibatch (default 64)",
-        "window": "frames per chunk (default dataset.json's, 200)",
-        "stride": "step between chunks (default dataset.json's, 50)",
+        "window": "frames per chunk (default _dataset.json's, 200)",
+        "stride": "step between chunks (default _dataset.json's, 50)",
         "max_windows": "use at most this many training chunks (seeded subset; default all)",
         "threads": "torch CPU threads (default torch's)",
     }

@@ -99,8 +99,8 @@ class GazeRnnTrainer:
     options = {
         "l2": "L2 weight-decay coefficient (default 8e-5; 1e-4 for gaze_rnn_lod)",
         "batch": "windows per minibatch (default 64)",
-        "window": "frames per window (default dataset.json's, 120)",
-        "stride": "step between windows (default dataset.json's)",
+        "window": "frames per window (default _dataset.json's, 120)",
+        "stride": "step between windows (default _dataset.json's)",
         "max_windows": "use at most this many training windows (seeded subset; default all)",
         "threads": "torch CPU threads (default torch's)",
         "residual": "output = previous pose + network output (Klein 8.2's residual variant; default false)",

@@ -2,13 +2,13 @@
 
 Takes: the per-take tables each dataset needs (``gaze_rnn``: joints and eyes; ``gaze_rnn_lod``: joints;
 ``gaze_map``: joints and the cleaned markers' rest periods; ``face_clean``: face). Gives: per dataset, one table
-per take (rows with identifier columns, the take's split, mirrored copies) and the ``dataset.json`` object
+per take (rows with identifier columns, the take's split, mirrored copies) and the ``_dataset.json`` object
 (feature names, training statistics overall and per pose, counts, input hashes, parameters). Records: the takes
-left out and why, and the counts, in ``dataset.json`` and the dataset's run record.
+left out and why, and the counts, in ``_dataset.json`` and the dataset's run record.
 
 Read top-down: :mod:`.stage` (:func:`build_dataset`) takes each take in turn through :mod:`.gaze` (rows of the
 gaze datasets) or :mod:`.face` (rows of face_clean), :mod:`.mirror` (the mirrored copies), :mod:`.splits`
-(take-disjoint train / val / test) and :mod:`.summary` (dataset.json, accumulated one take at a time).
+(take-disjoint train / val / test) and :mod:`.summary` (_dataset.json, accumulated one take at a time).
 """
 
 from gazepipe.stages import lazy_exports

@@ -1,7 +1,7 @@
 """The ``build`` stage (SPEC §3.6, §4): the training datasets ``gaze_rnn``, ``gaze_rnn_lod``, ``gaze_map`` and
 ``face_clean`` from every take's per-take tables.
 
-:func:`build_dataset` is pure: per-take Arrow tables in, per-take dataset tables and the ``dataset.json``
+:func:`build_dataset` is pure: per-take Arrow tables in, per-take dataset tables and the ``_dataset.json``
 object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
 
 - take-disjoint splits (:mod:`gazepipe.stages.build.splits`): a take's rows, mirrored copies included, all go to
@@ -11,13 +11,14 @@ object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
   rows only, mirrored training rows included, overall and per pose; at least one training take is required.
 
 A take that cannot give rows (no eyes for gaze_rnn, missing rests for gaze_map, …) is left out and listed
-under ``skipped`` in dataset.json with the reason; the other takes still build.
+under ``skipped`` in _dataset.json with the reason; the other takes still build.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -27,7 +28,7 @@ import pyarrow as pa
 
 from gazepipe.errors import GazepipeError, StageError
 from gazepipe.model import MarkerSet, Take
-from gazepipe.schemas.base import attach_meta, check_table, read_meta
+from gazepipe.schemas.base import attach_meta, check_table, read_meta, with_element_names
 from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
 from gazepipe.stages.build.splits import assign_split, check_fractions, rebalance
@@ -50,7 +51,7 @@ class BuildParams:
     split_salt : prefix of the hashed ``<session>/<take>``; change it to draw another deterministic split.
     mirror : add a mirrored copy of every row (Klein 6.2).
     rnn_window, rnn_stride : frames per training sequence and step between sequences for gaze_rnn trainers
-        (Klein 6.2: 120 frames = 4 s), written to dataset.json.
+        (Klein 6.2: 120 frames = 4 s), written to _dataset.json.
     face_window, face_stride : the same for face_clean (Berson 4.1: 200-frame chunks, overlap 150).
     start_speed_deg_s : gaze_map start-time threshold on parent-relative angular speed (Pejsa: 18°/s).
     start_filter_hz : −3 dB frequency (Hz) of the zero-phase Gaussian low-pass applied to the parent-relative
@@ -131,8 +132,9 @@ class TakeTables:
     loader: Callable[[], dict[str, Any]] | None = None
 
     @property
-    def key(self) -> tuple[str, str, str]:
-        return (self.subject, self.take.pose, self.take.id)
+    def key(self) -> tuple[str, str]:
+        """The take's identity: (session, take id); one subject may have the same take ids in several sessions."""
+        return (self.session, self.take.id)
 
     def loaded(self) -> TakeTables:
         """This take with its tables loaded (itself when there is no ``loader``)."""
@@ -143,17 +145,18 @@ class TakeTables:
         return dataclasses.replace(self, loader=None, meta=meta, **got)
 
 
-#: receives each take's dataset table as soon as it is built: ``sink((subject, pose, take), table)``
-TakeSink = Callable[[tuple[str, str, str], pa.Table], None]
+#: receives each take's dataset table as soon as it is built: ``sink((session, take), table)``; a take moved to
+#: another split afterwards is emitted again
+TakeSink = Callable[[tuple[str, str], pa.Table], None]
 
 
 @dataclass
 class BuiltDataset:
-    """A built dataset: per-take tables keyed by (subject, pose, take) (empty when they went to a sink), the
-    dataset.json object, the schema."""
+    """A built dataset: per-take tables keyed by (session, take) (empty when they went to a sink), the
+    ``_dataset.json`` object, the schema."""
 
     name: str
-    tables: dict[tuple[str, str, str], pa.Table]
+    tables: dict[tuple[str, str], pa.Table]
     info: dict[str, Any]
     schema: pa.Schema
 
@@ -311,14 +314,14 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
                   sink: TakeSink | None = None) -> BuiltDataset:
     """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables.
 
-    Takes are processed one at a time in (subject, pose, take) order: a take with a ``loader`` is loaded when
+    Takes are processed one at a time in (session, take) order: a take with a ``loader`` is loaded when
     its turn comes, its table goes to ``sink(key, table)`` as soon as it is built (and is then dropped), and
-    dataset.json is summarised as it goes, so memory holds one take whatever the dataset's size. Without a
+    _dataset.json is summarised as it goes, so memory holds one take whatever the dataset's size. Without a
     ``sink`` the tables are kept in :attr:`BuiltDataset.tables`.
 
     Takes of other kinds are ignored; a take that cannot give rows is skipped and listed in
     ``info["skipped"]``. Raises :class:`StageError` for an unknown dataset, two takes with the same
-    (subject, pose, take id), no usable take, or no training take (statistics need one); the sink may already
+    (session, take id), no usable take, or no training take (statistics need one); the sink may already
     have received tables then.
     """
     params = params or BuildParams()
@@ -326,22 +329,19 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
         raise StageError(_where(name), f"unknown dataset (known: {', '.join(DATASETS)})")
     check_fractions(params.train_frac, params.val_frac)
     kind = KINDS[name]
-    mine = sorted((t for t in takes if t.take.kind == kind), key=lambda t: (t.key, t.session))
+    mine = sorted((t for t in takes if t.take.kind == kind), key=lambda t: t.key)
     if not mine:
         raise StageError(_where(name), f"no {kind} takes to build from")
-    seen: dict[tuple[str, str, str], str] = {}
-    for t in mine:
-        if t.key in seen:
-            raise StageError(_where(name), f"take {t.take.id!r} of subject {t.subject!r} appears in sessions "
-                                           f"{seen[t.key]!r} and {t.session!r}; take ids must be unique per subject")
-        seen[t.key] = t.session
+    twice = sorted(k for k, c in Counter(t.key for t in mine).items() if c > 1)
+    if twice:
+        raise StageError(_where(name), f"take {twice[0][1]!r} of session {twice[0][0]!r} is given twice")
 
     ctx = _Context(name=name, params=params)
     build = {"gaze_rnn": _rnn, "gaze_rnn_lod": _rnn, "gaze_map": _gaze_map, "face_clean": _face}[name]
     window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
                       "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
                       "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
-    kept: dict[tuple[str, str, str], pa.Table] = {}
+    kept: dict[tuple[str, str], pa.Table] = {}
     emit = sink or kept.__setitem__
     skipped: list[dict[str, str]] = []
     schema: pa.Schema | None = None
@@ -360,7 +360,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
         split = assign_split(f"{t.session}/{t.take.id}", t.take.split, params.train_frac, params.val_frac,
                              params.split_salt)
         if schema is None:
-            schema = dataset_schema(name, ctx.sizes)
+            schema = with_element_names(dataset_schema(name, ctx.sizes), ctx.names)
             summary = DatasetSummary(name, feature_columns(schema), window)
         mirrored = _mirror(name, rows, ctx) if params.mirror else None
         table = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
@@ -390,7 +390,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
 
 
 def _input_hashes(t: TakeTables, name: str) -> dict[str, str]:
-    """The take's input hashes for dataset.json: those given, plus a content hash of every table not given."""
+    """The take's input hashes for _dataset.json: those given, plus a content hash of every table not given."""
     hashes = dict(t.hashes)
     for tname in ("joints", "eyes", "face"):
         tab = getattr(t, tname)

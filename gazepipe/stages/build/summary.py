@@ -1,4 +1,4 @@
-"""The ``dataset.json`` object of a built dataset, accumulated one take at a time.
+"""The ``_dataset.json`` object of a built dataset, accumulated one take at a time.
 
 :class:`DatasetSummary` is fed each take's table as the build emits it and keeps only small facts (counts, the
 take's QC, its input hashes, segment lengths) and running statistics, so a dataset of any size is summarised in
@@ -102,7 +102,7 @@ class _Take:
 
 @dataclass
 class DatasetSummary:
-    """Facts of a dataset gathered take by take (see :meth:`add_take`), turned into dataset.json by :meth:`info`."""
+    """Facts of a dataset gathered take by take (see :meth:`add_take`), turned into _dataset.json by :meth:`info`."""
 
     name: str
     columns: list[str]
@@ -188,7 +188,7 @@ class DatasetSummary:
     def info(self, *, params: dict[str, Any], names: dict[str, list[str]], sizes: dict[str, int], fps: list[float],
              stride: int | None, mirror: bool, salt: str, train_frac: float, val_frac: float,
              skipped: list[dict[str, str]]) -> dict[str, Any]:
-        """The dataset.json object."""
+        """The _dataset.json object."""
         warnings = [f"take {k} moved from {a} to {b}: {why}" for k, a, b, why in self.moves]
         pinned_only = all(t.pinned for t in self.takes.values())
         for s in SPLITS:
@@ -207,6 +207,7 @@ class DatasetSummary:
             counts["segments"] = int(sum(len(v) for v in lengths))
             counts["segments_with_a_window"] = int(sum(int((v >= w).sum()) for v in lengths))
             counts["rows_in_segments_with_a_window"] = int(sum(int(v[v >= w].sum()) for v in lengths))
+            counts["rows_in_segments"] = int(sum(int(v.sum()) for v in lengths))    # mirrored copies not counted
         if self.dropped:
             counts["dropped_frames"] = dict(self.dropped)
         counts["per_take"] = self.per_take
