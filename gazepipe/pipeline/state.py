@@ -8,7 +8,9 @@ Layout::
     OUT/.gazepipe/hashes.json                        input hash cache
     OUT/.gazepipe/runs/<run id>.json                 what each run did
     OUT/.gazepipe/tmp/                               temporaries of atomic writes
-    OUT/.gazepipe/lock                               the output folder's lock
+    OUT/.gazepipe/datasets/<name>.json               dataset build records
+    OUT/.gazepipe/report_plots/                      the QC report's figures, reused while their inputs hold
+    OUT/.gazepipe/lock                               the output folder's lock (pid and start of the run holding it)
 """
 
 from __future__ import annotations
