@@ -140,17 +140,17 @@ def test_every_stage_uses_the_shared_geometry_and_nothing_else_defines_it():
 #: package's own ``__init__`` (its version)
 MAY_IMPORT = {
     "stages": {"model", "schemas", "io", "arkit", "timebase", "errors", "gazepipe"},
-    "pipeline": {"errors", "gazepipe"},
+    "pipeline": {"errors", "durable", "gazepipe"},
     "dag": {"pipeline", "stages", "io", "schemas", "model", "arkit", "timebase", "errors", "gazepipe"},
     "io": {"model", "schemas", "arkit", "timebase", "errors"},
     "schemas": {"model", "errors"},
     "report": {"dag", "pipeline", "io", "schemas", "stages", "model", "errors", "gazepipe"},
     "cli": None,   # anything
-    "trainers": {"datasets", "errors", "gazepipe"},
+    "trainers": {"datasets", "errors", "durable", "gazepipe"},
     "synth": {"arkit"},
     "model": {"timebase"},
     "datasets": {"io", "schemas", "errors"},
-    "arkit": set(), "timebase": set(), "errors": set(), "__main__": {"cli"}, "gazepipe": set(),
+    "arkit": set(), "timebase": set(), "errors": set(), "durable": set(), "__main__": {"cli"}, "gazepipe": set(),
 }
 
 

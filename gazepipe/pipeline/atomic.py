@@ -8,24 +8,12 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+from gazepipe.durable import fsync_dir, temporary_name
+
 TMP_DIRNAME = "tmp"
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -39,7 +27,7 @@ def atomic_path(final: str | Path, tmp_dir: str | Path, suffix: str = "") -> Ite
     final = Path(final)
     tmp_dir = Path(tmp_dir)
     tmp_dir.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_dir / f".{final.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part{suffix}"
+    tmp = temporary_name(final, tmp_dir, suffix)
     try:
         yield tmp
         with open(tmp, "rb+") as fh:
@@ -47,7 +35,7 @@ def atomic_path(final: str | Path, tmp_dir: str | Path, suffix: str = "") -> Ite
             os.fsync(fh.fileno())
         final.parent.mkdir(parents=True, exist_ok=True)
         os.replace(tmp, final)
-        _fsync_dir(final.parent)
+        fsync_dir(final.parent)
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()

@@ -15,8 +15,6 @@ from __future__ import annotations
 import importlib
 import io
 import json
-import os
-import uuid
 import zipfile
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -26,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from gazepipe import __version__
+from gazepipe.durable import write_bytes_atomic
 from gazepipe.errors import ConfigError
 
 GROUP = "gazepipe.trainers"
@@ -152,39 +151,9 @@ def check_options(trainer: Trainer, options: TrainOptions) -> None:
 # ------------------------------------------------------------------------------------------- saving models
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically, as the pipeline writes its outputs
-    (:func:`gazepipe.pipeline.atomic.atomic_path`, which trainers may not import): a temporary file in the same
-    folder, fsynced, renamed into place, the folder fsynced.
-
-    The file gets mode 0666 less the umask (0644 under the usual 022), like every other output: the temporary
-    file is created with ``open``, not ``mkstemp`` (whose 0600 the rename would keep).
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.parent / f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part"
-    try:
-        with open(tmp, "xb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-        _fsync_dir(path.parent)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make a rename in ``path`` durable (best effort: some file systems refuse)."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+    """Write ``data`` to ``path`` atomically, mode 0666 less the umask, as the pipeline writes its outputs
+    (:func:`gazepipe.durable.write_bytes_atomic`)."""
+    write_bytes_atomic(path, data)
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
