@@ -145,7 +145,7 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     import pandas as pd
     import pyarrow.parquet as pq
 
-    from gazepipe.io.parquet import WRITE_OPTIONS
+    from gazepipe.io.parquet import write_options
 
     c3d = sorted(p for s in sessions for p in (s / "mocap").glob("*.c3d"))
     csvs = sorted(p for s in sessions for sub in ("eyes", "face") for p in (s / sub).glob("*.csv"))
@@ -166,7 +166,7 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     n_bytes = 0
     for i, t in enumerate(tables):
         dest = sink / f"{i}.parquet"
-        pq.write_table(t, dest, **WRITE_OPTIONS)
+        pq.write_table(t, dest, **write_options(t.schema))
         n_bytes += dest.stat().st_size
     t_write = time.perf_counter() - t0
     shutil.rmtree(sink)

@@ -29,7 +29,7 @@ import pytest
 
 from gazepipe.cli.common import load_sessions
 from gazepipe.dag import run_pipeline
-from gazepipe.io.parquet import WRITE_OPTIONS
+from gazepipe.io.parquet import write_options
 from gazepipe.pipeline.events import EventLog
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.session import DEFAULT_SHIFTS
@@ -365,7 +365,7 @@ def test_fuzz_parquet_tables_read_back(tmp_path, pipeline_out):
         else:
             changed = _parquet_variants(pq.read_table(src), rng) if i % 2 else None
             if changed is not None:
-                pq.write_table(changed, dest, **WRITE_OPTIONS)
+                pq.write_table(changed, dest, **write_options(changed.schema))
             else:
                 data = src.read_bytes()
                 region = [None, (max(0, len(data) - 2048), len(data)), (0, 64)][i % 3]
@@ -434,7 +434,7 @@ def test_fuzz_datasets(tmp_path, pipeline_out):
                     if changed is None:
                         f.unlink()
                     else:
-                        pq.write_table(changed, f, **WRITE_OPTIONS)
+                        pq.write_table(changed, f, **write_options(changed.schema))
         cases.append({"kind": "dataset", "path": str(d)})
     _assert_clean(_run_batch(cases, tmp_path))
 
@@ -482,7 +482,8 @@ def test_fuzz_tables_inconsistent_with_their_metadata(tmp_path, pipeline_out):
         dest = fuzz_out / "takes" / "fz" / f"c{i:03d}" / src.name
         dest.parent.mkdir(parents=True)
         changed = _parquet_variants(pq.read_table(src), rng, CONSISTENCY_OPS)
-        pq.write_table(changed if changed is not None else pq.read_table(src), dest, **WRITE_OPTIONS)
+        table = changed if changed is not None else pq.read_table(src)
+        pq.write_table(table, dest, **write_options(table.schema))
         cases.append({"kind": "parquet", "path": str(dest), "out": str(fuzz_out), "session": "fz",
                       "take": f"c{i:03d}", "table": src.stem})
     ds = [d for d in sorted((out / "datasets").iterdir()) if (d / "_dataset.json").is_file()]

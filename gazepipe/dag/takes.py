@@ -118,7 +118,7 @@ def run_ingest(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="ingest", version="1", requires=(), params={},
+    name="ingest", version="2", requires=(), params={},
     outputs=("markers_raw",), applies=_has_mocap,
     sources=lambda s, t: [t.mocap, *_markerset_file(s)],
     run=run_ingest,
@@ -178,7 +178,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="11", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="12", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     sources=lambda s, t: _markerset_file(s),
     run=run_clean,
@@ -298,7 +298,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="8", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="9", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
     run=run_frames,
@@ -329,7 +329,7 @@ def run_face(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="face", version="1", requires=(), params={"k": 1},
+    name="face", version="2", requires=(), params={"k": 1},
     outputs=("face",), applies=_face_take,
     sources=lambda s, t: [t.tracked, t.clean],
     run=run_face,
@@ -382,7 +382,7 @@ def run_sync(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="sync", version="1", requires=("ingest",), params=_params_of(SyncParams),
+    name="sync", version="2", requires=("ingest",), params=_params_of(SyncParams),
     outputs=("sync",), applies=_sync_take,
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,
@@ -427,8 +427,8 @@ def run_eyes(ctx: UnitContext) -> UnitResult:
         "valid": pa.array(res.valid),
         "filled": pa.array(filled),
         "confidence": pa.array(res.confidence),
-        "eye_dir_char": fixed_list(res.eye_dir_char, 3),
-        "eye_dir_head": fixed_list(res.eye_dir_head, 3),
+        "eye_dir_char": fixed_list(res.eye_dir_char, 3, np.float32),
+        "eye_dir_head": fixed_list(res.eye_dir_head, 3, np.float32),
     }, schema=EYES)
     table = attach_meta(table, {"camera_rotation": [float(x) for x in res.camera_rotation],
                                 "camera_source": res.camera_source, "rate_hz": float(joints.rate_hz)})
@@ -437,7 +437,7 @@ def run_eyes(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="eyes", version="1", requires=("frames", "sync"), params=_params_of(EyesParams),
+    name="eyes", version="2", requires=("frames", "sync"), params=_params_of(EyesParams),
     outputs=("eyes",), applies=_eyes_take,
     sources=lambda s, t: [t.eyes, *_markerset_file(s)],
     run=run_eyes,

@@ -42,7 +42,7 @@ import pyarrow.parquet as pq
 
 from gazepipe.errors import InputError, SchemaError
 from gazepipe.io.dataset_card import card_text, hf_yaml
-from gazepipe.io.parquet import WRITE_OPTIONS, read_table
+from gazepipe.io.parquet import read_table, write_options
 from gazepipe.schemas.base import attach_meta, check_table
 from gazepipe.schemas.datasets import dataset_schema
 
@@ -93,7 +93,7 @@ def table_split(table: pa.Table) -> str:
 def table_bytes(table: pa.Table) -> bytes:
     """Parquet bytes of ``table`` with the fixed writer options (same table → same bytes)."""
     sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, **WRITE_OPTIONS)
+    pq.write_table(table, sink, **write_options(table.schema))
     return sink.getvalue().to_pybytes()
 
 

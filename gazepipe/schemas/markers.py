@@ -3,7 +3,9 @@
 Long format, marker-major: one row per (marker, frame), all frames of the first marker first, so a column
 reshapes to (M, T) without a sort. ``frame`` is the 0-based row of the take's capture file (kept through
 cropping), ``source_frame`` the file's own frame number, ``time_s`` seconds since the file's first frame.
-Positions are millimetres in the lab frame (``markers`` tables: after root stabilisation, see ``meta``).
+Positions are millimetres in the lab frame (``markers`` tables: after root stabilisation, see ``meta``), stored
+as float32: a C3D stores them so (float storage), and its rounding, under 2e-4 mm at 2 m, is far below any
+marker's noise; readers get float64 (:func:`table_to_markers`).
 """
 
 from __future__ import annotations
@@ -17,18 +19,19 @@ from gazepipe.errors import SchemaError
 from gazepipe.model import FILL_NAMES, Markers
 from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
-SCHEMA_VERSION = 1
-#: the cleaned table's own version: 2 added the ``spike`` and ``fill_error_mm`` columns
-CLEAN_SCHEMA_VERSION = 2
+#: 2 stores positions as float32
+SCHEMA_VERSION = 2
+#: the cleaned table's own version: 2 added the ``spike`` and ``fill_error_mm`` columns; 3 float32 positions
+CLEAN_SCHEMA_VERSION = 3
 
 _COMMON = [
     pa.field("marker", pa.dictionary(pa.int32(), pa.string()), nullable=False),
     pa.field("frame", pa.int32(), nullable=False),
     pa.field("source_frame", pa.int64(), nullable=False),
     pa.field("time_s", pa.float64(), nullable=False),
-    pa.field("x", pa.float64()),
-    pa.field("y", pa.float64()),
-    pa.field("z", pa.float64()),
+    pa.field("x", pa.float32()),
+    pa.field("y", pa.float32()),
+    pa.field("z", pa.float32()),
     pa.field("valid", pa.bool_(), nullable=False),
 ]
 
@@ -56,7 +59,7 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     """
     T, M = markers.valid.shape
     frames = np.arange(T, dtype=np.int32) if frames is None else np.asarray(frames, dtype=np.int32)
-    pos = np.ascontiguousarray(markers.xyz.transpose(1, 0, 2)).reshape(M * T, 3)
+    pos = np.ascontiguousarray(markers.xyz.transpose(1, 0, 2), dtype=np.float32).reshape(M * T, 3)
     valid = markers.valid.T.reshape(-1)
     pos_masked = [pa.array(pos[:, k], mask=~valid) for k in range(3)]
     marker_idx = np.repeat(np.arange(M, dtype=np.int32), T)

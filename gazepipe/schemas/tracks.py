@@ -18,7 +18,8 @@ import pyarrow as pa
 
 from gazepipe.schemas.base import with_identity
 
-SCHEMA_VERSION = 1
+#: 2: the eye directions are float32 (unit vectors: rounding under 1e-5°, far below the tracker's degrees)
+SCHEMA_VERSION = 2
 N_BLENDSHAPES = 52
 
 EYES = with_identity(pa.schema([
@@ -28,8 +29,8 @@ EYES = with_identity(pa.schema([
     pa.field("valid", pa.bool_(), nullable=False),
     pa.field("filled", pa.bool_(), nullable=False),
     pa.field("confidence", pa.float64()),
-    pa.field("eye_dir_char", pa.list_(pa.float64(), 3)),
-    pa.field("eye_dir_head", pa.list_(pa.float64(), 3)),
+    pa.field("eye_dir_char", pa.list_(pa.float32(), 3)),
+    pa.field("eye_dir_head", pa.list_(pa.float32(), 3)),
 ]), "eyes", SCHEMA_VERSION)
 
 SYNC = with_identity(pa.schema([

@@ -206,7 +206,7 @@ def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
             raise StageError(None, "no eyes table (eye tracking is needed for gaze_rnn)", take=tt.take.id)
         e = tt.eyes
         eyes = align_eyes(np.asarray(j["frame"]), e.column("frame").to_numpy(), e.column("valid").to_numpy(),
-                          list_to_numpy(e.column("eye_dir_char"), 3))
+                          list_to_numpy(e.column("eye_dir_char"), 3).astype(np.float64))
     ctx.fps.add(float(tt.meta.get("rate_hz", j["meta"].get("rate_hz"))))
     return rnn_rows(j, [segs.index(s) for s in want], eyes)
 
