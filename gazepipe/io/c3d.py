@@ -10,10 +10,11 @@ Reading happens in three steps:
 2. The point block is decoded with numpy straight from the validated layout (``_decode_points``). This
    always provides the fourth word of every sample (residual and camera byte), which ezc3d does not
    return faithfully (it decodes integer residual words from the camera byte and hides 65535.0 words).
-3. The coordinates are taken from ezc3d when the file's parameters agree with its header (Intel/DEC
-   processors, ``ANALOG:RATE`` consistent with the header's analog word count), else from the pure-Python
-   ``c3d`` package when its own view of the layout agrees, else from the numpy decode alone. Whichever
-   library is used, its coordinates are compared with the numpy decode and discarded on disagreement.
+3. The coordinates are the numpy decode's: a file is decoded once. Only when the file's parameters disagree
+   with its header (``ANALOG:RATE`` inconsistent with the header's analog word count, irregular layouts, MIPS
+   processors) is a second reader asked, the pure-Python ``c3d`` package, and its coordinates are used only when
+   they match the numpy decode; when they do not, the note says the header's layout was trusted. (On every
+   corpus file the test suite checks the numpy decode against ezc3d or ``c3d``.)
 
 Gap rule (SPEC §1): a sample is invalid when its residual is negative, when any coordinate is NaN (or
 infinite), when the residual word read as an unsigned 16-bit integer is 0xFFFF, or when it lies at exactly
@@ -140,14 +141,6 @@ def _agrees(lib_xyz: np.ndarray, own_xyz: np.ndarray, gap: np.ndarray) -> bool:
     return bool(np.all(np.abs(a - b) <= tol))
 
 
-def _read_ezc3d(path: Path) -> np.ndarray:
-    import ezc3d
-
-    c = ezc3d.c3d(str(path))
-    pts = np.asarray(c["data"]["points"], dtype=np.float64)
-    return np.transpose(pts[:3], (2, 1, 0))
-
-
 def _read_pyc3d(path: Path, lay: Layout) -> np.ndarray | None:
     """Coordinates from the ``c3d`` package, or None when its view of the layout differs from ours."""
     import c3d
@@ -204,7 +197,8 @@ def duplicate_trajectories(markers: Markers) -> list[list[str]]:
 def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Markers, dict]:
     """Read a C3D file; return the markers and facts about the file.
 
-    The dict holds ``reader`` (``ezc3d``, ``c3d`` or ``numpy``), ``processor`` (intel, dec, mips),
+    The dict holds ``reader`` (``numpy``, or ``c3d`` when the parameters disagree with the header and that
+    package's decode matched), ``processor`` (intel, dec, mips),
     ``storage`` (int, float), ``units`` (as found, None if absent), ``n_points`` (markers + model outputs)
     and ``analog_channels``.
     """
@@ -237,19 +231,9 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
     own_xyz, word4 = _decode_points(data, lay)
     gap = gap_mask(own_xyz, word4, lay.is_float)
 
-    xyz = None
     reader = "numpy"
-    if lay.ezc3d_safe:
-        try:
-            lib = _read_ezc3d(p)
-        except Exception as e:  # ezc3d raises RuntimeError/OSError/…; any failure means "use another reader"
-            notes.append(f"ezc3d could not read the file ({type(e).__name__}); used another reader")
-            lib = None
-        if lib is not None and _agrees(lib, own_xyz, gap):
-            xyz, reader = lib, "ezc3d"
-        elif lib is not None:
-            notes.append("ezc3d misread the data section; used another reader")
-    if xyz is None:
+    xyz = own_xyz
+    if not lay.ezc3d_safe:      # parameters and header disagree: the c3d package's own view, when it agrees
         try:
             lib = _read_pyc3d(p, lay)
         except Exception:  # the pure-Python package fails on some valid files (e.g. odd TRIAL fields)
@@ -257,8 +241,7 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
         if lib is not None and _agrees(lib, own_xyz, gap):
             xyz, reader = lib, "c3d"
         else:
-            xyz, reader = own_xyz, "numpy"
-            notes.append("ezc3d and c3d disagree with the header's data layout (check ANALOG:RATE, "
+            notes.append("the c3d package disagrees with the header's data layout (check ANALOG:RATE, "
                          "POINT:USED); decoded from the header layout")
 
     units = meta.get_str("POINT", "UNITS")
