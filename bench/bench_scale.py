@@ -1,9 +1,16 @@
 """Benchmark ``gazepipe run`` at scale against the I/O floor.
 
-``python bench/bench_scale.py bench/_work/klein_x1`` (a corpus written by ``bench/make_corpus.py``) prints:
+``python bench/bench_scale.py bench/_work/klein_x1 [--scaling 1,2,4,8,16]`` (a corpus written by
+``bench/make_corpus.py``) prints:
 
-- the I/O floor, measured in this run: every mocap file read with ezc3d, every CSV with pandas, and the tables the
-  pipeline produced re-written with pyarrow with the pipeline's own writer options (the same output bytes);
+- the physical floor: every C3D's point block decoded with numpy, every CSV read with pandas, and the output
+  bytes the run wrote (its Parquet files) written raw to one file and fsynced: what no pipeline can avoid;
+- the encode floor: every mocap file read with ezc3d, every CSV with pandas, and the tables the pipeline produced
+  re-written with pyarrow with the pipeline's own writer options (the same output bytes); the output bytes per
+  mocap frame;
+- the share of each run's wall time after its last take unit (dataset builds and the QC report);
+- with ``--scaling``: a process-executor run at each worker count (as far as the machine's cores go) and its
+  speed-up over serial;
 - end-to-end ``gazepipe run`` wall time (a fresh ``python -m gazepipe`` process, serial executor) and its ratio
   to the floor; the no-op re-run (median of five; the package's bytecode is compiled first, as an install
   does); the same run with ``--executor process -j 2`` and ``--executor dask -j 2`` and their speed-ups over
@@ -175,6 +182,41 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
             "mocap_frames": frames, "parquet_files": len(files), "parquet_mb": n_bytes / 2**20}
 
 
+def physical_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
+    """The physical floor: what no pipeline can avoid. Every C3D read and its point block decoded with numpy
+    (gazepipe's own one-pass decode of the validated layout), every CSV read with pandas, and the output bytes
+    the run wrote (Parquet files of the takes and datasets) written raw to one file and fsynced."""
+    import pandas as pd
+
+    from gazepipe.io.c3d import _decode_points
+    from gazepipe.io.c3d_meta import parse_c3d_meta
+
+    c3d = sorted(p for s in sessions for p in (s / "mocap").glob("*.c3d"))
+    csvs = sorted(p for s in sessions for sub in ("eyes", "face") for p in (s / sub).glob("*.csv"))
+    t0 = time.perf_counter()
+    for p in c3d:
+        data = p.read_bytes()
+        _decode_points(data, parse_c3d_meta(data).layout(len(data)))
+    t_c3d = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for p in csvs:
+        pd.read_csv(p, skipinitialspace=True)
+    t_csv = time.perf_counter() - t0
+    blobs = [p.read_bytes() for p in sorted(produced.rglob("*.parquet")) if ".gazepipe" not in p.parts]
+    dest = produced.parent / "_physical_floor.bin"
+    t0 = time.perf_counter()
+    with open(dest, "wb") as fh:
+        for b in blobs:
+            fh.write(b)
+        fh.flush()
+        os.fsync(fh.fileno())
+    t_write = time.perf_counter() - t0
+    dest.unlink()
+    n_bytes = sum(len(b) for b in blobs)
+    return {"read_c3d_s": t_c3d, "read_csv_s": t_csv, "write_raw_s": t_write, "total_s": t_c3d + t_csv + t_write,
+            "output_bytes": n_bytes}
+
+
 def top_profile(path: Path, n: int = 15) -> list[str]:
     st = pstats.Stats(str(path))
     rows = []
@@ -194,6 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--executors", default="serial,process,dask",
                    help="Comma-separated: which end-to-end runs to time (serial is always run).")
     p.add_argument("--jobs", type=int, default=2)
+    p.add_argument("--scaling", default="",
+                   help="Comma-separated worker counts (e.g. 1,2,4,8,16) for a process-executor sweep: the speed-up "
+                        "over serial at each, as far as the machine's cores go.")
     p.add_argument("--profile", action="store_true", help="Also profile a serial run with cProfile.")
     p.add_argument("--param", action="append", default=[], metavar="STAGE.NAME=VALUE",
                    help="Passed to every run as gazepipe's --param (repeatable), e.g. to see what a cheaper gap "
@@ -228,9 +273,18 @@ def main(argv: list[str] | None = None) -> int:
           flush=True)
     floor = io_floor(sessions, work / "serial")
     print(f"I/O floor: {floor['total_s']:.1f} s", flush=True)
+    phys = physical_floor(sessions, work / "serial")
+    print(f"physical floor: {phys['total_s']:.1f} s", flush=True)
     for ex in [e for e in a.executors.split(",") if e and e != "serial"]:
         results[ex] = run_cli(sessions, work / ex, ex, jobs=a.jobs, params=a.param)
         print(f"{ex} run (-j {a.jobs}): {results[ex]['wall_s']:.1f} s", flush=True)
+    sweep: dict[int, dict] = {}
+    for j in [int(x) for x in a.scaling.split(",") if x.strip()]:
+        if j > (os.cpu_count() or 1):
+            print(f"-j {j}: skipped, the machine has {os.cpu_count()} cores", flush=True)
+            continue
+        sweep[j] = run_cli(sessions, work / f"process_j{j}", "process", jobs=j, params=a.param)
+        print(f"process run (-j {j}): {sweep[j]['wall_s']:.1f} s", flush=True)
     prof_rows: list[str] = []
     if a.profile:
         prof = work / "serial.prof"
@@ -242,18 +296,29 @@ def main(argv: list[str] | None = None) -> int:
     print(f"I/O floor: {floor['total_s']:.2f} s = read {floor['c3d_files']} C3D ({floor['mocap_frames']} frames) "
           f"{floor['read_c3d_s']:.2f} s + read {floor['csv_files']} CSV {floor['read_csv_s']:.2f} s + write "
           f"{floor['parquet_files']} Parquet ({floor['parquet_mb']:.0f} MB) {floor['write_parquet_s']:.2f} s")
-    print(f"{'run':<22}{'wall s':>9}{'x floor':>9}{'speed-up':>10}{'peak tree MB':>14}{'peak proc MB':>14}  exit")
-    for name, r in results.items():
+    print(f"physical floor: {phys['total_s']:.2f} s = numpy decode of {floor['c3d_files']} C3D "
+          f"{phys['read_c3d_s']:.2f} s + read {floor['csv_files']} CSV {phys['read_csv_s']:.2f} s + raw write of "
+          f"the {phys['output_bytes'] / 2**20:.0f} MB of output Parquet with fsync {phys['write_raw_s']:.2f} s")
+    print(f"output bytes per mocap frame: {phys['output_bytes'] / max(floor['mocap_frames'], 1):.0f} "
+          f"({phys['output_bytes']} bytes of Parquet over {floor['mocap_frames']} frames)")
+    runs = {**results, **{f"process -j {j}": r for j, r in sweep.items()}}
+    print(f"{'run':<24}{'wall s':>9}{'x phys':>8}{'x encode':>9}{'speed-up':>10}{'after takes':>12}"
+          f"{'peak tree MB':>14}{'peak proc MB':>14}  exit")
+    for name, r in runs.items():
         label = {"serial": "end-to-end serial", "noop": "no-op re-run", "profiled": "serial under cProfile"
-                 }.get(name, f"end-to-end {name} -j {a.jobs}")
+                 }.get(name, f"end-to-end {name}" if name.startswith("process -j") else f"end-to-end {name} -j {a.jobs}")
         speed = f"{serial / r['wall_s']:.2f}x" if name not in ("noop", "profiled") else ""
-        print(f"{label:<22}{r['wall_s']:9.2f}{r['wall_s'] / floor['total_s']:9.2f}{speed:>10}"
-              f"{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}")
-    print("\ntimeline from the run's start (s, 1 s resolution): last take unit, last dataset, QC report")
-    for name, r in results.items():
         tl = timeline(Path(r["log"])) if name not in ("noop", "profiled") else None
         if tl:
             r["timeline"] = tl
+        tail = (f"{100 * max(r['wall_s'] - tl['takes_done_s'], 0.0) / r['wall_s']:10.0f} %" if tl else "")
+        print(f"{label:<24}{r['wall_s']:9.2f}{r['wall_s'] / phys['total_s']:8.2f}{r['wall_s'] / floor['total_s']:9.2f}"
+              f"{speed:>10}{tail:>12}{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}")
+    print("\ntimeline from the run's start (s, 1 s resolution): last take unit, last dataset, QC report; "
+          "'after takes' above is the share of the wall time after the last take unit")
+    for name, r in runs.items():
+        tl = r.get("timeline")
+        if tl:
             print(f"  {name:<20}{tl['takes_done_s']:7.0f}{tl['datasets_done_s']:7.0f}{tl['report_done_s']:7.0f}")
     st = stage_times(work / "serial")
     total = sum(st.values())
@@ -263,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     if prof_rows:
         print("\nprofile of the serial run, top functions by own time:")
         print("\n".join("  " + r for r in prof_rows))
-    summary = {"corpus": str(corpus), "floor": floor, "runs": results, "stages": st}
+    summary = {"corpus": str(corpus), "floor": floor, "physical_floor": phys, "runs": runs, "stages": st}
     (work / "results.json").write_text(json.dumps(summary, indent=1))
     return 0
 
