@@ -10,6 +10,7 @@ import click
 
 from gazepipe import __version__
 from gazepipe.cli.common import handle_errors, load_sessions, parse_params, run_options
+from gazepipe.cli.validate import DEFAULT_PLOT_TAKES
 from gazepipe.errors import ConfigError
 
 EPILOG = """\b
@@ -68,8 +69,9 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     sys.exit(summary.exit_code)
 
 
-#: takes plotted in the report that `gazepipe run` writes (the worst first); report.json covers every take
-REPORT_PLOT_TAKES = 6
+#: takes plotted in the report that `gazepipe run` writes (the worst first; `validate`'s default too); report.json
+#: covers every take
+REPORT_PLOT_TAKES = DEFAULT_PLOT_TAKES
 
 
 class _RunReport:
