@@ -33,6 +33,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote, unquote
@@ -134,13 +135,26 @@ def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | Non
     """
     write = write_bytes or _plain_write
     root = Path(datasets_dir) / built.name
-    written: list[Path] = []
+    written: dict[Path, _Made] = {}
     for (session, take), table in sorted(built.tables.items()):
         path = root / take_path(table_split(table), session, take)
         check_table(table, built.schema, path=str(path))
-        write(path, table_bytes(table))
-        written.append(path)
+        data = table_bytes(table)
+        write(path, data)
+        written[path] = _Made.of(data)
     return _finish(root, built, written, write)
+
+
+@dataclass(frozen=True)
+class _Made:
+    """A take file's size and SHA-256, taken from its bytes when they were made (never read back)."""
+
+    size: int
+    digest: bytes
+
+    @staticmethod
+    def of(data: bytes) -> _Made:
+        return _Made(len(data), hashlib.sha256(data).digest())
 
 
 class StagedDatasetWriter:
@@ -157,7 +171,7 @@ class StagedDatasetWriter:
         self.root = Path(datasets_dir) / name
         self.staging = Path(staging)
         self.write = write_bytes or _plain_write
-        self.staged: dict[TakeKey, tuple[Path, Path]] = {}   # take -> (final path, staged file)
+        self.staged: dict[TakeKey, tuple[Path, Path, _Made]] = {}   # take -> (final path, staged file, its bytes)
 
     def __call__(self, key: TakeKey, table: pa.Table) -> None:
         """Stage one take's table; a take emitted again (moved to another split) replaces its earlier file."""
@@ -166,21 +180,22 @@ class StagedDatasetWriter:
             self.staged.pop(key)[1].unlink(missing_ok=True)
         tmp = self.staging / rel
         tmp.parent.mkdir(parents=True, exist_ok=True)
+        data = table_bytes(table)
         with open(tmp, "wb") as fh:
-            fh.write(table_bytes(table))
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        self.staged[key] = (self.root / rel, tmp)
+        self.staged[key] = (self.root / rel, tmp, _Made.of(data))
 
     def commit(self, built) -> list[Path]:
         """Publish the staged take files, then the side files and ``_dataset.json`` of ``built``; the paths
         written (take files whose published bytes were already the same are kept as they are, and listed)."""
-        written: list[Path] = []
-        for final, tmp in sorted(self.staged.values()):
-            if not _same_bytes(final, tmp):
+        written: dict[Path, _Made] = {}
+        for final, tmp, made in sorted(self.staged.values()):
+            if not _published(final, made):
                 final.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp, final)
-            written.append(final)
+            written[final] = made
         self.abort()
         return _finish(self.root, built, written, self.write)
 
@@ -188,23 +203,23 @@ class StagedDatasetWriter:
         shutil.rmtree(self.staging, ignore_errors=True)
 
 
-def _same_bytes(a: Path, b: Path) -> bool:
+def _published(path: Path, made: _Made) -> bool:
+    """Whether ``path`` already holds the bytes ``made`` describes (read only when the sizes agree)."""
     try:
-        return a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes()
+        return path.stat().st_size == made.size and hashlib.sha256(path.read_bytes()).digest() == made.digest
     except OSError:
         return False
 
 
-def _finish(root: Path, built, written: list[Path], write: WriteBytes) -> list[Path]:
-    """Write the side files and ``_dataset.json`` after the take files, then delete stale take files (and the
-    files of an earlier layout)."""
-    files = {split: [p for p in written if p.parent.parent.name == split] for split in SPLITS}
+def _finish(root: Path, built, made: dict[Path, _Made], write: WriteBytes) -> list[Path]:
+    """Write the side files and ``_dataset.json`` after the take files (``made``: each one's size and digest),
+    then delete stale take files (and the files of an earlier layout). Returns every path written."""
+    written = list(made)
     rows = {split: int(built.info.get("counts", {}).get("by_split", {}).get(split, {}).get("rows", 0))
             for split in SPLITS}
-    fingerprint = hashlib.sha256(b"".join(hashlib.sha256(p.read_bytes()).digest() for p in sorted(written))
-                                 ).hexdigest()
-    yaml = hf_yaml(built.name, {s: (rows[s], sum(p.stat().st_size for p in files[s])) for s in SPLITS},
-                   fingerprint)
+    size = {split: sum(m.size for p, m in made.items() if p.parent.parent.name == split) for split in SPLITS}
+    fingerprint = hashlib.sha256(b"".join(made[p].digest for p in sorted(made))).hexdigest()
+    yaml = hf_yaml(built.name, {s: (rows[s], size[s]) for s in SPLITS}, fingerprint)
     for name, data in ((COMMON_METADATA, schema_bytes(stored_schema(built))),
                        (HF_CONFIG, yaml.encode()),
                        (CARD_NAME, card_text(built.info, yaml).encode()),
