@@ -75,20 +75,37 @@ REPORT_PLOT_TAKES = DEFAULT_PLOT_TAKES
 
 
 class _RunReport:
-    """The QC report of a full run. The checks of every take start as soon as the takes are done, in a thread,
-    while the datasets are built; the report is finished under the run's lock, unless it already describes
-    exactly these outputs."""
+    """The QC report of a full run, made on the run's workers as it goes
+    (:class:`gazepipe.report.run_report.ReportInBackground`) and finished under the run's lock, unless it
+    already describes exactly these outputs."""
 
     def __init__(self, out: Path, log) -> None:
         self.out = out
         self.log = log
         self.background = None
 
-    def takes_done(self) -> None:
-        from gazepipe.report.validate import ReportInBackground
+    def take_job(self):
+        from gazepipe.report.run_report import take_part
+
+        return take_part   # each take's checks, on its worker, as soon as it ran
+
+    def takes_started(self, pool) -> None:
+        from gazepipe.report.run_report import ReportInBackground
 
         # plots for the worst takes only: `gazepipe validate OUT --plot-takes N` draws more
-        self.background = ReportInBackground(self.out, plot_takes=REPORT_PLOT_TAKES)
+        self.background = ReportInBackground(self.out, plot_takes=REPORT_PLOT_TAKES, pool=pool)
+
+    def take_finished(self, session, take, waiting: int) -> None:
+        self.background.take_finished(session, take, waiting)
+
+    def takes_done(self) -> None:
+        self.background.start()
+
+    def dataset_built(self, name: str) -> None:
+        self.background.dataset_built(name)
+
+    def datasets_done(self) -> None:
+        self.background.wait_for_workers()
 
     def finish(self) -> None:
         from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json

@@ -23,8 +23,9 @@ from gazepipe import __version__
 from gazepipe.errors import GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.hashing import sha256_json
+from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import SessionLike, TakeLike
-from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _alive, _loader, release_memory
+from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, release_memory
 from gazepipe.pipeline.state import OutLayout, read_json
 
 
@@ -167,7 +168,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
                               "gazepipe_version": __version__}
 
     def check_alive() -> None:
-        if parent_pid is not None and not _alive(parent_pid):
+        if parent_pid is not None and not pid_alive(parent_pid):
             raise RunGone
 
     ctx = DatasetContext(name=plan.name, takes=plan.takes,

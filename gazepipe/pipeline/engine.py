@@ -5,8 +5,8 @@ registered by :mod:`gazepipe.dag`)."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
-from concurrent.futures import as_completed
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -100,8 +100,9 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                  report: RunReport | None = None) -> RunSummary:
     """Run the stages (up to ``until``) on every take of ``sessions`` into ``out``.
 
-    ``report``: told when the takes are done (``takes_done``, only when units ran: the datasets are built
-    next) and, at the end, still under the output folder's lock, ``finish`` (every run that is not a dry run).
+    ``report``: told when the takes are done, of each dataset built and when the datasets are done (only when
+    units ran; :class:`RunReport`) and, at the end, still under the output folder's lock, ``finish`` (every run
+    that is not a dry run).
     """
     check_executor(executor, scheduler)
     _check_params(params or {})
@@ -140,6 +141,9 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
         for f in failures:
             log.emit("error", "unit", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
         todo = [j for j in take_jobs if any(u.run for u in j.units)]
+        after = report.take_job() if report is not None else None
+        for j in todo:
+            j.after = after
         for j in take_jobs:
             if j not in todo:
                 summary.outcomes.extend(_not_run(u) for u in j.units)
@@ -156,13 +160,19 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                 log.emit("info", "run_start", f"running {n_units} take units on {len(todo)} takes "
                          f"({len(plans) - n_units - n_before} up to date{before}){later}", takes=len(todo),
                          units=n_units, up_to_date=len(plans) - n_units - n_before, failed_before=n_before)
-                _execute(todo, summary, log, workers, heartbeat_every)
+                if report is not None:
+                    report.takes_started(workers.pool())
+                _execute(todo, summary, log, workers, heartbeat_every, report)
                 if report is not None:
                     hashes.save(layout.write_bytes)  # what the report's unit states are worked out with
-                    report.takes_done()
             built = 0
             if until in (None, BUILD):
-                built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers)
+                built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers,
+                                        report if todo else None)
+            elif report is not None and todo:
+                report.takes_done()
+            if report is not None and todo:
+                report.datasets_done()   # still on the workers: what the report put on them is finished
         if not todo and not built:
             n_ds = summary.count("skipped", datasets=True)
             also = f" and {n_ds} datasets" if n_ds else ""
@@ -187,10 +197,41 @@ def _check_params(params: dict[str, Any]) -> None:
         raise ConfigError(None, "; ".join(lines))
 
 
+@dataclass(frozen=True)
+class WorkerPool:
+    """The run's workers as a report may use them: ``submit(fn, *args)`` returns a future; ``parent_pid`` is the
+    run's process when the workers are local processes (a job checks it before writing), else ``None``;
+    ``workers``: how many."""
+
+    submit: Callable[..., Future]
+    parent_pid: int | None
+    workers: int
+
+
 class RunReport(Protocol):
-    """What a run tells the QC report (see :func:`run_pipeline`)."""
+    """What a run tells the QC report (see :func:`run_pipeline`). When take units run, in this order:
+    :meth:`take_job` (before the takes are planned onto the workers), :meth:`takes_started`,
+    :meth:`take_finished` for each take, :meth:`takes_done`, :meth:`dataset_built` for each dataset built,
+    :meth:`datasets_done` (the workers are still there, for the last time). Then :meth:`finish`, always."""
+
+    def take_job(self) -> Callable[[str, str, Any, int | None], None] | None:
+        """A picklable function each take's job runs after its units, on its worker (see
+        :attr:`gazepipe.pipeline.runner.TakeJob.after`), or ``None``."""
+        ...
+
+    def takes_started(self, pool: WorkerPool | None) -> None:
+        """The takes are going to the workers (``pool`` is ``None`` when the run has no parallel workers)."""
+        ...
+
+    def take_finished(self, session: SessionLike, take: Any, waiting: int) -> None:
+        """A take's units are done (ok or not); ``waiting``: takes not yet started on a worker."""
+        ...
 
     def takes_done(self) -> None: ...
+
+    def dataset_built(self, name: str) -> None: ...
+
+    def datasets_done(self) -> None: ...
 
     def finish(self) -> None: ...
 
@@ -210,6 +251,13 @@ class _Workers:
         """Workers are processes of this machine (they watch this process and stop when it is gone)."""
         return self.kind == "process"
 
+    def pool(self) -> WorkerPool | None:
+        """The workers for other jobs of the run; ``None`` for a serial run (its jobs would run one after the
+        other in this process anyway)."""
+        if self.kind == "serial":
+            return None
+        return WorkerPool(self.executor.submit, os.getpid() if self.local else None, self.n)
+
     @property
     def executor(self):
         if self._ex is None:
@@ -225,8 +273,11 @@ class _Workers:
 
 
 def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: list[UnitPlan], params: dict[str, Any],
-                    force: bool, summary: RunSummary, log: EventLog, workers: _Workers) -> int:
-    """Build the datasets that are not up to date (on the workers when there are several); the number built."""
+                    force: bool, summary: RunSummary, log: EventLog, workers: _Workers,
+                    report: RunReport | None = None) -> int:
+    """Build the datasets that are not up to date (on the workers when there are several); the number built.
+    ``report`` is told when the builds are on their way (:meth:`RunReport.takes_done`: what it starts then does
+    not hold them up) and of each dataset built."""
     todo = []
     for d in plan_datasets(sessions, layout, plans, params, force):
         if d.run:
@@ -243,6 +294,8 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
         parent = os.getpid() if workers.local else None
         futures = {workers.executor.submit(run_dataset, d, layout, params, parent): d for d in todo}
         results = ((futures[f], _dataset_result(f, futures[f])) for f in as_completed(futures))
+    if report is not None:
+        report.takes_done()
     for d, o in results:
         summary.outcomes.append(o)
         if o.status == "ok":
@@ -251,6 +304,8 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
                      duration_s=round(o.duration_s, 4))
             for w in o.warnings:
                 log.emit("warning", "qc_warning", w, stage="build", dataset=d.name)
+            if report is not None:
+                report.dataset_built(d.name)
         else:
             log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
                      traceback=o.traceback or None)
@@ -266,7 +321,7 @@ def _dataset_result(fut, d: DatasetPlan) -> UnitOutcome:
 
 
 def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _Workers,
-             heartbeat_every: int) -> None:
+             heartbeat_every: int, report: RunReport | None = None) -> None:
     done = 0
     if workers.local:  # local workers stop if this process dies (the lock dies with it)
         for job in todo:
@@ -302,6 +357,8 @@ def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _
                 elif o.status == "blocked":
                     log.emit("info", "unit", f"{o.session}/{o.take} {o.stage}: not run (an upstream stage failed)",
                              session=o.session, take=o.take, stage=o.stage, status="blocked")
+            if report is not None:
+                report.take_finished(job.session, job.take, max(0, len(todo) - done - workers.n))
             log.progress(done, len(todo))
             if heartbeat_every and done % heartbeat_every == 0 and done < len(todo) and not log.interactive:
                 log.emit("info", "heartbeat", f"{done}/{len(todo)} takes done", done=done, total=len(todo))

@@ -83,7 +83,8 @@ def _parse_holder(text: str, state: str) -> LockHolder | None:
                       str(rec.get("command") or ""), state)
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether process ``pid`` of this machine exists (another user's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -140,10 +141,10 @@ def lock_state(path: Path) -> LockHolder | None:
     holder = _parse_holder(text, "held")
     if holder is None:
         return None
-    if not holder.started and holder.pid is not None and not _alive(holder.pid):
+    if not holder.started and holder.pid is not None and not pid_alive(holder.pid):
         return None   # a bare pid: what every run of an older gazepipe left when it ended, not a killed run
     same_host = not holder.host or holder.host == socket.gethostname()
-    if holder.pid is not None and same_host and not _alive(holder.pid):
+    if holder.pid is not None and same_host and not pid_alive(holder.pid):
         return LockHolder(holder.pid, holder.started, holder.host, holder.command, "stale")
     if holder.pid is not None and same_host and not _flock_held(path):
         # a live process with that pid that does not hold the lock: the pid was reused after the holder died

@@ -26,6 +26,7 @@ from gazepipe.errors import GazepipeError, InputError, SchemaError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
+from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import SessionLike, Stage, TakeLike, UnitContext
 from gazepipe.pipeline.state import OutLayout, read_json
 
@@ -68,6 +69,9 @@ class TakeJob:
     params: dict[str, Any]
     parent_pid: int | None = None   # the run's process, for local workers: they stop when it is gone
     dag: tuple[str, ...] = ()       # the modules that register the stages (:func:`registry.modules`)
+    #: run after the units, on the same worker: ``after(out, session_id, take, parent_pid)`` (a picklable
+    #: module-level function; what the run's report needs from the take); its errors are ignored
+    after: Callable[[str, str, Any, int | None], None] | None = None
 
 
 # --------------------------------------------------------------------------------------------- planning
@@ -202,7 +206,7 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     failed: set[str] = set()
     written: dict[Path, pa.Table] = {}   # this take's tables written so far: later units need not read them back
     for plan in job.units:
-        if job.parent_pid is not None and not _alive(job.parent_pid):
+        if job.parent_pid is not None and not pid_alive(job.parent_pid):
             break  # the run died (its lock with it): write nothing more, a new run may already be going
         st = registry.get(plan.stage)
         if any(u in failed for u in st.requires):
@@ -222,6 +226,10 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
         if out.status == "failed":
             failed.add(st.name)
         outcomes.append(out)
+    if job.after is not None and (job.parent_pid is None or pid_alive(job.parent_pid)):
+        written.clear()
+        with contextlib.suppress(Exception):   # the report computes it again when it needs it
+            job.after(job.out, job.session.id, job.take, job.parent_pid)
     return outcomes
 
 
@@ -275,16 +283,6 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
     record["duration_s"] = round(outcome.duration_s, 4)
     layout.write_json(layout.record(plan.session, plan.take, plan.stage), record)
     return outcome
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def new_run_id() -> str:

@@ -113,6 +113,19 @@ def take_entries(layout: OutLayout, sessions: dict[str, Any]) -> list[TakeEntry]
     return [entries[k] for k in sorted(entries)]
 
 
+def take_entry(layout: OutLayout, session: str, take: Any) -> TakeEntry:
+    """One take's entry as :func:`take_entries` makes it: its unit records and its settings (``take``, the
+    take's entry in session.toml)."""
+    e = TakeEntry(session, take.id)
+    folder = layout.record(session, take.id, "x").parent
+    for p in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        rec = read_json(p)
+        if isinstance(rec, dict):
+            e.records[str(rec.get("stage"))] = rec
+    e.kind, e.pose, e.has_video, e.has_eyes = take.kind, take.pose, bool(take.video), bool(take.eyes)
+    return e
+
+
 @dataclass
 class TakeTables:
     """Arrays of one take's tables that the checks and plots use (``None`` where a table is absent)."""

@@ -13,10 +13,7 @@ time (a tenth of a second or more a take), checking is not. ``plot_takes`` / ``-
 
 from __future__ import annotations
 
-import functools
-import hashlib
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +30,7 @@ from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
+from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache, stored_checks
 from gazepipe.report.collect import (
     PLOT_TABLES,
     DatasetData,
@@ -76,10 +74,16 @@ class ValidateResult:
 def take_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds,
                 states: list[dict[str, Any]] | None = None) -> list[C.Check]:
     """Every check of one take (pure: records, unit states and arrays in, checks out)."""
+    return [C.check_stages(e.records, states)] + take_output_checks(e, tables, th)
+
+
+def take_output_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Check]:
+    """The checks of one take's outputs: all but ``stages`` (whether its units are up to date with the inputs
+    now), so they depend on the records and tables alone and can be computed as soon as the take ran."""
     ingest, clean, frames_qc = e.qc("ingest"), e.qc("clean"), e.qc("frames")
     n_frames = (ingest or {}).get("frames")
     rate = (ingest or {}).get("rate_hz")
-    out = [C.check_stages(e.records, states), C.check_stage_warnings(e.records)]
+    out = [C.check_stage_warnings(e.records)]
     for name, err in sorted(tables.errors.items()):
         out.append(C.Check(f"table_{name}", "error", f"{name} table unreadable: {err}"))
     if e.kind == "face":
@@ -259,7 +263,7 @@ def dataset_figures(d: DatasetData) -> list[Figure]:
     return figs
 
 
-def _dataset_figures(d: DatasetData, cache: FigureCache) -> list[Figure]:
+def dataset_figures_cached(d: DatasetData, cache: FigureCache) -> list[Figure]:
     """:func:`dataset_figures`, read back from ``cache`` when drawn before."""
     key = cache.dataset_key(d)
     cached = cache.get(key)
@@ -268,6 +272,32 @@ def _dataset_figures(d: DatasetData, cache: FigureCache) -> list[Figure]:
     figs = dataset_figures(d)
     cache.put(key, figs, [])
     return figs
+
+
+def dataset_part(layout: OutLayout, name: str, path: Path | None, record: dict[str, Any] | None,
+                 th: C.Thresholds, figures: FigureCache, parts: DatasetCache,
+                 plots_on: bool = True) -> tuple[dict[str, Any], dict[str, str], list[Figure]]:
+    """One dataset's part of the report: its report.json entry, the split of each of its takes and its figures
+    (none when ``plots_on`` is false); read back from the caches when computed before (by a worker of the run
+    that built it), else computed from the dataset's folder ``path`` (``None``: only its build ``record``)."""
+    key = parts.key(name, path, record, th)
+    part = parts.get(key)
+    if part is not None:
+        figs = figures.get(part["figure_key"]) if plots_on else ([], [])
+        if figs is not None:
+            return part["entry"], part["take_splits"], figs[0]
+    d = load_dataset(path, th) if path is not None else DatasetData(name)
+    checks = _sorted_checks(dataset_checks(d, th, record, path is not None))
+    counts = d.info.get("counts") or {}
+    entry = {"name": d.name, "severity": C.worst([c.severity for c in checks]),
+             "schema_hash": D.schema_hash(d.expected) if d.expected is not None else None,
+             "counts": {k: counts.get(k) for k in ("takes", "rows", "by_split", "by_pose")},
+             "checks": [c.to_dict() for c in checks]}
+    part = json.loads(json.dumps({"entry": entry, "take_splits": d.take_splits,
+                                  "figure_key": figures.dataset_key(d)}, allow_nan=False))
+    figs = dataset_figures_cached(d, figures) if plots_on else []
+    parts.put(key, part)
+    return part["entry"], part["take_splits"], figs
 
 
 # ----------------------------------------------------------------------------------------------- report
@@ -342,121 +372,6 @@ def match_takes(patterns: Sequence[str], keys: Sequence[str]) -> list[str]:
     return [k for k in keys if k in found]
 
 
-# ------------------------------------------------------------------------------------------- figure cache
-
-@functools.lru_cache(maxsize=1)
-def _code_version() -> bytes:
-    """What the figures depend on besides their data: every source file of gazepipe (the plots, the captions, the
-    speed trace, the table readers…) and the versions of the libraries that draw and compute them."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    import gazepipe
-
-    h = hashlib.sha256(f"gazepipe {__version__} report figures 1\0".encode())
-    root = Path(gazepipe.__file__).parent
-    for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    for lib in ("matplotlib", "numpy", "scipy", "pyarrow"):
-        try:
-            h.update(f"{lib} {version(lib)}\0".encode())
-        except PackageNotFoundError:
-            h.update(f"{lib} -\0".encode())
-    return h.digest()
-
-
-def _feed(h: Any, v: Any) -> None:
-    """Hash ``v`` (arrays, numbers, strings, lists, dicts, None) with its types and shapes."""
-    if isinstance(v, np.ndarray):
-        if v.dtype == object:
-            v = v.astype(str)
-        h.update(f"nd {v.dtype.str} {v.shape}\0".encode())
-        h.update(np.ascontiguousarray(v).tobytes())
-    elif isinstance(v, dict):
-        h.update(f"dict {len(v)}\0".encode())
-        for k in sorted(v, key=str):
-            _feed(h, str(k))
-            _feed(h, v[k])
-    elif isinstance(v, list | tuple):
-        h.update(f"list {len(v)}\0".encode())
-        for x in v:
-            _feed(h, x)
-    else:
-        h.update(f"{type(v).__name__} {v!r}\0".encode())
-
-
-class FigureCache:
-    """Figures drawn before, under ``OUT/.gazepipe/report_plots/``, one file per take or dataset, named by a hash
-    of everything its plots are drawn from: the bytes of the tables (a take) or the sampled rows (a dataset), the
-    unit records and markerset they use, the source of gazepipe and the versions of matplotlib, numpy, scipy and
-    pyarrow. Drawing is most of a validation's time, and a run draws the plots its report has: a ``gazepipe
-    validate`` after it reads them back (no matplotlib at all) with the same bytes as drawing them again. What
-    the report written last does not use is deleted.
-    """
-
-    DIRNAME = "report_plots"
-
-    def __init__(self, layout: OutLayout) -> None:
-        self.layout = layout
-        self.dir = layout.state / self.DIRNAME
-        self.used: set[str] = set()
-
-    def take_key(self, e: TakeEntry, markerset: Any) -> str | None:
-        """The key of a take's plots (``None``: a table cannot be read, so nothing is cached)."""
-        h = hashlib.sha256(_code_version() + b"take\0")
-        _feed(h, e.key)
-        for name in PLOT_TABLES:
-            path = self.layout.table(e.session, e.take, name)
-            _feed(h, name)
-            try:
-                _feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
-            except OSError:
-                return None
-        _feed(h, {stage: {k: r.get(k) for k in ("status", "qc", "components")} for stage, r in e.records.items()})
-        _feed(h, repr(markerset))
-        return h.hexdigest()[:40]
-
-    def dataset_key(self, d: DatasetData) -> str:
-        h = hashlib.sha256(_code_version() + b"dataset\0")
-        _feed(h, d.name)
-        _feed(h, d.info.get("features"))
-        smp = d.all_rows
-        _feed(h, None if smp is None else [smp.columns, smp.pose, smp.n_total, smp.n_total_by_pose])
-        return h.hexdigest()[:40]
-
-    def get(self, key: str | None) -> tuple[list[Figure], list[str]] | None:
-        if key is None:
-            return None
-        self.used.add(key)
-        try:
-            entry = json.loads((self.dir / f"{key}.json").read_text(encoding="utf-8"))
-            figs = [Figure(f["title"], f["caption"], f["svg"]) for f in entry["figures"]]
-            notes = [str(n) for n in entry["notes"]]
-        except (OSError, ValueError, KeyError, TypeError):
-            return None
-        return figs, notes
-
-    def put(self, key: str | None, figs: list[Figure], notes: list[str]) -> None:
-        if key is None:
-            return
-        self.used.add(key)
-        entry = {"figures": [{"title": f.title, "caption": f.caption, "svg": f.svg} for f in figs], "notes": notes}
-        # written whole then renamed (a reader never sees half a file), not synced: losing it only costs time
-        tmp = self.layout.tmp / f".{key}.{os.getpid()}.part"
-        try:
-            self.dir.mkdir(parents=True, exist_ok=True)
-            self.layout.tmp.mkdir(parents=True, exist_ok=True)
-            tmp.write_bytes(json.dumps(entry, ensure_ascii=False).encode())
-            os.replace(tmp, self.dir / f"{key}.json")
-        except OSError:
-            tmp.unlink(missing_ok=True)
-
-    def prune(self) -> None:
-        """Delete the figures the report written last does not use."""
-        for path in sorted(self.dir.glob("*.json")) if self.dir.is_dir() else []:
-            if path.stem not in self.used:
-                path.unlink(missing_ok=True)
-
-
 @dataclass(frozen=True)
 class PlotRequest:
     """Which plots the page gets: none (``on`` false), else every dataset's and those of the ``limit`` worst
@@ -501,51 +416,8 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     return _validate(layout, th, fail_on, request)
 
 
-class ReportInBackground:
-    """The checks of every take computed in a thread from now on, while the caller does other work (a run builds
-    its datasets); :meth:`finish` adds the plots (drawn then: matplotlib's memory is not added to the caller's
-    peak) and the datasets and writes the files, as :func:`validate_output` would have.
-
-    The caller keeps every take's outputs as they are until :meth:`finish` (a run holds the folder's lock; only
-    the datasets may change meanwhile) and holds the lock itself when it needs one.
-    """
-
-    def __init__(self, out: str | Path, thresholds: C.Thresholds | None = None,
-                 plot_takes: int | str | None = DEFAULT_PLOT_TAKES) -> None:
-        import threading
-
-        self.layout = open_output(out)
-        self.th = thresholds or C.Thresholds()
-        self.plots = PlotRequest(limit=plot_limit(plot_takes))
-        self._done: _TakePass | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="gazepipe-report-takes", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            self._done = _take_pass(self.layout, self.th)
-        except BaseException as exc:  # handed to the caller by finish()
-            self._error = exc
-
-    def finish_quietly(self) -> None:
-        """Wait for the take checks and drop them (the report turned out not to be needed)."""
-        self._thread.join()
-
-    def finish(self, fail_on: str = "fail") -> ValidateResult:
-        """Wait for the take checks (raising their error, if any), then draw the plots, check the datasets and
-        write ``qc/``."""
-        if fail_on not in FAIL_ON:
-            raise ValueError(f"fail_on must be one of {FAIL_ON}")
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-        assert self._done is not None
-        return _finish(self.layout, self.th, fail_on, self.plots, self._done)
-
-
 @dataclass
-class _TakePass:
+class TakePass:
     """What the checks of every take found: sessions, takes, their report entries, rows and check references."""
 
     sessions: dict[str, Any]
@@ -557,10 +429,10 @@ class _TakePass:
 
 
 def _validate(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest) -> ValidateResult:
-    return _finish(layout, th, fail_on, plots, _take_pass(layout, th))
+    return finish_report(layout, th, fail_on, plots, take_pass(layout, th))
 
 
-def _take_pass(layout: OutLayout, th: C.Thresholds) -> _TakePass:
+def take_pass(layout: OutLayout, th: C.Thresholds) -> TakePass:
     """Every take's checks (tables read one take at a time)."""
     sessions, session_problems = load_sessions(layout)
     states = unit_states(layout) if not session_problems else None
@@ -568,62 +440,93 @@ def _take_pass(layout: OutLayout, th: C.Thresholds) -> _TakePass:
     rows: list[dict[str, Any]] = []
     refs: list[dict[str, Any]] = []
     entries = take_entries(layout, sessions)
+    cache = CheckCache(layout)
     for e in entries:
-        tables = load_take_tables(layout, e, arrays=False)
-        checks = _sorted_checks(take_checks(e, tables, th, None if states is None else states.get(e.key, [])))
+        found = output_checks(layout, e, th, cache)
+        stages = C.check_stages(e.records, None if states is None else states.get(e.key, []))
+        checks = _sorted_checks([stages] + found)
         sev = C.worst([c.severity for c in checks])
         takes_out.append({"session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": sev,
                           "stages": {k: r.get("status", "?") for k, r in sorted(e.records.items())},
                           "checks": [c.to_dict() for c in checks]})
         rows.append(take_row(e, checks, sev))
         refs.extend(_ref("take", e.key, c) for c in checks)
-        del tables
+    cache.prune()
+    return TakePass(sessions, session_problems, entries, takes_out, rows, refs)
 
-    return _TakePass(sessions, session_problems, entries, takes_out, rows, refs)
+
+def output_checks(layout: OutLayout, e: TakeEntry, th: C.Thresholds, cache: CheckCache) -> list[C.Check]:
+    """:func:`take_output_checks` of one take, read back from ``cache`` when computed before (by a worker of the
+    run that made the take, :func:`gazepipe.report.run_report.take_part`), else computed (tables read one take at a time) and cached."""
+    key = cache.key(e, th)
+    found = cache.get(key)
+    if found is None:
+        found = stored_checks(take_output_checks(e, load_take_tables(layout, e, arrays=False), th))
+        cache.put(key, found)
+    return found
 
 
-def _take_plots(layout: OutLayout, tp: _TakePass, plots: PlotRequest,
-                cache: FigureCache) -> tuple[dict[str, list[Figure]], list[str], PlotSelection]:
-    """The plots of the takes ``plots`` asks for (their tables read again, one take at a time), notes on plots
-    that could not be drawn, and what the page says about the takes plotted and the others."""
+def plot_choice(layout: OutLayout, tp: TakePass, plots: PlotRequest) -> tuple[list[str], list[str], list[str],
+                                                                                 set[str]]:
+    """Which takes get plots: the keys ranked worst first, the keys ``plots.named`` matched, the chosen keys in
+    rank order and the drawable keys."""
     keys = [e.key for e in tp.entries]
     named = match_takes(plots.named, keys)        # raises before anything is drawn or written
     ranked = rank_takes(tp.takes_out)
     drawable = {e.key for e in tp.entries if has_plot_tables(layout, e)}
     if not plots.on:
-        return {}, [], PlotSelection(False, plots.limit, tuple(ranked), named=tuple(named),
-                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable))
+        return ranked, named, [], drawable
     worst = [k for k in ranked if k in drawable]
     chosen = set(worst if plots.limit is None else worst[:plots.limit]) | (set(named) & drawable)
+    return ranked, named, [k for k in ranked if k in chosen], drawable
+
+
+def take_figures_cached(layout: OutLayout, e: TakeEntry, markerset: Any,
+                         cache: FigureCache) -> tuple[list[Figure], list[str]]:
+    """:func:`take_figures` of one take, read back from ``cache`` when drawn before (by this process or by a
+    worker of the run, :func:`gazepipe.report.run_report.draw_take_plots`), else drawn and cached."""
+    cache_key = cache.take_key(e, markerset)
+    cached = cache.get(cache_key)
+    if cached is not None:
+        return cached
+    tables = load_take_tables(layout, e, only=PLOT_TABLES)
+    figs, fig_notes = take_figures(e, tables, markerset)
+    if not figs:
+        why = "; ".join(f"{n} table unreadable" for n in sorted(tables.errors)) or "no frames"
+        fig_notes.append(f"nothing drawn ({why})")
+    del tables
+    cache.put(cache_key, figs, fig_notes)
+    return figs, fig_notes
+
+
+def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest,
+                cache: FigureCache) -> tuple[dict[str, list[Figure]], list[str], PlotSelection]:
+    """The plots of the takes ``plots`` asks for (their tables read again, one take at a time, unless drawn
+    before), notes on plots that could not be drawn, and what the page says about the takes plotted and the
+    others."""
+    ranked, named, chosen, drawable = plot_choice(layout, tp, plots)
+    if not plots.on:
+        return {}, [], PlotSelection(False, plots.limit, tuple(ranked), named=tuple(named),
+                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable))
     by_key = {e.key: e for e in tp.entries}
     take_figs: dict[str, list[Figure]] = {}
     plot_notes: list[str] = []
-    for key in (k for k in ranked if k in chosen):
+    for key in chosen:
         e = by_key[key]
         s = tp.sessions.get(e.session)
-        markerset = s.markerset if s is not None else None
-        cache_key = cache.take_key(e, markerset)
-        cached = cache.get(cache_key)
-        if cached is not None:
-            figs, fig_notes = cached
-        else:
-            tables = load_take_tables(layout, e, only=PLOT_TABLES)
-            figs, fig_notes = take_figures(e, tables, markerset)
-            if not figs:
-                why = "; ".join(f"{n} table unreadable" for n in sorted(tables.errors)) or "no frames"
-                fig_notes.append(f"nothing drawn ({why})")
-            del tables
-            cache.put(cache_key, figs, fig_notes)
+        figs, fig_notes = take_figures_cached(layout, e, s.markerset if s is not None else None, cache)
         if figs:
             take_figs[key] = figs
         plot_notes.extend(f"{key}: {n}" for n in fig_notes)
     return take_figs, plot_notes, PlotSelection(
         True, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
         nothing_to_draw=tuple(k for k in ranked if k not in drawable),
-        failed=tuple(k for k in ranked if k in chosen and k not in take_figs))
+        failed=tuple(k for k in chosen if k not in take_figs))
 
 
-def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest, tp: _TakePass) -> ValidateResult:
+def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest,
+                  tp: TakePass) -> ValidateResult:
+    """Add the plots and the datasets to the checks of every take, and write ``qc/``."""
     session_problems, takes_out, rows, refs = tp.session_problems, tp.takes_out, tp.rows, list(tp.refs)
     cache = FigureCache(layout)
     take_figs, plot_notes, selection = _take_plots(layout, tp, plots, cache)
@@ -632,17 +535,15 @@ def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotReques
     splits: dict[str, dict[str, str]] = {}
     dirs = {p.name: p for p in dataset_dirs(layout)}
     records = dataset_records(layout)
+    parts = DatasetCache(layout)
     for name in sorted(set(dirs) | set(records)):
-        d = load_dataset(dirs[name], th) if name in dirs else DatasetData(name)
-        checks = _sorted_checks(dataset_checks(d, th, records.get(name), name in dirs))
-        splits[d.name] = d.take_splits
-        ds_figs[d.name] = _dataset_figures(d, cache) if plots.on else []
-        counts = d.info.get("counts") or {}
-        datasets_out.append({"name": d.name, "severity": C.worst([c.severity for c in checks]),
-                             "schema_hash": D.schema_hash(d.expected) if d.expected is not None else None,
-                             "counts": {k: counts.get(k) for k in ("takes", "rows", "by_split", "by_pose")},
-                             "checks": [c.to_dict() for c in checks]})
-        refs.extend(_ref("dataset", d.name, c) for c in checks)
+        entry, take_splits, figs = dataset_part(layout, name, dirs.get(name), records.get(name), th, cache, parts,
+                                                plots.on)
+        splits[name] = take_splits
+        ds_figs[name] = figs
+        datasets_out.append(entry)
+        refs.extend(_ref("dataset", name, C.Check(**c)) for c in entry["checks"])
+    parts.prune()
 
     output_checks = [D.check_split_consistency(splits)]
     if session_problems:
@@ -683,5 +584,5 @@ def _finish(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotReques
                           notes=plot_notes, plotted=list(selection.plotted))
 
 
-__all__ = ["DEFAULT_PLOT_TAKES", "FAIL_ON", "ReportInBackground", "ValidateResult", "dataset_checks", "match_takes",
+__all__ = ["DEFAULT_PLOT_TAKES", "FAIL_ON", "ValidateResult", "dataset_checks", "match_takes",
            "rank_takes", "take_checks", "take_rank_key", "validate_output"]

@@ -1,0 +1,226 @@
+"""What a report keeps between runs under ``OUT/.gazepipe/``: each take's checks (:class:`CheckCache`) and the
+figures drawn before (:class:`FigureCache`), each file named by a hash of everything it was computed from, so
+a hit gives the bytes a new computation would. A run's workers fill both as they go
+(:mod:`gazepipe.report.validate`); the report that ends the run reads them back.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gazepipe import __version__
+from gazepipe.pipeline.lock import pid_alive
+from gazepipe.pipeline.state import OutLayout
+from gazepipe.report import checks as C
+from gazepipe.report.collect import PLOT_TABLES, DatasetData, TakeEntry
+from gazepipe.report.html import Figure
+
+#: the take tables the checks read (their sizes and modification times are part of a take's checks key)
+CHECK_TABLES = ("markers_raw", "eyes", "sync", "markers")
+
+
+@functools.lru_cache(maxsize=1)
+def code_version() -> bytes:
+    """What the cached checks and figures depend on besides their data: every source file of gazepipe (the
+    checks, the plots, the captions, the table readers…) and the versions of the libraries that compute and draw
+    them."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import gazepipe
+
+    h = hashlib.sha256(f"gazepipe {__version__} report figures 1\0".encode())
+    root = Path(gazepipe.__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    for lib in ("matplotlib", "numpy", "scipy", "pyarrow"):
+        try:
+            h.update(f"{lib} {version(lib)}\0".encode())
+        except PackageNotFoundError:
+            h.update(f"{lib} -\0".encode())
+    return h.digest()
+
+
+def feed(h: Any, v: Any) -> None:
+    """Hash ``v`` (arrays, numbers, strings, lists, dicts, None) with its types and shapes."""
+    if isinstance(v, np.ndarray):
+        if v.dtype == object:
+            v = v.astype(str)
+        h.update(f"nd {v.dtype.str} {v.shape}\0".encode())
+        h.update(np.ascontiguousarray(v).tobytes())
+    elif isinstance(v, dict):
+        h.update(f"dict {len(v)}\0".encode())
+        for k in sorted(v, key=str):
+            feed(h, str(k))
+            feed(h, v[k])
+    elif isinstance(v, list | tuple):
+        h.update(f"list {len(v)}\0".encode())
+        for x in v:
+            feed(h, x)
+    else:
+        h.update(f"{type(v).__name__} {v!r}\0".encode())
+
+
+class _KeyedFiles:
+    """JSON files under ``OUT/.gazepipe/<dirname>/`` named by key: written whole then renamed (a reader never
+    sees half a file), not synced (losing one only costs time), never written once the run ``parent_pid`` is
+    gone; :meth:`prune` deletes those the report written last did not use."""
+
+    DIRNAME = ""
+
+    def __init__(self, layout: OutLayout, parent_pid: int | None = None) -> None:
+        self.layout = layout
+        self.dir = layout.state / self.DIRNAME
+        self.used: set[str] = set()
+        #: a run's process, when a worker of that run writes: nothing is written once it is gone
+        self.parent_pid = parent_pid
+
+    def _load(self, key: str | None) -> Any:
+        if key is None:
+            return None
+        self.used.add(key)
+        try:
+            return json.loads((self.dir / f"{key}.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+
+    def _store(self, key: str | None, entry: Any) -> None:
+        if key is None or (self.parent_pid is not None and not pid_alive(self.parent_pid)):
+            return
+        self.used.add(key)
+        tmp = self.layout.tmp / f".{key}.{os.getpid()}.part"
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self.layout.tmp.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(json.dumps(entry, ensure_ascii=False, allow_nan=False).encode())
+            os.replace(tmp, self.dir / f"{key}.json")
+        except (OSError, ValueError):
+            tmp.unlink(missing_ok=True)
+
+    def prune(self) -> None:
+        """Delete the files the report written last does not use."""
+        for path in sorted(self.dir.glob("*.json")) if self.dir.is_dir() else []:
+            if path.stem not in self.used:
+                path.unlink(missing_ok=True)
+
+
+class CheckCache(_KeyedFiles):
+    """Each take's checks (all but ``stages``, whose freshness depends on the inputs now), under
+    ``OUT/.gazepipe/report_checks/``, named by a hash of the take's settings and unit records, the size and
+    modification time of every table the checks read, the thresholds and the source of gazepipe."""
+
+    DIRNAME = "report_checks"
+
+    def key(self, e: TakeEntry, th: C.Thresholds) -> str | None:
+        """The key of a take's checks (``None`` when a table cannot be looked at)."""
+        h = hashlib.sha256(code_version() + b"checks\0")
+        feed(h, [e.key, e.kind, e.pose, e.has_video, e.has_eyes])
+        feed(h, e.records)
+        feed(h, th.to_dict())
+        for name in CHECK_TABLES:
+            path = self.layout.table(e.session, e.take, name)
+            try:
+                st = path.stat()
+                feed(h, [name, st.st_size, st.st_mtime_ns])
+            except FileNotFoundError:
+                feed(h, [name, None])
+            except OSError:
+                return None
+        return h.hexdigest()[:40]
+
+    def get(self, key: str | None) -> list[C.Check] | None:
+        entry = self._load(key)
+        try:
+            return None if entry is None else [C.Check(**d) for d in entry["checks"]]
+        except (KeyError, TypeError):
+            return None
+
+    def put(self, key: str | None, checks: list[C.Check]) -> None:
+        self._store(key, {"checks": [c.to_dict() for c in checks]})
+
+
+class DatasetCache(_KeyedFiles):
+    """Each dataset's part of the report (its report.json entry, the split of each of its takes, the key of its
+    figures), under ``OUT/.gazepipe/report_datasets/``, named by a hash of the dataset's build record, the name,
+    size and modification time of every file in its folder, the thresholds and the source of gazepipe."""
+
+    DIRNAME = "report_datasets"
+
+    def key(self, name: str, path: Path | None, record: dict[str, Any] | None, th: C.Thresholds) -> str | None:
+        h = hashlib.sha256(code_version() + b"dataset part\0")
+        feed(h, [name, record, th.to_dict()])
+        try:
+            for f in sorted(path.rglob("*")) if path is not None else []:
+                st = f.stat()
+                feed(h, [f.relative_to(path).as_posix(), st.st_size, st.st_mtime_ns])
+        except OSError:
+            return None
+        return h.hexdigest()[:40]
+
+    def get(self, key: str | None) -> dict[str, Any] | None:
+        entry = self._load(key)
+        return entry if isinstance(entry, dict) and {"entry", "take_splits", "figure_key"} <= set(entry) else None
+
+    def put(self, key: str | None, part: dict[str, Any]) -> None:
+        self._store(key, part)
+
+
+def stored_checks(checks: list[C.Check]) -> list[C.Check]:
+    """``checks`` as :class:`CheckCache` gives them back (JSON values: tuples as lists, numpy numbers as
+    Python's, non-finite numbers as ``None``), so a report is the same bytes whether they were cached or not."""
+    return [C.Check(**d) for d in json.loads(json.dumps([c.to_dict() for c in checks], allow_nan=False))]
+
+
+class FigureCache(_KeyedFiles):
+    """Figures drawn before, under ``OUT/.gazepipe/report_plots/``, one file per take or dataset, named by a hash
+    of everything its plots are drawn from: the bytes of the tables (a take) or the sampled rows (a dataset), the
+    unit records and markerset they use, the source of gazepipe and the versions of matplotlib, numpy, scipy and
+    pyarrow. Drawing is most of a validation's time, and a run draws the plots its report has: a ``gazepipe
+    validate`` after it reads them back (no matplotlib at all) with the same bytes as drawing them again. What
+    the report written last does not use is deleted.
+    """
+
+    DIRNAME = "report_plots"
+
+    def take_key(self, e: TakeEntry, markerset: Any) -> str | None:
+        """The key of a take's plots (``None``: a table cannot be read, so nothing is cached)."""
+        h = hashlib.sha256(code_version() + b"take\0")
+        feed(h, e.key)
+        for name in PLOT_TABLES:
+            path = self.layout.table(e.session, e.take, name)
+            feed(h, name)
+            try:
+                feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
+            except OSError:
+                return None
+        feed(h, {stage: {k: r.get(k) for k in ("status", "qc", "components")} for stage, r in e.records.items()})
+        feed(h, repr(markerset))
+        return h.hexdigest()[:40]
+
+    def dataset_key(self, d: DatasetData) -> str:
+        h = hashlib.sha256(code_version() + b"dataset\0")
+        feed(h, d.name)
+        feed(h, d.info.get("features"))
+        smp = d.all_rows
+        feed(h, None if smp is None else [smp.columns, smp.pose, smp.n_total, smp.n_total_by_pose])
+        return h.hexdigest()[:40]
+
+    def get(self, key: str | None) -> tuple[list[Figure], list[str]] | None:
+        entry = self._load(key)
+        try:
+            if entry is None:
+                return None
+            return [Figure(f["title"], f["caption"], f["svg"]) for f in entry["figures"]], \
+                [str(n) for n in entry["notes"]]
+        except (KeyError, TypeError):
+            return None
+
+    def put(self, key: str | None, figs: list[Figure], notes: list[str]) -> None:
+        self._store(key, {"figures": [{"title": f.title, "caption": f.caption, "svg": f.svg} for f in figs],
+                          "notes": notes})
