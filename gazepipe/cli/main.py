@@ -52,7 +52,7 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     debug = bool(click.get_current_context().find_root().params.get("debug"))
     loaded = load_sessions(sessions)
     values = parse_params(params, params_file)
-    log = EventLog(log_format, run_id=new_run_id())
+    log = EventLog(log_format, run_id=new_run_id(), debug=debug)
     report = _RunReport(Path(out), log) if until is None and not dry_run else None
     summary = run_pipeline(loaded, out, until=until, params=values, executor=executor, jobs=jobs,
                            scheduler=scheduler, force=force, dry_run=dry_run, log=log, heartbeat_every=heartbeat,

@@ -14,17 +14,20 @@ class EventLog:
     """Writes one event per line to ``stream`` (stderr by default).
 
     JSON lines carry ``time`` (UTC ISO 8601), ``level``, ``event``, ``run_id`` and the event's fields (``stage``,
-    ``take``, ``status``, ``duration_s`` …). Text lines are for people and omit the bookkeeping.
+    ``take``, ``status``, ``duration_s`` …). Text lines are for people and omit the bookkeeping. A
+    ``traceback`` field is written only with ``debug`` (``--debug``): a log read by people and batch tools
+    carries one line per failure, as the terminal does.
     """
 
     def __init__(self, fmt: str = "auto", stream: TextIO | None = None, run_id: str = "",
-                 quiet: bool = False) -> None:
+                 quiet: bool = False, debug: bool = False) -> None:
         self.stream = stream or sys.stderr
         if fmt == "auto":
             fmt = "text" if _isatty(self.stream) else "json"
         self.fmt = fmt
         self.run_id = run_id
         self.quiet = quiet
+        self.debug = debug
         self._bar = False   # a progress bar is on the terminal's last line
 
     @property
@@ -37,7 +40,7 @@ class EventLog:
         if self.fmt == "json":
             rec = {"time": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime()) + "Z", "level": level,
                    "event": event, "run_id": self.run_id}
-            rec.update({k: v for k, v in fields.items() if v is not None})
+            rec.update({k: v for k, v in fields.items() if v is not None and (k != "traceback" or self.debug)})
             if message:
                 rec["message"] = message
             line = json.dumps(rec, default=str, sort_keys=False)

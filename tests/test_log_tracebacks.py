@@ -1,0 +1,38 @@
+"""The JSON log (the default off a terminal: cron, CI) carries one line per failure; the traceback behind it only
+with --debug, as on a terminal."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from gazepipe.cli.main import cli
+from tests.test_report import _session_copy
+
+
+def _events(tmp_path: Path, *extra: str) -> list[dict]:
+    session = tmp_path / "session"
+    if not session.exists():
+        _session_copy(session, {"neutral": None, "shift_y036_p12": None})
+        c3d = session / "mocap" / "shift_y036_p12.c3d"
+        c3d.write_bytes(c3d.read_bytes()[:2000])   # cut inside the data: the take fails on reading
+    res = CliRunner().invoke(cli, [*extra, "ingest", str(session), "--out", str(tmp_path / f"out{len(extra)}"),
+                                   "--executor", "serial", "--log-format", "json"])
+    assert res.exit_code == 1, res.output
+    return [json.loads(line) for line in res.stderr.splitlines() if line.startswith("{")]
+
+
+def test_the_json_log_has_no_traceback_without_debug(tmp_path: Path) -> None:
+    events = _events(tmp_path)
+    failed = [e for e in events if e.get("status") == "failed" and e["event"] == "unit"]
+    assert failed and all("shift_y036_p12" in e["message"] for e in failed)
+    assert not any("traceback" in e for e in events)
+    assert all("\n" not in e["message"] for e in events)
+
+
+def test_debug_puts_the_traceback_in_the_json_log(tmp_path: Path) -> None:
+    events = _events(tmp_path, "--debug")
+    failed = [e for e in events if e.get("status") == "failed" and e["event"] == "unit"]
+    assert failed and all(e.get("traceback", "").startswith("Traceback") for e in failed)
