@@ -11,6 +11,7 @@ import os
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 
 from gazepipe.errors import ConfigError
+from gazepipe.pipeline.lifeline import worker_initializer
 
 EXECUTORS = ("serial", "process", "dask")
 
@@ -67,8 +68,10 @@ class DaskExecutor(Executor):
                        if k != "MALLOC_TRIM_THRESHOLD_"}
             self._config = dask.config.set({"distributed.nanny.pre-spawn-environ": environ, **QUIET_LOCAL_CLUSTER})
             try:
+                # each worker process dies with this one (gazepipe.pipeline.lifeline)
                 self._cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
-                                             processes=True, dashboard_address=None)
+                                             processes=True, dashboard_address=None,
+                                             preload=["gazepipe.pipeline.lifeline_preload"])
                 self._client = Client(self._cluster)
             except BaseException:
                 self._config.__exit__(None, None, None)
@@ -124,9 +127,12 @@ def make_executor(kind: str, jobs: int | None = None, scheduler: str | None = No
     if kind == "serial" or (kind == "process" and (jobs or default_workers()) == 1):
         return SerialExecutor()
     if kind == "process":
-        # forkserver: workers do not inherit the parent's threads or locks
-        return ProcessPoolExecutor(max_workers=jobs or default_workers(),
-                                   mp_context=multiprocessing.get_context("forkserver"))
+        # forkserver: workers do not inherit the parent's threads or locks. The forkserver dies with this
+        # process and the workers with the forkserver (gazepipe.pipeline.lifeline)
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["gazepipe.pipeline.lifeline_preload"])
+        return ProcessPoolExecutor(max_workers=jobs or default_workers(), mp_context=ctx,
+                                   initializer=worker_initializer)
     if kind == "dask":
         return DaskExecutor(scheduler, jobs)
     raise ConfigError(None, f"unknown executor '{kind}' (choose from {', '.join(EXECUTORS)})")

@@ -1,0 +1,66 @@
+"""Workers die with their run: when the run's process alone is killed with SIGKILL (what the out-of-memory killer
+does), its forkserver, its workers (process or Dask) and multiprocessing's resource tracker are gone within 2 s
+(gazepipe.pipeline.lifeline; Linux)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.test_report import _session_copy
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signals are Linux's")
+
+
+def _in_session(sid: int) -> list[int]:
+    """Live (not zombie) processes of session ``sid``."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()
+        if int(fields[3]) == sid and fields[0] != "Z":
+            out.append(int(d.name))
+    return out
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    return _session_copy(tmp_path_factory.mktemp("lifeline") / "session",
+                         {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": None, "shift_y000_p12": None})
+
+
+@pytest.mark.parametrize("executor", ["process", "dask"])
+def test_killing_the_run_alone_ends_every_worker(session: Path, tmp_path: Path, executor: str) -> None:
+    if executor == "dask":
+        pytest.importorskip("distributed")
+    cmd = [sys.executable, "-m", "gazepipe", "run", str(session), "--out", str(tmp_path / "out"),
+           "--executor", executor, "-j", "2", "--log-format", "json"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
+    try:
+        for line in proc.stderr:   # the first unit done: the workers are up
+            if json.loads(line).get("event") == "unit":
+                break
+        helpers = [p for p in _in_session(proc.pid) if p != proc.pid]
+        assert len(helpers) >= 2, "the run has its workers"
+        os.kill(proc.pid, signal.SIGKILL)   # the leader only, not its group
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 2.0
+        while _in_session(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _in_session(proc.pid) == [], "no process of the killed run is left 2 s after it died"
+    finally:
+        left = _in_session(proc.pid)
+        if left:
+            os.killpg(proc.pid, signal.SIGKILL)
