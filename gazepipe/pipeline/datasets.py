@@ -9,6 +9,7 @@ units failed are left out (and named in the record), so one bad take never block
 from __future__ import annotations
 
 import os
+import shutil
 import time
 import traceback
 import uuid
@@ -39,6 +40,9 @@ class DatasetPlan:
     reason: str
     error: str = ""     # set when the build failed before on the same inputs and is not retried
     dag: tuple[str, ...] = ()   # the modules that register the datasets (:func:`registry.modules`)
+    #: takes the dataset applies to that cannot feed it (a unit it needs failed or never ran): (session, take,
+    #: why); with no contributing take at all the build only removes what an earlier build published
+    left_out: list[tuple[str, str, str]] = field(default_factory=list)
 
 
 class RunGone(Exception):
@@ -82,6 +86,19 @@ class DatasetResult:
     warnings: list[str] = field(default_factory=list)
 
 
+def _unpublish(layout: OutLayout, name: str) -> bool:
+    """Remove dataset ``name``'s folder, if any: renamed away first (readers never see half a dataset), then
+    deleted. Whether there was one."""
+    folder = layout.root / "datasets" / name
+    if not folder.exists():
+        return False
+    layout.tmp.mkdir(parents=True, exist_ok=True)
+    gone = layout.tmp / f"{name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.removed"
+    os.replace(folder, gone)
+    shutil.rmtree(gone, ignore_errors=True)
+    return True
+
+
 def _record_path(layout: OutLayout, name: str) -> Path:
     return layout.state / "datasets" / f"{name}.json"
 
@@ -100,38 +117,50 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
     for ds in registry.datasets():
         name = ds.name
         takes = []
+        left: list[tuple[str, str, str]] = []
         for s in sessions:
             for t in s.takes:
                 if not ds.applies(s, t):
                     continue
                 units: dict[str, str] = {}
-                ok = True
+                why = ""
                 for stage in ds.needs:
                     key = (s.id, t.id, stage)
                     if key not in fp:
                         if stage in ds.optional:
                             continue
-                        ok = False
+                        why = f"no {stage} stage for it"
                         break
                     if optimistic and key in planned_to_run:
                         units[stage] = fp[key]
                         continue
                     rec = read_json(layout.record(s.id, t.id, stage))
-                    if not (isinstance(rec, dict) and rec.get("status") == "ok" and rec.get("fingerprint") == fp[key]):
-                        ok = False
+                    if not isinstance(rec, dict):
+                        why = f"its {stage} stage never ran"
+                    elif rec.get("status") != "ok":
+                        why = f"its {stage} stage failed: {rec.get('error', '?')}"
+                    elif rec.get("fingerprint") != fp[key]:
+                        why = f"its {stage} stage is not up to date with its inputs"
+                    if why:
                         break
                     units[stage] = fp[key]
-                if ok:
+                if why:
+                    left.append((s.id, t.id, why))
+                else:
                     takes.append((s, t, units))
-        if not takes:
-            continue
+        rec = read_json(_record_path(layout, name))
+        if not takes and not isinstance(rec, dict) and not (layout.root / "datasets" / name).exists():
+            continue   # nothing to build and nothing built before
         comp = {"dataset": name, "version": ds.version,
                 "params": registry.group_values(ds.params, params) if ds.params else {},
                 "takes": sorted([s.id, t.id, u] for s, t, u in takes)}
         fingerprint = sha256_json(comp)
-        rec = read_json(_record_path(layout, name))
         reason = error = ""
-        if force:
+        if not takes:
+            reason = "no take can feed it" if (isinstance(rec, dict) and rec.get("status") == "ok") or \
+                (layout.root / "datasets" / name).exists() else ""
+            error = "" if reason else (rec or {}).get("error", "no take can feed it")
+        elif force:
             reason = "--force"
         elif not isinstance(rec, dict):
             reason = "never built"
@@ -148,7 +177,7 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
             reason = "an output file is missing"
         plans.append(DatasetPlan(name, fingerprint, comp, takes, bool(reason),
                                  reason or ("failed earlier on these same inputs" if error else "up to date"), error,
-                                 registry.modules()))
+                                 registry.modules(), left))
     return plans
 
 
@@ -165,7 +194,8 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     ds = next(d for d in registry.datasets() if d.name == plan.name)
     outcome = UnitOutcome("-", "-", f"build:{plan.name}", "ok", reason=plan.reason)
     record: dict[str, Any] = {"dataset": plan.name, "fingerprint": plan.fingerprint, "components": plan.components,
-                              "gazepipe_version": __version__}
+                              "gazepipe_version": __version__,
+                              "left_out": [{"session": s, "take": t, "reason": why} for s, t, why in plan.left_out]}
 
     def check_alive() -> None:
         if parent_pid is not None and not pid_alive(parent_pid):
@@ -177,6 +207,9 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
                          tmp=layout.tmp / f"{plan.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part",
                          write_bytes=layout.write_bytes, check_alive=check_alive)
     try:
+        if not plan.takes:
+            reasons = "; ".join(f"{s}/{t}: {why}" for s, t, why in plan.left_out[:3]) or "no take applies"
+            raise GazepipeError(None, f"no take can feed it ({reasons})")
         with threadpool_limits(limits=1):  # as for take units: results independent of the BLAS thread count
             result = ds.run(ctx)
         root = ctx.root / plan.name
@@ -194,6 +227,9 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
         outcome.error = f"dataset {plan.name}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
     if outcome.status == "failed":
+        # what an earlier build published came from other inputs: it must not pass for this build's result
+        if _unpublish(layout, plan.name):
+            outcome.error += f" (the dataset built before from other inputs is removed: datasets/{plan.name})"
         record.update(status="failed", error=outcome.error)
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)

@@ -290,13 +290,16 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
                  threshold={"max_z": th.stats_max_z}, details=details)
 
 
-def check_skipped(info: dict[str, Any]) -> Check:
-    sk = info.get("skipped") or []
+def check_skipped(info: dict[str, Any], left_out: list[dict[str, Any]] | None = None) -> Check:
+    """Every take the dataset applies to and has no rows of: those the build left out (``info["skipped"]``: no
+    usable rows) and those that could not feed it (``left_out``, from the build's record: a stage it needs
+    failed or never ran)."""
+    sk = list(left_out or []) + list(info.get("skipped") or [])
     if not sk:
         return Check("skipped_takes", "pass", "no take left out", value=0)
     first = sk[0]
-    return Check("skipped_takes", "warning", f"{len(sk)} take(s) left out, e.g. {first.get('take')}: "
-                 f"{first.get('reason')}", value=len(sk), details={"skipped": sk})
+    return Check("skipped_takes", "warning", f"{len(sk)} take(s) left out, e.g. {first.get('session')}/"
+                 f"{first.get('take')}: {first.get('reason')}", value=len(sk), details={"skipped": sk})
 
 
 def check_windowed_rows(info: dict[str, Any], th: Thresholds) -> Check:
