@@ -63,7 +63,7 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
                 click.echo(o.traceback, err=True)
     if not dry_run:
         msg, counts = summary.end_message()
-        failed = bool(summary.failed)
+        failed = summary.exit_code != 0
         log.emit("error" if failed else "info", "run_end", msg, status="failed" if failed else "ok",
                  skipped=counts["up_to_date"], **counts)
     sys.exit(summary.exit_code)

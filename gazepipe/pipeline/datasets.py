@@ -8,6 +8,7 @@ units failed are left out (and named in the record), so one bad take never block
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import time
@@ -26,7 +27,7 @@ from gazepipe.pipeline import registry
 from gazepipe.pipeline.hashing import sha256_json
 from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import SessionLike, TakeLike
-from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, release_memory
+from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, os_problem, release_memory
 from gazepipe.pipeline.state import OutLayout, read_json
 
 
@@ -222,16 +223,26 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     except GazepipeError as exc:
         outcome.status, outcome.error = "failed", f"dataset {plan.name}: {exc.one_line()}"
         record["retry"] = False
+    except OSError as exc:   # the disk, not the inputs: retried next time
+        outcome.status, outcome.error = "failed", f"dataset {plan.name}: {os_problem(exc, ctx.root / plan.name)}"
+        outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: recorded, the run goes on
         outcome.status = "failed"
         outcome.error = f"dataset {plan.name}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
+    removed = False
     if outcome.status == "failed":
         # what an earlier build published came from other inputs: it must not pass for this build's result
-        if _unpublish(layout, plan.name):
+        with contextlib.suppress(OSError):
+            removed = _unpublish(layout, plan.name)
+        if removed:
             outcome.error += f" (the dataset built before from other inputs is removed: datasets/{plan.name})"
         record.update(status="failed", error=outcome.error)
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)
-    layout.write_json(_record_path(layout, plan.name), record)
+    path = _record_path(layout, plan.name)
+    try:
+        layout.write_json(path, record)
+    except OSError as exc:   # built but not recorded: the next run builds it again
+        outcome.status, outcome.error = "failed", f"dataset {plan.name}: {os_problem(exc, path)}"
     return outcome

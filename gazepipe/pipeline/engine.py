@@ -20,7 +20,15 @@ from gazepipe.pipeline.executors import check_executor, make_executor
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.registry import SessionLike
-from gazepipe.pipeline.runner import TakeJob, UnitOutcome, UnitPlan, new_run_id, plan_take, run_take_job
+from gazepipe.pipeline.runner import (
+    TakeJob,
+    UnitOutcome,
+    UnitPlan,
+    new_run_id,
+    os_problem,
+    plan_take,
+    run_take_job,
+)
 from gazepipe.pipeline.state import OutLayout, read_json
 
 #: ``until`` value that runs every take stage and then builds the datasets (as ``None`` does)
@@ -32,6 +40,8 @@ class RunSummary:
     run_id: str
     outcomes: list[UnitOutcome] = field(default_factory=list)
     plans: list[UnitPlan] = field(default_factory=list)
+    #: the run's own writes that failed (its records, its report), one line each
+    io_errors: list[str] = field(default_factory=list)
 
     def count(self, status: str, *, datasets: bool | None = None) -> int:
         """Outcomes with ``status``: of take units only (``datasets=False``), datasets only (``True``), or
@@ -54,6 +64,9 @@ class RunSummary:
         if any(n[k] for k in ("datasets_built", "datasets_up_to_date", "datasets_failed")):
             msg += (f"; datasets: {n['datasets_built']} built, {n['datasets_up_to_date']} up to date, "
                     f"{n['datasets_failed']} failed")
+        if self.io_errors:
+            n["io_errors"] = len(self.io_errors)
+            msg += f"; {len(self.io_errors)} of the run's own files could not be written"
         return msg, n
 
     @property
@@ -62,7 +75,7 @@ class RunSummary:
 
     @property
     def exit_code(self) -> int:
-        return 1 if self.failed else 0
+        return 1 if self.failed or self.io_errors else 0
 
 
 def is_dataset(outcome: UnitOutcome) -> bool:
@@ -132,7 +145,10 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
     layout.state.mkdir(parents=True, exist_ok=True)
     with OutputLock(layout.lock):
         clear_stale_temporaries(layout.tmp)
-        _remember_sessions(layout, sessions)
+        try:
+            _remember_sessions(layout, sessions)
+        except OSError as exc:   # nothing can be recorded: stop before anything runs
+            raise GazepipeError(None, os_problem(exc, layout.sessions)) from None
         hashes = HashCache(layout.hashes)
         take_jobs, failures, plans = plan_run(sessions, layout.root, until=until, params=params, force=force,
                                               hashes=hashes)
@@ -163,8 +179,8 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                 if report is not None:
                     report.takes_started(workers.pool())
                 _execute(todo, summary, log, workers, heartbeat_every, report)
-                if report is not None:
-                    hashes.save(layout.write_bytes)  # what the report's unit states are worked out with
+                if report is not None:   # what the report's unit states are worked out with
+                    _keep(summary, log, layout.hashes, lambda: hashes.save(layout.write_bytes))
             built = 0
             if until in (None, BUILD):
                 built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers,
@@ -179,12 +195,24 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
             before = f" ({n_before} take units failed before on the same inputs)" if n_before else ""
             log.emit("info", "nothing_to_do", f"nothing to do: {len(plans) - n_before} take units{also} up to "
                      f"date{before}", status="up_to_date", units=len(plans) - n_before, datasets=n_ds)
-        hashes.save(layout.write_bytes)
-        layout.write_json(layout.runs() / f"{summary.run_id}.json", {
-            "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]})
+        _keep(summary, log, layout.hashes, lambda: hashes.save(layout.write_bytes))
+        run_record = layout.runs() / f"{summary.run_id}.json"
+        _keep(summary, log, run_record, lambda: layout.write_json(run_record, {
+            "run_id": summary.run_id, "outcomes": [asdict(o) for o in summary.outcomes]}))
         if report is not None:
-            report.finish()
+            _keep(summary, log, layout.root / "qc", report.finish)
     return summary
+
+
+def _keep(summary: RunSummary, log: EventLog, path: Path, write: Callable[[], None]) -> None:
+    """Run one of the run's own writes (its records, its report); an I/O error (a full or read-only disk) is
+    one error line naming the file, and the run still ends with its summary (exit 1)."""
+    try:
+        write()
+    except OSError as exc:
+        msg = os_problem(exc, path)
+        summary.io_errors.append(msg)
+        log.emit("error", "io_error", msg, status="failed", path=str(path))
 
 
 def _check_params(params: dict[str, Any]) -> None:

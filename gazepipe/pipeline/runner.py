@@ -243,6 +243,7 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
                               "fingerprint": plan.fingerprint, "components": plan.components,
                               "gazepipe_version": __version__}
     outcome = UnitOutcome(plan.session, plan.take, plan.stage, "ok", reason=plan.reason)
+    writing: Path | None = None   # the output being written, for an I/O error's message
     try:
         # one BLAS thread whatever the executor: results must not depend on where a unit ran (a multi-threaded
         # BLAS sums in another order), and takes already run in parallel
@@ -253,7 +254,7 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
             raise RuntimeError(f"stage {st.name} produced no {missing}")
         sizes = {}
         for name, (table, schema) in sorted(result.tables.items()):
-            final = layout.table(plan.session, plan.take, name)
+            final = writing = layout.table(plan.session, plan.take, name)
             with atomic_path(final, layout.tmp) as tmp:
                 store.write(table, tmp, schema)
             sizes[final.name] = final.stat().st_size
@@ -269,6 +270,11 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
         record["retry"] = False   # the inputs are at fault: the same inputs fail the same way
         if isinstance(exc, SchemaError | InputError):
             outcome.traceback = traceback.format_exc()
+    except OSError as exc:   # the disk, not the take: full, read-only, no permission; retried next time
+        record["retry"] = True
+        outcome.status = "failed"
+        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, writing)}"
+        outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
         record["retry"] = True
         outcome.status = "failed"
@@ -281,8 +287,22 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
                 layout.table(plan.session, plan.take, name).unlink()
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)
-    layout.write_json(layout.record(plan.session, plan.take, plan.stage), record)
+    path = layout.record(plan.session, plan.take, plan.stage)
+    try:
+        layout.write_json(path, record)
+    except OSError as exc:   # the unit's outputs stand unrecorded: the next run does it again
+        outcome.status = "failed"
+        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, path)}"
     return outcome
+
+
+def os_problem(exc: OSError, writing: Path | None = None) -> str:
+    """An I/O error as a phrase naming its file: the one the error names (``PATH: Permission denied``), else
+    the one being written (``cannot write PATH: No space left on device``)."""
+    why = exc.strerror or " ".join(str(exc).split()) or type(exc).__name__
+    if exc.filename:
+        return f"{exc.filename}: {why}"
+    return f"cannot write {writing}: {why}" if writing else f"I/O error: {why}"
 
 
 def new_run_id() -> str:

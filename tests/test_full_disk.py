@@ -1,0 +1,46 @@
+"""A full disk: every failure is one line naming the file (and the take or dataset), no internal error, and the
+run still ends with its summary (exit 1). Needs a small tmpfs: run as root where mount works, else skipped."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.test_report import _session_copy
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path):
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=512k", "tmpfs", str(mnt)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.decode(errors='replace').strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+@pytest.mark.parametrize("executor", ["serial", "process"])
+def test_a_full_disk_gives_one_line_per_failure_and_the_summary(small_disk: Path, tmp_path: Path,
+                                                                executor: str) -> None:
+    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": None,
+                                                    "shift_ym036_p00": "train"})
+    res = subprocess.run([sys.executable, "-m", "gazepipe", "run", str(session), "--out", str(small_disk / "out"),
+                          "--executor", executor, "-j", "2", "--log-format", "json"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 1, res.stderr[-3000:]
+    events = [json.loads(line) for line in res.stderr.splitlines()]   # every line is an event: no traceback
+    errors = [e for e in events if e["level"] == "error" and e["event"] != "run_end"]
+    assert errors and all("No space left on device" in e["message"] for e in errors)
+    assert not any("internal error" in e["message"] or "worker died" in e["message"] for e in events)
+    assert all(str(small_disk) in e["message"] for e in errors), "each names the file it could not write"
+    assert events[-1]["event"] == "run_end" and events[-1]["message"].startswith("done:")
