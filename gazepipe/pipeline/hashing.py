@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,8 @@ class HashCache:
             except (OSError, ValueError):
                 self._entries = {}
 
-    def hash(self, path: str | Path) -> str:
+    def hash(self, path: str | Path, check: Callable[[Path], None] | None = None) -> str:
+        """The file's sha256; ``check(path)`` is called first when it must be read (not cached)."""
         p = os.path.abspath(path)
         try:
             st = os.stat(p)
@@ -53,6 +55,8 @@ class HashCache:
         entry = self._entries.get(p)
         if entry and entry[:3] == key:
             return entry[3]
+        if check is not None:
+            check(Path(p))
         try:
             digest = sha256_file(p)
         except OSError as exc:

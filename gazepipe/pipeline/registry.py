@@ -200,9 +200,24 @@ def register_dataset(dataset: Dataset) -> Dataset:
     return dataset
 
 
+_SOURCE_CHECK: list[Callable[[Path], None]] = []
+
+
 def set_table_store(store: TableStore) -> None:
     """How the engine writes and reads tables (once per process; the last call wins)."""
     _TABLES[:] = [store]
+
+
+def set_source_check(check: Callable[[Path], None] | None) -> None:
+    """How the engine looks at an input file before it hashes it (once per process; the last call wins):
+    ``check(path)`` raises :class:`~gazepipe.errors.GazepipeError` for a file that cannot be what it claims
+    (a capture whose header declares more than the file holds…), in bounded time and memory, so such a file
+    fails its take at once instead of being read whole first."""
+    _SOURCE_CHECK[:] = [check] if check is not None else []
+
+
+def source_check() -> Callable[[Path], None] | None:
+    return _SOURCE_CHECK[0] if _SOURCE_CHECK else None
 
 
 def _loaded() -> None:

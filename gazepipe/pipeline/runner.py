@@ -99,7 +99,8 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
     for st in stages:
         if not st.applies(session, take):
             continue
-        sources = {os.path.relpath(p, session.root): hashes.hash(p) for p in st.sources(session, take)}
+        check = registry.source_check()
+        sources = {os.path.relpath(p, session.root): hashes.hash(p, check) for p in st.sources(session, take)}
         comp = {
             "stage": st.name, "version": st.version, "params": stage_params(st, params),
             "take": _take_config(session, take), "sources": sources,
