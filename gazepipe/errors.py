@@ -6,7 +6,33 @@ Every failure a user can cause (a bad file, a bad setting) is raised as a subcla
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
+
+# C0 and C1 control characters, DEL, lone surrogates (the bytes of a file name that are not UTF-8), and the
+# Unicode line separators and bidirectional overrides that would reorder or break a printed line
+_UNPRINTABLE = re.compile("[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069"
+                          "\ud800-\udfff]")
+
+
+def _escape_char(m: re.Match) -> str:
+    ch = m.group()
+    code = ord(ch)
+    if 0xDC80 <= code <= 0xDCFF:        # a byte that did not decode (surrogateescape): show the byte
+        return f"\\x{code - 0xDC00:02x}"
+    if code < 0x100:
+        return f"\\x{code:02x}"
+    return f"\\u{code:04x}"
+
+
+def printable(text: object) -> str:
+    """``str(text)`` safe to print on one line: control characters, undecodable bytes of file names and
+    characters that reorder or break a line are written as escapes (``\\x00``, ``\\x1b``, ``\\u202e``).
+
+    Strings taken from files (C3D parameter names, labels, cells, paths) go through this before they reach an
+    error line or a summary; printable text, non-ASCII letters included, is left as it is.
+    """
+    return _UNPRINTABLE.sub(_escape_char, str(text))
 
 
 class GazepipeError(Exception):
@@ -39,7 +65,7 @@ class GazepipeError(Exception):
         head = ": ".join(parts)
         where = f"{head}: " if head else ""
         take = f"take {self.take}: " if self.take else ""
-        return f"{take}{where}{self.problem}"
+        return printable(f"{take}{where}{self.problem}")
 
 
 class ConfigError(GazepipeError):

@@ -13,11 +13,11 @@ from typing import Any
 
 import click
 
-from gazepipe.errors import ConfigError, GazepipeError
+from gazepipe.errors import ConfigError, GazepipeError, printable
 
 
 def fail(message: str, code: int) -> None:
-    click.echo(f"error: {message}", err=True)
+    click.echo(f"error: {printable(message)}", err=True)
     sys.exit(code)
 
 
@@ -58,7 +58,7 @@ def raise_all(problems: list[GazepipeError]) -> None:
     """Print every problem but the last as an ``error:`` line, then raise the last (nothing when none)."""
     if problems:
         for e in problems[:-1]:
-            click.echo(f"error: {e.one_line()}", err=True)
+            click.echo(f"error: {printable(e.one_line())}", err=True)
         raise problems[-1]
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from gazepipe.errors import printable
+
 
 def _pct(share: float | None) -> str:
     return "n/a" if share is None else f"{100 * share:.1f} %"
@@ -27,7 +29,7 @@ def capture_lines(info: dict[str, Any]) -> list[str]:
     lines = [f"  format {info['format']}, {info['frames']} frames at {info['rate_hz']:.6g} Hz, "
              f"first frame {info['first_frame']}, units {info['units'] or 'not stated'}",
              f"  {len(info['markers'])} markers, {len(info['model_outputs'])} model outputs"]
-    lines += [f"    {m['label']:<24} gaps {100 * m['gap_fraction']:6.2f} %" for m in info["markers"]]
+    lines += [f"    {printable(m['label']):<24} gaps {100 * m['gap_fraction']:6.2f} %" for m in info["markers"]]
     return lines
 
 
@@ -64,6 +66,7 @@ def livelinkface_lines(info: dict[str, Any]) -> list[str]:
 
 
 def text_lines(info: dict[str, Any]) -> list[str]:
-    """Every line ``gazepipe inspect`` prints for ``info``: the path, the summary, the warnings."""
+    """Every line ``gazepipe inspect`` prints for ``info``: the path, the summary, the warnings (text taken from
+    the file, such as labels, with control characters escaped)."""
     body = {"openface": openface_lines, "livelinkface": livelinkface_lines}.get(info["format"], capture_lines)
-    return [info["path"], *body(info), *(f"  warning: {w}" for w in info["warnings"])]
+    return [printable(line) for line in [info["path"], *body(info), *(f"  warning: {w}" for w in info["warnings"])]]

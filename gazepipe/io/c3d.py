@@ -7,30 +7,38 @@ Reading happens in three steps:
    fails this step, so ezc3d (C++) never sees a truncated or malformed header or parameter section: on
    mutated files ezc3d was seen to hang (a description overrunning its record), to crash with SIGSEGV
    (ANALOG:SCALE or ANALOG:OFFSET missing or short) and to read truncated files without error.
-2. The point block is decoded with numpy straight from the validated layout (``_decode_points``). This
-   always provides the fourth word of every sample (residual and camera byte), which ezc3d does not
-   return faithfully (it decodes integer residual words from the camera byte and hides 65535.0 words).
+2. The point block is decoded with numpy straight from the validated layout, a bounded number of frames at
+   a time (``_decode_frames``), into the preallocated result: memory is the result, a few bytes of masks per
+   sample and a buffer of a few megabytes, whatever the file's size (only the header and parameter section are
+   read before the layout is checked against the file's size). This always provides the fourth word of every
+   sample (residual and camera byte), which ezc3d does not return faithfully (it decodes integer residual
+   words from the camera byte and hides 65535.0 words).
 3. The coordinates are the numpy decode's: a file is decoded once. Only when the file's parameters disagree
    with its header (``ANALOG:RATE`` inconsistent with the header's analog word count, irregular layouts, MIPS
    processors) is a second reader asked, the pure-Python ``c3d`` package, and its coordinates are used only when
-   they match the numpy decode; when they do not, the note says the header's layout was trusted. (On every
-   corpus file the test suite checks the numpy decode against ezc3d or ``c3d``.)
+   they match the numpy decode; when they do not, the note says the header's layout was trusted. A file whose
+   decode would exceed ``_PYC3D_MAX_BYTES`` is not handed to that package (it holds every frame as a separate
+   array). (On every corpus file the test suite checks the numpy decode against ezc3d or ``c3d``.)
 
 Gap rule (SPEC §1): a sample is invalid when its residual is negative, when any coordinate is NaN (or
 infinite), when the residual word read as an unsigned 16-bit integer is 0xFFFF, or when it lies at exactly
-(0, 0, 0) in a marker that has a non-zero valid sample elsewhere.
+(0, 0, 0) in a marker that has a non-zero valid sample elsewhere. A coordinate farther than
+:data:`gazepipe.io.limits.MAX_ABS_MM` from the origin (in mm) is a corrupted value and becomes a gap too; infinite
+and far samples are counted in a warning. POINT:RATE must lie within 1 Hz - 10 kHz.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from gazepipe.errors import InputError
-from gazepipe.io.c3d_meta import C3DMeta, Layout, MetaError, parse_c3d_meta
+from gazepipe.errors import InputError, printable
+from gazepipe.io.c3d_meta import HEAD_BYTES, C3DMeta, Layout, MetaError, parse_c3d_meta
+from gazepipe.io.limits import MAX_ABS_MM
 from gazepipe.model import Markers, filled_samples
 from gazepipe.timebase import snap_rate, unit_scale_to_mm
 
@@ -40,6 +48,11 @@ MODEL_OUTPUT_PARAMS: tuple[str, ...] = ("ANGLES", "FORCES", "MOMENTS", "POWERS",
 
 #: largest coordinate difference (mm) tolerated between a library's decode and the numpy decode
 _AGREE_MM = 1e-3
+#: bytes of the data section decoded at a time
+_CHUNK_BYTES = 1 << 20
+#: largest decode (bytes of float64 coordinates) handed to the pure-Python ``c3d`` package for a cross-check;
+#: it keeps every frame as a separate array, so a larger file is decoded from the header layout alone
+_PYC3D_MAX_BYTES = 256 << 20
 
 
 def make_unique(labels: list[str]) -> tuple[list[str], list[tuple[int, str, str]]]:
@@ -71,6 +84,12 @@ def make_unique(labels: list[str]) -> tuple[list[str], list[tuple[int, str, str]
     return out, changed
 
 
+def _any3(a: np.ndarray) -> np.ndarray:
+    """``a.any(axis=-1)`` for a last axis of 3 (x, y, z), as two element-wise ORs (a reduction over so short an
+    axis is several times slower)."""
+    return a[..., 0] | a[..., 1] | a[..., 2]
+
+
 def _list_note(what: str, items: list[str], limit: int = 12) -> str:
     shown = ", ".join(items[:limit]) + (f", … ({len(items) - limit} more)" if len(items) > limit else "")
     return f"{len(items)} {what}: {shown}"
@@ -89,7 +108,17 @@ def gap_mask(xyz: np.ndarray, word4: np.ndarray, is_float: bool) -> np.ndarray:
     -------
     (T, P) bool, True where the sample is a gap.
     """
-    finite = np.isfinite(xyz).all(axis=2)
+    gap, zero = _gap_parts(xyz, word4, is_float)
+    nonzero_elsewhere = (~gap & ~zero).any(axis=0)
+    return gap | (zero & nonzero_elsewhere[None, :])
+
+
+def _gap_parts(xyz: np.ndarray, word4: np.ndarray, is_float: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of :func:`gap_mask` that need no other frame: (T, P) gaps by the residual word or a
+    non-finite coordinate, and (T, P) samples at exactly (0, 0, 0) (a gap when the marker is non-zero
+    elsewhere)."""
+    fin = np.isfinite(xyz)
+    finite = fin[..., 0] & fin[..., 1] & fin[..., 2]
     if is_float:
         w = np.asarray(word4, dtype=np.float64)
         wfin = np.isfinite(w)
@@ -103,16 +132,21 @@ def gap_mask(xyz: np.ndarray, word4: np.ndarray, is_float: bool) -> np.ndarray:
         negative = w16 < 0
         ffff = w16.view(np.uint16) == 0xFFFF
     gap = negative | ffff | ~finite
-    zero = finite & (xyz == 0).all(axis=2)
-    nonzero_elsewhere = (~gap & ~zero).any(axis=0)
-    gap |= zero & nonzero_elsewhere[None, :]
-    return gap
+    zero = finite & ~_any3(xyz != 0)
+    return gap, zero
 
 
 def _decode_points(data: bytes, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
-    """Decode the point block of every frame: (T, P, 3) float64 coordinates and (T, P) fourth words."""
+    """Decode the point block of every frame of a whole file held in ``data``: (T, P, 3) float64 coordinates
+    and (T, P) fourth words."""
     n = lay.n_frames * lay.frame_words
     buf = memoryview(data)[lay.data_offset: lay.data_offset + n * lay.word_bytes]
+    return _decode_frames(buf, lay, lay.n_frames)
+
+
+def _decode_frames(buf, lay: Layout, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Decode ``n_frames`` whole frames held in ``buf`` (bytes of the data section, starting at a frame):
+    (n, P, 3) float64 coordinates as stored (integers times |POINT:SCALE|) and (n, P) fourth words."""
     if lay.is_float:
         if lay.processor == "dec":
             words = np.frombuffer(buf, dtype="<u2").reshape(-1, 2)[:, ::-1]
@@ -121,7 +155,7 @@ def _decode_points(data: bytes, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
             arr = np.frombuffer(buf, dtype=">f4" if lay.processor == "mips" else "<f4")
     else:
         arr = np.frombuffer(buf, dtype=">i2" if lay.processor == "mips" else "<i2")
-    arr = arr.reshape(lay.n_frames, lay.frame_words)[:, : 4 * lay.n_points].reshape(lay.n_frames, lay.n_points, 4)
+    arr = arr.reshape(n_frames, lay.frame_words)[:, : 4 * lay.n_points].reshape(n_frames, lay.n_points, 4)
     if lay.is_float:
         xyz = arr[..., :3].astype(np.float64)
         word4 = arr[..., 3].astype(np.float32)
@@ -201,49 +235,67 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
     package's decode matched), ``processor`` (intel, dec, mips),
     ``storage`` (int, float), ``units`` (as found, None if absent), ``n_points`` (markers + model outputs)
     and ``analog_channels``.
+
+    Only the header and parameter section are read before the layout they declare (frame and point counts,
+    rates) is checked against the file's size and the physical ranges; the point blocks are then decoded
+    :data:`_CHUNK_BYTES` at a time straight into the result, so memory is the result plus a bounded buffer.
     """
     p = Path(path)
     try:
-        data = p.read_bytes()
+        fh = open(p, "rb")  # closed by the with-block below
     except FileNotFoundError:
         raise InputError(p, "file not found") from None
     except OSError as e:
         raise InputError(p, f"cannot read file ({e.strerror or e})") from None
-    try:
-        meta = parse_c3d_meta(data)
-        lay = meta.layout(len(data))
-    except MetaError as e:
-        raise InputError(p, f"not a readable C3D file: {e}") from None
-    if lay.n_frames <= 0:
-        raise InputError(p, "C3D file has no frames")
-    if lay.n_points <= 0:
-        raise InputError(p, "C3D file has no 3D points")
-    try:
-        return _assemble(p, data, meta, lay, default_units)
-    except InputError:
-        raise
-    except (MetaError, ValueError, KeyError, IndexError, OverflowError) as e:
-        raise InputError(p, f"not a readable C3D file: {e}") from None
-
-
-def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
-    notes: list[str] = list(lay.notes)
-    own_xyz, word4 = _decode_points(data, lay)
-    gap = gap_mask(own_xyz, word4, lay.is_float)
-
-    reader = "numpy"
-    xyz = own_xyz
-    if not lay.ezc3d_safe:      # parameters and header disagree: the c3d package's own view, when it agrees
+    with fh:
         try:
-            lib = _read_pyc3d(p, lay)
-        except Exception:  # the pure-Python package fails on some valid files (e.g. odd TRIAL fields)
-            lib = None
-        if lib is not None and _agrees(lib, own_xyz, gap):
-            xyz, reader = lib, "c3d"
-        else:
-            notes.append("the c3d package disagrees with the header's data layout (check ANALOG:RATE, "
-                         "POINT:USED); decoded from the header layout")
+            size = os.fstat(fh.fileno()).st_size
+            head = fh.read(HEAD_BYTES)
+        except OSError as e:
+            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+        try:
+            meta = parse_c3d_meta(head)
+            lay = meta.layout(size)
+        except MetaError as e:
+            raise _meta_error(p, e) from None
+        if lay.n_frames <= 0:
+            raise InputError(p, "C3D file has no frames")
+        if lay.n_points <= 0:
+            raise InputError(p, "C3D file has no 3D points")
+        try:
+            return _assemble(p, fh, meta, lay, default_units)
+        except InputError:
+            raise
+        except OSError as e:
+            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+        except MetaError as e:
+            raise _meta_error(p, e) from None
+        except (ValueError, KeyError, IndexError, OverflowError) as e:
+            raise InputError(p, f"not a readable C3D file: {e}") from None
 
+
+def _meta_error(p: Path, e: MetaError) -> InputError:
+    if e.key:
+        return InputError(p, str(e), key=e.key)
+    return InputError(p, f"not a readable C3D file: {e}")
+
+
+def _frame_chunks(p: Path, fh, lay: Layout):
+    """``(first frame index, frame count, bytes)`` of the data section, :data:`_CHUNK_BYTES` at a time."""
+    frame_bytes = lay.frame_words * lay.word_bytes
+    step = max(1, _CHUNK_BYTES // max(frame_bytes, 1))
+    fh.seek(lay.data_offset)
+    for a in range(0, lay.n_frames, step):
+        n = min(step, lay.n_frames - a)
+        buf = fh.read(n * frame_bytes)
+        if len(buf) != n * frame_bytes:
+            raise InputError(p, f"file ends inside frame {a + len(buf) // max(frame_bytes, 1) + 1} of "
+                                f"{lay.n_frames} (changed while it was read?)")
+        yield a, n, buf
+
+
+def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
+    notes: list[str] = list(lay.notes)
     units = meta.get_str("POINT", "UNITS")
     units = units.strip() if units and units.strip() else None
     try:
@@ -255,19 +307,73 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
     is_model = _model_points(meta, raw_labels)
     marker_idx = np.flatnonzero(~is_model)
 
+    # one pass over the point blocks: coordinates of the markers (mm) straight into the result, the parts of
+    # the gap rule per sample, and the samples beyond the physical bound or infinite
+    t, n_m = lay.n_frames, marker_idx.size
+    out = np.empty((t, n_m, 3))
+    gap = np.empty((t, lay.n_points), dtype=bool)
+    zero = np.empty((t, lay.n_points), dtype=bool)
+    far = np.empty((t, n_m), dtype=bool)
+    nonzero = np.zeros(lay.n_points, dtype=bool)
+    infinite = 0
+    for a, n, buf in _frame_chunks(p, fh, lay):
+        xyz, word4 = _decode_frames(buf, lay, n)
+        g, z = _gap_parts(xyz, word4, lay.is_float)
+        gap[a: a + n], zero[a: a + n] = g, z
+        nonzero |= (~g & ~z).any(axis=0)
+        chunk = np.multiply(xyz[:, marker_idx], to_mm, out=out[a: a + n])
+        big = _any3(np.abs(chunk) > MAX_ABS_MM)         # NaN compares False; an infinity is big
+        far[a: a + n] = big
+        if big.any():
+            infinite += int(np.count_nonzero(_any3(np.isinf(chunk[big]))))
+        del xyz, word4, g, z, chunk, big
+    gap |= zero & nonzero[None, :]
+    del zero
+
+    reader = "numpy"
+    if not lay.ezc3d_safe:      # parameters and header disagree: the c3d package's own view, when it agrees
+        lib = None
+        small = t * lay.n_points * 3 * 8 <= _PYC3D_MAX_BYTES
+        if small:
+            try:
+                lib = _read_pyc3d(p, lay)
+            except Exception:  # the pure-Python package fails on some valid files (e.g. odd TRIAL fields)
+                lib = None
+        if lib is not None and _agrees_with_file(p, fh, lay, lib, gap):
+            np.multiply(lib[:, marker_idx], to_mm, out=out)
+            far = _any3(np.abs(out) > MAX_ABS_MM)
+            reader = "c3d"
+        elif small:
+            notes.append("the c3d package disagrees with the header's data layout (check ANALOG:RATE, "
+                         "POINT:USED); decoded from the header layout")
+        else:
+            notes.append("the parameters disagree with the header (check ANALOG:RATE, POINT:USED) and the file "
+                         "is too large for a cross-check with the c3d package; decoded from the header layout")
+        del lib
+
     labels, renamed = make_unique([raw_labels[i] for i in marker_idx])
     if renamed:
         notes.append(_list_note("empty or duplicate labels renamed",
-                                [f"{old!r} -> {new}" for _, old, new in renamed]))
+                                [f"{old!r} -> {printable(new)}" for _, old, new in renamed]))
     model_outputs = [raw_labels[i].strip() for i in np.flatnonzero(is_model)]
 
     valid = ~gap[:, marker_idx]
-    out = xyz[:, marker_idx, :] * to_mm
+    del gap
     out[~valid] = np.nan
-    at_origin = valid.any(axis=0) & ~(valid[..., None] & (out != 0)).any(axis=(0, 2))
+    if infinite:
+        notes.append(f"{infinite} samples with an infinite coordinate made gaps")
+    beyond = far & valid
+    if beyond.any():
+        cols = np.flatnonzero(beyond.any(axis=0))
+        notes.append(f"{int(beyond.sum())} samples farther than {MAX_ABS_MM:,.0f} mm from the origin (corrupted "
+                     "values) made gaps, in " + _list_note("markers", [printable(labels[i]) for i in cols]))
+        valid &= ~beyond
+        out[beyond] = np.nan
+    del far, beyond
+    at_origin = valid.any(axis=0) & ~(valid & _any3(out != 0)).any(axis=0)
     if at_origin.any():
         notes.append(_list_note("markers at exactly (0, 0, 0) in every valid sample (never seen?)",
-                                [labels[i] for i in np.flatnonzero(at_origin)]))
+                                [printable(labels[i]) for i in np.flatnonzero(at_origin)]))
     if valid.size and not valid.any():
         notes.append("every marker sample is invalid (100 % gaps)")
     elif valid.size and valid.all():
@@ -279,10 +385,22 @@ def _assemble(p: Path, data: bytes, meta: C3DMeta, lay: Layout, default_units: s
     dups = _duplicates(markers.xyz, markers.valid)
     if dups:
         notes.append(_list_note("groups of bit-identical trajectories",
-                                ["=".join(labels[i] for i in g) for g in dups], limit=6))
+                                ["=".join(printable(labels[i]) for i in g) for g in dups], limit=6))
     info = {"reader": reader, "processor": lay.processor, "storage": "float" if lay.is_float else "int",
             "units": units, "n_points": lay.n_points, "analog_channels": lay.analog_channels}
     return markers, info
+
+
+def _agrees_with_file(p: Path, fh, lay: Layout, lib: np.ndarray, gap: np.ndarray) -> bool:
+    """Whether a library's (T, P, 3) coordinates match the numpy decode of the file on every non-gap sample
+    (compared a chunk of frames at a time)."""
+    if lib.shape != (lay.n_frames, lay.n_points, 3):
+        return False
+    for a, n, buf in _frame_chunks(p, fh, lay):
+        own, _ = _decode_frames(buf, lay, n)
+        if not _agrees(lib[a: a + n], own, gap[a: a + n]):
+            return False
+    return True
 
 
 def _model_points(meta: C3DMeta, raw_labels: list[str]) -> np.ndarray:

@@ -14,9 +14,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gazepipe.io.limits import MAX_RATE_HZ, MIN_RATE_HZ
+
+#: bytes that hold the header and the whole parameter section of any C3D file: the section starts at the
+#: block the header's first byte names (at most 255) and has at most 255 blocks
+HEAD_BYTES = 512 * 512
+
 
 class MetaError(Exception):
-    """The header or parameter section cannot be decoded (message: short phrase, no path)."""
+    """The header or parameter section cannot be decoded (message: short phrase, no path; ``key``: the
+    parameter at fault, when one is)."""
+
+    def __init__(self, message: str, key: str | None = None) -> None:
+        super().__init__(message)
+        self.key = key
 
 
 _PROCESSORS = {84: "intel", 85: "dec", 86: "mips"}
@@ -160,10 +171,15 @@ class C3DMeta:
         if not math.isfinite(scale):
             raise MetaError("POINT:SCALE is not a number")
         rate = self.get_number("POINT", "RATE")
+        key: str | None = "POINT:RATE"
         if rate is None or not (math.isfinite(rate) and rate > 0):
-            rate = h["rate"]
+            rate, key = h["rate"], None     # POINT:RATE absent or unusable: the header's rate word
         if not (math.isfinite(rate) and rate > 0):
             raise MetaError("no valid point rate in POINT:RATE or the header")
+        if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+            what = "point rate" if key else "the header's point rate (POINT:RATE unusable)"
+            raise MetaError(f"{what} {rate:.6g} Hz is outside {MIN_RATE_HZ:g} Hz - {MAX_RATE_HZ / 1000:g} kHz, "
+                            "the range of a motion capture", key=key)
         first, last = int(h["first_frame"]), int(h["last_frame"])
         n_frames = last - first + 1
         end_field = self.get_numbers("TRIAL", "ACTUAL_END_FIELD", unsigned=True)
@@ -230,8 +246,9 @@ def _floats(raw: bytes, processor: str) -> np.ndarray:
 def parse_c3d_meta(data: bytes) -> C3DMeta:
     """Decode the header and the parameter section of a C3D file held in ``data``.
 
-    Every read is bounds-checked; any inconsistency raises :class:`MetaError`. The data section is not
-    touched.
+    ``data`` may be the whole file or only its first :data:`HEAD_BYTES` (or fewer when the file is shorter):
+    the result is the same. Every read is bounds-checked; any inconsistency raises :class:`MetaError`. The
+    data section is not touched.
     """
     if len(data) < 512:
         raise MetaError(f"only {len(data)} bytes, shorter than a C3D header")

@@ -41,6 +41,9 @@ def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: 
     ``original``: what :func:`gazepipe.io.marker_csv.read_text_export` returned for ``src`` (read again when
     not given).
 
+    Rows the reader added for dropped frames (frame numbers missing from the file) have no line to write into:
+    their samples are not written, and not counted.
+
     Raises :class:`InputError` (naming ``src``) when ``markers`` does not match the file.
     """
     p = Path(src)
@@ -51,17 +54,23 @@ def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: 
         write, valid = filled_samples(orig, markers, removed)
     except ValueError as e:
         raise InputError(p, str(e)) from None
+    in_file = np.arange(orig.n_frames) if layout.rows is None else np.asarray(layout.rows, dtype=np.int64)
+    line_of = np.full(orig.n_frames, -1, dtype=np.int64)
+    has_line = np.zeros(orig.n_frames, dtype=bool)
+    has_line[in_file] = True
+    write = write & has_line[:, None]
     if not write.any():
         Path(dest).write_bytes(raw)
         return 0
     to_mm = unit_scale_to_mm(layout.units, default_units)
     lines = raw[layout.start:layout.stop].split(b"\n")
     rows = [i for i, ln in enumerate(lines) if ln.strip()]   # the reader skips blank lines
-    if len(rows) != orig.n_frames:
-        raise InputError(p, f"{len(rows)} data rows found where the reader saw {orig.n_frames}")
+    if len(rows) != in_file.size:
+        raise InputError(p, f"{len(rows)} data rows found where the reader saw {in_file.size}")
+    line_of[in_file] = rows
     text = _cell_text(markers.xyz / to_mm, write & valid, _decimals(lines, rows, layout))
     for t in np.flatnonzero(write.any(axis=1)):
-        i = rows[t]
+        i = int(line_of[t])
         lines[i] = _rewrite_row(lines[i], layout, np.flatnonzero(write[t]), text, t)
     Path(dest).write_bytes(raw[:layout.start] + b"\n".join(lines) + raw[layout.stop:])
     return int(write.sum())

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, normalise_name
-from gazepipe.errors import InputError
+from gazepipe.errors import InputError, printable
 from gazepipe.io.tracks import FaceTrack, read_columns, read_header
 from gazepipe.timebase import snap_rate
 
@@ -146,7 +146,7 @@ def read_livelinkface(path: str | Path, *, rate_hz: float | None = None, timecod
         optional.append(count_col)
     cols, warnings = read_columns(path, required, optional, text=(tc_col,), what=_WHAT)
     if unknown:
-        shown = ", ".join(unknown[:5]) + (" …" if len(unknown) > 5 else "")
+        shown = ", ".join(printable(u) for u in unknown[:5]) + (" …" if len(unknown) > 5 else "")
         warnings.append(f"ignored {len(unknown)} unknown column(s): {shown}")
 
     timecode = cols[tc_col]
@@ -200,6 +200,11 @@ def read_livelinkface(path: str | Path, *, rate_hz: float | None = None, timecod
 
     count = None
     if count_col and count_col in cols:
+        negative = cols[count_col] < 0
+        if negative.any():
+            r = int(np.argmax(negative))
+            raise InputError(path, f"{_WHAT}: negative count {cols[count_col][r]:g} in data row {r + 1}",
+                             key=count_col)
         bc = np.unique(cols[count_col])
         if bc.size == 1 and float(bc[0]).is_integer():
             count = int(bc[0])

@@ -25,6 +25,15 @@ disagrees with ``rate_hz`` is kept and noted in ``Markers.warnings``).
 
 In every layout a data row must have as many fields as the header (trailing empty fields aside): a shorter
 row is a truncated file or a broken row, and its missing values are not gaps to fill; blank lines are skipped.
+
+The frame column (Vicon's ``Frame``, QTM's ``Frame``, the wide CSV's ``frame``) is checked, never ignored: frame
+numbers must be whole, within 0 - 2^31-1 and strictly increasing (a duplicate or a step back is refused with the
+line it is on). Frames missing between two rows are dropped frames: their rows become gaps (all markers NaN), so
+that every row keeps its own frame number and time, and a warning names the file, the lines and the frames. A
+file with more frames missing than rows present is refused (a broken frame column, not a capture). A sample with
+only some of its X, Y, Z, or an infinite one, and a coordinate farther than
+:data:`gazepipe.io.limits.MAX_ABS_MM` from the origin, become gaps with a warning. Lines over
+:data:`gazepipe.io.limits.MAX_LINE_BYTES` are refused before the file is read into memory.
 """
 
 from __future__ import annotations
@@ -42,8 +51,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.csv as pa_csv
 
-from gazepipe.errors import InputError
+from gazepipe.errors import InputError, printable
 from gazepipe.io.c3d import make_unique
+from gazepipe.io.limits import MAX_ABS_MM, MAX_FRAME, check_line_lengths, exact_floats
 from gazepipe.model import Markers
 from gazepipe.timebase import snap_rate, unit_scale_to_mm
 
@@ -63,7 +73,8 @@ class TextLayout:
 
     The data rows are the non-blank lines of ``raw[start:stop]``, fields separated by ``sep``; row ``t`` holds
     marker ``m``'s X, Y, Z in fields ``cols[m]`` ((M, 3) int), in ``units`` (as found; None when the file does
-    not say).
+    not say). ``rows``: the row of ``Markers`` each data row holds ((N,) int, increasing) when the frame column
+    leaves frames out (the rows between are gaps with no line in the file); None when data row t is row t.
     """
 
     sep: str
@@ -71,9 +82,11 @@ class TextLayout:
     stop: int
     cols: np.ndarray
     units: str | None
+    rows: np.ndarray | None = None
 
 
 def _read_raw(path: Path) -> bytes:
+    check_line_lengths(path, what="marker export")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
@@ -130,7 +143,8 @@ def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
         for attempt in range(2):
             try:
                 try:  # fast path: every cell a number or empty
-                    fast = pd.read_csv(io.BytesIO(block), dtype=np.float64, na_values=["", "NaN", "nan"], **kw)
+                    fast = pd.read_csv(io.BytesIO(block), dtype=np.float64, na_values=["", "NaN", "nan"], **kw,
+                                       **exact_floats())
                     return fast.to_numpy(dtype=np.float64)[:, :n_cols]
                 except ValueError:
                     pass
@@ -143,11 +157,16 @@ def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
                 block = re.sub(rb"[" + re.escape(sep.encode()) + rb" \r]+$", b"", block, flags=re.M)
     df = df.fillna("").apply(lambda c: c.str.strip())
     num = df.apply(pd.to_numeric, errors="coerce")
-    bad = num.isna() & (df != "") & ~df.isin(["NaN", "nan", "NAN", "-nan"])
+    empty = (df == "") | df.isin(["NaN", "nan", "NAN", "-nan"])
+    bad = num.isna() & ~empty
     if bad.to_numpy().any():
         r, c = np.argwhere(bad.to_numpy())[0]
         raise _Bad(f"non-numeric value {df.iat[r, c][:20]!r} in data row {r + 1}, column {c + 1}")
-    return num.to_numpy(dtype=np.float64)
+    # the numbers themselves from Python's correctly rounded parser (pandas' own may be an ulp off)
+    out = np.full(df.shape, np.nan)
+    cells = ~empty.to_numpy()
+    out[cells] = df.to_numpy(dtype=object)[cells].astype(np.float64)
+    return out
 
 
 def _check_fields(raw: bytes, start: int, stop: int, sep: str, first_line: int, header: int,
@@ -206,6 +225,91 @@ def _last_named(header: list[str]) -> int:
     return max((j + 1 for j, c in enumerate(header) if c.strip()), default=0)
 
 
+class _Rows:
+    """Where the data rows of a text export are, to name the line a problem is on."""
+
+    def __init__(self, raw: bytes, start: int, stop: int, first_line: int) -> None:
+        self.raw, self.start, self.stop, self.first_line = raw, start, stop, first_line
+
+    def lines(self, rows: list[int]) -> dict[int, int]:
+        """File line numbers (1-based) of data rows ``rows`` (0-based; blank lines are not rows). One pass over
+        the lines up to the last asked for: called only to word a refusal or a warning."""
+        want = sorted(set(rows))
+        found: dict[int, int] = {}
+        pos, line, row = self.start, self.first_line, 0
+        while want and pos < self.stop:
+            end = self.raw.find(b"\n", pos, self.stop)
+            end = self.stop if end < 0 else end
+            if self.raw[pos:end].strip():
+                if row == want[0]:
+                    found[row] = line
+                    want.pop(0)
+                row += 1
+            pos, line = end + 1, line + 1
+        return found
+
+    def line(self, row: int) -> str:
+        n = self.lines([row]).get(row)
+        return f"line {n}" if n is not None else f"data row {row + 1}"
+
+
+def _frame_rows(frames: np.ndarray, where: _Rows, name: str, notes: list[str]) -> tuple[int, np.ndarray | None]:
+    """Check a frame column; return the first frame number and, when frames are missing between rows, the row
+    of ``Markers`` each data row goes to (None when the rows are consecutive frames).
+
+    Raises :class:`_Bad` naming the line of the first empty, fractional, out-of-range, repeated or decreasing
+    frame number, and when more frames are missing than there are rows. Missing frames are noted in ``notes``
+    (dropped frames: the file, the lines and the frames of the first gaps).
+    """
+    f = np.asarray(frames, dtype=np.float64)
+    bad = ~np.isfinite(f)
+    if bad.any():
+        raise _Bad(f"{where.line(int(np.argmax(bad)))}: no frame number")
+    bad = f != np.floor(f)
+    if bad.any():
+        r = int(np.argmax(bad))
+        raise _Bad(f"{where.line(r)}: frame number {f[r]:.10g} is not a whole number")
+    bad = (f < 0) | (f > MAX_FRAME)
+    if bad.any():
+        r = int(np.argmax(bad))
+        raise _Bad(f"{where.line(r)}: frame number {f[r]:.10g} is out of range (0 to {MAX_FRAME})")
+    fi = f.astype(np.int64)
+    steps = np.diff(fi)
+    back = steps <= 0
+    if back.any():
+        r = int(np.argmax(back)) + 1
+        what = "repeated" if steps[r - 1] == 0 else "going back"
+        raise _Bad(f"{where.line(r)}: frame numbers are not strictly increasing (frame {fi[r - 1]} then "
+                   f"{fi[r]}: {what})")
+    missing = int(fi[-1] - fi[0] + 1 - fi.size) if fi.size else 0
+    if missing <= 0:
+        return int(fi[0]) if fi.size else 1, None
+    gaps = np.flatnonzero(steps > 1)
+    if missing > fi.size:
+        r = int(gaps[np.argmax(steps[gaps])]) + 1
+        raise _Bad(f"{where.line(r)}: frame numbers jump from {fi[r - 1]} to {fi[r]}; {missing} frames missing "
+                   f"against {fi.size} rows present (a broken frame column?)")
+    at = where.lines([int(g) for g in gaps[:3]] + [int(g) + 1 for g in gaps[:3]])
+    def span(a: int, b: int) -> str:
+        return f"frame {a}" if a == b else f"frames {a}-{b}"
+
+    shown = ", ".join(f"lines {at.get(int(g), '?')}-{at.get(int(g) + 1, '?')} ({span(fi[g] + 1, fi[g + 1] - 1)})"
+                      for g in gaps[:3])
+    more = f" and {gaps.size - 3} more" if gaps.size > 3 else ""
+    notes.append(f"{printable(name)}: {missing} dropped frame(s) in {gaps.size} gap(s), kept as gap rows: between "
+                 f"{shown}{more}")
+    return int(fi[0]), fi - fi[0]
+
+
+def _with_gap_rows(xyz: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    """(T, M, 3) coordinates with all-NaN rows where frames are missing (``rows``: see :func:`_frame_rows`)."""
+    if rows is None:
+        return xyz
+    full = np.full((int(rows[-1]) + 1, *xyz.shape[1:]), np.nan)
+    full[rows] = xyz
+    return full
+
+
 def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str]) -> float:
     if file_rate is not None and not (math.isfinite(file_rate) and file_rate > 0):
         file_rate = None
@@ -226,28 +330,39 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
     """Unique labels, gap mask (any non-finite coordinate), conversion to mm."""
     labels, renamed = make_unique(labels)
     if renamed:
-        shown = ", ".join(f"{old!r} -> {new}" for _, old, new in renamed[:12])
+        shown = ", ".join(f"{old!r} -> {printable(new)}" for _, old, new in renamed[:12])
         notes.append(f"{len(renamed)} empty or duplicate labels renamed: {shown}"
                      + (" …" if len(renamed) > 12 else ""))
     try:
         to_mm = unit_scale_to_mm(units, default_units)
     except KeyError:
         raise _Bad(f"unknown units {units!r}") from None
-    valid = np.isfinite(xyz).all(axis=2)
+    finite = np.isfinite(xyz)
+    valid = finite.all(axis=2)
+    infinite = np.isinf(xyz).any(axis=2)
+    partial = finite.any(axis=2) & ~valid & ~infinite
+    if infinite.any():
+        notes.append(f"{int(infinite.sum())} samples with an infinite coordinate made gaps")
+    if partial.any():
+        notes.append(f"{int(partial.sum())} samples with only some of X, Y, Z made gaps (first at frame "
+                     f"{int(first_frame) + int(np.argmax(partial.any(axis=1)))})")
+    del finite, infinite, partial
     if zero_gaps:
         zero = valid & (xyz == 0).all(axis=2)
         valid &= ~(zero & (valid & ~zero).any(axis=0)[None, :])
     xyz = np.where(valid[..., None], xyz * to_mm, np.nan)
+    far = valid & ~(np.abs(xyz) <= MAX_ABS_MM).all(axis=2)
+    if far.any():
+        cols = np.flatnonzero(far.any(axis=0))
+        shown = ", ".join(printable(labels[i]) for i in cols[:12]) + (" …" if cols.size > 12 else "")
+        notes.append(f"{int(far.sum())} samples farther than {MAX_ABS_MM:,.0f} mm from the origin (corrupted "
+                     f"values) made gaps, in {cols.size} markers: {shown}")
+        valid &= ~far
+        xyz[far] = np.nan
     if valid.size and not valid.any():
         notes.append("every marker sample is invalid (100 % gaps)")
     return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=rate, first_frame=int(first_frame),
                    units=units, source_format=fmt, warnings=notes)
-
-
-def _first_frame(frames: np.ndarray) -> int:
-    if frames.size and np.isfinite(frames[0]) and abs(frames[0]) < 2**31:
-        return int(frames[0])
-    return 1
 
 
 def _guard(path: Path, fn, *args, **kwargs):
@@ -327,21 +442,24 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     blank = _BLANK_LINE.search(raw, data_start)
     stop = blank.start() if blank is not None else len(raw)
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
-    _check_fields(raw, data_start, stop, ",", raw.count(b"\n", 0, found.start()) + 6, n_cols,
-                  required=_last_named(comps))
+    first_line = raw.count(b"\n", 0, found.start()) + 6
+    _check_fields(raw, data_start, stop, ",", first_line, n_cols, required=_last_named(comps))
     arr = _numbers(raw[data_start:stop], ",", n_cols)
     xyz = arr[:, np.asarray(cols)] if arr.shape[0] else np.zeros((0, len(labels), 3))
     if xyz.shape[0] == 0:
         raise _Bad("no data rows in the 'Trajectories' block")
     notes: list[str] = []
+    first, rows = _frame_rows(arr[:, 0], _Rows(raw, data_start, stop, first_line), path.name, notes)
+    del arr
+    xyz = _with_gap_rows(xyz, rows)
     rate = _resolve_rate(file_rate, rate_hz, notes)
     if strip_prefix is True:
         labels = strip_subject_prefix(labels)
     elif isinstance(strip_prefix, list | tuple):
         labels = strip_subject_prefix(labels, strip_prefix)
-    markers = _finish(labels, xyz, rate=rate, first_frame=_first_frame(arr[:, 0]), units=units,
+    markers = _finish(labels, xyz, rate=rate, first_frame=first, units=units,
                       default_units=default_units, fmt="vicon_csv", notes=notes)
-    return markers, TextLayout(",", data_start, stop, np.asarray(cols, dtype=np.int64), units)
+    return markers, TextLayout(",", data_start, stop, np.asarray(cols, dtype=np.int64), units, rows)
 
 
 def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
@@ -388,8 +506,12 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     if not labels:
         raise _Bad("MARKER_NAMES lists no markers")
     m = len(labels)
+    for key, values in header.items():
+        value = values[0] if values else ""
+        if key.startswith("NO_OF_") and value and not value.isdigit():
+            raise _Bad(f"{key} reads {value[:20]!r}, not a count (a whole number, 0 or more)")
     declared = header.get("NO_OF_MARKERS", [""])[0]
-    if declared and declared.isdigit() and int(declared) != m:
+    if declared and int(declared) != m:
         raise _Bad(f"NO_OF_MARKERS says {declared} but MARKER_NAMES lists {m}")
     freq = header.get("FREQUENCY", [""])[0]
     try:
@@ -429,13 +551,21 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     notes: list[str] = []
     if n_frames.isdigit() and int(n_frames) != xyz.shape[0]:
         notes.append(f"NO_OF_FRAMES says {n_frames} but the file has {xyz.shape[0]} data rows")
-    rate = _resolve_rate(file_rate, rate_hz, notes)
     has_frame = n_lead == 2 if col_names is None else col_names[0].lower() == "frame"
-    first = _first_frame(arr[:, 0]) if has_frame else 1
+    has_time = col_names is not None and col_names[0].lower() == "time"
+    where = _Rows(raw, lines.offset(i), len(raw), i + 1)
+    first, rows = 1, None
+    if has_frame:
+        first, rows = _frame_rows(arr[:, 0], where, path.name, notes)
+    elif has_time:
+        _check_times(arr[:, 0], where)
+    del arr
+    xyz = _with_gap_rows(xyz, rows)
+    rate = _resolve_rate(file_rate, rate_hz, notes)
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="qtm_tsv", notes=notes, zero_gaps=True)
     cols = n_lead + np.arange(3 * m, dtype=np.int64).reshape(m, 3)
-    return markers, TextLayout("\t", lines.offset(i), len(raw), cols, None)
+    return markers, TextLayout("\t", lines.offset(i), len(raw), cols, None, rows)
 
 
 def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:
@@ -446,24 +576,44 @@ def read_qtm_tsv(path: str | Path, *, rate_hz: float | None = None, default_unit
 
 # ----------------------------------------------------------------------------------------- wide CSV
 
-def rate_from_times(t: np.ndarray) -> tuple[float, bool]:
+def rate_from_times(t: np.ndarray, rows: np.ndarray | None = None) -> tuple[float, bool]:
     """Rate (Hz) implied by a time column in seconds, and whether the steps are even.
 
     The mean step gives the rate; one within 0.05 % of a whole number is taken as that number (times
-    written with few decimals), then :func:`snap_rate` applies.
+    written with few decimals), then :func:`snap_rate` applies. ``rows``: the frame index of each time when
+    frames are missing between them (see :func:`_frame_rows`), so that a dropped frame is not a slower rate.
     """
     t = np.asarray(t, dtype=np.float64)
     if t.size < 2 or not np.isfinite(t).all():
         raise _Bad("the time column needs at least two finite values")
     d = np.diff(t)
     if (d <= 0).any():
-        raise _Bad("the time column is not strictly increasing")
-    r = (t.size - 1) / (t[-1] - t[0])
+        r = int(np.argmax(d <= 0)) + 2
+        raise _Bad(f"the time column is not strictly increasing (data row {r})")
+    if rows is None:
+        r = (t.size - 1) / (t[-1] - t[0])
+        steps = 1.0
+    else:
+        r = float(rows[-1] - rows[0]) / (t[-1] - t[0])
+        steps = np.diff(rows).astype(np.float64)
     ri = round(r)
     if ri >= 1 and abs(r - ri) <= 5e-4 * r:
         r = float(ri)
-    even = bool(np.all(np.abs(d * r - 1.0) < 0.5))
+    even = bool(np.all(np.abs(d * r - steps) < 0.5))
     return snap_rate(r), even
+
+
+def _check_times(t: np.ndarray, where: _Rows) -> None:
+    """Raise :class:`_Bad` at the first empty or non-increasing value of a time column (no frame column)."""
+    t = np.asarray(t, dtype=np.float64)
+    bad = ~np.isfinite(t)
+    if bad.any():
+        raise _Bad(f"{where.line(int(np.argmax(bad)))}: no time value")
+    back = np.diff(t) <= 0
+    if back.any():
+        r = int(np.argmax(back)) + 1
+        raise _Bad(f"{where.line(r)}: the time column is not strictly increasing ({t[r - 1]:.10g} s then "
+                   f"{t[r]:.10g} s)")
 
 
 def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:
@@ -497,16 +647,23 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
     idx = np.array([[where[n]["x"], where[n]["y"], where[n]["z"]] for n in labels])
     xyz = arr[:, idx]
     notes: list[str] = []
+    rows_at = _Rows(raw, lines.offset(1), len(raw), 2)
+    first, rows = 1, None
+    if "frame" in low:
+        first, rows = _frame_rows(arr[:, low.index("frame")], rows_at, path.name, notes)
     file_rate = None
-    if "time" in low and arr.shape[0] >= 2:
-        file_rate, even = rate_from_times(arr[:, low.index("time")])
-        if not even:
-            notes.append("uneven steps in the time column")
+    if "time" in low:
+        _check_times(arr[:, low.index("time")], rows_at)
+        if arr.shape[0] >= 2:
+            file_rate, even = rate_from_times(arr[:, low.index("time")], rows)
+            if not even:
+                notes.append("uneven steps in the time column")
+    del arr
+    xyz = _with_gap_rows(xyz, rows)
     rate = _resolve_rate(file_rate, rate_hz, notes)
-    first = _first_frame(arr[:, low.index("frame")]) if "frame" in low else 1
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="wide_csv", notes=notes)
-    return markers, TextLayout(",", lines.offset(1), len(raw), idx.astype(np.int64), None)
+    return markers, TextLayout(",", lines.offset(1), len(raw), idx.astype(np.int64), None, rows)
 
 
 def read_wide_csv(path: str | Path, *, rate_hz: float | None = None, default_units: str = "mm") -> Markers:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from gazepipe.errors import InputError
+from gazepipe.io.limits import MAX_FRAME
 from gazepipe.io.tracks import EyeTrack, read_columns
 
 __all__ = ["EyeTrack", "read_openface"]
@@ -69,6 +70,11 @@ def read_openface(path: str | Path) -> EyeTrack:
     frame = cols["frame"]
     if not np.all(frame == np.round(frame)):
         raise InputError(path, f"{what}: frame numbers are not whole numbers", key="frame")
+    out = (frame < 0) | (frame > MAX_FRAME)
+    if out.any():
+        r = int(np.argmax(out)) + 1
+        raise InputError(path, f"{what}: frame number {frame[r - 1]:.10g} in data row {r} is out of range "
+                               f"(0 to {MAX_FRAME})", key="frame")
     frame = frame.astype(np.int64)
     steps = np.diff(frame)
     if np.any(steps <= 0):

@@ -10,7 +10,8 @@ Choices where SPEC §1 is silent:
 
 - ``schema`` missing means 1; any other value than the integer 1 is an error.
 - ``[session] subject`` is required (it names the output partition ``subject=<s>``); ``id`` defaults to the
-  folder's name. Both, take ids and poses must be letters, digits, ``_`` and ``-``.
+  folder's name. Both, take ids and poses must be letters, digits, ``_`` and ``-``, at most 100 characters
+  (they name output folders and files: a longer name would fail every write).
 - ``pose`` is required for ``gaze_follow`` and ``gaze_shift`` takes (from the take or ``[defaults]``); ``face``
   and ``neutral`` takes without one get ``"unspecified"``.
 - Unknown keys are errors everywhere (with the closest known key suggested); a known take key that does not
@@ -29,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import ConfigError, InputError
+from gazepipe.io.limits import MAX_ID_CHARS
 from gazepipe.io.markerset_toml import _parse_markerset, load_markerset, validate_markerset
 from gazepipe.io.toml_common import (
     WORD,
@@ -38,6 +40,7 @@ from gazepipe.io.toml_common import (
     resolve_inside,
     show,
     suggest,
+    too_long,
     type_name,
 )
 from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Session, Take
@@ -110,6 +113,9 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         sid = root.name
         if not WORD.fullmatch(sid):
             col.add("session.id", f"missing, and the folder name {show(sid)} is not a valid id: set it")
+            sid = None
+        elif len(sid) > MAX_ID_CHARS:
+            col.add("session.id", f"missing, and the folder name is not a usable id: {too_long('it', sid)}")
             sid = None
     subject = col.word(sess, "subject", "session.subject", "subject", required=True)
     ms_rel = col.string(sess, "markerset", "session.markerset")

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import ConfigError
+from gazepipe.io.limits import MAX_ID_CHARS, MAX_TOML_BYTES, MAX_TOML_DEPTH
 
 WORD = re.compile(r"[A-Za-z0-9_-]+")
 CTRL = re.compile(r"[\x00-\x1f\x7f]")
@@ -38,6 +39,12 @@ def type_name(value: Any) -> str:
 
 def is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def too_long(what: str, value: str) -> str:
+    """The problem of an id too long to name a file or folder."""
+    return (f"{what} {show(value)} is {len(value)} characters long: at most {MAX_ID_CHARS} (it names output "
+            "folders and files)")
 
 
 def suggest(key: str, known: Iterable[str]) -> str:
@@ -83,6 +90,9 @@ class Collector:
         if value is not None and not WORD.fullmatch(value):
             self.add(key, f"bad {what} {show(value)}: use only letters, digits, '_' and '-'")
             return None
+        if value is not None and len(value) > MAX_ID_CHARS:
+            self.add(key, too_long(what, value))
+            return None
         return value
 
     def number(self, table: dict, name: str, key: str, *, positive: bool = False) -> float | None:
@@ -122,8 +132,19 @@ def read_document(path: Path, col: Collector, top_keys: Sequence[str]) -> dict |
 
 
 def read_toml(path: Path, col: Collector) -> dict | None:
+    """The parsed TOML document, or None after reporting why it cannot be read to ``col``.
+
+    Files over :data:`~gazepipe.io.limits.MAX_TOML_BYTES` are refused before they are read, and documents
+    nested deeper than :data:`~gazepipe.io.limits.MAX_TOML_DEPTH` after they are parsed (deeper than Python's
+    recursion limit, the parser itself gives up: that is refused the same way).
+    """
     try:
-        raw = path.read_bytes()
+        size = path.stat().st_size
+        if path.is_file() and size > MAX_TOML_BYTES:
+            col.add(None, f"file is {size} bytes: a gazepipe TOML file is at most {MAX_TOML_BYTES >> 20} MiB")
+            return None
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
     except FileNotFoundError:
         col.add(None, "file not found")
         return None
@@ -138,11 +159,37 @@ def read_toml(path: Path, col: Collector) -> dict | None:
     except UnicodeDecodeError as exc:
         col.add(None, f"not TOML: not UTF-8 text (byte {exc.start})")
         return None
+    if len(raw) > MAX_TOML_BYTES:   # not a regular file (a pipe), or it grew since stat
+        col.add(None, f"more than {MAX_TOML_BYTES >> 20} MiB: a gazepipe TOML file is at most "
+                      f"{MAX_TOML_BYTES >> 20} MiB")
+        return None
     try:
-        return tomllib.loads(text)
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         col.add(None, f"TOML syntax error: {exc}")
         return None
+    except RecursionError:
+        col.add(None, f"arrays or tables nested too deep (at most {MAX_TOML_DEPTH} levels)")
+        return None
+    if _depth(doc) > MAX_TOML_DEPTH:
+        col.add(None, f"arrays or tables nested too deep (at most {MAX_TOML_DEPTH} levels)")
+        return None
+    return doc
+
+
+def _depth(doc: Any) -> int:
+    """How deep arrays and tables nest in a parsed document (the document itself is level 1), without
+    recursion: it stops counting one level past :data:`~gazepipe.io.limits.MAX_TOML_DEPTH`."""
+    deepest = 0
+    stack: list[tuple[Any, int]] = [(doc, 1)]
+    while stack:
+        node, level = stack.pop()
+        deepest = max(deepest, level)
+        if level > MAX_TOML_DEPTH:
+            break
+        children = node.values() if isinstance(node, dict) else node
+        stack.extend((c, level + 1) for c in children if isinstance(c, dict | list))
+    return deepest
 
 
 def resolve_inside(root: Path, value: str, key: str, col: Collector, take: str | None = None,

@@ -16,6 +16,7 @@ import pandas as pd
 
 from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 from gazepipe.errors import InputError
+from gazepipe.io.limits import MAX_LINE_BYTES, check_line_lengths, exact_floats
 
 
 @dataclass
@@ -130,10 +131,11 @@ class VideoProbe:
 
 
 def read_header(path: Path) -> list[str]:
-    """Column names of a CSV file's first line, stripped of spaces (InputError when unreadable or empty)."""
+    """Column names of a CSV file's first line, stripped of spaces (InputError when unreadable or empty, or when
+    the line is longer than :data:`~gazepipe.io.limits.MAX_LINE_BYTES`: only that much is read)."""
     try:
         with open(path, encoding="utf-8-sig", newline="") as f:
-            first = f.readline()
+            first = f.readline(MAX_LINE_BYTES + 1)
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except IsADirectoryError:
@@ -142,6 +144,9 @@ def read_header(path: Path) -> list[str]:
         raise InputError(path, "not a text CSV file") from None
     except OSError as e:
         raise InputError(path, f"cannot read: {e.strerror or e}") from None
+    if len(first) > MAX_LINE_BYTES:
+        raise InputError(path, f"line 1 (the header) is longer than {MAX_LINE_BYTES >> 20} MiB, more than any CSV "
+                               "track file holds (a broken file?)")
     if not first.strip():
         raise InputError(path, "empty file (no header line)")
     return [c.strip() for c in next(csv.reader([first]))]
@@ -153,7 +158,8 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
 
     Columns are found by name after stripping spaces, never by position. Numeric columns come back as float64,
     ``text`` columns as str. A row that is incomplete only because the file ends early (the last row) is dropped
-    with a warning; any other empty or non-numeric cell is an :class:`InputError` naming the column and row.
+    with a warning; any other empty, non-numeric or infinite cell is an :class:`InputError` naming the column and
+    row.
 
     Parameters
     ----------
@@ -170,6 +176,7 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     """
     path = Path(path)
     header = read_header(path)
+    check_line_lengths(path, what=what)
     pos: dict[str, int] = {}
     for i, name in enumerate(header):
         if name in required or name in optional:
@@ -185,7 +192,7 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     kw = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
               keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
     try:
-        df = pd.read_csv(path, dtype=dtypes, **kw)
+        df = pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
     except pd.errors.EmptyDataError:
         raise InputError(path, f"{what}: no data rows") from None
     except UnicodeDecodeError:  # a ValueError too: caught first
@@ -193,7 +200,14 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     except ValueError as e:
         if isinstance(e, pd.errors.ParserError):
             raise InputError(path, f"{what}: malformed CSV: {str(e).splitlines()[0]}") from None
-        raise _junk_error(path, what, order, pos, text, kw) from None
+        short = _short_first_row(path, what, len(header), max(pos.values()) + 1)
+        if short is not None:
+            raise short from None
+        try:
+            err = _junk_error(path, what, order, pos, text, kw)
+        except (ValueError, pd.errors.ParserError):
+            err = InputError(path, f"{what}: unreadable numeric data")
+        raise err from None
     if len(df) == 0:
         raise InputError(path, f"{what}: no data rows")
     cols = {c: df[pos[c]].to_numpy() for c in order}
@@ -211,10 +225,32 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
             r = int(rows[0])
             col = next(c for c in order if (pd.isna(cols[c][r]) if c in text else np.isnan(cols[c][r])))
             raise InputError(path, f"{what}: empty or NaN cell in data row {r + 1}", key=col)
+    for c in order:
+        if c not in text and np.isinf(cols[c]).any():
+            r = int(np.argmax(np.isinf(cols[c])))
+            raise InputError(path, f"{what}: infinite value {cols[c][r]} in data row {r + 1}", key=c)
     for c in text:
         if c in cols:
             cols[c] = np.asarray([s.strip() for s in cols[c]], dtype=str)
     return cols, warnings
+
+
+def _short_first_row(path: Path, what: str, n_header: int, need: int) -> InputError | None:
+    """The InputError for a first data row with fewer fields than the columns read (pandas sizes the table by
+    it and refuses), e.g. a file cut short inside its first row; None when the first row is long enough."""
+    try:
+        with open(path, "rb") as f:
+            f.readline(MAX_LINE_BYTES + 1)
+            first = f.readline(MAX_LINE_BYTES + 1)
+            more = bool(f.read(1))
+    except OSError:
+        return None
+    text = first.decode("utf-8", "replace").rstrip("\r\n")
+    n = len(next(csv.reader([text]), []))
+    if n >= need:
+        return None
+    hint = "" if more else " (file cut short?)"
+    return InputError(path, f"{what}: data row 1 has {n} fields, the header has {n_header}{hint}")
 
 
 def _junk_error(path: Path, what: str, order: list[str], pos: dict[str, int], text: tuple[str, ...],
