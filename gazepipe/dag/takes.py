@@ -28,6 +28,7 @@ from gazepipe.pipeline.registry import (
     UnitResult,
     register,
     rules_of,
+    set_source_check,
     set_table_store,
 )
 from gazepipe.schemas import expected_schema
@@ -63,6 +64,18 @@ def check_stored_table(table: pa.Table, path: Path, name: str) -> None:
 
 
 set_table_store(TableStore(write=write_table, read=read_table, check=check_stored_table))
+
+
+def check_source(path: Path) -> None:
+    """A look at an input before the engine hashes it: a C3D's declared layout against its size (a header
+    that claims two million frames in a small file fails the take at once)."""
+    if path.suffix.lower() == ".c3d":
+        from gazepipe.io.c3d import check_c3d
+
+        check_c3d(path)
+
+
+set_source_check(check_source)
 
 
 def _has_mocap(session: Session, take: Take) -> bool:

@@ -241,27 +241,9 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
     :data:`_CHUNK_BYTES` at a time straight into the result, so memory is the result plus a bounded buffer.
     """
     p = Path(path)
-    try:
-        fh = open(p, "rb")  # closed by the with-block below
-    except FileNotFoundError:
-        raise InputError(p, "file not found") from None
-    except OSError as e:
-        raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+    fh = _open(p)
     with fh:
-        try:
-            size = os.fstat(fh.fileno()).st_size
-            head = fh.read(HEAD_BYTES)
-        except OSError as e:
-            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
-        try:
-            meta = parse_c3d_meta(head)
-            lay = meta.layout(size)
-        except MetaError as e:
-            raise _meta_error(p, e) from None
-        if lay.n_frames <= 0:
-            raise InputError(p, "C3D file has no frames")
-        if lay.n_points <= 0:
-            raise InputError(p, "C3D file has no 3D points")
+        meta, lay = _layout(p, fh)
         try:
             return _assemble(p, fh, meta, lay, default_units)
         except InputError:
@@ -272,6 +254,43 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
             raise _meta_error(p, e) from None
         except (ValueError, KeyError, IndexError, OverflowError) as e:
             raise InputError(p, f"not a readable C3D file: {e}") from None
+
+
+def check_c3d(path: str | Path) -> None:
+    """Refuse (:class:`InputError`) a C3D file whose header and parameters declare what the file cannot hold
+    (more frames than its size, a rate outside 1 Hz - 10 kHz, no frames or points), reading only the header
+    and parameter section: a look before the file is hashed or decoded, in bounded time and memory."""
+    p = Path(path)
+    with _open(p) as fh:
+        _layout(p, fh)
+
+
+def _open(p: Path):
+    try:
+        return open(p, "rb")  # noqa: SIM115 - the callers close it
+    except FileNotFoundError:
+        raise InputError(p, "file not found") from None
+    except OSError as e:
+        raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+
+
+def _layout(p: Path, fh) -> tuple[C3DMeta, Layout]:
+    """The parameters and the layout they declare, checked against the file's size and physical ranges."""
+    try:
+        size = os.fstat(fh.fileno()).st_size
+        head = fh.read(HEAD_BYTES)
+    except OSError as e:
+        raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+    try:
+        meta = parse_c3d_meta(head)
+        lay = meta.layout(size)
+    except MetaError as e:
+        raise _meta_error(p, e) from None
+    if lay.n_frames <= 0:
+        raise InputError(p, "C3D file has no frames")
+    if lay.n_points <= 0:
+        raise InputError(p, "C3D file has no 3D points")
+    return meta, lay
 
 
 def _meta_error(p: Path, e: MetaError) -> InputError:
