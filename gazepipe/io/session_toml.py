@@ -226,11 +226,14 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
         col.add(f"{key}.pose", "missing (set it on the take or in [defaults])", tid)
     split = _split(t, f"{key}.split", col, tid) if "split" in t else d_split
 
+    # a take's files must be paths inside the session folder (else the session is refused); whether they exist
+    # and can be read is the take's own matter: a missing one fails that take when the run plans it
     files: dict[str, str | None] = {}
     for name in _FILE_KEYS:
         if name in t and (kind is None or name in _KIND_KEYS[kind]):
             value = col.string(t, name, f"{key}.{name}")
-            files[name] = None if value is None else resolve_inside(root, value, f"{key}.{name}", col, tid)
+            files[name] = None if value is None else resolve_inside(root, value, f"{key}.{name}", col, tid,
+                                                                    must_exist=False)
     mocap = files.get("mocap")
     if mocap is not None and Path(mocap).suffix.lower() not in MOCAP_SUFFIXES:
         col.add(f"{key}.mocap", f"unsupported mocap file type {show(Path(mocap).suffix)} "

@@ -97,7 +97,7 @@ def plan_run(sessions: Sequence[SessionLike], out: Path, *, until: str | None = 
             try:
                 take_plans = plan_take(session, take, stages, params, layout, hashes, force)
             except GazepipeError as exc:
-                exc.take = exc.take or take.id
+                exc.take = f"{session.id}/{take.id}" if exc.take in (None, take.id) else exc.take
                 failures.append(UnitOutcome(session.id, take.id, stages[0].name, "failed", error=exc.one_line()))
                 continue
             plans.extend(take_plans)

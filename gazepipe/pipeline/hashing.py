@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -51,6 +52,8 @@ class HashCache:
             raise InputError(p, "file not found") from None
         except OSError as exc:
             raise InputError(p, f"cannot read ({exc.strerror})") from None
+        if not stat.S_ISREG(st.st_mode):   # a folder, a FIFO (reading it would wait for ever), a device
+            raise InputError(p, "not a file")
         key = [st.st_size, st.st_mtime_ns, st.st_ino]
         entry = self._entries.get(p)
         if entry and entry[:3] == key:
