@@ -83,6 +83,8 @@ class ReportInBackground:
     the datasets may change meanwhile).
     """
 
+    _order = itertools.count()   # ties between jobs of one priority go first come, first served
+
     def __init__(self, out: str | Path, thresholds: C.Thresholds | None = None,
                  plot_takes: int | str | None = DEFAULT_PLOT_TAKES, pool: Any = None) -> None:
         self.layout = open_output(out)
@@ -111,8 +113,6 @@ class ReportInBackground:
             heapq.heappush(self._queue, (priority, next(self._order), fn, args))
             self._cond.notify_all()
 
-    _order = itertools.count()
-
     def _dispatch(self) -> None:
         while True:
             with self._cond:
@@ -125,7 +125,7 @@ class ReportInBackground:
                 self._in_flight += 1
             try:
                 fut = self.pool.submit(fn, *args)
-            except Exception:  # noqa: BLE001 - the pool is gone: finish() makes it itself
+            except Exception:  # the pool is gone: finish() makes what is missing itself
                 self._job_done(None)
                 continue
             fut.add_done_callback(self._job_done)
