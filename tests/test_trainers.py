@@ -172,11 +172,11 @@ def test_gaze_rnn_beats_repeating_the_previous_pose(datasets, tmp_path):
     """A small GRU trained closed loop for 3 epochs on CPU predicts the validation windows better than
     repeating the previous pose would, both run on their own outputs (the baseline's own output is the window's
     first pose, held); the baseline is recomputed here from the raw windows."""
-    pytest.importorskip("torch")
+    torch = pytest.importorskip("torch")
     from gazepipe.trainers.gaze_rnn import load_model
 
     ds = open_dataset(datasets / "gaze_rnn")
-    opts = TrainOptions(epochs=3, hidden=48, lr=3e-3, seed=1, extra={"threads": 1})
+    opts = TrainOptions(epochs=3, hidden=48, seed=1, device="cpu", extra={"threads": 1})
     m = load_trainer("gaze_rnn").train(ds, tmp_path / "m", opts)
     v = m["validation"]
     w = ds.windows("val", normalise=False)
@@ -186,13 +186,19 @@ def test_gaze_rnn_beats_repeating_the_previous_pose(datasets, tmp_path):
     baseline = np.mean(((held - y) / sy) ** 2)
     assert v["baseline_closed_loop_mse"] == pytest.approx(baseline, rel=1e-4)
     assert v["closed_loop_mse"] < 0.75 * baseline, v
+    assert m["summary"][0].startswith("closed loop") and "% better" in m["summary"][0]
+    assert m["val_loss"][-1] == pytest.approx(v["closed_loop_mse"], rel=1e-5)   # the epoch's validation loss
+    # the obvious call works: the saved module carries its statistics and runs on normalised windows
     model, meta = load_model(tmp_path / "m")
     assert meta["config"]["hidden"] == 48 and meta["config"]["closed_loop"] is True
+    with torch.no_grad():
+        pred = model(torch.from_numpy(ds.windows("val").x)).numpy()
+    assert np.mean((pred - ds.windows("val").y) ** 2) == pytest.approx(v["closed_loop_mse"], rel=1e-5)
     assert v["windows"] == len(w) > 20
 
 
 def test_gaze_rnn_lod_defaults_cli_and_determinism(datasets, tmp_path):
-    """gaze_rnn on the LOD dataset takes Klein 7's defaults (96 units, lr 1e-3, λ 1e-4); same seed, same bytes."""
+    """gaze_rnn on the LOD dataset takes Klein 7's defaults (96 units, λ 1e-4; lr 1e-3); same seed, same bytes."""
     pytest.importorskip("torch")
     import torch
 
@@ -229,9 +235,10 @@ def test_face_clean_beats_the_tracked_input(datasets, tmp_path):
     validation take's chunks (RMS error recomputed here for the tracked input)."""
     pytest.importorskip("torch")
     ds = open_dataset(datasets / "face_clean")
-    opts = TrainOptions(epochs=3, hidden=48, lr=3e-3, seed=0, extra={"threads": 1, "batch": 16})
+    opts = TrainOptions(epochs=3, hidden=48, lr=3e-3, seed=0, device="cpu", extra={"threads": 1, "batch": 16})
     m = load_trainer("face_clean").train(ds, tmp_path / "m", opts)
     v = m["validation"]
+    assert "% better" in m["summary"][0] and "raw tracked signal" in m["summary"][0]
     w = ds.windows("val", normalise=False)
     rmse_tracked = float(np.sqrt(np.mean((w.x[:, 1:] - w.y[:, 1:]) ** 2)))
     assert v["tracked_rmse"] == pytest.approx(rmse_tracked, rel=1e-5)

@@ -7,5 +7,7 @@ inherit the setting; a user's own environment variables win.
 
 import os
 
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+#: the thread variables set here (not by the user): ``gazepipe train`` gives torch every core back
+CAPPED = tuple(v for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS") if v not in os.environ)
+for _var in CAPPED:
+    os.environ[_var] = "1"

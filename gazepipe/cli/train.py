@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 import click
 
+from gazepipe.cli import CAPPED
 from gazepipe.cli.common import handle_errors
 from gazepipe.errors import ConfigError
 
 EPILOG = """\b
 Trainers: gaze_map (numpy/scipy), gaze_rnn and face_clean (need gazepipe[torch]),
 plus any installed under the "gazepipe.trainers" entry-point group.
+Progress (torch trainers): per epoch the training loss, the validation loss and the
+seconds, on stderr: a bar on a terminal, JSON lines otherwise (--log-format).
 Exit codes: 0 ok; 1 the data could not be read or training failed; 2 usage error,
-unknown trainer, or a dataset the trainer cannot use.
+unknown trainer, a dataset the trainer cannot use, or --device cuda without a GPU.
 """
 
 
@@ -59,6 +63,8 @@ def dataset_header(data_dir: Path) -> tuple[dict[str, Any], list[str]]:
 def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
     lines = []
     for k, v in metrics.items():
+        if k == "summary":
+            continue
         if isinstance(v, dict):
             lines.extend(_summary(v, f"{prefix}{k}."))
         elif isinstance(v, float):
@@ -78,13 +84,21 @@ def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
 @click.option("--hidden", type=click.IntRange(min=1), default=None, help="Hidden units (trainer default).")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Learning rate (trainer default).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed, same model).")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Random seed (same seed, same model: byte for byte on the CPU).")
+@click.option("--device", default=None, metavar="auto|cpu|cuda|cuda:N",
+              help="Where a torch trainer trains (default auto: the GPU when PyTorch sees one).")
+@click.option("--patience", type=click.IntRange(min=1), default=None, metavar="N",
+              help="Stop after N epochs without a lower validation loss; keep the best weights.")
 @click.option("--option", "opts", multiple=True, metavar="KEY=VALUE",
               help="A trainer-specific option; repeatable.")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
+@click.option("--log-format", type=click.Choice(["auto", "text", "json"]), default="auto", show_default=True,
+              help="Progress on stderr: a bar on a terminal, JSON lines otherwise (auto).")
 @handle_errors
 def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: int | None, lr: float | None,
-          seed: int, opts: tuple[str, ...], as_json: bool) -> None:
+          seed: int, device: str | None, patience: int | None, opts: tuple[str, ...], as_json: bool,
+          log_format: str) -> None:
     """Train the model NAME on a built dataset and save it in --out.
 
     The trainer checks the dataset first (its name, schema version and columns) and refuses one it cannot use.
@@ -92,15 +106,20 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     \b
       gazepipe train gaze_map --data out/datasets/gaze_map --out models/gaze_map
       gazepipe train gaze_rnn --data out/datasets/gaze_rnn --out models/gaze_rnn --epochs 50
-      gazepipe train gaze_rnn --data out/datasets/gaze_rnn_lod --out models/lod
-      gazepipe train face_clean --data out/datasets/face_clean --out models/face --option chunk=200
+      gazepipe train gaze_rnn --data out/datasets/gaze_rnn_lod --out models/lod --device cpu
+      gazepipe train face_clean --data out/datasets/face_clean --out models/face --patience 5
     """
     from gazepipe.datasets import open_dataset
+    from gazepipe.pipeline.events import EventLog
     from gazepipe.trainers.base import TrainOptions, check_compatible, check_options, load_trainer
 
     trainer = load_trainer(name)
-    options = TrainOptions(epochs=epochs, hidden=hidden, lr=lr, seed=seed, extra=parse_options(opts))
+    log = EventLog(log_format)
+    options = TrainOptions(epochs=epochs, hidden=hidden, lr=lr, seed=seed, device=device, patience=patience,
+                           extra=parse_options(opts), progress=lambda e: _progress(log, e))
     check_options(trainer, options)
+    if "OMP_NUM_THREADS" in CAPPED and "threads" in (getattr(trainer, "options", None) or {}):
+        options.extra.setdefault("threads", cores())   # training is not a pipeline stage: every core
     data_path = Path(data_dir)
     info, columns = dataset_header(data_path)
     check_compatible(trainer, info, columns, data_path)
@@ -108,9 +127,46 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     metrics = trainer.train(data, out, options)
+    if metrics.get("epochs_run"):
+        log.emit("info", "train_end", _end_message(metrics), epochs_run=metrics["epochs_run"],
+                 stopped=metrics.get("stopped"), best_epoch=metrics.get("best_epoch"), kept=metrics.get("kept"),
+                 device=metrics.get("device"), summary=metrics.get("summary"))
     if as_json:
         click.echo(json.dumps(metrics, indent=1, sort_keys=True))
         return
     click.echo(f"trained {trainer.name} on {data_path} -> {out}")
+    for line in metrics.get("summary") or []:
+        click.echo(f"  {line}")
     for line in _summary(metrics):
         click.echo(line)
+
+
+def cores() -> int:
+    """The cores this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _end_message(m: dict[str, Any]) -> str:
+    seconds = sum(m.get("epoch_seconds") or [])
+    text = f"trained {m['epochs_run']} epoch(s) in {seconds:.1f} s on {m.get('device', '?')}"
+    if m.get("stopped") == "patience":
+        text += f"; stopped early, no lower validation loss since epoch {m['best_epoch']}"
+    elif m.get("stopped") == "time":
+        text += "; stopped at the time limit"
+    if m.get("kept") == "best":
+        text += f"; kept epoch {m['best_epoch']}'s weights"
+    return text
+
+
+def _progress(log: Any, e: dict[str, Any]) -> None:
+    """A minibatch moves the bar (terminals only); an epoch is a line above the bar on a terminal, a JSON line
+    otherwise."""
+    if e["event"] == "batch":
+        done = (e["epoch"] - 1) * e["batches"] + e["batch"]
+        log.progress(min(done, e["epochs"] * e["batches"] - 1), e["epochs"] * e["batches"],
+                     f"minibatches (epoch {e['epoch']}/{e['epochs']})")
+        return
+    val = "" if e["val_loss"] is None else f"  val {e['val_loss']:.4g}{' (best)' if e['best'] else ''}"
+    message = (f"epoch {e['epoch']}/{e['epochs']}  train {e['train_loss']:.4g}{val}  {e['seconds']:.1f} s"
+               f" (+{e['val_seconds']:.1f} s validation)")
+    log.emit("info", "epoch", message, **{k: v for k, v in e.items() if k != "event"})

@@ -16,6 +16,7 @@ import importlib
 import io
 import json
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -35,6 +36,10 @@ BUILTIN: dict[str, str] = {
     "face_clean": "gazepipe.trainers.face_clean:FaceCleanTrainer",
 }
 MODEL_JSON = "model.json"
+#: the options every trainer may use (its ``knobs`` say which; others are refused)
+KNOBS = ("epochs", "hidden", "lr", "device", "patience")
+#: what a trainer without a ``knobs`` attribute uses
+DEFAULT_KNOBS = ("epochs", "hidden", "lr")
 
 
 @dataclass
@@ -44,18 +49,26 @@ class TrainOptions:
     Attributes
     ----------
     epochs, hidden, lr, seed : the common knobs.
+    device : ``auto`` (``None``), ``cpu``, ``cuda`` or ``cuda:N``: where a torch trainer trains.
+    patience : stop after this many epochs without a lower validation loss, keeping the best weights
+        (``None``: every epoch, the last weights).
     extra : every ``--option key=value`` (values parsed as JSON where they parse: 3, 0.5, true, "text").
+    progress : called with a dict after every minibatch and every epoch (see :mod:`gazepipe.trainers.loop`);
+        ``None``: silent.
     """
 
     epochs: int | None = None
     hidden: int | None = None
     lr: float | None = None
     seed: int = 0
+    device: str | None = None
+    patience: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    progress: Callable[[dict[str, Any]], None] | None = None
 
     def get(self, key: str, default: Any) -> Any:
         """A knob or ``--option`` value, else ``default``."""
-        if key in ("epochs", "hidden", "lr") and getattr(self, key) is not None:
+        if key in KNOBS and getattr(self, key) is not None:
             return getattr(self, key)
         return self.extra.get(key, default)
 
@@ -71,7 +84,8 @@ class Trainer(Protocol):
     schema_version : the dataset schema version it reads (_dataset.json ``schema_version``).
     required_columns : columns the dataset's files must have.
     options : known ``--option`` keys → one-line help (unknown keys are refused).
-    knobs : optional; which of ``epochs``, ``hidden``, ``lr`` it uses (default all three; others are refused).
+    knobs : optional; which of ``epochs``, ``hidden``, ``lr``, ``device``, ``patience`` it uses (default the first
+        three; others are refused).
     """
 
     name: str
@@ -136,9 +150,10 @@ def check_compatible(trainer: Trainer, info: dict[str, Any], columns: list[str],
 
 def check_options(trainer: Trainer, options: TrainOptions) -> None:
     """Refuse (exit 2) an ``--option`` the trainer does not declare and a knob (``--epochs``, ``--hidden``,
-    ``--lr``) it does not use (its optional ``knobs`` attribute; all three when absent)."""
-    uses = tuple(getattr(trainer, "knobs", ("epochs", "hidden", "lr")))
-    unused = [f"--{k}" for k in ("epochs", "hidden", "lr") if getattr(options, k) is not None and k not in uses]
+    ``--lr``, ``--device``, ``--patience``) it does not use (its optional ``knobs`` attribute; the first three
+    when absent)."""
+    uses = tuple(getattr(trainer, "knobs", DEFAULT_KNOBS))
+    unused = [f"--{k}" for k in KNOBS if getattr(options, k) is not None and k not in uses]
     if unused:
         raise ConfigError(None, f"trainer {trainer.name!r} does not use {', '.join(unused)}")
     known = dict(getattr(trainer, "options", {}) or {})

@@ -10,9 +10,12 @@ statistics (``clean``, ``clean_d1``, ``tracked_d1``).
 
 Network: LSTM cell (128 units) → dropout 0.3 → linear (Berson 3.2). Loss: MSE of x̂ against ``clean`` plus
 0.01 × MSE of x̂' against ``clean_d1`` (both in units of the training standard deviation); Berson's
-inter-vertex distance term needs a face mesh and is left out. Adam, lr 1e-3. Chunks of 200 frames with a
-stride of 50 (Berson 4.1); each chunk starts from the tracked value (x̂[0] = x_i[0], x̂'[−1] = 0), as inference
-on a new take would.
+inter-vertex distance term needs a face mesh and is left out. Adam, lr 1e-3 decayed to 0 along a cosine over
+the epochs (50), gradients clipped to norm 1. Chunks of 200 frames with a stride of 50 (Berson 4.1); each chunk
+starts from the tracked value (x̂[0] = x_i[0], x̂'[−1] = 0), as inference on a new take does. The validation
+loss of every epoch is the training loss on the validation chunks.
+
+Inference: :class:`FaceCleaner` (``FaceCleaner.load(model_dir).clean(blendshapes, timestamps)``).
 """
 
 from __future__ import annotations
@@ -24,18 +27,23 @@ import numpy as np
 
 from gazepipe.errors import ConfigError
 from gazepipe.trainers.base import TrainOptions, read_model_json, save_model_json, write_atomic
+from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
 from gazepipe.trainers.torch_utils import (
-    batches,
+    DeviceArrays,
     deterministic,
+    device_name,
     load_state,
     pick_split,
     require_torch,
+    resolve_device,
     state_bytes,
     subsample,
 )
 
 WEIGHTS = "face_clean.pt"
 COLUMNS = ("tracked", "clean", "tracked_d1", "clean_d1", "dt_s")
+#: chunks per forward pass when evaluating
+EVAL_CHUNK = 512
 
 
 def build_model(n: int, hidden: int, dropout: float, scales: dict[str, np.ndarray]):
@@ -99,6 +107,7 @@ class FaceCleanTrainer:
     dataset = "face_clean"
     schema_version = 1
     required_columns = COLUMNS
+    knobs = ("epochs", "hidden", "lr", "device", "patience")
     options = {
         "dropout": "dropout after the LSTM (default 0.3)",
         "w_der": "weight of the derivative loss (default 0.01)",
@@ -106,16 +115,18 @@ class FaceCleanTrainer:
         "window": "frames per chunk (default _dataset.json's, 200)",
         "stride": "step between chunks (default _dataset.json's, 50)",
         "max_windows": "use at most this many training chunks (seeded subset; default all)",
-        "threads": "torch CPU threads (default torch's)",
+        "threads": "torch CPU threads (default: every core the process may use, under gazepipe train)",
+        "schedule": "learning rate: cosine (decayed to 0 over the epochs; default) or constant",
+        "clip": "largest gradient norm (default 1; 0: no clipping)",
+        "max_seconds": "stop after the epoch that passes this much training time, s (default: no limit)",
     }
 
     def train(self, data, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
+        device = resolve_device(options.device)
         hidden = int(options.get("hidden", 128))
-        lr = float(options.get("lr", 1e-3))
-        epochs = int(options.get("epochs", 50))
+        fc = fit_config(options)
         dropout = float(options.get("dropout", 0.3))
         w_der = float(options.get("w_der", 0.01))
-        batch = int(options.get("batch", 64))
         window, stride = options.get("window", None), options.get("stride", None)
         max_windows = options.get("max_windows", None)
         if not 0.0 <= dropout < 1.0:
@@ -127,61 +138,139 @@ class FaceCleanTrainer:
                                          f"{w.short_runs})")
         pick = subsample(len(w), None if max_windows is None else int(max_windows), rng)
         arrays = {k: v[pick] for k, v in arrays.items()}
+        stride = int(stride or data.stride or 50)
+        split = pick_split(data)
+        val_arrays = _chunks(data, split, w.window, stride)[0] if split else {}
+        if fc.patience is not None and not len(val_arrays.get("tracked", ())):
+            raise ConfigError(data.path, "--patience needs validation chunks; this dataset has none")
         n = int(arrays["tracked"].shape[2])
-        scales = _scales(data)
-        config = {"n_channels": n, "hidden": hidden, "dropout": dropout, "lr": lr, "w_der": w_der,
-                  "epochs": epochs, "batch": batch, "window": w.window, "stride": int(stride or data.stride or 50),
+        config = {"n_channels": n, "hidden": hidden, "dropout": dropout, "lr": fc.lr, "w_der": w_der,
+                  "epochs": fc.epochs, "batch": fc.batch, "window": w.window, "stride": stride,
                   "seed": options.seed, "train_chunks": int(len(pick)), "k": 1,
-                  "channels": list(data.features.get("clean", []))}
-        with deterministic(options.seed, options.get("threads", None)) as torch:
-            model = build_model(n, hidden, dropout, scales)
-            opt = torch.optim.Adam(model.parameters(), lr=lr)
-            t = {k: torch.from_numpy(v) for k, v in arrays.items()}
-            cs, ds = model.clean_std, model.clean_d1_std
-            losses = []
-            for _ in range(epochs):
-                model.train()
-                total, count = 0.0, 0
-                for idx in batches(len(pick), batch, rng):
-                    opt.zero_grad()
-                    x, d = model(t["tracked"][idx], t["tracked_d1"][idx], t["dt_s"][idx])
-                    loss_x = torch.mean(((x[:, :-1] - t["clean"][idx, 1:]) / cs) ** 2)
-                    loss_d = torch.mean(((d - t["clean_d1"][idx]) / ds) ** 2)
-                    loss = loss_x + w_der * loss_d
-                    loss.backward()
-                    opt.step()
-                    total += float(loss.detach()) * len(idx)
-                    count += len(idx)
-                losses.append(total / max(count, 1))
-            metrics: dict[str, Any] = {"train_loss": losses, "train_chunks": int(len(pick)),
-                                       "dropped_rows": w.dropped_rows}
-            split = pick_split(data)
-            metrics["validation"] = evaluate(model, data, split, w.window, config["stride"]) if split else None
+                  "channels": list(data.features.get("clean", [])), "schedule": fc.schedule, "clip": fc.clip,
+                  "patience": fc.patience}
+        with deterministic(options.seed, options.get("threads", None), device) as (torch, det):
+            model = build_model(n, hidden, dropout, _scales(data)).to(device)
+            opt = torch.optim.Adam(model.parameters(), lr=fc.lr)
+            train = DeviceArrays(arrays, device)
+            val = DeviceArrays(val_arrays, device) if len(val_arrays.get("tracked", ())) else None
+
+            def loss_fn(b):
+                x, d = model(b["tracked"], b["tracked_d1"], b["dt_s"])
+                loss_x = torch.mean(((x[:, :-1] - b["clean"][:, 1:]) / model.clean_std) ** 2)
+                loss_d = torch.mean(((d - b["clean_d1"]) / model.clean_d1_std) ** 2)
+                loss = loss_x + w_der * loss_d
+                return loss, loss
+
+            def val_fn() -> float:
+                total = 0.0
+                for i in range(0, val.n, EVAL_CHUNK):
+                    idx = np.arange(i, min(i + EVAL_CHUNK, val.n))
+                    total += float(loss_fn(val.batch(idx))[0]) * len(idx)
+                return total / val.n
+
+            hist = fit(model, opt, train, loss_fn, val_fn if val is not None else None, fc, rng, options.progress)
+            metrics: dict[str, Any] = {"device": device_name(device), **history_metrics(hist),
+                                       "train_chunks": int(len(pick)), "dropped_rows": w.dropped_rows}
+            metrics["validation"] = evaluate(model, data, split, w.window, stride) if split else None
+            metrics["summary"] = summary(metrics["validation"])
             out = Path(out_dir)
             write_atomic(out / WEIGHTS, state_bytes(model))
-        save_model_json(out, self.name, config, metrics, data, WEIGHTS)
+        metrics["nondeterministic"] = det.nondeterministic   # what torch warned about, known on leaving
+        saved = {k: v for k, v in metrics.items() if k != "epoch_seconds"}   # model.json: same seed, same bytes
+        save_model_json(out, self.name, config, saved, data, WEIGHTS)
         return metrics
+
+
+def _run(model, tracked: np.ndarray, tracked_d1: np.ndarray, dt: np.ndarray, device: Any = None) -> np.ndarray:
+    """x̂ for frames 1..T of chunks (B, T, n) (``dt`` (B, T, 1), seconds), :data:`EVAL_CHUNK` at a time."""
+    torch = require_torch()
+    device = device or next(model.parameters()).device
+    model.eval()
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(tracked), EVAL_CHUNK):
+            parts = (torch.from_numpy(np.ascontiguousarray(a[i:i + EVAL_CHUNK], np.float32)).to(device)
+                     for a in (tracked, tracked_d1, dt))
+            out.append(model(*parts)[0].cpu().numpy())
+    return np.concatenate(out) if out else np.zeros_like(tracked, np.float32)
 
 
 def evaluate(model, data, split: str, window: int, stride: int) -> dict[str, Any]:
     """RMS error against ``clean`` on ``split``'s chunks (frames 1..T−1 of each, blendshape units) of the
     cleaned track and of the raw tracked input."""
-    torch = require_torch()
     arrays, w = _chunks(data, split, window, stride)
     if len(w) == 0:
         return {"split": split, "chunks": 0}
-    model.eval()
-    with torch.no_grad():
-        x, _ = model(*(torch.from_numpy(arrays[c]) for c in ("tracked", "tracked_d1", "dt_s")))
+    x = _run(model, arrays["tracked"], arrays["tracked_d1"], arrays["dt_s"])
     clean = arrays["clean"][:, 1:]
-    cleaned = x.numpy()[:, :-1]
+    cleaned = x[:, :-1]
     return {"split": split, "chunks": len(w),
             "cleaned_rmse": float(np.sqrt(np.mean((cleaned - clean) ** 2))),
             "tracked_rmse": float(np.sqrt(np.mean((arrays["tracked"][:, 1:] - clean) ** 2)))}
 
 
+def summary(v: dict[str, Any] | None) -> list[str]:
+    """The validation metrics in words: the cleaned track against the raw tracked signal."""
+    if not v or not v.get("chunks"):
+        return ["no validation chunks: nothing to compare with a baseline"]
+    return [verdict(f"cleaned ({v['chunks']} {v['split']} chunks), RMS error to the clean track",
+                    v["cleaned_rmse"], v["tracked_rmse"], "for the raw tracked signal")]
+
+
+class FaceCleaner:
+    """A trained ``face_clean`` model: ``FaceCleaner.load("models/face_clean").clean(blendshapes, timestamps)``.
+
+    Attributes
+    ----------
+    model : the torch module (eval mode); ``meta`` : model.json; ``channels`` : the blendshape names, in order.
+    """
+
+    def __init__(self, model, meta: dict[str, Any], device: Any = "cpu") -> None:
+        self.model, self.meta, self.device = model, meta, device
+        self.channels: list[str] = list(meta["config"].get("channels") or [])
+
+    @classmethod
+    def load(cls, model_dir: str | Path, device: str = "cpu") -> FaceCleaner:
+        """The model saved in ``model_dir`` by ``gazepipe train face_clean``, on ``device`` (``cpu``, ``cuda``,
+        ``cuda:N`` or ``auto``)."""
+        dev = resolve_device(device)
+        model, meta = load_model(model_dir)
+        return cls(model.to(dev), meta, dev)
+
+    def clean(self, blendshapes: np.ndarray, timestamps: np.ndarray) -> np.ndarray:
+        """Clean a tracked blendshape sequence.
+
+        Parameters
+        ----------
+        blendshapes : (T, n) or (B, T, n) tracked values (the dataset's ``tracked`` units, 0..1), channels in
+            :attr:`channels` order.
+        timestamps : (T,) or (B, T) seconds, strictly increasing (frame times; dropped frames are fine).
+
+        Returns
+        -------
+        (T, n) or (B, T, n) float32 cleaned values; frame 0 is the tracked value (the recursion starts there).
+        """
+        x = np.asarray(blendshapes, np.float32)
+        t = np.asarray(timestamps, np.float64)
+        single = x.ndim == 2
+        x, t = (x[None], t[None]) if single else (x, t)
+        if t.shape != x.shape[:2] or x.shape[-1] != int(self.meta["config"]["n_channels"]):
+            raise ValueError(f"blendshapes (B, T, {self.meta['config']['n_channels']}) and timestamps (B, T) "
+                             f"expected, got {x.shape} and {t.shape}")
+        out = x.copy()
+        if x.shape[1] > 1:
+            dt = np.diff(t, axis=1)
+            if not np.all(dt > 0):
+                raise ValueError("timestamps must be strictly increasing")
+            d1 = np.diff(x.astype(np.float64), axis=1) / dt[..., None]
+            out[:, 1:] = _run(self.model, x[:, :-1], d1.astype(np.float32), dt[..., None].astype(np.float32),
+                              self.device)
+        return out[0] if single else out
+
+
 def load_model(model_dir: str | Path):
-    """(module in eval mode, model.json) of a saved face_clean model."""
+    """(module in eval mode on the CPU, model.json) of a saved face_clean model; see :class:`FaceCleaner`."""
     meta = read_model_json(model_dir)
     c = meta["config"]
     zeros = {f"{col}_{s}": np.zeros(int(c["n_channels"]), np.float32)

@@ -1,51 +1,74 @@
 """The ``gaze_rnn`` trainer (Klein 6, 7): one GRU layer and a linear output, trained closed-loop.
 
 Model: x(t) → GRU(hidden) → linear → y(t), in normalised units (the dataset's training mean and standard
-deviation). Training (Klein 6.2): windows of 120 frames, minibatches of 64, MSE plus λ·Σw² (L², weights only),
-Adam (β 0.9, 0.999). Closed loop: inside a window the network's own previous output replaces the pose part of
-the next input (x = target direction, then the previous pose, which has y's layout); only the window's first
-frame is taken whole from the data, and the target direction always is.
+deviation, kept in the saved model). x = the target direction at t, then the pose at t − 1 (y's layout: every
+segment's 6-number rotation, then the eye direction); y = the pose at t. By default the network predicts the
+change of pose (Klein 8.2's residual variant): y(t) = the pose part of x(t) + the network's output, whose layer
+starts at zero, so the untrained model holds the previous pose and training learns the motion.
 
-Defaults by dataset: ``gaze_rnn`` 512 units, lr 1e-4, λ 8e-5; ``gaze_rnn_lod`` (Klein 7) 96 units, lr 1e-3,
-λ 1e-4; 50 epochs. Validation reports, on the validation windows, the model's MSE fed its own outputs
-(closed loop, as it runs in a game: Klein 8) and fed the captured previous pose (one step), against the
-"repeat the previous pose" baseline y(t) = the pose part of x(t) run the same two ways: closed loop (its own
-previous output, i.e. the window's first pose held) and one step (the captured previous pose).
+Training (Klein 6.2): windows of 120 frames, minibatches of 64, MSE plus λ·Σw² (L², weights only), Adam (β 0.9,
+0.999) with the learning rate decayed to 0 along a cosine over the epochs and gradients clipped to norm 1.
+Closed loop: inside a window the network's own previous output replaces the pose part of the next input (only
+the window's first frame is taken whole from the data; the target direction always is), as it runs in a game.
+
+Defaults by dataset: ``gaze_rnn`` 512 units, λ 8e-5; ``gaze_rnn_lod`` (Klein 7) 96 units, λ 1e-4; lr 1e-3, 50
+epochs. Validation reports, on the validation windows, the model's MSE fed its own outputs (closed loop: Klein 8)
+and fed the captured previous pose (one step), against the "repeat the previous pose" baseline run the same two
+ways: closed loop (the window's first pose held) and one step (the captured previous pose). The validation loss
+of every epoch is the closed-loop MSE.
+
+Inference: :class:`GazeRNNPredictor` (``GazeRNNPredictor.load(model_dir).rollout(start_pose, target_dirs)``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import ConfigError
 from gazepipe.trainers.base import TrainOptions, read_model_json, save_model_json, write_atomic
+from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
 from gazepipe.trainers.torch_utils import (
-    batches,
+    DeviceArrays,
     deterministic,
+    device_name,
     l2_penalty,
     load_state,
     pick_split,
     require_torch,
+    resolve_device,
     state_bytes,
     subsample,
 )
 
 WEIGHTS = "gaze_rnn.pt"
 DEFAULTS: dict[str, dict[str, float]] = {
-    "gaze_rnn": {"hidden": 512, "lr": 1e-4, "l2": 8e-5},
-    "gaze_rnn_lod": {"hidden": 96, "lr": 1e-3, "l2": 1e-4},
+    "gaze_rnn": {"hidden": 512, "l2": 8e-5},
+    "gaze_rnn_lod": {"hidden": 96, "l2": 1e-4},
 }
 TARGET_DIMS = 3
+#: windows per forward pass when evaluating
+EVAL_CHUNK = 1024
+STATS = ("x_mean", "x_std", "y_mean", "y_std")
 
 
-def build_model(n_in: int, n_out: int, hidden: int, residual: bool = False):
-    """The network: ``cell`` (GRUCell n_in → hidden) and ``out`` (Linear hidden → n_out). With ``residual``
-    (Klein 8.2's residual variant) the output is the input's previous pose plus ``out``, which starts at zero."""
+def build_model(n_in: int, n_out: int, hidden: int, residual: bool = True,
+                stats: dict[str, np.ndarray] | None = None):
+    """The network: ``cell`` (GRUCell n_in → hidden) and ``out`` (Linear hidden → n_out), with the training
+    statistics ``stats`` (``x_mean``, ``x_std``, ``y_mean``, ``y_std``; default 0 and 1) as buffers.
+
+    ``model(x)`` maps normalised inputs (B, T, n_in) to normalised outputs (B, T, n_out), closed loop."""
     torch = require_torch()
     nn = torch.nn
+    if n_in - TARGET_DIMS != n_out:
+        raise ConfigError(None, f"x has {n_in} values and y {n_out}: x must be the 3-value target direction then "
+                                "y's layout")
+    stats = stats or {"x_mean": np.zeros(n_in), "x_std": np.ones(n_in), "y_mean": np.zeros(n_out),
+                      "y_std": np.ones(n_out)}
 
     class GazeRnn(nn.Module):
         def __init__(self) -> None:
@@ -56,37 +79,55 @@ def build_model(n_in: int, n_out: int, hidden: int, residual: bool = False):
             if residual:
                 nn.init.zeros_(self.out.weight)
                 nn.init.zeros_(self.out.bias)
+            for k in STATS:
+                self.register_buffer(k, torch.as_tensor(np.asarray(stats[k], np.float32)))
 
-        def forward(self, x, pose_map: tuple[Any, Any] | None = None, closed: bool = True):
-            """x (B, T, n_in) normalised → y (B, T, n_out) normalised. ``pose_map`` (a, b) turns a normalised
-            output into the normalised pose part of the next input (y·a + b); closed=False feeds x as is."""
-            b, t, _ = x.shape
-            h = x.new_zeros(b, self.cell.hidden_size)
+        def forward(self, x, closed: bool = True):
+            """x (B, T, n_in) normalised → y (B, T, n_out) normalised. Closed loop: from the second frame on,
+            the pose part of the input is the previous output (only x's target directions are read there);
+            ``closed=False`` feeds x as it is (one step)."""
+            a = self.y_std / self.x_std[TARGET_DIMS:]       # normalised y → normalised pose part of x
+            b = (self.y_mean - self.x_mean[TARGET_DIMS:]) / self.x_std[TARGET_DIMS:]
+            batch, t, _ = x.shape
+            h = x.new_zeros(batch, self.cell.hidden_size)
             inp = x[:, 0]
             ys = []
             for i in range(t):
                 h = self.cell(inp, h)
                 y = self.out(h)
                 if self.residual:
-                    y = y + (inp[:, TARGET_DIMS:] - pose_map[1]) / pose_map[0]
+                    y = y + (inp[:, TARGET_DIMS:] - b) / a
                 ys.append(y)
                 if i + 1 < t:
-                    pose = y * pose_map[0] + pose_map[1] if closed else x[:, i + 1, TARGET_DIMS:]
+                    pose = y * a + b if closed else x[:, i + 1, TARGET_DIMS:]
                     inp = torch.cat([x[:, i + 1, :TARGET_DIMS], pose], dim=1)
             return torch.stack(ys, dim=1)
 
     return GazeRnn()
 
 
-def _pose_map(data) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _stats(data) -> dict[str, np.ndarray]:
     mx, sx = data.mean_std("x")
     my, sy = data.mean_std("y")
     if len(mx) - TARGET_DIMS != len(my):
         raise ConfigError(data.path, f"x has {len(mx)} values and y {len(my)}: x must be the 3-value target "
                                      "direction then y's layout")
-    a = sy / sx[TARGET_DIMS:]
-    b = (my - mx[TARGET_DIMS:]) / sx[TARGET_DIMS:]
-    return a, b, mx, sx, my, sy
+    return {"x_mean": mx, "x_std": sx, "y_mean": my, "y_std": sy}
+
+
+def predict(model, x: np.ndarray, closed: bool = True, device: Any = None) -> np.ndarray:
+    """The model's normalised outputs (n, T, n_out) for normalised windows ``x`` (n, T, n_in), run on
+    ``device`` (default: the model's) :data:`EVAL_CHUNK` windows at a time."""
+    torch = require_torch()
+    device = device or next(model.parameters()).device
+    model.eval()
+    out = []
+    with torch.no_grad():
+        for i in range(0, len(x), EVAL_CHUNK):
+            xb = torch.from_numpy(np.ascontiguousarray(x[i:i + EVAL_CHUNK], np.float32)).to(device)
+            out.append(model(xb, closed=closed).cpu().numpy())
+    n_out = int(model.out.out_features)
+    return np.concatenate(out) if out else np.zeros((0, x.shape[1], n_out), np.float32)
 
 
 class GazeRnnTrainer:
@@ -96,27 +137,29 @@ class GazeRnnTrainer:
     dataset = ("gaze_rnn", "gaze_rnn_lod")
     schema_version = 1
     required_columns = ("x", "y")
+    knobs = ("epochs", "hidden", "lr", "device", "patience")
     options = {
         "l2": "L2 weight-decay coefficient (default 8e-5; 1e-4 for gaze_rnn_lod)",
         "batch": "windows per minibatch (default 64)",
         "window": "frames per window (default _dataset.json's, 120)",
         "stride": "step between windows (default _dataset.json's)",
         "max_windows": "use at most this many training windows (seeded subset; default all)",
-        "threads": "torch CPU threads (default torch's)",
-        "residual": "output = previous pose + network output (Klein 8.2's residual variant; default false)",
+        "threads": "torch CPU threads (default: every core the process may use, under gazepipe train)",
+        "residual": "predict the change of pose (Klein 8.2's residual variant; default true)",
+        "schedule": "learning rate: cosine (decayed to 0 over the epochs; default) or constant",
+        "clip": "largest gradient norm (default 1; 0: no clipping)",
+        "max_seconds": "stop after the epoch that passes this much training time, s (default: no limit)",
     }
 
     def train(self, data, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
         d = DEFAULTS[data.name]
+        device = resolve_device(options.device)
         hidden = int(options.get("hidden", d["hidden"]))
-        lr = float(options.get("lr", d["lr"]))
         l2 = float(options.get("l2", d["l2"]))
-        epochs = int(options.get("epochs", 50))
-        batch = int(options.get("batch", 64))
-        window = options.get("window", None)
-        stride = options.get("stride", None)
+        window, stride = options.get("window", None), options.get("stride", None)
         max_windows = options.get("max_windows", None)
-        residual = bool(options.get("residual", False))
+        fc = fit_config(options)
+        residual = bool(options.get("residual", True))
         rng = np.random.default_rng(options.seed)
         train_w = data.windows("train", window=window, stride=stride)
         if len(train_w) == 0:
@@ -124,41 +167,44 @@ class GazeRnnTrainer:
                                          f"shorter ones: {train_w.short_runs})")
         pick = subsample(len(train_w), None if max_windows is None else int(max_windows), rng)
         xs, ys = train_w.x[pick], train_w.y[pick]
-        a, b, mx, sx, my, sy = _pose_map(data)
+        stride = int(stride or data.stride or train_w.window)
+        split = pick_split(data)
+        val_w = data.windows(split, window=train_w.window, stride=stride) if split else None
+        val_x, val_y = (val_w.x, val_w.y) if val_w is not None else (np.zeros((0,)), np.zeros((0,)))
+        if fc.patience is not None and len(val_x) == 0:
+            raise ConfigError(data.path, "--patience needs validation windows; this dataset has none")
         config = {"dataset": data.name, "n_in": int(xs.shape[2]), "n_out": int(ys.shape[2]), "hidden": hidden,
-                  "lr": lr, "l2": l2, "epochs": epochs, "batch": batch, "window": train_w.window,
-                  "stride": int(stride or data.stride or train_w.window), "seed": options.seed,
-                  "train_windows": int(len(pick)), "closed_loop": True, "target_dims": TARGET_DIMS,
-                  "residual": residual}
-        with deterministic(options.seed, options.get("threads", None)) as torch:
-            model = build_model(config["n_in"], config["n_out"], hidden, residual)
-            pm = (torch.from_numpy(a), torch.from_numpy(b))
-            opt = torch.optim.Adam(model.parameters(), lr=lr, betas=(0.9, 0.999))
-            tx, ty = torch.from_numpy(xs), torch.from_numpy(ys)
-            losses = []
-            for _ in range(epochs):
-                model.train()
-                total, count = 0.0, 0
-                for idx in batches(len(xs), batch, rng):
-                    opt.zero_grad()
-                    pred = model(tx[idx], pm)
-                    mse = torch.mean((pred - ty[idx]) ** 2)
-                    loss = mse + l2 * l2_penalty(model)
-                    loss.backward()
-                    opt.step()
-                    total += float(mse.detach()) * len(idx)
-                    count += len(idx)
-                losses.append(total / max(count, 1))
-            metrics: dict[str, Any] = {"train_mse": losses, "train_windows": int(len(xs)),
-                                       "dropped_rows": train_w.dropped_rows}
-            split = pick_split(data)
-            if split is not None:
-                metrics["validation"] = evaluate(model, data, split, train_w.window, config["stride"])
-            else:
-                metrics["validation"] = None
+                  "lr": fc.lr, "l2": l2, "epochs": fc.epochs, "batch": fc.batch, "window": train_w.window,
+                  "stride": stride, "seed": options.seed, "train_windows": int(len(pick)), "closed_loop": True,
+                  "target_dims": TARGET_DIMS, "residual": residual, "schedule": fc.schedule, "clip": fc.clip,
+                  "patience": fc.patience}
+        with deterministic(options.seed, options.get("threads", None), device) as (torch, det):
+            model = build_model(config["n_in"], config["n_out"], hidden, residual, _stats(data)).to(device)
+            opt = torch.optim.Adam(model.parameters(), lr=fc.lr, betas=(0.9, 0.999))
+            train = DeviceArrays({"x": xs, "y": ys}, device)
+            val = DeviceArrays({"x": val_x, "y": val_y}, device) if len(val_x) else None
+
+            def loss_fn(b):
+                mse = torch.mean((model(b["x"]) - b["y"]) ** 2)
+                return mse + l2 * l2_penalty(model), mse
+
+            def val_fn() -> float:
+                total = 0.0
+                for i in range(0, val.n, EVAL_CHUNK):
+                    b = val.batch(np.arange(i, min(i + EVAL_CHUNK, val.n)))
+                    total += float(torch.sum((model(b["x"]) - b["y"]) ** 2))
+                return total / val_y.size
+
+            hist = fit(model, opt, train, loss_fn, val_fn if val is not None else None, fc, rng, options.progress)
+            metrics: dict[str, Any] = {"device": device_name(device), **history_metrics(hist),
+                                       "train_windows": int(len(xs)), "dropped_rows": train_w.dropped_rows}
+            metrics["validation"] = evaluate(model, data, split, train_w.window, stride) if split else None
+            metrics["summary"] = summary(metrics["validation"])
             out = Path(out_dir)
             write_atomic(out / WEIGHTS, state_bytes(model))
-        save_model_json(out, self.name, config, metrics, data, WEIGHTS)
+        metrics["nondeterministic"] = det.nondeterministic   # what torch warned about, known on leaving
+        saved = {k: v for k, v in metrics.items() if k != "epoch_seconds"}   # model.json: same seed, same bytes
+        save_model_json(out, self.name, config, saved, data, WEIGHTS)
         return metrics
 
 
@@ -166,18 +212,14 @@ def evaluate(model, data, split: str, window: int, stride: int) -> dict[str, Any
     """MSE on ``split``'s windows of the model and of the repeat-the-previous-pose baseline, each closed loop
     and one step (see the module notes), in normalised units and in the stored units (``_raw``: unit-vector
     components)."""
-    torch = require_torch()
     w = data.windows(split, window=window, stride=stride)
     if len(w) == 0:
         return {"split": split, "windows": 0}
-    a, b, mx, sx, my, sy = _pose_map(data)
+    st = _stats(data)
+    mx, sx, my, sy = (st[k] for k in STATS)
     x, y = w.x, w.y
-    model.eval()
-    with torch.no_grad():
-        tx = torch.from_numpy(x)
-        pm = (torch.from_numpy(a), torch.from_numpy(b))
-        closed = model(tx, pm, closed=True).numpy()
-        one = model(tx, pm, closed=False).numpy()
+    closed = predict(model, x, closed=True)
+    one = predict(model, x, closed=False)
     y_raw = y * sy + my
     pose_raw = x[:, :, TARGET_DIMS:] * sx[TARGET_DIMS:] + mx[TARGET_DIMS:]   # the previous pose, as captured
     held = np.repeat(pose_raw[:, :1], pose_raw.shape[1], axis=1)
@@ -192,8 +234,120 @@ def evaluate(model, data, split: str, window: int, stride: int) -> dict[str, Any
     return out
 
 
+def summary(v: dict[str, Any] | None) -> list[str]:
+    """The validation metrics in words: the model against each baseline."""
+    if not v or not v.get("windows"):
+        return ["no validation windows: nothing to compare with a baseline"]
+    n = f"{v['windows']} {v['split']} windows"
+    return [verdict(f"closed loop (fed its own output, {n}), MSE", v["closed_loop_mse"],
+                    v["baseline_closed_loop_mse"], "holding each window's first pose"),
+            verdict("one step (fed the captured previous pose), MSE", v["one_step_mse"],
+                    v["baseline_one_step_mse"], "repeating the previous pose")]
+
+
+# ------------------------------------------------------------------------------------------------ inference
+
+def six_to_matrix(six: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from 6-number rotations (..., 6) = forward R·z then up R·y: Gram-Schmidt
+    (forward normalised, up made orthogonal to it), x = up × forward."""
+    f = six[..., :3] / np.linalg.norm(six[..., :3], axis=-1, keepdims=True)
+    u = six[..., 3:] - np.sum(six[..., 3:] * f, axis=-1, keepdims=True) * f
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    return np.stack([np.cross(u, f), u, f], axis=-1)
+
+
+@dataclass
+class Rollout:
+    """A closed-loop rollout, every array with the leading shape of the request (B, T) or (T,).
+
+    Attributes
+    ----------
+    y : (..., n_out) the network's outputs in the dataset's ``y`` layout and units (what validation scores).
+    rot6d : (..., S, 6) each segment's rotation as forward R·z then up R·y, made orthonormal; character frame
+        (+X left, +Y up, +Z forward).
+    quat : (..., S, 4) the same rotations as unit quaternions w, x, y, z.
+    eye_dir : (..., 3) unit eye direction, character frame; ``None`` for a model without eyes (LOD).
+    segments : the S segment names.
+    """
+
+    y: np.ndarray
+    rot6d: np.ndarray
+    quat: np.ndarray
+    eye_dir: np.ndarray | None
+    segments: list[str]
+
+
+class GazeRNNPredictor:
+    """A trained ``gaze_rnn`` model (or its LOD variant) for closed-loop inference in the dataset's units.
+
+    ``GazeRNNPredictor.load("models/gaze_rnn").rollout(start_pose, target_dirs)``; the normalisation with the
+    training statistics happens inside.
+
+    Attributes
+    ----------
+    model : the torch module (eval mode); ``meta`` : model.json; ``segments`` : segment names, in y's order;
+    has_eyes : whether y ends with the eye direction; ``y_std`` : (n_out,) the training standard deviation of y
+    (the unit of the normalised validation MSE).
+    """
+
+    def __init__(self, model, meta: dict[str, Any], device: Any = "cpu") -> None:
+        self.model, self.meta, self.device = model, meta, device
+        names = list((meta.get("dataset") or {}).get("features", {}).get("y") or [])
+        n_out = int(meta["config"]["n_out"])
+        self.has_eyes = n_out % 6 == 3
+        seg = [n.split(".")[0] for n in names if ".fwd." in n][::3]
+        self.segments = seg if len(seg) == n_out // 6 else [f"segment{i}" for i in range(n_out // 6)]
+        self.x_mean, self.x_std, self.y_mean, self.y_std = (getattr(model, k).cpu().numpy() for k in STATS)
+
+    @classmethod
+    def load(cls, model_dir: str | Path, device: str = "cpu") -> GazeRNNPredictor:
+        """The model saved in ``model_dir`` by ``gazepipe train gaze_rnn``, on ``device`` (``cpu``, ``cuda``,
+        ``cuda:N`` or ``auto``)."""
+        dev = resolve_device(device)
+        model, meta = load_model(model_dir)
+        return cls(model.to(dev), meta, dev)
+
+    def rollout(self, start_pose: np.ndarray, target_dirs: np.ndarray) -> Rollout:
+        """Run the model closed loop from ``start_pose`` for a sequence of target directions.
+
+        Parameters
+        ----------
+        start_pose : (n_out,) or (B, n_out): the pose just before the first frame, in y's layout (each segment's
+            forward and up unit vectors, then the eye direction), character frame.
+        target_dirs : (T, 3) or (B, T, 3): unit direction to the gaze target at each frame, character frame.
+
+        Returns
+        -------
+        :class:`Rollout` of T frames (frame t answers target_dirs[t]).
+        """
+        start = np.asarray(start_pose, np.float32)
+        targets = np.asarray(target_dirs, np.float32)
+        single = targets.ndim == 2
+        start, targets = np.atleast_2d(start), targets[None] if single else targets
+        if start.shape[-1] != len(self.y_mean) or targets.shape[-1] != TARGET_DIMS or len(start) != len(targets):
+            raise ValueError(f"start_pose (B, {len(self.y_mean)}) and target_dirs (B, T, 3) expected, got "
+                             f"{start.shape} and {targets.shape}")
+        x = np.zeros((*targets.shape[:2], len(self.x_mean)), np.float32)
+        x[:, :, :TARGET_DIMS] = (targets - self.x_mean[:TARGET_DIMS]) / self.x_std[:TARGET_DIMS]
+        x[:, 0, TARGET_DIMS:] = (start - self.x_mean[TARGET_DIMS:]) / self.x_std[TARGET_DIMS:]
+        y = predict(self.model, x, closed=True, device=self.device) * self.y_std + self.y_mean
+        if single:
+            y = y[0]
+        s = len(self.segments)
+        rot = six_to_matrix(y[..., :6 * s].reshape(*y.shape[:-1], s, 6).astype(np.float64))
+        quat = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(*rot.shape[:-2], 4)
+        rot6d = np.concatenate([rot[..., :, 2], rot[..., :, 1]], axis=-1)
+        eye = None
+        if self.has_eyes:
+            e = y[..., 6 * s:].astype(np.float64)
+            eye = e / np.linalg.norm(e, axis=-1, keepdims=True)
+        return Rollout(y=y, rot6d=rot6d, quat=quat, eye_dir=eye, segments=list(self.segments))
+
+
 def load_model(model_dir: str | Path):
-    """(module in eval mode, model.json) of a saved gaze_rnn model."""
+    """(module in eval mode on the CPU, model.json) of a saved gaze_rnn model. The module carries the training
+    statistics: ``module(x)`` maps normalised windows (B, T, n_in) to normalised outputs, closed loop; see
+    :class:`GazeRNNPredictor` for inference in the dataset's units."""
     meta = read_model_json(model_dir)
     c = meta["config"]
     model = build_model(int(c["n_in"]), int(c["n_out"]), int(c["hidden"]), bool(c.get("residual", False)))
