@@ -183,6 +183,9 @@ def check_stages(records: dict[str, dict[str, Any]], states: list[dict[str, Any]
     ``None`` when the sessions cannot be read now (freshness is then not checked).
     """
     failed = {s: r.get("error", "") for s, r in records.items() if r.get("status") != "ok"}
+    # a take that fails while the run plans it (a missing or unreadable input) leaves no record: its state says so
+    failed.update({r["stage"]: r.get("detail", "") for r in states or []
+                   if r.get("state") == "failed" and r.get("stage") not in records})
     details: dict[str, Any] = {"ran": sorted(records)}
     if failed:
         first = next(iter(sorted(failed)))

@@ -447,12 +447,20 @@ def take_pass(layout: OutLayout, th: C.Thresholds) -> TakePass:
         checks = _sorted_checks([stages] + found)
         sev = C.worst([c.severity for c in checks])
         takes_out.append({"session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": sev,
-                          "stages": {k: r.get("status", "?") for k, r in sorted(e.records.items())},
+                          "stages": _stage_states(e, None if states is None else states.get(e.key, [])),
                           "checks": [c.to_dict() for c in checks]})
         rows.append(take_row(e, checks, sev))
         refs.extend(_ref("take", e.key, c) for c in checks)
     cache.prune()
     return TakePass(sessions, session_problems, entries, takes_out, rows, refs)
+
+
+def _stage_states(e: TakeEntry, states: list[dict[str, Any]] | None) -> dict[str, str]:
+    """Each stage's status: its record's, or ``failed`` for a stage that failed while the run planned it (a
+    missing or unreadable input: no record)."""
+    out = {k: str(r.get("status", "?")) for k, r in e.records.items()}
+    out.update({r["stage"]: "failed" for r in states or [] if r.get("state") == "failed" and r["stage"] not in out})
+    return dict(sorted(out.items()))
 
 
 def output_checks(layout: OutLayout, e: TakeEntry, th: C.Thresholds, cache: CheckCache) -> list[C.Check]:
