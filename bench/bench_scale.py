@@ -97,7 +97,7 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
         cmd += ["-j", str(jobs)]
     for kv in params or []:
         cmd += ["--param", kv]
-    env = dict(os.environ, PYTHONPATH=str(REPO))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])]))
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
