@@ -7,7 +7,12 @@ Every failure a user can cause (a bad file, a bad setting) is raised as a subcla
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
+
+#: held by every writer of the process's stderr (the run's event log), and by a capture of what a native
+#: library writes there (:func:`gazepipe.io.native_log.native_output`), so the two never mix
+STDERR_LOCK = threading.RLock()
 
 # C0 and C1 control characters, DEL, lone surrogates (the bytes of a file name that are not UTF-8), and the
 # Unicode line separators and bidirectional overrides that would reorder or break a printed line

@@ -151,3 +151,65 @@ def test_bad_videos(tmp_path):
                 call(p)
             msg = str(ei.value)
             assert "\n" not in msg and str(p) in msg, msg
+
+
+SAMPLE_VIDEO = Path(__file__).resolve().parents[1] / "sample_data" / "session01" / "video" / "follow_standing_03.mp4"
+
+
+def _flipped(dest: Path, seed: int) -> Path:
+    """The sample's head-camera video with a few dozen random bytes overwritten past its first tenth."""
+    rng = np.random.default_rng([24, seed])
+    data = bytearray(SAMPLE_VIDEO.read_bytes())
+    for _ in range(int(rng.integers(5, 60))):
+        data[int(rng.integers(len(data) // 10, len(data)))] = int(rng.integers(0, 256))
+    dest.write_bytes(bytes(data))
+    return dest
+
+
+def test_ffmpeg_output_goes_into_the_error_not_onto_stderr(tmp_path, capfd):
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(SAMPLE_VIDEO.read_bytes()[: SAMPLE_VIDEO.stat().st_size // 2])
+    for call in (probe_video, FrameReader):
+        with pytest.raises(InputError) as ei:
+            call(cut)
+        msg = str(ei.value)
+        assert str(cut) in msg and "moov atom not found" in msg and "\n" not in msg, msg
+    out, err = capfd.readouterr()
+    assert "moov" not in out + err and err == ""
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_damaged_video_is_decoded_with_a_warning(tmp_path, capfd, seed):
+    video = _flipped(tmp_path / f"flip{seed}.mp4", seed)
+    probe = probe_video(video)
+    with FrameReader(video, timestamps_s=probe.timestamps_s) as reader:
+        _, frames = reader(0, probe.n_frames)
+        warning = reader.damage_warning()
+    assert 0 < frames.shape[0] <= probe.n_frames   # a damaged frame can end the stream early
+    # a frame's data was overwritten: the decoder says so, and the reader keeps what it said
+    assert warning is not None and "FFmpeg reported" in warning and "damaged" in warning, warning
+    assert reader.messages and all("\n" not in m and "@ 0x" not in m for m in reader.messages)
+    assert capfd.readouterr().err == ""
+
+
+def test_an_intact_video_reports_no_damage(capfd):
+    probe = probe_video(SAMPLE_VIDEO)
+    with FrameReader(SAMPLE_VIDEO, timestamps_s=probe.timestamps_s) as reader:
+        reader(0, probe.n_frames)
+        assert reader.damage_warning() is None and reader.messages == []
+    assert not any("FFmpeg" in w for w in probe.warnings)
+    assert capfd.readouterr().err == ""
+
+
+def test_native_output_catches_descriptor_2_and_gives_it_back(capfd):
+    import os
+
+    from gazepipe.io.native_log import native_output
+
+    with native_output() as said:
+        os.write(2, b"[mpeg4 @ 0x55d5d9062380] illegal dc vlc\n\x1b[31mred\x1b[0m\nillegal dc vlc\n")
+        with native_output() as inner:   # nested: the outer block catches it
+            os.write(2, b"second\n")
+    assert said == ["illegal dc vlc", "\\x1b[31mred\\x1b[0m", "second"] and inner == []
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "after\n"

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from gazepipe.errors import InputError
+from gazepipe.io.native_log import native_output, summarise
 from gazepipe.io.tracks import VideoProbe
 
 __all__ = ["FrameReader", "VideoProbe", "probe_video", "read_frames"]
@@ -27,7 +28,8 @@ def _open(path: Path, threads: int | None = 1) -> cv2.VideoCapture:
     """Open a video; ``threads`` decoding threads when the FFmpeg backend takes the setting (None: its default).
 
     One thread by default: takes already run in parallel, and a small head-camera picture decodes faster on one
-    thread than handed between several (about 1.5x at 128x96).
+    thread than handed between several (about 1.5x at 128x96). Call it inside :func:`native_output`: what
+    FFmpeg says of a file it cannot open goes into the error.
     """
     if not path.exists():
         raise InputError(path, "no such file")
@@ -49,13 +51,26 @@ def _open(path: Path, threads: int | None = 1) -> cv2.VideoCapture:
     return cap
 
 
+def _damage(said: list[str], when: str) -> str:
+    """A warning that FFmpeg reported problems with the file while ``when``."""
+    return f"FFmpeg reported {len(said)} problem(s) {when}, frames may be damaged: {summarise(said)}"
+
+
+def _raise_with(err: InputError, said: list[str]) -> None:
+    """Re-raise ``err`` with what FFmpeg said added to its problem."""
+    if said:
+        raise InputError(err.path, f"{err.problem} (FFmpeg: {summarise(said, 1)})", key=err.key,
+                         take=err.take) from err
+    raise err
+
+
 def _walk(path: Path, raw: bool) -> tuple[list[float], float, int, int, int] | None:
     """Grab every frame; return (POS_MSEC per frame, fps, width, height, declared frame count).
 
     ``raw`` asks OpenCV's FFmpeg backend for the undecoded packets (``CAP_PROP_FORMAT = -1``): no picture is
     decoded at all, and the packets' own timestamps come back. ``None`` when raw mode is not available.
     """
-    cap = _open(path)
+    cap = _open(path)  # inside the caller's native_output()
     try:
         fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
         width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
@@ -86,18 +101,27 @@ def probe_video(path: str | Path) -> VideoProbe:
     """
     path = Path(path)
     source = "packets"
-    walked = _walk(path, raw=True)
-    if walked is not None:
-        ms = np.sort(np.asarray(walked[0], dtype=np.float64))  # packets come in decode order
-        usable = ms.size > 0 and (ms.size == walked[4] or walked[4] <= 0) and bool(np.all(np.diff(ms) > 0))
-    if walked is None or not usable:
-        source = "decoded"
-        walked = _walk(path, raw=False)
-        ms = np.asarray(walked[0], dtype=np.float64)
+    with native_output() as said:
+        try:
+            walked = _walk(path, raw=True)
+            if walked is not None:
+                ms = np.sort(np.asarray(walked[0], dtype=np.float64))  # packets come in decode order
+                usable = (ms.size > 0 and (ms.size == walked[4] or walked[4] <= 0)
+                          and bool(np.all(np.diff(ms) > 0)))
+            if walked is None or not usable:
+                source = "decoded"
+                walked = _walk(path, raw=False)
+                ms = np.asarray(walked[0], dtype=np.float64)
+        except InputError as err:
+            failed = err
+        else:
+            failed = None
+    if failed is not None:
+        _raise_with(failed, said)
     _, fps, width, height, header_frames = walked
     if ms.size == 0:
-        raise InputError(path, "no readable frames in the video")
-    warnings: list[str] = []
+        _raise_with(InputError(path, "no readable frames in the video"), said)
+    warnings: list[str] = [_damage(said, "reading the container")] if said else []
     ts = ms / 1000.0
     if ts.size > 1 and not np.all(np.diff(ts) > 0):
         if fps > 0:
@@ -135,7 +159,8 @@ class FrameReader:
         previous key frame anyway).
     threads : decoding threads (None: the backend's default, usually one per core). The frames are the same.
 
-    Use it as a context manager, or call :meth:`close`.
+    Use it as a context manager, or call :meth:`close`. What FFmpeg reports while decoding (a damaged frame)
+    is kept in :attr:`messages`; :meth:`damage_warning` puts it in words.
 
     Raises
     ------
@@ -152,9 +177,24 @@ class FrameReader:
         ts = self.timestamps_s
         self._tolerance = 0.5 * float(np.median(np.diff(ts))) if ts is not None and ts.size > 1 else 1e-3
         self.threads = threads
-        self._cap: cv2.VideoCapture | None = _open(self.path, threads)
+        self.messages: list[str] = []
+        self._cap: cv2.VideoCapture | None = None
+        with native_output() as said:
+            try:
+                self._cap = _open(self.path, threads)
+            except InputError as err:
+                failed = err
+            else:
+                failed = None
+        if failed is not None:
+            _raise_with(failed, said)
+        self.messages += said
         self._next: int | None = 0  # the frame the next grab() returns; None when unknown
         self._seek_ok = True
+
+    def damage_warning(self) -> str | None:
+        """A warning naming what FFmpeg reported while decoding, or None when it said nothing."""
+        return _damage(self.messages, "decoding frames") if self.messages else None
 
     def __enter__(self) -> FrameReader:
         return self
@@ -173,6 +213,18 @@ class FrameReader:
             raise ValueError(f"need 0 <= start < stop, got [{start}, {stop})")
         if self._cap is None:
             raise ValueError(f"{self.path}: the reader is closed")
+        failed: InputError | None = None
+        with native_output() as said:
+            try:
+                window = self._window(start, stop)
+            except InputError as err:
+                failed = err
+        self.messages += [m for m in said if m not in self.messages]
+        if failed is not None:
+            _raise_with(failed, self.messages)
+        return window
+
+    def _window(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         pending = self._reach(start)  # the timestamp of frame ``start`` when a seek check already grabbed it
         ts: list[float] = []
         frames: list[np.ndarray] = []

@@ -7,6 +7,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from gazepipe.errors import STDERR_LOCK
+
 LEVELS = ("debug", "info", "warning", "error")
 
 
@@ -52,7 +54,8 @@ class EventLog:
             if self._bar:
                 line = "\r\033[K" + line
                 self._bar = False
-        print(line, file=self.stream, flush=True)
+        with STDERR_LOCK:  # not inside a capture of a native library's output
+            print(line, file=self.stream, flush=True)
 
     def progress(self, done: int, total: int, what: str = "takes") -> None:
         """Redraw a one-line progress bar (terminals only; nothing in logs)."""
@@ -62,7 +65,8 @@ class EventLog:
         full = int(width * done / total)
         bar = "#" * full + "-" * (width - full)
         end = "\n" if done >= total else ""
-        print(f"\r\033[K[{bar}] {done}/{total} {what}", end=end, file=self.stream, flush=True)
+        with STDERR_LOCK:
+            print(f"\r\033[K[{bar}] {done}/{total} {what}", end=end, file=self.stream, flush=True)
         self._bar = done < total
 
 
