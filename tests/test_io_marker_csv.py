@@ -220,3 +220,51 @@ def test_qtm_old_layout_with_frame_time_and_trailing_tab(tmp_path):
     assert m.first_frame == 7 and m.n_frames == 2
     np.testing.assert_array_equal(m.xyz[0, 0], [1.5, 2.5, 3.5])
     assert m.valid[:, 0].tolist() == [True, False]
+
+
+def _qtm_rows(times: list[str], rate: str = "120") -> str:
+    """A QTM export with a Frame and a Time column: frames 1.. with the given Time cells."""
+    head = QTM.split("Frame\tTime")[0].replace("FREQUENCY\t120", f"FREQUENCY\t{rate}").replace(
+        "NO_OF_FRAMES\t3", f"NO_OF_FRAMES\t{len(times)}")
+    rows = [f"{i + 1}\t{t}\t{i}.0\t1.0\t1700.0\t5.0\t6.0\t7.0" for i, t in enumerate(times)]
+    return head + "Frame\tTime\tHFL X\tHFL Y\tHFL Z\tHFR X\tHFR Y\tHFR Z\n" + "\n".join(rows) + "\n"
+
+
+@pytest.mark.parametrize("bad, found", [("-1", "goes back"), ("nan", "no time value"), ("inf", "no time value"),
+                                        ("", "no time value")])
+def test_qtm_time_column_beside_frames_is_checked(tmp_path, bad, found):
+    times = [f"{i / 120:.5f}" for i in range(8)]
+    times[4] = bad
+    p = _write(tmp_path, "t.tsv", _qtm_rows(times))
+    with pytest.raises(InputError) as ei:
+        read_qtm_tsv(p)
+    msg = str(ei.value)
+    assert str(p) in msg and found in msg and "line 17" in msg and "\n" not in msg, msg
+
+
+def test_qtm_reversed_time_column_is_refused(tmp_path):
+    times = [f"{i / 120:.5f}" for i in range(8)][::-1]
+    with pytest.raises(InputError, match="goes back"):
+        read_qtm_tsv(_write(tmp_path, "t.tsv", _qtm_rows(times)))
+
+
+def test_qtm_time_jump_and_rate_disagreement_are_noted_with_the_line(tmp_path):
+    times = [f"{i / 120:.5f}" for i in range(8)]
+    times[-1] = "1e12"
+    m = read_qtm_tsv(_write(tmp_path, "t.tsv", _qtm_rows(times)))
+    jump = [w for w in m.warnings if "time column steps" in w]
+    assert jump and jump[0].startswith("line 20:"), m.warnings
+    assert m.rate_hz == 120 and m.n_frames == 8   # the frame numbers and FREQUENCY stand
+    slow = read_qtm_tsv(_write(tmp_path, "s.tsv", _qtm_rows([f"{i / 100:.5f}" for i in range(8)])))
+    assert any("100 Hz" in w and "120 Hz" in w for w in slow.warnings), slow.warnings
+
+
+def test_qtm_times_with_too_few_decimals_for_the_rate_are_read(tmp_path):
+    """QTM writes Time with 3 decimals: at 2 kHz consecutive frames can share a time. That is noted, not
+    refused (the frame numbers place the rows)."""
+    times = [f"{i / 2000:.3f}" for i in range(40)]
+    m = read_qtm_tsv(_write(tmp_path, "t.tsv", _qtm_rows(times, rate="2000")))
+    assert m.n_frames == 40 and m.rate_hz == 2000
+    assert any("time column steps" in w for w in m.warnings)
+    clean = read_qtm_tsv(_write(tmp_path, "c.tsv", _qtm_rows([f"{i / 120:.5f}" for i in range(40)])))
+    assert not any("time column" in w for w in clean.warnings), clean.warnings

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -235,3 +236,26 @@ def test_zero_timestamp_steps_are_reported(tmp_path):
     cols["timestamp"] = np.zeros(6)
     tr = read_openface(_write(tmp_path / "z.csv", cols))
     assert any("5 timestamp step(s) of zero" in w for w in tr.warnings)
+
+
+def test_dropped_frames_are_reported_with_the_row(tmp_path):
+    cols = _frame_rows(30)
+    keep = np.r_[0:10, 14:20, 21:30]            # frames 11-14 and 21 never written
+    tr = read_openface(_write(tmp_path / "d.csv", {k: v[keep] for k, v in cols.items()}))
+    dropped = [w for w in tr.warnings if "dropped" in w]
+    assert dropped == ["5 dropped video frame(s) in 2 gap(s) (first after frame 10, data row 10): bridged by the "
+                       "eye gap rules"], tr.warnings
+    np.testing.assert_array_equal(tr.frame, cols["frame"][keep])
+    assert not any("dropped" in w for w in read_openface(_write(tmp_path / "a.csv", cols)).warnings)
+
+
+@pytest.mark.parametrize("value", ["-1e300", "1e30", "12.5"])
+def test_absurd_gaze_values_are_flagged_without_numpy_warnings(tmp_path, value):
+    cols = {k: v.astype(object) for k, v in _frame_rows(12).items()}
+    cols["gaze_1_y"][7] = value
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # an overflow in the norm would be a RuntimeWarning
+        tr = read_openface(_write(tmp_path / "v.csv", cols))
+    assert any("gaze component beyond" in w and "data row 8" in w for w in tr.warnings), tr.warnings
+    assert not tr.success[7] and tr.success.sum() == 11
+    assert np.isnan(tr.gaze_left[7]).all() and np.isfinite(tr.gaze_left[np.arange(12) != 7]).all()

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.errors import GazepipeError, StageError
+from gazepipe.errors import GazepipeError, StageError, printable
 from gazepipe.io.parquet import read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
@@ -107,6 +107,12 @@ def _renamed(labels: list[str], mapping: dict[str, int]) -> list[str]:
     return new if len(set(new)) == len(new) else list(labels)
 
 
+def _file_notes(ctx: UnitContext, path: str, notes: list[str]) -> list[str]:
+    """A reader's notes on ``path``, each starting with the file's path in the session folder."""
+    rel = os.path.relpath(path, ctx.session.root)
+    return [f"{printable(rel)}: {n}" for n in notes]
+
+
 def run_ingest(ctx: UnitContext) -> UnitResult:
     from gazepipe.io.capture import read_markers
 
@@ -127,7 +133,8 @@ def run_ingest(ctx: UnitContext) -> UnitResult:
         "model_outputs": len(markers.model_outputs),
     }
     table = markers_to_table(markers, meta=meta)
-    return UnitResult(tables={"markers_raw": (table, MARKERS_RAW)}, qc=qc, warnings=list(markers.warnings))
+    return UnitResult(tables={"markers_raw": (table, MARKERS_RAW)}, qc=qc,
+                      warnings=_file_notes(ctx, take.mocap, markers.warnings))
 
 
 register(Stage(
@@ -335,7 +342,7 @@ def run_face(ctx: UnitContext) -> UnitResult:
     clean = read_livelinkface(take.clean, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
     aligned = align_face(tracked, clean, k=int(ctx.params["k"]))
     qc = dict(aligned.qc)
-    warnings = [f"tracked: {w}" for w in tracked.warnings] + [f"clean: {w}" for w in clean.warnings]
+    warnings = _file_notes(ctx, take.tracked, tracked.warnings) + _file_notes(ctx, take.clean, clean.warnings)
     qc["warnings"] = warnings
     table = face_to_table(aligned, meta={"rate_hz": tracked.rate_hz, "timecode_fps": take.timecode_fps})
     return UnitResult(tables={"face": (table, face_schema(aligned.k))}, qc=qc, warnings=warnings)
@@ -377,6 +384,7 @@ def run_sync(ctx: UnitContext) -> UnitResult:
                         read_window, window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
                         min_confidence=p.min_confidence, mocap_path=take.mocap, video_path=take.video,
                         take=take.id)
+        damage = read_window.damage_warning()
     clock = res.clock
     rows = {
         "clap": np.arange(len(res.mocap_claps), dtype=np.int32),
@@ -390,7 +398,7 @@ def run_sync(ctx: UnitContext) -> UnitResult:
     table = attach_meta(pa.Table.from_pydict(rows, schema=SYNC), {"video_frames": int(ts.size),
                                                                   "video_nominal_fps": probe.nominal_fps})
     qc = dict(res.qc)
-    qc["warnings"] = list(qc.get("warnings", [])) + list(probe.warnings)
+    qc["warnings"] = list(qc.get("warnings", [])) + _file_notes(ctx, take.video, probe.warnings + ([damage] if damage else []))
     return UnitResult(tables={"sync": (table, SYNC)}, qc=qc, warnings=qc["warnings"])
 
 
@@ -446,7 +454,8 @@ def run_eyes(ctx: UnitContext) -> UnitResult:
     table = attach_meta(table, {"camera_rotation": [float(x) for x in res.camera_rotation],
                                 "camera_source": res.camera_source, "rate_hz": float(joints.rate_hz)})
     qc = dict(res.qc)
-    return UnitResult(tables={"eyes": (table, EYES)}, qc=qc, warnings=list(qc.get("warnings", [])))
+    qc["warnings"] = _file_notes(ctx, take.eyes, eye.warnings) + list(qc.get("warnings", []))
+    return UnitResult(tables={"eyes": (table, EYES)}, qc=qc, warnings=qc["warnings"])
 
 
 register(Stage(

@@ -335,6 +335,7 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
     far = np.empty((t, n_m), dtype=bool)
     nonzero = np.zeros(lay.n_points, dtype=bool)
     infinite = 0
+    first_inf: tuple[int, int] | None = None  # (frame index, marker) of the first infinite sample
     for a, n, buf in _frame_chunks(p, fh, lay):
         xyz, word4 = _decode_frames(buf, lay, n)
         g, z = _gap_parts(xyz, word4, lay.is_float)
@@ -344,7 +345,10 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
         big = _any3(np.abs(chunk) > MAX_ABS_MM)         # NaN compares False; an infinity is big
         far[a: a + n] = big
         if big.any():
-            infinite += int(np.count_nonzero(_any3(np.isinf(chunk[big]))))
+            inf = _any3(np.isinf(chunk))
+            if first_inf is None and inf.any():
+                first_inf = divmod(int(np.argmax(inf.ravel())) + a * n_m, n_m)
+            infinite += int(np.count_nonzero(inf))
         del xyz, word4, g, z, chunk, big
     gap |= zero & nonzero[None, :]
     del zero
@@ -379,13 +383,16 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
     valid = ~gap[:, marker_idx]
     del gap
     out[~valid] = np.nan
-    if infinite:
-        notes.append(f"{infinite} samples with an infinite coordinate made gaps")
+    if infinite and first_inf is not None:
+        notes.append(f"{infinite} samples with an infinite coordinate made gaps (first at frame "
+                     f"{lay.first_frame + first_inf[0]}, marker {printable(labels[first_inf[1]])})")
     beyond = far & valid
     if beyond.any():
         cols = np.flatnonzero(beyond.any(axis=0))
+        t0, m0 = divmod(int(np.argmax(beyond.ravel())), n_m)
         notes.append(f"{int(beyond.sum())} samples farther than {MAX_ABS_MM:,.0f} mm from the origin (corrupted "
-                     "values) made gaps, in " + _list_note("markers", [printable(labels[i]) for i in cols]))
+                     f"values) made gaps (first at frame {lay.first_frame + t0}, marker {printable(labels[m0])}), "
+                     "in " + _list_note("markers", [printable(labels[i]) for i in cols]))
         valid &= ~beyond
         out[beyond] = np.nan
     del far, beyond

@@ -325,6 +325,12 @@ def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[st
     return rate
 
 
+def _first_at(mask: np.ndarray, labels: list[str], first_frame: int) -> str:
+    """`` (first at frame F, marker M)`` for the first True sample of a (T, M) mask."""
+    t, m = divmod(int(np.argmax(mask.ravel())), mask.shape[1])
+    return f" (first at frame {int(first_frame) + t}, marker {printable(labels[m])})"
+
+
 def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int, units: str | None,
             default_units: str, fmt: str, notes: list[str], zero_gaps: bool = False) -> Markers:
     """Unique labels, gap mask (any non-finite coordinate), conversion to mm."""
@@ -342,7 +348,8 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
     infinite = np.isinf(xyz).any(axis=2)
     partial = finite.any(axis=2) & ~valid & ~infinite
     if infinite.any():
-        notes.append(f"{int(infinite.sum())} samples with an infinite coordinate made gaps")
+        notes.append(f"{int(infinite.sum())} samples with an infinite coordinate made gaps"
+                     + _first_at(infinite, labels, first_frame))
     if partial.any():
         notes.append(f"{int(partial.sum())} samples with only some of X, Y, Z made gaps (first at frame "
                      f"{int(first_frame) + int(np.argmax(partial.any(axis=1)))})")
@@ -356,7 +363,7 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
         cols = np.flatnonzero(far.any(axis=0))
         shown = ", ".join(printable(labels[i]) for i in cols[:12]) + (" …" if cols.size > 12 else "")
         notes.append(f"{int(far.sum())} samples farther than {MAX_ABS_MM:,.0f} mm from the origin (corrupted "
-                     f"values) made gaps, in {cols.size} markers: {shown}")
+                     f"values) made gaps{_first_at(far, labels, first_frame)}, in {cols.size} markers: {shown}")
         valid &= ~far
         xyz[far] = np.nan
     if valid.size and not valid.any():
@@ -557,6 +564,10 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     first, rows = 1, None
     if has_frame:
         first, rows = _frame_rows(arr[:, 0], where, path.name, notes)
+        time_at = 1 if (n_lead == 2 if col_names is None else [c.lower() for c in col_names[:2]] == ["frame", "time"]) \
+            else None
+        if time_at is not None:
+            _check_frame_times(arr[:, time_at], rows, where, file_rate, notes)
     elif has_time:
         _check_times(arr[:, 0], where)
     del arr
@@ -614,6 +625,41 @@ def _check_times(t: np.ndarray, where: _Rows) -> None:
         r = int(np.argmax(back)) + 1
         raise _Bad(f"{where.line(r)}: the time column is not strictly increasing ({t[r - 1]:.10g} s then "
                    f"{t[r]:.10g} s)")
+
+
+def _check_frame_times(t: np.ndarray, rows: np.ndarray | None, where: _Rows, file_rate: float | None,
+                       notes: list[str]) -> None:
+    """Check a time column that comes beside a frame column (the frames place the rows; the times must agree).
+
+    A missing or non-finite time, or one that goes back, is refused at its line; a step that disagrees with
+    its frame step by more than half a frame (a repeated time included: times written with too few decimals
+    for the rate), and a rate that disagrees with the file's, are noted with the first line. ``rows``: each
+    data row's frame index (None when consecutive).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    bad = ~np.isfinite(t)
+    if bad.any():
+        raise _Bad(f"{where.line(int(np.argmax(bad)))}: no time value")
+    back = np.diff(t) < 0
+    if back.any():
+        r = int(np.argmax(back)) + 1
+        raise _Bad(f"{where.line(r)}: the time column goes back ({t[r - 1]:.10g} s then {t[r]:.10g} s)")
+    if t.size < 2 or t[-1] <= t[0]:
+        return
+    frames = np.diff(rows).astype(np.float64) if rows is not None else np.ones(t.size - 1)
+    per = np.diff(t) / frames
+    step = float(np.median(per))
+    if not step > 0:  # most steps repeat a time (too few decimals): the mean step is the rate's
+        step = float((t[-1] - t[0]) / frames.sum())
+    off = np.abs(per - step) * frames > 0.5 * step
+    if off.any():
+        r = int(np.argmax(off)) + 1
+        notes.append(f"{where.line(r)}: the time column steps {per[r - 1] * frames[r - 1]:.6g} s over "
+                     f"{frames[r - 1]:.0f} frame(s), not {step * frames[r - 1]:.6g} s ({int(off.sum())} such "
+                     "step(s)); the frame numbers place the rows")
+    if file_rate and abs(1.0 / (step * file_rate) - 1.0) > 0.005:
+        notes.append(f"the time column steps {step:.6g} s a frame ({1.0 / step:.6g} Hz) but the file's rate is "
+                     f"{file_rate:g} Hz; the file's rate is used")
 
 
 def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:

@@ -22,9 +22,13 @@ _REQUIRED = ["frame", "timestamp", "success", "confidence", *_GAZE]
 _OPTIONAL = ["face_id", "AU45_c", "AU45_r", "gaze_angle_x"]
 
 
+#: largest gaze-vector component taken as a direction (OpenFace writes unit vectors)
+_MAX_GAZE_COMPONENT = 10.0
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        n = np.linalg.norm(v, axis=1, keepdims=True)
         return np.where(n > 0, v / n, np.nan)
 
 
@@ -80,6 +84,11 @@ def read_openface(path: str | Path) -> EyeTrack:
     if np.any(steps <= 0):
         r = int(np.flatnonzero(steps <= 0)[0]) + 2
         raise InputError(path, f"{what}: frame numbers do not increase at data row {r}", key="frame")
+    jumps = np.flatnonzero(steps > 1)
+    if jumps.size:
+        r = int(jumps[0])
+        warnings.append(f"{int((steps[jumps] - 1).sum())} dropped video frame(s) in {jumps.size} gap(s) "
+                        f"(first after frame {frame[r]}, data row {r + 1}): bridged by the eye gap rules")
     time_s = cols["timestamp"].astype(np.float64)
     if np.any(np.diff(time_s) < 0):
         r = int(np.flatnonzero(np.diff(time_s) < 0)[0]) + 2
@@ -95,6 +104,14 @@ def read_openface(path: str | Path) -> EyeTrack:
         warnings.append(f"{n_fail} of {success.size} rows have success == 0 (kept, flagged)")
     g0 = np.stack([cols[f"gaze_0_{a}"] for a in "xyz"], axis=1)
     g1 = np.stack([cols[f"gaze_1_{a}"] for a in "xyz"], axis=1)
+    # OpenFace writes unit vectors; a component past the bound is a corrupted cell, not a direction
+    absurd = (np.abs(g0) > _MAX_GAZE_COMPONENT).any(axis=1) | (np.abs(g1) > _MAX_GAZE_COMPONENT).any(axis=1)
+    if absurd.any():
+        r = int(np.argmax(absurd)) + 1
+        warnings.append(f"{int(absurd.sum())} rows have a gaze component beyond +-{_MAX_GAZE_COMPONENT:g} "
+                        f"(corrupted values; first at data row {r}): flagged as failed")
+        success = success & ~absurd
+        g0[absurd] = g1[absurd] = 0.0
 
     if "AU45_c" in cols:
         blink = cols["AU45_c"] >= 0.5
