@@ -31,7 +31,15 @@ def broken(tmp_path_factory) -> tuple[Path, dict[str, Path]]:
     fifo = root / "face" / "face_02_tracked.csv"
     fifo.unlink()
     os.mkfifo(fifo)
-    return root, {"follow_sitting_01": video, "shift_y036_p12": c3d, "face_02": fifo}
+    # dangling links: the listed name is what the messages give, whatever the target's name or suffix
+    link = root / "mocap" / "shift_y072_p12.c3d"
+    link.unlink()
+    link.symlink_to("gone_to_another_format.bin")
+    eyes = root / "eyes" / "follow_standing_02.csv"
+    eyes.unlink()
+    eyes.symlink_to(root / "eyes" / "no_such_eyes.csv")
+    return root, {"follow_sitting_01": video, "shift_y036_p12": c3d, "face_02": fifo, "shift_y072_p12": link,
+                  "follow_standing_02": eyes}
 
 
 def test_each_bad_file_fails_its_take_only(broken, tmp_path: Path) -> None:
@@ -47,6 +55,8 @@ def test_each_bad_file_fails_its_take_only(broken, tmp_path: Path) -> None:
         assert f"session01/{take}" in failed[take]
     assert "not a file" in failed["shift_y036_p12"] and "not a file" in failed["face_02"]
     assert "file not found" in failed["follow_sitting_01"]
+    for take in ("shift_y072_p12", "follow_standing_02"):
+        assert "file not found" in failed[take] and "gone_to" not in failed[take] and "no_such" not in failed[take]
     end = events[-1]
     assert end["event"] == "run_end" and end["datasets_failed"] == 0 and end["datasets_built"] == 4
     for take in ("neutral", "follow_standing_03", "face_01", "shift_ym036_p00"):

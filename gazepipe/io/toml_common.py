@@ -7,6 +7,7 @@ from __future__ import annotations
 import difflib
 import json
 import math
+import os
 import re
 import tomllib
 from collections.abc import Iterable, Sequence
@@ -194,7 +195,13 @@ def _depth(doc: Any) -> int:
 
 def resolve_inside(root: Path, value: str, key: str, col: Collector, take: str | None = None,
                     must_exist: bool = True) -> str | None:
-    """Absolute path of ``value`` (relative to ``root``), or ``None`` after reporting why it is unusable."""
+    """Absolute path of ``value`` (relative to ``root``), or ``None`` after reporting why it is unusable.
+
+    What the path finally points to (symbolic links followed) must lie inside ``root``. With ``must_exist``
+    the result is that real path, and it must be a file. Without, the result is the path as listed
+    (normalised, links kept): whether it exists is then its reader's matter, and every message about it
+    names the file the user listed, not a link's target.
+    """
     if not value or CTRL.search(value):
         col.add(key, f"bad path {show(value)}: empty or with control characters", take)
         return None
@@ -210,4 +217,4 @@ def resolve_inside(root: Path, value: str, key: str, col: Collector, take: str |
     except (OSError, RuntimeError, ValueError) as exc:
         col.add(key, f"bad path {show(value)}: {exc}", take)
         return None
-    return str(p)
+    return str(p) if must_exist else os.path.normpath(root / value)
