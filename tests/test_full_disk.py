@@ -44,3 +44,31 @@ def test_a_full_disk_gives_one_line_per_failure_and_the_summary(small_disk: Path
     assert not any("internal error" in e["message"] or "worker died" in e["message"] for e in events)
     assert all(str(small_disk) in e["message"] for e in errors), "each names the file it could not write"
     assert events[-1]["event"] == "run_end" and events[-1]["message"].startswith("done:")
+    io_paths = [e["path"] for e in errors if e["event"] == "io_error"]
+    assert len(io_paths) == len(set(io_paths)), "a file the run could not write is reported once"
+
+
+def test_a_file_the_run_cannot_write_is_reported_once(tmp_path: Path) -> None:
+    """The hash cache is written after the takes and again at the end: when the first write hits a full disk,
+    the second is not tried, and the file is one error line, not two."""
+    import errno
+    import io
+
+    from gazepipe.pipeline.engine import RunSummary, _keep
+    from gazepipe.pipeline.events import EventLog
+
+    stream = io.StringIO()
+    log, summary, tries = EventLog("json", stream), RunSummary("r"), []
+
+    def full() -> None:
+        tries.append(1)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    hashes = tmp_path / ".gazepipe" / "hashes.json"
+    _keep(summary, log, hashes, full)
+    _keep(summary, log, hashes, full)
+    _keep(summary, log, tmp_path / "qc", lambda: None)
+    lines = [json.loads(s) for s in stream.getvalue().splitlines()]
+    assert len(tries) == 1 and len(summary.io_errors) == 1 and len(lines) == 1
+    assert str(hashes) in lines[0]["message"] and "No space left" in lines[0]["message"]
+    assert summary.exit_code == 1

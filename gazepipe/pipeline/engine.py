@@ -42,6 +42,8 @@ class RunSummary:
     plans: list[UnitPlan] = field(default_factory=list)
     #: the run's own writes that failed (its records, its report), one line each
     io_errors: list[str] = field(default_factory=list)
+    #: the files those were about (a file that failed once is not tried again in the run)
+    io_failed: set[str] = field(default_factory=set)
 
     def count(self, status: str, *, datasets: bool | None = None) -> int:
         """Outcomes with ``status``: of take units only (``datasets=False``), datasets only (``True``), or
@@ -206,11 +208,15 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
 
 def _keep(summary: RunSummary, log: EventLog, path: Path, write: Callable[[], None]) -> None:
     """Run one of the run's own writes (its records, its report); an I/O error (a full or read-only disk) is
-    one error line naming the file, and the run still ends with its summary (exit 1)."""
+    one error line naming the file, and the run still ends with its summary (exit 1). A file whose write
+    failed once in the run is not tried again (one line per file)."""
+    if str(path) in summary.io_failed:
+        return
     try:
         write()
     except OSError as exc:
         msg = os_problem(exc, path)
+        summary.io_failed.add(str(path))
         summary.io_errors.append(msg)
         log.emit("error", "io_error", msg, status="failed", path=str(path))
 
