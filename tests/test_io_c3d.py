@@ -436,3 +436,59 @@ def test_header_analog_count_contradicted_by_file_size(tmp_path):
     ref = read_c3d(CORPUS / "Eb015pr.c3d")
     np.testing.assert_array_equal(m.xyz, ref.xyz)
     assert any("the file size agrees with the parameters" in w for w in m.warnings)
+
+
+SAMPLE_C3D = Path(__file__).resolve().parents[1] / "sample_data" / "session01" / "mocap"
+
+
+def _hostile_copy(dest: Path) -> Path:
+    """The sample's neutral capture with what a summary must notice written into its float point blocks:
+    marker 5 a bit-identical copy of marker 1, an infinite and a far (3 km) coordinate, marker 9 at exactly
+    (0, 0, 0) in every frame (never seen), marker 12 at the origin in a few frames (gaps, it is seen elsewhere)."""
+    from gazepipe.io.c3d_meta import parse_c3d_meta
+
+    data = bytearray((SAMPLE_C3D / "neutral.c3d").read_bytes())
+    lay = parse_c3d_meta(bytes(data[:1 << 16])).layout(len(data))
+    assert lay.is_float and lay.processor == "intel"
+    n = lay.n_frames * lay.frame_words
+    words = np.frombuffer(data, dtype="<f4", count=n, offset=lay.data_offset).reshape(lay.n_frames, -1).copy()
+    pts = words[:, : 4 * lay.n_points].reshape(lay.n_frames, lay.n_points, 4)
+    pts[:, 5] = pts[:, 1]
+    pts[10, 3, 0] = np.inf
+    pts[20, 7, 2] = 3e6
+    pts[:, 9, :3] = 0.0
+    pts[:, 9, 3] = 0.0
+    pts[30:34, 12, :3] = 0.0
+    words[:, : 4 * lay.n_points] = pts.reshape(lay.n_frames, -1)
+    data[lay.data_offset: lay.data_offset + 4 * n] = words.astype("<f4").tobytes()
+    dest.write_bytes(bytes(data))
+    return dest
+
+
+def test_inspect_streams_a_large_c3d_to_the_same_summary(tmp_path):
+    """inspect reads a C3D too large to hold decoded in one streaming pass; forced on every corpus and sample
+    file (and a copy with duplicates, corrupt values and a never-seen marker), it gives the full read's summary
+    exactly, warnings included."""
+    from gazepipe.io.capture import _streamed_c3d
+
+    files = sorted(CORPUS.glob("*.c3d")) + sorted(SAMPLE_C3D.glob("*.c3d"))[:4] + [_hostile_copy(tmp_path / "h.c3d")]
+    streamed = 0
+    for path in files:
+        full = inspect_capture(path, rate_hz=100.0)
+        fast = _streamed_c3d(path, 100.0, over_bytes=0)
+        if fast is None:   # parameters that disagree with the header: the full read cross-checks them
+            assert full["reader"] == "c3d" or any("disagree" in w for w in full["warnings"]), path
+            continue
+        streamed += 1
+        assert fast == full, path
+    assert streamed >= len(files) - 2
+    hostile = inspect_capture(tmp_path / "h.c3d")
+    text = " | ".join(hostile["warnings"])
+    assert "infinite coordinate" in text and "farther than" in text and "never seen" in text, text
+    assert "bit-identical" in text and len(hostile["duplicates"]) == 1
+
+
+def test_inspect_of_a_small_c3d_reads_it_whole():
+    from gazepipe.io.capture import _streamed_c3d
+
+    assert _streamed_c3d(SAMPLE_C3D / "neutral.c3d", None) is None

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import InputError
 from gazepipe.io.c3d import duplicate_trajectories, read_c3d_info
+from gazepipe.io.c3d_meta import HEAD_BYTES
 from gazepipe.io.marker_csv import VICON_BLOCKS, read_qtm_tsv, read_vicon_csv, read_wide_csv
 from gazepipe.model import Markers
 
@@ -93,6 +95,29 @@ def read_markers(path: str | Path, *, rate_hz: float | None = None, default_unit
     return _read(Path(path), rate_hz, default_units)[0]
 
 
+def _streamed_c3d(p: Path, rate_hz: float | None, over_bytes: int | None = None) -> dict[str, Any] | None:
+    """:func:`inspect_capture`'s summary of a C3D file too large to hold decoded (more than ``over_bytes``,
+    :data:`~gazepipe.io.c3d_summary.STREAM_OVER_BYTES` by default), read in one streaming pass; None for any
+    other file (read whole)."""
+    from gazepipe.io.c3d_meta import MetaError, parse_c3d_meta
+    from gazepipe.io.c3d_summary import STREAM_OVER_BYTES, summarise_c3d
+
+    limit = STREAM_OVER_BYTES if over_bytes is None else over_bytes
+    if sniff_format(p) != "c3d":
+        return None
+    try:
+        with open(p, "rb") as fh:
+            lay = parse_c3d_meta(fh.read(HEAD_BYTES)).layout(os.fstat(fh.fileno()).st_size)
+    except (OSError, MetaError, ValueError):
+        return None   # the full read says what is wrong
+    if lay.n_frames * lay.n_points * 3 * 8 <= limit:
+        return None
+    out = summarise_c3d(p)
+    if out is not None and rate_hz is not None and abs(float(rate_hz) - out["rate_hz"]) > 5e-4 * out["rate_hz"]:
+        out["warnings"].append(f"file rate {out['rate_hz']:g} Hz used, not the given {float(rate_hz):g} Hz")
+    return out
+
+
 def inspect_capture(path: str | Path, *, rate_hz: float | None = None) -> dict[str, Any]:
     """Summarise a capture file (what ``gazepipe inspect`` prints).
 
@@ -101,6 +126,9 @@ def inspect_capture(path: str | Path, *, rate_hz: float | None = None) -> dict[s
     bit-identical trajectories), warnings; for C3D also processor, storage and analog_channels.
     """
     p = Path(path)
+    streamed = _streamed_c3d(p, rate_hz)
+    if streamed is not None:
+        return streamed
     m, info = _read(p, rate_hz, "mm")
     gaps = m.gap_fraction()
     out: dict[str, Any] = {
