@@ -8,6 +8,7 @@ import dataclasses
 import pytest
 from click.testing import CliRunner
 
+import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
 from gazepipe.cli.common import parse_params
 from gazepipe.cli.main import cli
 from gazepipe.errors import ConfigError
@@ -145,3 +146,25 @@ def test_run_pipeline_refuses_bad_parameters_before_anything_runs(tmp_path):
     assert "unknown parameter clean.nope" in str(err.value)
     assert "parameter clean.max_gap_s must be a number >= 0, got -1" in str(err.value)
     assert err.value.exit_code == 2 and not out.exists()
+
+
+@pytest.mark.parametrize("text, found", [
+    ("[clean]\nmax_gap_s = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deep"),
+    ("[clean]\nmax_gap_s = [[[[[[[[[[[[[[[[[[[[0.5]]]]]]]]]]]]]]]]]]]]\n", "nested too deep"),
+    ("[clean\n", "TOML syntax error"),
+    ("[clean]\nnote = \"" + "a" * (2 << 20) + "\"\n", "at most 1 MiB"),
+])
+def test_a_params_file_is_bounded_like_the_session_files(tmp_path, text, found):
+    params = tmp_path / "studio.toml"
+    params.write_text(text)
+    res, _ = run(tmp_path, "--params", str(params), "--dry-run")
+    lines = error_lines(res)
+    assert res.exit_code == 2 and len(lines) == 1, res.output[-500:]
+    assert str(params) in lines[0] and found in lines[0] and len(lines[0]) < 300, lines[0][:300]
+
+
+def test_a_huge_param_value_is_shown_clipped(tmp_path):
+    res, _ = run(tmp_path, "--param", "clean.max_gap_s=" + "[" * 3000 + "]" * 3000, "--dry-run")
+    lines = error_lines(res)
+    assert res.exit_code == 2 and len(lines) == 1 and "clean.max_gap_s" in lines[0]
+    assert "(6002 characters)" in lines[0] and len(lines[0]) < 200, lines[0][:300]

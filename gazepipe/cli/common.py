@@ -113,10 +113,12 @@ def parse_params(pairs: tuple[str, ...], params_file: str | None) -> dict[str, A
     values: dict[str, Any] = {}
     source: dict[str, str | None] = {}      # the file a value came from (None: the command line)
     if params_file:
-        try:
-            data = tomllib.loads(Path(params_file).read_text())
-        except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(params_file, f"cannot read parameters ({' '.join(str(exc).split())})") from None
+        from gazepipe.io.toml_common import Collector, read_toml
+
+        col = Collector(Path(params_file))
+        data = read_toml(Path(params_file), col)   # bounded in size and depth, as session.toml is
+        if data is None:
+            raise col.errors[0]
         for stage, table in data.items():
             if not isinstance(table, dict):
                 problems.append(ConfigError(params_file, "expected one table per stage, e.g. [clean] "
@@ -139,7 +141,7 @@ def parse_params(pairs: tuple[str, ...], params_file: str | None) -> dict[str, A
         key = key.strip()
         try:
             values[key] = tomllib.loads(f"v = {raw.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
+        except (tomllib.TOMLDecodeError, RecursionError):  # not a TOML value: the text itself
             values[key] = raw.strip()
         source[key] = None
     for key in values:

@@ -28,6 +28,8 @@ from typing import Any, Protocol
 
 import pyarrow as pa
 
+from gazepipe.errors import printable
+
 
 class TakeLike(Protocol):
     """A take as the engine sees it: an id unique in its session, and its settings as dataclass fields (part of
@@ -380,7 +382,9 @@ def param_problems(values: Mapping[str, Any]) -> list[tuple[str, str]]:
     for key, value in values.items():
         allowed = value_problem(value, defaults[key], rules.get(key, {}))
         if allowed:
-            out.append((key, f"parameter {key} must be {allowed}, got {show_value(value)}"))
+            shown = show_value(value)
+            shown = shown if len(shown) <= 80 else f"{shown[:60]}… ({len(shown)} characters)"
+            out.append((key, f"parameter {key} must be {allowed}, got {printable(shown)}"))
     for g in _GROUPS.values():
         given = [k for k in values if k.startswith(f"{g.name}.")]
         if g.problems and given and not any(k.startswith(f"{g.name}.") for k, _ in out):
