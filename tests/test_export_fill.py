@@ -404,3 +404,24 @@ def test_fill_keeps_the_input_extension(tmp_path):
     (tmp_path / name).write_bytes(data)
     res = invoke("fill", str(tmp_path / name), str(tmp_path / "out.csv"))
     assert res.exit_code == 2 and "out.csv" in res.stderr and ".tsv" in res.stderr
+
+
+def test_fill_counts_apart_what_it_fills_in_dropped_frames(tmp_path):
+    """Frame numbers missing from a wide CSV become gap rows the filler fills, but the copy has no line for
+    them: the summary says how many filled samples were not written, and the copy keeps its lines."""
+    _, truth, labels = _walking_truth()
+    valid = np.ones(truth.shape[:2], bool)
+    name, data = _text_export("wide", truth, valid, labels)
+    lines = data.split(b"\n")
+    dropped = [101, 102, 103]                        # data lines of frames 100-102 (line 0 is the header)
+    kept = b"\n".join(ln for i, ln in enumerate(lines) if i not in dropped)
+    inp, out = tmp_path / name, tmp_path / f"filled_{name}"
+    inp.write_bytes(kept)
+    res = invoke("fill", str(inp), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["samples_not_written"] == len(dropped) * len(labels)
+    assert any("dropped frames" in w and "not written" in w for w in summary["warnings"])
+    assert out.read_bytes() == kept                  # nothing else to fill: the copy is the input
+    plain = invoke("fill", str(inp), str(tmp_path / "again.csv"))
+    assert "not written" in plain.stdout

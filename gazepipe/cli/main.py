@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -12,6 +13,11 @@ from gazepipe import __version__
 from gazepipe.cli.common import handle_errors, load_sessions, parse_params, run_options
 from gazepipe.cli.validate import DEFAULT_PLOT_TAKES
 from gazepipe.errors import ConfigError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from gazepipe.model import Markers
 
 EPILOG = """\b
 Exit codes: 0 ok; 1 a take failed (the others finished); 2 usage or configuration
@@ -251,6 +257,12 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
             summary["samples_written_as_gaps"] = n_wide
         else:
             write_filled_text(src_p, tmp, filled, fmt, removed=removed, original=text)
+            n_lineless = _filled_without_a_line(markers, filled, text[1].rows)
+            if n_lineless:
+                markers.warnings.append(f"{n_lineless} filled samples lie in dropped frames (frame numbers "
+                                        "missing from the file): the copy has no line for them, so they are not "
+                                        "written (counted as filled below)")
+            summary["samples_not_written"] = n_lineless
     summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
@@ -274,6 +286,18 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                    f"cluster, or implausibly accelerated): {what}")
     if summary["clusters"]:
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
+
+
+def _filled_without_a_line(markers: Markers, filled: Markers, rows: np.ndarray | None) -> int:
+    """Samples ``filled`` fills in rows the reader added for dropped frames (``rows``: each data line's row of
+    ``markers``; None when there are none)."""
+    import numpy as np
+
+    if rows is None:
+        return 0
+    lineless = np.ones(markers.n_frames, dtype=bool)
+    lineless[np.asarray(rows, dtype=np.int64)] = False
+    return int((filled.valid[lineless] & ~markers.valid[lineless]).sum())
 
 
 def _check_destination(src: Path | None, dest: Path, overwrite: bool = True) -> None:
