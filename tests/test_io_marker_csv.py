@@ -268,3 +268,42 @@ def test_qtm_times_with_too_few_decimals_for_the_rate_are_read(tmp_path):
     assert any("time column steps" in w for w in m.warnings)
     clean = read_qtm_tsv(_write(tmp_path, "c.tsv", _qtm_rows([f"{i / 120:.5f}" for i in range(40)])))
     assert not any("time column" in w for w in clean.warnings), clean.warnings
+
+
+@pytest.mark.parametrize("fmt", ["vicon", "qtm_tabbed", "wide_shuffled"])
+def test_rows_parsed_in_chunks_read_as_in_one_piece(tmp_path, monkeypatch, fmt):
+    """Long exports are parsed a chunk of rows at a time into one array (and the coordinates are a view of
+    it when their columns are consecutive): chunks of 7 rows give the same markers, gaps and warnings as one
+    chunk, across trailing separators, gaps and a non-numeric fallback."""
+    import gazepipe.io.marker_csv as mc
+
+    rng = np.random.default_rng(3)
+    n, labels = 50, ["A", "B", "C"]
+    xyz = np.round(rng.normal(0, 400, (n, 3, 3)), 3)
+    xyz[rng.random((n, 3)) < 0.1] = np.nan
+    cell = lambda v: "" if np.isnan(v) else f"{v:.3f}"   # noqa: E731
+    if fmt == "vicon":
+        rows = ["Trajectories", "120", ",," + ",".join(f"S:{lab},," for lab in labels),
+                "Frame,Sub Frame," + ",".join("X,Y,Z" for _ in labels), ",," + ",".join("mm,mm,mm" for _ in labels)]
+        rows += [f"{t + 1},0," + ",".join(cell(v) for v in xyz[t].ravel()) for t in range(n)]
+        path, read = tmp_path / "v.csv", read_vicon_csv
+    elif fmt == "qtm_tabbed":
+        rows = [f"NO_OF_FRAMES\t{n}", "NO_OF_MARKERS\t3", "FREQUENCY\t120", "MARKER_NAMES\t" + "\t".join(labels),
+                "Frame\tTime\t" + "\t".join(f"{lab} {a}" for lab in labels for a in "XYZ")]
+        rows += [f"{t + 1}\t{t / 120:.5f}\t" + "\t".join(cell(v) for v in xyz[t].ravel()) + "\t" for t in range(n)]
+        path, read = tmp_path / "q.tsv", read_qtm_tsv
+    else:   # columns in another order than marker by marker: the coordinates are gathered, not viewed
+        names = [f"{lab}_{a}" for a in "xyz" for lab in labels]
+        rows = ["frame,time," + ",".join(names)]
+        rows += [f"{t},{t / 120:.6f}," + ",".join(cell(xyz[t, j, "xyz".index(a)]) for a in "xyz"
+                                                  for j in range(3)) for t in range(n)]
+        rows[9] = rows[9] + " "            # a stray space: still numbers
+        path, read = tmp_path / "w.csv", read_wide_csv
+    path.write_text("\n".join(rows) + "\n")
+    whole = read(path)
+    monkeypatch.setattr(mc, "_CHUNK_ROWS", 7)
+    chunked = read(path)
+    assert chunked.labels == whole.labels and chunked.warnings == whole.warnings
+    np.testing.assert_array_equal(chunked.valid, whole.valid)
+    np.testing.assert_array_equal(chunked.xyz, whole.xyz)
+    np.testing.assert_array_equal(whole.xyz[whole.valid], xyz[~np.isnan(xyz).any(axis=2)])

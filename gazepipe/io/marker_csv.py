@@ -130,12 +130,39 @@ class _Lines:
         return _text(self.raw[a:b]).rstrip("\r\n")
 
 
-def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
-    """Parse numeric rows (bytes) into a (rows, n_cols) float64 array; empty cells are NaN."""
-    if not block.strip():
+class _ByteRange(io.RawIOBase):
+    """``raw[start:stop]`` as a readable stream, without copying it (a slice of a large export would double
+    what the reader holds)."""
+
+    def __init__(self, raw: bytes, start: int, stop: int) -> None:
+        self._view = memoryview(raw)[start:stop]
+        self._pos = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buf) -> int:
+        n = min(len(buf), len(self._view) - self._pos)
+        buf[:n] = self._view[self._pos: self._pos + n]
+        self._pos += n
+        return n
+
+
+#: data rows parsed at a time by :func:`_numbers` (bounds the parser's own buffers)
+_CHUNK_ROWS = 1 << 15
+
+
+def _numbers(raw: bytes, start: int, stop: int, sep: str, n_cols: int) -> np.ndarray:
+    """Parse the numeric rows ``raw[start:stop]`` into a (rows, n_cols) float64 array; empty cells are NaN.
+
+    Rows are parsed :data:`_CHUNK_ROWS` at a time straight into the result, so memory is the file, the result
+    and one chunk.
+    """
+    if not re.search(rb"\S", memoryview(raw)[start:stop]):
         return np.zeros((0, n_cols))
     kw = dict(sep=sep, header=None, keep_default_na=False, skip_blank_lines=True, engine="c",
               names=range(max(n_cols, 1)), index_col=False, on_bad_lines="error", encoding="latin-1")
+    src = (raw, start, stop)
     with warnings.catch_warnings():
         # pandas only warns when a row has more cells than there are names: the row is malformed unless
         # the extra cells are empty (trailing separators), which are then dropped and the block re-read
@@ -143,18 +170,17 @@ def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
         for attempt in range(2):
             try:
                 try:  # fast path: every cell a number or empty
-                    fast = pd.read_csv(io.BytesIO(block), dtype=np.float64, na_values=["", "NaN", "nan"], **kw,
-                                       **exact_floats())
-                    return fast.to_numpy(dtype=np.float64)[:, :n_cols]
+                    return _numbers_fast(*src, n_cols, kw)
                 except ValueError:
                     pass
-                df = pd.read_csv(io.BytesIO(block), dtype=str, **kw)
+                df = pd.read_csv(io.BytesIO(src[0][src[1]:src[2]]), dtype=str, **kw)
                 break
             except (pd.errors.ParserWarning, pd.errors.ParserError) as e:
                 if attempt:
                     detail = " ".join(str(e).split())[:120]
                     raise _Bad(f"a data row does not fit {n_cols} columns ({detail})") from None
-                block = re.sub(rb"[" + re.escape(sep.encode()) + rb" \r]+$", b"", block, flags=re.M)
+                block = re.sub(rb"[" + re.escape(sep.encode()) + rb" \r]+$", b"", raw[start:stop], flags=re.M)
+                src = (block, 0, len(block))
     df = df.fillna("").apply(lambda c: c.str.strip())
     num = df.apply(pd.to_numeric, errors="coerce")
     empty = (df == "") | df.isin(["NaN", "nan", "NAN", "-nan"])
@@ -167,6 +193,20 @@ def _numbers(block: bytes, sep: str, n_cols: int) -> np.ndarray:
     cells = ~empty.to_numpy()
     out[cells] = df.to_numpy(dtype=object)[cells].astype(np.float64)
     return out
+
+
+def _numbers_fast(raw: bytes, start: int, stop: int, n_cols: int, kw: dict) -> np.ndarray:
+    """:func:`_numbers` when every cell is a number or empty (ValueError otherwise)."""
+    out = np.empty((raw.count(b"\n", start, stop) + 1, n_cols))   # at most this many rows
+    n = 0
+    chunks = pd.read_csv(io.BufferedReader(_ByteRange(raw, start, stop), 1 << 20), dtype=np.float64,
+                         na_values=["", "NaN", "nan"], chunksize=_CHUNK_ROWS, **kw, **exact_floats())
+    with chunks:
+        for chunk in chunks:
+            k = len(chunk)
+            out[n: n + k] = chunk.to_numpy(dtype=np.float64)[:, :n_cols]
+            n += k
+    return out[:n]   # a view: the rows never written were never touched
 
 
 def _check_fields(raw: bytes, start: int, stop: int, sep: str, first_line: int, header: int,
@@ -301,6 +341,15 @@ def _frame_rows(frames: np.ndarray, where: _Rows, name: str, notes: list[str]) -
     return int(fi[0]), fi - fi[0]
 
 
+def _coordinate_columns(arr: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(T, M, 3) coordinates from the parsed rows ``arr`` (T, C) and each marker's X, Y, Z columns ``cols``
+    (M, 3): a view when they are consecutive columns (the usual layout), else a copy."""
+    flat = np.asarray(cols, dtype=np.int64).reshape(-1)
+    if flat.size and np.array_equal(flat, np.arange(flat[0], flat[0] + flat.size)):
+        return arr[:, flat[0]: flat[0] + flat.size].reshape(arr.shape[0], -1, 3)
+    return arr[:, flat].reshape(arr.shape[0], -1, 3)
+
+
 def _with_gap_rows(xyz: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     """(T, M, 3) coordinates with all-NaN rows where frames are missing (``rows``: see :func:`_frame_rows`)."""
     if rows is None:
@@ -333,7 +382,7 @@ def _first_at(mask: np.ndarray, labels: list[str], first_frame: int) -> str:
 
 def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int, units: str | None,
             default_units: str, fmt: str, notes: list[str], zero_gaps: bool = False) -> Markers:
-    """Unique labels, gap mask (any non-finite coordinate), conversion to mm."""
+    """Unique labels, gap mask (any non-finite coordinate), conversion to mm (``xyz`` is changed in place)."""
     labels, renamed = make_unique(labels)
     if renamed:
         shown = ", ".join(f"{old!r} -> {printable(new)}" for _, old, new in renamed[:12])
@@ -357,8 +406,15 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
     if zero_gaps:
         zero = valid & (xyz == 0).all(axis=2)
         valid &= ~(zero & (valid & ~zero).any(axis=0)[None, :])
-    xyz = np.where(valid[..., None], xyz * to_mm, np.nan)
-    far = valid & ~(np.abs(xyz) <= MAX_ABS_MM).all(axis=2)
+    # in place, a component at a time: a long export's coordinates are the largest thing the reader holds
+    if to_mm != 1.0:
+        xyz *= to_mm
+    xyz[~valid] = np.nan
+    near = np.abs(xyz[..., 0]) <= MAX_ABS_MM
+    near &= np.abs(xyz[..., 1]) <= MAX_ABS_MM
+    near &= np.abs(xyz[..., 2]) <= MAX_ABS_MM
+    far = valid & ~near
+    del near
     if far.any():
         cols = np.flatnonzero(far.any(axis=0))
         shown = ", ".join(printable(labels[i]) for i in cols[:12]) + (" …" if cols.size > 12 else "")
@@ -451,8 +507,8 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
     first_line = raw.count(b"\n", 0, found.start()) + 6
     _check_fields(raw, data_start, stop, ",", first_line, n_cols, required=_last_named(comps))
-    arr = _numbers(raw[data_start:stop], ",", n_cols)
-    xyz = arr[:, np.asarray(cols)] if arr.shape[0] else np.zeros((0, len(labels), 3))
+    arr = _numbers(raw, data_start, stop, ",", n_cols)
+    xyz = _coordinate_columns(arr, np.asarray(cols)) if arr.shape[0] else np.zeros((0, len(labels), 3))
     if xyz.shape[0] == 0:
         raise _Bad("no data rows in the 'Trajectories' block")
     notes: list[str] = []
@@ -532,7 +588,6 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     if lines[i] is not None and lines[i].split("\t", 1)[0].strip().lower() in ("frame", "time"):
         col_names = [c.strip() for c in lines[i].split("\t")]
         i += 1
-    body = raw[lines.offset(i):]
     first_row = lines[i] or ""
     n_cells = len(first_row.split("\t"))
     if col_names is not None:
@@ -550,7 +605,7 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
         n_cols = n_lead + 3 * m
         _check_fields(raw, lines.offset(i), len(raw), "\t", i + 1, n_cols,
                       expected=f"expected {n_cols} ({'Frame, Time and ' if n_lead else ''}3 per marker)")
-    arr = _numbers(body, "\t", n_cols)
+    arr = _numbers(raw, lines.offset(i), len(raw), "\t", n_cols)
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
     xyz = arr[:, n_lead: n_lead + 3 * m].reshape(-1, m, 3)
@@ -687,11 +742,11 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
         if set(where[name]) != {"x", "y", "z"}:
             raise _Bad(f"marker {name!r} lacks one of its _x/_y/_z columns")
     _check_fields(raw, lines.offset(1), len(raw), ",", 2, len(cols), required=_last_named(cols))
-    arr = _numbers(raw[lines.offset(1):], ",", len(cols))
+    arr = _numbers(raw, lines.offset(1), len(raw), ",", len(cols))
     if arr.shape[0] == 0:
         raise _Bad("no data rows")
     idx = np.array([[where[n]["x"], where[n]["y"], where[n]["z"]] for n in labels])
-    xyz = arr[:, idx]
+    xyz = _coordinate_columns(arr, idx)
     notes: list[str] = []
     rows_at = _Rows(raw, lines.offset(1), len(raw), 2)
     first, rows = 1, None

@@ -10,6 +10,7 @@ seeking to one further away); :func:`read_frames` decodes a single window.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NoReturn
 
 import cv2
 import numpy as np
@@ -56,7 +57,7 @@ def _damage(said: list[str], when: str) -> str:
     return f"FFmpeg reported {len(said)} problem(s) {when}, frames may be damaged: {summarise(said)}"
 
 
-def _raise_with(err: InputError, said: list[str]) -> None:
+def _raise_with(err: InputError, said: list[str]) -> NoReturn:
     """Re-raise ``err`` with what FFmpeg said added to its problem."""
     if said:
         raise InputError(err.path, f"{err.problem} (FFmpeg: {summarise(said, 1)})", key=err.key,
@@ -121,7 +122,7 @@ def probe_video(path: str | Path) -> VideoProbe:
     _, fps, width, height, header_frames = walked
     if ms.size == 0:
         _raise_with(InputError(path, "no readable frames in the video"), said)
-    warnings: list[str] = [_damage(said, "reading the container")] if said else []
+    warnings: list[str] = [_damage(said, "reading the video")] if said else []
     ts = ms / 1000.0
     if ts.size > 1 and not np.all(np.diff(ts) > 0):
         if fps > 0:
