@@ -87,6 +87,12 @@ class StageError(GazepipeError):
     """A stage could not produce its output for a take (a QC failure, not a crash)."""
 
 
+class ResourceError(GazepipeError):
+    """The machine lacks what a unit needs (memory): not the inputs' fault, so a later run tries again."""
+
+    retry = True
+
+
 class SchemaError(GazepipeError):
     """A table does not match its Arrow schema on write or on read."""
 

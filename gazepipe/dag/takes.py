@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.errors import GazepipeError, StageError, printable
+from gazepipe.errors import GazepipeError, ResourceError, StageError, printable
 from gazepipe.io.parquet import read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
@@ -175,10 +175,20 @@ def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tu
     return markers, frames, meta
 
 
+def _bytes(n: int) -> str:
+    return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
+
+
 def run_clean(ctx: UnitContext) -> UnitResult:
-    from gazepipe.stages.clean.stage import clean_markers
+    from gazepipe.pipeline.resources import available_memory_bytes
+    from gazepipe.stages.clean.stage import clean_markers, clean_memory_bytes
 
     raw, _, _ = _load_markers(ctx, "markers_raw")
+    need, free = clean_memory_bytes(raw.n_frames, raw.n_markers), available_memory_bytes()
+    if free is not None and need > free:   # refused at once, rather than killed (or swapping) an hour in
+        raise ResourceError(ctx.take.mocap, f"{raw.n_frames:,} frames x {raw.n_markers} markers need about "
+                                            f"{_bytes(need)} to clean, more than the {_bytes(free)} free: split "
+                                            "the take, or run it alone on a larger machine", take=ctx.take.id)
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
                         path=ctx.take.mocap, take=ctx.take.id)
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)

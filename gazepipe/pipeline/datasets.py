@@ -226,6 +226,10 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     except OSError as exc:   # the disk, not the inputs: retried next time
         outcome.status, outcome.error = "failed", f"dataset {plan.name}: {os_problem(exc, ctx.root / plan.name)}"
         outcome.traceback = traceback.format_exc()
+    except MemoryError:   # the machine, not the inputs: retried next time
+        outcome.status = "failed"
+        outcome.error = f"dataset {plan.name}: out of memory while building; build it alone or on a larger machine"
+        outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: recorded, the run goes on
         outcome.status = "failed"
         outcome.error = f"dataset {plan.name}: internal error: {type(exc).__name__}: {exc}"

@@ -22,7 +22,7 @@ import pyarrow as pa
 from threadpoolctl import threadpool_limits
 
 from gazepipe import __version__
-from gazepipe.errors import GazepipeError, InputError, SchemaError
+from gazepipe.errors import GazepipeError, InputError, SchemaError, printable
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
@@ -268,13 +268,20 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
         if exc.take is None or exc.take == plan.take:   # a take is (session, take): name both
             exc.take = f"{plan.session}/{plan.take}"
         outcome.status, outcome.error = "failed", exc.one_line()
-        record["retry"] = False   # the inputs are at fault: the same inputs fail the same way
+        # the inputs are at fault (the same inputs fail the same way), unless the machine was (memory)
+        record["retry"] = bool(getattr(exc, "retry", False))
         if isinstance(exc, SchemaError | InputError):
             outcome.traceback = traceback.format_exc()
     except OSError as exc:   # the disk, not the take: full, read-only, no permission; retried next time
         record["retry"] = True
         outcome.status = "failed"
         outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, writing)}"
+        outcome.traceback = traceback.format_exc()
+    except MemoryError:   # the machine, not the take: tried again next time
+        record["retry"] = True
+        outcome.status = "failed"
+        outcome.error = (f"take {plan.session}/{plan.take}: stage {st.name}: out of memory "
+                         f"(inputs: {', '.join(_files_of(job)) or 'none'}); run it alone or on a larger machine")
         outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
         record["retry"] = True
@@ -295,6 +302,13 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
         outcome.status = "failed"
         outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, path)}"
     return outcome
+
+
+def _files_of(job: TakeJob) -> list[str]:
+    """The take's input files as the user listed them (relative to the session folder)."""
+    take = job.take
+    files = getattr(take, "files", ())
+    return [printable(os.path.relpath(f, job.session.root)) for f in files]
 
 
 def os_problem(exc: OSError, writing: Path | None = None) -> str:
