@@ -51,7 +51,7 @@ def test_a_take_too_large_to_clean_is_refused_then_tried_again(tmp_path, monkeyp
     errors = _clean_errors(summary)
     assert set(errors) == set(TAKES), errors
     msg = errors["shift_y036_p12"]
-    assert "shift_y036_p12.c3d" in msg and "markers need about" in msg and "more than the 1 MiB free" in msg, msg
+    assert "shift_y036_p12.c3d" in msg and "marker samples need about" in msg and "more than the 1 MiB free" in msg, msg
     assert "\n" not in msg and "internal error" not in msg
     assert summary.exit_code == 1
     monkeypatch.undo()     # the machine has the memory now: the same inputs are cleaned, not skipped
@@ -72,3 +72,18 @@ def test_running_out_of_memory_in_a_stage_is_one_line_naming_the_take_and_its_fi
     msg = errors["shift_y036_p12"]
     assert msg.startswith("take ") and "shift_y036_p12: stage clean: out of memory" in msg, msg
     assert "mocap/shift_y036_p12.c3d" in msg and "internal error" not in msg and "\n" not in msg
+
+
+def test_a_take_too_long_to_plot_is_left_out_of_the_plots_with_a_note(tmp_path, monkeypatch):
+    """A take's plots read its whole raw markers; past PLOT_MAX_SAMPLES the report says so instead of
+    spending gigabytes on a 20-hour capture."""
+    from gazepipe.report.validate import validate_output
+
+    session = _session_copy(tmp_path / "s", TAKES)
+    out = tmp_path / "out"
+    _run(session, out)
+    monkeypatch.setattr("gazepipe.report.validate.PLOT_MAX_SAMPLES", 1000)   # neutral: 120 x 35 samples
+    validate_output(out)
+    html = (out / "qc" / "report.html").read_text()
+    assert "not drawn: 4,200 marker samples, more than the 1,000 a take&#x27;s plots read" in html or \
+        "not drawn: 4,200 marker samples, more than the 1,000 a take's plots read" in html

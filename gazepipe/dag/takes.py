@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from gazepipe.errors import GazepipeError, ResourceError, StageError, printable
-from gazepipe.io.parquet import read_table, write_table
+from gazepipe.io.parquet import count_rows, read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import Markers, Session, Take
 from gazepipe.pipeline.registry import (
@@ -31,6 +31,7 @@ from gazepipe.pipeline.registry import (
     set_source_check,
     set_table_store,
 )
+from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas import expected_schema
 from gazepipe.schemas.base import attach_meta, check_table
 from gazepipe.schemas.face_table import face_to_table
@@ -183,12 +184,15 @@ def run_clean(ctx: UnitContext) -> UnitResult:
     from gazepipe.pipeline.resources import available_memory_bytes
     from gazepipe.stages.clean.stage import clean_markers, clean_memory_bytes
 
+    # the marker samples, from the table's footer: refused before anything is loaded, rather than killed (or
+    # swapping) an hour in
+    samples = count_rows(OutLayout(ctx.out_dir).table(ctx.session.id, ctx.take.id, "markers_raw"))
+    need, free = clean_memory_bytes(samples or 0), available_memory_bytes()
+    if free is not None and need > free:
+        raise ResourceError(ctx.take.mocap, f"{samples:,} marker samples need about {_bytes(need)} to clean, "
+                                            f"more than the {_bytes(free)} free: split the take, or run it alone "
+                                            "on a larger machine", take=ctx.take.id)
     raw, _, _ = _load_markers(ctx, "markers_raw")
-    need, free = clean_memory_bytes(raw.n_frames, raw.n_markers), available_memory_bytes()
-    if free is not None and need > free:   # refused at once, rather than killed (or swapping) an hour in
-        raise ResourceError(ctx.take.mocap, f"{raw.n_frames:,} frames x {raw.n_markers} markers need about "
-                                            f"{_bytes(need)} to clean, more than the {_bytes(free)} free: split "
-                                            "the take, or run it alone on a larger machine", take=ctx.take.id)
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
                         path=ctx.take.mocap, take=ctx.take.id)
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)

@@ -44,6 +44,14 @@ def write_table(table: pa.Table, path: str | Path, schema: pa.Schema | None = No
     pq.write_table(table, str(path), **write_options(table.schema))
 
 
+def count_rows(path: str | Path) -> int | None:
+    """Rows of a Parquet file from its footer alone (nothing else is read); None when it cannot be read."""
+    try:
+        return int(pq.ParquetFile(str(path)).metadata.num_rows)
+    except (pa.ArrowException, OSError):
+        return None
+
+
 def read_table(path: str | Path, schema: pa.Schema | None = None, columns: list[str] | None = None) -> pa.Table:
     """Read a Parquet file (only ``columns`` when given; the schema's metadata is kept) and check it against
     ``schema`` (when given)."""

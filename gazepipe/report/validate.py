@@ -24,7 +24,7 @@ import pyarrow as pa
 
 from gazepipe import __version__
 from gazepipe.errors import ConfigError
-from gazepipe.io.parquet import write_table
+from gazepipe.io.parquet import count_rows, write_table
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.state import OutLayout
@@ -489,6 +489,10 @@ def plot_choice(layout: OutLayout, tp: TakePass, plots: PlotRequest) -> tuple[li
     return ranked, named, [k for k in ranked if k in chosen], drawable
 
 
+#: a take's plots read its whole raw markers: longer takes (more frames x markers) are left out of the plots
+PLOT_MAX_SAMPLES = 20_000_000
+
+
 def take_figures_cached(layout: OutLayout, e: TakeEntry, markerset: Any,
                          cache: FigureCache) -> tuple[list[Figure], list[str]]:
     """:func:`take_figures` of one take, read back from ``cache`` when drawn before (by this process or by a
@@ -497,6 +501,11 @@ def take_figures_cached(layout: OutLayout, e: TakeEntry, markerset: Any,
     cached = cache.get(cache_key)
     if cached is not None:
         return cached
+    samples = count_rows(layout.table(e.session, e.take, "markers_raw")) or 0
+    if samples > PLOT_MAX_SAMPLES:   # read whole, a take this long would cost the report gigabytes
+        notes = [f"not drawn: {samples:,} marker samples, more than the {PLOT_MAX_SAMPLES:,} a take's plots read"]
+        cache.put(cache_key, [], notes)
+        return [], notes
     tables = load_take_tables(layout, e, only=PLOT_TABLES)
     figs, fig_notes = take_figures(e, tables, markerset)
     if not figs:

@@ -217,14 +217,16 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
     return limits
 
 
-#: peak memory of :func:`clean_markers` per marker sample, bytes: about 265 measured (the spike detector's
-#: temporaries, linear in frames x markers from 50,000 to 100,000 frames), with a margin
-CLEAN_BYTES_PER_SAMPLE = 320
+#: peak memory of the clean stage per marker sample, bytes: the raw table as read (about 40) and as markers
+#: (25), and :func:`clean_markers`' own peak, about 265 measured (the spike detector's temporaries, linear in
+#: frames x markers from 50,000 to 100,000 frames), with a margin
+CLEAN_BYTES_PER_SAMPLE = 400
 
 
-def clean_memory_bytes(n_frames: int, n_markers: int) -> int:
-    """About how much memory cleaning a take of ``n_frames`` x ``n_markers`` takes at its peak, bytes."""
-    return int(n_frames) * int(n_markers) * CLEAN_BYTES_PER_SAMPLE
+def clean_memory_bytes(n_samples: int) -> int:
+    """About how much memory cleaning a take of ``n_samples`` marker samples (frames x markers) takes at its
+    peak, bytes."""
+    return int(n_samples) * CLEAN_BYTES_PER_SAMPLE
 
 
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
