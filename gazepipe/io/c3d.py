@@ -240,20 +240,7 @@ def read_c3d_info(path: str | Path, *, default_units: str = "mm") -> tuple[Marke
     rates) is checked against the file's size and the physical ranges; the point blocks are then decoded
     :data:`_CHUNK_BYTES` at a time straight into the result, so memory is the result plus a bounded buffer.
     """
-    p = Path(path)
-    fh = _open(p)
-    with fh:
-        meta, lay = _layout(p, fh)
-        try:
-            return _assemble(p, fh, meta, lay, default_units)
-        except InputError:
-            raise
-        except OSError as e:
-            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
-        except MetaError as e:
-            raise _meta_error(p, e) from None
-        except (ValueError, KeyError, IndexError, OverflowError) as e:
-            raise InputError(p, f"not a readable C3D file: {e}") from None
+    return read_guarded(path, lambda p, fh, meta, lay: _assemble(p, fh, meta, lay, default_units))
 
 
 def check_c3d(path: str | Path) -> None:
@@ -313,18 +300,42 @@ def _frame_chunks(p: Path, fh, lay: Layout):
         yield a, n, buf
 
 
-def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
-    notes: list[str] = list(lay.notes)
+def _points(p: Path, meta: C3DMeta, lay: Layout, default_units: str
+            ) -> tuple[str | None, float, list[str], np.ndarray, np.ndarray]:
+    """(units as found, mm per unit, every point's label, (P,) model-output flags, the markers' point indices)."""
     units = meta.get_str("POINT", "UNITS")
     units = units.strip() if units and units.strip() else None
     try:
         to_mm = unit_scale_to_mm(units, default_units)
     except KeyError:
         raise InputError(p, f"unknown point units {units!r}", key="POINT:UNITS") from None
-
     raw_labels = meta.point_labels(lay.n_points)
     is_model = _model_points(meta, raw_labels)
-    marker_idx = np.flatnonzero(~is_model)
+    return units, to_mm, raw_labels, is_model, np.flatnonzero(~is_model)
+
+
+def read_guarded(path: str | Path, body):
+    """Open a C3D file, check its layout and return ``body(p, fh, meta, lay)``: every failure an
+    :class:`InputError` naming the file (what :func:`read_c3d_info` and the streaming summary share)."""
+    p = Path(path)
+    fh = _open(p)
+    with fh:
+        meta, lay = _layout(p, fh)
+        try:
+            return body(p, fh, meta, lay)
+        except InputError:
+            raise
+        except OSError as e:
+            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
+        except MetaError as e:
+            raise _meta_error(p, e) from None
+        except (ValueError, KeyError, IndexError, OverflowError) as e:
+            raise InputError(p, f"not a readable C3D file: {e}") from None
+
+
+def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
+    notes: list[str] = list(lay.notes)
+    units, to_mm, raw_labels, is_model, marker_idx = _points(p, meta, lay, default_units)
 
     # one pass over the point blocks: coordinates of the markers (mm) straight into the result, the parts of
     # the gap rule per sample, and the samples beyond the physical bound or infinite

@@ -17,11 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from gazepipe.errors import InputError, printable
+from gazepipe.errors import printable
 from gazepipe.io import c3d as _c3d
-from gazepipe.io.c3d_meta import MetaError
 from gazepipe.io.limits import MAX_ABS_MM
-from gazepipe.timebase import snap_rate, unit_scale_to_mm
+from gazepipe.timebase import snap_rate
 
 __all__ = ["STREAM_OVER_BYTES", "summarise_c3d"]
 
@@ -36,36 +35,18 @@ def summarise_c3d(path: str | Path, *, default_units: str = "mm") -> dict[str, A
     file's parameters disagree with its header and it is small enough for the full read's cross-check with the
     ``c3d`` package (the caller then reads it whole). Raises :class:`InputError` as the full read does.
     """
-    p = Path(path)
-    fh = _c3d._open(p)
-    with fh:
-        meta, lay = _c3d._layout(p, fh)
+    def body(p: Path, fh, meta, lay) -> dict[str, Any] | None:
         too_big = lay.n_frames * lay.n_points * 3 * 8 > _c3d._PYC3D_MAX_BYTES
         if not lay.ezc3d_safe and not too_big:
             return None
-        try:
-            return _summarise(p, fh, meta, lay, default_units)
-        except InputError:
-            raise
-        except OSError as e:
-            raise InputError(p, f"cannot read file ({e.strerror or e})") from None
-        except MetaError as e:
-            raise _c3d._meta_error(p, e) from None
-        except (ValueError, KeyError, IndexError, OverflowError) as e:
-            raise InputError(p, f"not a readable C3D file: {e}") from None
+        return _summarise(p, fh, meta, lay, default_units)
+
+    return _c3d.read_guarded(path, body)
 
 
 def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
     notes: list[str] = list(lay.notes)
-    units = meta.get_str("POINT", "UNITS")
-    units = units.strip() if units and units.strip() else None
-    try:
-        to_mm = unit_scale_to_mm(units, default_units)
-    except KeyError:
-        raise InputError(p, f"unknown point units {units!r}", key="POINT:UNITS") from None
-    raw_labels = meta.point_labels(lay.n_points)
-    is_model = _c3d._model_points(meta, raw_labels)
-    marker_idx = np.flatnonzero(~is_model)
+    units, to_mm, raw_labels, is_model, marker_idx = _c3d._points(p, meta, lay, default_units)
     t, n_m = lay.n_frames, marker_idx.size
     if not lay.ezc3d_safe:
         notes.append("the parameters disagree with the header (check ANALOG:RATE, POINT:USED) and the file "

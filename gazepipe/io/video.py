@@ -65,6 +65,20 @@ def _raise_with(err: InputError, said: list[str]) -> NoReturn:
     raise err
 
 
+def _said(fn, *args):
+    """``(fn(*args), what FFmpeg printed meanwhile)``; an InputError raised by ``fn`` comes back with what
+    FFmpeg said of the file added to it."""
+    failed: InputError | None = None
+    with native_output() as said:
+        try:
+            result = fn(*args)
+        except InputError as err:
+            failed = err
+    if failed is not None:
+        _raise_with(failed, said)
+    return result, said
+
+
 def _walk(path: Path, raw: bool) -> tuple[list[float], float, int, int, int] | None:
     """Grab every frame; return (POS_MSEC per frame, fps, width, height, declared frame count).
 
@@ -102,23 +116,15 @@ def probe_video(path: str | Path) -> VideoProbe:
     """
     path = Path(path)
     source = "packets"
-    with native_output() as said:
-        try:
-            walked = _walk(path, raw=True)
-            if walked is not None:
-                ms = np.sort(np.asarray(walked[0], dtype=np.float64))  # packets come in decode order
-                usable = (ms.size > 0 and (ms.size == walked[4] or walked[4] <= 0)
-                          and bool(np.all(np.diff(ms) > 0)))
-            if walked is None or not usable:
-                source = "decoded"
-                walked = _walk(path, raw=False)
-                ms = np.asarray(walked[0], dtype=np.float64)
-        except InputError as err:
-            failed = err
-        else:
-            failed = None
-    if failed is not None:
-        _raise_with(failed, said)
+    walked, said = _said(_walk, path, True)
+    if walked is not None:
+        ms = np.sort(np.asarray(walked[0], dtype=np.float64))  # packets come in decode order
+        usable = ms.size > 0 and (ms.size == walked[4] or walked[4] <= 0) and bool(np.all(np.diff(ms) > 0))
+    if walked is None or not usable:
+        source = "decoded"
+        walked, more = _said(_walk, path, False)
+        said += [m for m in more if m not in said]
+        ms = np.asarray(walked[0], dtype=np.float64)
     _, fps, width, height, header_frames = walked
     if ms.size == 0:
         _raise_with(InputError(path, "no readable frames in the video"), said)
@@ -178,18 +184,8 @@ class FrameReader:
         ts = self.timestamps_s
         self._tolerance = 0.5 * float(np.median(np.diff(ts))) if ts is not None and ts.size > 1 else 1e-3
         self.threads = threads
-        self.messages: list[str] = []
         self._cap: cv2.VideoCapture | None = None
-        with native_output() as said:
-            try:
-                self._cap = _open(self.path, threads)
-            except InputError as err:
-                failed = err
-            else:
-                failed = None
-        if failed is not None:
-            _raise_with(failed, said)
-        self.messages += said
+        self._cap, self.messages = _said(_open, self.path, threads)
         self._next: int | None = 0  # the frame the next grab() returns; None when unknown
         self._seek_ok = True
 
@@ -221,7 +217,7 @@ class FrameReader:
             except InputError as err:
                 failed = err
         self.messages += [m for m in said if m not in self.messages]
-        if failed is not None:
+        if failed is not None:   # with what FFmpeg said of every window so far
             _raise_with(failed, self.messages)
         return window
 
