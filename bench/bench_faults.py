@@ -1294,7 +1294,7 @@ class Outcome:
         return not self.problems
 
 
-def _session_ids(sid: int) -> list[int]:
+def session_processes(sid: int) -> list[int]:
     """Live (not zombie) processes whose session id is ``sid`` (``/proc/PID/stat`` field 6)."""
     out = []
     for d in Path("/proc").iterdir():
@@ -1679,16 +1679,16 @@ def kill_family(seed: int, work: Path, bases: dict[str, Path], trials: int = KIL
             while proc.poll() is None and time.perf_counter() - t0 < delay:
                 time.sleep(0.01)
             ended_first = proc.poll() is not None
-            helpers = [p for p in _session_ids(proc.pid) if p != proc.pid]
+            helpers = [p for p in session_processes(proc.pid) if p != proc.pid]
             try:
                 (os.kill if mode == "leader" else os.killpg)(proc.pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
             killed_at = time.perf_counter()
             proc.wait(timeout=30)
-            while _session_ids(proc.pid) and time.perf_counter() - killed_at < ORPHAN_GRACE_S:
+            while session_processes(proc.pid) and time.perf_counter() - killed_at < ORPHAN_GRACE_S:
                 time.sleep(0.05)
-            left = _session_ids(proc.pid)
+            left = session_processes(proc.pid)
             peak = sampler.stop()
             if left:
                 problems.append(("orphan", f"{len(left)} process(es) alive {ORPHAN_GRACE_S:g} s after the kill: "

@@ -79,3 +79,13 @@ def make_tiny_session(root: Path, n_takes: int = 3, kind: str = "gaze_follow") -
 @pytest.fixture
 def tiny_session(tmp_path: Path) -> Path:
     return make_tiny_session(tmp_path / "tiny")
+
+
+@pytest.fixture
+def workdir(datasets, tmp_path, monkeypatch) -> Path:
+    """A folder with out/datasets as `gazepipe run ... --out out` leaves it, for the README examples to run from
+    (``datasets``: the requesting module's built datasets folder)."""
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "datasets").symlink_to(datasets, target_is_directory=True)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path

@@ -136,15 +136,6 @@ def test_torch_dataloader_reads_windows(rnn):
 
 # --------------------------------------------------------------------------------------- README examples
 
-@pytest.fixture
-def workdir(datasets, tmp_path, monkeypatch) -> Path:
-    """A folder with out/datasets as `gazepipe run ... --out out` leaves it; the examples run from there."""
-    (tmp_path / "out").mkdir()
-    (tmp_path / "out" / "datasets").symlink_to(datasets, target_is_directory=True)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def run_example(name: str) -> dict:
     return runpy.run_path(str(EXAMPLES / f"{name}.py"), run_name="__main__")
 

@@ -8,6 +8,8 @@ import re
 import struct
 import textwrap
 import tracemalloc
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 import pandas as pd
@@ -214,20 +216,27 @@ def test_printable_escapes_what_would_break_a_line():
     assert str(err) == "/data/x\\xff.c3d: POINT:LABELS: label 'A\\x07B'"
 
 
+@contextmanager
+def traced_peak() -> Iterator[dict[str, int]]:
+    """The peak of the memory traced inside the block, bytes (``mem["peak"]`` once it ends, raising or not)."""
+    mem: dict[str, int] = {}
+    tracemalloc.start()
+    try:
+        yield mem
+    finally:
+        mem["peak"] = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+
+
 def test_c3d_frame_count_beyond_the_file_is_refused_before_allocating(tmp_path):
     b = bytearray((SAMPLE / "mocap" / "neutral.c3d").read_bytes())
     struct.pack_into("<H", b, 8, 65535)                     # last frame: 65,535 frames of 35 points claimed
     p = tmp_path / "claims.c3d"
     p.write_bytes(bytes(b))
-    tracemalloc.start()
-    try:
-        with pytest.raises(InputError, match="truncated") as e:
-            read_c3d(p)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    with traced_peak() as mem, pytest.raises(InputError, match="truncated") as e:
+        read_c3d(p)
     one_line(e.value, p)
-    assert peak < 2 << 20                                   # the 37 MB the header claims are never allocated
+    assert mem["peak"] < 2 << 20                                   # the 37 MB the header claims are never allocated
 
 
 def test_c3d_point_blocks_are_decoded_in_bounded_memory(tmp_path):
@@ -238,12 +247,9 @@ def test_c3d_point_blocks_are_decoded_in_bounded_memory(tmp_path):
     xyz[~valid] = np.nan
     p = tmp_path / "large.c3d"
     write_c3d(p, Markers(labels=[f"M{i}" for i in range(m)], xyz=xyz, valid=valid, rate_hz=100.0))
-    tracemalloc.start()
-    try:
+    with traced_peak() as mem:
         back = read_c3d(p)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    peak = mem["peak"]
     np.testing.assert_array_equal(back.valid, valid)
     np.testing.assert_array_equal(back.xyz, xyz)
     # the result plus a bounded buffer (reading the file whole and decoding it at once took 4x the result)
@@ -259,15 +265,10 @@ def test_over_long_text_line_is_refused_in_bounded_memory(tmp_path):
         fh.write(head)
         for _ in range(40):
             fh.write("9" * (1 << 20))                       # a 40 MB line 7
-    tracemalloc.start()
-    try:
-        with pytest.raises(InputError, match="line 7 is longer than 1 MiB") as e:
-            read_markers(p)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    with traced_peak() as mem, pytest.raises(InputError, match="line 7 is longer than 1 MiB") as e:
+        read_markers(p)
     one_line(e.value, p)
-    assert peak < 16 << 20, peak
+    assert mem["peak"] < 16 << 20, mem
 
 
 def test_line_just_under_the_limit_is_read(tmp_path):

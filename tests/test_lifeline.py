@@ -14,25 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from bench.bench_faults import session_processes
 from tests.test_report import _session_copy
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signals are Linux's")
-
-
-def _in_session(sid: int) -> list[int]:
-    """Live (not zombie) processes of session ``sid``."""
-    out = []
-    for d in Path("/proc").iterdir():
-        if not d.name.isdigit():
-            continue
-        try:
-            stat = (d / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()
-        if int(fields[3]) == sid and fields[0] != "Z":
-            out.append(int(d.name))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -52,15 +37,15 @@ def test_killing_the_run_alone_ends_every_worker(session: Path, tmp_path: Path, 
         for line in proc.stderr:   # the first unit done: the workers are up
             if json.loads(line).get("event") == "unit":
                 break
-        helpers = [p for p in _in_session(proc.pid) if p != proc.pid]
+        helpers = [p for p in session_processes(proc.pid) if p != proc.pid]
         assert len(helpers) >= 2, "the run has its workers"
         os.kill(proc.pid, signal.SIGKILL)   # the leader only, not its group
         proc.wait(timeout=10)
         deadline = time.monotonic() + 2.0
-        while _in_session(proc.pid) and time.monotonic() < deadline:
+        while session_processes(proc.pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert _in_session(proc.pid) == [], "no process of the killed run is left 2 s after it died"
+        assert session_processes(proc.pid) == [], "no process of the killed run is left 2 s after it died"
     finally:
-        left = _in_session(proc.pid)
+        left = session_processes(proc.pid)
         if left:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -271,14 +271,6 @@ def test_face_cleaner_single_and_batched(datasets, tmp_path):
         cleaner.clean(tr[0], t[0][::-1])
 
 
-@pytest.fixture
-def workdir(datasets, tmp_path, monkeypatch) -> Path:
-    (tmp_path / "out").mkdir()
-    (tmp_path / "out" / "datasets").symlink_to(datasets, target_is_directory=True)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def test_readme_gaze_rnn_inference_reproduces_the_validation_metric(workdir):
     res = run_train("gaze_rnn", "--data", "out/datasets/gaze_rnn", "--out", "models/gaze_rnn", *SMALL)
     assert res.exit_code == 0, res.output

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import ConfigError
-from gazepipe.trainers.base import TrainOptions, read_model_json, save_model_json, write_atomic
+from gazepipe.trainers.base import TrainOptions, read_model_json
 from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
 from gazepipe.trainers.torch_utils import (
     DeviceArrays,
@@ -41,7 +41,7 @@ from gazepipe.trainers.torch_utils import (
     pick_split,
     require_torch,
     resolve_device,
-    state_bytes,
+    save_trained,
     subsample,
 )
 
@@ -200,11 +200,8 @@ class GazeRnnTrainer:
                                        "train_windows": int(len(xs)), "dropped_rows": train_w.dropped_rows}
             metrics["validation"] = evaluate(model, data, split, train_w.window, stride) if split else None
             metrics["summary"] = summary(metrics["validation"])
-            out = Path(out_dir)
-            write_atomic(out / WEIGHTS, state_bytes(model))
-        metrics["nondeterministic"] = det.nondeterministic   # what torch warned about, known on leaving
-        saved = {k: v for k, v in metrics.items() if k != "epoch_seconds"}   # model.json: same seed, same bytes
-        save_model_json(out, self.name, config, saved, data, WEIGHTS)
+        # what torch warned about is known on leaving the block
+        save_trained(out_dir, self.name, config, model, metrics, data, WEIGHTS, det.nondeterministic)
         return metrics
 
 

@@ -167,6 +167,22 @@ def state_bytes(module) -> bytes:
     return buf.getvalue()
 
 
+def save_trained(out_dir: str | Path, trainer: str, config: dict[str, Any], model, metrics: dict[str, Any],
+                 data: Any, weights: str, nondeterministic: list[str]) -> None:
+    """Write a trained model: its weights (``weights``, CPU tensors) and ``model.json``.
+
+    ``metrics`` gets ``nondeterministic`` (the ops torch warned about); ``model.json`` leaves out the epoch
+    timings, so that the same seed writes the same bytes.
+    """
+    from gazepipe.trainers.base import save_model_json, write_atomic
+
+    out = Path(out_dir)
+    write_atomic(out / weights, state_bytes(model))
+    metrics["nondeterministic"] = nondeterministic
+    saved = {k: v for k, v in metrics.items() if k != "epoch_seconds"}
+    save_model_json(out, trainer, config, saved, data, weights)
+
+
 def load_state(module, path: Path) -> None:
     """Load weights saved by :func:`state_bytes` into ``module`` (on the CPU)."""
     torch = require_torch()
