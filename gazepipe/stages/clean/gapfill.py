@@ -515,7 +515,8 @@ def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
-              max_error_mm: float | np.ndarray | None = None, framewise: bool = True) -> FillResult:
+              max_error_mm: float | np.ndarray | None = None, framewise: bool = True,
+              stats: TakeStatistics | None = None) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -542,6 +543,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     framewise : for gaps of at least ``_FRAMEWISE_MIN_FRAMES``, also average the candidate fills frame by frame
         (:mod:`.framewise`) and keep that average where it predicts the hidden samples better than the per-gap
         blend (``GapRecord.reason`` says so; ``weights`` are then its priors).
+    stats : the take's statistics (:func:`take_statistics`) when ``xyz`` is part of a longer take; default:
+        those of ``xyz``. Given them, a gap's fill depends only on the frames within ``_GapSettings.reach`` of it.
 
     Returns
     -------
@@ -554,25 +557,26 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise ValueError(f"unknown gap-filling method(s) {bad}; choose from {list(METHODS)}")
-    methods = tuple(methods)
     n_t, n_m = valid.shape
-    # measured samples must be finite to be used; non-finite ones are treated as gaps
+    # measured samples must be finite to be used; non-finite ones are treated as gaps. C order: every gap's
+    # neighbourhood below is then a contiguous block of rows
     valid = valid & np.isfinite(xyz).all(axis=2)
-    src = np.where(valid[..., None], xyz, np.nan)
+    src = np.ascontiguousarray(np.where(valid[..., None], xyz, np.nan))
     out = src.copy()
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
     est = np.full((n_t, n_m), np.nan)
-    max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
-    pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
-    mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
-    edge_window = max(_EDGE_MIN_SAMPLES, int(round(_EDGE_WINDOW_S * rate_hz)))
+    cfg = _GapSettings.for_take(rate_hz, n_t, tuple(methods), max_gap_s=max_gap_s, validation=validation,
+                                pca_window_s=pca_window_s, blend=blend, steady_mates=steady_mates,
+                                framewise=framewise)
     cluster_of: dict[int, list[int]] = {}
     for c in clusters or []:
         for j in c:
             cluster_of.setdefault(int(j), [int(k) for k in c])
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
-    limits = step_limits(src, valid)
+    stats = take_statistics(src, valid) if stats is None else stats
+    limits, noise = stats.step_limit_mm, stats.noise_mm
+    ever = valid.any(axis=0)
     from threadpoolctl import threadpool_limits
 
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
@@ -580,59 +584,185 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         for m in range(n_m):
             gaps = find_gaps(valid[:, m]) if n_t else []
             filled = {k: 0 for k in METHODS}
-            longest = max((e - s for s, e in gaps), default=0)
             for s, e in gaps:
-                if e - s > max_len or not valid[:, m].any():
-                    records.append(GapRecord(m, s, e, "unfilled", reason=REASON_TOO_LONG if e - s > max_len
+                if e - s > cfg.max_len or not ever[m]:
+                    records.append(GapRecord(m, s, e, "unfilled", reason=REASON_TOO_LONG if e - s > cfg.max_len
                                              else REASON_NEVER_MEASURED))
                     continue
-                cluster = cluster_of.get(m)
-                # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
-                if steady_mates and "rigid" in methods and (cluster is None
-                                                            or not valid[s:e][:, cluster].any(axis=1).all()):
-                    cluster = find_steady_mates(src, valid, m, s, e, mates_window)
-                preds, errors, stretches = predict_gap(src, valid, m, s, e, methods, cluster,
-                                                       validate=validation, pca_window=pca_window,
-                                                       mates_window=mates_window)
-                if blend:
-                    weights = blend_weights(errors, methods)
-                    if len(weights) > 1 and stretches is not None:
-                        weights = check_blend(weights, stretches.truth, stretches.hidden)
-                else:
-                    one = choose(errors, methods)
-                    weights = {} if one is None else {one: 1.0}
-                full_errors = {k: errors.get(k, float("nan")) for k in methods}
-                if not weights:
-                    records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=REASON_NO_METHOD))
-                    continue
-                weights, fill, note = _plausible_fill(src[:, m], s, e, preds, weights, full_errors, methods,
-                                                      limits[m])
-                if fill is None:
-                    records.append(GapRecord(m, s, e, "unfilled", full_errors, reason=note))
-                    continue
-                error = fill_error(weights, full_errors, stretches)
-                if framewise and blend and stretches is not None and e - s >= _FRAMEWISE_MIN_FRAMES:
-                    averaged = _framewise_fill(src, valid, m, s, e, preds, full_errors, methods, stretches,
-                                               mates_window, limits[m])
-                    if averaged is not None and not averaged[1] >= error:     # better, or the blend has no estimate
-                        fill, error, weights = averaged
-                        note = NOTE_FRAMEWISE
-                error = max(error, edge_velocity_error(src[:, m], s, e, preds, weights, edge_window))
-                if weights.get("rigid", 0.0) > 0 and cluster and _two_mates_somewhere(valid, cluster, m, s, e):
-                    error = max(error, weights["rigid"] * _twist_error(src, valid, m, s, e, cluster, preds["rigid"],
-                                                                       mates_window))
-                if max_error_mm is not None and error > gap_limit(max_error_mm, m, s, e):
-                    records.append(GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error))
-                    continue
-                best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
-                out[s:e, m] = fill
-                code[s:e, m] = FILL_CODES[best]
-                est[s:e, m] = error
-                filled[best] += e - s
-                records.append(GapRecord(m, s, e, best, full_errors, weights, note, error))
+                # everything about a gap is decided from its neighbourhood: the cost per gap does not grow with
+                # the take, and the result does not depend on what lies farther away
+                lo, hi = max(0, s - cfg.reach), min(n_t, e + cfg.reach)
+                limit = None if max_error_mm is None else gap_limit(max_error_mm, m, s, e)
+                record, fill = _fill_gap(src[lo:hi], valid[lo:hi], m, s - lo, e - lo, cluster_of.get(m),
+                                         float(limits[m]), limit, float(noise[m]), cfg)
+                record.start, record.stop = s, e
+                records.append(record)
+                if fill is not None:
+                    out[s:e, m] = fill
+                    code[s:e, m] = FILL_CODES[record.method]
+                    est[s:e, m] = record.error_mm
+                    filled[record.method] += e - s
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
+            longest = max((e - s for s, e in gaps), default=0)
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
     return FillResult(out, code, qc, records, est)
+
+
+@dataclass(frozen=True)
+class TakeStatistics:
+    """What the filler knows of the whole take: each marker's largest plausible step (:func:`step_limits`) and
+    its noise floor (:func:`interpolation_noise_mm`), (M,) mm each."""
+
+    step_limit_mm: np.ndarray
+    noise_mm: np.ndarray
+
+
+def take_statistics(xyz: np.ndarray, valid: np.ndarray) -> TakeStatistics:
+    """:class:`TakeStatistics` of positions ``xyz`` (T, M, 3) mm, NaN where not measured, ``valid`` (T, M)."""
+    return TakeStatistics(step_limits(xyz, valid), interpolation_noise_mm(xyz, valid))
+
+
+@dataclass(frozen=True)
+class _GapSettings:
+    """What :func:`fill_gaps` decides once per take: the methods, how they run, and in frames the longest gap
+    filled, the windows the methods look through and the neighbourhood (``reach`` frames each side) that holds
+    them all."""
+
+    methods: tuple[str, ...]
+    validation: bool
+    blend: bool
+    steady_mates: bool
+    framewise: bool
+    max_len: int
+    pca_window: int | None
+    mates_window: int
+    edge_window: int
+    reach: int
+    cheap_max_len: int
+
+    @classmethod
+    def for_take(cls, rate_hz: float, n_t: int, methods: tuple[str, ...], *, max_gap_s: float,
+                 validation: bool, pca_window_s: float | None, blend: bool, steady_mates: bool,
+                 framewise: bool) -> _GapSettings:
+        max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
+        pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
+        mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
+        edge_window = max(_EDGE_MIN_SAMPLES, int(round(_EDGE_WINDOW_S * rate_hz)))
+        reach = max(n_t if pca_window is None else pca_window, mates_window, edge_window,
+                    _stretch_reach(max_len)) + 1
+        return cls(methods, validation, blend, steady_mates, framewise, max_len, pca_window, mates_window,
+                   edge_window, reach, int(np.floor(_CHEAP_MAX_S * rate_hz + 1e-9)))
+
+
+#: a gap up to this long (s) whose interpolation validates at the marker's noise floor is filled by
+#: interpolation without trying the rigid and PCA candidates: over such a span nothing predicts the hidden
+#: samples measurably better than the noise they carry
+_CHEAP_MAX_S = 0.25
+#: spread of the length of a 3-D normal error over its mean (√(3 − 8/π) / √(8/π)): the mean of n hidden samples'
+#: errors is "at the noise floor" up to two standard errors above it, 1 + 2 · 0.42 / √n times the floor
+_NOISE_ERROR_CV = 0.42
+#: third differences needed to estimate a marker's noise (fewer: no estimate, nothing skipped)
+_NOISE_MIN_FRAMES = 20
+
+
+def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Each marker's noise floor (M,) mm: the mean error that interpolating its hidden samples would show from
+    measurement noise alone (NaN when it has fewer than ``_NOISE_MIN_FRAMES`` runs of four measured frames).
+
+    The noise (σ per axis) comes from the third difference of consecutive measured samples, robustly (median
+    absolute deviation); white noise gives it a variance of 20 σ², while smooth motion barely moves it (a limb
+    swinging 100 mm at 0.8 Hz adds 0.06 mm at 60 Hz, against 0.7 mm in the second difference: 0.1 mm of noise
+    would read as 0.2-0.4 mm from that). A hidden sample carries σ and a linear interpolant between
+    its anchors about σ √(2/3) on average, so the error is a 3-D normal of σ √(5/3) per axis, whose mean length
+    is 2 √(2/π) σ √(5/3) ≈ 2.06 σ.
+    """
+    n_t, n_m = valid.shape
+    out = np.full(n_m, np.nan)
+    if n_t < 4:
+        return out
+    d3 = xyz[3:] - 3.0 * xyz[2:-1] + 3.0 * xyz[1:-2] - xyz[:-3]
+    ok = valid[3:] & valid[2:-1] & valid[1:-2] & valid[:-3]
+    for m in np.flatnonzero(ok.sum(axis=0) >= _NOISE_MIN_FRAMES):
+        v = d3[ok[:, m], m]
+        mad = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+        sigma = float(np.sqrt(np.mean(np.square(mad)) / 20.0))
+        out[m] = 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
+    return out
+
+
+def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, noise_mm: float,
+                            cfg: _GapSettings
+                            ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None] | None:
+    """The interpolation candidates of a short gap (:func:`predict_gap` with ``linear`` and ``pchip`` only) when
+    the better of them validates at the noise floor ``noise_mm`` (within two standard errors of the mean over
+    the hidden samples; the donor and still-marker checks included); None when the gap needs every candidate."""
+    interp = tuple(k for k in cfg.methods if k in _INTERP)
+    if (not cfg.validation or not interp or len(interp) == len(cfg.methods) or not np.isfinite(noise_mm)
+            or e - s > cfg.cheap_max_len):
+        return None
+    preds, errors, stretches = predict_gap(src, valid, m, s, e, interp, None, validate=True,
+                                           mates_window=cfg.mates_window)
+    best = min((v for v in errors.values() if np.isfinite(v)), default=np.inf)
+    if stretches is None:
+        return None
+    at_floor = noise_mm * (1.0 + 2.0 * _NOISE_ERROR_CV / np.sqrt(stretches.truth.shape[0]))
+    return (preds, errors, stretches) if best <= at_floor else None
+
+
+def _stretch_reach(max_len: int) -> int:
+    """Frames beyond a gap of at most ``max_len`` frames that its hidden validation stretches
+    (:func:`_validation_windows`) can reach, with the measured frame kept on their far side."""
+    lengths = np.arange(1, max(max_len, 1) + 1)
+    n_win = np.maximum(_WINDOWS_PER_SIDE, -(-_MIN_HIDDEN_PER_SIDE // lengths))
+    return int((n_win * (lengths + _SEPARATION)).max()) + _SEPARATION + 1
+
+
+def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int] | None,
+              step_limit: float, max_error: float | None, noise_mm: float, cfg: _GapSettings
+              ) -> tuple[GapRecord, np.ndarray | None]:
+    """Fill gap ``[s, e)`` of marker ``m`` from its neighbourhood ``src`` (n, M, 3) mm, ``valid`` (n, M), frames
+    relative to it: the candidates, their validation, the blend (or the frame-by-frame average), the checks.
+    ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`). Returns the gap's record and its
+    (e - s, 3) fill, or None when it stays unfilled (the record says why)."""
+    methods = cfg.methods
+    found = _interpolation_suffices(src, valid, m, s, e, noise_mm, cfg)
+    if found is not None:
+        preds, errors, stretches = found
+    else:
+        # no cluster, or none of its mates measured in some frame of the gap: the steadiest neighbours
+        if cfg.steady_mates and "rigid" in methods and (cluster is None
+                                                        or not valid[s:e][:, cluster].any(axis=1).all()):
+            cluster = find_steady_mates(src, valid, m, s, e, cfg.mates_window)
+        preds, errors, stretches = predict_gap(src, valid, m, s, e, methods, cluster, validate=cfg.validation,
+                                               pca_window=cfg.pca_window, mates_window=cfg.mates_window)
+    if cfg.blend:
+        weights = blend_weights(errors, methods)
+        if len(weights) > 1 and stretches is not None:
+            weights = check_blend(weights, stretches.truth, stretches.hidden)
+    else:
+        one = choose(errors, methods)
+        weights = {} if one is None else {one: 1.0}
+    full_errors = {k: errors.get(k, float("nan")) for k in methods}
+    if not weights:
+        return GapRecord(m, s, e, "unfilled", full_errors, reason=REASON_NO_METHOD), None
+    weights, fill, note = _plausible_fill(src[:, m], s, e, preds, weights, full_errors, methods, step_limit)
+    if fill is None:
+        return GapRecord(m, s, e, "unfilled", full_errors, reason=note), None
+    error = fill_error(weights, full_errors, stretches)
+    if cfg.framewise and cfg.blend and stretches is not None and e - s >= _FRAMEWISE_MIN_FRAMES:
+        averaged = _framewise_fill(src, valid, m, s, e, preds, full_errors, methods, stretches,
+                                   cfg.mates_window, step_limit)
+        if averaged is not None and not averaged[1] >= error:     # better, or the blend has no estimate
+            fill, error, weights = averaged
+            note = NOTE_FRAMEWISE
+    error = max(error, edge_velocity_error(src[:, m], s, e, preds, weights, cfg.edge_window))
+    if weights.get("rigid", 0.0) > 0 and cluster and _two_mates_somewhere(valid, cluster, m, s, e):
+        error = max(error, weights["rigid"] * _twist_error(src, valid, m, s, e, cluster, preds["rigid"],
+                                                           cfg.mates_window))
+    if max_error is not None and error > max_error:
+        return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error), None
+    best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
+    return GapRecord(m, s, e, best, full_errors, weights, note, error), fill
 
 
 #: gaps shorter than this (frames) keep the per-gap blend: over a few frames every method agrees

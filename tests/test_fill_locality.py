@@ -1,0 +1,92 @@
+"""The gap filler decides each gap from its neighbourhood only (SPEC §3.2: cost per gap independent of the take's
+length; results independent of where a take is cut), and skips the costly candidates where interpolation is
+already at the noise level."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gazepipe.stages.clean.gapfill import (
+    _GapSettings,
+    fill_gaps,
+    interpolation_noise_mm,
+    take_statistics,
+)
+from tests.test_gapfill import RATE, body, hide
+
+#: gaps of every kind the filler treats differently: short (interpolation), medium, long (frame-by-frame
+#: average), two markers of one segment at once, and a marker of each swinging segment
+GAPS = [(1, 700, 703), (5, 820, 835), (2, 900, 960), (3, 905, 930), (9, 1000, 1075), (6, 1100, 1107)]
+
+
+def _settings(n_t: int) -> _GapSettings:
+    return _GapSettings.for_take(RATE, n_t, ("rigid", "pca", "pchip", "linear"), max_gap_s=3.0, validation=True,
+                                 pca_window_s=10.0, blend=True, steady_mates=True, framewise=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_gap_is_filled_the_same_wherever_the_take_is_cut(seed: int) -> None:
+    # a 60 s take at 60 Hz; the gaps sit in its middle, and the take is cut at several places farther than the
+    # filler's reach from them: every fill and record must be the same bits
+    truth, measured, clusters = body(3600, seed=seed)
+    xyz, valid = hide(measured, GAPS)
+    stats = take_statistics(xyz, valid)
+    whole = fill_gaps(xyz, valid, RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0, stats=stats)
+    reach = _settings(xyz.shape[0]).reach
+    first, last = min(s for _, s, _ in GAPS), max(e for _, _, e in GAPS)
+    assert first - reach > 0 and last + reach < xyz.shape[0]      # the cuts below really cut something
+    for lo, hi in [(first - reach, xyz.shape[0]), (0, last + reach), (first - reach - 37, last + reach + 11)]:
+        part = fill_gaps(xyz[lo:hi], valid[lo:hi], RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0,
+                         stats=stats)
+        assert np.array_equal(part.fill_code, whole.fill_code[lo:hi])
+        assert np.array_equal(part.xyz, whole.xyz[lo:hi], equal_nan=True)
+        assert np.array_equal(part.error_mm, whole.error_mm[lo:hi], equal_nan=True)
+        got = [(g.marker, g.start + lo, g.stop + lo, g.method, g.weights) for g in part.gaps]
+        assert got == [(g.marker, g.start, g.stop, g.method, g.weights) for g in whole.gaps]
+    # and the fills are right: every gap filled, within a few times the noise of the truth
+    assert len(whole.gaps) == len(GAPS) and all(g.method != "unfilled" for g in whole.gaps)
+    for m, s, e in GAPS:
+        assert np.linalg.norm(whole.xyz[s:e, m] - truth[s:e, m], axis=1).mean() < 3.0
+
+
+def test_reach_covers_every_window_the_methods_look_through() -> None:
+    cfg = _settings(100_000)
+    # the PCA training window (10 s), the steady-mates window (2 s) and the hidden stretches of the longest gap
+    # (two of 3 s each side)
+    assert cfg.reach > cfg.pca_window >= 600
+    assert cfg.reach > 2 * (cfg.max_len + 2)
+
+
+@pytest.mark.parametrize("sigma", [0.1, 0.5, 2.0])
+def test_noise_floor_follows_the_markers_noise_while_they_move(sigma: float) -> None:
+    # the body walks, turns and swings its segments: the estimate must come from the noise, not the motion.
+    # Expected: 2.06 sigma (the mean error of interpolating a hidden sample from noisy anchors), within 10 %
+    truth, _, _ = body(1200, seed=3)
+    rng = np.random.default_rng(7)
+    measured = truth + rng.normal(0.0, sigma, truth.shape)
+    valid = np.ones(truth.shape[:2], dtype=bool)
+    floor = interpolation_noise_mm(measured, valid)
+    assert np.allclose(floor, 2.06 * sigma, rtol=0.1)
+    # and it is what interpolation really makes of noise: hide every 10th sample of a still marker
+    still = np.full((1200, 1, 3), 100.0) + rng.normal(0.0, sigma, (1200, 1, 3))
+    mid = still[1:-1:10, 0]
+    interp = (still[0:-2:10, 0] + still[2::10, 0]) / 2.0
+    real = np.linalg.norm(mid - interp, axis=1).mean()
+    assert real == pytest.approx(interpolation_noise_mm(still, np.ones((1200, 1), bool))[0], rel=0.15)
+
+
+def test_short_gap_at_noise_level_skips_the_costly_candidates() -> None:
+    # a still marker (a foot in stance): its 3-frame gap validates at the noise level by interpolation, so
+    # rigid and PCA are not tried (their errors stay NaN in the record) and the fill is within the noise
+    truth, measured, clusters = body(1200, seed=4)
+    measured[:, 0] = 500.0 + np.random.default_rng(1).normal(0.0, 0.5, (1200, 3))
+    truth[:, 0] = 500.0
+    xyz, valid = hide(measured, [(0, 600, 603), (5, 600, 660)])
+    res = fill_gaps(xyz, valid, RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0)
+    short, long_ = res.gaps
+    assert short.method in ("linear", "pchip")
+    assert np.isnan(short.errors["pca"]) and np.isnan(short.errors["rigid"])
+    assert np.linalg.norm(res.xyz[600:603, 0] - truth[600:603, 0], axis=1).mean() < 1.0
+    # a long gap of a moving marker still gets every candidate
+    assert np.isfinite(long_.errors["pca"]) and np.isfinite(long_.errors["rigid"])
