@@ -139,8 +139,8 @@ def test_every_stage_uses_the_shared_geometry_and_nothing_else_defines_it():
 #: what each part of the package may import besides itself (README, "Development"); "gazepipe" is the
 #: package's own ``__init__`` (its version)
 MAY_IMPORT = {
-    "stages": {"model", "schemas", "io", "arkit", "timebase", "errors", "gazepipe"},
-    "pipeline": {"errors", "durable", "gazepipe"},
+    "stages": {"model", "schemas", "io", "arkit", "timebase", "errors", "blas", "gazepipe"},
+    "pipeline": {"errors", "durable", "blas", "gazepipe"},
     "dag": {"pipeline", "stages", "io", "schemas", "model", "arkit", "timebase", "errors", "gazepipe"},
     "io": {"model", "schemas", "arkit", "timebase", "errors"},
     "schemas": {"model", "errors"},
@@ -150,7 +150,7 @@ MAY_IMPORT = {
     "synth": {"arkit"},
     "model": {"timebase"},
     "datasets": {"io", "schemas", "errors"},
-    "arkit": set(), "timebase": set(), "errors": set(), "durable": set(), "__main__": {"cli"}, "gazepipe": set(),
+    "arkit": set(), "timebase": set(), "errors": set(), "durable": set(), "blas": set(), "__main__": {"cli"}, "gazepipe": set(),
 }
 
 

@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from threadpoolctl import threadpool_limits
-
 from gazepipe import __version__
+from gazepipe.blas import one_blas_thread
 from gazepipe.errors import GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.hashing import sha256_json
@@ -211,7 +210,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
         if not plan.takes:
             reasons = "; ".join(f"{s}/{t}: {why}" for s, t, why in plan.left_out[:3]) or "no take applies"
             raise GazepipeError(None, f"no take can feed it ({reasons})")
-        with threadpool_limits(limits=1):  # as for take units: results independent of the BLAS thread count
+        with one_blas_thread():  # as for take units: results independent of the BLAS thread count
             result = ds.run(ctx)
         root = ctx.root / plan.name
         record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in result.outputs})

@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
-from threadpoolctl import threadpool_limits
 
 from gazepipe import __version__
+from gazepipe.blas import one_blas_thread
 from gazepipe.errors import GazepipeError, InputError, SchemaError, printable
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
@@ -248,7 +248,7 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
     try:
         # one BLAS thread whatever the executor: results must not depend on where a unit ran (a multi-threaded
         # BLAS sums in another order), and takes already run in parallel
-        with threadpool_limits(limits=1):
+        with one_blas_thread():
             result = st.run(ctx)
         missing = [o for o in st.outputs if o not in result.tables]
         if missing:

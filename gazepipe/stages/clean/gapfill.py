@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gazepipe.blas import one_blas_thread
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean import framewise
 from gazepipe.stages.clean.fill_methods import (
@@ -577,10 +578,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     stats = take_statistics(src, valid) if stats is None else stats
     limits, noise = stats.step_limit_mm, stats.noise_mm
     ever = valid.any(axis=0)
-    from threadpoolctl import threadpool_limits
-
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
-    with threadpool_limits(limits=1):
+    with one_blas_thread():
         for m in range(n_m):
             gaps = find_gaps(valid[:, m]) if n_t else []
             filled = {k: 0 for k in METHODS}
