@@ -6,13 +6,24 @@ up to ``--takes``, and the sample session's takes. Prints the time per take and 
 ``--repeats`` runs of the whole set; wall clock, and the process's CPU time, steadier on a busy machine) and a digest of the outputs (fill codes and filled positions), so two
 versions can be checked for identical results.
 
-Usage: ``PYTHONPATH=. python bench/bench_fill_speed.py [--takes 8] [--repeats 3] [--profile]``
+With ``--against REV`` (a commit, e.g. ``b8bd9a1``) the same takes are also filled by that version, checked out
+once under ``bench/_work/rev-<sha>``: each repeat runs the old and the new version in fresh processes one after the
+other (old, new, old, new, ...), so both see the same machine load, and the table gives the CPU time per take of
+each, ``fill_gaps`` alone and the whole clean stage (:func:`gazepipe.stages.clean.stage.clean_markers`), their
+ratio, and whether the outputs are the same bits.
+
+Usage: ``PYTHONPATH=. python bench/bench_fill_speed.py [--takes 8] [--repeats 3] [--profile] [--hostile]
+[--against REV]``
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
+import json
+import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -49,6 +60,7 @@ def load_takes(folder: Path, n: int, step: int) -> list[dict]:
         spike_s = time.process_time() - t0
         xyz = np.where(valid[..., None], xyz, np.nan)
         out.append({"name": f"{folder.name}/{f.stem}", "xyz": xyz, "valid": valid, "rate": mk.rate_hz,
+                    "markers": mk, "markerset": ms,
                     "clusters": [c for c in clusters if len(c) >= 2], "max_gap_s": p.max_gap_s,
                     "max_error_mm": p.max_fill_error_mm, "methods": tuple(p.fill_methods), "spike_s": spike_s})
     return out
@@ -59,15 +71,27 @@ def fill(t: dict):
                      methods=t["methods"], max_error_mm=t["max_error_mm"])
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--takes", type=int, default=8, help="Klein takes (0: all)")
-    ap.add_argument("--step", type=int, default=6, help="use every step-th Klein take")
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--profile", action="store_true", help="cProfile one pass and print the top functions")
-    ap.add_argument("--hostile", action="store_true",
-                    help="also a generated session with spikes, long trunk occlusions and dense gaps")
-    args = ap.parse_args(argv)
+def clean(t: dict) -> None:
+    """The whole clean stage on the take as read (spikes, fill, stabilisation, rests, crop)."""
+    from gazepipe.errors import StageError
+    from gazepipe.stages.clean.stage import clean_markers
+
+    try:
+        clean_markers(t["markers"], t["markerset"], "gaze_follow")
+    except StageError:        # no rests: timed all the same
+        pass
+
+
+def digest_of(results: list) -> str:
+    """A digest of fill results (codes and filled positions)."""
+    digest = hashlib.sha256()
+    for r in results:
+        digest.update(np.ascontiguousarray(r.fill_code).tobytes())
+        digest.update(np.nan_to_num(r.xyz, nan=-1e300).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def load_sets(args: argparse.Namespace) -> list[tuple[str, list[dict]]]:
     sets = []
     if (KLEIN / "mocap").is_dir():
         sets.append(("klein_laying", load_takes(KLEIN, args.takes, args.step)))
@@ -81,13 +105,97 @@ def main(argv: list[str] | None = None) -> int:
         cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=45.0, head_camera=False,
                           face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0)
         sets.append(("hostile generated session", load_takes(generate_session(HOSTILE, seed=0, config=cfg), 0, 1)))
+    return sets
+
+
+def child(args: argparse.Namespace) -> int:
+    """One timed pass of every set (run in a fresh process by :func:`against`): JSON on stdout."""
+    from threadpoolctl import threadpool_limits
+
+    sets = load_sets(args)
+    out = {}
+    with threadpool_limits(limits=1):
+        for name, takes in sets:
+            c0 = time.process_time()
+            results = [fill(t) for t in takes]
+            fill_cpu = time.process_time() - c0
+            c0 = time.process_time()
+            for t in takes:
+                clean(t)
+            clean_cpu = time.process_time() - c0
+            out[name] = {"takes": len(takes), "fill_cpu": fill_cpu, "clean_cpu": clean_cpu,
+                         "digest": digest_of(results)}
+    print("RESULT " + json.dumps(out))
+    return 0
+
+
+def checkout(rev: str) -> Path:
+    """The tree of ``rev``, checked out once under ``bench/_work/rev-<sha>``."""
+    sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short=12", rev], check=True,
+                         capture_output=True, text=True).stdout.strip()
+    tree = ROOT / "bench" / "_work" / f"rev-{sha}"
+    if not (tree / "gazepipe").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", sha, "gazepipe"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def against(args: argparse.Namespace) -> int:
+    """Old (``args.against``) and new interleaved in fresh processes; the table of CPU time per take."""
+    trees = {"old": checkout(args.against), "new": ROOT}
+    best: dict[tuple[str, str], dict] = {}
+    base = [sys.executable, str(Path(__file__).resolve()), "--child", "--takes", str(args.takes),
+            "--step", str(args.step)] + (["--hostile"] if args.hostile else [])
+    for _ in range(args.repeats):
+        for side, tree in trees.items():
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), str(ROOT / "bench")]))
+            run = subprocess.run(base, env=env, capture_output=True, text=True, check=True)
+            line = next(x for x in run.stdout.splitlines() if x.startswith("RESULT "))
+            for name, r in json.loads(line[len("RESULT "):]).items():
+                key = (name, side)
+                if key not in best:
+                    best[key] = r
+                else:
+                    best[key]["fill_cpu"] = min(best[key]["fill_cpu"], r["fill_cpu"])
+                    best[key]["clean_cpu"] = min(best[key]["clean_cpu"], r["clean_cpu"])
+    print(f"old = {args.against}, new = working tree; CPU ms per take, min of {args.repeats} interleaved runs")
+    print(f"{'set':28} {'fill old':>9} {'fill new':>9} {'ratio':>6} {'clean old':>10} {'clean new':>10} "
+          f"{'ratio':>6}  same output")
+    for name in dict.fromkeys(k[0] for k in best):
+        o, n = best[(name, "old")], best[(name, "new")]
+        k = o["takes"]
+        print(f"{name:28} {1000 * o['fill_cpu'] / k:9.1f} {1000 * n['fill_cpu'] / k:9.1f} "
+              f"{n['fill_cpu'] / o['fill_cpu']:6.2f} {1000 * o['clean_cpu'] / k:10.1f} "
+              f"{1000 * n['clean_cpu'] / k:10.1f} {n['clean_cpu'] / o['clean_cpu']:6.2f}  "
+              f"{'yes' if o['digest'] == n['digest'] else 'no'}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--takes", type=int, default=8, help="Klein takes (0: all)")
+    ap.add_argument("--step", type=int, default=6, help="use every step-th Klein take")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--profile", action="store_true", help="cProfile one pass and print the top functions")
+    ap.add_argument("--hostile", action="store_true",
+                    help="also a generated session with spikes, long trunk occlusions and dense gaps")
+    ap.add_argument("--against", metavar="REV", help="also time this commit's filler, interleaved with this one")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        return child(args)
+    if args.against:
+        return against(args)
+    sets = load_sets(args)
     from threadpoolctl import threadpool_limits
 
     # one BLAS thread, as the pipeline runs every unit
     limit = threadpool_limits(limits=1)
     for name, takes in sets:
         n_gaps = 0
-        digest = hashlib.sha256()
+        digest = "-"
         best = best_cpu = np.inf
         for rep in range(args.repeats):
             t0, c0 = time.perf_counter(), time.process_time()
@@ -95,10 +203,8 @@ def main(argv: list[str] | None = None) -> int:
             best = min(best, time.perf_counter() - t0)
             best_cpu = min(best_cpu, time.process_time() - c0)
             if rep == 0:
-                for r in results:
-                    n_gaps += sum(g.method != "unfilled" for g in r.gaps)
-                    digest.update(np.ascontiguousarray(r.fill_code).tobytes())
-                    digest.update(np.nan_to_num(r.xyz, nan=-1e300).tobytes())
+                n_gaps = sum(sum(g.method != "unfilled" for g in r.gaps) for r in results)
+                digest = digest_of(results)
         frames = sum(t["xyz"].shape[0] for t in takes)
         markers = np.mean([t["xyz"].shape[1] for t in takes])
         print(f"{name}: {len(takes)} takes, {frames / len(takes):.0f} frames x {markers:.0f} markers, "
@@ -106,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{1000 * best / max(n_gaps, 1):.2f} ms per gap (min of {args.repeats}); "
               f"CPU {1000 * best_cpu / len(takes):.1f} ms per take; "
               f"spike search {1000 * sum(t['spike_s'] for t in takes) / len(takes):.1f} ms CPU per take; "
-              f"output digest {digest.hexdigest()[:16]}")
+              f"output digest {digest}")
         if args.profile:
             import cProfile
             import pstats
