@@ -5,7 +5,7 @@
 
 - the physical floor: every C3D's point block decoded with numpy, every CSV read with pandas, and the output
   bytes the run wrote (its Parquet files) written raw to one file and fsynced: what no pipeline can avoid;
-- the encode floor: every mocap file read with ezc3d, every CSV with pandas, and the tables the pipeline produced
+- the encode floor: every mocap file decoded as the pipeline decodes it, every CSV read with pandas, and the tables the pipeline produced
   re-written with pyarrow with the pipeline's own writer options (the same output bytes); the output bytes per
   mocap frame;
 - the share of each run's wall time after its last take unit (dataset builds and the QC report);
@@ -146,12 +146,14 @@ def stage_times(out: Path) -> dict[str, float]:
 
 
 def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
-    """Seconds to read every input (ezc3d for C3D, pandas for CSV) and to write the same output tables with
-    pyarrow and the pipeline's writer options (tables loaded beforehand; only the writes are timed)."""
-    import ezc3d
+    """Seconds to read every input (each C3D's point block decoded as the pipeline decodes it, which no
+    pipeline can do much faster; pandas for CSV) and to write the same output tables with pyarrow and the
+    pipeline's writer options (tables loaded beforehand; only the writes are timed)."""
     import pandas as pd
     import pyarrow.parquet as pq
 
+    from gazepipe.io.c3d import _decode_points
+    from gazepipe.io.c3d_meta import parse_c3d_meta
     from gazepipe.io.parquet import write_options
 
     c3d = sorted(p for s in sessions for p in (s / "mocap").glob("*.c3d"))
@@ -159,7 +161,8 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     t0 = time.perf_counter()
     frames = 0
     for p in c3d:
-        frames += ezc3d.c3d(str(p))["data"]["points"].shape[2]
+        data = p.read_bytes()
+        frames += _decode_points(data, parse_c3d_meta(data).layout(len(data)))[0].shape[0]
     t_c3d = time.perf_counter() - t0
     t0 = time.perf_counter()
     for p in csvs:
