@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from gazepipe.stages.clean.gapfill import (
+    NOTE_NOISE_FLOOR,
     _GapSettings,
     fill_gaps,
     interpolation_noise_mm,
@@ -87,6 +88,8 @@ def test_short_gap_at_noise_level_skips_the_costly_candidates() -> None:
     short, long_ = res.gaps
     assert short.method in ("linear", "pchip")
     assert np.isnan(short.errors["pca"]) and np.isnan(short.errors["rigid"])
+    assert short.reason == NOTE_NOISE_FLOOR           # and the record says why
     assert np.linalg.norm(res.xyz[600:603, 0] - truth[600:603, 0], axis=1).mean() < 1.0
     # a long gap of a moving marker still gets every candidate
     assert np.isfinite(long_.errors["pca"]) and np.isfinite(long_.errors["rigid"])
+    assert long_.reason != NOTE_NOISE_FLOOR

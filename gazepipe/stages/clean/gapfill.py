@@ -41,6 +41,14 @@ Gaps at the start or end of a take are never extrapolated in time: pchip and lin
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
 mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled.
 
+Each gap is decided from its neighbourhood only: the frames within ``_GapSettings.reach`` of it (the PCA
+training window, the mates' window and the hidden stretches of the longest gap all fit), plus two statistics of
+the whole take (:class:`TakeStatistics`: step limits and noise floors). So its cost does not grow with the take,
+and a take cut anywhere farther than that from a gap fills the gap to the same bits. A short gap (up to
+``_CHEAP_MAX_S``) whose interpolation already validates at the marker's noise floor
+(:func:`interpolation_noise_mm`) is filled without the rigid and PCA candidates: nothing can predict the hidden
+samples measurably better than the noise they carry, and these are most of the gaps a spike leaves.
+
 Every fill is checked for plausible speed before it is kept (:func:`step_limits`): no step from frame to frame,
 into, across or out of the gap, may exceed both 2.5x the marker's own 99th-percentile measured step and 1.5x
 the largest such percentile of any marker. A fill that does (seen for PCA at the end of a take whose last
@@ -657,6 +665,7 @@ class _GapSettings:
 #: interpolation without trying the rigid and PCA candidates: over such a span nothing predicts the hidden
 #: samples measurably better than the noise they carry
 _CHEAP_MAX_S = 0.25
+NOTE_NOISE_FLOOR = "interpolation at the marker's noise floor: rigid and PCA not tried"
 #: spread of the length of a 3-D normal error over its mean (√(3 − 8/π) / √(8/π)): the mean of n hidden samples'
 #: errors is "at the noise floor" up to two standard errors above it, 1 + 2 · 0.42 / √n times the floor
 _NOISE_ERROR_CV = 0.42
@@ -761,6 +770,8 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
     if max_error is not None and error > max_error:
         return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error), None
     best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
+    if found is not None and not note:
+        note = NOTE_NOISE_FLOOR
     return GapRecord(m, s, e, best, full_errors, weights, note, error), fill
 
 
