@@ -589,3 +589,55 @@ def test_packed_edge_correction_equals_the_per_interval_one() -> None:
         off += hi - lo
         o_in += b - a
     assert none[3].all() and not none[0].any()
+
+
+@pytest.mark.parametrize("local_frame", [None, "steady"])
+def test_stacked_prediction_is_each_frames_least_squares_on_its_measured_predictors(local_frame):
+    """:func:`predict_stack` against the definition, frame by frame: the first k components fitted (least squares)
+    to the weighted coordinates of the predictors measured in that frame only, the unmeasured ones NaN in the
+    positions (they must not leak into any frame's fit), for every candidate k."""
+    from gazepipe.stages.clean.fill_methods import PcaModel, predict_stack
+
+    truth, measured, _ = body(400, seed=6)
+    valid = np.ones(measured.shape[:2], bool)
+    preds = np.arange(1, 12)
+    model = PcaModel(measured, valid, 0, preds, np.arange(0, 300), local_frame=local_frame)
+    frames = np.arange(300, 400)
+    vis = valid[frames].copy()
+    rng = np.random.default_rng(2)
+    vis[:, 1:] &= rng.random((100, 11)) > 0.25          # a different set of predictors hidden in most frames
+    if model.frame is not None:
+        vis[:, preds[model.frame]] = True               # the moving frame's own markers stay measured
+    xyz = measured.copy()
+    xyz[frames] = np.where(vis[..., None], xyz[frames], np.nan)
+    got = predict_stack([model], xyz, frames, vis)
+    n_p = preds.size
+    compared = 0
+    for row, f in enumerate(frames):
+        seen = vis[row, preds]
+        pts = measured[f, preds]
+        rot = origin = None
+        if model.frame is not None:
+            rot, origin = model._to_local(pts[None], pts[None][:, model.frame])[1:]
+            pts = (pts - origin) @ rot[0]
+        ctr = np.zeros(3)
+        if model.body_frame:
+            ctr = pts[seen].mean(axis=0) - model.mean[:3 * n_p].reshape(n_p, 3)[seen].mean(axis=0)
+        cols = np.flatnonzero(np.repeat(seen, 3))
+        z = ((pts - ctr).reshape(-1)[cols] - model.mean[cols]) * model.w[cols]
+        # the components usable here: those whose R diagonal (QR of the measured rows) is not negligible
+        diag = np.abs(np.diag(np.linalg.qr(model.v_all[cols, :min(max(model.ks), cols.size)])[1]))
+        good = diag > 1e-8 * diag.max()
+        usable = int(np.argmin(good)) if not good.all() else diag.size
+        for i, k in enumerate(model.ks):
+            if k > usable:                              # more components than the measured rows determine
+                assert np.isnan(got[i, row]).all()
+                continue
+            scores = np.linalg.lstsq(model.v_all[cols, :k], z, rcond=None)[0]
+            want = model.v_all[3 * n_p:, :k] @ scores / model.w[3 * n_p:] + model.mean[3 * n_p:] + ctr
+            if rot is not None:
+                want = rot[0] @ want + origin[0]
+            assert np.allclose(got[i, row], want, atol=1e-6), (f, k)
+            compared += 1
+    # most (frame, k) pairs were predicted and compared, not left NaN on both sides
+    assert compared >= 0.5 * frames.size * len(model.ks)

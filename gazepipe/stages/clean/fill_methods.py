@@ -263,6 +263,10 @@ def _cols3(markers: np.ndarray) -> np.ndarray:
     return (3 * np.asarray(markers)[:, None] + np.arange(3)).ravel()
 
 
+#: fractions of the weighted variance whose component counts are a model's candidate ``k``
+VAR_FRACS = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999)
+
+
 class PcaModel:
     """Gløersen & Federolf (2016) style PCA model of all markers' coordinates for one target marker.
 
@@ -282,60 +286,34 @@ class PcaModel:
     frame, so the components describe how the body part bends rather than how it turns, which a linear model
     cannot follow through large rotations. ``self.frame`` stays None (lab or body frame) when the three are
     nearly collinear.
+
+    Several models of one marker on the same predictors and training frames (the lab frame and moving frames)
+    are fitted together by :func:`fit_pca_stack` and predict together by :func:`predict_stack`; this class is
+    one of them.
     """
+
+    m: int
+    predictors: np.ndarray
+    #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
+    frame: np.ndarray | None
+    local_frame: str | None
+    body_frame: bool
+    #: (3 (P + 1),) training mean and column weights of the coordinates (predictors', then the target's)
+    mean: np.ndarray
+    w: np.ndarray
+    #: candidate component counts, the one in use, and the components (3 (P + 1), max(ks))
+    ks: list[int]
+    k: int
+    v_all: np.ndarray
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
                  *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
-                 local_frame: str | None = None,
-                 var_fracs: tuple[float, ...] = (0.9, 0.99, 0.999, 0.9999, 0.99999, 0.999999),
-                 training: tuple[np.ndarray, np.ndarray] | None = None,
-                 frame_markers: np.ndarray | None = None) -> None:
-        self.m = m
-        self.predictors = predictors
-        # (training frames, predictors + target, 3) positions and (frames, predictors) distances to the target
-        xt, dist = _training_arrays(xyz, m, predictors, train) if training is None else training
-        d = dist.mean(axis=0)
-        #: predictors (positions in ``predictors``) whose rigid motion defines the model's moving frame, or None
-        # (``frame_markers``: already picked by the caller for ``local_frame``)
-        self.frame = (frame_markers if frame_markers is not None or local_frame is None
-                      else _frame_markers(xt, dist, local_frame))
-        self.local_frame = local_frame
-        if self.frame is not None:
-            xt = self._to_local(xt, xt[:, self.frame])[0]
-            body_frame = False
-        self.body_frame = body_frame
-        if body_frame:
-            # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
-            xt = xt - xt[:, :-1].mean(axis=1, keepdims=True)
-        x = xt.reshape(train.size, -1)
-        self.mean = x.mean(axis=0)
-        sigma = sigma_scale * max(_median(d), 1.0)
-        w = np.exp(-(d ** 2) / (2.0 * sigma ** 2))
-        self.w = np.repeat(np.concatenate([np.maximum(w, 1e-3), [1.0]]), 3)
-        if unit_std:
-            sd = x.std(axis=0)
-            self.w = self.w / np.where(sd > 1e-6, sd, 1.0)
-        z = (x - self.mean) * self.w
-        gram = z.T @ z
-        from scipy.linalg import lapack
-
-        # LAPACK's divide-and-conquer solver directly (what scipy.linalg.eigh(driver="evd") calls)
-        evals, evecs, info = lapack.dsyevd(gram, compute_v=1, lower=1)
-        if info:
-            raise np.linalg.LinAlgError(f"eigendecomposition of the PCA Gram matrix failed (LAPACK info {info})")
-        order = np.argsort(evals)[::-1]
-        # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
-        # otherwise their rounding noise would decide the component counts
-        tol = 1e-12 * train.size * float(np.square(self.mean * self.w).sum())
-        evals = evals[order]
-        evals = np.where(evals > tol, evals, 0.0)
-        evecs = evecs[:, order]
-        total = evals.sum()
-        frac = np.cumsum(evals) / total if total > 0 else np.ones_like(evals)
-        k_max = max(3 * predictors.size - 1, 1)
-        self.ks = sorted(set(np.minimum(np.searchsorted(frac, var_fracs) + 1, k_max).tolist()))
-        self.k = self.ks[len(self.ks) // 2]
-        self.v_all = evecs[:, :max(self.ks)]
+                 local_frame: str | None = None, var_fracs: tuple[float, ...] = VAR_FRACS) -> None:
+        xt, dist = _training_arrays(xyz, m, predictors, train)
+        pick = None if local_frame is None else _frame_markers(xt, dist, local_frame)
+        fitted = fit_pca_stack(m, predictors, xt, dist, [(local_frame, pick)], sigma_scale=sigma_scale,
+                               body_frame=body_frame, unit_std=unit_std, var_fracs=var_fracs)[0]
+        self.__dict__.update(fitted.__dict__)
 
     @staticmethod
     def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -347,7 +325,7 @@ class PcaModel:
         c = frame_pts.mean(axis=1)
         return np.matmul(x - c[:, None], rot), rot, c  # (x − c) · rot, row vectors; matmul: 2x einsum's speed
 
-    def predict(self, xyz: np.ndarray, valid: np.ndarray, frames: np.ndarray,
+    def predict(self, xyz: np.ndarray, valid: np.ndarray | None, frames: np.ndarray,
                 ks: list[int] | None = None, vis: np.ndarray | None = None, *, residuals: bool = False
                 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         """Target positions (len(ks), n, 3) in ``frames`` from the first ``k`` components for each ``k`` in
@@ -358,59 +336,143 @@ class PcaModel:
         predictors' weighted coordinates in each frame (NaN where not predicted): how far the frame's pose is
         from what the components can express."""
         ks = [self.k] if ks is None else ks
-        n_p = self.predictors.size
-        out = np.full((len(ks), frames.size, 3), np.nan)
-        res = np.full((len(ks), frames.size), np.nan) if residuals else None
-        vis = (valid[frames] if vis is None else vis)[:, self.predictors]
-        x_all = _flat(xyz)[frames][:, _cols3(self.predictors)]
-        if self.frame is not None:
-            # into the moving frame; frames without all three frame markers cannot be predicted
-            vis = vis & vis[:, self.frame].all(axis=1, keepdims=True)
-            pts = x_all.reshape(frames.size, n_p, 3)
-            # frames without the three get a stand-in triangle (their rows are not predicted)
-            fp = np.where(vis[:, self.frame, None], pts[:, self.frame], np.eye(3) * 100.0)
-            loc, rot, c0 = self._to_local(pts, fp)
-            x_all = loc.reshape(frames.size, -1)
-        for pattern, rows in row_patterns(vis):
-            if not pattern.any():
-                continue
-            kcols = np.flatnonzero(np.repeat(pattern, 3))
-            x_rows = x_all[rows]
-            ctr = 0.0
-            if self.body_frame:
-                # the frame's mean trajectory from the predictors measured, shifted by the training mean
-                # offset between the visible predictors' centroid and all predictors' centroid
-                pts = x_rows.reshape(rows.size, n_p, 3)[:, pattern]
-                off = self.mean[:3 * n_p].reshape(n_p, 3)[pattern].mean(axis=0)
-                ctr = pts.mean(axis=1) - off
-                x_rows = x_rows - np.tile(ctr, n_p)
-            z = ((x_rows[:, kcols] - self.mean[kcols]) * self.w[kcols]).T
-            k_top = min(max(ks), kcols.size)
-            # least squares for every k at once: the first k columns of A = QR are Q[:, :k] R[:k, :k]
-            # (the leading k × k block of R⁻¹ is the inverse of R's leading block: R is upper triangular)
-            q, r = np.linalg.qr(self.v_all[kcols, :k_top])
-            diag = np.abs(np.diag(r))
-            good = diag > 1e-8 * max(diag.max(), 1e-300)
-            n_good = int(np.argmin(good)) if not good.all() else k_top
-            if n_good == 0:
-                continue
-            rinv = np.linalg.inv(r[:n_good, :n_good])
-            qz = q[:, :n_good].T @ z
-            # target = V_t[:, :k] R_k⁻¹ Q_kᵀ z for every k: the small (3 × k) maps first, padded with zeros
-            use = [i for i, k in enumerate(ks) if k <= n_good]
-            maps = np.zeros((len(use), 3, n_good))
-            for u, i in enumerate(use):
-                k = ks[i]
-                maps[u, :, :k] = self.v_all[3 * n_p:, :k] @ rinv[:k, :k]
-            zm = np.swapaxes(maps @ qz, 1, 2)
-            out[np.ix_(use, rows)] = zm / self.w[3 * n_p:] + self.mean[3 * n_p:] + ctr
-            if res is not None:
+        vis = valid[frames] if vis is None else vis
+        return predict_stack([self], xyz, frames, vis, [ks], residuals=residuals)
+
+
+def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarray,
+                  frames: list[tuple[str | None, np.ndarray | None]], *, sigma_scale: float = 2.0,
+                  body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
+                  var_fracs: tuple[float, ...] = VAR_FRACS) -> list[PcaModel]:
+    """One :class:`PcaModel` of marker ``m`` per entry of ``frames`` (``(local_frame, frame markers or None)``),
+    all on the training positions ``xt`` (n, P + 1, 3) (predictors then target, mm) and distances ``dist`` (n, P):
+    the coordinates of every model, their means, Gram matrices and eigendecompositions as one stack."""
+    n, n_c = xt.shape[0], 3 * xt.shape[1]
+    d = dist.mean(axis=0)
+    sigma = sigma_scale * max(_median(d), 1.0)
+    w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), 1e-3), [1.0]]), 3)
+    coords = np.empty((len(frames), n, n_c))
+    for i, (_, pick) in enumerate(frames):
+        if pick is not None:
+            coords[i] = PcaModel._to_local(xt, xt[:, pick])[0].reshape(n, n_c)
+        elif body_frame:
+            # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
+            coords[i] = (xt - xt[:, :-1].mean(axis=1, keepdims=True)).reshape(n, n_c)
+        else:
+            coords[i] = xt.reshape(n, n_c)
+    mean = coords.mean(axis=1)
+    weights = np.broadcast_to(w, mean.shape).copy()
+    if unit_std:
+        sd = coords.std(axis=1)
+        weights /= np.where(sd > 1e-6, sd, 1.0)
+    z = (coords - mean[:, None]) * weights[:, None]
+    evals, evecs = np.linalg.eigh(np.matmul(np.swapaxes(z, 1, 2), z))
+    evals, evecs = evals[:, ::-1], evecs[:, :, ::-1]              # largest first
+    # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
+    # otherwise their rounding noise would decide the component counts
+    tol = 1e-12 * n * np.square(mean * weights).sum(axis=1)
+    evals = np.where(evals > tol[:, None], evals, 0.0)
+    total = evals.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(total > 0, np.cumsum(evals, axis=1) / total, 1.0)
+    k_max = max(3 * predictors.size - 1, 1)
+    models = []
+    for i, (kind, pick) in enumerate(frames):
+        model = object.__new__(PcaModel)
+        model.m, model.predictors, model.frame, model.local_frame = m, predictors, pick, kind
+        model.body_frame = body_frame and pick is None
+        model.mean, model.w = mean[i], weights[i]
+        model.ks = sorted(set(np.minimum(np.searchsorted(frac[i], var_fracs) + 1, k_max).tolist()))
+        model.k = model.ks[len(model.ks) // 2]
+        model.v_all = np.ascontiguousarray(evecs[i][:, :max(model.ks)])
+        models.append(model)
+    return models
+
+
+def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, vis: np.ndarray,
+                  kss: list[list[int]] | None = None, *, residuals: bool = False
+                  ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Every (model, k) candidate's target positions in ``frames``, (C, n, 3): model after model, each with its
+    ``ks`` (or ``kss``), in order; NaN where the model cannot predict that frame (too few of its predictors
+    measured as ``vis`` (n, M) says, or its frame markers missing). The models share the target and predictors
+    (:func:`fit_pca_stack`). With ``residuals`` also the RMS residual (C, n) of each frame's fit.
+
+    A frame's scores are the least-squares fit of the components to the predictors measured there; frames with
+    the same measured predictors share one QR factorisation, all of them done as one stack. The first ``k``
+    columns of A = QR are Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading
+    block (R is upper triangular), so one QR serves every ``k``."""
+    kss = [mod.ks for mod in models] if kss is None else kss
+    n = frames.size
+    preds = models[0].predictors
+    n_p = preds.size
+    n_pc = 3 * n_p
+    pts = _flat(xyz)[frames][:, _cols3(preds)].reshape(n, n_p, 3)
+    seen_all = vis[:, preds]
+    outs, ress = [], []
+    for mod, ks in zip(models, kss, strict=True):
+        seen = seen_all
+        x = pts
+        if mod.frame is not None:
+            # into the moving frame; frames without all three frame markers cannot be predicted (they get a
+            # stand-in triangle)
+            seen = seen & seen[:, mod.frame].all(axis=1, keepdims=True)
+            fp = np.where(seen[:, mod.frame, None], pts[:, mod.frame], np.eye(3) * 100.0)
+            x, rot, origin = mod._to_local(pts, fp)
+        n_seen = seen.sum(axis=1)
+        ctr = np.zeros((n, 3))
+        if mod.body_frame:
+            # the frame's mean trajectory from the predictors measured, shifted by the training mean offset
+            # between the measured predictors' centroid and all predictors' centroid
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ctr = (np.where(seen[..., None], x, 0.0).sum(axis=1)
+                       - seen @ mod.mean[:n_pc].reshape(n_p, 3)) / n_seen[:, None]
+            x = x - ctr[:, None]
+        patterns, which = _unique_rows(seen)
+        rows = np.repeat(patterns, 3, axis=1)                             # (patterns, 3 P)
+        # NaN where a predictor is not measured: np.where, not a product with the mask
+        z = np.where(rows[which] > 0, (x.reshape(n, n_pc) - mod.mean[:n_pc]) * mod.w[:n_pc], 0.0)
+        q, r = np.linalg.qr(mod.v_all[None, :n_pc] * rows[:, :, None])
+        k_top = r.shape[-1]
+        diag = np.abs(np.diagonal(r, axis1=1, axis2=2))
+        good = diag > 1e-8 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
+        n_good = np.where(good.all(axis=1), k_top, np.argmin(good, axis=1))
+        inside = np.arange(k_top) < n_good[:, None]
+        rinv = np.linalg.inv(np.where(inside[:, :, None] & inside[:, None, :], r, np.eye(k_top)))
+        # every pattern's Qᵀ z for every frame (few patterns: cheaper than gathering Q per frame), then each
+        # frame's own
+        cols = np.arange(n)
+        qz = np.matmul(np.swapaxes(q, 1, 2), z.T)[which, :, cols]      # (n, k_top)
+        target = mod.v_all[n_pc:]
+        out = np.full((len(ks), n, 3), np.nan)
+        res = np.full((len(ks), n), np.nan)
+        for i, k in enumerate(ks):
+            ok = n_good[which] >= k
+            maps = target[:, :k] @ rinv[:, :k, :k]                    # (patterns, 3, k)
+            local = np.matmul(maps, qz[:, :k].T)[which, :, cols][ok]    # (frames predicted, 3)
+            out[i, ok] = local / mod.w[n_pc:] + mod.mean[n_pc:] + ctr[ok]
+            if residuals:
                 # |z|² minus the part the first k orthonormal columns explain
-                left = np.square(z).sum(axis=0) - np.cumsum(np.square(qz), axis=0)[[ks[i] - 1 for i in use]]
-                res[np.ix_(use, rows)] = np.sqrt(np.maximum(left, 0.0) / kcols.size)
-        if self.frame is not None:
-            out = (rot @ out[..., None])[..., 0] + c0  # rot · local, per frame
-        return (out, res) if residuals else out
+                left = np.square(z[ok]).sum(axis=1) - np.square(qz[ok, :k]).sum(axis=1)
+                res[i, ok] = np.sqrt(np.maximum(left, 0.0) / (3 * n_seen[ok]))
+        if mod.frame is not None:
+            out = (rot @ out[..., None])[..., 0] + origin  # rot · local, per frame
+        outs.append(out)
+        ress.append(res)
+    out_all = np.concatenate(outs)
+    return (out_all, np.concatenate(ress)) if residuals else out_all
+
+
+def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of a (n, k) bool array as float (U, k), and each row's index among them (n,)."""
+    if rows.shape[0] and (rows == rows[0]).all():
+        return rows[:1].astype(np.float64), np.zeros(rows.shape[0], dtype=np.int64)
+    if rows.shape[1] > 62:
+        patterns, which = np.unique(rows, axis=0, return_inverse=True)
+        return patterns.astype(np.float64), which.reshape(-1)
+    # each row as an integer: a 1-D unique, far cheaper than np.unique(axis=0)
+    codes, first, which = np.unique(rows.astype(np.int64) @ (1 << np.arange(rows.shape[1], dtype=np.int64)),
+                                    return_index=True, return_inverse=True)
+    return rows[first].astype(np.float64), which.reshape(-1)
 
 
 def _median(v: np.ndarray) -> float:
@@ -465,19 +527,19 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
     fewer than ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
     """
     chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
-    models: list[PcaModel] = []
     if chosen is None:
-        return models
-    training = _training_arrays(xyz, m, *chosen)
+        return []
+    xt, dist = _training_arrays(xyz, m, *chosen)
+    frames: list[tuple[str | None, np.ndarray | None]] = []
     seen = []
     for frame in local_frames:
-        pick = None if frame is None else _frame_markers(*training, frame)
+        pick = None if frame is None else _frame_markers(xt, dist, frame)
         key = None if pick is None else tuple(pick.tolist())
         if (frame is not None and key is None) or key in seen:
             continue
         seen.append(key)
-        models.append(PcaModel(xyz, valid, m, *chosen, local_frame=frame, training=training, frame_markers=pick))
-    return models
+        frames.append((frame, pick))
+    return fit_pca_stack(m, chosen[0], xt, dist, frames) if frames else []
 
 
 def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
@@ -525,14 +587,14 @@ def pca_fill_packed(models: PcaModel | list[PcaModel], xyz: np.ndarray,
     intervals one after the other (NaN where not predicted; with ``partial`` false an interval with such a frame
     has none), ``none`` (predictions, len(jobs)) True where an interval has no prediction."""
     if isinstance(models, PcaModel):
-        models, kss = [models], [ks]
+        models, kss = [models], [ks or [models.k]]
     else:
         kss = [mod.ks for mod in models]
     n_t = xyz.shape[0]
     spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b, *_ in jobs]
     frames = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     vis = np.concatenate([valid[lo:hi] for (lo, hi), (_, _, valid, _, _) in zip(spans, jobs, strict=True)])
-    preds = np.concatenate([mod.predict(xyz, None, frames, k, vis=vis) for mod, k in zip(models, kss, strict=True)])
+    preds = predict_stack(models, xyz, frames, vis, kss)
     return _edge_correct_packed(preds, xyz[:, models[0].m], spans, [(a, b, known_m, partial)
                                                                     for a, b, _, known_m, partial in jobs])
 
