@@ -30,8 +30,31 @@ PCA_BODY_FRAME = True
 #: PCA on coordinates normalised by their standard deviation before the distance weighting (off: measured
 #: worse on the Walking file, 20.7 vs 8.0 mm on gaps over 0.25 s)
 PCA_UNIT_STD = False
-#: known samples used on each side of an interval by the interpolating methods
+#: known samples used on each side of an interval by the interpolating methods (PCHIP's slope at a knot uses
+#: its neighbours on both sides; three keep the knot next to the gap's edge as it would be with the whole take)
 _N_ANCHORS = 3
+#: rigid fill: two mates closer than this (mm) give no axis to turn about, and mates whose second singular value
+#: is below this or ``_RIGID_MIN_PLANE`` times their first are too nearly collinear to fix a rotation (marker
+#: noise of 0.5 mm turns a 5 mm baseline by about 6°)
+_RIGID_MIN_SPREAD_MM = 5.0
+_RIGID_MIN_PLANE = 0.05
+#: PCA distance weighting: σ is this many times the median predictor distance (Gløersen & Federolf weight by
+#: distance; with twice the median a predictor at the median distance weighs 0.88, at twice it 0.61, at four
+#: times 0.14), and no predictor's weight falls below ``_PCA_MIN_WEIGHT`` (a far predictor still helps when
+#: the near ones are hidden)
+PCA_SIGMA_SCALE = 2.0
+_PCA_MIN_WEIGHT = 1e-3
+#: PCA training: with fewer frames than this the predictor measured least often is let go, and so on (20 frames
+#: give up to 19 components, more than validation picks on the shortest takes); more predictors than
+#: ``PCA_MAX_PREDICTORS`` (the nearest kept) add next to nothing after the distance weighting and cost time
+PCA_MIN_TRAIN = 20
+PCA_MAX_PREDICTORS = 12
+#: frames sampled for the predictors' mean distances (a few hundred are plenty for a mean)
+_PCA_DISTANCE_FRAMES = 200
+#: a PCA moving frame needs its three markers this far apart (mm) and this far from collinear (mean sine of
+#: the triangle's angle): otherwise its rotation would be mostly noise
+_FRAME_MIN_EDGE_MM = 5.0
+_FRAME_MIN_SINE = 0.1
 
 
 def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -222,11 +245,11 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
         ref_pts = xyz[refs][:, sub]
         two = sub.size == 2
         if two:
-            keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > 5.0
+            keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > _RIGID_MIN_SPREAD_MM
         else:
             # the mates must span a plane: second singular value of the centred set big enough
             sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
-            keep = sv[:, 1] > np.maximum(5.0, 0.05 * sv[:, 0])
+            keep = sv[:, 1] > np.maximum(_RIGID_MIN_SPREAD_MM, _RIGID_MIN_PLANE * sv[:, 0])
         usable = np.zeros(n_t + 1, dtype=bool)  # index -1 (no reference) lands on the last, False, entry
         usable[refs[keep]] = True
         ok0, ok1 = usable[before], usable[after]
@@ -307,7 +330,8 @@ class PcaModel:
     v_all: np.ndarray
 
     def __init__(self, xyz: np.ndarray, valid: np.ndarray, m: int, predictors: np.ndarray, train: np.ndarray,
-                 *, sigma_scale: float = 2.0, body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
+                 *, sigma_scale: float = PCA_SIGMA_SCALE, body_frame: bool = PCA_BODY_FRAME,
+                 unit_std: bool = PCA_UNIT_STD,
                  local_frame: str | None = None, var_fracs: tuple[float, ...] = VAR_FRACS) -> None:
         xt, dist = _training_arrays(xyz, m, predictors, train)
         pick = None if local_frame is None else _frame_markers(xt, dist, local_frame)
@@ -341,7 +365,7 @@ class PcaModel:
 
 
 def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarray,
-                  frames: list[tuple[str | None, np.ndarray | None]], *, sigma_scale: float = 2.0,
+                  frames: list[tuple[str | None, np.ndarray | None]], *, sigma_scale: float = PCA_SIGMA_SCALE,
                   body_frame: bool = PCA_BODY_FRAME, unit_std: bool = PCA_UNIT_STD,
                   var_fracs: tuple[float, ...] = VAR_FRACS) -> list[PcaModel]:
     """One :class:`PcaModel` of marker ``m`` per entry of ``frames`` (``(local_frame, frame markers or None)``),
@@ -350,7 +374,7 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     n, n_c = xt.shape[0], 3 * xt.shape[1]
     d = dist.mean(axis=0)
     sigma = sigma_scale * max(_median(d), 1.0)
-    w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), 1e-3), [1.0]]), 3)
+    w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), _PCA_MIN_WEIGHT), [1.0]]), 3)
     coords = np.empty((len(frames), n, n_c))
     for i, (_, pick) in enumerate(frames):
         if pick is not None:
@@ -508,14 +532,15 @@ def _frame_markers(xt: np.ndarray, dist: np.ndarray, kind: str) -> np.ndarray | 
     la, lb = norm3(a), norm3(b)
     with np.errstate(invalid="ignore", divide="ignore"):
         sin = norm3(cross3(a, b)) / (la * lb)
-    if not (la.mean() > 5.0 and lb.mean() > 5.0 and np.mean(sin) > 0.1):
+    if not (la.mean() > _FRAME_MIN_EDGE_MM and lb.mean() > _FRAME_MIN_EDGE_MM
+            and np.mean(sin) > _FRAME_MIN_SINE):
         return None
     return pick
 
 
 def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarray, a: int, b: int,
                    local_frames: tuple[str | None, ...], *, window: tuple[int, int] | None = None,
-                   min_train: int = 20, max_predictors: int = 12) -> list[PcaModel]:
+                   min_train: int = PCA_MIN_TRAIN, max_predictors: int = PCA_MAX_PREDICTORS) -> list[PcaModel]:
     """PCA models (:class:`PcaModel`) of marker ``m``, one for each of ``local_frames``, on the same predictors
     and training frames; a moving frame that cannot be set up (collinear markers), or that is made of the same
     three markers as an earlier model's, gives no model.
@@ -557,7 +582,7 @@ def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarra
     rows = known_m[lo:hi]
     vw = valid[lo:hi]
     if preds.size > max_predictors:
-        step = max(1, (hi - lo) // 200)  # a few hundred frames are plenty for a mean distance
+        step = max(1, (hi - lo) // _PCA_DISTANCE_FRAMES)
         both = vw[::step][:, preds] & rows[::step, None]
         xs = _flat(xyz)[lo:hi:step]
         # coordinate by coordinate on (frames, markers) arrays: the same sums as norm3, on contiguous data

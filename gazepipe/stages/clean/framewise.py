@@ -19,6 +19,9 @@ from gazepipe.stages.clean.fill_methods import distance_stats
 
 #: neighbours whose distance to the marker is checked: the most rigidly linked ones, at most this many
 N_LINKED = 4
+#: ... among the markers measured in at least this share of the gap's frames (a link measured in fewer frames
+#: leaves most of the gap without a residual to weight by)
+LINK_MIN_SHARE = 0.5
 #: ... whose distance varied by at most this (mm, standard deviation) around the gap
 MAX_LINK_SD_MM = 15.0
 #: floor (mm) of a link's distance spread: below marker noise, a tighter link is no more informative
@@ -37,7 +40,7 @@ def linked_neighbours(xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray, m
     excluded). Returns ``(markers (K,), mean distance (K,) mm, spread (K,) mm)``, the ``N_LINKED`` with the
     smallest spread under ``MAX_LINK_SD_MM``; empty when none qualify.
     """
-    cand = np.flatnonzero(valid[s:e].mean(axis=0) >= 0.5)
+    cand = np.flatnonzero(valid[s:e].mean(axis=0) >= LINK_MIN_SHARE)
     cand = cand[cand != m]
     empty = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     if cand.size == 0:
