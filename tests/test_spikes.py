@@ -130,3 +130,28 @@ def test_clean_marks_removed_spikes_fills_them_and_counts_them():
     assert np.linalg.norm(back - (truth[70, 8] - truth[70, 0])) < 3.0
     off = clean_markers(mk, ms, "gaze_follow", CleanParams(remove_spikes=False))
     assert not off.spike.any() and off.fill_code[row, 8] == FILL_CODES["measured"]
+
+
+@pytest.mark.parametrize("block", [7, 50, 333])
+def test_spike_search_in_blocks_of_frames_is_the_same_bits(spiky_session, monkeypatch, block):
+    """The per-frame tests run in blocks of frames (bounded memory for long takes) with margins as wide as their
+    windows: any block size gives exactly the mask of one block holding the whole take, on real-looking takes with
+    ghosts, gaps and fast motion."""
+    from gazepipe.stages.clean import spikes
+
+    folder = spiky_session
+    ms = load_markerset(folder / "markerset.toml")
+    for c3d in sorted((folder / "mocap").glob("follow_*.c3d")):
+        mk = read_markers(c3d, default_units=ms.units)
+        pos = {lab.split(":")[-1]: i for i, lab in enumerate(mk.labels)}
+        clusters = [[pos[n] for n in s.markers if n in pos] for s in ms.segments]
+        valid = mk.valid & np.isfinite(mk.xyz).all(axis=2)
+        monkeypatch.setattr(spikes, "_BLOCK_FRAMES", 10**9)
+        whole = find_spikes(mk.xyz, mk.valid, mk.rate_hz, clusters)
+        excess = spikes.path_excess_mm(mk.xyz, valid, 8.0, 2.0)
+        monkeypatch.setattr(spikes, "_BLOCK_FRAMES", block)
+        assert mk.n_frames > block                          # at least two blocks
+        assert np.array_equal(find_spikes(mk.xyz, mk.valid, mk.rate_hz, clusters), whole)
+        # the test's own measure, not only its verdict: every sample's margin to the threshold, to the bit
+        assert np.array_equal(spikes.path_excess_mm(mk.xyz, valid, 8.0, 2.0), excess, equal_nan=True)
+        assert whole.any()                                   # the takes do have spikes to find

@@ -23,6 +23,12 @@ _MEDIAN_HALF = 2
 _STEP_HALF = 5
 #: a marker's distance to its cluster deviates significantly beyond this many times its typical deviation
 _CLUSTER_K = 6.0
+#: frames per block of the per-frame tests: their temporaries (some 200 bytes per marker sample: sorted windows,
+#: running medians) are bounded by a block, not the take; each block also reads ``_BLOCK_MARGIN`` frames on each
+#: side, as far as the widest window reaches (the step median's half-width, one frame of differences, the
+#: residual median's half-width), so the result is the same bits whatever the block size
+_BLOCK_FRAMES = 8192
+_BLOCK_MARGIN = _STEP_HALF + 1 + _MEDIAN_HALF + 1
 
 
 def _median5(w: np.ndarray) -> np.ndarray:
@@ -109,8 +115,34 @@ def find_glitches(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequenc
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     valid = np.asarray(valid, dtype=bool) & np.isfinite(xyz).all(axis=2)
-    if valid.shape[0] < 3:
+    n_t = valid.shape[0]
+    if n_t < 3:
         return np.zeros(valid.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        glitch = path_excess_mm(xyz, valid, residual_mm, step_factor) > 0.0
+    dev = cluster_deviation(xyz, valid, clusters)
+    floor = np.maximum(cluster_mm, _CLUSTER_K * np.nan_to_num(_nanmedian(dev, axis=0), nan=np.inf))
+    with np.errstate(invalid="ignore"):
+        glitch |= dev > floor[None, :]
+    return glitch & valid
+
+
+def path_excess_mm(xyz: np.ndarray, valid: np.ndarray, residual_mm: float, step_factor: float) -> np.ndarray:
+    """The trajectory test of :func:`find_glitches`, (T, M) mm: how much farther each sample is from its running
+    median than ``max(residual_mm, step_factor`` × the marker's typical step there``)`` (a glitch above 0; NaN
+    where not judged). Computed in blocks of ``_BLOCK_FRAMES`` frames, each with ``_BLOCK_MARGIN`` more on either
+    side, so its memory is bounded by a block and its values do not depend on the block size."""
+    n_t = valid.shape[0]
+    out = np.empty(valid.shape)
+    for lo in range(0, n_t, _BLOCK_FRAMES):
+        hi = min(n_t, lo + _BLOCK_FRAMES)
+        a, b = max(0, lo - _BLOCK_MARGIN), min(n_t, hi + _BLOCK_MARGIN)
+        out[lo:hi] = _path_excess_block(xyz[a:b], valid[a:b], residual_mm, step_factor)[lo - a:hi - a]
+    return out
+
+
+def _path_excess_block(xyz: np.ndarray, valid: np.ndarray, residual_mm: float, step_factor: float) -> np.ndarray:
+    """:func:`path_excess_mm` of one block of frames (n, M)."""
     x = np.where(valid[..., None], xyz, np.nan)
     med, _ = running_median(x, _MEDIAN_HALF, min_count=3)
     r = norm3(x - med)                                                        # NaN where not judged
@@ -120,12 +152,7 @@ def find_glitches(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequenc
     r[~(around[..., :h].any(axis=-1) & around[..., h + 1:].any(axis=-1))] = np.nan
     steps = norm3(np.diff(x, axis=0))
     typical_step, _ = running_median(np.vstack([steps, np.full((1, steps.shape[1]), np.nan)]), _STEP_HALF)
-    dev = cluster_deviation(xyz, valid, clusters)
-    floor = np.maximum(cluster_mm, _CLUSTER_K * np.nan_to_num(_nanmedian(dev, axis=0), nan=np.inf))
-    with np.errstate(invalid="ignore"):
-        glitch = r > np.maximum(residual_mm, step_factor * np.nan_to_num(typical_step, nan=0.0))
-        glitch |= dev > floor[None, :]
-    return glitch & valid
+    return r - np.maximum(residual_mm, step_factor * np.nan_to_num(typical_step, nan=0.0))
 
 
 def find_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, clusters: Sequence[Sequence[int]] = (), *,
@@ -177,10 +204,12 @@ def remove_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *,
     out = valid.copy()
     if n_t < 3:
         return out, np.zeros(n_m, dtype=np.int64)
-    d2 = np.linalg.norm(xyz[2:] - 2.0 * xyz[1:-1] + xyz[:-2], axis=2)  # centred on frames 1..T-2
-    ok3 = valid[2:] & valid[1:-1] & valid[:-2]
     big = np.zeros((n_t, n_m), dtype=bool)
-    big[1:-1] = ok3 & (np.nan_to_num(d2, nan=0.0) > thr)
+    for lo in range(1, n_t - 1, _BLOCK_FRAMES):      # in blocks: the differences' temporaries stay small
+        hi = min(n_t - 1, lo + _BLOCK_FRAMES)
+        d2 = np.linalg.norm(xyz[lo + 1:hi + 1] - 2.0 * xyz[lo:hi] + xyz[lo - 1:hi - 1], axis=2)
+        ok3 = valid[lo + 1:hi + 1] & valid[lo:hi] & valid[lo - 1:hi - 1]
+        big[lo:hi] = ok3 & (np.nan_to_num(d2, nan=0.0) > thr)
     # break between t-1 and t when the second differences at both are implausible
     brk = np.zeros((n_t, n_m), dtype=bool)
     brk[1:] = big[1:] & big[:-1]
