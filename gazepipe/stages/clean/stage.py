@@ -218,9 +218,11 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
 
 
 #: peak memory of the clean stage per marker sample, bytes: the raw table as read (about 40) and as markers
-#: (25), and :func:`clean_markers`' own peak, about 265 measured (the spike detector's temporaries, linear in
-#: frames x markers from 50,000 to 100,000 frames), with a margin
-CLEAN_BYTES_PER_SAMPLE = 400
+#: (25), and :func:`clean_markers`' own peak (the spike search runs in blocks of frames; the filler's copies of
+#: the take remain). Measured on whole ``gazepipe clean`` runs of generated 15- and 60-minute takes at 30 Hz
+#: (0.9 and 3.8 million samples): 407 and 744 MB at their peaks, about 120 bytes per sample more for the
+#: longer; this is twice that
+CLEAN_BYTES_PER_SAMPLE = 250
 
 
 def clean_memory_bytes(n_samples: int) -> int:
