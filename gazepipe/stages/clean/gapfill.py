@@ -270,98 +270,165 @@ def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, meth
     them, or is None when nothing was hidden. ``pca_window``: frames each side
     of the gap the PCA models train on (None: the whole take); ``mates_window``: frames each side over which a
     marker must keep its distance to ``m`` to serve as a donor (None: any marker).
+
+    The steps, each its own function: hide stretches beside the gap (:func:`hide_stretches`); the
+    interpolation candidates (:func:`interpolation_candidates`) and what the markers moving with this one make
+    of them (:func:`donor_interp_errors`); the rigid and PCA candidates (:func:`model_candidates`); their errors
+    on the hidden samples and the checks for motion the stretches cannot show (:func:`validate_candidates`).
     """
-    n_t = xyz.shape[0]
+    hid = hide_stretches(valid, m, s, e, validate)
+    cands = interpolation_candidates(xyz[:, m], valid[:, m], s, e, hid, methods)
+    donors = _donor_errors(xyz, valid, m, s, e, cands, mates_window) if validate else {}
+    cands = model_candidates(xyz, valid, m, s, e, methods, cluster, hid, cands, pca_window)
+    return validate_candidates(xyz, valid, m, s, e, hid, cands, donors, validate)
+
+
+@dataclass
+class Hidden:
+    """The measured samples of a gap's marker hidden beside it for validation (:func:`hide_stretches`)."""
+
+    #: the stretches ``[a, b)`` hidden, nearest the gap first on each side
+    wins: list[tuple[int, int]]
+    #: (T,) the marker's samples the methods may use (measured, not in the gap or a stretch)
+    known: np.ndarray
+    #: (T, M) the visibility the methods see (the gap's occlusion pattern laid over each stretch)
+    vis: np.ndarray
+
+
+@dataclass
+class Candidates:
+    """What each method makes of a gap and of its hidden stretches."""
+
+    #: method -> (e - s, 3) its fill of the gap, mm, in ``methods`` order
+    gap: dict[str, np.ndarray]
+    #: method -> its prediction of each hidden stretch (None where it has none)
+    stretch: dict[str, dict[tuple[int, int], np.ndarray | None]]
+    #: the PCA model of the best (model, component count) pair, when PCA predicted
+    pca_model: PcaModel | None = None
+    pca_stretches: list[tuple[int, int]] = field(default_factory=list)
+
+
+def hide_stretches(valid: np.ndarray, m: int, s: int, e: int, validate: bool) -> Hidden:
+    """The stretches beside gap ``[s, e)`` to hide (:func:`_validation_windows`; none without ``validate``).
+    They also get the gap's occlusion pattern: a marker missing in the gap's i-th frame is treated as missing in
+    each stretch's i-th frame, so rigid and PCA are validated with the donors they will really have."""
     valid_m = valid[:, m]
     wins = _validation_windows(valid_m, s, e) if validate else []
     known = valid_m.copy()
-    # the hidden stretches also get the gap's occlusion pattern: a marker missing in the gap's i-th frame is
-    # treated as missing in each stretch's i-th frame, so rigid and PCA are validated with the donors they
-    # will really have
-    valid_v = valid.copy()
+    vis = valid.copy()
     for a, b in wins:
         known[a:b] = False
-        valid_v[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
-    xyz_m = xyz[:, m]
-    model = pca_gap = None
-    pca_wins: dict[tuple[int, int], np.ndarray | None] = {}
+        vis[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
+    return Hidden(wins, known, vis)
+
+
+def interpolation_candidates(xyz_m: np.ndarray, valid_m: np.ndarray, s: int, e: int, hid: Hidden,
+                             methods: tuple[str, ...]) -> Candidates:
+    """Linear and PCHIP (those of ``methods``) over the gap from the marker's measured samples ``valid_m``, and
+    over each hidden stretch from its ``known`` ones."""
+    gap, stretch = {}, {}
+    for meth in (k for k in methods if k in _INTERP):
+        fill = interp_fill(xyz_m, valid_m, [(s, e)], meth)[0]
+        if fill is not None:
+            gap[meth] = fill
+        stretch[meth] = dict(zip(hid.wins, interp_fill(xyz_m, hid.known, hid.wins, meth), strict=True))
+    return Candidates(gap, stretch)
+
+
+def _donor_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cands: Candidates,
+                  mates_window: int | None) -> dict[str, float]:
+    """Interpolation's error over the gap's own frames on the markers moving with ``m``
+    (:func:`donor_interp_errors`), for the interpolation methods that fill the gap."""
+    return donor_interp_errors(xyz, valid, m, s, e, [k for k in cands.gap if k in _INTERP], window=mates_window)
+
+
+def model_candidates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
+                     cluster: list[int] | None, hid: Hidden, interp: Candidates, pca_window: int | None
+                     ) -> Candidates:
+    """``interp`` with the rigid and PCA candidates (those of ``methods``) added, in ``methods`` order."""
+    gap: dict[str, np.ndarray] = {}
+    stretch = dict(interp.stretch)
+    out = Candidates(gap, stretch)
+    if "rigid" in methods and cluster:
+        stretch["rigid"] = (dict(zip(hid.wins, rigid_fill_many(xyz, hid.vis, m, cluster, hid.known, hid.wins,
+                                                                  True), strict=True)) if hid.wins else {})
     if "pca" in methods:
-        win = None if pca_window is None else (max(0, s - pca_window), min(n_t, e + pca_window))
-        model, pca_gap, pca_wins = _pca_predictions(xyz, valid, valid_v, m, s, e, wins, win)
-
-    def run(meth: str, a: int, b: int, known_m: np.ndarray, partial: bool) -> np.ndarray | None:
-        vis = valid_v if partial else valid
-        if meth in ("linear", "pchip"):
-            if partial:
-                return interp_wins[meth].get((a, b))
-            return interp_fill(xyz_m, known_m, [(a, b)], meth)[0]
-        if meth == "rigid":
-            if partial:
-                return rigid_wins.get((a, b))
-            return None if not cluster else rigid_fill(xyz, vis, m, cluster, known_m, a, b, partial)
-        if meth == "pca":
-            if model is None:
-                return None
-            return pca_wins.get((a, b)) if partial else pca_gap
-        raise ValueError(f"unknown gap-filling method {meth!r}")
-
-    rigid_wins = (dict(zip(wins, rigid_fill_many(xyz, valid_v, m, cluster, known, wins, True), strict=True))
-                  if cluster and wins and "rigid" in methods else {})
-    interp_wins = {meth: dict(zip(wins, interp_fill(xyz_m, known, wins, meth), strict=True))
-                   for meth in ("linear", "pchip") if meth in methods and wins}
-    preds: dict[str, np.ndarray] = {}
+        win = None if pca_window is None else (max(0, s - pca_window), min(xyz.shape[0], e + pca_window))
+        model, pca_gap, pca_wins = _pca_predictions(xyz, valid, hid.vis, m, s, e, hid.wins, win)
+        if model is not None:
+            stretch["pca"] = pca_wins
+            out.pca_model, out.pca_stretches = model, list(pca_wins)
     for meth in methods:
-        p = run(meth, s, e, valid_m, False)
-        if p is not None:
-            preds[meth] = p
-    # validation: every applicable method predicts the hidden stretches (frames it cannot predict are NaN);
-    # methods are compared on the frames all of them could predict, else each on its own frames
-    errors: dict[str, float] = {}
+        if meth in interp.gap:
+            gap[meth] = interp.gap[meth]
+        elif meth == "rigid" and cluster:
+            fill = rigid_fill(xyz, valid, m, cluster, valid[:, m], s, e)
+            if fill is not None:
+                gap[meth] = fill
+        elif meth == "pca" and out.pca_model is not None and pca_gap is not None:
+            gap[meth] = pca_gap
+        elif meth not in METHODS:
+            raise ValueError(f"unknown gap-filling method {meth!r}")
+    return out
+
+
+def validate_candidates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden,
+                        cands: Candidates, donors: dict[str, float], validate: bool
+                        ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None]:
+    """Each candidate's mean error on the hidden samples (methods compared on the frames all of them could
+    predict, else each on its own frames), then corrected for motion the stretches cannot show: see
+    :func:`predict_gap` for what is returned."""
+    preds = cands.gap
+    xyz_m = xyz[:, m]
     stretches = None
-    if wins and preds:
-        truth = np.concatenate([xyz_m[a:b] for a, b in wins])
-        hidden = {meth: np.concatenate([_or_nan(run(meth, a, b, known, True), b - a) for a, b in wins])
-                  for meth in preds}
-        frames = np.concatenate([np.arange(a, b) for a, b in wins])
-        cuts = np.cumsum([0] + [b - a for a, b in wins[:-1]])
-        stretches = Stretches(truth, hidden, frames, valid_v, known, cuts)
+    errors = {meth: float("nan") for meth in preds}
+    if hid.wins and preds:
+        truth = np.concatenate([xyz_m[a:b] for a, b in hid.wins])
+        hidden = {meth: np.concatenate([_or_nan(cands.stretch.get(meth, {}).get((a, b)), b - a)
+                                        for a, b in hid.wins]) for meth in preds}
+        frames = np.concatenate([np.arange(a, b) for a, b in hid.wins])
+        cuts = np.cumsum([0] + [b - a for a, b in hid.wins[:-1]])
+        stretches = Stretches(truth, hidden, frames, hid.vis, hid.known, cuts)
         err = norm3(np.stack(list(hidden.values())) - truth)
         common = np.isfinite(err).all(axis=0)
         for i, meth in enumerate(preds):
             row = err[i, common] if common.any() else err[i, np.isfinite(err[i])]
             errors[meth] = float(row.mean()) if row.size else float("nan")
-    else:
-        errors = {meth: float("nan") for meth in preds}
     if validate:
-        # interpolation knows nothing of the gap's own frames: its error there is what the motion during the
-        # gap makes it, which the stretches beside the gap need not show (a reach between two still phases).
-        # The nearest markers measured through the gap that move with the marker, interpolated over the same
-        # frames, show it.
-        donor_err = donor_interp_errors(xyz, valid, m, s, e, [k for k in preds if k in _INTERP],
-                                        window=mates_window)
-        novel = False
-        for meth, err_d in donor_err.items():
-            # another marker's error is a rough guess of this one's: believed only when clearly larger
-            if np.isfinite(err_d) and not err_d <= _INTERP_DONOR_FACTOR * errors.get(meth, np.nan):
-                errors[meth] = err_d
-                novel = True
-        # the opposite blind spot: the marker stands still through the gap (a foot in stance) while the stretches
-        # beside it hold motion (the steps), so interpolation validates far worse than it will fill. Its speed at
-        # the gap's edges and its net displacement across the gap show it; interpolation's error is scaled by
-        # that speed over the stretches'. (Not where the donors saw motion in the gap: a reach between holds.)
-        if not novel and wins:
-            speed_gap, speed_str = edge_speed(xyz_m, valid_m, s, e), speed_over(xyz_m, wins)
-            if speed_gap < _STILL_EDGE_RATIO * speed_str:
-                for meth in donor_err:
-                    errors[meth] *= max(speed_gap, _ERR_FLOOR_MM) / speed_str
-        # PCA has the same blind spot when the gap's poses are unlike the training frames (the target was
-        # hidden through them). Its own predictors show it: the components explain them much worse in the gap
-        # than in the stretches. (Checked only where the donors show motion the stretches do not.)
-        if novel and "pca" in preds and model is not None:
-            ratio = pca_novelty(model, xyz, valid, valid_v, list(pca_wins), s, e)
-            if ratio > _PCA_NOVELTY_MIN:
-                errors["pca"] *= ratio
+        _motion_checks(xyz, valid, m, s, e, hid, cands, donors, errors)
     return preds, errors, stretches
+
+
+def _motion_checks(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden, cands: Candidates,
+                   donors: dict[str, float], errors: dict[str, float]) -> None:
+    """Correct the validation ``errors`` (in place) for what the stretches beside the gap cannot show.
+
+    Interpolation knows nothing of the gap's own frames: its error there is what the motion during the gap makes
+    it (a reach between two still phases). The nearest markers measured through the gap that move with the
+    marker, interpolated over the same frames (``donors``), show it. The opposite blind spot: the marker stands
+    still through the gap (a foot in stance) while the stretches hold motion (the steps); its speed at the gap's
+    edges shows it. PCA is blind like interpolation when the gap's poses are unlike the training frames; its own
+    predictors show it (:func:`pca_novelty`).
+    """
+    novel = False
+    for meth, err_d in donors.items():
+        # another marker's error is a rough guess of this one's: believed only when clearly larger
+        if np.isfinite(err_d) and not err_d <= _INTERP_DONOR_FACTOR * errors.get(meth, np.nan):
+            errors[meth] = err_d
+            novel = True
+    xyz_m = xyz[:, m]
+    if not novel and hid.wins:
+        # interpolation's error scaled by the speed at the gap over the speed in the stretches (not where the
+        # donors saw motion in the gap: a reach between holds)
+        speed_gap, speed_str = edge_speed(xyz_m, valid[:, m], s, e), speed_over(xyz_m, hid.wins)
+        if speed_gap < _STILL_EDGE_RATIO * speed_str:
+            for meth in donors:
+                errors[meth] *= max(speed_gap, _ERR_FLOOR_MM) / speed_str
+    # checked only where the donors show motion the stretches do not
+    if novel and "pca" in cands.gap and cands.pca_model is not None:
+        ratio = pca_novelty(cands.pca_model, xyz, valid, hid.vis, cands.pca_stretches, s, e)
+        if ratio > _PCA_NOVELTY_MIN:
+            errors["pca"] *= ratio
 
 
 def _pca_predictions(xyz: np.ndarray, valid: np.ndarray, valid_v: np.ndarray, m: int, s: int, e: int,
@@ -704,18 +771,17 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, noise_mm: float,
-                            cfg: _GapSettings
+def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden,
+                            interp: Candidates, donors: dict[str, float], noise_mm: float, cfg: _GapSettings
                             ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None] | None:
-    """The interpolation candidates of a short gap (:func:`predict_gap` with ``linear`` and ``pchip`` only) when
-    the better of them validates at the noise floor ``noise_mm`` (within two standard errors of the mean over
-    the hidden samples; the donor and still-marker checks included); None when the gap needs every candidate."""
-    interp = tuple(k for k in cfg.methods if k in _INTERP)
-    if (not cfg.validation or not interp or len(interp) == len(cfg.methods) or not np.isfinite(noise_mm)
+    """The validated interpolation candidates of a short gap (linear and PCHIP only) when the better of them
+    validates at the noise floor ``noise_mm`` (within two standard errors of the mean over the hidden samples;
+    the donor and still-marker checks included); None when the gap needs every candidate."""
+    n_interp = sum(k in _INTERP for k in cfg.methods)
+    if (not cfg.validation or not n_interp or n_interp == len(cfg.methods) or not np.isfinite(noise_mm)
             or e - s > cfg.cheap_max_len):
         return None
-    preds, errors, stretches = predict_gap(src, valid, m, s, e, interp, None, validate=True,
-                                           mates_window=cfg.mates_window)
+    preds, errors, stretches = validate_candidates(src, valid, m, s, e, hid, interp, donors, True)
     best = min((v for v in errors.values() if np.isfinite(v)), default=np.inf)
     if stretches is None:
         return None
@@ -739,7 +805,10 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
     ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`). Returns the gap's record and its
     (e - s, 3) fill, or None when it stays unfilled (the record says why)."""
     methods = cfg.methods
-    found = _interpolation_suffices(src, valid, m, s, e, noise_mm, cfg)
+    hid = hide_stretches(valid, m, s, e, cfg.validation)
+    interp = interpolation_candidates(src[:, m], valid[:, m], s, e, hid, methods)
+    donors = _donor_errors(src, valid, m, s, e, interp, cfg.mates_window) if cfg.validation else {}
+    found = _interpolation_suffices(src, valid, m, s, e, hid, interp, donors, noise_mm, cfg)
     if found is not None:
         preds, errors, stretches = found
     else:
@@ -747,8 +816,8 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
         if cfg.steady_mates and "rigid" in methods and (cluster is None
                                                         or not valid[s:e][:, cluster].any(axis=1).all()):
             cluster = find_steady_mates(src, valid, m, s, e, cfg.mates_window)
-        preds, errors, stretches = predict_gap(src, valid, m, s, e, methods, cluster, validate=cfg.validation,
-                                               pca_window=cfg.pca_window, mates_window=cfg.mates_window)
+        cands = model_candidates(src, valid, m, s, e, methods, cluster, hid, interp, cfg.pca_window)
+        preds, errors, stretches = validate_candidates(src, valid, m, s, e, hid, cands, donors, cfg.validation)
     if cfg.blend:
         weights = blend_weights(errors, methods)
         if len(weights) > 1 and stretches is not None:
