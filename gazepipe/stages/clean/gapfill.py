@@ -638,7 +638,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     # neighbourhood below is then a contiguous block of rows
     valid = valid & np.isfinite(xyz).all(axis=2)
     src = np.ascontiguousarray(np.where(valid[..., None], xyz, np.nan))
-    out = src.copy()
+    fills: list[tuple[int, int, int, np.ndarray]] = []    # written into src once every gap is decided
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
     est = np.full((n_t, n_m), np.nan)
     cfg = _GapSettings.for_take(rate_hz, n_t, tuple(methods), max_gap_s=max_gap_s, validation=validation,
@@ -672,14 +672,17 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 record.start, record.stop = s, e
                 records.append(record)
                 if fill is not None:
-                    out[s:e, m] = fill
+                    fills.append((m, s, e, fill))
                     code[s:e, m] = FILL_CODES[record.method]
                     est[s:e, m] = record.error_mm
                     filled[record.method] += e - s
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             longest = max((e - s for s, e in gaps), default=0)
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
-    return FillResult(out, code, qc, records, est)
+    # no gap's fill may serve another gap as data: they go in only now (and src is this function's own copy)
+    for m, s, e, fill in fills:
+        src[s:e, m] = fill
+    return FillResult(src, code, qc, records, est)
 
 
 @dataclass(frozen=True)

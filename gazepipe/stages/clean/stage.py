@@ -184,7 +184,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                         max_error_mm=_error_limits(xyz, markers.labels, markerset, params))
         error = res.error_mm
         code = np.asarray(res.fill_code, dtype=np.int8)
-        xyz = np.where((code != UNFILLED)[..., None], np.asarray(res.xyz, dtype=np.float64), np.nan)
+        xyz = res.xyz                     # NaN wherever unfilled (fill_gaps writes only the samples it fills)
         qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
                        "method": g.method, "error_mm": None if not np.isfinite(g.error_mm) else float(g.error_mm),
                        "reason": g.reason,
