@@ -503,3 +503,24 @@ def test_sample_gaze_shift_crop_bounds(sample_session):
         truth = load_truth(sample_session, t.id)["crop"]
         res = clean_markers(read_markers(t.mocap), ses.markerset, t.kind, CleanParams(), take=t.id)
         assert abs(res.crop[0] - truth[0]) <= 2 and abs(res.crop[1] - truth[1]) <= 2, (t.id, res.crop, truth)
+
+
+def test_rest_speed_in_chunks_of_markers_is_the_same_bits(monkeypatch):
+    """The mean speed is computed a few markers at a time (bounded memory): any chunk size, and naming the
+    subject's columns instead of copying them, gives the one-chunk result to the bit, gaps and all."""
+    from gazepipe.stages.clean import rests
+
+    rng = np.random.default_rng(4)
+    t = np.arange(900) / 30.0
+    xyz = 1000.0 + 80.0 * np.sin(t[:, None, None] * rng.uniform(0.2, 2.0, (1, 20, 3))) \
+        + rng.normal(0.0, 0.5, (900, 20, 3))
+    valid = rng.random((900, 20)) > 0.05
+    xyz[~valid] = np.nan
+    cols = np.array([0, 2, 3, 5, 7, 8, 9, 11, 12, 13, 17, 19])
+    monkeypatch.setattr(rests, "_SPEED_MARKERS", 1000)
+    whole = rests.mean_speed(xyz[:, cols], valid[:, cols], 30.0, 1.75, min_share=0.5)
+    for chunk in (1, 3, 8):
+        monkeypatch.setattr(rests, "_SPEED_MARKERS", chunk)
+        got = rests.mean_speed(xyz, valid, 30.0, 1.75, min_share=0.5, markers=cols)
+        assert np.array_equal(got, whole, equal_nan=True)
+    assert np.isfinite(whole).mean() > 0.9 and np.nanmax(whole) > 10.0      # moving, and mostly known

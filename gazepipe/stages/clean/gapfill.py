@@ -763,11 +763,10 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     # a few thousand differences per marker fix its MAD to a percent or so: evenly spaced frames, so a long take
     # costs no more than a short one
     step = max(1, (n_t - 3) // _NOISE_SAMPLES)
-    lag = [xyz[i:n_t - 3 + i:step] for i in range(4)]
-    d3 = lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0]
     ok = np.logical_and.reduce([valid[i:n_t - 3 + i:step] for i in range(4)])
     for m in np.flatnonzero(ok.sum(axis=0) >= _NOISE_MIN_FRAMES):
-        v = d3[ok[:, m], m]
+        lag = [xyz[i:n_t - 3 + i:step, m] for i in range(4)]
+        v = (lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0])[ok[:, m]]
         mad = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
         sigma = float(np.sqrt(np.mean(np.square(mad)) / 20.0))
         out[m] = 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
@@ -971,13 +970,13 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     n_m = valid.shape[1]
     if valid.shape[0] < 2:
         return np.full(n_m, np.inf)
-    step = norm3(xyz[1:] - xyz[:-1])
     both = valid[1:] & valid[:-1]
     enough = both.sum(axis=0) >= 10
     if not enough.any():
         return np.full(n_m, np.inf)
     p99 = np.full(n_m, np.nan)
-    p99[enough] = np.nanpercentile(np.where(both, step, np.nan)[:, enough], 99, axis=0)
+    for m in np.flatnonzero(enough):          # a marker at a time: memory of one trajectory, not of the take
+        p99[m] = np.percentile(norm3(xyz[1:, m] - xyz[:-1, m])[both[:, m]], 99)
     return np.fmax(factor * p99, factor_any * np.nanmax(p99))
 
 

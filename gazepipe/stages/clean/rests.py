@@ -12,13 +12,31 @@ import numpy as np
 
 from gazepipe.stages.clean.filters import gaussian_runs, true_runs
 
+#: markers whose speeds are computed at once by :func:`mean_speed`: the smoothed positions and velocities of
+#: that many markers are held, not those of the whole take (about 100 bytes per marker sample otherwise)
+_SPEED_MARKERS = 8
+
 
 def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
-               min_share: float = 0.0) -> np.ndarray:
-    """Per-frame mean over markers of the speed (mm/s) by central differences, (T,); NaN (unknown) where no
-    marker, or fewer than ``min_share`` of them, has a speed. Positions are first smoothed by
-    :func:`gaussian_runs` at ``filter_hz`` when it is given.
+               min_share: float = 0.0, markers: np.ndarray | None = None) -> np.ndarray:
+    """Per-frame mean over markers (``markers``, columns of ``xyz`` and ``valid``; default all) of the speed
+    (mm/s) by central differences, (T,); NaN (unknown) where no marker, or fewer than ``min_share`` of them, has
+    a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
     """
+    cols = np.arange(valid.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    speed = np.full((valid.shape[0], cols.size), np.nan)
+    for lo in range(0, cols.size, _SPEED_MARKERS):
+        part = cols[lo:lo + _SPEED_MARKERS]
+        speed[:, lo:lo + part.size] = _speeds(xyz[:, part], valid[:, part], rate_hz, filter_hz)
+    n = np.sum(np.isfinite(speed), axis=1)
+    total = np.nansum(speed, axis=1)
+    enough = (n > 0) & (n >= min_share * cols.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(enough, total / np.maximum(n, 1), np.nan)
+
+
+def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
+    """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none."""
     pos = xyz if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
     pos = np.where(valid[..., None], pos, np.nan)
     vel = np.full_like(pos, np.nan)
@@ -27,12 +45,7 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
     if len(pos) >= 2:  # one-sided at the ends
         vel[0] = (pos[1] - pos[0]) * rate_hz
         vel[-1] = (pos[-1] - pos[-2]) * rate_hz
-    speed = np.linalg.norm(vel, axis=2)
-    n = np.sum(np.isfinite(speed), axis=1)
-    total = np.nansum(speed, axis=1)
-    enough = (n > 0) & (n >= min_share * xyz.shape[1])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(enough, total / np.maximum(n, 1), np.nan)
+    return np.linalg.norm(vel, axis=2)
 
 
 def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,

@@ -77,16 +77,16 @@ def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Seq
     the smallest deviation over the mates measured in that frame (a mate's own glitch moves one distance, the
     marker's glitch moves all of them). (T, M); NaN for markers in no cluster of three or more and where fewer
     than two mates are measured (one mate's glitch would look like the marker's own)."""
-    x = np.where(valid[..., None], xyz, np.nan)
     dev = np.full(valid.shape, np.nan)
     for cluster in clusters:
         idx = np.asarray(cluster, dtype=np.int64)
         if idx.size < 3:
             continue
         iu, ju = np.triu_indices(idx.size, 1)
-        pairs = norm3(x[:, idx[iu]] - x[:, idx[ju]])                                # (T, pairs), NaN: unmeasured
+        pairs = norm3(xyz[:, idx[iu]] - xyz[:, idx[ju]])                            # (T, pairs)
+        pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan                    # NaN: unmeasured
         e_pairs = np.abs(pairs - _nanmedian(pairs, axis=0)[None])
-        e = np.full((len(x), idx.size, idx.size), np.nan)                          # NaN: not its own mate
+        e = np.full((len(xyz), idx.size, idx.size), np.nan)                        # NaN: not its own mate
         e[:, iu, ju] = e_pairs
         e[:, ju, iu] = e_pairs
         best = np.fmin.reduce(e, axis=2)                                           # NaN only where all are

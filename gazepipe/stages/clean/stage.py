@@ -260,8 +260,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     xyz, code, _, spike, fill_error = _fill(markers, markerset, params, qc)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    speed = mean_speed(xyz[:, subj], code[:, subj] != UNFILLED, rate, params.rest_filter_hz,
-                       min_share=REST_MIN_PRESENT)
+    speed = mean_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, min_share=REST_MIN_PRESENT,
+                       markers=subj)
 
     # 3. stabilisation
     up = left_pair = None
