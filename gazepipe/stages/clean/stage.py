@@ -217,12 +217,12 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
     return limits
 
 
-#: peak memory of the clean stage per marker sample, bytes: the raw table as read (about 40) and as markers
-#: (25), and :func:`clean_markers`' own peak (the spike search runs in blocks of frames; the filler's copies of
-#: the take remain). Measured on whole ``gazepipe clean`` runs of generated 15- and 60-minute takes at 30 Hz
-#: (0.9 and 3.8 million samples): 407 and 744 MB at their peaks, about 120 bytes per sample more for the
-#: longer; this is twice that
-CLEAN_BYTES_PER_SAMPLE = 250
+#: peak memory of the clean stage per marker sample, bytes: the raw table as read and as markers, the tables
+#: written, and :func:`clean_markers`' own peak (its steps work in blocks of frames or a few markers at a time;
+#: the filler's copy of the take and the results remain). Measured on whole ``gazepipe clean`` runs of generated
+#: takes of 1.02 and 2.49 million samples (27,000 and 65,535 frames of 38 markers): 400 and 723 MB at their
+#: peaks, 220 bytes per sample more for the longer (316 before the blocks, when this was 400); with a margin
+CLEAN_BYTES_PER_SAMPLE = 300
 
 
 def clean_memory_bytes(n_samples: int) -> int:
