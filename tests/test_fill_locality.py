@@ -93,3 +93,25 @@ def test_short_gap_at_noise_level_skips_the_costly_candidates() -> None:
     # a long gap of a moving marker still gets every candidate
     assert np.isfinite(long_.errors["pca"]) and np.isfinite(long_.errors["rigid"])
     assert long_.reason != NOTE_NOISE_FLOOR
+
+
+def test_take_statistics_are_each_markers_own_whatever_the_grouping() -> None:
+    # markers measured throughout are done a few at a time, the others one at a time: each marker's step limit
+    # and noise floor must be what its own samples give, computed alone (the definitions, written out here)
+    from gazepipe.stages.clean.gapfill import step_limits
+
+    truth, measured, _ = body(900, seed=8)
+    xyz = np.concatenate([measured, measured[:, :7] + 5.0], axis=1)          # 19 markers: more than a group
+    valid = np.ones(xyz.shape[:2], bool)
+    valid[100:140, 3] = valid[500:503, 15] = False
+    xyz[~valid] = np.nan
+    floor, limits = interpolation_noise_mm(xyz, valid), step_limits(xyz, valid)
+    p99 = np.empty(xyz.shape[1])
+    for m in range(xyz.shape[1]):
+        d3 = xyz[3:, m] - 3 * xyz[2:-1, m] + 3 * xyz[1:-2, m] - xyz[:-3, m]
+        v = d3[valid[3:, m] & valid[2:-1, m] & valid[1:-2, m] & valid[:-3, m]]
+        mad = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+        assert floor[m] == 2 * np.sqrt(2 / np.pi) * np.sqrt(5 / 3) * np.sqrt(np.mean(mad ** 2) / 20)
+        step = np.linalg.norm(xyz[1:, m] - xyz[:-1, m], axis=1)
+        p99[m] = np.percentile(step[valid[1:, m] & valid[:-1, m]], 99)
+    assert np.allclose(limits, np.fmax(2.5 * p99, 1.5 * p99.max()), rtol=1e-12)

@@ -743,6 +743,8 @@ _NOISE_ERROR_CV = 0.42
 #: most used (the relative standard error of a MAD from n samples is about 1.1 / √n: 2 % from 4,000)
 _NOISE_MIN_FRAMES = 20
 _NOISE_SAMPLES = 4000
+#: markers whose take statistics are computed in one call (when measured throughout)
+_STATS_MARKERS = 16
 
 
 def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -764,13 +766,24 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     # costs no more than a short one
     step = max(1, (n_t - 3) // _NOISE_SAMPLES)
     ok = np.logical_and.reduce([valid[i:n_t - 3 + i:step] for i in range(4)])
-    for m in np.flatnonzero(ok.sum(axis=0) >= _NOISE_MIN_FRAMES):
-        lag = [xyz[i:n_t - 3 + i:step, m] for i in range(4)]
-        v = (lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0])[ok[:, m]]
-        mad = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
-        sigma = float(np.sqrt(np.mean(np.square(mad)) / 20.0))
-        out[m] = 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
-    return out
+    enough = ok.sum(axis=0) >= _NOISE_MIN_FRAMES
+
+    def d3(cols: np.ndarray | int) -> np.ndarray:
+        lag = [xyz[i:n_t - 3 + i:step, cols] for i in range(4)]
+        return lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0]
+
+    mad = np.full((n_m, 3), np.nan)
+    # as in step_limits: markers measured throughout a few at a time, the others one at a time
+    dense = np.flatnonzero(enough & ok.all(axis=0))
+    for lo in range(0, dense.size, _STATS_MARKERS):
+        cols = dense[lo:lo + _STATS_MARKERS]
+        v = d3(cols)
+        mad[cols] = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+    for m in np.flatnonzero(enough & ~ok.all(axis=0)):
+        v = d3(m)[ok[:, m]]
+        mad[m] = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+    sigma = np.sqrt(np.mean(np.square(mad), axis=1) / 20.0)
+    return 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
 
 
 def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden,
@@ -975,7 +988,13 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     if not enough.any():
         return np.full(n_m, np.inf)
     p99 = np.full(n_m, np.nan)
-    for m in np.flatnonzero(enough):          # a marker at a time: memory of one trajectory, not of the take
+    # markers measured throughout, a few at a time (one call for many); the others one at a time (their own
+    # measured steps): either way the memory of a few trajectories, not of the take
+    dense = np.flatnonzero(both.all(axis=0))
+    for lo in range(0, dense.size, _STATS_MARKERS):
+        cols = dense[lo:lo + _STATS_MARKERS]
+        p99[cols] = np.percentile(norm3(xyz[1:, cols] - xyz[:-1, cols]), 99, axis=0)
+    for m in np.flatnonzero(enough & ~both.all(axis=0)):
         p99[m] = np.percentile(norm3(xyz[1:, m] - xyz[:-1, m])[both[:, m]], 99)
     return np.fmax(factor * p99, factor_any * np.nanmax(p99))
 
