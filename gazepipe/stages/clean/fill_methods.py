@@ -451,7 +451,11 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
                 ctr = (np.where(seen[..., None], x, 0.0).sum(axis=1)
                        - seen @ mod.mean[:n_pc].reshape(n_p, 3)) / n_seen[:, None]
             x = x - ctr[:, None]
-        patterns, which = _unique_rows(seen)
+        groups = row_patterns(seen)
+        patterns = np.array([g for g, _ in groups], dtype=np.float64).reshape(len(groups), n_p)
+        which = np.zeros(n, dtype=np.int64)
+        for i, (_, members) in enumerate(groups):
+            which[members] = i
         rows = np.repeat(patterns, 3, axis=1)                             # (patterns, 3 P)
         # NaN where a predictor is not measured: np.where, not a product with the mask
         z = np.where(rows[which] > 0, (x.reshape(n, n_pc) - mod.mean[:n_pc]) * mod.w[:n_pc], 0.0)
@@ -484,19 +488,6 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
         ress.append(res)
     out_all = np.concatenate(outs)
     return (out_all, np.concatenate(ress)) if residuals else out_all
-
-
-def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct rows of a (n, k) bool array as float (U, k), and each row's index among them (n,)."""
-    if rows.shape[0] and (rows == rows[0]).all():
-        return rows[:1].astype(np.float64), np.zeros(rows.shape[0], dtype=np.int64)
-    if rows.shape[1] > 62:
-        patterns, which = np.unique(rows, axis=0, return_inverse=True)
-        return patterns.astype(np.float64), which.reshape(-1)
-    # each row as an integer: a 1-D unique, far cheaper than np.unique(axis=0)
-    codes, first, which = np.unique(rows.astype(np.int64) @ (1 << np.arange(rows.shape[1], dtype=np.int64)),
-                                    return_index=True, return_inverse=True)
-    return rows[first].astype(np.float64), which.reshape(-1)
 
 
 def _median(v: np.ndarray) -> float:

@@ -258,31 +258,6 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
     return wins
 
 
-def predict_gap(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, methods: tuple[str, ...],
-                cluster: list[int] | None, *, validate: bool = True,
-                pca_window: int | None = None, mates_window: int | None = None
-                ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None]:
-    """Every applicable method's prediction of gap ``[s, e)`` of marker ``m``, and its validation error (mm).
-
-    Returns ``(predictions, errors, stretches)``: predictions maps method -> (e - s, 3); errors maps method ->
-    mean Euclidean error over the hidden validation samples (NaN when nothing could be hidden or the method could
-    not predict them); stretches (:class:`Stretches`) holds the hidden samples and each method's prediction of
-    them, or is None when nothing was hidden. ``pca_window``: frames each side
-    of the gap the PCA models train on (None: the whole take); ``mates_window``: frames each side over which a
-    marker must keep its distance to ``m`` to serve as a donor (None: any marker).
-
-    The steps, each its own function: hide stretches beside the gap (:func:`hide_stretches`); the
-    interpolation candidates (:func:`interpolation_candidates`) and what the markers moving with this one make
-    of them (:func:`donor_interp_errors`); the rigid and PCA candidates (:func:`model_candidates`); their errors
-    on the hidden samples and the checks for motion the stretches cannot show (:func:`validate_candidates`).
-    """
-    hid = hide_stretches(valid, m, s, e, validate)
-    cands = interpolation_candidates(xyz[:, m], valid[:, m], s, e, hid, methods)
-    donors = _donor_errors(xyz, valid, m, s, e, cands, mates_window) if validate else {}
-    cands = model_candidates(xyz, valid, m, s, e, methods, cluster, hid, cands, pca_window)
-    return validate_candidates(xyz, valid, m, s, e, hid, cands, donors, validate)
-
-
 @dataclass
 class Hidden:
     """The measured samples of a gap's marker hidden beside it for validation (:func:`hide_stretches`)."""
@@ -376,8 +351,11 @@ def validate_candidates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
                         cands: Candidates, donors: dict[str, float], validate: bool
                         ) -> tuple[dict[str, np.ndarray], dict[str, float], Stretches | None]:
     """Each candidate's mean error on the hidden samples (methods compared on the frames all of them could
-    predict, else each on its own frames), then corrected for motion the stretches cannot show: see
-    :func:`predict_gap` for what is returned."""
+    predict, else each on its own frames), then corrected for motion the stretches cannot show.
+
+    Returns ``(predictions, errors, stretches)``: method -> (e - s, 3) fill; method -> mean Euclidean error (mm)
+    over the hidden samples (NaN when nothing could be hidden or the method predicted none of them); the hidden
+    samples and each method's prediction of them (:class:`Stretches`), None when nothing was hidden."""
     preds = cands.gap
     xyz_m = xyz[:, m]
     stretches = None
@@ -759,9 +737,8 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     is 2 √(2/π) σ √(5/3) ≈ 2.06 σ.
     """
     n_t, n_m = valid.shape
-    out = np.full(n_m, np.nan)
     if n_t < 4:
-        return out
+        return np.full(n_m, np.nan)
     # a few thousand differences per marker fix its MAD to a percent or so: evenly spaced frames, so a long take
     # costs no more than a short one
     step = max(1, (n_t - 3) // _NOISE_SAMPLES)
@@ -777,13 +754,16 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     dense = np.flatnonzero(enough & ok.all(axis=0))
     for lo in range(0, dense.size, _STATS_MARKERS):
         cols = dense[lo:lo + _STATS_MARKERS]
-        v = d3(cols)
-        mad[cols] = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+        mad[cols] = _mad(d3(cols))
     for m in np.flatnonzero(enough & ~ok.all(axis=0)):
-        v = d3(m)[ok[:, m]]
-        mad[m] = 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
+        mad[m] = _mad(d3(m)[ok[:, m]])
     sigma = np.sqrt(np.mean(np.square(mad), axis=1) / 20.0)
     return 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
+
+
+def _mad(v: np.ndarray) -> np.ndarray:
+    """Median absolute deviation over the first axis, scaled to a normal's standard deviation."""
+    return 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
 
 
 def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden,
