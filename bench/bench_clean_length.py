@@ -9,7 +9,10 @@ and what cleaning added to the process's memory (peak less the resident size onc
 sample; with ``--against REV`` the same for that commit, interleaved (see ``bench_fill_speed.py``).
 Linear time shows as a constant time per sample.
 
-Usage: ``PYTHONPATH=. python bench/bench_clean_length.py [--minutes 5,10,20] [--against REV]``
+The issue's figure, one hour at 120 Hz with 60 markers against two: ``--minutes 60,120 --rate-hz 120 --markers 60``.
+
+Usage: ``PYTHONPATH=. python bench/bench_clean_length.py [--minutes 5,10,20] [--rate-hz HZ] [--markers N]
+[--against REV]``
 """
 
 from __future__ import annotations
@@ -29,9 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "session01"
 
 
-def long_take(minutes: float):
-    """The sample take stretched to ``minutes``, with noise, spikes and gaps, and its markerset."""
+def long_take(minutes: float, rate_hz: float | None = None, n_markers: int | None = None):
+    """The sample take stretched to ``minutes``, with noise, spikes and gaps, and its markerset; at ``rate_hz``
+    (the sample's motion resampled by a cubic spline) and with ``n_markers`` markers (the extra ones midway
+    between two markers of one segment, so they move rigidly with it, and added to that segment)."""
     from dataclasses import replace
+
+    from scipy.interpolate import CubicSpline
 
     from gazepipe.io.capture import read_markers
     from gazepipe.io.session_toml import load_markerset
@@ -44,30 +51,52 @@ def long_take(minutes: float):
     for m in range(base.shape[1]):
         ok = np.isfinite(base[:, m, 0])
         base[:, m] = base[np.maximum.accumulate(np.where(ok, idx, 0)), m]
-    n_t = int(minutes * 60 * mk.rate_hz)
+        base[:np.argmax(ok), m] = base[np.argmax(ok), m]            # and before its first sample, the first
+    labels = list(mk.labels)
+    if n_markers and n_markers > len(labels):
+        extra, segments = [], []
+        pairs = [(s, a, b) for s in ms.segments for a, b in zip(s.markers, s.markers[1:], strict=False)]
+        for k in range(n_markers - len(labels)):
+            seg, a, b = pairs[k % len(pairs)]
+            name = f"{a}_{b}_{k}"
+            w = 0.25 + 0.5 * (k // len(pairs) % 3) / 2         # a quarter, half or three quarters of the way
+            extra.append((seg.name, name, (1 - w) * base[:, labels.index(a)] + w * base[:, labels.index(b)]))
+        for seg in ms.segments:
+            segments.append(replace(seg, markers=tuple(seg.markers) + tuple(n for s, n, _ in extra if s == seg.name)))
+        base = np.concatenate([base, np.stack([x for _, _, x in extra], axis=1)], axis=1)
+        labels += [n for _, n, _ in extra]
+        ms = replace(ms, segments=tuple(segments))
+    rate = float(rate_hz or mk.rate_hz)
+    if rate != mk.rate_hz:
+        spline = CubicSpline(np.arange(base.shape[0]) / mk.rate_hz, base, axis=0)
+        base = spline(np.arange(int((base.shape[0] - 1) / mk.rate_hz * rate) + 1) / rate)
+    n_t = int(minutes * 60 * rate)
     period = 2 * base.shape[0] - 2
-    phase = np.arange(n_t) % period
-    rows = np.where(phase < base.shape[0], phase, period - phase)
     rng = np.random.default_rng(0)
-    xyz = base[rows] + rng.normal(0.0, 0.5, (n_t, base.shape[1], 3))
-    valid = np.isfinite(xyz).all(axis=2)
     n_m = base.shape[1]
-    per_min = n_t / (60 * mk.rate_hz)
+    xyz = np.empty((n_t, n_m, 3))
+    for lo in range(0, n_t, 65536):                   # in blocks: the take is the only full-size array made
+        phase = np.arange(lo, min(n_t, lo + 65536)) % period
+        rows = np.where(phase < base.shape[0], phase, period - phase)
+        xyz[lo:lo + rows.size] = base[rows] + rng.normal(0.0, 0.5, (rows.size, n_m, 3))
+    valid = np.ones((n_t, n_m), dtype=bool)
+    per_min = n_t / (60 * rate)
+    longest = max(3, int(round(40 * rate / mk.rate_hz)))     # gaps of 2-40 frames at 30 Hz: up to 1.3 s
     for _ in range(int(3 * per_min * n_m)):
-        m, s = rng.integers(0, n_m), rng.integers(0, n_t - 40)
-        valid[s:s + rng.integers(2, 40), m] = False
+        m, s = rng.integers(0, n_m), rng.integers(0, n_t - longest)
+        valid[s:s + rng.integers(2, longest), m] = False
     for _ in range(int(per_min * n_m)):
         m, s = rng.integers(0, n_m), rng.integers(0, n_t - 2)
         xyz[s, m] += rng.normal(0.0, 25.0, 3)
     xyz[~valid] = np.nan
-    return replace(mk, xyz=xyz, valid=valid, warnings=[]), ms
+    return replace(mk, xyz=xyz, valid=valid, labels=labels, rate_hz=rate, warnings=[]), ms
 
 
-def child(minutes: float) -> None:
+def child(minutes: float, rate_hz: float | None, n_markers: int | None) -> None:
     from gazepipe.errors import StageError
     from gazepipe.stages.clean.stage import clean_markers
 
-    markers, ms = long_take(minutes)
+    markers, ms = long_take(minutes, rate_hz, n_markers)
     before = int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     c0 = time.process_time()
     try:
@@ -84,12 +113,15 @@ def child(minutes: float) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", default="5,10,20")
+    ap.add_argument("--rate-hz", type=float, help="resample the take to this rate (default: the sample's 30 Hz)")
+    ap.add_argument("--markers", type=int, help="add markers on the segments up to this many (default: 36)")
     ap.add_argument("--against", metavar="REV")
     ap.add_argument("--child", type=float, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
-        child(args.child)
+        child(args.child, args.rate_hz, args.markers)
         return 0
+    shape = [f"--rate-hz={args.rate_hz}"] * bool(args.rate_hz) + [f"--markers={args.markers}"] * bool(args.markers)
     sys.path.insert(0, str(ROOT / "bench"))
     from bench_fill_speed import checkout
 
@@ -98,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     for minutes in [float(x) for x in args.minutes.split(",")]:
         for side, tree in trees.items():
             env = dict(os.environ, PYTHONPATH=str(tree))
-            run = subprocess.run([sys.executable, __file__, "--child", str(minutes)], env=env, cwd=ROOT,
+            run = subprocess.run([sys.executable, __file__, "--child", str(minutes), *shape], env=env, cwd=ROOT,
                                  capture_output=True, text=True, check=True)
             r = json.loads(next(x for x in run.stdout.splitlines() if x.startswith("RESULT "))[7:])
             rows.append((minutes, side, r))

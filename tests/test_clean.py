@@ -167,6 +167,11 @@ def test_stabilise_root_missing_and_heading():
     assert np.all(left[ok, 0] > 0) and np.allclose(left[ok, 1], 0, atol=1e-9)   # left along +X
     np.testing.assert_allclose(left[ok, 2], (xyz[ok, 1] - xyz[ok, 2])[:, 2])      # vertical untouched
     np.testing.assert_allclose(np.linalg.norm(h[ok], axis=2), np.linalg.norm(out[ok], axis=2))
+    # in place: the same bits, written into the array given (the clean stage's own working copy)
+    for args in [(), (up, (1, 2))]:
+        work = xyz.copy()
+        assert stabilise(work, 0, *args, in_place=True) is work
+        assert np.array_equal(work, stabilise(xyz, 0, *args), equal_nan=True)
 
 
 def test_root_marker_absent_is_stage_error():

@@ -115,3 +115,33 @@ def test_take_statistics_are_each_markers_own_whatever_the_grouping() -> None:
         step = np.linalg.norm(xyz[1:, m] - xyz[:-1, m], axis=1)
         p99[m] = np.percentile(step[valid[1:, m] & valid[:-1, m]], 99)
     assert np.allclose(limits, np.fmax(2.5 * p99, 1.5 * p99.max()), rtol=1e-12)
+
+
+def test_filling_in_place_gives_the_same_bits_and_holds_the_take_once() -> None:
+    # the clean stage hands the filler its own working copy: the result must be the copy's, written into it
+    truth, measured, clusters = body(1200, seed=3)
+    xyz, valid = hide(measured, [(1, 300, 303), (5, 420, 435), (2, 500, 560)])
+    copied = fill_gaps(xyz, valid, RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0)
+    work = np.ascontiguousarray(xyz)
+    before = work.copy()
+    filled = fill_gaps(work, valid, RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0, in_place=True)
+    assert filled.xyz is work
+    assert np.array_equal(filled.xyz, copied.xyz, equal_nan=True)
+    assert np.array_equal(filled.error_mm, copied.error_mm, equal_nan=True)
+    assert not np.array_equal(work, before, equal_nan=True)             # the gaps were written into it
+    untouched = fill_gaps(before, valid, RATE, clusters=clusters, max_gap_s=3.0, max_error_mm=5.0)
+    assert np.array_equal(untouched.xyz, copied.xyz, equal_nan=True) and np.isnan(before[300:303, 1]).all()
+
+
+def test_error_limits_by_marker_say_what_the_full_array_says() -> None:
+    from gazepipe.stages.clean.gapfill import ErrorLimits, gap_limit
+
+    rng = np.random.default_rng(2)
+    column = rng.uniform(5.0, 80.0, 50)
+    column[[9, 30, 31]] = np.nan
+    full = np.full((50, 4), 5.0)
+    full[:, 2] = column
+    limits = ErrorLimits(5.0, {2: column})
+    for m in range(4):
+        for s, e in [(0, 3), (10, 12), (29, 33), (31, 32), (45, 50), (20, 21)]:
+            assert gap_limit(limits, m, s, e) == gap_limit(full, m, s, e)

@@ -149,9 +149,11 @@ def test_spike_search_in_blocks_of_frames_is_the_same_bits(spiky_session, monkey
         monkeypatch.setattr(spikes, "_BLOCK_FRAMES", 10**9)
         whole = find_spikes(mk.xyz, mk.valid, mk.rate_hz, clusters)
         excess = spikes.path_excess_mm(mk.xyz, valid, 8.0, 2.0)
+        deviation = spikes.cluster_deviation(mk.xyz, valid, clusters)
         monkeypatch.setattr(spikes, "_BLOCK_FRAMES", block)
         assert mk.n_frames > block                          # at least two blocks
         assert np.array_equal(find_spikes(mk.xyz, mk.valid, mk.rate_hz, clusters), whole)
         # the test's own measure, not only its verdict: every sample's margin to the threshold, to the bit
         assert np.array_equal(spikes.path_excess_mm(mk.xyz, valid, 8.0, 2.0), excess, equal_nan=True)
+        assert np.array_equal(spikes.cluster_deviation(mk.xyz, valid, clusters), deviation, equal_nan=True)
         assert whole.any()                                   # the takes do have spikes to find

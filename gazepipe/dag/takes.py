@@ -195,6 +195,8 @@ def run_clean(ctx: UnitContext) -> UnitResult:
     raw, _, _ = _load_markers(ctx, "markers_raw")
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
                         path=ctx.take.mocap, take=ctx.take.id)
+    # the raw positions are not needed any more: a long take's are let go before the tables are built
+    raw = dataclasses.replace(raw, xyz=raw.xyz[:0].copy(), valid=raw.valid[:0].copy())
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)
     meta = {"crop": list(res.crop), "rests": [list(r) for r in res.rests], "stabilised": True}
     tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, spike=res.spike,
@@ -205,8 +207,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
         neutral = dataclasses.replace(res.neutral, first_frame=raw.first_frame)
         tables["neutral"] = (markers_to_table(neutral, frames=np.arange(a, b), meta={"rest": [a, b]}), MARKERS_RAW)
     else:
-        empty = dataclasses.replace(raw, xyz=raw.xyz[:0], valid=raw.valid[:0])
-        tables["neutral"] = (markers_to_table(empty, meta={"rest": None}), MARKERS_RAW)
+        tables["neutral"] = (markers_to_table(raw, meta={"rest": None}), MARKERS_RAW)
     qc = dict(res.qc)
     return UnitResult(tables=tables, qc=qc, warnings=list(qc.get("warnings", [])))
 

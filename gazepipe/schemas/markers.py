@@ -59,9 +59,11 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     """
     T, M = markers.valid.shape
     frames = np.arange(T, dtype=np.int32) if frames is None else np.asarray(frames, dtype=np.int32)
-    pos = np.ascontiguousarray(markers.xyz.transpose(1, 0, 2), dtype=np.float32).reshape(M * T, 3)
     valid = markers.valid.T.reshape(-1)
-    pos_masked = [pa.array(pos[:, k], mask=~valid) for k in range(3)]
+    invalid = ~valid
+    # one coordinate at a time, marker-major: a long take's positions are not copied whole once more
+    pos_masked = [pa.array(np.ascontiguousarray(markers.xyz[:, :, k].T, dtype=np.float32).reshape(-1),
+                           mask=invalid) for k in range(3)]
     marker_idx = np.repeat(np.arange(M, dtype=np.int32), T)
     cols: dict[str, pa.Array] = {
         "marker": pa.DictionaryArray.from_arrays(pa.array(marker_idx), pa.array(markers.labels, pa.string())),
@@ -139,10 +141,11 @@ def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray |
     n = table.num_rows
     T = n // M if M else 0
     frames = table.column("frame").to_numpy()[:T].astype(np.int64)
-    xyz = np.stack([table.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], axis=-1)
-    xyz = xyz.astype(np.float64).reshape(M, T, 3).transpose(1, 0, 2)
+    xyz = np.empty((T, M, 3))
+    for k, axis in enumerate("xyz"):        # one coordinate at a time: the take is not held twice as floats
+        xyz[:, :, k] = table.column(axis).to_numpy(zero_copy_only=False).reshape(M, T).T
     valid = table.column("valid").to_numpy(zero_copy_only=False).reshape(M, T).T
-    xyz = np.where(valid[..., None], xyz, np.nan)
+    xyz[~valid] = np.nan
     fill = None
     if "fill" in table.column_names:
         fill = table.column("fill").combine_chunks().indices.to_numpy(zero_copy_only=False)

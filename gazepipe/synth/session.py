@@ -124,7 +124,8 @@ def klein_config(scale: float = 1.0, take_s: float = 60.0, seed_session: str = "
 
 def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:
     """C3D with float storage, POINT:UNITS mm, first frame 1; NaN samples are written as gaps
-    (residual −1, coordinates 0)."""
+    (residual −1, coordinates 0). Takes of more than 65,535 frames (the header's 16-bit word) also say their
+    frame range in TRIAL:ACTUAL_START_FIELD / ACTUAL_END_FIELD (low and high 16-bit words), as Vicon does."""
     import ezc3d
 
     c = ezc3d.c3d()
@@ -134,6 +135,10 @@ def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) ->
     pts = np.ones((4, len(labels), xyz.shape[0]))
     pts[:3] = np.transpose(xyz, (2, 1, 0))
     c["data"]["points"] = pts
+    n_frames = xyz.shape[0]
+    if n_frames > 65535:
+        c.add_parameter("TRIAL", "ACTUAL_START_FIELD", [1, 0])
+        c.add_parameter("TRIAL", "ACTUAL_END_FIELD", [n_frames % 65536, n_frames // 65536])
     c.write(str(path))
 
 

@@ -190,20 +190,33 @@ class FillResult:
     fill_code : (T, M) int8, :data:`gazepipe.model.FILL_CODES`.
     qc : one :class:`MarkerQC` per marker.
     gaps : one :class:`GapRecord` per gap, in marker then time order.
-    error_mm : (T, M) float64, each filled sample's estimated error (its gap's ``error_mm``); NaN where measured,
-        unfilled, or filled without an estimate.
     """
 
     xyz: np.ndarray
     fill_code: np.ndarray
     qc: list[MarkerQC]
     gaps: list[GapRecord]
-    error_mm: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
         """(T, M) bool: measured or filled."""
         return self.fill_code != FILL_CODES["unfilled"]
+
+    @property
+    def error_mm(self) -> np.ndarray:
+        """(T, M) float64, each filled sample's estimated error (:func:`error_map`)."""
+        return error_map(self.gaps, self.fill_code.shape)
+
+
+def error_map(gaps: list[GapRecord], shape: tuple[int, ...]) -> np.ndarray:
+    """(T, M) float64 mm: each filled sample's estimated error, its gap's ``error_mm``; NaN where measured,
+    unfilled, or filled without an estimate. Made from the records when asked for, so the filler does not hold
+    a second take-sized array while it works."""
+    error = np.full(shape, np.nan)
+    for gap in gaps:
+        if gap.method != "unfilled":
+            error[gap.start:gap.stop, gap.marker] = gap.error_mm
+    return error
 
 
 def find_gaps(valid_m: np.ndarray) -> list[tuple[int, int]]:
@@ -569,8 +582,8 @@ def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -
 def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: list[list[int]] | None = None,
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
-              max_error_mm: float | np.ndarray | None = None, framewise: bool = True,
-              stats: TakeStatistics | None = None) -> FillResult:
+              max_error_mm: float | np.ndarray | ErrorLimits | None = None, framewise: bool = True,
+              stats: TakeStatistics | None = None, in_place: bool = False) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -586,7 +599,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
     max_error_mm : gaps whose fill's estimated error (:func:`fill_error`) is above this stay unfilled (None: no
         limit; a fill without an estimate, when nothing beside the gap could be hidden, is kept). A (T, M) array
-        gives a limit per sample; a gap's limit is the smaller of those of the measured frames on either side.
+        or an :class:`ErrorLimits` gives a limit per sample; a gap's limit is the smaller of those of the
+        measured frames on either side.
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
     validation : when False, skip hiding samples and take the first applicable method in ``methods`` order.
@@ -599,10 +613,13 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         blend (``GapRecord.reason`` says so; ``weights`` are then its priors).
     stats : the take's statistics (:func:`take_statistics`) when ``xyz`` is part of a longer take; default:
         those of ``xyz``. Given them, a gap's fill depends only on the frames within ``_GapSettings.reach`` of it.
+    in_place : fill ``xyz`` itself, a C-contiguous float64 array the caller owns (its samples not ``valid`` are
+        set to NaN first), instead of a copy: a long take's positions are then held once, not twice.
 
     Returns
     -------
-    FillResult; measured samples are copied bit for bit, only gap samples are written.
+    FillResult; measured samples are copied bit for bit, only gap samples are written (with ``in_place``, its
+    ``xyz`` is the array given).
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     valid = np.asarray(valid, dtype=bool)
@@ -615,10 +632,13 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     # measured samples must be finite to be used; non-finite ones are treated as gaps. C order: every gap's
     # neighbourhood below is then a contiguous block of rows
     valid = valid & np.isfinite(xyz).all(axis=2)
-    src = np.ascontiguousarray(np.where(valid[..., None], xyz, np.nan))
+    if in_place and xyz.flags.c_contiguous and xyz.flags.writeable:
+        src = xyz
+        src[~valid] = np.nan
+    else:
+        src = np.ascontiguousarray(np.where(valid[..., None], xyz, np.nan))
     fills: list[tuple[int, int, int, np.ndarray]] = []    # written into src once every gap is decided
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
-    est = np.full((n_t, n_m), np.nan)
     cfg = _GapSettings.for_take(rate_hz, n_t, tuple(methods), max_gap_s=max_gap_s, validation=validation,
                                 pca_window_s=pca_window_s, blend=blend, steady_mates=steady_mates,
                                 framewise=framewise)
@@ -652,15 +672,14 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 if fill is not None:
                     fills.append((m, s, e, fill))
                     code[s:e, m] = FILL_CODES[record.method]
-                    est[s:e, m] = record.error_mm
                     filled[record.method] += e - s
             unfilled = int((code[:, m] == FILL_CODES["unfilled"]).sum())
             longest = max((e - s for s, e in gaps), default=0)
             qc.append(MarkerQC(len(gaps), filled, unfilled, longest, longest / rate_hz))
-    # no gap's fill may serve another gap as data: they go in only now (and src is this function's own copy)
+    # no gap's fill may serve another gap as data: they go in only now
     for m, s, e, fill in fills:
         src[s:e, m] = fill
-    return FillResult(src, code, qc, records, est)
+    return FillResult(src, code, qc, records)
 
 
 @dataclass(frozen=True)
@@ -944,13 +963,29 @@ def _twist_error(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, clu
     return float(norm3(other - rigid).mean())
 
 
-def gap_limit(max_error_mm: float | np.ndarray, m: int, s: int, e: int) -> float:
-    """The error limit (mm) of the gap [s, e) of marker ``m``: a scalar as is; from a (T, M) array, the smaller
-    finite limit of the frames just before and just after the gap (+inf when neither has one)."""
-    if np.ndim(max_error_mm) == 0:
+@dataclass(frozen=True)
+class ErrorLimits:
+    """Fill error limits (mm) that vary along a few markers only: ``default_mm`` for every marker but those in
+    ``by_marker``, which maps a marker's column to its (T,) limit per frame (NaN: none there). What a (T, M)
+    array would say, in the memory of the few columns that differ."""
+
+    default_mm: float
+    by_marker: dict[int, np.ndarray]
+
+
+def gap_limit(max_error_mm: float | np.ndarray | ErrorLimits, m: int, s: int, e: int) -> float:
+    """The error limit (mm) of the gap [s, e) of marker ``m``: a scalar as is; from a (T, M) array or an
+    :class:`ErrorLimits`, the smaller finite limit of the frames just before and just after the gap (+inf when
+    neither has one)."""
+    if isinstance(max_error_mm, ErrorLimits):
+        if m not in max_error_mm.by_marker:
+            return float(max_error_mm.default_mm)
+        column = max_error_mm.by_marker[m]
+    elif np.ndim(max_error_mm) == 0:
         return float(max_error_mm)
-    lim = np.asarray(max_error_mm)
-    edges = [lim[i, m] for i in (s - 1, e) if 0 <= i < lim.shape[0] and np.isfinite(lim[i, m])]
+    else:
+        column = np.asarray(max_error_mm)[:, m]
+    edges = [column[i] for i in (s - 1, e) if 0 <= i < column.shape[0] and np.isfinite(column[i])]
     return float(min(edges)) if edges else float("inf")
 
 

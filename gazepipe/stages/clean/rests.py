@@ -14,7 +14,7 @@ from gazepipe.stages.clean.filters import gaussian_runs, true_runs
 
 #: markers whose speeds are computed at once by :func:`mean_speed`: the smoothed positions and velocities of
 #: that many markers are held, not those of the whole take (about 100 bytes per marker sample otherwise)
-_SPEED_MARKERS = 8
+_SPEED_MARKERS = 4
 
 
 def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
@@ -37,8 +37,8 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
 
 def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
     """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none."""
-    pos = xyz if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
-    pos = np.where(valid[..., None], pos, np.nan)
+    pos = xyz.copy() if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
+    pos[~valid] = np.nan
     vel = np.full_like(pos, np.nan)
     if len(pos) >= 3:
         vel[1:-1] = (pos[2:] - pos[:-2]) * (rate_hz / 2.0)

@@ -8,7 +8,7 @@ short pieces. Positions are (T, M, 3) float64 mm in the lab frame; ``valid`` is 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -29,6 +29,8 @@ _CLUSTER_K = 6.0
 #: residual median's half-width), so the result is the same bits whatever the block size
 _BLOCK_FRAMES = 8192
 _BLOCK_MARGIN = _STEP_HALF + 1 + _MEDIAN_HALF + 1
+#: trajectories (a marker's or a pair's, the whole take) sorted at a time for their medians
+_MEDIAN_LINES = 8
 
 
 def _median5(w: np.ndarray) -> np.ndarray:
@@ -77,20 +79,27 @@ def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Seq
     the smallest deviation over the mates measured in that frame (a mate's own glitch moves one distance, the
     marker's glitch moves all of them). (T, M); NaN for markers in no cluster of three or more and where fewer
     than two mates are measured (one mate's glitch would look like the marker's own)."""
+    n_t = valid.shape[0]
     dev = np.full(valid.shape, np.nan)
     for cluster in clusters:
         idx = np.asarray(cluster, dtype=np.int64)
         if idx.size < 3:
             continue
         iu, ju = np.triu_indices(idx.size, 1)
-        pairs = norm3(xyz[:, idx[iu]] - xyz[:, idx[ju]])                            # (T, pairs)
+        pairs = np.empty((n_t, iu.size))                                          # (T, pairs) mm
+        for lo in range(0, n_t, _BLOCK_FRAMES):           # in blocks: the pair differences stay small
+            rows = slice(lo, lo + _BLOCK_FRAMES)
+            pairs[rows] = norm3(xyz[rows, idx[iu]] - xyz[rows, idx[ju]])
         pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan                    # NaN: unmeasured
-        e_pairs = np.abs(pairs - _nanmedian(pairs, axis=0)[None])
-        e = np.full((len(xyz), idx.size, idx.size), np.nan)                        # NaN: not its own mate
-        e[:, iu, ju] = e_pairs
-        e[:, ju, iu] = e_pairs
-        best = np.fmin.reduce(e, axis=2)                                           # NaN only where all are
-        dev[:, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, best, np.nan)
+        typical = _nanmedian(pairs, axis=0)[None]
+        for lo in range(0, n_t, _BLOCK_FRAMES):
+            rows = slice(lo, lo + _BLOCK_FRAMES)
+            e_pairs = np.abs(pairs[rows] - typical)
+            e = np.full((e_pairs.shape[0], idx.size, idx.size), np.nan)              # NaN: not its own mate
+            e[:, iu, ju] = e_pairs
+            e[:, ju, iu] = e_pairs
+            best = np.fmin.reduce(e, axis=2)                                       # NaN only where all are
+            dev[rows, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, best, np.nan)
     return dev
 
 
@@ -118,8 +127,7 @@ def find_glitches(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequenc
     n_t = valid.shape[0]
     if n_t < 3:
         return np.zeros(valid.shape, dtype=bool)
-    with np.errstate(invalid="ignore"):
-        glitch = path_excess_mm(xyz, valid, residual_mm, step_factor) > 0.0
+    glitch = path_glitches(xyz, valid, residual_mm, step_factor)
     dev = cluster_deviation(xyz, valid, clusters)
     floor = np.maximum(cluster_mm, _CLUSTER_K * np.nan_to_num(_nanmedian(dev, axis=0), nan=np.inf))
     with np.errstate(invalid="ignore"):
@@ -132,12 +140,27 @@ def path_excess_mm(xyz: np.ndarray, valid: np.ndarray, residual_mm: float, step_
     median than ``max(residual_mm, step_factor`` × the marker's typical step there``)`` (a glitch above 0; NaN
     where not judged). Computed in blocks of ``_BLOCK_FRAMES`` frames, each with ``_BLOCK_MARGIN`` more on either
     side, so its memory is bounded by a block and its values do not depend on the block size."""
+    return _by_blocks(lambda x, v: _path_excess_block(x, v, residual_mm, step_factor), xyz, valid, np.float64)
+
+
+def path_glitches(xyz: np.ndarray, valid: np.ndarray, residual_mm: float, step_factor: float) -> np.ndarray:
+    """(T, M) bool: where :func:`path_excess_mm` is above 0, without holding its take-sized float array."""
+    def block(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            return _path_excess_block(x, v, residual_mm, step_factor) > 0.0
+    return _by_blocks(block, xyz, valid, np.bool_)
+
+
+def _by_blocks(block: Callable[[np.ndarray, np.ndarray], np.ndarray], xyz: np.ndarray, valid: np.ndarray,
+               dtype: type) -> np.ndarray:
+    """A per-frame test ``block(xyz_rows, valid_rows) -> (n, M)`` over the take in blocks of ``_BLOCK_FRAMES``
+    frames, each given ``_BLOCK_MARGIN`` frames more on either side."""
     n_t = valid.shape[0]
-    out = np.empty(valid.shape)
+    out = np.empty(valid.shape, dtype=dtype)
     for lo in range(0, n_t, _BLOCK_FRAMES):
         hi = min(n_t, lo + _BLOCK_FRAMES)
         a, b = max(0, lo - _BLOCK_MARGIN), min(n_t, hi + _BLOCK_MARGIN)
-        out[lo:hi] = _path_excess_block(xyz[a:b], valid[a:b], residual_mm, step_factor)[lo - a:hi - a]
+        out[lo:hi] = block(xyz[a:b], valid[a:b])[lo - a:hi - a]
     return out
 
 
@@ -171,10 +194,14 @@ def find_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, clusters: Se
 
 
 def _nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
-    """The median along ``axis`` with NaNs left out (NaN for an all-NaN slice: a marker or pair never measured):
-    ``np.nanmedian``'s value by one sort (NaN sorts last), without its masked-array path, ten times slower on
-    the small arrays of a take."""
-    return _sorted_median(np.moveaxis(a, axis, -1), 1)[0]
+    """The median along ``axis`` of a 2-D array with NaNs left out (NaN for an all-NaN slice: a marker or pair
+    never measured): ``np.nanmedian``'s value by one sort (NaN sorts last), without its masked-array path, ten
+    times slower on the small arrays of a take. A few slices at a time: the sorted copy is of those only."""
+    lines = np.moveaxis(a, axis, -1)
+    out = np.empty(lines.shape[0])
+    for lo in range(0, lines.shape[0], _MEDIAN_LINES):
+        out[lo:lo + _MEDIAN_LINES] = _sorted_median(lines[lo:lo + _MEDIAN_LINES], 1)[0]
+    return out
 
 
 def remove_spikes(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *,

@@ -8,16 +8,22 @@ import numpy as np
 
 from gazepipe.stages.geometry import cross3
 
+#: frames rotated at a time by the heading removal: its temporaries (rotation matrices, rotated points) stay
+#: within a block, not the take
+_BLOCK_FRAMES = 8192
+
 
 def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
-              left_pair: tuple[int, int] | None = None) -> np.ndarray:
+              left_pair: tuple[int, int] | None = None, *, in_place: bool = False) -> np.ndarray:
     """Translate every frame so marker ``root`` is at the origin; frames where it is NaN become all NaN.
 
     With ``up`` and ``left_pair`` (the root segment's first and second marker), also rotate each frame about
     ``up`` so the horizontal part of (first − second) points along lab +X (frames where that is undefined
-    become NaN).
+    become NaN). With ``in_place`` (``xyz`` a float64 array the caller owns) the result is written into ``xyz``
+    and returned; otherwise ``xyz`` is left as it was.
     """
-    out = xyz - xyz[:, root : root + 1, :]
+    out = xyz if in_place else xyz.copy()
+    out -= out[:, root : root + 1, :].copy()
     if up is None or left_pair is None:
         return out
     from scipy.spatial.transform import Rotation
@@ -29,9 +35,10 @@ def stabilise(xyz: np.ndarray, root: int, up: np.ndarray | None = None,
     ey = cross3(up, ex)
     ang = np.arctan2(left @ ey, left @ ex)           # heading of "left" about up, from ex
     ok = np.isfinite(ang) & (np.linalg.norm(left, axis=1) > 1e-9)
-    res = np.full_like(out, np.nan)
-    if ok.any():
-        rot = Rotation.from_rotvec(-ang[ok, None] * up[None, :])
-        pts = out[ok]
-        res[ok] = pts @ np.swapaxes(rot.as_matrix(), 1, 2)  # R · p for every point, as row vectors
-    return res
+    out[~ok] = np.nan
+    for lo in range(0, len(out), _BLOCK_FRAMES):
+        rows = lo + np.flatnonzero(ok[lo:lo + _BLOCK_FRAMES])
+        if rows.size:
+            rot = Rotation.from_rotvec(-ang[rows, None] * up[None, :])
+            out[rows] = out[rows] @ np.swapaxes(rot.as_matrix(), 1, 2)  # R · p for every point, as row vectors
+    return out

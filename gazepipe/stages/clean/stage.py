@@ -17,7 +17,7 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
-from gazepipe.stages.clean.gapfill import METHODS, fill_gaps
+from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error_map, fill_gaps
 from gazepipe.stages.clean.rests import crop_bounds, mean_speed, refine_rests, rest_periods
 from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
@@ -157,10 +157,10 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
 
 
 def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
-          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, valid after spike removal, spike mask, estimated
-    fill error in mm)."""
+          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
+    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's gap records)."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
+    # the stage's one working copy of the positions: every step below writes into it
     xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
@@ -170,19 +170,19 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                             step_factor=params.spike_step_factor, cluster_mm=params.spike_cluster_mm,
                             max_accel_mm_s2=params.spike_max_accel_mm_s2, min_step_mm=params.spike_min_step_mm,
                             max_piece_s=params.spike_max_piece_s)
-        valid = valid & ~spike
-        xyz = np.where(valid[..., None], xyz, np.nan)
+        valid &= ~spike
+        xyz[spike] = np.nan
     spikes = spike.sum(axis=0)
     qc["spikes_removed"] = int(spikes.sum())
     qc["gaps"] = []
-    error = np.full(valid.shape, np.nan)
+    records: list[GapRecord] = []
     if valid.all():  # nothing to fill
         code = np.zeros(valid.shape, dtype=np.int8)
     else:
         res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
                         max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods),
-                        max_error_mm=_error_limits(xyz, markers.labels, markerset, params))
-        error = res.error_mm
+                        max_error_mm=_error_limits(xyz, markers.labels, markerset, params), in_place=True)
+        records = res.gaps
         code = np.asarray(res.fill_code, dtype=np.int8)
         xyz = res.xyz                     # NaN wherever unfilled (fill_gaps writes only the samples it fills)
         qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
@@ -192,14 +192,14 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                        "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
-    return xyz, code, valid, spike, error
+    return xyz, code, spike, records
 
 
 def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
-                  params: CleanParams) -> float | np.ndarray:
-    """The fill error limit (mm): ``max_fill_error_mm``, or a (T, M) array when the target marker is captured,
-    whose target column allows the error that ``max_target_fill_error_deg`` subtends at the head-to-target
-    distance of each frame."""
+                  params: CleanParams) -> float | ErrorLimits:
+    """The fill error limit (mm): ``max_fill_error_mm``, or when the target marker is captured an
+    :class:`~gazepipe.stages.clean.gapfill.ErrorLimits` whose target column allows the error that
+    ``max_target_fill_error_deg`` subtends at the head-to-target distance of each frame."""
     if markerset.target not in labels or not params.max_target_fill_error_deg:
         return params.max_fill_error_mm
     head = [markerset.head_centre] if markerset.head_centre in labels else list(markerset.segments[-1].markers)
@@ -211,10 +211,9 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
         centre = np.nanmean(xyz[:, cols], axis=1)
     t = labels.index(markerset.target)
     dist = np.linalg.norm(xyz[:, t] - centre, axis=1)
-    limits = np.full(xyz.shape[:2], params.max_fill_error_mm)
     angular = dist * np.tan(np.radians(params.max_target_fill_error_deg))
-    limits[:, t] = np.fmax(params.max_fill_error_mm, angular)   # fmax: NaN distance gives the mm limit
-    return limits
+    # fmax: NaN distance gives the mm limit
+    return ErrorLimits(params.max_fill_error_mm, {t: np.fmax(params.max_fill_error_mm, angular)})
 
 
 #: peak memory of the clean stage per marker sample, bytes: the raw table as read and as markers, the tables
@@ -257,7 +256,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, _, spike, fill_error = _fill(markers, markerset, params, qc)
+    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     speed = mean_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, min_share=REST_MIN_PRESENT,
@@ -272,7 +271,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
                              take=take)
         up = up_vector(markerset.up_axis)
         left_pair = (labels.index(rs.markers[0]), labels.index(rs.markers[1]))
-    xyz = stabilise(xyz, root, up, left_pair)
+    xyz = stabilise(xyz, root, up, left_pair, in_place=True)
     lost = ~np.isfinite(xyz).all(axis=2) & (code != UNFILLED)
     code = np.where(lost, UNFILLED, code).astype(np.int8)
     valid = code != UNFILLED
@@ -304,15 +303,18 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     qc["crop"] = [int(start), int(stop)]
     qc["kept_frames"] = int(stop - start)
 
-    def _slice(a: int, b: int) -> Markers:
-        return replace(markers, xyz=xyz[a:b].copy(), valid=valid[a:b].copy(),
+    def _slice(a: int, b: int, copy: bool = True) -> Markers:
+        rows = slice(a, b)
+        return replace(markers, xyz=xyz[rows].copy() if copy else xyz[rows], valid=valid[rows].copy(),
                        first_frame=int(markers.first_frame) + a, warnings=list(markers.warnings))
 
     neutral = _slice(*rests[0]) if rests else None
     if kind == "neutral" and neutral is None and markers.n_frames:
         neutral = _slice(0, markers.n_frames)
         qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
-    return CleanResult(markers=_slice(start, stop), frames=np.arange(start, stop, dtype=np.int64),
-                       fill_code=code[start:stop].copy(), spike=spike[start:stop].copy(),
-                       fill_error_mm=np.where(code[start:stop] == UNFILLED, np.nan, fill_error[start:stop]), crop=(int(start), int(stop)), rests=rests,
-                       speed_mm_s=speed, neutral=neutral, qc=qc)
+    fill_error = error_map(gap_records, code.shape)     # made last: no other take-sized temporary is alive
+    fill_error[code == UNFILLED] = np.nan
+    # the kept rows are views of the stage's own arrays: a long take's positions are not copied once more
+    return CleanResult(markers=_slice(start, stop, copy=False), frames=np.arange(start, stop, dtype=np.int64),
+                       fill_code=code[start:stop], spike=spike[start:stop], fill_error_mm=fill_error[start:stop],
+                       crop=(int(start), int(stop)), rests=rests, speed_mm_s=speed, neutral=neutral, qc=qc)
