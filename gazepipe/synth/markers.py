@@ -11,6 +11,7 @@ from gazepipe.synth.motion import EYE_LIMIT_DEG, FORWARD, HEAD, TakeMotion
 from gazepipe.synth.skeleton import (
     CLAPPER_MARKERS,
     HALF_IPD_MM,
+    HEAD_CENTRE_MARKER,
     JOINTS_MM,
     ROOT_MARKER,
     SEGMENT_MARKERS,
@@ -267,3 +268,63 @@ def gap_runs(mask: np.ndarray) -> np.ndarray:
         stops = np.flatnonzero(d[:, m] == -1)
         rows.extend((m, a, b) for a, b in zip(starts, stops, strict=True))
     return np.array(rows, dtype=np.int64).reshape(-1, 3)
+
+
+#: how long an auto-labeller keeps two markers' names exchanged, seconds
+SWAP_S = (0.3, 3.0)
+
+
+def swap_pairs(labels: list[str]) -> dict[str, list[tuple[int, int]]]:
+    """The marker pairs an auto-labeller exchanges, by kind, as column pairs of ``labels``: ``cluster`` (two
+    markers of one segment), ``neighbour`` (the root marker and the nearest pelvis marker, the head centre and
+    the nearest head marker: close markers of neighbouring rigid bodies), ``left_right`` (the chest's, else the
+    pelvis's, left and right markers, as when the arms cross before the body)."""
+    idx = {lab: i for i, lab in enumerate(labels)}
+    cluster = [(idx[a], idx[b]) for seg in SEGMENT_MARKERS.values() for a in seg for b in seg
+               if a in idx and b in idx and idx[a] < idx[b]]
+    neighbour = [(idx[a], idx[b]) for a, b in ((ROOT_MARKER, "PEL_B"), (HEAD_CENTRE_MARKER, "HFL"))
+                 if a in idx and b in idx]
+    left_right = [(idx[a], idx[b]) for a, b in (("CHA", "CHB"), ("PEL_L", "PEL_R")) if a in idx and b in idx][:1]
+    return {k: v for k, v in {"cluster": cluster, "neighbour": neighbour, "left_right": left_right}.items() if v}
+
+
+def make_label_swaps(rng: np.random.Generator, labels: list[str], gap_mask: np.ndarray, rate_hz: float,
+                     count: int) -> list[tuple[int, int, int, int]]:
+    """``count`` label swaps: a kind of :func:`swap_pairs` at random, then a pair of it, exchanged for 0.3–3 s.
+    Half of them begin where one of the two markers comes back from a gap, or end where one goes into one
+    (the labeller guesses again after an occlusion). Returns ``(first, second, start, stop)`` columns and
+    half-open frames; no marker is in two swaps at once."""
+    n = gap_mask.shape[0]
+    kinds = swap_pairs(labels)
+    out: list[tuple[int, int, int, int]] = []
+    if not kinds or n < 4:
+        return out
+    names = sorted(kinds)
+    for _ in range(count):
+        pairs = kinds[names[int(rng.integers(0, len(names)))]]
+        a, b = pairs[int(rng.integers(0, len(pairs)))]
+        length = max(2, min(n - 2, int(rng.uniform(*SWAP_S) * rate_hz)))
+        start = int(rng.integers(1, n - length))
+        if rng.random() < 0.5:          # at a gap's edge
+            col = (a, b)[int(rng.integers(0, 2))]
+            edges = np.flatnonzero(np.diff(gap_mask[:, col].astype(np.int8)))   # last row before a change
+            if edges.size:
+                edge = int(edges[int(rng.integers(0, edges.size))]) + 1
+                start = edge if gap_mask[edge, col] == 0 else edge - length   # after a gap, or into one
+                start = int(np.clip(start, 1, n - length - 1))
+        if any({a, b} & {p, q} and start < e and s < start + length for p, q, s, e in out):
+            continue                    # one marker in two swaps at once: not what a labeller does
+        out.append((a, b, start, start + length))
+    return out
+
+
+def apply_label_swaps(xyz: np.ndarray, mask: np.ndarray, swaps: list[tuple[int, int, int, int]]) -> np.ndarray:
+    """Exchange the names of each swap's two markers over its frames, in place: positions (T, M, 3) and the gap
+    mask (T, M; an occluded marker stays occluded under either name). Returns the (T, M) bool mask of samples
+    written under the wrong name (measured ones only)."""
+    swapped = np.zeros(mask.shape, dtype=bool)
+    for a, b, s, e in swaps:
+        xyz[s:e, [a, b]] = xyz[s:e, [b, a]]
+        mask[s:e, [a, b]] = mask[s:e, [b, a]]
+        swapped[s:e, [a, b]] = True
+    return swapped & ~mask

@@ -37,6 +37,8 @@ header first frame 1. Frame `i` of a take is at `time_s = i * 1001 / 30000` s.
 | markers_true | (T, M, 3) f4 | noise-free marker positions, lab mm (also inside gaps) |
 | gap_mask | (T, M) bool | True where the C3D sample is a gap |
 | spike_mask | (T, M) bool | True where a ghost-reflection spike (15–50 mm, 1–2 frames) displaces the C3D sample |
+| swap_mask | (T, M) bool | (``label_swaps`` only) True where the C3D sample is another marker's, written under this name by a label swap; ``markers_true`` column m is always marker m's own path |
+| swaps | (n, 4) int64 | (``label_swaps`` only) each swap's two marker columns and its frames, start and stop (half-open) |
 | gaps | (K, 3) i8 | every gap as (marker column, start frame, stop frame) |
 | seg_quat_char | (T, S, 4) f4 | segment rotation in the per-frame character frame (calibrated to neutral) |
 | seg_quat_local | (T, S, 4) f4 | parent-relative rotation (the root's is its seg_quat_char) |

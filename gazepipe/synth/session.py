@@ -12,9 +12,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.synth.markers import (
+    apply_label_swaps,
     build_kinematics,
     gap_runs,
     make_gaps,
+    make_label_swaps,
     make_long_gaps,
     make_root_rest_gap,
     make_spikes,
@@ -67,7 +69,10 @@ class SynthConfig:
     ``blink_every_s``, ``eye_dip_every_s``: the range of seconds between blinks and between OpenFace confidence
     dips (each blink longer than the eyes stage bridges ends a run of usable gaze_follow frames);
     ``more_follow`` (pose, seconds) and ``more_face_takes`` (rate Hz, seconds): takes generated after all the
-    others, so the others stay as they were.
+    others, so the others stay as they were; ``label_swaps``: stretches of 0.3–3 s per mocap take in which two
+    markers carry each other's names (:func:`~gazepipe.synth.markers.make_label_swaps`: two markers of a segment,
+    close markers of neighbouring segments, left and right; half of them at a gap's edge; the truth marks the
+    samples written under the wrong name in ``swap_mask`` and lists the stretches in ``swaps``).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -94,6 +99,7 @@ class SynthConfig:
     eye_dip_every_s: tuple[float, float] = (1.5, 5.0)
     more_follow: tuple[tuple[str, float], ...] = ()
     more_face_takes: tuple[tuple[float, float], ...] = ()
+    label_swaps: int = 0
 
 
 def sample_config() -> SynthConfig:
@@ -268,8 +274,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     meta_takes: dict[str, Any] = {}
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(7))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(8))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -314,6 +320,10 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
                                       motion.clapper_busy)
         noisy += offsets
+        swaps = make_label_swaps(r_swaps, kin.labels, mask, rate, cfg.label_swaps) if cfg.label_swaps else []
+        swapped = apply_label_swaps(noisy, mask, swaps)
+        for a, b, s, e in swaps:                 # a ghost on a swapped marker shows under the other name
+            spiked[s:e, [a, b]] = spiked[s:e, [b, a]]
         noisy[mask] = np.nan
         mocap_rel = f"mocap/{take_id}.c3d"
         if cfg.up_axis != "z":
@@ -324,6 +334,10 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             _relabel_lab(arrays, _lab_axes(cfg.up_axis))
         arrays["spike_mask"] = spiked
         scalars["spike_samples"] = int(spiked.sum())
+        if cfg.label_swaps:
+            arrays["swap_mask"] = swapped
+            arrays["swaps"] = np.array(swaps, dtype=np.int64).reshape(-1, 4)
+            scalars["swap_samples"] = int(swapped.sum())
         scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
         entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
         if kind == "gaze_shift" and target is not None:
