@@ -203,6 +203,8 @@ class Session:
         return next(t for t in self.takes if t.id == take_id)
 
 
-#: how each cleaned sample was obtained (the ``fill`` column of the cleaned markers table)
-FILL_CODES: dict[str, int] = {"measured": 0, "linear": 1, "pchip": 2, "rigid": 3, "pca": 4, "unfilled": 5}
+#: how each cleaned sample was obtained (the ``fill`` column of the cleaned markers table); ``swap_repaired``: a
+#: measured sample the capture gave another marker's name, put back under its own (SPEC §3.2)
+FILL_CODES: dict[str, int] = {"measured": 0, "linear": 1, "pchip": 2, "rigid": 3, "pca": 4, "unfilled": 5,
+                              "swap_repaired": 6}
 FILL_NAMES: tuple[str, ...] = tuple(FILL_CODES)

@@ -193,8 +193,10 @@ def run_clean(ctx: UnitContext) -> UnitResult:
                                             f"more than the {_bytes(free)} free: split the take, or run it alone "
                                             "on a larger machine", take=ctx.take.id)
     raw, _, _ = _load_markers(ctx, "markers_raw")
-    res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, _build(CleanParams, ctx.params),
-                        path=ctx.take.mocap, take=ctx.take.id)
+    params = _build(CleanParams, ctx.params)
+    refs = _subject_references(_subject_key(ctx.session), ctx.session.markerset) if params.repair_swaps else None
+    res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id,
+                        references=refs)
     # the raw positions are not needed any more: a long take's are let go before the tables are built
     raw = dataclasses.replace(raw, xyz=raw.xyz[:0].copy(), valid=raw.valid[:0].copy())
     kept = dataclasses.replace(res.markers, first_frame=raw.first_frame)
@@ -213,9 +215,10 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="12", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="13", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
-    sources=lambda s, t: _markerset_file(s),
+    # every subject capture of the session: label swaps are judged against the subject's geometry from all
+    sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
     run=run_clean,
     help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
     rules=rules_of(CleanParams),
@@ -233,23 +236,96 @@ def _frames_take(session: Session, take: Take) -> bool:
 
 
 @functools.lru_cache(maxsize=8)
-def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int]) -> Markers | None:
-    """A take's neutral pose, cleaned from its capture: the whole take for the ``neutral`` take, else its
-    first rest period (None when it has none). ``file_id`` = size, mtime, inode of the capture: a changed
-    file is read again."""
+def _file_id(path: str) -> tuple[int, int, int]:
+    """Size, mtime and inode of a file: a changed file is read again by the caches below."""
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def _subject_captures(session: Session) -> list[tuple[Take, tuple[int, int, int]]]:
+    """The session's subject takes whose capture is a regular file that passes the engine's look at an input
+    (:func:`check_source`), with the file's identity: the subject's marker geometry comes from all of them. A
+    broken capture fails its own take's units only; the others go on without it (and re-run once it is
+    mended: it then joins their sources)."""
+    out = []
+    for t in session.takes:
+        if _subject_take(session, t) and t.mocap:
+            try:
+                file_id = _file_id(t.mocap)
+                if _usable_capture(t.mocap, file_id):
+                    out.append((t, file_id))
+            except OSError:
+                continue
+    return out
+
+
+@functools.lru_cache(maxsize=1024)
+def _usable_capture(path: str, file_id: tuple[int, int, int]) -> bool:
+    import stat as stat_mode
+
+    if not stat_mode.S_ISREG(os.stat(path).st_mode):
+        return False
+    try:
+        check_source(Path(path))
+    except GazepipeError:
+        return False
+    return True
+
+
+def _subject_files(session: Session) -> list[str]:
+    return [t.mocap for t, _ in _subject_captures(session)]
+
+
+def _subject_key(session: Session) -> tuple[tuple[Take, tuple[int, int, int]], ...]:
+    return tuple(_subject_captures(session))
+
+
+#: frames of each take kept for the subject's references (they sample the stack evenly again)
+_REFERENCE_FRAMES_PER_TAKE = 2000
+
+
+@functools.lru_cache(maxsize=4)
+def _subject_references(key: tuple[tuple[Take, tuple[int, int, int]], ...], ms):
+    """The subject's marker geometry (:func:`gazepipe.stages.clean.swaps.pooled_references`) from every subject
+    take's capture of a session (``key``: :func:`_subject_key`); a take that cannot be read is passed over.
+    Cached per worker: every take's clean reads the same."""
+    from gazepipe.io.capture import read_markers
+    from gazepipe.stages.clean.swaps import pooled_references
+
+    pooled = []
+    for take, _ in key:
+        try:
+            raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
+            labels = _renamed(raw.labels, check_capture_labels(ms, raw.labels, take.mocap, take.id,
+                                                                required=_required_markers(ms, take)))
+        except GazepipeError:
+            continue
+        rows = np.unique(np.linspace(0, max(raw.n_frames - 1, 0), min(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE))
+                         .astype(np.int64))
+        pooled.append((labels, raw.xyz[rows], raw.valid[rows]))
+    return pooled_references(pooled, markers=set(ms.subject_markers)) if pooled else None
+
+
+@functools.lru_cache(maxsize=8)
+def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int],
+                   subject: tuple[tuple[Take, tuple[int, int, int]], ...]) -> Markers | None:
+    """A take's neutral pose, cleaned from its capture as its clean unit cleans it: the whole take for the
+    ``neutral`` take, else its first rest period (None when it has none). ``file_id`` = size, mtime, inode of
+    the capture, ``subject`` those of the session's captures (:func:`_subject_key`): a changed file is read
+    again."""
     from gazepipe.io.capture import read_markers
     from gazepipe.stages.clean.stage import clean_markers
 
     raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
     mapping = check_capture_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))
     raw.labels = _renamed(raw.labels, mapping)
-    res = clean_markers(raw, ms, take.kind, params, path=take.mocap, take=take.id)
+    refs = _subject_references(subject, ms) if params.repair_swaps else None
+    res = clean_markers(raw, ms, take.kind, params, path=take.mocap, take=take.id, references=refs)
     return res.markers if take.kind == "neutral" else res.neutral
 
 
-def _neutral_of(take: Take, ms, params: CleanParams) -> Markers | None:
-    st = os.stat(take.mocap)
-    return _clean_neutral(take, ms, params, (st.st_size, st.st_mtime_ns, st.st_ino))
+def _neutral_of(session: Session, take: Take, ms, params: CleanParams) -> Markers | None:
+    return _clean_neutral(take, ms, params, _file_id(take.mocap), _subject_key(session))
 
 
 def _other_rests(ctx: UnitContext, ms, params: CleanParams, missing: list[str],
@@ -263,7 +339,7 @@ def _other_rests(ctx: UnitContext, ms, params: CleanParams, missing: list[str],
         if other.id == ctx.take.id or other.kind == "neutral" or not _subject_take(ctx.session, other):
             continue
         try:
-            rest = _neutral_of(other, ms, params)
+            rest = _neutral_of(ctx.session, other, ms, params)
         except GazepipeError:
             continue
         if rest is None or not rest.n_frames:
@@ -292,7 +368,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
     if neutral_take is not None:
         # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
         # cleans it once for all the takes it runs (keyed by the file's identity and the parameters)
-        neutral = _neutral_of(neutral_take, ms, clean_params)
+        neutral = _neutral_of(ctx.session, neutral_take, ms, clean_params)
         if neutral is not None:
             sources.append((f"neutral take {neutral_take.id}", neutral))
     own, own_frames, nmeta = _load_markers(ctx, "neutral")
@@ -333,9 +409,9 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="9", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="10", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
-    sources=lambda s, t: [*_markerset_file(s), *([n.mocap] if (n := _neutral_take(s)) else [])],
+    sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
     run=run_frames,
     help="segment orientations in the character frame, head centre, target direction",
     rules=rules_of(FramesParams),

@@ -60,6 +60,7 @@ SEVERITIES = ("skipped", "pass", "warning", "fail", "error")
 RANK = {"error": 4, "fail": 3, "warning": 2, "pass": 1, "skipped": 0}
 UNFILLED = FILL_CODES["unfilled"]
 MEASURED = FILL_CODES["measured"]
+SWAP_REPAIRED = FILL_CODES["swap_repaired"]     # measured, under its right name: not a fill
 
 
 @dataclass(frozen=True)
@@ -288,7 +289,7 @@ def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Threshold
     m = int(np.argmax(share))
     v = float(share[m])
     per = {lab: float(s) for lab, s in zip(labels, share, strict=True)}
-    filled = float(np.count_nonzero((fill != MEASURED) & (fill != UNFILLED)) / fill.size)
+    filled = float(np.count_nonzero((fill != MEASURED) & (fill != UNFILLED) & (fill != SWAP_REPAIRED)) / fill.size)
     return Check("unfilled", grade(v, th.unfilled_warn, th.unfilled_fail),
                  f"largest unfilled share of kept frames {_pct(v)} ({labels[m]}); {_pct(filled)} of kept samples "
                  "filled", value=v, threshold=_thr(th.unfilled_warn, th.unfilled_fail),

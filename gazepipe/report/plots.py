@@ -27,7 +27,7 @@ from gazepipe.model import FILL_CODES
 
 #: colours of the fill methods (measured light grey, unfilled red)
 FILL_COLOURS = {"measured": "#eeeeee", "linear": "#1f77b4", "pchip": "#17becf", "rigid": "#2ca02c",
-                "pca": "#9467bd", "unfilled": "#d62728"}
+                "pca": "#9467bd", "unfilled": "#d62728", "swap_repaired": "#ff7f0e"}
 #: matplotlib style of every plot; titles at a fixed height (automatic placement measures every tick label, a fifth
 #: of the drawing time, to put them where they already are)
 _STYLE = {"font.size": 8, "axes.titlesize": 9, "axes.labelsize": 8, "legend.fontsize": 7, "svg.fonttype": "none",

@@ -21,8 +21,9 @@ from gazepipe.schemas.base import attach_meta, read_meta, with_identity
 
 #: 2 stores positions as float32
 SCHEMA_VERSION = 2
-#: the cleaned table's own version: 2 added the ``spike`` and ``fill_error_mm`` columns; 3 float32 positions
-CLEAN_SCHEMA_VERSION = 3
+#: the cleaned table's own version: 2 added the ``spike`` and ``fill_error_mm`` columns; 3 float32 positions;
+#: 4 the ``swap_repaired`` fill value
+CLEAN_SCHEMA_VERSION = 4
 
 _COMMON = [
     pa.field("marker", pa.dictionary(pa.int32(), pa.string()), nullable=False),

@@ -21,6 +21,7 @@ from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error
 from gazepipe.stages.clean.rests import crop_bounds, mean_speed, refine_rests, rest_periods
 from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
+from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
@@ -78,6 +79,13 @@ class CleanParams:
         noise floor) do not change.
     remove_heading : also rotate every frame about the lab vertical so the root segment's left direction
         (its first marker minus its second, horizontal part) points along lab +X.
+    repair_swaps : find label swaps (two markers carrying each other's names) and put the samples back under
+        their own names where the exchange is proven frame by frame, before spike removal
+        (:func:`gazepipe.stages.clean.swaps.repair_swaps`; samples coded ``swap_repaired``).
+    swap_tolerance : a sample is suspect when one of its marker's steadiest distances to other markers is off
+        its usual value by more than this many of that distance's spreads (each spread at least 1 mm): 6
+        (about 6 mm for a rigid mate) is far outside marker noise and well inside the 50-200 mm that two
+        exchanged markers stand apart.
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
@@ -101,6 +109,8 @@ class CleanParams:
     rest_filter_hz: float = field(default=1.75, metadata={"gt": 0})
     rest_refine: bool = True
     remove_heading: bool = False
+    repair_swaps: bool = True
+    swap_tolerance: float = field(default=6.0, metadata={"gt": 0})
 
 
 @dataclass
@@ -156,14 +166,17 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
     return out
 
 
-def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
-          qc: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
-    """Spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's gap records)."""
+def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
+          references: SubjectReferences | None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
+    """Label swaps repaired, spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's
+    gap records)."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
     # the stage's one working copy of the positions: every step below writes into it
     xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
+    swapped = _repair_swaps(xyz, valid, markers.labels, markerset, params, qc, references)
     spike = np.zeros(valid.shape, dtype=bool)
     if params.remove_spikes:
         spike = find_spikes(xyz, valid, markers.rate_hz, clusters, residual_mm=params.spike_residual_mm,
@@ -191,8 +204,31 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams,
                        "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
                        "weights": {k: float(v) for k, v in g.weights.items()}}
                       for g in res.gaps]
+    code[swapped & (code == FILL_CODES["measured"])] = FILL_CODES["swap_repaired"]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
     return xyz, code, spike, records
+
+
+def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
+                  params: CleanParams, qc: dict, references: SubjectReferences | None) -> np.ndarray:
+    """Label swaps repaired in place in ``xyz`` and ``valid`` (:mod:`.swaps`; the subject's references when
+    given, else the take's own); ``qc["swaps"]`` lists the stretches. Returns the (T, M) mask of repaired
+    samples."""
+    qc["swaps"] = []
+    if not params.repair_swaps:
+        return np.zeros(valid.shape, dtype=bool)
+    body = set(markerset.subject_markers)
+    res = repair_swaps(xyz, valid, params.swap_tolerance,
+                       references=None if references is None else references.for_labels(labels),
+                       markers=np.array([i for i, lab in enumerate(labels) if lab in body], dtype=np.int64),
+                       in_place=True)
+    qc["swaps"] = [{"markers": [labels[r.first], labels[r.second]], "start": r.start, "stop": r.stop,
+                    "repaired": r.repaired} for r in res.records]
+    if any(not r.repaired for r in res.records):
+        lost = int(res.removed.sum())
+        qc["warnings"].append(f"{lost} sample(s) of swapped markers could not be put back under their names "
+                              "and became gaps")
+    return res.repaired
 
 
 def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
@@ -231,17 +267,23 @@ def clean_memory_bytes(n_samples: int) -> int:
 
 
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
-                  *, path: str | None = None, take: str | None = None) -> CleanResult:
+                  *, path: str | None = None, take: str | None = None,
+                  references: SubjectReferences | None = None) -> CleanResult:
     """Clean one take's markers (SPEC §3.2).
 
-    Steps: spike removal → gap filling (clusters = the markerset's segments) → root stabilisation (lab axes,
+    ``references``: the subject's marker geometry from all of the session's takes
+    (:func:`gazepipe.stages.clean.swaps.pooled_references`), against which label swaps are judged; without
+    them, the take's own (which cannot tell a swap lasting most of a short take from the right names).
+
+    Steps: label-swap repair → spike removal → gap filling (clusters = the markerset's segments) → root stabilisation (lab axes,
     optional heading removal; frames without the root marker become unfilled) → optional zero-phase
     low-pass per run of valid samples → rest detection on the subject's markers → cropping by ``kind``.
 
     Raises :class:`~gazepipe.errors.StageError` (one line, naming ``path``/``take``) when the root marker is
     missing or the rest periods the kind needs are not found.
 
-    ``qc`` holds: ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
+    ``qc`` holds: ``swaps`` (every swapped stretch: the two markers, start, stop, repaired or made gaps),
+    ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
     marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
     runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
@@ -256,7 +298,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc)
+    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     speed = mean_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, min_share=REST_MIN_PRESENT,

@@ -1,0 +1,437 @@
+"""Label swaps (SPEC §3.2 step 1): stretches where the auto-labeller gave two markers each other's names.
+
+A marker's *references* are the markers whose distance to it varies least over the take: its rigid mates first,
+then markers of neighbouring segments (:func:`steady_references`). A sample's *misfit* is the largest, over its
+references measured in that frame, of how far its distance to each is from that distance's median, in that
+distance's own spread (:func:`_misfit`). A sample is *suspect* where its misfit is above the tolerance (6 spreads, each at least 1 mm). A
+suspect sample of marker ``a`` is explained by a swap with ``b`` when it fits ``b``'s references within ``b``'s
+tolerance and ``b``'s own sample in that frame is either suspect and fits ``a``'s references (exchanging the
+two names restores both markers' distances), or missing while most of ``a``'s references disagree with ``a``'s
+sample (one reference astray cannot hand a sample to a missing marker). Those samples are exchanged (``repaired``); frames in which both
+markers are suspect but the exchange does not restore them are made gaps (``removed``). Anything else suspect is
+left to spike removal. A sample never moves unless the exchange is proven frame by frame, so a swap that starts
+or ends in a gap, or across neighbouring segments, is handled like any other.
+
+Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) bool; frames are rows.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from gazepipe.stages.clean.filters import true_runs
+from gazepipe.stages.geometry import norm3
+
+#: references per marker (the steadiest distances): several, so that one astray is outvoted
+N_REFERENCES = 6
+#: a marker is a reference of another only when their distance's spread (1.4826 MAD, mm: robust to the swaps
+#: themselves) is below this: rigid mates (noise, ~1 mm) and markers across one joint (a few mm) are
+#: candidates; the steadiest are taken
+MAX_REFERENCE_SPREAD_MM = 15.0
+#: a reference's spread is taken as at least this (mm): marker noise, so that a perfectly rigid pair does not
+#: make every sub-millimetre wobble suspect
+SPREAD_FLOOR_MM = 1.0
+#: a sample's misfit needs this many references measured in its frame
+MIN_REFERENCES = 2
+#: passes of repair at most (each pass after the first finds swaps an earlier repair uncovered)
+MAX_PASSES = 3
+#: frames sampled (evenly) to choose references: distance medians settle long before that
+REFERENCE_FRAMES = 4000
+#: frames per block of the take-long misfit: its temporaries stay within a block
+_BLOCK_FRAMES = 8192
+
+
+@dataclass(frozen=True)
+class References:
+    """Each marker's steady references: ``index`` (M, K) columns (−1: none), ``distance_mm`` (M, K) their
+    distance's median and ``spread_mm`` (M, K) its spread, ``tolerance`` (M,) the misfit above which a sample
+    is suspect (inf for a marker with fewer than :data:`MIN_REFERENCES` references: never judged)."""
+
+    index: np.ndarray
+    distance_mm: np.ndarray
+    spread_mm: np.ndarray
+    tolerance: np.ndarray
+    #: (M, 3) three references whose directions from the marker span a clear volume (−1: none), and (M,) the
+    #: sign of that volume (0: none). Distances cannot tell a rigid body from its mirror image: when two
+    #: mirror pairs (left and right, front and back) share a segment, exchanging the wrong pair makes every
+    #: distance right again and the handedness wrong
+    chiral: np.ndarray | None = None
+    handedness: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SwapRecord:
+    """One stretch of a swap: markers ``first`` and ``second`` (columns), frames ``[start, stop)``, repaired
+    (names exchanged back) or removed (both made gaps)."""
+
+    first: int
+    second: int
+    start: int
+    stop: int
+    repaired: bool
+
+
+@dataclass
+class SwapResult:
+    """Output of :func:`repair_swaps`: positions and ``valid`` with the repaired stretches exchanged back (and
+    the removed samples NaN / False), the (T, M) masks of ``repaired`` samples (now under their right name) and
+    ``removed`` ones, and one :class:`SwapRecord` per stretch in time order."""
+
+    xyz: np.ndarray
+    valid: np.ndarray
+    repaired: np.ndarray
+    removed: np.ndarray
+    records: list[SwapRecord]
+
+
+def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | None = None) -> References:
+    """:class:`References` of every marker from up to :data:`REFERENCE_FRAMES` evenly spaced frames of ``xyz``
+    (one take, or the frames of several takes of the subject stacked), among the columns ``markers`` (default
+    all; the others get none: the target and the clapper are no part of the body); tolerances are left infinite
+    (:func:`with_tolerances` sets them for a take)."""
+    n_t, n_m = valid.shape
+    body = np.zeros(n_m, dtype=bool)
+    body[np.arange(n_m) if markers is None else np.asarray(markers, dtype=np.int64)] = True
+    rows = np.unique(np.linspace(0, max(n_t - 1, 0), min(n_t, REFERENCE_FRAMES)).astype(np.int64))
+    x, ok = xyz[rows], valid[rows]
+    index = np.full((n_m, N_REFERENCES), -1, dtype=np.int64)
+    distance = np.full((n_m, N_REFERENCES), np.nan)
+    spread_mm = np.full((n_m, N_REFERENCES), np.nan)
+    for m in np.flatnonzero(body):
+        d = norm3(x[:, m:m + 1] - x)                                  # (S, M) distance to every marker
+        d[~(ok[:, m:m + 1] & ok)] = np.nan
+        enough = (np.isfinite(d).sum(axis=0) >= max(10, ok[:, m].sum() // 2)) & body
+        enough[m] = False
+        if not enough.any():
+            continue
+        with _quiet():
+            median = np.nanmedian(d[:, enough], axis=0)
+            spread = 1.4826 * np.nanmedian(np.abs(d[:, enough] - median), axis=0)
+        cols = np.flatnonzero(enough)
+        order = np.argsort(spread, kind="stable")[:N_REFERENCES]
+        order = order[spread[order] <= MAX_REFERENCE_SPREAD_MM]
+        index[m, :order.size] = cols[order]
+        distance[m, :order.size] = median[order]
+        spread_mm[m, :order.size] = np.maximum(spread[order], SPREAD_FLOOR_MM)
+    chiral, handedness = _handedness(x, ok, index)
+    return References(index, distance, spread_mm, np.full(n_m, np.inf), chiral, handedness)
+
+
+#: a reference triple's volume, as a share of the product of its three distances, must be at least this in
+#: the median frame to tell a body from its mirror image (0.1: about 6° out of the plane of two of them)
+MIN_CHIRAL_VOLUME = 0.1
+
+
+def _volume(origin: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Triple product of the directions (n, 3) from ``origin`` to ``a``, ``b``, ``c``, as a share of the product of
+    their lengths: in [−1, 1], its sign the triple's handedness."""
+    u, v, w = a - origin, b - origin, c - origin
+    det = np.einsum("ij,ij->i", u, np.cross(v, w))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return det / (norm3(u) * norm3(v) * norm3(w))
+
+
+def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each marker's chiral reference triple and its handedness (see :class:`References`), from sample frames."""
+    from itertools import combinations
+
+    n_m = index.shape[0]
+    chiral = np.full((n_m, 3), -1, dtype=np.int64)
+    handedness = np.zeros(n_m)
+    for m in range(n_m):
+        refs = [int(k) for k in index[m] if k >= 0]
+        best = 0.0
+        for triple in combinations(refs, 3):
+            rows = ok[:, m] & ok[:, list(triple)].all(axis=1)
+            if rows.sum() < 10:
+                continue
+            with _quiet():
+                vol = float(np.median(_volume(x[rows, m], *(x[rows, k] for k in triple))))
+            if abs(vol) >= max(best, MIN_CHIRAL_VOLUME):
+                best, chiral[m], handedness[m] = abs(vol), triple, np.sign(vol)
+    return chiral, handedness
+
+
+def with_tolerances(refs: References, tolerance: float) -> References:
+    """``refs`` with the tolerance ``tolerance`` (in reference spreads) for every marker with at least
+    :data:`MIN_REFERENCES` references, inf for the others."""
+    judged = (refs.index >= 0).sum(axis=1) >= MIN_REFERENCES
+    return replace(refs, tolerance=np.where(judged, float(tolerance), np.inf))
+
+
+@dataclass(frozen=True)
+class SubjectReferences:
+    """:class:`References` of a subject by marker name (``labels``), from several takes: what a take's swaps
+    are judged against when its own frames cannot say which names are right (a swap lasting most of a short
+    take)."""
+
+    labels: tuple[str, ...]
+    references: References
+
+    def for_labels(self, labels: list[str]) -> References:
+        """The references of a take whose columns are ``labels`` (markers it lacks are no references; its
+        markers the subject's takes never had get none)."""
+        column = {lab: i for i, lab in enumerate(labels)}
+        mine = [self.labels.index(lab) if lab in self.labels else -1 for lab in labels]
+        n_m = len(labels)
+
+        def columns(of: np.ndarray) -> np.ndarray:
+            out = np.full((n_m, of.shape[1]), -1, dtype=np.int64)
+            for m, src in enumerate(mine):
+                if src >= 0:
+                    out[m] = [column.get(self.labels[j], -1) if j >= 0 else -1 for j in of[src]]
+            return out
+
+        refs = self.references
+        index = columns(refs.index)
+        rows = np.array([max(src, 0) for src in mine], dtype=np.int64)
+        has = index >= 0
+        chiral = columns(refs.chiral) if refs.chiral is not None else np.full((n_m, 3), -1, dtype=np.int64)
+        whole = (chiral >= 0).all(axis=1) & (np.array(mine) >= 0)     # a triple the take lacks a marker of: none
+        handedness = np.where(whole, refs.handedness[rows], 0.0) if refs.handedness is not None else np.zeros(n_m)
+        return References(index, np.where(has, refs.distance_mm[rows], np.nan),
+                          np.where(has, refs.spread_mm[rows], np.nan), np.full(n_m, np.inf),
+                          np.where(whole[:, None], chiral, -1), handedness)
+
+
+def pooled_references(takes: list[tuple[list[str], np.ndarray, np.ndarray]],
+                      markers: set[str] | None = None) -> SubjectReferences:
+    """The subject's references from several takes ``(labels, xyz, valid)``: up to
+    :data:`REFERENCE_FRAMES` frames spread evenly over all of them, stacked by marker name; only the markers
+    named in ``markers`` (default all) are judged or serve as references."""
+    labels = tuple(sorted({lab for names, _, _ in takes for lab in names}))
+    total = sum(valid.shape[0] for _, _, valid in takes)
+    xs, vs = [], []
+    for names, xyz, valid in takes:
+        n_t = valid.shape[0]
+        share = max(1, round(REFERENCE_FRAMES * n_t / max(total, 1)))
+        rows = np.unique(np.linspace(0, max(n_t - 1, 0), min(n_t, share)).astype(np.int64))
+        x = np.full((rows.size, len(labels), 3), np.nan)
+        v = np.zeros((rows.size, len(labels)), dtype=bool)
+        cols = [labels.index(lab) for lab in names]
+        x[:, cols] = xyz[rows]
+        v[:, cols] = valid[rows]
+        xs.append(x)
+        vs.append(v)
+    body = None if markers is None else np.array([i for i, lab in enumerate(labels) if lab in markers])
+    stacked = (np.concatenate(xs), np.concatenate(vs)) if xs else (np.zeros((0, 0, 3)), np.zeros((0, 0), bool))
+    return SubjectReferences(labels, steady_references(*stacked, markers=body))
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """All-NaN medians (a pair never measured together, a marker without references) are NaN, silently."""
+    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
+
+
+def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
+            exclude: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Misfits (n, C) of ``points`` (n, C, 3), each judged as marker ``as_marker[c]`` against its references in
+    the same frames (``xyz`` (n, M, 3), ``valid`` (n, M)); references equal to ``exclude[c]`` are left out.
+    Two of them: the largest deviation (a swap of mirror-image markers is seen by the one or two references
+    off the mirror plane only), and the median (a marker most of its references disagree with: displaced
+    itself, not one of its references). NaN where fewer than :data:`MIN_REFERENCES` references are measured."""
+    idx = refs.index[as_marker]                                         # (C, K)
+    has = idx >= 0
+    if exclude is not None:
+        has &= idx != np.asarray(exclude)[:, None]
+    cols = np.where(has, idx, 0)
+    d = norm3(points[:, :, None, :] - xyz[:, cols])                     # (n, C, K)
+    dev = np.abs(d - refs.distance_mm[as_marker][None]) / refs.spread_mm[as_marker][None]
+    dev[~(has[None] & valid[:, cols])] = np.nan
+    count = np.isfinite(dev).sum(axis=2)
+    dev.sort(axis=2)                                                    # NaN last
+    at = np.maximum(count - 1, 0)[..., None]
+    worst = np.take_along_axis(dev, at, axis=2)[..., 0]
+    median = 0.5 * (np.take_along_axis(dev, at // 2, axis=2) + np.take_along_axis(dev, (at + 1) // 2, axis=2))[..., 0]
+    enough = count >= MIN_REFERENCES
+    return np.where(enough, worst, np.nan), np.where(enough, median, np.nan)
+
+
+def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """(suspect, displaced) bool masks of frames ``rows``: a sample whose largest, or median, misfit is above
+    its marker's tolerance."""
+    n_m = usable.shape[1]
+    worst, median = _misfit(xyz[rows], xyz[rows], usable[rows], np.arange(n_m), refs, exclude=None)
+    ok = usable[rows]
+    with np.errstate(invalid="ignore"):
+        return ok & (worst > refs.tolerance[None]), ok & (median > refs.tolerance[None])
+
+
+def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
+                 references: References | None = None, markers: np.ndarray | None = None,
+                 in_place: bool = False) -> SwapResult:
+    """Find and undo label swaps (see the module's docstring). Unless ``in_place``, ``xyz`` and ``valid`` are
+    not changed and the result holds new arrays. ``tolerance``: the misfit (in reference spreads, each at
+    least :data:`SPREAD_FLOOR_MM`) above which a sample is suspect. ``references``: the subject's
+    (:func:`pooled_references` of several takes); default: the take's own, which cannot tell a swap that lasts
+    most of the take from the right names. ``markers``: the columns of the subject's body (see
+    :func:`steady_references`). ``in_place``: ``xyz`` and ``valid`` are the caller's own (``xyz`` NaN wherever
+    not ``valid``) and are repaired in place, not copied."""
+    if not in_place:
+        xyz = np.where(valid[..., None], xyz, np.nan)
+        valid = valid.copy()
+    n_t, n_m = valid.shape
+    repaired = np.zeros((n_t, n_m), dtype=bool)
+    removed = np.zeros((n_t, n_m), dtype=bool)
+    records: list[SwapRecord] = []
+    if n_t < 3 or n_m < 2:
+        return SwapResult(xyz, valid, repaired, removed, records)
+    refs = with_tolerances(references or steady_references(xyz, valid, markers), tolerance)
+    usable = valid.copy()
+    suspect = np.zeros((n_t, n_m), dtype=bool)
+    displaced = np.zeros((n_t, n_m), dtype=bool)
+    for lo in range(0, n_t, _BLOCK_FRAMES):         # the whole take once; later only the frames that change
+        rows = slice(lo, lo + _BLOCK_FRAMES)
+        suspect[rows], displaced[rows] = _screen(xyz, usable, refs, rows)
+    state = _State(xyz, valid, usable, suspect, displaced, repaired, removed, records, refs)
+    # a pass repairs what it can prove; one swap can hide another (two pairs referencing each other), so
+    # passes repeat, over the frames the last one changed, while they repair something; a last one, over the
+    # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps
+    frames = np.ones(n_t, dtype=bool)
+    for _ in range(MAX_PASSES):
+        frames = _one_pass(state, frames, markers=None, remove=False)
+        if not frames.any():
+            break
+    swapped = sorted({m for r in records for m in (r.first, r.second)})
+    _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
+    xyz[removed] = np.nan
+    valid &= ~removed
+    records.sort(key=lambda r: (r.start, r.first, r.second))
+    return SwapResult(xyz, valid, repaired, removed, records)
+
+
+@dataclass
+class _State:
+    """What the passes of :func:`repair_swaps` share: the take as repaired so far (positions, measured,
+    usable: measured and not removed) and the masks kept up to date as frames change."""
+
+    xyz: np.ndarray
+    valid: np.ndarray
+    usable: np.ndarray
+    suspect: np.ndarray
+    displaced: np.ndarray
+    repaired: np.ndarray
+    removed: np.ndarray
+    records: list[SwapRecord]
+    refs: References
+
+
+def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool) -> np.ndarray:
+    """One pass over the markers suspect in frames ``where`` ((T,) bool; only ``markers`` when given), in column
+    order, exchanging (in place) the frames each swap explains and, with ``remove``, marking the unprovable
+    ones removed. Returns the (T,) bool mask of frames it repaired."""
+    n_t = st.valid.shape[0]
+    done = np.zeros(n_t, dtype=bool)
+    candidates = np.flatnonzero((st.suspect & where[:, None]).any(axis=0))
+    if markers is not None:
+        candidates = np.intersect1d(candidates, markers)
+    for a in candidates:
+        frames = np.flatnonzero(st.suspect[:, a] & ~st.removed[:, a] & where)
+        if frames.size == 0:
+            continue
+        partner, explained, both = _best_partner(st.xyz, st.usable, st.displaced, st.refs, int(a), frames)
+        if partner < 0:
+            continue
+        fix, drop = frames[explained], frames[both & ~explained] if remove else frames[:0]
+        pair = [int(a), partner]
+        for arr in (st.xyz, st.valid, st.usable, st.repaired):
+            arr[fix[:, None], pair] = arr[fix[:, None], pair[::-1]]
+        st.repaired[fix[:, None], pair] = st.valid[fix[:, None], pair] & ~st.repaired[fix[:, None], pair]
+        st.removed[drop[:, None], pair] = True
+        st.usable[drop[:, None], pair] = False
+        changed = np.union1d(fix, drop)
+        if changed.size:                           # every marker judged in those frames anew
+            st.suspect[changed], st.displaced[changed] = _screen(st.xyz, st.usable, st.refs, changed)
+        st.records += _records(pair, fix, n_t, True) + _records(pair, drop, n_t, False)
+        done[fix] = True
+    return done
+
+
+def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, refs: References, a: int,
+                  frames: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The marker whose name ``a``'s suspect samples (at ``frames``) carry: the one that explains most of them
+    (see the module's docstring), judged only by references not ``displaced`` themselves in that frame (two
+    swaps at once, of which one pair are references of the other). Returns (its column or −1, explained (n,)
+    bool, both suspect (n,) bool)."""
+    n_m = valid.shape[1]
+    none = np.zeros(frames.size, dtype=bool)
+    if not np.isfinite(refs.tolerance[a]):
+        return -1, none, none
+    x, ok = xyz[frames], valid[frames]
+    trusted = ok & ~displaced[frames]
+    # suspect against trusted references only: a marker suspect because its references were swapped is not
+    worst, median = _misfit(x, x, trusted, np.arange(n_m), refs, exclude=None)
+    with np.errstate(invalid="ignore"):
+        own = ok & (worst > refs.tolerance[None])
+        # off by most references' reckoning, not one astray: what a sample handed to a missing partner needs
+        gone_wrong = ok[:, a] & (median[:, a] > refs.tolerance[a])
+    # a partner is missing or suspect itself in some of these frames
+    maybe = (own | ~ok).any(axis=0) & np.isfinite(refs.tolerance)
+    maybe[a] = False
+    others = np.flatnonzero(maybe & own[:, a].any())
+    if others.size == 0:
+        return -1, none, none
+    # a's sample judged as each other marker b; b's sample judged as a
+    a_as_b = _misfit(np.repeat(x[:, a:a + 1], others.size, axis=1), x, trusted, others, refs,
+                     exclude=np.full(others.size, a))[0]
+    b_as_a = _misfit(x[:, others], x, trusted, np.full(others.size, a), refs, exclude=others)[0]
+    fits_b = a_as_b <= refs.tolerance[others][None]
+    b_fits_a = b_as_a <= refs.tolerance[a]
+    b_gone = ~ok[:, others]
+    b_suspect = own[:, others]
+    explained = own[:, a:a + 1] & fits_b & ((b_gone & gone_wrong[:, None]) | (b_suspect & b_fits_a))
+    score = explained.sum(axis=0)
+    best = -1
+    for c in np.argsort(-score, kind="stable"):
+        if score[c] == 0:
+            break
+        explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
+        if explained[:, c].sum() == score[c]:         # every explained frame keeps both hands: no better one
+            best = int(c)
+            break
+        if best < 0 or explained[:, c].sum() > explained[:, best].sum():
+            best = int(c)
+    if best < 0 or not explained[:, best].any():
+        return -1, none, none
+    both = own[:, a] & b_suspect[:, best]
+    # not provable inside the stretch the exchange explains (a glitch on one of them, say): both made gaps
+    span = np.flatnonzero(explained[:, best])
+    both &= (frames >= frames[span[0]]) & (frames <= frames[span[-1]])
+    return int(others[best]), explained[:, best], both
+
+
+def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
+    """(n,) bool: frames where exchanging ``a`` and ``b`` leaves each with its usual handedness (or where it cannot
+    be told: no chiral triple, or one of its markers not trusted there)."""
+    ok = np.ones(x.shape[0], dtype=bool)
+    if refs.chiral is None or refs.handedness is None:
+        return ok
+    exchanged = x.copy()
+    exchanged[:, [a, b]] = x[:, [b, a]]
+    for m in (a, b):
+        triple = refs.chiral[m]
+        if refs.handedness[m] == 0 or (triple < 0).any():
+            continue
+        seen = trusted[:, triple].all(axis=1) | np.isin(triple, [a, b]).any()
+        vol = _volume(exchanged[:, m], *(exchanged[:, k] for k in triple))
+        ok &= ~seen | ~np.isfinite(vol) | (np.sign(vol) == refs.handedness[m])
+    return ok
+
+
+def _records(pair: list[int], frames: np.ndarray, n_t: int, repaired: bool) -> list[SwapRecord]:
+    """One record per run of consecutive ``frames``."""
+    if frames.size == 0:
+        return []
+    mark = np.zeros(n_t, dtype=bool)
+    mark[frames] = True
+    first, second = sorted(pair)
+    return [SwapRecord(first, second, int(s), int(e), repaired) for s, e in true_runs(mark)]
