@@ -68,12 +68,13 @@ def test_swaps_are_repaired_against_the_subjects_geometry_and_nothing_is_made_wr
         swapped += int(truth["swap_mask"].sum())
         handled += int((truth["swap_mask"] & ~after).sum())
         made_wrong += int((mk.valid & ~before & ~spiked & (after | res.removed)).sum())
-        # the masks say what moved: every repaired sample is now within noise of its own marker's truth
-        moved = res.repaired & ~spiked
+        # the masks say what moved: every repaired sample is now within noise of its own marker's truth (a
+        # ghost moves with the sample it sits on: frames with one are left out)
+        moved = res.repaired & ~spiked.any(axis=1)[:, None]
         assert (np.linalg.norm(res.xyz[moved] - true_xyz[moved], axis=1) < WRONG_MM).all()
     assert swapped > 1000
-    # measured on seeds 0-2 of both skeletons: 84-100 % (bench/bench_swaps.py); a swap of two markers whose
-    # distances to every reference agree within the tolerance stays unseen
+    # measured on seeds 0-2 of both skeletons: 86-100 % (bench/bench_swaps.py); a swap of two mirror-image
+    # markers of a segment whose neighbours are two joints away stays unseen (every distance agrees)
     assert handled / swapped > 0.8
     assert made_wrong == 0
 

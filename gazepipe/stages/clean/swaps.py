@@ -128,16 +128,17 @@ MIN_CHIRAL_VOLUME = 0.1
 
 
 def _volume(origin: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Triple product of the directions (n, 3) from ``origin`` to ``a``, ``b``, ``c``, as a share of the product of
-    their lengths: in [−1, 1], its sign the triple's handedness."""
+    """Triple product of the directions (..., 3) from ``origin`` to ``a``, ``b``, ``c``, as a share of the product
+    of their lengths: in [−1, 1], its sign the triple's handedness."""
     u, v, w = a - origin, b - origin, c - origin
-    det = np.einsum("ij,ij->i", u, np.cross(v, w))
+    det = np.einsum("...i,...i->...", u, np.cross(v, w))
     with np.errstate(invalid="ignore", divide="ignore"):
         return det / (norm3(u) * norm3(v) * norm3(w))
 
 
 def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each marker's chiral reference triple and its handedness (see :class:`References`), from sample frames."""
+    """Each marker's chiral reference triple and its handedness (see :class:`References`), from sample frames:
+    of its references, the three whose directions from it span the largest volume in the median frame."""
     from itertools import combinations
 
     n_m = index.shape[0]
@@ -301,12 +302,12 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
         frames = _one_pass(state, frames, markers=None, remove=False)
         if not frames.any():
             break
+    _extend_by_continuity(state)
     swapped = sorted({m for r in records for m in (r.first, r.second)})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
     valid &= ~removed
-    records.sort(key=lambda r: (r.start, r.first, r.second))
-    return SwapResult(xyz, valid, repaired, removed, records)
+    return SwapResult(xyz, valid, repaired, removed, _merged(records))
 
 
 @dataclass
@@ -425,6 +426,71 @@ def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: i
         vol = _volume(exchanged[:, m], *(exchanged[:, k] for k in triple))
         ok &= ~seen | ~np.isfinite(vol) | (np.sign(vol) == refs.handedness[m])
     return ok
+
+
+#: a frame continues a swap when keeping the capture's names there costs this much more path (mm: the two
+#: markers' steps from the frame before, summed) than exchanging them, and at least this share more
+CONTINUITY_MARGIN_MM = 10.0
+CONTINUITY_SHARE = 0.5
+
+
+def _extend_by_continuity(st: _State) -> None:
+    """Carry each repaired stretch on, frame by frame away from it, while the capture's two trajectories stay
+    continuous there and the exchanged ones would jump: a swap goes on until the labeller's next jump, though the
+    references that proved it are hidden (a distinguishing mate in a gap; mirror-image markers seen from the
+    mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump)."""
+    for rec in list(st.records):
+        if not rec.repaired:
+            continue
+        pair = [rec.first, rec.second]
+        for edge, step in ((rec.stop, 1), (rec.start - 1, -1)):
+            frames = _continued(st, pair, edge, step)
+            if frames.size:
+                for arr in (st.xyz, st.valid, st.usable, st.repaired):
+                    arr[frames[:, None], pair] = arr[frames[:, None], pair[::-1]]
+                st.repaired[frames[:, None], pair] = st.valid[frames[:, None], pair]
+                st.records += _records(pair, frames, st.valid.shape[0], True)
+
+
+def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
+    """The frames from ``edge`` on (in direction ``step``) over which the stretch of ``pair`` ending just before
+    ``edge`` continues (see :func:`_extend_by_continuity`)."""
+    n_t = st.valid.shape[0]
+    stop = n_t if step > 0 else -1
+    if not 0 <= edge < n_t:
+        return np.zeros(0, dtype=np.int64)
+    rows = np.arange(edge, stop, step)
+    free = ~(st.repaired[rows][:, pair].any(axis=1) | st.removed[rows][:, pair].any(axis=1))
+    rows = rows[:np.argmin(free)] if not free.all() else rows
+    if rows.size == 0:
+        return rows
+    a, b = pair
+    here, before = st.xyz[rows], st.xyz[rows - step]   # the frame before the edge holds the repaired names
+    # where each marker truly was a frame before, if the stretch goes on up to there: at the edge, as
+    # repaired; beyond it, the capture's other name
+    first = (np.arange(rows.size) == 0)[:, None]
+    prev_a = np.where(first, before[:, a], before[:, b])
+    prev_b = np.where(first, before[:, b], before[:, a])
+    keep = norm3(here[:, a] - prev_a), norm3(here[:, b] - prev_b)
+    exchange = norm3(here[:, b] - prev_a), norm3(here[:, a] - prev_b)
+    keep_cost = np.nansum(keep, axis=0)
+    exchange_cost = np.nansum(exchange, axis=0)
+    seen = np.isfinite(keep[0]) | np.isfinite(keep[1]) | np.isfinite(exchange[0]) | np.isfinite(exchange[1])
+    decisive = seen & (keep_cost - exchange_cost > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * keep_cost))
+    return rows[:np.argmin(decisive)] if not decisive.all() else rows
+
+
+def _merged(records: list[SwapRecord]) -> list[SwapRecord]:
+    """Records in time order, those of one pair and outcome that touch joined into one."""
+    out: list[SwapRecord] = []
+    for r in sorted(records, key=lambda r: (r.first, r.second, r.repaired, r.start)):
+        last = out[-1] if out else None
+        if last and (last.first, last.second, last.repaired) == (r.first, r.second, r.repaired) \
+                and r.start <= last.stop:
+            out[-1] = SwapRecord(r.first, r.second, last.start, max(last.stop, r.stop), r.repaired)
+        else:
+            out.append(r)
+    return sorted(out, key=lambda r: (r.start, r.first, r.second))
 
 
 def _records(pair: list[int], frames: np.ndarray, n_t: int, repaired: bool) -> list[SwapRecord]:
