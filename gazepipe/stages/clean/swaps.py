@@ -253,7 +253,30 @@ def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     worst = np.take_along_axis(dev, at, axis=2)[..., 0]
     median = 0.5 * (np.take_along_axis(dev, at // 2, axis=2) + np.take_along_axis(dev, (at + 1) // 2, axis=2))[..., 0]
     enough = count >= MIN_REFERENCES
+    # a mirror image of the marker keeps every distance and turns its chiral triple the other way
+    worst = np.where(_flipped(points, xyz, valid, as_marker, refs, exclude), np.inf, worst)
     return np.where(enough, worst, np.nan), np.where(enough, median, np.nan)
+
+
+def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
+             exclude: np.ndarray | None) -> np.ndarray:
+    """(n, C) bool: ``points`` judged as ``as_marker`` turn its chiral triple (all three measured there, and
+    none of them ``exclude``) against its handedness, by a clear volume."""
+    if refs.chiral is None or refs.handedness is None:
+        return np.zeros(points.shape[:2], dtype=bool)
+    tri = refs.chiral[as_marker]                                        # (C, 3)
+    hand = refs.handedness[as_marker]
+    usable = (tri >= 0).all(axis=1) & (hand != 0)
+    if exclude is not None:
+        usable &= ~(tri == np.asarray(exclude)[:, None]).any(axis=1)
+    if not usable.any():
+        return np.zeros(points.shape[:2], dtype=bool)
+    cols = np.where(tri >= 0, tri, 0)
+    corners = xyz[:, cols]                                              # (n, C, 3, 3)
+    vol = _volume(points, corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
+    seen = usable[None] & valid[:, cols].all(axis=2)
+    with np.errstate(invalid="ignore"):
+        return seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == -hand[None])
 
 
 def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice
