@@ -16,7 +16,8 @@ Printed per layout:
 - the datasets built per session (all four expected);
 - the clock map: the largest error over each video (ms) between the fitted and the true mocap-from-video map.
 
-Usage: ``python bench/bench_shifts_truth.py [--seeds 2] [--duration 20] [--long-gaps 4]``
+Usage: ``python bench/bench_shifts_truth.py [--seeds 2] [--duration 20] [--long-gaps 4] [--swaps 0]`` (``--swaps N``: N label
+swaps per mocap take)
 """
 
 from __future__ import annotations
@@ -109,6 +110,7 @@ def main() -> None:
     ap.add_argument("--long-gaps", type=int, default=4,
                     help="1–3 s trunk/neck occlusions per mocap take (the cleaning benchmark's 4: inside the first "
                          "rest, across both crop edges, anywhere; a 4-s gaze shift then has little left)")
+    ap.add_argument("--swaps", type=int, default=0, help="label swaps per mocap take (SynthConfig.label_swaps)")
     args = ap.parse_args()
     print(f"hazards: body steps in half the gaze shifts, a root-segment marker gap in a rest per take, clapper "
           f"rebounds on half the claps, plus the cleaning hazards ({args.long_gaps} long occlusions per take); "
@@ -130,7 +132,7 @@ def main() -> None:
                 cfg = SynthConfig(follow_poses=("standing", "standing", "sitting"), follow_duration_s=args.duration,
                                   shift_targets=SHIFTS, spikes_per_marker_min=1.0, long_gaps=args.long_gaps,
                                   gaps_per_marker_min=3.0, segments=segments, up_axis=up, body_steps=0.5,
-                                  root_rest_gaps=True, clap_rebounds=0.5)
+                                  root_rest_gaps=True, clap_rebounds=0.5, label_swaps=args.swaps)
                 folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",

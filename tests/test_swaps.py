@@ -107,5 +107,20 @@ def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path)
     assert (code == FILL_CODES["swap_repaired"]).sum() > 0.8 * truth["swap_mask"][res.frames].sum()
     assert res.qc["swaps"] and {"markers", "start", "stop", "repaired"} <= set(res.qc["swaps"][0])
     assert any(s["repaired"] for s in res.qc["swaps"])
+    pairs = {"/".join(s["markers"]) for s in res.qc["swaps"]}
+    assert set(res.qc["swap_pairs"]) == pairs
+    assert sum(c["repaired"] + c["removed"] for c in res.qc["swap_pairs"].values()) == len(res.qc["swaps"])
     off = CleanParams(repair_swaps=False)
     assert (clean_markers(takes[name], ms, "gaze_follow", off).fill_code != FILL_CODES["swap_repaired"]).all()
+
+
+def test_the_report_check_passes_repaired_swaps_and_warns_of_stretches_made_gaps() -> None:
+    from gazepipe.report.checks import check_swaps
+
+    assert check_swaps(None).severity == "skipped"
+    assert check_swaps({"swap_pairs": {}}).severity == "pass"
+    fixed = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 2, "removed": 0}}})
+    assert fixed.severity == "pass" and "CHA/CHB 2" in fixed.message and fixed.value == 2.0
+    lost = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 1, "removed": 1}, "SACR/PEL_B": {"repaired": 1,
+                                                                                           "removed": 0}}})
+    assert lost.severity == "warning" and "became gaps" in lost.message and lost.value == 3.0

@@ -23,6 +23,8 @@ check                                   warning         fail         measured on
 ``unfilled``                            > 5 %           > 30 %       per marker, unfilled share of the kept
                                                                      (cropped) frames (worst marker)
 ``spikes``                              > 1 %           –            per marker, share of samples removed as spikes
+``swaps``                               a stretch not   –            label swaps per marker pair: repaired (their
+                                        provable                     samples coded ``swap_repaired``), or made gaps
 ``crop``                                kept < 0.5 s,   –            crop bounds and rests of the clean stage
                                         a missing rest
 ``invalid_frames``                      > 20 %          > 60 %       kept frames without a character frame or
@@ -309,6 +311,24 @@ def check_spikes(clean_qc: dict[str, Any] | None, frames: int | None, th: Thresh
         "no spike removed"
     return Check("spikes", grade(v, th.spikes_warn, None), msg, value=v,
                  threshold=_thr(th.spikes_warn), details={"per_marker": {k: n for k, n in per.items() if n}})
+
+
+def check_swaps(clean_qc: dict[str, Any] | None) -> Check:
+    """Label swaps the clean stage found: repaired ones pass (their samples are measured, under the right names,
+    coded ``swap_repaired`` on the gap timeline); a stretch it could not prove, made gaps, is a warning."""
+    if clean_qc is None or "swap_pairs" not in clean_qc:
+        return skipped("swaps", "no clean record of label swaps")
+    pairs = clean_qc["swap_pairs"]
+    repaired = sum(c["repaired"] for c in pairs.values())
+    removed = sum(c["removed"] for c in pairs.values())
+    if not pairs:
+        return Check("swaps", "pass", "no label swap found", value=0.0)
+    by_pair = ", ".join(f"{k} {c['repaired'] + c['removed']}" for k, c in sorted(pairs.items()))
+    msg = f"{repaired} label-swap stretch(es) repaired ({by_pair})"
+    if removed:
+        msg += f"; {removed} stretch(es) not provable: both markers' samples there became gaps"
+    return Check("swaps", "warning" if removed else "pass", msg, value=float(repaired + removed),
+                 details={"per_pair": pairs})
 
 
 def check_crop(clean_qc: dict[str, Any] | None, kind: str, frames: int | None, rate_hz: float | None,

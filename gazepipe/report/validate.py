@@ -97,6 +97,7 @@ def take_output_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> li
         out.append(C.check_unfilled(tables.fill, tables.fill_labels, th) if clean is not None
                    else C.skipped("unfilled", "no clean record"))
     out.append(C.check_spikes(clean, n_frames, th))
+    out.append(C.check_swaps(clean))
     out.append(C.check_crop(clean, e.kind, n_frames, rate, th))
     kept = (clean or {}).get("kept_frames")
     if e.kind in ("gaze_follow", "gaze_shift"):

@@ -214,7 +214,7 @@ def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markers
     """Label swaps repaired in place in ``xyz`` and ``valid`` (:mod:`.swaps`; the subject's references when
     given, else the take's own); ``qc["swaps"]`` lists the stretches. Returns the (T, M) mask of repaired
     samples."""
-    qc["swaps"] = []
+    qc["swaps"], qc["swap_pairs"] = [], {}
     if not params.repair_swaps:
         return np.zeros(valid.shape, dtype=bool)
     body = set(markerset.subject_markers)
@@ -224,6 +224,11 @@ def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markers
                        in_place=True)
     qc["swaps"] = [{"markers": [labels[r.first], labels[r.second]], "start": r.start, "stop": r.stop,
                     "repaired": r.repaired} for r in res.records]
+    pairs: dict[str, dict[str, int]] = {}
+    for r in res.records:
+        count = pairs.setdefault(f"{labels[r.first]}/{labels[r.second]}", {"repaired": 0, "removed": 0})
+        count["repaired" if r.repaired else "removed"] += 1
+    qc["swap_pairs"] = pairs
     if any(not r.repaired for r in res.records):
         lost = int(res.removed.sum())
         qc["warnings"].append(f"{lost} sample(s) of swapped markers could not be put back under their names "
@@ -283,6 +288,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     missing or the rest periods the kind needs are not found.
 
     ``qc`` holds: ``swaps`` (every swapped stretch: the two markers, start, stop, repaired or made gaps),
+    ``swap_pairs`` (per pair ``"A/B"``: stretches repaired and removed),
     ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
     marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
