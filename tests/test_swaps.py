@@ -110,6 +110,8 @@ def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path)
     pairs = {"/".join(s["markers"]) for s in res.qc["swaps"]}
     assert set(res.qc["swap_pairs"]) == pairs
     assert sum(c["repaired"] + c["removed"] for c in res.qc["swap_pairs"].values()) == len(res.qc["swaps"])
+    short = replace(takes[name], xyz=takes[name].xyz[:300], valid=takes[name].valid[:300])
+    assert "swaps_not_checked" in clean_markers(short, ms, "neutral").qc      # 10 s, no subject references
     off = CleanParams(repair_swaps=False)
     assert (clean_markers(takes[name], ms, "gaze_follow", off).fill_code != FILL_CODES["swap_repaired"]).all()
 
@@ -119,6 +121,7 @@ def test_the_report_check_passes_repaired_swaps_and_warns_of_stretches_made_gaps
 
     assert check_swaps(None).severity == "skipped"
     assert check_swaps({"swap_pairs": {}}).severity == "pass"
+    assert check_swaps({"swap_pairs": {}, "swaps_not_checked": "a short take"}).severity == "skipped"
     fixed = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 2, "removed": 0}}})
     assert fixed.severity == "pass" and "CHA/CHB 2" in fixed.message and fixed.value == 2.0
     lost = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 1, "removed": 1}, "SACR/PEL_B": {"repaired": 1,

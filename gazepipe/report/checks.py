@@ -318,6 +318,8 @@ def check_swaps(clean_qc: dict[str, Any] | None) -> Check:
     coded ``swap_repaired`` on the gap timeline); a stretch it could not prove, made gaps, is a warning."""
     if clean_qc is None or "swap_pairs" not in clean_qc:
         return skipped("swaps", "no clean record of label swaps")
+    if clean_qc.get("swaps_not_checked"):
+        return skipped("swaps", clean_qc["swaps_not_checked"])
     pairs = clean_qc["swap_pairs"]
     repaired = sum(c["repaired"] for c in pairs.values())
     removed = sum(c["removed"] for c in pairs.values())

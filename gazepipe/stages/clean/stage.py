@@ -27,6 +27,10 @@ from gazepipe.stages.geometry import up_vector
 UNFILLED = FILL_CODES["unfilled"]
 #: a frame where fewer than this share of the subject's markers are present has no rest speed (SPEC §3.2)
 REST_MIN_PRESENT = 0.5
+#: without the subject's references, a take's own frames judge its swaps only when it is at least this long (s):
+#: a swap (0.3-3 s) is then a small minority of its frames; in a short take one can be most of them, and the
+#: right names would look swapped (bench/bench_swaps.py: on 4-s takes, hundreds of samples made wrong)
+OWN_REFERENCES_MIN_S = 20.0
 
 
 @dataclass(frozen=True)
@@ -176,7 +180,7 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
     xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
-    swapped = _repair_swaps(xyz, valid, markers.labels, markerset, params, qc, references)
+    swapped = _repair_swaps(xyz, valid, markers.labels, markers.rate_hz, markerset, params, qc, references)
     spike = np.zeros(valid.shape, dtype=bool)
     if params.remove_spikes:
         spike = find_spikes(xyz, valid, markers.rate_hz, clusters, residual_mm=params.spike_residual_mm,
@@ -209,13 +213,18 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
     return xyz, code, spike, records
 
 
-def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], markerset: MarkerSet,
+def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], rate_hz: float, markerset: MarkerSet,
                   params: CleanParams, qc: dict, references: SubjectReferences | None) -> np.ndarray:
     """Label swaps repaired in place in ``xyz`` and ``valid`` (:mod:`.swaps`; the subject's references when
     given, else the take's own); ``qc["swaps"]`` lists the stretches. Returns the (T, M) mask of repaired
     samples."""
     qc["swaps"], qc["swap_pairs"] = [], {}
     if not params.repair_swaps:
+        return np.zeros(valid.shape, dtype=bool)
+    if references is None and valid.shape[0] < OWN_REFERENCES_MIN_S * rate_hz:
+        qc["swaps_not_checked"] = (f"a take shorter than {OWN_REFERENCES_MIN_S:g} s cannot tell swaps from the "
+                                   "right names by itself (the pipeline judges every take against all of the "
+                                   "session's)")
         return np.zeros(valid.shape, dtype=bool)
     body = set(markerset.subject_markers)
     res = repair_swaps(xyz, valid, params.swap_tolerance,
@@ -278,7 +287,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
 
     ``references``: the subject's marker geometry from all of the session's takes
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), against which label swaps are judged; without
-    them, the take's own (which cannot tell a swap lasting most of a short take from the right names).
+    them, the take's own, for a take of at least :data:`OWN_REFERENCES_MIN_S` (a shorter one is not looked at
+    for swaps: a swap can be most of it).
 
     Steps: label-swap repair → spike removal → gap filling (clusters = the markerset's segments) → root stabilisation (lab axes,
     optional heading removal; frames without the root marker become unfilled) → optional zero-phase
@@ -288,7 +298,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     missing or the rest periods the kind needs are not found.
 
     ``qc`` holds: ``swaps`` (every swapped stretch: the two markers, start, stop, repaired or made gaps),
-    ``swap_pairs`` (per pair ``"A/B"``: stretches repaired and removed),
+    ``swap_pairs`` (per pair ``"A/B"``: stretches repaired and removed), ``swaps_not_checked`` (why, when swaps
+    were not looked for),
     ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
     marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
