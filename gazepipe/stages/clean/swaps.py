@@ -38,6 +38,9 @@ MAX_REFERENCE_SPREAD_MM = 15.0
 SPREAD_FLOOR_MM = 1.0
 #: a sample's misfit needs this many references measured in its frame
 MIN_REFERENCES = 2
+#: two markers closer than this (mm) are never exchanged: within a few tolerances of each other, either name
+#: fits either sample, and camera systems merge markers that close anyway
+MIN_SEPARATION_MM = 30.0
 #: passes of repair at most (each pass after the first finds swaps an earlier repair uncovered)
 MAX_PASSES = 3
 #: frames sampled (evenly) to choose references: distance medians settle long before that
@@ -392,27 +395,39 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
         return -1, none, none
     x, ok = xyz[frames], valid[frames]
     trusted = ok & ~displaced[frames]
-    # suspect against trusted references only: a marker suspect because its references were swapped is not
-    worst, median = _misfit(x, x, trusted, np.arange(n_m), refs, exclude=None)
-    with np.errstate(invalid="ignore"):
-        own = ok & (worst > refs.tolerance[None])
-        # off by most references' reckoning, not one astray: what a sample handed to a missing partner needs
-        gone_wrong = ok[:, a] & (median[:, a] > refs.tolerance[a])
-    # a partner is missing or suspect itself in some of these frames
-    maybe = (own | ~ok).any(axis=0) & np.isfinite(refs.tolerance)
-    maybe[a] = False
-    others = np.flatnonzero(maybe & own[:, a].any())
+    n = frames.size
+    own = np.zeros((n, n_m), dtype=bool)
+    gone_wrong = np.zeros(n, dtype=bool)
+    for lo in range(0, n, _BLOCK_FRAMES):        # in blocks: a marker suspect all take long stays in bounds
+        rows = slice(lo, lo + _BLOCK_FRAMES)
+        # suspect against trusted references only: a marker suspect because its references were swapped is not
+        worst, median = _misfit(x[rows], x[rows], trusted[rows], np.arange(n_m), refs, exclude=None)
+        with np.errstate(invalid="ignore"):
+            own[rows] = ok[rows] & (worst > refs.tolerance[None])
+            # off by most references' reckoning, not one astray: what a sample handed to a missing partner needs
+            gone_wrong[rows] = ok[rows, a] & (median[:, a] > refs.tolerance[a])
+    # a partner is missing or suspect itself in the frame where a is suspect
+    maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
+    maybe[:, a] = False
+    with _quiet():                                # the pair's distance is the same, swapped or not
+        apart = np.nanmedian(norm3(x[:, a:a + 1] - x), axis=0)
+    maybe &= ~(apart < MIN_SEPARATION_MM)[None]          # unknown (never measured together here): allowed
+    others = np.flatnonzero(maybe.any(axis=0))
     if others.size == 0:
         return -1, none, none
-    # a's sample judged as each other marker b; b's sample judged as a
-    a_as_b = _misfit(np.repeat(x[:, a:a + 1], others.size, axis=1), x, trusted, others, refs,
-                     exclude=np.full(others.size, a))[0]
-    b_as_a = _misfit(x[:, others], x, trusted, np.full(others.size, a), refs, exclude=others)[0]
-    fits_b = a_as_b <= refs.tolerance[others][None]
-    b_fits_a = b_as_a <= refs.tolerance[a]
-    b_gone = ~ok[:, others]
+    explained = np.zeros((n, others.size), dtype=bool)
+    for c, b in enumerate(others):               # each candidate on its own frames only
+        rows = np.flatnonzero(maybe[:, b])
+        xr, tr = x[rows], trusted[rows]
+        with np.errstate(invalid="ignore"):
+            # a's sample judged as b; b's sample judged as a
+            fits_b = _misfit(xr[:, [a]], xr, tr, np.array([b]), refs, exclude=np.array([a]))[0][:, 0] \
+                <= refs.tolerance[b]
+            b_fits_a = _misfit(xr[:, [b]], xr, tr, np.array([a]), refs, exclude=np.array([b]))[0][:, 0] \
+                <= refs.tolerance[a]
+        gone = ~ok[rows, b]
+        explained[rows, c] = fits_b & ((gone & gone_wrong[rows]) | (own[rows, b] & b_fits_a))
     b_suspect = own[:, others]
-    explained = own[:, a:a + 1] & fits_b & ((b_gone & gone_wrong[:, None]) | (b_suspect & b_fits_a))
     score = explained.sum(axis=0)
     best = -1
     for c in np.argsort(-score, kind="stable"):
