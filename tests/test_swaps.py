@@ -127,3 +127,33 @@ def test_the_report_check_passes_repaired_swaps_and_warns_of_stretches_made_gaps
     lost = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 1, "removed": 1}, "SACR/PEL_B": {"repaired": 1,
                                                                                            "removed": 0}}})
     assert lost.severity == "warning" and "became gaps" in lost.message and lost.value == 3.0
+
+
+def test_fill_command_repairs_swaps_in_a_capture_file(tmp_path: Path) -> None:
+    # one 40 s take of the generator with two swaps, through `gazepipe fill --repair-swaps`: the copy holds each
+    # swapped sample under its own name again (or a gap), and nothing else that was right is moved
+    from click.testing import CliRunner
+
+    from gazepipe.cli.main import cli
+
+    cfg = replace(sample_config(), head_camera=False, face_takes=(), label_swaps=2, follow_poses=("standing",),
+                  follow_duration_s=40.0, shift_targets=(), neutral_s=0.0)
+    folder = generate_session(tmp_path / "s", 3, cfg)
+    src = next((folder / "mocap").glob("follow_*.c3d"))
+    truth = np.load(folder / "truth" / f"{src.stem}.npz")
+    assert truth["swap_mask"].sum() > 20
+    dest = tmp_path / "fixed.c3d"
+    res = CliRunner().invoke(cli, ["fill", str(src), str(dest), "--repair-swaps", "--max-gap-s", "0", "--json"])
+    assert res.exit_code == 0, res.output
+    import json
+
+    summary = json.loads(res.stdout)
+    assert summary["swaps"]["looked_for"] and summary["swaps"]["stretches"]
+    before, after = read_markers(src), read_markers(dest)
+    true_xyz = truth["markers_true"]
+    with np.errstate(invalid="ignore"):
+        wrong_before = before.valid & (np.linalg.norm(before.xyz - true_xyz, axis=2) > WRONG_MM)
+        wrong_after = after.valid & (np.linalg.norm(after.xyz - true_xyz, axis=2) > WRONG_MM)
+    ghosts = truth["spike_mask"].any(axis=1)[:, None]
+    assert (wrong_after & truth["swap_mask"]).sum() < 0.1 * truth["swap_mask"].sum()
+    assert not (wrong_after & ~wrong_before & ~ghosts).any()

@@ -208,10 +208,13 @@ def export(out: str, take: str, session: str | None, dest: str, table: str) -> N
 @click.option("--remove-spikes", is_flag=True, help="Turn spikes (ghosts of a frame or two off a marker's path or "
               "its rigid cluster, and accelerations over 50 g) into gaps first, as `gazepipe clean` does (default: "
               "measured samples are kept; spikes are counted).")
+@click.option("--repair-swaps", is_flag=True, help="Put samples back under their own names where two markers "
+              "carried each other's names (label swaps), proven frame by frame against the file's own marker "
+              "geometry, before anything else; unprovable stretches become gaps (files of 20 s or more).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
 @click.option("--force", is_flag=True, help="Overwrite OUT when it exists (default: refuse).")
 @handle_errors
-def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool,
+def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool, repair_swaps: bool,
          as_json: bool, force: bool) -> None:
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
@@ -228,6 +231,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
       gazepipe fill walk.c3d walk_filled.c3d
       gazepipe fill trial.csv trial_filled.csv --max-gap-s 0.5 --json
       gazepipe fill noisy.c3d noisy_filled.c3d --remove-spikes
+      gazepipe fill trial.c3d trial_fixed.c3d --repair-swaps --remove-spikes
       gazepipe fill walk.c3d walk_filled.c3d --force     # write over an earlier walk_filled.c3d
     """
     from gazepipe.io.c3d import write_filled_c3d
@@ -247,7 +251,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     # a text export is read once, with the layout its copy is written from
     text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
     markers = read_markers(src_p, rate_hz=rate_hz) if text is None else text[0]
-    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes)
+    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes, swaps=repair_swaps)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if fmt == "c3d":
             _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
@@ -284,6 +288,12 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                 else "kept as measured (--remove-spikes turns them into gaps first)")
         click.echo(f"  {sp['samples']} samples of {len(sp['per_marker'])} markers are spikes (off their path or "
                    f"cluster, or implausibly accelerated): {what}")
+    sw = summary["swaps"]
+    if repair_swaps and not sw["looked_for"]:
+        click.echo("  label swaps not looked for: the file is shorter than 20 s (a swap could be most of it)")
+    elif sw["looked_for"]:
+        click.echo(f"  label swaps: {len(sw['stretches'])} stretch(es); {sw['samples_repaired']} samples put back "
+                   f"under their own names, {sw['samples_removed']} made gaps")
     if summary["clusters"]:
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 

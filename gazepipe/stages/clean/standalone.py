@@ -14,12 +14,19 @@ import numpy as np
 from gazepipe.model import FILL_CODES, FILL_NAMES, Markers
 from gazepipe.stages.clean.gapfill import METHODS, fill_gaps, find_rigid_clusters
 from gazepipe.stages.clean.spikes import find_spikes
+from gazepipe.stages.clean.stage import OWN_REFERENCES_MIN_S
+from gazepipe.stages.clean.swaps import repair_swaps
 
 
 def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS,
-                 spikes: bool = False) -> tuple[Markers, dict[str, Any], np.ndarray]:
+                 spikes: bool = False, swaps: bool = False) -> tuple[Markers, dict[str, Any], np.ndarray]:
     """Fill the gaps of ``markers``; return the filled markers, a summary of what was filled, by method, and
-    the (T, M) mask of measured samples taken out as spikes.
+    the (T, M) mask of measured samples changed other than by filling (taken out as spikes, or moved or taken out
+    by a swap repair): the writers write those anew.
+
+    With ``swaps``, label swaps are repaired first (:func:`~gazepipe.stages.clean.swaps.repair_swaps` against
+    the file's own marker geometry, for a capture of at least
+    :data:`~gazepipe.stages.clean.stage.OWN_REFERENCES_MIN_S`; the summary's ``swaps`` lists the stretches).
 
     Spikes (glitches off a marker's path or its rigid cluster, and implausible accelerations:
     :func:`~gazepipe.stages.clean.spikes.find_spikes` with the clean stage's defaults, clusters found from the
@@ -31,6 +38,18 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
     (the rigid clusters found, by label), per marker the samples filled by each method and those left unfilled,
     and ``gap_list``: every gap with its file frame numbers, method, weights and validation errors.
     """
+    changed = np.zeros(markers.valid.shape, dtype=bool)
+    swap_summary: dict[str, Any] = {"looked_for": False, "stretches": []}
+    if swaps and markers.n_frames >= OWN_REFERENCES_MIN_S * markers.rate_hz:
+        fixed = repair_swaps(markers.xyz, markers.valid)
+        changed = fixed.repaired | fixed.removed
+        swap_summary = {"looked_for": True, "samples_repaired": int(fixed.repaired.sum()),
+                        "samples_removed": int(fixed.removed.sum()),
+                        "stretches": [{"markers": [markers.labels[r.first], markers.labels[r.second]],
+                                       "first_frame": markers.first_frame + r.start,
+                                       "last_frame": markers.first_frame + r.stop - 1, "repaired": r.repaired}
+                                      for r in fixed.records]}
+        markers = dataclasses.replace(markers, xyz=fixed.xyz, valid=fixed.valid, warnings=list(markers.warnings))
     clusters = find_rigid_clusters(markers.xyz, markers.valid)
     spiky = find_spikes(markers.xyz, markers.valid, markers.rate_hz, clusters)
     n_spiky = spiky.sum(axis=0)
@@ -63,11 +82,12 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
         "unfilled_reasons": dict(sorted(reasons.items())),
         "spikes": {"samples": int(spiky.sum()), "removed": bool(spikes),
                    "per_marker": {markers.labels[i]: int(n) for i, n in enumerate(n_spiky) if n}},
+        "swaps": swap_summary,
         "clusters": [[markers.labels[i] for i in c] for c in clusters],
         "per_marker": per_marker,
         "gap_list": [_gap_entry(markers, g, e) for g, e in zip(res.gaps, at_edge, strict=True)],
     }
-    return filled, summary, (spiky if spikes else np.zeros_like(spiky))
+    return filled, summary, (spiky if spikes else np.zeros_like(spiky)) | changed
 
 
 def _gap_entry(markers: Markers, g: Any, at_edge: bool) -> dict[str, Any]:
