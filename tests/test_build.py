@@ -291,7 +291,12 @@ def test_splits_never_empty_when_a_take_can_fill_them(follow_takes):
     keys = [f"s/take_{i}" for i in range(6)]
     moves = rebalance([(k, "train", False) for k in keys])
     assert sorted(m[2] for m in moves) == ["test", "val"] and all(m[1] == "train" for m in moves)
-    assert rebalance([(k, "train", False) for k in keys[:4]]) == []
+    # three or four: train and val a take each (a trainer needs something to validate on), test may stay empty
+    for n in (3, 4):
+        assert [m[1:3] for m in rebalance([(k, "train", False) for k in keys[:n]])] == [("train", "val")]
+    assert rebalance([(k, "train", False) for k in keys[:2]]) == []
+    three = rebalance([("a", "train", True), ("b", "train", False), ("c", "test", False)])
+    assert [m[:3] for m in three] == [("b", "train", "val")]          # one pinned to train: the other moves
     assert rebalance([("a", "val", True), ("b", "test", True)]) == []          # pinned takes stay
     assert rebalance([("a", "val", True), ("b", "test", False)])[0][:3] == ("b", "test", "train")
     assert rebalance([(k, "train", False) for k in keys]) == moves            # deterministic

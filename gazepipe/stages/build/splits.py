@@ -48,8 +48,9 @@ def rebalance(takes: list[tuple[str, str, bool]], train: float = 0.8, val: float
     """The moves that keep a dataset's splits from emptying (SPEC §3.6), as ``(take, from, to, why)``.
 
     ``takes`` are the takes that gave rows: ``(key, split, pinned)`` with ``key`` the ``<session>/<take>`` of
-    :func:`assign_split`. The train split is never empty while an unpinned take exists; with five or more takes,
-    an empty val or test split takes one. A take moves only to fill a split that would otherwise be empty, and
+    :func:`assign_split`. The train split is never empty while an unpinned take exists; with three or more
+    takes an empty val split takes one (a trainer then has something to validate on), with five or more an empty
+    test split too. A take moves only to fill a split that would otherwise be empty, and
     only out of a split that keeps at least one take; of those that may move, the one whose hash lies nearest
     the empty split's share of [0, 1) moves (ties by key), so the choice is as deterministic as the hash.
     """
@@ -76,7 +77,8 @@ def rebalance(takes: list[tuple[str, str, bool]], train: float = 0.8, val: float
         split[k] = target
 
     fill("train", "the train split would be empty (statistics need a training take)")
+    if len(takes) >= 3:
+        fill("val", f"the val split would be empty with {len(takes)} takes")
     if len(takes) >= 5:
-        for s in ("val", "test"):
-            fill(s, f"the {s} split would be empty with {len(takes)} takes")
+        fill("test", f"the test split would be empty with {len(takes)} takes")
     return moves

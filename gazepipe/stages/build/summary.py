@@ -193,9 +193,10 @@ class DatasetSummary:
         pinned_only = all(t.pinned for t in self.takes.values())
         for s in SPLITS:
             if self.by_split[s]["takes"] == 0:
+                least = {"train": 1, "val": 3, "test": 5}[s]
                 why = ("every take is pinned to another split" if pinned_only and self.n_takes else
-                       f"{self.n_takes} take(s): a split is filled from the others only with five or more"
-                       if s != "train" else "no take could move there")
+                       f"{self.n_takes} take(s): the {s} split is filled from the others only with {least} or more"
+                       if self.n_takes < least else "no take could move there")
                 warnings.append(f"split {s!r} is empty: {why}")
         if len(fps) > 1 and self.name != "face_clean":
             warnings.append(f"takes have different frame rates {fps} Hz: a window of frames spans different times")
