@@ -9,10 +9,11 @@ degrees, and rows with a segment more than 5° off), and its target direction; t
 that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds; the frames each dataset dropped,
 by reason.
 
-With ``--swaps N`` every mocap take also gets N label swaps (``SynthConfig.label_swaps``); ``--no-repair`` runs
+With ``--bursts N`` every mocap take gets N occlusion bursts (``SynthConfig.occlusion_bursts``: 30-80 % of the
+subject's markers, on one side, gone for 0.2-1.5 s). With ``--swaps N`` every mocap take also gets N label swaps (``SynthConfig.label_swaps``); ``--no-repair`` runs
 with ``clean.repair_swaps = false``, to see what the swaps cost without their repair.
 
-Usage: ``python bench/bench_datasets_truth.py [--seeds 2] [--duration 30] [--swaps 0] [--no-repair]``
+Usage: ``python bench/bench_datasets_truth.py [--seeds 2] [--duration 30] [--swaps 0] [--no-repair] [--bursts 0]``
 """
 
 from __future__ import annotations
@@ -112,9 +113,11 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of each gaze_follow take")
     ap.add_argument("--swaps", type=int, default=0, help="label swaps per mocap take")
     ap.add_argument("--no-repair", action="store_true", help="clean.repair_swaps = false")
+    ap.add_argument("--bursts", type=int, default=0, help="occlusion bursts per mocap take")
     args = ap.parse_args()
     print(f"hazards: spikes 1/marker/min, 4 trunk/neck occlusions of 1-3 s per take, 3 gaps/marker/min, "
-          f"{args.swaps} label swaps per take{' (not repaired)' if args.no_repair else ''}; "
+          f"{args.swaps} label swaps per take{' (not repaired)' if args.no_repair else ''}, "
+          f"{args.bursts} occlusion bursts per take; "
           f"{args.seeds} seeds; two {args.duration:g} s gaze_follow takes and 10 gaze_shift takes per session")
     params = {"clean.repair_swaps": False} if args.no_repair else None
     for label, (segments, up) in LAYOUTS.items():
@@ -127,7 +130,8 @@ def main() -> None:
             for seed in range(args.seeds):
                 cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=args.duration,
                                   face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0,
-                                  segments=segments, up_axis=up, label_swaps=args.swaps)
+                                  segments=segments, up_axis=up, label_swaps=args.swaps,
+                                  occlusion_bursts=args.bursts)
                 folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",

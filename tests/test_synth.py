@@ -458,3 +458,27 @@ def test_gaze_shift_capture_hazards(tmp_path):
             for tc, (mm, dur) in zip(t["clap_times_s"], bounce, strict=True):
                 after = d[int(np.ceil(tc * rate)):int(np.ceil((tc + dur) * rate))]
                 assert 3.0 <= mm <= 6.0 and CLAP_SHUT_MM + 1e-3 < after.max() <= CLAP_SHUT_MM + mm   # noise-free
+
+
+def test_occlusion_bursts_hide_one_side_of_the_body_at_once() -> None:
+    from numpy.linalg import lstsq
+
+    from gazepipe.stages.clean.filters import true_runs
+    from gazepipe.synth.markers import BURST_S, make_occlusion_bursts
+    from gazepipe.synth.skeleton import subject_marker_layout
+
+    labels, _, offsets = subject_marker_layout()
+    rng = np.random.default_rng(1)
+    n, rate = 3000, 120.0
+    xyz = np.broadcast_to(offsets[None] + [0.0, 0.0, 1000.0], (n, len(labels), 3)).copy()
+    mask = make_occlusion_bursts(rng, labels, xyz, rate, 4)
+    share = mask.mean(axis=1)
+    assert share.max() >= 0.3 and share.max() <= 0.8 + 1e-9
+    runs = true_runs(share > 0)
+    assert 1 <= len(runs) <= 4 and mask[0].sum() == 0
+    for a, b in runs:
+        assert b - a <= int(BURST_S[1] * rate) * 2            # two bursts may touch
+        hidden = mask[a]
+        # one side: a plane separates the hidden markers from the seen ones
+        side = lstsq(np.c_[offsets, np.ones(len(labels))], np.where(hidden, 1.0, -1.0), rcond=None)[0]
+        assert ((np.c_[offsets, np.ones(len(labels))] @ side > 0) == hidden).mean() > 0.9

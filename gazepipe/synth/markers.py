@@ -328,3 +328,31 @@ def apply_label_swaps(xyz: np.ndarray, mask: np.ndarray, swaps: list[tuple[int, 
         mask[s:e, [a, b]] = mask[s:e, [b, a]]
         swapped[s:e, [a, b]] = True
     return swapped & ~mask
+
+
+#: an occlusion burst: how long (s) and what share of the subject's markers it hides at once
+BURST_S = (0.2, 1.5)
+BURST_SHARE = (0.3, 0.8)
+
+
+def make_occlusion_bursts(rng: np.random.Generator, labels: list[str], markers_true: np.ndarray, rate_hz: float,
+                          count: int) -> np.ndarray:
+    """``count`` occlusion bursts, as a (T, M) mask to add to the others: something passes in front of the
+    cameras and 30–80 % of the subject's markers vanish at once for 0.2–1.5 s, those on one side of the body
+    (farthest along a random horizontal direction from the subject's centroid when the burst starts; lab z up).
+    The target and the clapper are not hidden; bursts start after the take's first frame."""
+    n, m = markers_true.shape[:2]
+    mask = np.zeros((n, m), dtype=bool)
+    body = np.array([i for i, lab in enumerate(labels) if lab != TARGET_MARKER and lab not in CLAPPER_MARKERS])
+    if n < 4 or body.size < 2:
+        return mask
+    for _ in range(count):
+        length = min(n - 2, max(1, int(rng.uniform(*BURST_S) * rate_hz)))
+        start = int(rng.integers(1, n - length))
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        side = np.array([np.cos(angle), np.sin(angle), 0.0])
+        pos = markers_true[start, body]
+        order = np.argsort(-(pos - pos.mean(axis=0)) @ side, kind="stable")
+        hidden = body[order[:max(1, int(round(rng.uniform(*BURST_SHARE) * body.size)))]]
+        mask[start:start + length, hidden] = True
+    return mask

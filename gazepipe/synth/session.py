@@ -18,6 +18,7 @@ from gazepipe.synth.markers import (
     make_gaps,
     make_label_swaps,
     make_long_gaps,
+    make_occlusion_bursts,
     make_root_rest_gap,
     make_spikes,
 )
@@ -72,7 +73,9 @@ class SynthConfig:
     others, so the others stay as they were; ``label_swaps``: stretches of 0.3–3 s per mocap take in which two
     markers carry each other's names (:func:`~gazepipe.synth.markers.make_label_swaps`: two markers of a segment,
     close markers of neighbouring segments, left and right; half of them at a gap's edge; the truth marks the
-    samples written under the wrong name in ``swap_mask`` and lists the stretches in ``swaps``).
+    samples written under the wrong name in ``swap_mask`` and lists the stretches in ``swaps``);
+    ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
+    vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -100,6 +103,7 @@ class SynthConfig:
     more_follow: tuple[tuple[str, float], ...] = ()
     more_face_takes: tuple[tuple[float, float], ...] = ()
     label_swaps: int = 0
+    occlusion_bursts: int = 0
 
 
 def sample_config() -> SynthConfig:
@@ -274,8 +278,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     meta_takes: dict[str, Any] = {}
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(8))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(9))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -317,6 +321,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         if cfg.gaps and cfg.root_rest_gaps:
             rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
             mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
+        if cfg.gaps and cfg.occlusion_bursts:
+            mask |= make_occlusion_bursts(r_bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
         offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
                                       motion.clapper_busy)
         noisy += offsets
