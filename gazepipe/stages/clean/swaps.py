@@ -46,7 +46,7 @@ MAX_PASSES = 3
 #: frames sampled (evenly) to choose references: distance medians settle long before that
 REFERENCE_FRAMES = 4000
 #: frames per block of the take-long misfit: its temporaries stay within a block
-_BLOCK_FRAMES = 8192
+_BLOCK_FRAMES = 2048
 
 
 @dataclass(frozen=True)
@@ -492,25 +492,40 @@ def _extend_by_continuity(st: _State) -> None:
 
 def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
     """The frames from ``edge`` on (in direction ``step``) over which the stretch of ``pair`` ending just before
-    ``edge`` continues (see :func:`_extend_by_continuity`)."""
+    ``edge`` continues (see :func:`_extend_by_continuity`), looked at a block of frames at a time (a swap ends
+    within seconds; the rest of the take is not read)."""
     n_t = st.valid.shape[0]
-    stop = n_t if step > 0 else -1
-    if not 0 <= edge < n_t:
-        return np.zeros(0, dtype=np.int64)
-    rows = np.arange(edge, stop, step)
-    free = ~(st.repaired[rows][:, pair].any(axis=1) | st.removed[rows][:, pair].any(axis=1))
+    out: list[np.ndarray] = []
+    at = edge
+    while 0 <= at < n_t:
+        rows = np.arange(at, min(n_t, at + _CONTINUITY_BLOCK) if step > 0 else max(-1, at - _CONTINUITY_BLOCK), step)
+        kept = _continued_block(st, pair, rows, step, first=at == edge)
+        out.append(kept)
+        if kept.size < rows.size:
+            break
+        at = int(rows[-1]) + step
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+
+
+#: frames looked at at a time by :func:`_continued`
+_CONTINUITY_BLOCK = 256
+
+
+def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, first: bool) -> np.ndarray:
+    """The leading frames of ``rows`` (consecutive, in direction ``step``) that continue the stretch of ``pair``
+    (everything before ``rows[0]`` continues it, or, when ``first``, was repaired)."""
+    free = ~(st.repaired[rows[:, None], pair].any(axis=1) | st.removed[rows[:, None], pair].any(axis=1))
     rows = rows[:np.argmin(free)] if not free.all() else rows
     if rows.size == 0:
         return rows
-    a, b = pair
-    here, before = st.xyz[rows], st.xyz[rows - step]   # the frame before the edge holds the repaired names
+    here, before = st.xyz[rows[:, None], pair], st.xyz[(rows - step)[:, None], pair]    # (n, 2, 3): a, b
     # where each marker truly was a frame before, if the stretch goes on up to there: at the edge, as
-    # repaired; beyond it, the capture's other name
-    first = (np.arange(rows.size) == 0)[:, None]
-    prev_a = np.where(first, before[:, a], before[:, b])
-    prev_b = np.where(first, before[:, b], before[:, a])
-    keep = norm3(here[:, a] - prev_a), norm3(here[:, b] - prev_b)
-    exchange = norm3(here[:, b] - prev_a), norm3(here[:, a] - prev_b)
+    # repaired; beyond it, under the capture's other name
+    at_edge = ((np.arange(rows.size) == 0) & first)[:, None]
+    prev_a = np.where(at_edge, before[:, 0], before[:, 1])
+    prev_b = np.where(at_edge, before[:, 1], before[:, 0])
+    keep = norm3(here[:, 0] - prev_a), norm3(here[:, 1] - prev_b)
+    exchange = norm3(here[:, 1] - prev_a), norm3(here[:, 0] - prev_b)
     keep_cost = np.nansum(keep, axis=0)
     exchange_cost = np.nansum(exchange, axis=0)
     seen = np.isfinite(keep[0]) | np.isfinite(keep[1]) | np.isfinite(exchange[0]) | np.isfinite(exchange[1])
