@@ -21,10 +21,12 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from itertools import combinations
 
 import numpy as np
 
 from gazepipe.stages.clean.filters import true_runs
+from gazepipe.stages.clean.spikes import _nanmedian
 from gazepipe.stages.geometry import norm3
 
 #: references per marker (the steadiest distances): several, so that one astray is outvoted
@@ -112,9 +114,8 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
         enough[m] = False
         if not enough.any():
             continue
-        with _quiet():
-            median = np.nanmedian(d[:, enough], axis=0)
-            spread = 1.4826 * np.nanmedian(np.abs(d[:, enough] - median), axis=0)
+        median = _nanmedian(d[:, enough], axis=0)
+        spread = 1.4826 * _nanmedian(np.abs(d[:, enough] - median), axis=0)
         cols = np.flatnonzero(enough)
         order = np.argsort(spread, kind="stable")[:N_REFERENCES]
         order = order[spread[order] <= MAX_REFERENCE_SPREAD_MM]
@@ -139,25 +140,35 @@ def _volume(origin: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> 
         return det / (norm3(u) * norm3(v) * norm3(w))
 
 
+#: frames (evenly spread) on which the chiral triples are chosen
+CHIRAL_FRAMES = 500
+
+
 def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each marker's chiral reference triple and its handedness (see :class:`References`), from sample frames:
     of its references, the three whose directions from it span the largest volume in the median frame."""
-    from itertools import combinations
-
-    n_m = index.shape[0]
+    n_m, k = index.shape
     chiral = np.full((n_m, 3), -1, dtype=np.int64)
     handedness = np.zeros(n_m)
+    triples = np.array(list(combinations(range(k), 3)), dtype=np.int64)           # (C, 3) slots of index
+    keep = np.unique(np.linspace(0, max(len(x) - 1, 0), min(len(x), CHIRAL_FRAMES)).astype(np.int64))
+    x, ok = x[keep], ok[keep]                      # a handedness's sign settles on a few hundred frames
     for m in range(n_m):
-        refs = [int(k) for k in index[m] if k >= 0]
-        best = 0.0
-        for triple in combinations(refs, 3):
-            rows = ok[:, m] & ok[:, list(triple)].all(axis=1)
-            if rows.sum() < 10:
-                continue
-            with _quiet():
-                vol = float(np.median(_volume(x[rows, m], *(x[rows, k] for k in triple))))
-            if abs(vol) >= max(best, MIN_CHIRAL_VOLUME):
-                best, chiral[m], handedness[m] = abs(vol), triple, np.sign(vol)
+        usable = triples[(index[m][triples] >= 0).all(axis=1)]
+        rows = np.flatnonzero(ok[:, m])
+        if usable.size == 0 or rows.size < 10:
+            continue
+        tri = index[m][usable]                                                      # (C, 3) columns
+        corners = x[rows[:, None, None], tri[None]]                                 # (S, C, 3, 3)
+        vol = _volume(x[rows, m][:, None], corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
+        seen = ok[rows[:, None, None], tri[None]].all(axis=2)
+        vol[~seen] = np.nan
+        median = _nanmedian(vol, axis=0)
+        median[seen.sum(axis=0) < 10] = np.nan
+        size = np.nan_to_num(np.abs(median), nan=0.0)
+        best = int(np.argmax(size))
+        if size[best] >= MIN_CHIRAL_VOLUME:
+            chiral[m], handedness[m] = tri[best], np.sign(median[best])
     return chiral, handedness
 
 
