@@ -290,7 +290,7 @@ def _subject_references(key: tuple[tuple[Take, tuple[int, int, int]], ...], ms):
     take's capture of a session (``key``: :func:`_subject_key`); a take that cannot be read is passed over.
     Cached per worker: every take's clean reads the same."""
     from gazepipe.io.capture import read_markers
-    from gazepipe.stages.clean.swaps import pooled_references
+    from gazepipe.stages.clean.swaps import even_rows, pooled_references
 
     pooled = []
     for take, _ in key:
@@ -300,8 +300,7 @@ def _subject_references(key: tuple[tuple[Take, tuple[int, int, int]], ...], ms):
                                                                 required=_required_markers(ms, take)))
         except GazepipeError:
             continue
-        rows = np.unique(np.linspace(0, max(raw.n_frames - 1, 0), min(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE))
-                         .astype(np.int64))
+        rows = even_rows(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE)
         pooled.append((labels, raw.xyz[rows], raw.valid[rows]))
     return pooled_references(pooled, markers=set(ms.subject_markers)) if pooled else None
 

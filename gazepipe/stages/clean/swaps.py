@@ -17,9 +17,6 @@ Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) 
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from itertools import combinations
 
@@ -94,6 +91,11 @@ class SwapResult:
     records: list[SwapRecord]
 
 
+def even_rows(n_rows: int, at_most: int) -> np.ndarray:
+    """Up to ``at_most`` row indices spread evenly over ``n_rows`` rows, first and last included."""
+    return np.unique(np.linspace(0, max(n_rows - 1, 0), min(n_rows, at_most)).astype(np.int64))
+
+
 def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | None = None) -> References:
     """:class:`References` of every marker from up to :data:`REFERENCE_FRAMES` evenly spaced frames of ``xyz``
     (one take, or the frames of several takes of the subject stacked), among the columns ``markers`` (default
@@ -102,7 +104,7 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
     n_t, n_m = valid.shape
     body = np.zeros(n_m, dtype=bool)
     body[np.arange(n_m) if markers is None else np.asarray(markers, dtype=np.int64)] = True
-    rows = np.unique(np.linspace(0, max(n_t - 1, 0), min(n_t, REFERENCE_FRAMES)).astype(np.int64))
+    rows = even_rows(n_t, REFERENCE_FRAMES)
     x, ok = xyz[rows], valid[rows]
     index = np.full((n_m, N_REFERENCES), -1, dtype=np.int64)
     distance = np.full((n_m, N_REFERENCES), np.nan)
@@ -151,7 +153,7 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.nd
     chiral = np.full((n_m, 3), -1, dtype=np.int64)
     handedness = np.zeros(n_m)
     triples = np.array(list(combinations(range(k), 3)), dtype=np.int64)           # (C, 3) slots of index
-    keep = np.unique(np.linspace(0, max(len(x) - 1, 0), min(len(x), CHIRAL_FRAMES)).astype(np.int64))
+    keep = even_rows(len(x), CHIRAL_FRAMES)
     x, ok = x[keep], ok[keep]                      # a handedness's sign settles on a few hundred frames
     for m in range(n_m):
         usable = triples[(index[m][triples] >= 0).all(axis=1)]
@@ -225,7 +227,7 @@ def pooled_references(takes: list[tuple[list[str], np.ndarray, np.ndarray]],
     for names, xyz, valid in takes:
         n_t = valid.shape[0]
         share = max(1, round(REFERENCE_FRAMES * n_t / max(total, 1)))
-        rows = np.unique(np.linspace(0, max(n_t - 1, 0), min(n_t, share)).astype(np.int64))
+        rows = even_rows(n_t, share)
         x = np.full((rows.size, len(labels), 3), np.nan)
         v = np.zeros((rows.size, len(labels)), dtype=bool)
         cols = [labels.index(lab) for lab in names]
@@ -236,14 +238,6 @@ def pooled_references(takes: list[tuple[list[str], np.ndarray, np.ndarray]],
     body = None if markers is None else np.array([i for i, lab in enumerate(labels) if lab in markers])
     stacked = (np.concatenate(xs), np.concatenate(vs)) if xs else (np.zeros((0, 0, 3)), np.zeros((0, 0), bool))
     return SubjectReferences(labels, steady_references(*stacked, markers=body))
-
-
-@contextmanager
-def _quiet() -> Iterator[None]:
-    """All-NaN medians (a pair never measured together, a marker without references) are NaN, silently."""
-    with warnings.catch_warnings(), np.errstate(invalid="ignore"):
-        warnings.simplefilter("ignore", RuntimeWarning)
-        yield
 
 
 def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
@@ -420,8 +414,7 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     # a partner is missing or suspect itself in the frame where a is suspect
     maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
     maybe[:, a] = False
-    with _quiet():                                # the pair's distance is the same, swapped or not
-        apart = np.nanmedian(norm3(x[:, a:a + 1] - x), axis=0)
+    apart = _nanmedian(norm3(x[:, a:a + 1] - x), axis=0)     # the same, swapped or not
     maybe &= ~(apart < MIN_SEPARATION_MM)[None]          # unknown (never measured together here): allowed
     others = np.flatnonzero(maybe.any(axis=0))
     if others.size == 0:
