@@ -16,7 +16,7 @@ from gazepipe.synth.openface import (
     eye_rows,
     write_openface_csv,
 )
-from gazepipe.synth.video import EXPOSURE_S, HEIGHT, WIDTH, camera_clock, write_head_video
+from gazepipe.synth.video import EXPOSURE_S, HEIGHT, WIDTH, CameraClock, camera_clock, write_head_video
 
 if TYPE_CHECKING:
     from gazepipe.synth.record import TakeRecord
@@ -24,6 +24,16 @@ if TYPE_CHECKING:
 #: no blink from this long before a clap to this long after it (mocap seconds): the clap stays the only motion
 QUIET_BEFORE_S = 1.5
 QUIET_AFTER_S = 1.0
+
+
+def _exposures(n: int, clock: CameraClock, claps: np.ndarray, hazard: dict[str, Any] | None) -> np.ndarray:
+    """The exposure index of each written frame: 0 … n − 1, less the frames a ``dropped_frames`` clap hazard
+    drops (``frames`` of them, ``before_s`` mocap seconds before its clap)."""
+    idx = np.arange(n)
+    if hazard is None or hazard["kind"] != "dropped_frames":
+        return idx
+    k = int(np.floor(float(clock.to_video(claps[hazard["clap"]] - hazard["before_s"])) * clock.fps))
+    return np.delete(idx, np.arange(max(k, 1), min(k + hazard["frames"], n - 1)))
 
 
 def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple[float, float] = BLINK_EVERY_S,
@@ -40,9 +50,11 @@ def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple
     variant = take.index % 3
     time_s = motion.time_s
     clock, n = camera_clock(r_clock, variant, float(time_s[-1]))
-    t_video = np.arange(n, dtype=np.float64) / clock.fps
-    t_m = clock.to_mocap(t_video)
     claps = np.asarray(motion.clap_times_s, dtype=np.float64)
+    exposures = _exposures(n, clock, claps, motion.design.get("clap_hazard"))
+    n = exposures.size
+    t_video = np.arange(n, dtype=np.float64) / clock.fps          # as the container stamps them
+    t_m = clock.to_mocap(exposures / clock.fps)                   # when they were really exposed
     quiet = np.zeros(n, dtype=bool)
     for tc in claps:
         quiet |= (t_m >= tc - QUIET_BEFORE_S) & (t_m <= tc + QUIET_AFTER_S)
@@ -53,12 +65,13 @@ def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple
     eyes_rel = f"eyes/{take.id}.csv"
     to_cam = cam.inv()
     write_head_video(session_dir / video_rel, r_video, clock, n, motion, to_cam.apply(rows.true_right_head),
-                     to_cam.apply(rows.true_left_head), rows.lid)
+                     to_cam.apply(rows.true_left_head), rows.lid, exposures)
     legacy = variant == 0
     write_openface_csv(session_dir / eyes_rel, r_csv, rows, cam, legacy=legacy)
 
     has_video = (time_s >= t_m[0]) & (time_s <= t_m[-1])
-    clap_video = clock.to_video(claps)
+    # each clap on the video clock as the stamps read it (after a dropped frame they run behind)
+    clap_video = clock.to_video(claps) if exposures[-1] + 1 == n else np.interp(claps, t_m, t_video)
     f4 = np.float32
     take.truth_arrays.update({
         "video_time_s": t_video,
@@ -82,6 +95,7 @@ def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple
         "clap_times_mocap_s": claps.tolist(), "clap_times_video_s": clap_video.tolist(),
         "starts_after_mocap": bool(clock.offset_s > 0),
         "mocap_frames_without_video": int((~has_video).sum()),
+        "dropped_frames": int(exposures[-1] + 1 - n),
     }
     take.truth_scalars["eyes"] = {
         "path": eyes_rel, "layout": "openface_legacy" if legacy else "openface2", "rows": int(n),

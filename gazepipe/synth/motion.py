@@ -117,36 +117,40 @@ def floor_point(placement: Placement, pose: str) -> np.ndarray:
 
 
 def _clapper_distance(t: np.ndarray, contact: np.ndarray, closing_s: np.ndarray,
-                      rebound: np.ndarray | None = None) -> np.ndarray:
+                      rebound: np.ndarray | None = None, soft: np.ndarray | None = None) -> np.ndarray:
     """Distance between the clapper markers: shut, opened over 0.3 s, held, closed fast (accelerating).
     ``rebound`` (claps, 2): per clap, how far (mm) and how long (s) the stick bounces open right after contact
-    (a half sine; 0 mm: none)."""
+    (a half sine; 0 mm: none). ``soft`` (claps, 2): per clap, the share of the full opening used and the
+    softness s in [0, 1]: the closing follows (1 − s)·u² + s·smoothstep(u), so the arms meet at (1 − s) of
+    a hard clap's speed for that depth and duration (1, 0: a hard clap)."""
     d = np.full_like(t, CLAP_SHUT_MM)
     if rebound is not None:
         for tc, (mm, dur) in zip(contact, np.asarray(rebound, dtype=np.float64), strict=True):
             if mm > 0 and dur > 0:
                 u = (t - tc) / dur
                 d = d + np.where((u > 0) & (u < 1), mm * np.sin(np.pi * np.clip(u, 0.0, 1.0)), 0.0)
-    for tc, tcl in zip(contact, closing_s, strict=True):
+    shape = np.tile([1.0, 0.0], (len(contact), 1)) if soft is None else np.asarray(soft, dtype=np.float64)
+    for tc, tcl, (depth, s) in zip(contact, closing_s, shape, strict=True):
         t_open = tc - tcl - 0.6
         opening = smoothstep((t - t_open) / 0.3)
         u = np.clip((t - (tc - tcl)) / tcl, 0.0, 1.0)
-        closing = u * u       # accelerating: the arms hit each other at full speed
+        closing = (1.0 - s) * u * u + s * u * u * (3.0 - 2.0 * u)   # a hard clap accelerates into contact
         inside = (t >= t_open) & (t < tc)
-        d = np.where(inside, CLAP_SHUT_MM + (CLAP_OPEN_MM - CLAP_SHUT_MM) * opening * (1.0 - closing), d)
+        d = np.where(inside, CLAP_SHUT_MM + depth * (CLAP_OPEN_MM - CLAP_SHUT_MM) * opening * (1.0 - closing), d)
     return d
 
 
 def _clapper(t: np.ndarray, eye_lab: np.ndarray, h: Rotation, contact: np.ndarray,
-             closing_s: np.ndarray, rebound: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+             closing_s: np.ndarray, rebound: np.ndarray | None = None, soft: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """Clapper markers (T, 2, 3) held ~0.5 m in front of the face, and the frames where it is in use."""
     centre = eye_lab + h.apply([40.0, -150.0, 500.0])
-    d = _clapper_distance(t, contact, closing_s, rebound)
+    d = _clapper_distance(t, contact, closing_s, rebound, soft)
     c1 = np.broadcast_to(centre, (len(t), 3))
     c2 = centre + d[:, None] * h.apply([0.0, 1.0, 0.0])[None, :]
     busy = np.zeros(len(t), dtype=bool)
-    for tc in contact:
-        busy |= (t >= tc - 1.2) & (t <= tc + 0.6)
+    for tc, tcl in zip(contact, closing_s, strict=True):
+        busy |= (t >= tc - max(1.2, tcl + 0.9)) & (t <= tc + 0.6)
     return np.stack([c1, c2], axis=1), busy
 
 
@@ -194,8 +198,12 @@ def sway(rng: np.random.Generator, n: int, rate_hz: float, amp_deg: float) -> np
 
 
 def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement, pose: str,
-                  duration_s: float, clap_rebound: np.ndarray | None = None) -> TakeMotion:
+                  duration_s: float, clap_rebound: np.ndarray | None = None,
+                  weak_clap: tuple[int, float, float, float] | None = None) -> TakeMotion:
     """A gaze_follow take (Klein 5.1): rest, the pole moving between random goals, settle, rest.
+
+    ``clap_rebound``: see :func:`_clapper_distance`. ``weak_clap`` (clap index, closing seconds, share of the
+    opening, softness): that clap is slow and soft (see :func:`_clapper_distance`'s ``soft``).
 
     The gaze follows the pole with a ~0.2 s reaction delay; the body's part of the gaze change goes through an
     underdamped second-order response (overshoot), with later onsets down the chain (Pejsa 5.1.2).
@@ -255,11 +263,19 @@ def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement
 
     contact = np.array([rng.uniform(1.1, 1.4), a1 + settle + rng.uniform(0.6, 0.9)])
     closing = rng.uniform(0.06, 0.10, size=2)
-    clap, busy = _clapper(t, eye_lab, h, contact, closing, clap_rebound)
+    soft = None
+    if weak_clap is not None:
+        j, closing_s, depth, softness = weak_clap
+        closing[j] = closing_s
+        soft = np.tile([1.0, 0.0], (2, 1))
+        soft[j] = (depth, softness)
+    clap, busy = _clapper(t, eye_lab, h, contact, closing, clap_rebound, soft)
     design = {"rest1_s": rest1, "rest2_s": rest2, "active_s": [a0, a1], "n_legs": n_legs, "leg_s": LEG_S,
               "reaction_s": reaction, "clap_closing_s": closing.tolist(), "goals_lab": knots.tolist()}
     if clap_rebound is not None:
         design["clap_rebound"] = np.asarray(clap_rebound, dtype=np.float64).tolist()
+    if soft is not None:
+        design["clap_soft"] = soft.tolist()
     return TakeMotion(time_s=t, local=local, floor_lab=floor, fixation_lab=fix, target_lab=target,
                       clapper_lab=clap, clap_times_s=contact, clapper_busy=busy, design=design)
 

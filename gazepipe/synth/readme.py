@@ -75,7 +75,9 @@ C3D files and the lab arrays (`markers_true`, `joints_lab`, `char_origin_lab`, `
 Per take (`takes.<id>`): `kind`, `pose`, `mocap`, `rate_hz`, `n_frames`, `spike_samples`, `clap_times_s`,
 `rest_periods`, `crop`,
 `design` (the generating parameters: rest lengths, reaction delay, clap closing durations, target goals for
-gaze_follow, and `clap_rebound` (mm, s per clap) when the stick bounces; per-segment onset times in seconds,
+gaze_follow, and `clap_rebound` (mm, s per clap) when the stick bounces, `clap_soft` (share of the opening,
+softness per clap) and `clap_hazard` (`kind`: weak, hidden, dropped_frames or clapper_gap; `clap`: 0 or 1; and
+its drawn parameters, seconds relative to the contact) when the take has a clap hazard; per-segment onset times in seconds,
 duration, overshoot beta and its time, final per-segment yaw/pitch for gaze_shift, and `step` (start_s,
 duration_s, lab_mm) when the whole body steps), and for gaze_shift takes the SPEC 3.6 gaze_map quantities:
 
@@ -184,7 +186,8 @@ between values. The others are OpenFace 2.x (`face_id`, `gaze_angle_x/y`, `pose_
 
 truth.json `takes.<id>.video`: `offset_s`, `ratio`, `offset_at_first_clap_s` (mocap clap - video clap, the
 first clap), `clap_times_mocap_s`, `clap_times_video_s`, `n_frames`, `fps`, `width`, `height`, `exposure_s`,
-`codec`, `starts_after_mocap`, `mocap_frames_without_video`; `takes.<id>.eyes`: `layout`, `rows`,
+`codec`, `starts_after_mocap`, `mocap_frames_without_video`, `dropped_frames` (video frames never written: after
+them the stamps run behind the exposures, and `video_mocap_time_s` holds the true instants); `takes.<id>.eyes`: `layout`, `rows`,
 `noise_deg`, `confidence_threshold`, `blink_frames`, `failed_frames`, `low_confidence_frames`,
 `valid_fraction`.
 

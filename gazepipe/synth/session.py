@@ -75,7 +75,9 @@ class SynthConfig:
     close markers of neighbouring segments, left and right; half of them at a gap's edge; the truth marks the
     samples written under the wrong name in ``swap_mask`` and lists the stretches in ``swaps``);
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
-    vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`).
+    vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
+    share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -104,6 +106,45 @@ class SynthConfig:
     more_face_takes: tuple[tuple[float, float], ...] = ()
     label_swaps: int = 0
     occlusion_bursts: int = 0
+    clap_hazards: float = 0.0
+
+
+#: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
+#: over most of its arms, coming in a second before the clap); one or two video frames dropped shortly before a
+#: clap while the container keeps stamping frames at the nominal rate; a clapper marker missing across the contact
+CLAP_HAZARDS = ("weak", "hidden", "dropped_frames", "clapper_gap")
+
+
+def clap_hazard(rng: np.random.Generator, kind: str, rate_hz: float) -> dict[str, Any]:
+    """One clap hazard of ``kind`` on clap 0 or 1 of a gaze_follow take, with its drawn parameters (seconds on
+    the mocap clock, relative to the clap's contact where they are times)."""
+    out: dict[str, Any] = {"kind": kind, "clap": int(rng.integers(2))}
+    if kind == "weak":
+        out.update(closing_s=float(rng.uniform(0.3, 0.5)), depth=float(rng.uniform(0.3, 0.5)),
+                   softness=float(rng.uniform(0.6, 0.9)))
+    elif kind == "hidden":
+        out.update(visible=float(rng.uniform(0.1, 0.3)), enter_s=-float(rng.uniform(0.9, 1.2)),
+                   leave_s=float(rng.uniform(0.5, 0.8)))
+    elif kind == "dropped_frames":
+        out.update(frames=int(rng.integers(1, 3)), before_s=float(rng.uniform(0.2, 0.8)))
+    elif kind == "clapper_gap":
+        out.update(marker=int(rng.integers(2)), start_frames=int(rng.integers(1, 3)),
+                   frames=int(rng.integers(2, 6)))
+    else:
+        raise ValueError(f"unknown clap hazard {kind!r} (one of {', '.join(CLAP_HAZARDS)})")
+    return out
+
+
+def clapper_gap(labels: list[str], n: int, rate_hz: float, clap_times_s: np.ndarray, hazard: dict[str, Any]
+                ) -> np.ndarray:
+    """(n, M) gap mask: one clapper marker missing for ``frames`` frames from ``start_frames`` frames before the
+    hazard's clap's contact (so across it)."""
+    mask = np.zeros((n, len(labels)), dtype=bool)
+    col = labels.index(CLAPPER_MARKERS[hazard["marker"]])
+    contact = int(np.floor(float(clap_times_s[hazard["clap"]]) * rate_hz))
+    start = max(0, contact - hazard["start_frames"] + 1)
+    mask[start:min(n, start + hazard["frames"]), col] = True
+    return mask
 
 
 def sample_config() -> SynthConfig:
@@ -276,10 +317,11 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     cam = camera_to_head()
     records: list[TakeRecord] = []
     meta_takes: dict[str, Any] = {}
+    n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(9))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -297,7 +339,15 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
                 rebound = np.stack([np.where(bounce, r_hazard.uniform(3.0, 6.0, 2), 0.0),
                                     r_hazard.uniform(1.0, 2.0, 2) / rate], axis=1)
             secs = cfg.follow_duration_s if target is None else target[0]
-            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound)
+            hazard = None
+            if cfg.clap_hazards > 0 and r_claps.random() < cfg.clap_hazards:
+                hazard = clap_hazard(r_claps, CLAP_HAZARDS[n_clap_hazards % len(CLAP_HAZARDS)], rate)
+                n_clap_hazards += 1
+            weak = None if hazard is None or hazard["kind"] != "weak" else (
+                hazard["clap"], hazard["closing_s"], hazard["depth"], hazard["softness"])
+            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound, weak)
+            if hazard is not None:
+                motion.design["clap_hazard"] = hazard
         elif kind == "gaze_shift":
             assert target is not None
             step = None
@@ -323,6 +373,9 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
         if cfg.gaps and cfg.occlusion_bursts:
             mask |= make_occlusion_bursts(r_bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
+        hazard = motion.design.get("clap_hazard")
+        if hazard is not None and hazard["kind"] == "clapper_gap":
+            mask |= clapper_gap(kin.labels, n, rate, motion.clap_times_s, hazard)
         offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
                                       motion.clapper_busy)
         noisy += offsets

@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gazepipe.synth.motion import CLAP_SHUT_MM, TakeMotion, _clapper_distance
+from gazepipe.synth.motion import CLAP_OPEN_MM, CLAP_SHUT_MM, TakeMotion, _clapper_distance
 
 VIDEO_FPS = 60.0
 WIDTH, HEIGHT = 128, 96
@@ -97,14 +97,18 @@ def render_frames(bg: np.ndarray, frame_idx: np.ndarray, clock: CameraClock, mot
 
     ``gaze_*_cam`` (F, 3): each eye's direction in camera axes (pupils move with x, y); ``lid`` (F,) in [0, 1]:
     eyelid closure; ``noise`` (F, H, W): sensor noise in grey levels. The clapper gap is averaged over
-    ``SUBSAMPLES`` instants spread over the exposure.
+    ``SUBSAMPLES`` instants spread over the exposure. ``frame_idx`` counts exposures: frame k is exposed at
+    k / fps video seconds (a dropped frame is an index left out). A ``hidden`` clap hazard in the motion's
+    design puts a dark occluder over all but the first ``visible`` share of the clapper's arms while it is in.
     """
     sub = ((np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5) * EXPOSURE_S
     t_m = clock.to_mocap(frame_idx[:, None] / clock.fps + sub[None, :])        # (F, ns) mocap seconds
     closing = np.asarray(motion.design.get("clap_closing_s", []), dtype=np.float64)
     rebound = motion.design.get("clap_rebound")
-    d = _clapper_distance(t_m, np.asarray(motion.clap_times_s, dtype=np.float64), closing,
-                          None if rebound is None else np.asarray(rebound, dtype=np.float64))
+    soft = motion.design.get("clap_soft")
+    claps = np.asarray(motion.clap_times_s, dtype=np.float64)
+    d = _clapper_distance(t_m, claps, closing, None if rebound is None else np.asarray(rebound, dtype=np.float64),
+                          None if soft is None else np.asarray(soft, dtype=np.float64))
     bottom = LOWER_ARM_ROWS[0] - (d - CLAP_SHUT_MM) * PX_PER_MM
     cover = _arm_cover(bottom, bottom - ARM_HEIGHT_PX).mean(axis=1).astype(np.float32)   # (F, H)
     img = np.repeat(bg.astype(np.float32)[None], frame_idx.size, axis=0)
@@ -129,6 +133,14 @@ def render_frames(bg: np.ndarray, frame_idx: np.ndarray, clock: CameraClock, mot
     rows = np.flatnonzero(cover.max(axis=0) > 0)
     upper = img[:, rows, c0:c1]
     img[:, rows, c0:c1] = upper + (np.float32(225.0) - upper) * cover[:, rows, None]
+    hazard = motion.design.get("clap_hazard")
+    if hazard is not None and hazard["kind"] == "hidden":
+        tc = claps[hazard["clap"]]
+        inside = (t_m[:, SUBSAMPLES // 2] >= tc + hazard["enter_s"]) & (t_m[:, SUBSAMPLES // 2] < tc + hazard["leave_s"])
+        top = int(LOWER_ARM_ROWS[0] - (CLAP_OPEN_MM - CLAP_SHUT_MM) * PX_PER_MM - ARM_HEIGHT_PX - 2)
+        x_vis = c0 + int(round(hazard["visible"] * (c1 - c0)))
+        img[np.ix_(np.flatnonzero(inside), np.arange(max(top, 0), LOWER_ARM_ROWS[1] + 2),
+                   np.arange(x_vis, c1 + 2))] = np.float32(55.0)
     img += noise
     np.rint(img, out=img)
     np.clip(img, 0, 255, out=img)
@@ -136,9 +148,13 @@ def render_frames(bg: np.ndarray, frame_idx: np.ndarray, clock: CameraClock, mot
 
 
 def write_head_video(path: Path, rng: np.random.Generator, clock: CameraClock, n_frames: int, motion: TakeMotion,
-                     gaze_right_cam: np.ndarray, gaze_left_cam: np.ndarray, lid: np.ndarray) -> None:
+                     gaze_right_cam: np.ndarray, gaze_left_cam: np.ndarray, lid: np.ndarray,
+                     exposures: np.ndarray | None = None) -> None:
     """Write the take's video (MPEG-4 part 2 in .mp4, labelled ``clock.fps``; OpenCV's FFmpeg writer is
-    byte-deterministic for it). Per-frame arrays are (n_frames, …)."""
+    byte-deterministic for it). Per-frame arrays are (n_frames, …). ``exposures`` (n_frames,): the exposure
+    index of each written frame (default 0, 1, …; a dropped frame is a skipped index, and the container still
+    stamps the written frames k / fps)."""
+    expo = np.arange(n_frames) if exposures is None else np.asarray(exposures, dtype=np.int64)
     bg = _background(rng)
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), clock.fps, (WIDTH, HEIGHT))
@@ -148,8 +164,8 @@ def write_head_video(path: Path, rng: np.random.Generator, clock: CameraClock, n
         for a in range(0, n_frames, CHUNK):
             idx = np.arange(a, min(a + CHUNK, n_frames))
             noise = rng.standard_normal((idx.size, HEIGHT, WIDTH), dtype=np.float32) * NOISE_GREY
-            frames = render_frames(bg, idx, clock, motion, gaze_right_cam[idx], gaze_left_cam[idx], lid[idx],
-                                   noise)
+            frames = render_frames(bg, expo[idx], clock, motion, gaze_right_cam[idx], gaze_left_cam[idx],
+                                   lid[idx], noise)
             for fr in frames:
                 writer.write(cv2.cvtColor(fr, cv2.COLOR_GRAY2BGR))
     finally:
