@@ -57,6 +57,8 @@ def accuracy(n_takes: int, seed: int) -> None:
         a, b, va, vb = clapper_markers(rng, int((t_c[1] + 3.0) * rate), rate, t_c, closing, noise)
         probe = probe_video(path)
         res = sync_take(a, b, va, vb, rate, probe.timestamps_s, CountingReader(path, probe.timestamps_s))
+        if res.qc["warnings"]:
+            print("      " + " | ".join(w.split(": ", 1)[-1] for w in res.qc["warnings"]))
         m_err = np.array([c.time_s for c in res.mocap_claps]) - t_c
         v_err = np.array([np.nan if v is None else v.time_s for v in res.video_claps]) - tv
         off_true = t_c[0] - tv[0]

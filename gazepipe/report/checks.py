@@ -35,6 +35,10 @@ check                                   warning         fail         measured on
                                         one clap and                 corrected by the clock map); one clap: drift
                                         take > 60 s                  not measurable on a take longer than 60 s
 ``clap_residual``                       > 1 frame       –            sync: largest clap-pair misfit (3+ claps)
+``clock_map``                           –               > 5 ms       sync: how far the clock map may be off over
+                                                                     the video (``clock_bound_ms``: the claps it
+                                                                     rests on, and an unmeasured ratio when one
+                                                                     clap stands alone); names the claps
 ``frames_without_video``                > 5 %           > 50 %       sync: mocap frames outside the video
 ``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
 ``eye_longest_invalid``                 > 1.0 s         –            eyes: longest invalid run after slerp fill
@@ -82,6 +86,7 @@ class Thresholds:
     drift_warn_ppm: float | None = 2000.0
     single_clap_max_video_s: float | None = 60.0
     clap_residual_warn_frames: float | None = 1.0
+    clock_bound_fail_ms: float | None = 5.0
     no_video_warn: float | None = 0.05
     no_video_fail: float | None = 0.50
     eye_gated_warn: float | None = 0.30
@@ -372,10 +377,29 @@ def check_invalid_frames(frames_qc: dict[str, Any] | None, kept: int | None, th:
 
 # --------------------------------------------------------------------------------------------------- sync
 
+def check_clock_map(sync_qc: dict[str, Any], th: Thresholds) -> Check:
+    """Whether the clock map can be shown within ``clock_bound_fail_ms`` over the video (SPEC §3.4); the message
+    names the claps it rests on and, when it fails, the sync's warnings say which claps were left out."""
+    if "clock_bound_ms" not in sync_qc:
+        return skipped("clock_map", "sync record has no clock bound (made before it was recorded)")
+    bound = float(sync_qc["clock_bound_ms"])
+    claps = sync_qc.get("claps", [])
+    used = [int(j) for j in sync_qc.get("claps_used", [])]
+    on = ", ".join(f"clap {j} (mocap {float(claps[j - 1]['mocap_s']):.2f} s)" for j in used if 0 < j <= len(claps))
+    alone = " and the nominal rate" if len(used) == 1 else ""
+    msg = f"clock map within {bound:.1f} ms over the video, from {on or 'no clap'}{alone}"
+    left = [w for w in sync_qc.get("warnings", []) if "clap" in w]
+    if left and th.clock_bound_fail_ms is not None and bound > th.clock_bound_fail_ms:
+        msg += f"; {left[0]}"
+    return Check("clock_map", grade(bound, None, th.clock_bound_fail_ms), msg, value=bound,
+                 threshold=_thr(None, th.clock_bound_fail_ms), details={"warnings": left})
+
+
 def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | None, rate_hz: float | None,
                 th: Thresholds) -> list[Check]:
-    """clap_offset, clap_confidence, clock_drift, clap_residual and frames_without_video from the sync QC."""
-    ids = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "frames_without_video")
+    """clap_offset, clap_confidence, clock_drift, clap_residual, clock_map and frames_without_video from the sync
+    QC."""
+    ids = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "clock_map", "frames_without_video")
     if sync_qc is None:
         why = "the take has no video" if not has_video else "no sync record"
         return [skipped(i, why) for i in ids]
@@ -428,6 +452,7 @@ def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | N
                          threshold=_thr(th.clap_residual_warn_frames)))
     else:
         out.append(skipped("clap_residual", f"{n_claps} clap pair(s): the map fits them exactly"))
+    out.append(check_clock_map(sync_qc, th))
     if "frames_without_video" in sync_qc and frames:
         n = int(sync_qc["frames_without_video"])
         v = n / frames

@@ -13,7 +13,7 @@ import numpy as np
 
 from gazepipe.stages.clean.filters import true_runs
 
-__all__ = ["Clap", "clapper_distance", "mocap_claps"]
+__all__ = ["Clap", "clap_profile", "clapper_distance", "mocap_claps"]
 
 _MAD = 1.4826  # MAD → standard deviation for Gaussian noise
 
@@ -44,6 +44,8 @@ class Clap:
     closing_speed_mm_s : fastest closing speed of the distance between the markers.
     open_mm, shut_mm : distance held before the closing, and the plateau after it.
     margin_mm : tolerance around ``shut_mm`` used to decide that the clapper is shut.
+    gap_frames : clapper frames missing between the last closing frame and the shut plateau (the contact was
+        extrapolated across them); 0 when the contact was seen.
     """
 
     time_s: float
@@ -53,6 +55,7 @@ class Clap:
     open_mm: float
     shut_mm: float
     margin_mm: float
+    gap_frames: int = 0
 
 
 def clapper_distance(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray,
@@ -128,7 +131,8 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
                 min_depth_mm: float = 20.0, margin_mm: float = 1.0, margin_k: float = 5.0,
                 plateau_s: float = 0.3, open_s: float = 0.3, fit_s: float = 0.08,
                 min_separation_s: float = 1.0, lag_s: float = 0.02, z_lo: float = 8.0,
-                z_hi: float = 40.0, min_shut_s: float = 0.1, bounce_mm: float = 8.0) -> list[Clap]:
+                z_hi: float = 40.0, min_shut_s: float = 0.1, bounce_mm: float = 8.0,
+                max_gap_s: float = 0.2) -> list[Clap]:
     """Every clap in the clapper markers' trajectories.
 
     Parameters
@@ -154,7 +158,11 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
     min_shut_s, bounce_mm : the contact is the start of the shut plateau: the first frame, after the fastest
         closing, within ``bounce_mm`` (or the margin, when larger) of the shut value from which the distance
         stays that near for ``min_shut_s``. A stick that rebounds or chatters a few millimetres for a frame or
-        two right after contact neither ends the plateau nor moves the contact after the bounce.
+        two right after contact neither ends the plateau nor moves the contact after the bounce. The shut value
+        is read from the closing run's end on (a slow clap's fastest frame is far before its contact).
+    max_gap_s : a clapper marker may be missing for up to this long across the contact: the plateau is read
+        from the first measured frames after the closing, and the contact extrapolated into the gap
+        (``Clap.gap_frames``); the confidence is scaled by 1 − (missing time / ``max_gap_s``).
 
     Returns
     -------
@@ -178,12 +186,17 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
     n_plat = max(5, round(plateau_s * rate))
     n_open = max(3, round(open_s * rate))
     n_fit = max(3, round(fit_s * rate))
+    n_gap = max(1, round(max_gap_s * rate))
     found: list[Clap] = []
     for s, e in true_runs(closing):
         f = s + int(np.nanargmin(v[s:e]))
-        plat = d[f + 1: f + 1 + n_plat]
-        if np.count_nonzero(np.isfinite(plat)) < 0.8 * n_plat:
+        # the plateau's first measured frames: a marker lost for a few frames across the contact only delays it
+        # (from the closing's end: a slow clap's fastest frame is far from its contact)
+        p0 = max(f + 1, e)
+        seen = p0 + np.flatnonzero(np.isfinite(d[p0: p0 + n_plat + n_gap]))[:n_plat]
+        if seen.size < 0.8 * n_plat:
             continue  # not enough of the plateau seen (end of the take or occluded)
+        plat = d[seen]
         shut = float(np.nanmedian(plat))
         sigma_d = max(_robust_sigma(plat), sigma_v * np.sqrt(2.0) * lag / rate)
         margin = max(margin_mm, margin_k * sigma_d)
@@ -200,10 +213,17 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
         if k0 is None:
             continue
         frame = _contact_crossing(d, k0, shut, sigma_d, n_fit)
+        last_seen = k0 - 1
+        while last_seen > f and not np.isfinite(d[last_seen]):
+            last_seen -= 1
         speed = float(-v[f])
         z = min(speed / max(sigma_v, 1e-12), (opened - shut) / max(sigma_d, 1e-12))
-        clap = Clap(time_s=frame / rate, frame=frame, confidence=_score(z, z_lo, z_hi),
-                    closing_speed_mm_s=speed, open_mm=opened, shut_mm=shut, margin_mm=margin)
+        unseen = int(k0 - 1 - last_seen)
+        # a contact extrapolated across missing frames is only as sure as the share of max_gap_s left unseen
+        seen_share = float(np.clip(1.0 - unseen / rate / max_gap_s, 0.0, 1.0))
+        clap = Clap(time_s=frame / rate, frame=frame, confidence=_score(z, z_lo, z_hi) * seen_share,
+                    closing_speed_mm_s=speed, open_mm=opened, shut_mm=shut, margin_mm=margin,
+                    gap_frames=unseen)
         if found and clap.time_s - found[-1].time_s < min_separation_s:
             if clap.closing_speed_mm_s > found[-1].closing_speed_mm_s:
                 found[-1] = clap
@@ -211,3 +231,31 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
         found.append(clap)
     return found
 
+
+
+def clap_profile(d: np.ndarray, rate_hz: float, clap: Clap, step_s: float, before_s: float = 1.0,
+                 after_s: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """How fast the clapper moved around a clap, for finding the same motion in the video.
+
+    Parameters
+    ----------
+    d : (T,) clapper distance, mm, NaN where unknown (:func:`clapper_distance`).
+    rate_hz : mocap frame rate.
+    clap : the clap.
+    step_s : grid step (the video's frame interval), seconds.
+    before_s, after_s : the profile spans [−before_s, after_s] seconds around the contact.
+
+    Returns
+    -------
+    offsets_s : (P,) seconds from the contact, every ``step_s``.
+    speed : (P,) |d'| at those instants, mm/s: the distance moved between consecutive frames over their
+        interval, placed at the interval's midpoint (as a video frame difference is), with the gaps of d
+        bridged linearly, interpolated onto the grid.
+    """
+    t = np.arange(d.size, dtype=np.float64) / rate_hz
+    ok = np.isfinite(d)
+    filled = np.interp(t, t[ok], d[ok]) if ok.any() else np.zeros_like(t)
+    mid = t[:-1] + 0.5 / rate_hz
+    speed = np.abs(np.diff(filled)) * rate_hz
+    offsets = np.arange(-round(before_s / step_s), round(after_s / step_s) + 1) * step_s
+    return offsets, np.interp(clap.time_s + offsets, mid, speed, left=0.0, right=0.0)

@@ -20,7 +20,11 @@ if TYPE_CHECKING:
     from gazepipe.stages.sync.clap import Clap
     from gazepipe.stages.sync.video import VideoClap
 
-__all__ = ["ClockMap", "clock_map", "resample_to_mocap"]
+__all__ = ["CLAP_TIMING_MS", "ClockChoice", "ClockMap", "choose_clock", "clock_map", "resample_to_mocap"]
+
+#: how far a trusted clap pair's offset typically is from the truth, ms: ``bench/bench_sync.py`` (29.97–120 Hz
+#: mocap, 60 fps video, 0.4–2 mm marker noise) gives a median of 0.7 ms (the worst of 24 takes: 6 ms, at 29.97 Hz)
+CLAP_TIMING_MS = 1.5
 
 
 @dataclass
@@ -72,6 +76,95 @@ def clock_map(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | Non
     return ClockMap(offset_s=offset, ratio=ratio, n_claps=len(pairs),
                     offset_at_first_clap_s=float(offset + (ratio - 1.0) * tv[0]),
                     residual_ms=float(np.max(np.abs(res)) * 1000.0))
+
+
+@dataclass
+class ClockChoice:
+    """The clock map a take's claps support, and what it rests on.
+
+    Attributes
+    ----------
+    clock : the map.
+    used : per clap pair, whether it set the map.
+    bound_ms : how far the map may be from the truth anywhere over the video, ms: the claps' timing
+        (:data:`CLAP_TIMING_MS`) carried along the fitted line, plus, on a single clap, what an unmeasured
+        ratio of up to ``max_drift`` does over the video's distance from that clap.
+    warnings : one line per clap left out and why (naming the video and the clap).
+    """
+
+    clock: ClockMap
+    used: list[bool]
+    bound_ms: float
+    warnings: list[str]
+
+
+def _floor2(x: float) -> str:
+    """A confidence to two decimals, rounded down (so a value just under a threshold never prints as it)."""
+    return f"{np.floor(x * 100.0) / 100.0:.2f}"
+
+
+def _bound_ms(tv_used: np.ndarray, video_span: tuple[float, float], max_drift: float) -> float:
+    far = max(abs(video_span[0] - tv_used.mean()), abs(video_span[1] - tv_used.mean()))
+    if tv_used.size == 1:
+        return CLAP_TIMING_MS + max_drift * far * 1000.0
+    half = 0.5 * float(tv_used.max() - tv_used.min())
+    # a line through claps each within ε: within ε between them, ε·distance/half-span beyond
+    return CLAP_TIMING_MS * max(1.0, far / half)
+
+
+def choose_clock(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | None], *,
+                 video_span: tuple[float, float], trust: float = 0.5, mocap_trust: float = 0.15,
+                 max_drift: float = 0.0012, video: str = "the video") -> ClockChoice:
+    """The clock map from the clap pairs that can be trusted, falling back rather than failing (SPEC §3.4).
+
+    A pair is trusted when its video clap has at least ``trust`` confidence and its mocap clap at least
+    ``mocap_trust`` (the mocap's confidence saturates late: sharp claps under 2 mm of marker noise at 120 Hz
+    score 0.2–0.5 and land within a third of a frame, while slow, soft claps and contacts hidden by a gap score
+    under 0.1; ``bench/bench_sync.py``, ``bench/bench_claps_truth.py``). Two or more trusted pairs set the
+    offset and the ratio when the ratio is within ``max_drift`` of 1 (the rates' nominal ratio; a 59.94 Hz
+    camera labelled 60 is 0.001 off); otherwise the map falls back to the surest single pair and the nominal
+    ratio. A weak clap never sets the ratio. With no trusted pair the surest pair found stands alone. Every
+    clap left out gets a warning line naming ``video`` and the clap.
+
+    Raises ValueError when no pair has both claps.
+    """
+    pairs = [j for j, v in enumerate(video_claps) if v is not None]
+    if not pairs:
+        raise ValueError("no clap pair to map the clocks")
+    sure = {j: min(mocap_claps[j].confidence, video_claps[j].confidence) for j in pairs}  # type: ignore[union-attr]
+    trusted = [j for j in pairs if video_claps[j].confidence >= trust  # type: ignore[union-attr]
+               and mocap_claps[j].confidence >= mocap_trust]
+
+    def name(j: int) -> str:
+        v = video_claps[j]
+        at = f"video {v.time_s:.2f} s" if v is not None else "no video clap"
+        return f"clap {j + 1} (mocap {mocap_claps[j].time_s:.2f} s, {at})"
+
+    warnings: list[str] = []
+    use = trusted
+    if len(trusted) >= 2:
+        fit = clock_map([mocap_claps[j] for j in trusted], [video_claps[j] for j in trusted])
+        if abs(fit.ratio - 1.0) > max_drift:
+            best = max(trusted, key=lambda j: sure[j])
+            warnings.append(f"{video}: claps {', '.join(str(j + 1) for j in trusted)} give a clock ratio of "
+                            f"{fit.ratio:.6f} ({fit.drift_ppm:+.0f} ppm), more than cameras drift "
+                            f"({max_drift * 1e6:.0f} ppm): the clock rests on {name(best)} and the nominal rate")
+            use = [best]
+    elif len(trusted) == 1:
+        use = trusted
+    else:
+        use = [max(pairs, key=lambda j: sure[j])]
+    rests_on = " and ".join(name(k) for k in use) + (" and the nominal rate" if len(use) == 1 else "")
+    for j in (k for k in pairs if k not in trusted):
+        found = f"mocap {_floor2(mocap_claps[j].confidence)}, video {_floor2(video_claps[j].confidence)}"  # type: ignore[union-attr]
+        what = "it stands alone, with the nominal rate" if j in use else f"not used; the clock rests on {rests_on}"
+        warnings.append(f"{video}: {name(j)} found with low confidence ({found}; a clap pair sets the ratio from "
+                        f"mocap {mocap_trust:g} and video {trust:g}): {what}")
+    clock = clock_map(mocap_claps, [v if j in use else None for j, v in enumerate(video_claps)])
+    tv = np.array([video_claps[j].time_s for j in use])  # type: ignore[union-attr]
+    return ClockChoice(clock=clock, used=[j in use for j in range(len(mocap_claps))],
+                       bound_ms=_bound_ms(tv, video_span, max_drift if len(use) == 1 else 0.0),
+                       warnings=warnings)
 
 
 def resample_to_mocap(t_video: np.ndarray, values: np.ndarray, kind: str, mocap_times: np.ndarray,

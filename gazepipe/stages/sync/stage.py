@@ -6,10 +6,15 @@ once near the start and once near the end of a take. The mocap clock is the mast
     t_mocap = offset + ratio · t_video
 
 - Mocap clap (:func:`mocap_claps`): the contact instant, when the closing of the clapper arms ends.
-- Video clap (:func:`video_claps`): the end of the closing burst of per-frame motion energy, from a few seconds
-  of frames around each expected clap only (the video is never decoded whole).
-- Clock map (:func:`clock_map`): one clap pair gives the offset (ratio 1); two or more also give the ratio,
-  which holds a camera's rate error (labelled 60 fps running at 59.94: ratio 1.001) or crystal drift.
+- Video clap (:func:`match_clap`): where the per-frame motion energy follows the clapper's speed as the mocap
+  saw it (opening, hold, closing), refined to the end of the closing burst; from a few seconds of frames around
+  each expected clap only (the video is never decoded whole). A hand coming into view or the clapper opening
+  is a burst of another shape.
+- Clock map (:func:`choose_clock`): one clap pair gives the offset (ratio 1); two or more also give the ratio,
+  which holds a camera's rate error (labelled 60 fps running at 59.94: ratio 1.001) or crystal drift. Only
+  pairs found with confidence set the ratio, and only a ratio cameras can have; otherwise the map falls back
+  to the surest clap and the nominal ratio, warns naming the video and the clap, and says how far it may be
+  off (``clock_bound_ms``, the report's ``clock_map`` check).
 - :func:`resample_to_mocap` puts video-clock signals on the mocap frames, never extrapolating.
 
 Everything here is pure: the video comes in as its probe's frame timestamps and a ``read_window(start, stop)``
@@ -28,9 +33,9 @@ import numpy as np
 
 from gazepipe.errors import StageError
 from gazepipe.stages.clean.spikes import find_spikes
-from gazepipe.stages.sync.clap import Clap, mocap_claps
-from gazepipe.stages.sync.clock import ClockMap, clock_map
-from gazepipe.stages.sync.video import ReadWindow, VideoClap, video_claps
+from gazepipe.stages.sync.clap import Clap, clap_profile, clapper_distance, mocap_claps
+from gazepipe.stages.sync.clock import ClockMap, choose_clock
+from gazepipe.stages.sync.video import ReadWindow, VideoClap, match_clap
 
 
 @dataclass(frozen=True)
@@ -39,8 +44,11 @@ class SyncParams:
 
     window_s : half-width (s) of each video window searched around a predicted clap.
     search_s : without a prior, the first clap is looked for in the first (or last) ``search_s`` of the video.
-    max_drift : largest accepted |ratio − 1| between the clocks.
+    max_drift : largest |ratio − 1| cameras show (a 59.94 Hz camera labelled 60 is 0.001, plus its crystal's
+        error); claps that give more do not set the ratio (the map falls back to one clap, with a warning).
     min_confidence : video claps below this confidence count as not found.
+    trust, mocap_trust : a clap pair sets the clock ratio only when its video clap has at least ``trust``
+        confidence and its mocap clap ``mocap_trust`` (:func:`gazepipe.stages.sync.clock.choose_clock`).
     video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
@@ -48,8 +56,10 @@ class SyncParams:
 
     window_s: float = field(default=1.5, metadata={"gt": 0})
     search_s: float = field(default=20.0, metadata={"gt": 0})
-    max_drift: float = field(default=0.005, metadata={"min": 0, "lt": 1})
+    max_drift: float = field(default=0.0012, metadata={"min": 0, "lt": 1})
     min_confidence: float = field(default=0.05, metadata={"min": 0, "max": 1})
+    trust: float = field(default=0.5, metadata={"min": 0, "max": 1})
+    mocap_trust: float = field(default=0.15, metadata={"min": 0, "max": 1})
     video_scale: float = field(default=0.5, metadata={"gt": 0, "max": 1})
 
 
@@ -78,7 +88,8 @@ class SyncResult:
 def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray, valid_b: np.ndarray,
               rate_hz: float, probe_timestamps: np.ndarray, read_window: ReadWindow, *,
               offset_guess_s: float | None = None, ratio_guess: float = 1.0, window_s: float = 1.5,
-              search_s: float = 20.0, max_drift: float = 0.005, min_confidence: float = 0.05,
+              search_s: float = 20.0, max_drift: float = 0.0012, min_confidence: float = 0.05,
+              trust: float = 0.5, mocap_trust: float = 0.15,
               roi: tuple[int, int, int, int] | None = None, mocap_path: str | None = None,
               video_path: str | None = None, take: str | None = None,
               mocap_kw: dict | None = None, video_kw: dict | None = None) -> SyncResult:
@@ -95,14 +106,17 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
         the last ``search_s``), and the other claps are predicted from that pair.
     window_s : half-width of each video search window; windows predicted from a clap pair widen by
         ``max_drift`` times the distance to that pair.
-    max_drift : largest |ratio − 1| accepted; more means the claps were mismatched (StageError).
+    max_drift : largest |ratio − 1| cameras show; claps giving more fall back (:func:`choose_clock`).
     min_confidence : video claps below this confidence count as not found.
+    trust, mocap_trust : the confidence a pair's video and mocap claps need to set the clock ratio
+        (:func:`choose_clock`).
     mocap_path, video_path, take : named in error messages.
     mocap_kw, video_kw : further parameters of :func:`mocap_claps` and :func:`video_claps`.
 
     Raises
     ------
-    StageError : no clap in the mocap, no clap found in the video, or an implausible clock ratio.
+    StageError : no clap in the mocap, or no clap found in the video. Weak claps and implausible ratios
+        fall back to the claps that can be trusted and the nominal ratio, with warnings (never an error).
     """
     mocap_kw = dict(mocap_kw or {})
     video_kw = dict(video_kw or {}, roi=roi)
@@ -122,37 +136,51 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     if not mc:
         raise StageError(mocap_path, "no clap found in the clapper markers (no fast closing that stays shut)",
                          take=take)
+    dist = clapper_distance(clap_a_xyz, clap_b_xyz, kept[:, 0], kept[:, 1])
+    step = float(np.median(np.diff(ts))) if ts.size > 1 else 1.0 / 60.0
+    profiles = [clap_profile(dist, rate_hz, c, step) for c in mc]
+
+    def find(j: int, t0: float, t1: float) -> VideoClap | None:
+        v = match_clap(ts, reader, max(t0, float(ts[0])), min(t1, float(ts[-1])), *profiles[j], **video_kw)
+        return v if v is not None and v.confidence >= min_confidence else None
+
     tm = np.array([c.time_s for c in mc])
-    vc: list[VideoClap | None]
+    vc: list[VideoClap | None] = [None] * len(mc)
     if offset_guess_s is not None:
         approx = (tm - offset_guess_s) / ratio_guess
-        vc = video_claps(ts, reader, approx.tolist(), window_s=window_s, **video_kw)
+        vc = [find(j, a - window_s, a + window_s) for j, a in enumerate(approx)]
     else:
-        vc = [None] * len(mc)
-        # never more than half the video, so that a clap near the end cannot be taken for the first one
-        half = 0.5 * min(search_s, 0.5 * float(ts[-1] - ts[0]))
-        anchor = 0
-        first = video_claps(ts, reader, [float(ts[0] + half)], window_s=half, **video_kw)[0]
-        if first is None or first.confidence < min_confidence:
-            anchor = len(mc) - 1
-            first = video_claps(ts, reader, [float(ts[-1] - half)], window_s=half, **video_kw)[0]
-        if first is not None and first.confidence >= min_confidence:
+        # never more than half the video, so that a clap near the end cannot be taken for the first one: a
+        # clap in the take's first half is looked for in the video's head, one in its second half in the tail
+        # (a take whose first clap was lost must not pair its last one with the video's first). The take's
+        # first clap, and unless that is sure, its last.
+        half = min(search_s, 0.5 * float(ts[-1] - ts[0]))
+
+        def search(j: int) -> VideoClap | None:
+            if tm[j] <= 0.5 * T / rate_hz:
+                return find(j, float(ts[0]), float(ts[0]) + half)
+            return find(j, float(ts[-1]) - half, float(ts[-1]))
+
+        anchor, first = 0, search(0)
+        if len(mc) > 1 and (first is None or first.confidence < trust):
+            last = search(len(mc) - 1)
+            if last is not None and (first is None or last.confidence > first.confidence):
+                anchor, first = len(mc) - 1, last
+        if first is not None:
             vc[anchor] = first
             off = tm[anchor] - first.time_s
             for j in range(len(mc)):
                 if j != anchor:
                     w = window_s + max_drift * abs(tm[j] - tm[anchor])
-                    vc[j] = video_claps(ts, reader, [tm[j] - off], window_s=w, **video_kw)[0]
-    vc = [v if v is not None and v.confidence >= min_confidence else None for v in vc]
+                    vc[j] = find(j, tm[j] - off - w, tm[j] - off + w)
     if all(v is None for v in vc):
         where = "around the expected times" if offset_guess_s is not None else \
             f"in the first or last {search_s:g} s"
         raise StageError(video_path, f"no clap found in the video {where} ({counted[0]} frames decoded)",
                          take=take)
-    clock = clock_map(mc, vc)
-    if abs(clock.ratio - 1.0) > max_drift:
-        raise StageError(video_path, f"clock ratio {clock.ratio:.6f} from the claps is implausible "
-                         f"(more than {max_drift:.2%} drift): the claps are probably mismatched", take=take)
+    choice = choose_clock(mc, vc, video_span=(float(ts[0]), float(ts[-1])), trust=trust,
+                          mocap_trust=mocap_trust, max_drift=max_drift, video=video_path or "the video")
+    clock = choice.clock
     frame_t = np.arange(T, dtype=np.float64) / float(rate_hz)
     span = clock.to_mocap(ts[[0, -1]])
     uncovered = int(np.count_nonzero((frame_t < span[0]) | (frame_t > span[1])))
@@ -167,13 +195,18 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
         "residual_ms": clock.residual_ms,
         "claps": [{"mocap_s": m.time_s, "mocap_confidence": m.confidence,
                    "video_s": None if v is None else v.time_s,
-                   "video_confidence": None if v is None else v.confidence}
-                  for m, v in zip(mc, vc, strict=True)],
+                   "video_confidence": None if v is None else v.confidence,
+                   "video_match": None if v is None else v.match,
+                   "mocap_gap_frames": m.gap_frames, "used": u}
+                  for m, v, u in zip(mc, vc, choice.used, strict=True)],
         "frames_without_video": uncovered,
         "frames_decoded": counted[0],
         "video_frames": int(ts.size),
-        "warnings": [f"mocap clap at {m.time_s:.3f} s has no video counterpart"
-                     for m, v in zip(mc, vc, strict=True) if v is None],
+        "clock_bound_ms": choice.bound_ms,
+        "claps_used": [j + 1 for j, u in enumerate(choice.used) if u],
+        "warnings": [f"{video_path or 'the video'}: mocap clap {j + 1} at {m.time_s:.3f} s has no video "
+                     f"counterpart" for j, (m, v) in enumerate(zip(mc, vc, strict=True)) if v is None]
+        + choice.warnings,
     }
     return SyncResult(clock=clock, mocap_claps=mc, video_claps=vc, frames_without_video=uncovered,
                       frames_decoded=counted[0], qc=qc)

@@ -16,7 +16,7 @@ import numpy as np
 
 from gazepipe.stages.sync.clap import _MAD, _robust_sigma, _score
 
-__all__ = ["ReadWindow", "VideoClap", "motion_energy", "video_claps"]
+__all__ = ["ReadWindow", "VideoClap", "match_clap", "motion_energy", "video_claps"]
 
 #: ``read_window(start, stop) -> (timestamps_s (M,), frames (M, H, W) uint8)`` for the frames [start, stop)
 ReadWindow = Callable[[int, int], tuple[np.ndarray, np.ndarray]]
@@ -33,6 +33,9 @@ class VideoClap:
     confidence : 0..1 (see :func:`video_claps`).
     peak, still : motion energy (mean absolute grey-level difference) at the burst's peak and when still.
     window : the frames [start, stop) that were decoded to find it.
+    match : how well the motion energy around it follows the mocap clapper's speed (normalised correlation,
+        −1..1; :func:`match_clap`), or None when it was found without the mocap's help.
+    match_time_s : the contact as the match alone places it (video clock), or None.
     """
 
     time_s: float
@@ -41,6 +44,8 @@ class VideoClap:
     peak: float
     still: float
     window: tuple[int, int]
+    match: float | None = None
+    match_time_s: float | None = None
 
 
 def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[int, int, int, int] | None = None,
@@ -333,3 +338,83 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
         return [_clap_in(ts, read_window, float(ts[-1]) - span, float(ts[-1]), **kw)]
     return [_clap_in(ts, read_window, t - window_s, t + window_s, **kw) for t in approx_times]
 
+
+
+def _best_match(cand: np.ndarray, tm: np.ndarray, e: np.ndarray, tau: np.ndarray, speed: np.ndarray
+                ) -> tuple[int, np.ndarray]:
+    """Index of the candidate contact time whose energy window best correlates with ``speed``, and every
+    candidate's normalised correlation."""
+    # (C, P) energy around each candidate; outside the frames decoded (before the video starts) the still level,
+    # which says nothing either way
+    win = np.interp(cand[:, None] + tau[None, :], tm, e, left=np.nan, right=np.nan)
+    win[np.isnan(win)] = float(np.median(e))
+    win -= win.mean(axis=1, keepdims=True)
+    ref = speed - speed.mean()
+    den = np.sqrt((win * win).sum(axis=1) * float(ref @ ref))
+    ncc = np.where(den > 0, win @ ref / np.where(den > 0, den, 1.0), -1.0)
+    return int(np.argmax(ncc)), ncc
+
+
+def match_clap(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, profile_s: np.ndarray,
+               profile_speed: np.ndarray, *, roi: tuple[int, int, int, int] | None = None, chunk: int = 64,
+               post_s: float = 0.3, min_match: float = 0.3, good_match: float = 0.8, exclude_s: float = 0.4,
+               z_lo: float = 5.0, z_hi: float = 30.0, min_distinct: float = 0.5, refine: bool = True
+               ) -> VideoClap | None:
+    """The clap in [t0, t1] (video clock) found by the shape of the clapper's motion seen by the mocap.
+
+    The mocap knows how the clapper moved around the clap: ``profile_speed`` (P,), the speed of the distance
+    between its markers (mm/s, any scale) at ``profile_s`` (P,) seconds from its contact, on a grid of the
+    video's frame interval. The motion energy of the frames follows that speed (opening, hold, closing,
+    stillness); the contact is where the energy, read at each candidate contact plus ``profile_s``, correlates
+    best with it (normalised correlation, candidates every quarter frame). A burst of another shape (a hand
+    coming into view, the clapper opening, a head movement) correlates poorly however strong it is. The
+    instant is then refined by the end of the closing burst (:func:`_clap_in` over the frames from a frame
+    before the matched contact's closing to a frame after it) when that lies within a frame of the match.
+
+    Confidence: the match mapped linearly from ``min_match`` (0) to ``good_match`` (1), times how far the
+    closing's energy stands out of the window's noise (as in :func:`video_claps`, ``z_lo`` → 0, ``z_hi`` → 1),
+    times the burst end's own confidence, or halved when the burst's end lies more than a frame from the match (the match's
+    instant is kept). ``exclude_s``, ``z_lo``, ``z_hi``, ``min_distinct``, ``refine``: the burst's end and
+    confidence, as in :func:`video_claps`. Returns None when nothing matches at least ``min_match``.
+    """
+    tau = np.asarray(profile_s, dtype=np.float64)
+    i0 = max(int(np.searchsorted(ts, t0 + tau[0], side="left")) - 1, 0)
+    i1 = min(int(np.searchsorted(ts, t1 + tau[-1] + post_s, side="right")), ts.size)
+    if i1 - i0 < 8:
+        return None
+    kept = _Kept(read_window)
+    e, n = motion_energy(kept, i0, i1, roi=roi, chunk=chunk)
+    fts = ts[i0: i0 + n]
+    if e.size < 4:
+        return None
+    tm = 0.5 * (fts[:-1] + fts[1:])
+    dt = float(np.median(np.diff(fts)))
+    cand = np.arange(t0, t1 + 0.25 * dt, 0.25 * dt)
+    j, ncc = _best_match(cand, tm, e, tau, np.asarray(profile_speed, dtype=np.float64))
+    score = float(ncc[j])
+    if not score >= min_match:
+        return None
+    t = float(cand[j])
+    if 0 < j < cand.size - 1:                  # the correlation's peak between candidates
+        y0, y1, y2 = ncc[j - 1], ncc[j], ncc[j + 1]
+        den = y0 - 2.0 * y1 + y2
+        if den < 0:
+            t += 0.25 * dt * float(np.clip(0.5 * (y0 - y2) / den, -1.0, 1.0))
+    closing = tau[np.argmax(np.asarray(profile_speed)[tau <= 0.0])] if np.any(tau <= 0.0) else -dt
+    edge = _clap_in(ts, kept, t + min(closing, -dt) - dt, t + dt, post_s=post_s, exclude_s=exclude_s, roi=roi,
+                    chunk=chunk, z_lo=z_lo, z_hi=z_hi, min_distinct=min_distinct, refine=refine)
+    conf = float(np.clip((score - min_match) / (good_match - min_match), 0.0, 1.0))
+    # the closing must stand out of the frames' noise, whatever the match
+    still = float(np.median(e))
+    noise = _MAD * float(np.median(np.abs(e - still)))
+    near = (tm >= t + min(closing, -dt) - dt) & (tm <= t + dt)
+    burst = float(e[near].max()) if near.any() else still
+    conf *= _score((burst - still) / max(noise, 1e-9 * max(burst, 1.0)), z_lo, z_hi)
+    t_match = t
+    if edge is not None and abs(edge.time_s - t) <= dt:
+        t, conf = edge.time_s, conf * edge.confidence
+    else:
+        conf *= 0.5                            # the burst's end disagrees with the match: the match alone
+    frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
+    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=burst, still=still,
+                     window=(i0, i0 + n), match=score, match_time_s=t_match)
