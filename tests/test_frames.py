@@ -497,6 +497,31 @@ def test_the_rest_before_the_take_gives_a_gap_at_its_start_its_other_side(take):
     assert [(g["start"], g["stop"]) for g in j.qc["rotation_gaps"]] == [(-10, 10)]
 
 
+def test_the_rest_pose_before_the_take_is_the_mean_of_measured_rotations_only():
+    """rest_pose averages a segment's measured rotations in the last frames of the rest; rotations filled across
+    a gap of its markers never enter (a fill 20° off changes nothing); it falls back to the measured frames of
+    the whole rest, and a segment with no measured frame in the rest has no pose (None), not the fill's."""
+    from gazepipe.stages.frames.stage import rest_pose
+    from gazepipe.stages.geometry import to_wxyz
+
+    truth = Rotation.from_rotvec([0.0, 0.3, 0.0])
+    still = to_wxyz(truth)
+    off = to_wxyz(Rotation.from_rotvec([0.0, 0.3 + np.radians(20.0), 0.0]))
+    n = 40
+    quat = np.tile(still, (n, 3, 1))
+    filled = np.zeros((n, 3), bool)
+    quat[-5:, 0], filled[-5:, 0] = off, True       # segment 0: the last 5 frames filled, 20° off
+    quat[:, 1], filled[:, 1] = off, True           # segment 1: filled over the whole rest
+    quat[-10:, 2], filled[-10:, 2] = off, True     # segment 2: the last n_last frames all filled
+    char = np.tile(still, (n, 1))
+    got = rest_pose(quat, char, 10, filled)
+    assert got["quat"][1] is None
+    for j in (0, 2):
+        assert angles_deg(np.array(got["quat"][j]), truth) < 1e-6, j
+    ignored = rest_pose(quat, char, 10)             # without the flags the fills count: 20° in segment 1
+    assert angles_deg(np.array(ignored["quat"][1]), truth) > 19.0
+
+
 def test_a_missing_head_centre_marker_is_carried_by_the_heads_fit(take):
     """Where the head-centre marker is unfilled but the head is solved, the head centre (and so the target
     direction) comes from the head's rigid fit, within the accuracy of the measured marker."""

@@ -82,7 +82,8 @@ class Joints:
     valid : (N,) bool, True where the character frame and every segment are defined.
     rot_filled : (N, S) bool, segment rotations filled across a gap of its markers (not measured).
     rest_before : the still pose just before the first frame when the rest before it was given
-        (:func:`rest_pose`: ``quat`` per segment, ``char_rot``, each a mean over its last frames), else None.
+        (:func:`rest_pose`: ``quat`` per segment, ``char_rot``, each a mean over its last frames; a segment's
+        from measured rotations only, None where the rest has none), else None.
     rate_hz, first_frame : as in the input :class:`~gazepipe.model.Markers` (source frame of row 0).
     qc : JSON-ready record (neutral frames used per segment, invalid frames, warnings).
     All arrays are float64 and NaN where undefined.
@@ -386,7 +387,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
     for g in qc.get("rotation_gaps", []):
         g["start"], g["stop"] = g["start"] - lead, g["stop"] - lead
     qc["rotation_gaps"] = [g for g in qc.get("rotation_gaps", []) if g["stop"] > 0]
-    rest = rest_pose(quat[:lead], char_rot[:lead], int(round(REST_POSE_S * markers.rate_hz))) if lead else None
+    rest = (rest_pose(quat[:lead], char_rot[:lead], int(round(REST_POSE_S * markers.rate_hz)), rot_filled[:lead])
+            if lead else None)
     return Joints(segments=names, parents=parents, quat=quat[k], quat_local=quat_local[k], six=six[k],
                   head_centre=head_centre[k], target_dir=target_dir[k],
                   char_origin=np.where(has_char[:, None], origin, np.nan)[k], char_rot=char_rot[k], valid=valid[k],
@@ -398,11 +400,17 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
 REST_POSE_S = 0.5
 
 
-def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int) -> dict | None:
+def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int,
+              filled: np.ndarray | None = None) -> dict | None:
     """The still pose just before the take: each segment's rotation (S, 4) wxyz and the character frame's (4,),
-    each the mean (``Rotation.mean``) over the last ``n_last`` rest frames where it is known, else over every
+    each the mean (``Rotation.mean``) over the last ``n_last`` rest frames where it is measured, else over every
     rest frame where it is (None where never). The subject is still there by definition, so the mean is the
     pose at the take's first frame with the noise of a single frame averaged out; None without any rest frame.
+
+    ``filled`` (N, S) bool marks segment rotations filled across a gap of their markers
+    (:func:`fill_rotation_gaps`): they are not measured and never enter a segment's mean. A fill in a rest
+    lies between known rotations on both sides; where no frame of the rest is measured those lie outside it,
+    in motion, and nothing shows the filled pose is the still one: that segment's pose is None.
     """
     if not len(quat):
         return None
@@ -412,6 +420,8 @@ def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int) -> dict | Non
         m = mean_wxyz(q) if m is None else m
         return None if m is None else [float(x) for x in m]
 
+    if filled is not None:
+        quat = np.where(np.asarray(filled, dtype=bool)[..., None], np.nan, quat)
     return {"quat": [mean(quat[:, j]) for j in range(quat.shape[1])], "char_rot": mean(char_rot),
             "frames": int(min(n_last, len(quat)))}
 
