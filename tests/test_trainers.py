@@ -70,7 +70,7 @@ def test_schema_version_and_columns_are_checked(datasets, tmp_path):
     info["schema_version"] = 99
     (copy / "_dataset.json").write_text(json.dumps(info))
     res = run_train("gaze_map", "--data", str(copy), "--out", str(tmp_path / "m"))
-    assert res.exit_code == 2 and "reads schema version 1, the dataset has 99" in res.output
+    assert res.exit_code == 2 and "reads schema version 2, the dataset has 99" in res.output
 
     class Needy:
         name, dataset, schema_version, required_columns = "needy", "gaze_map", 1, ("p_plus", "gaze_target")

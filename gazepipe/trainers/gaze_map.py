@@ -213,7 +213,7 @@ class GazeMapTrainer:
 
     name = "gaze_map"
     dataset = "gaze_map"
-    schema_version = 1
+    schema_version = 2
     required_columns = ("yaw_deg", "pitch_deg", "duration_s", "start_times", "overshoot_time", "overshoot", "p_plus")
     knobs: tuple[str, ...] = ()
     options = {"k": "neighbours blended per request (Kovar-Gleicher k; default 4)",
