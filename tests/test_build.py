@@ -768,10 +768,11 @@ def _truth_map_take(session):
         tr["scalars"]["target"]["pitch_deg"], c0
 
 
-def _map_row(tab, rests, yaw, pitch, quat_holes=(), char_holes=(), filled=(), mark=True, **kw):
+def _map_row(tab, rests, yaw, pitch, quat_holes=(), char_holes=(), filled=(), how="rotation", **kw):
     """gaze_map_row on a copy of ``tab`` with NaN holes (segment, start, stop) / (start, stop) and filled
-    rotations (segment, start, stop, degrees added about X: a fill that far off), marked in ``rot_filled`` unless
-    ``mark`` is False."""
+    rotations (segment, start, stop, degrees added about X: a fill that far off), filled as ``how`` says:
+    ``rotation`` (across a marker gap: ``rot_filled``, not ``rot_measured``), ``markers`` (from gap-filled
+    markers: not ``rot_measured``) or ``none`` (marked measured)."""
     from gazepipe.stages.build.gaze import gaze_map_row
 
     j = {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in tab.items()}
@@ -780,7 +781,8 @@ def _map_row(tab, rests, yaw, pitch, quat_holes=(), char_holes=(), filled=(), ma
     for a, b in char_holes:
         j["char_rot"][a:b] = np.nan
     for seg, a, b, deg in filled:
-        j["rot_filled"][a:b, seg] = mark
+        j["rot_filled"][a:b, seg] = how == "rotation"
+        j["rot_measured"][a:b, seg] = how == "none"
         j["quat"][a:b, seg] = to_wxyz(Rotation.from_rotvec([np.radians(deg), 0, 0]) * from_wxyz(j["quat"][a:b, seg]))
     return gaze_map_row(j, rests, RATE, yaw, pitch, head=9, start_filter_hz=None, start_min_s=0.0, **kw)
 
@@ -886,9 +888,9 @@ def test_gaze_map_row_with_a_segment_missing_at_the_crop_end(session):
 
 def test_gaze_map_end_poses_come_from_measured_rotations_only(session):
     """A segment's end pose is the mean of its measured rotations in the rest: rotations filled across a marker
-    gap (``rot_filled``) never enter it, even 6° off; when the final rest holds no measured rotation of the
-    segment its P+ is null (not taken from the fill), and so is its child's. The fills still carry the angular
-    speeds (the start times stand)."""
+    gap (``rot_filled``) or computed from gap-filled markers (not ``rot_measured``) never enter it, even 6° off;
+    when the final rest holds no measured rotation of the segment its P+ is null (not taken from the fill), and
+    so is its child's. The fills still carry the angular speeds (the start times stand)."""
     tab, rests, yaw, pitch, c0 = _truth_map_take(session)
     whole = _map_row(tab, rests, yaw, pitch)
     n = len(tab["frame"])
@@ -897,13 +899,14 @@ def test_gaze_map_end_poses_come_from_measured_rotations_only(session):
     partly = _map_row(tab, rests, yaw, pitch, filled=[(6, n - 5, n, 6.0)])
     assert partly.features["known"].all()
     np.testing.assert_allclose(partly.features["p_plus"], whole.features["p_plus"], atol=2e-3)
-    off = _map_row(tab, rests, yaw, pitch, filled=[(6, n - 5, n, 6.0)], mark=False)   # the fill taken as measured
+    off = _map_row(tab, rests, yaw, pitch, filled=[(6, n - 5, n, 6.0)], how="none")   # the fill taken as measured
     off_pp = off.features["p_plus"][0].reshape(-1, 4).astype(np.float64)
     pp = whole.features["p_plus"][0].reshape(-1, 4).astype(np.float64)
     assert np.degrees((from_wxyz(off_pp[6]) * from_wxyz(pp[6]).inv()).magnitude()) > 0.5
-    # filled over the whole final rest: null, with its child
-    allfilled = _map_row(tab, rests, yaw, pitch, filled=[(6, second - 3, n, 6.0)])
-    _same_except(allfilled, whole, [6, 7])
+    # filled over the whole final rest, across a gap of its markers or from gap-filled markers: null, with its
+    # child
+    for how in ("rotation", "markers"):
+        _same_except(_map_row(tab, rests, yaw, pitch, filled=[(6, second - 3, n, 6.0)], how=how), whole, [6, 7])
     # at the crop's first frame (no rest before it in this table): a filled first frame is not a first pose
     first = _map_row(tab, rests, yaw, pitch, filled=[(2, 0, 1, 0.0)])
     _same_except(first, whole, [2, 3])

@@ -282,12 +282,14 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
       the mean over the last ``REST_POSE_S`` of the first rest (the joints' ``rest_before``, when the frames
       stage had that rest) and over the crop's last ``REST_POSE_S``, inside the second rest (each over the
       whole rest where those frames lack it); a single frame carries the markers' noise (1–2° on a small
-      three-marker segment). A segment's end pose comes from **measured** rotations only: rotations filled
-      across a gap of its markers (the joints' ``rot_filled``) never enter it. A rest is still, so any measured
-      frame in it shows the pose; a fill there is slerped or regressed from known rotations on both sides,
-      which lie outside the rest when none of its frames is measured, and nothing then shows the fill holds the
-      still pose (filled crop ends were 4–6° off on necks). Without a measured frame in the rest (for the first
-      pose: nor at the crop's first frame) the segment's end pose is unknown;
+      three-marker segment). A segment's end pose comes from **measured** rotations only (the joints'
+      ``rot_measured``: every marker of the segment measured, none gap-filled, the rotation not filled across a
+      gap; without that column, rotations not marked ``rot_filled``). A rest is still, so any measured frame in
+      it shows the pose. A fill there is estimated from what lies around it: from its edges (outside the rest
+      when none of the rest is measured) or from other segments' markers, and such fills were measured 4–10°
+      off in rests where their own estimate said 1–2 mm; nothing shows such a pose is the still one. Without a
+      measured frame in the rest (for the first pose: nor at the crop's first frame) the segment's end pose is
+      unknown;
     - P+ per segment L(last)·L(first)⁻¹ (needs the end poses of the segment and of its parent), and the eyes'
       D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·G_head(first)⁻¹ (needs the head's end poses): the eyes'
       global displacement is the requested change;
@@ -314,7 +316,8 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     Parameters
     ----------
     joints : :func:`gazepipe.schemas.joints.joints_arrays` of the cropped take ([end of first rest, end of
-        second rest)); ``rot_filled`` (N, S) marks filled rotations (all measured when absent).
+        second rest)); ``rot_measured`` (N, S) marks rotations from measured markers (else ``rot_filled``
+        filled ones; all known ones count as measured when neither is given).
     rests : rest periods [start, stop) in frames of the uncropped take (the clean stage's ``rests``).
     rate_hz : frames per second.
     yaw_deg, pitch_deg : the requested gaze change, degrees.
@@ -336,9 +339,11 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     names = list(joints["segments"])
     max_run = int(np.floor(max_bridge_s * rate_hz + 1e-9))
     char_rot = np.array(joints["char_rot"], dtype=np.float64)
-    filled = joints.get("rot_filled")
-    filled = np.zeros((n, ns), bool) if filled is None else np.asarray(filled, dtype=bool)
-    measured = np.isfinite(quat).all(axis=2) & ~filled
+    measured = np.isfinite(quat).all(axis=2)
+    if joints.get("rot_measured") is not None:
+        measured &= np.asarray(joints["rot_measured"], dtype=bool)
+    elif joints.get("rot_filled") is not None:
+        measured &= ~np.asarray(joints["rot_filled"], dtype=bool)
     # the crop starts where the first rest ends and ends with the second rest, where the subject is still: the
     # first and last poses are the means over those rests (a single frame carries the markers' noise)
     before = joints["meta"].get("rest_before") or {}
