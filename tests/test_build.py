@@ -9,6 +9,7 @@ checked against the generator's truth both on the truth's own rotations and on t
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
@@ -975,6 +976,18 @@ def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session
     hf = __import__("datasets").load_dataset(str(root))
     assert hf["train"].num_rows == 8 and hf["train"][2]["known"] == known[2].tolist()
     assert np.isnan(np.array(hf["train"][2]["start_times"], dtype=float)).tolist() == (~known[2, :10]).tolist()
+    # the gaze map trains on it: its nulls are masked, its figures finite
+    from click.testing import CliRunner
+
+    from gazepipe.cli.train import train
+    from gazepipe.trainers.gaze_map import GazeMap
+
+    res = CliRunner().invoke(train, ["gaze_map", "--data", str(root), "--out", str(tmp_path / "m"), "--json"])
+    assert res.exit_code == 0, res.output
+    loo = json.loads(res.output)["leave_one_out"]
+    assert loo["not_compared"] == 4 and np.isfinite(loo["final_pose_error_deg_max"])
+    gmap = GazeMap.load(tmp_path / "m")
+    assert (gmap.known == known).all() and np.isfinite(gmap.motion(10.0, 5.0).p_plus).all()
 
 
 def test_mirroring_a_gaze_map_row_moves_its_mask_with_its_values():
