@@ -921,11 +921,9 @@ def test_gaze_map_end_poses_come_from_measured_rotations_only(session):
     assert "no measured rotation in the rest before the crop" in none.qc["null_reasons"][tab["segments"][2]]
 
 
-def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session, tmp_path):
-    """A take whose segment has no rotation over its final rest keeps its row: the build counts the nulls per
-    take and overall, the statistics are taken per element over the values that are not null (mean, std and
-    count equal NumPy's nan-aware ones over the training rows, mirrored copies included), and the folder reads
-    back through gazepipe, pyarrow, pandas and Hugging Face ``datasets`` with the ``known`` mask intact."""
+def _null_map_takes(session) -> list[TakeTables]:
+    """Four gaze_shift takes from truth, pinned to train; the second's segment 4 is hidden from 5 frames before
+    its second rest to the end (null P+ for it and its child)."""
     takes = []
     for i, t in enumerate(_shift_takes(session)[:4]):
         tr = load_truth(session.root, t.id)
@@ -939,6 +937,15 @@ def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session
         takes.append(TakeTables(session=session.id, subject=session.subject, take=pinned_take(t, "train"),
                                 joints=joints, markerset=session.markerset,
                                 meta={"rests": tr["scalars"]["rest_periods"]}))
+    return takes
+
+
+def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session, tmp_path):
+    """A take whose segment has no rotation over its final rest keeps its row: the build counts the nulls per
+    take and overall, the statistics are taken per element over the values that are not null (mean, std and
+    count equal NumPy's nan-aware ones over the training rows, mirrored copies included), and the folder reads
+    back through gazepipe, pyarrow, pandas and Hugging Face ``datasets`` with the ``known`` mask intact."""
+    takes = _null_map_takes(session)
     built = build_dataset("gaze_map", takes, BuildParams(start_filter_hz=None, start_min_s=0.0))
     segs = list(load_truth(session.root, takes[0].take.id)["segments"])
     holed = f"{session.id}/{takes[1].take.id}"
@@ -988,6 +995,25 @@ def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session
     assert loo["not_compared"] == 4 and np.isfinite(loo["final_pose_error_deg_max"])
     gmap = GazeMap.load(tmp_path / "m")
     assert (gmap.known == known).all() and np.isfinite(gmap.motion(10.0, 5.0).p_plus).all()
+
+
+def test_gaze_map_with_null_segments_loads_in_torch_and_masks_a_loss(session, tmp_path):
+    """PyTorch takes the columns as tensors (``known`` as bool); a loss masked by ``known`` is finite and its
+    gradient too: the null values never reach it."""
+    torch = pytest.importorskip("torch")
+    from gazepipe.datasets import open_dataset as open_gd
+
+    write_dataset(build_dataset("gaze_map", _null_map_takes(session)), tmp_path)
+    gd = open_gd(tmp_path / "gaze_map")
+    pp = torch.from_numpy(np.array(gd.array("p_plus")))
+    known = torch.from_numpy(np.array(gd.array("known")))
+    assert known.dtype == torch.bool and pp.dtype == torch.float32 and torch.isnan(pp).any()
+    mask = known[:, :-1].repeat_interleave(4, dim=1)              # segments and eyes, 4 values each
+    pred = torch.zeros_like(pp, requires_grad=True)
+    loss = ((pred - torch.where(mask, pp, 0.0)) ** 2)[mask].mean()
+    loss.backward()
+    assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
+    assert (pred.grad[~mask] == 0).all()
 
 
 def test_mirroring_a_gaze_map_row_moves_its_mask_with_its_values():
