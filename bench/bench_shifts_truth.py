@@ -9,10 +9,12 @@ lab; ``--seeds`` seeds each. Each session runs through ``gazepipe run`` (serial)
 
 Printed per layout:
 - crop bounds against the truth, every mocap take: the largest error and the bounds more than 3 frames off;
-- gaze_map: the share of gaze_shift takes with a row, and against the truth the duration ``l``, the start times
-  (segments whose noise-free peak speed is within 2.5°/s of the 18°/s threshold left out: undecidable under the
-  speed noise), the overshoot time (left out where the head passes its final orientation by under 0.5°, below
-  the orientation noise) and β, and P+ per segment and for the eyes;
+- gaze_map: the share of gaze_shift takes with a row, the parameters null in those rows (their ``known`` mask:
+  takes with any, and entries per segment, eyes and overshoot, with each reason's kind), and against the truth
+  for the values that are not null the duration ``l``, the start times (segments whose noise-free peak speed is
+  within 2.5°/s of the 18°/s threshold left out: undecidable under the speed noise), the overshoot time (left out
+  where the head passes its final orientation by under 0.5°, below the orientation noise) and β, and P+ per
+  segment and for the eyes;
 - the datasets built per session (all four expected);
 - the clock map: the largest error over each video (ms) between the fitted and the true mocap-from-video map.
 
@@ -93,6 +95,14 @@ def truth_p_plus(local: list):
     return from_wxyz(np.stack([(r[len(r) - 1] * r[0].inv()).as_quat(scalar_first=True) for r in local]))
 
 
+def reason_kind(reason: str) -> str:
+    """What a gaze_map null reason is about: ``end pose`` (no measured rotation at a crop end, its own or its
+    parent's or the head's), ``hole`` (an unbridgeable run before the event), or both."""
+    kinds = [k for k, hit in (("end pose", reason.startswith("P+") or "end pose" in reason),
+                              ("hole", "cannot be computed" in reason)) if hit]
+    return "+".join(kinds) or "?"
+
+
 def gaze_map_rows(out: Path) -> dict[str, dict]:
     root = out / "datasets" / "gaze_map"
     rows: dict[str, dict] = {}
@@ -122,6 +132,8 @@ def main() -> None:
         n_shift = n_rows = 0
         l_err, start_err, tb_err, beta_err, pp_err, eye_err = [], [], [], [], [], []
         left_out: list[str] = []
+        null_by: dict[str, int] = {}
+        null_takes: list[str] = []
         built: list[list[str]] = []
         clock_err: list[float] = []
         undec = tiny = 0
@@ -172,6 +184,16 @@ def main() -> None:
                         continue
                     n_rows += 1
                     r = rows[take]
+                    info = json.loads((out / "datasets" / "gaze_map" / "_dataset.json").read_text())
+                    mask_names = info.get("masks", {}).get("known")
+                    known = dict(zip(mask_names, r["known"], strict=True)) if mask_names else {}
+                    null = [k for k, v in known.items() if not v]
+                    if null:
+                        reasons = info["counts"]["per_take"][f"{cfg.session_id}/{take}"].get("null_reasons", {})
+                        null_takes.append(f"s{seed} {take}: " + ", ".join(f"{k} ({reason_kind(reasons.get(k, ''))})"
+                                                                          for k in null))
+                        for k in null:
+                            null_by[k] = null_by.get(k, 0) + 1
                     tr = dict(np.load(folder / "truth" / f"{take}.npz"))
                     tr["crop"] = t["crop"]
                     gm = t
@@ -182,27 +204,36 @@ def main() -> None:
                     want_start, skip = truth_starts(local, rate)
                     undec += len(skip)
                     for k, s in enumerate(segs):
-                        if k not in skip:
+                        if k not in skip and known.get(s, True):
                             start_err.append(r["start_times"][k] * r["duration_s"] * rate - want_start[k])
                             worst_start.append((abs(start_err[-1]), f"s{seed} {take} {s} {start_err[-1]:+.0f}"))
-                    if overshoot_amplitude_deg(tr) >= 0.5:
-                        tb_err.append(r["overshoot_time"] * r["duration_s"] * rate - gm["t_beta_frac"] * gm["l_s"] * rate)
-                    else:
-                        tiny += 1
-                    beta_err.append(r["overshoot"] - gm["beta"])
-                    pp = from_wxyz(np.array(r["p_plus"], dtype=np.float64).reshape(-1, 4))
+                    if known.get("overshoot", True):
+                        if overshoot_amplitude_deg(tr) >= 0.5:
+                            tb_err.append(r["overshoot_time"] * r["duration_s"] * rate
+                                          - gm["t_beta_frac"] * gm["l_s"] * rate)
+                        else:
+                            tiny += 1
+                        beta_err.append(r["overshoot"] - gm["beta"])
+                    q = np.array(r["p_plus"], dtype=np.float64).reshape(-1, 4)
+                    ok = np.isfinite(q).all(axis=1)
+                    pp = from_wxyz(np.where(ok[:, None], q, [1.0, 0, 0, 0]))
                     want = truth_p_plus(local)
-                    ang = np.degrees((pp[:-1].inv() * want).magnitude())
-                    pp_err.extend(ang.tolist())
-                    worst.append((float(ang.max()), f"s{seed} {take} {segs[int(np.argmax(ang))]}"))
-                    eye = from_wxyz(np.array(gm["p_plus"]["eyes"], dtype=np.float64))
-                    eye_err.append(float(np.degrees((pp[-1].inv() * eye).magnitude())))
+                    ang = np.where(ok[:-1], np.degrees((pp[:-1].inv() * want).magnitude()), np.nan)
+                    pp_err.extend(ang[ok[:-1]].tolist())
+                    if ok[:-1].any():
+                        worst.append((float(np.nanmax(ang)), f"s{seed} {take} {segs[int(np.nanargmax(ang))]}"))
+                    if ok[-1]:
+                        eye = from_wxyz(np.array(gm["p_plus"]["eyes"], dtype=np.float64))
+                        eye_err.append(float(np.degrees((pp[-1].inv() * eye).magnitude())))
         print(f"\n{label}:")
         ce = np.array(crop_err)
         print(f"  crop bounds: {len(ce)} bounds, largest error {ce.max() if ce.size else 0} frames, "
               f"{int((ce > 3).sum())} more than 3 frames off" + "".join(f"\n    {b}" for b in crop_bad[:8]))
         print(f"  gaze_map rows: {n_rows} of {n_shift} gaze_shift takes ({100 * n_rows / max(n_shift, 1):.0f} %)"
               + "".join(f"\n    left out: {x}" for x in left_out[:6]))
+        print(f"  rows with null parameters: {len(null_takes)} of {n_rows}; null entries: "
+              + (", ".join(f"{k} {v}" for k, v in sorted(null_by.items(), key=lambda kv: -kv[1])) or "none")
+              + "".join(f"\n    {x}" for x in null_takes[:10]))
 
         def stat(name: str, v: list[float], unit: str, tol: float) -> None:
             a = np.abs(np.array(v))

@@ -9,6 +9,8 @@ checked against the generator's truth both on the truth's own rotations and on t
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -31,12 +33,12 @@ from gazepipe.io.datasets import (
 from gazepipe.io.session_toml import load_session
 from gazepipe.model import Take
 from gazepipe.schemas.base import with_identity
-from gazepipe.schemas.joints import joints_arrays, joints_to_table, list_to_numpy
+from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_to_table, list_to_numpy
 from gazepipe.schemas.tracks import EYES
 from gazepipe.stages.build.splits import assign_split
 from gazepipe.stages.build.stage import BuildParams, TakeTables, build_dataset
 from gazepipe.stages.frames.stage import Joints
-from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation
+from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation, to_wxyz
 from gazepipe.synth import load_truth
 from tests.acceptance_helpers import near_threshold, truth_joints
 from tests.conftest import SAMPLE  # noqa: E402
@@ -84,6 +86,11 @@ def follow_takes(session):
                               joints=truth_joints(tr, frames), eyes=eyes_table(tr, frames, bad),
                               markerset=session.markerset, meta={"rests": tr["scalars"]["rest_periods"]}))
     return out, invalid_frames
+
+
+def pinned_take(t: Take, split: str | None) -> Take:
+    return Take(id=t.id, kind=t.kind, pose=t.pose, mocap=t.mocap, split=split,
+                target_yaw_deg=t.target_yaw_deg, target_pitch_deg=t.target_pitch_deg)
 
 
 def pinned(tt: TakeTables, split: str | None) -> TakeTables:
@@ -752,31 +759,72 @@ def test_gaze_rows_gate_on_the_segments_they_keep_and_count_every_dropped_frame(
     assert gr.qc["dropped"]["eyes_invalid"] == 3 and len(gr.frame) + sum(gr.qc["dropped"].values()) == n
 
 
-def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
-    """Frames inside the crop without a rotation are bridged in rotation space up to build.max_bridge_s
-    (0.5 s): the row stays within the truth's tolerances and QC counts them. After a longer hole nothing is
-    known: a start or overshoot found before it stands, one that may lie inside it leaves the take out with that
-    reason, as does a hole at the crop's first or last frame."""
-    from gazepipe.stages.build.gaze import gaze_map_row
-    from gazepipe.stages.geometry import from_wxyz
-
+def _truth_map_take(session):
+    """The first gaze_shift take's truth: (joints arrays over its crop, rests, yaw, pitch, crop start)."""
     t = _shift_takes(session)[0]
     tr = load_truth(session.root, t.id)
     c0, c1 = tr["scalars"]["crop"]
-    base = truth_joints(tr, np.arange(c0, c1))
-    tab = joints_arrays(base)
-    rests = tr["scalars"]["rest_periods"]
-    yaw, pitch = tr["scalars"]["target"]["yaw_deg"], tr["scalars"]["target"]["pitch_deg"]
+    tab = joints_arrays(truth_joints(tr, np.arange(c0, c1)))
+    return tab, tr["scalars"]["rest_periods"], tr["scalars"]["target"]["yaw_deg"], \
+        tr["scalars"]["target"]["pitch_deg"], c0
 
-    def row(quat_holes=(), char_holes=(), **kw):
-        j = {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in tab.items()}
-        for seg, a, b in quat_holes:
-            j["quat"][a:b, seg] = np.nan
-        for a, b in char_holes:
-            j["char_rot"][a:b] = np.nan
-        return gaze_map_row(j, rests, RATE, yaw, pitch, head=9, start_filter_hz=None, start_min_s=0.0, **kw)
+
+def _map_row(tab, rests, yaw, pitch, quat_holes=(), char_holes=(), filled=(), how="rotation", **kw):
+    """gaze_map_row on a copy of ``tab`` with NaN holes (segment, start, stop) / (start, stop) and filled
+    rotations (segment, start, stop, degrees added about X: a fill that far off), filled as ``how`` says:
+    ``rotation`` (across a marker gap: ``rot_filled``, not ``rot_measured``), ``markers`` (from gap-filled
+    markers: not ``rot_measured``) or ``none`` (marked measured)."""
+    from gazepipe.stages.build.gaze import gaze_map_row
+
+    j = {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in tab.items()}
+    for seg, a, b in quat_holes:
+        j["quat"][a:b, seg] = np.nan
+    for a, b in char_holes:
+        j["char_rot"][a:b] = np.nan
+    for seg, a, b, deg in filled:
+        j["rot_filled"][a:b, seg] = how == "rotation"
+        j["rot_measured"][a:b, seg] = how == "none"
+        j["quat"][a:b, seg] = to_wxyz(Rotation.from_rotvec([np.radians(deg), 0, 0]) * from_wxyz(j["quat"][a:b, seg]))
+    return gaze_map_row(j, rests, RATE, yaw, pitch, head=9, start_filter_hz=None, start_min_s=0.0, **kw)
+
+
+def _same_except(got, want, null: list[int], n_seg: int = 10) -> None:
+    """``got``'s row equals ``want``'s (both computed) everywhere but the mask entries ``null`` (segments, then
+    eyes = n_seg, overshoot = n_seg + 1), which are NaN and False in ``got``."""
+    known = got.features["known"][0]
+    assert known.dtype == bool and list(np.flatnonzero(~known)) == sorted(null)
+    assert want.features["known"].all()
+    segs = [k for k in null if k < n_seg]
+    keep = [k for k in range(n_seg) if k not in segs]
+    st, pp = got.features["start_times"][0], got.features["p_plus"][0].reshape(-1, 4)
+    assert np.isnan(st[segs]).all() and np.isnan(pp[segs]).all()
+    np.testing.assert_array_equal(st[keep], want.features["start_times"][0][keep])
+    rows = keep + ([] if n_seg in null else [n_seg])
+    np.testing.assert_array_equal(pp[rows], want.features["p_plus"][0].reshape(-1, 4)[rows])
+    if n_seg in null:
+        assert np.isnan(pp[n_seg]).all()
+    for k in ("overshoot_time", "overshoot"):
+        if n_seg + 1 in null:
+            assert np.isnan(got.features[k]).all()
+        else:
+            np.testing.assert_array_equal(got.features[k], want.features[k])
+    for k in ("yaw_deg", "pitch_deg", "duration_s"):
+        np.testing.assert_array_equal(got.features[k], want.features[k])
+
+
+def test_gaze_map_bridges_short_holes_and_nulls_what_it_cannot_compute(session):
+    """Frames inside the crop without a rotation are bridged in rotation space up to build.max_bridge_s
+    (0.5 s): the row stays within the truth's tolerances and QC counts them. After a longer hole nothing is
+    known: a start or overshoot found before it stands; one that may lie inside it is null in the row (with the
+    segment's P+, masked in ``known``) and the rest of the row is what it is without the hole. A missing
+    character frame at the crop's first or last frame still leaves the take out: nothing can be computed."""
+    tab, rests, yaw, pitch, c0 = _truth_map_take(session)
+
+    def row(**kw):
+        return _map_row(tab, rests, yaw, pitch, **kw)
 
     whole = row()
+    assert whole.features["known"].all() and whole.qc["null_segments"] == [] and whole.qc["null_reasons"] == {}
     n = len(tab["frame"])
     mid = n // 2
     holed = row(quat_holes=[(9, mid - 6, mid + 6), (3, 10, 20)], char_holes=[(mid + 10, mid + 14)])
@@ -786,7 +834,7 @@ def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     assert abs(holed.features["overshoot"][0] - whole.features["overshoot"][0]) < 0.02
     pp = from_wxyz(holed.features["p_plus"].reshape(-1, 4).astype(np.float64))
     assert np.degrees(pp.magnitude()).max() < 180
-    # a longer hole: events found before it stand, one that may lie inside it leaves the take out
+    # a longer hole: events found before it stand
     starts = np.rint(whole.features["start_times"][0] * whole.features["duration_s"][0] * RATE).astype(int)
     late = max(int(starts.max()), whole.qc["overshoot_frame"] - c0 + 4) + 2
     assert late + 20 < n - 2
@@ -794,18 +842,206 @@ def test_gaze_map_bridges_short_holes_and_names_what_it_cannot_compute(session):
     assert after.qc["unbridged_frames"] == 20 and after.qc["bridged_frames"] == 0
     for k in whole.features:
         np.testing.assert_allclose(after.features[k], whole.features[k], atol=1e-6)
-    head_start = max(1, int(starts[9]))          # frame 0 is P+'s: it needs a rotation
-    with pytest.raises(StageError, match=r"start time of 'head' cannot be computed: crop frames "
-                                         rf"{head_start}–{head_start + 19} .*more than build.max_bridge_s \(0.5 s\)"):
-        row(quat_holes=[(9, head_start, head_start + 20)])
-    with pytest.raises(StageError, match=r"the overshoot cannot be computed"):
-        ov = whole.qc["overshoot_frame"] - c0
-        row(quat_holes=[(9, ov - 5, ov + 20)])
-    with pytest.raises(StageError, match="crop's first frame has no segment 'pelvis' rotation"):
-        row(quat_holes=[(0, 0, 3)])
+    # ... one that may lie inside it is null: a hole before the head's start nulls the head and the overshoot
+    # (it comes after the start); the eyes need only the head's end poses, which stand
+    head_start = max(1, int(starts[9]))
+    before_start = row(quat_holes=[(9, head_start, head_start + 20)])
+    _same_except(before_start, whole, [9, 11])
+    assert before_start.qc["null_segments"] == ["head", "overshoot"]
+    assert re.search(rf"start time cannot be computed: crop frames {head_start}–{head_start + 19} .*more than "
+                     r"build.max_bridge_s \(0.5 s\)", before_start.qc["null_reasons"]["head"])
+    ov = whole.qc["overshoot_frame"] - c0
+    no_overshoot = row(quat_holes=[(9, ov - 5, ov + 20)])
+    _same_except(no_overshoot, whole, [11])
+    assert "overshoot cannot be computed" in no_overshoot.qc["null_reasons"]["overshoot"]
+    # no rotation at the crop's first frame: the pelvis's P+ is null, and so is its child's (relative to it);
+    # the start times of both need the pelvis from frame 0 on
+    no_first = row(quat_holes=[(0, 0, 3)])
+    _same_except(no_first, whole, [0, 1])
+    assert no_first.qc["null_segments"] == list(tab["segments"][:2])
+    assert "no measured rotation at the crop's first frame" in no_first.qc["null_reasons"]["pelvis"]
     with pytest.raises(StageError, match="crop's last frame has no character frame rotation"):
         row(char_holes=[(int(rests[1][0]) - c0, n)])   # the last pose is a mean over the second rest's frames
+    with pytest.raises(StageError, match="crop's first frame has no character frame rotation"):
+        row(char_holes=[(0, 1)])
     assert row(char_holes=[(n - 2, n)]).qc["bridged_frames"] == 1   # the last from the mean, n − 2 bridged
+
+
+def test_gaze_map_row_with_a_segment_missing_at_the_crop_end(session):
+    """A segment without rotation over the crop's final rest (its markers hidden to the end): the take still
+    gives a row; that segment's P+ is null and so is its child's (parent-relative), each masked; every other
+    value is the one computed without the hole. The head missing there nulls the head, the eyes (they need the
+    head's displacement) and the overshoot, and nothing else."""
+    tab, rests, yaw, pitch, c0 = _truth_map_take(session)
+    whole = _map_row(tab, rests, yaw, pitch)
+    n = len(tab["frame"])
+    second = int(rests[1][0]) - c0
+    got = _map_row(tab, rests, yaw, pitch, quat_holes=[(4, second - 5, n)])
+    _same_except(got, whole, [4, 5])
+    names = list(tab["segments"])
+    assert got.qc["null_segments"] == [names[4], names[5]]
+    assert "no measured rotation in the crop's final rest" in got.qc["null_reasons"][names[4]]
+    assert f"relative to {names[4]!r}" in got.qc["null_reasons"][names[5]]
+    head = _map_row(tab, rests, yaw, pitch, quat_holes=[(9, second, n)])
+    _same_except(head, whole, [9, 10, 11])
+    assert head.qc["null_segments"] == ["head", "eyes", "overshoot"]
+
+
+def test_gaze_map_end_poses_come_from_measured_rotations_only(session):
+    """A segment's end pose is the mean of its measured rotations in the rest: rotations filled across a marker
+    gap (``rot_filled``) or computed from gap-filled markers (not ``rot_measured``) never enter it, even 6° off;
+    when the final rest holds no measured rotation of the segment its P+ is null (not taken from the fill), and
+    so is its child's. The fills still carry the angular speeds (the start times stand)."""
+    tab, rests, yaw, pitch, c0 = _truth_map_take(session)
+    whole = _map_row(tab, rests, yaw, pitch)
+    n = len(tab["frame"])
+    second = int(rests[1][0]) - c0
+    # filled over the last 5 frames, 6° off: the mean over the measured frames of the rest is the truth's
+    partly = _map_row(tab, rests, yaw, pitch, filled=[(6, n - 5, n, 6.0)])
+    assert partly.features["known"].all()
+    np.testing.assert_allclose(partly.features["p_plus"], whole.features["p_plus"], atol=2e-3)
+    off = _map_row(tab, rests, yaw, pitch, filled=[(6, n - 5, n, 6.0)], how="none")   # the fill taken as measured
+    off_pp = off.features["p_plus"][0].reshape(-1, 4).astype(np.float64)
+    pp = whole.features["p_plus"][0].reshape(-1, 4).astype(np.float64)
+    assert np.degrees((from_wxyz(off_pp[6]) * from_wxyz(pp[6]).inv()).magnitude()) > 0.5
+    # filled over the whole final rest, across a gap of its markers or from gap-filled markers: null, with its
+    # child
+    for how in ("rotation", "markers"):
+        _same_except(_map_row(tab, rests, yaw, pitch, filled=[(6, second - 3, n, 6.0)], how=how), whole, [6, 7])
+    # at the crop's first frame (no rest before it in this table): a filled first frame is not a first pose
+    first = _map_row(tab, rests, yaw, pitch, filled=[(2, 0, 1, 0.0)])
+    _same_except(first, whole, [2, 3])
+    # with the frames stage's rest_before (measured means), the first pose is that, whatever frame 0 holds
+    meta = dict(tab["meta"], rest_before={"quat": [list(q) for q in tab["quat"][0]], "char_rot": list(tab["char_rot"][0])})
+    with_rest = _map_row(dict(tab, meta=meta), rests, yaw, pitch, filled=[(2, 0, 1, 6.0)])
+    np.testing.assert_allclose(with_rest.features["p_plus"], whole.features["p_plus"], atol=1e-6)
+    meta["rest_before"]["quat"][2] = None          # no measured rotation in that rest: frame 0 is filled → null
+    none = _map_row(dict(tab, meta=meta), rests, yaw, pitch, filled=[(2, 0, 1, 6.0)])
+    assert list(np.flatnonzero(~none.features["known"][0])) == [2, 3]
+    assert "no measured rotation in the rest before the crop" in none.qc["null_reasons"][tab["segments"][2]]
+
+
+def _null_map_takes(session) -> list[TakeTables]:
+    """Four gaze_shift takes from truth, pinned to train; the second's segment 4 is hidden from 5 frames before
+    its second rest to the end (null P+ for it and its child)."""
+    takes = []
+    for i, t in enumerate(_shift_takes(session)[:4]):
+        tr = load_truth(session.root, t.id)
+        c0, c1 = tr["scalars"]["crop"]
+        joints = truth_joints(tr, np.arange(c0, c1))
+        if i == 1:           # segment 4 hidden from 5 frames before the second rest to the end
+            q = list_to_numpy(joints.column("quat"), 40).reshape(-1, 10, 4).copy()
+            q[int(tr["scalars"]["rest_periods"][1][0]) - 5 - c0:, 4] = np.nan
+            f = joints.schema.get_field_index("quat")
+            joints = joints.set_column(f, joints.schema.field("quat"), fixed_list(q, 40, np.float32))
+        takes.append(TakeTables(session=session.id, subject=session.subject, take=pinned_take(t, "train"),
+                                joints=joints, markerset=session.markerset,
+                                meta={"rests": tr["scalars"]["rest_periods"]}))
+    return takes
+
+
+def test_gaze_map_with_null_segments_builds_writes_reads_and_counts_them(session, tmp_path):
+    """A take whose segment has no rotation over its final rest keeps its row: the build counts the nulls per
+    take and overall, the statistics are taken per element over the values that are not null (mean, std and
+    count equal NumPy's nan-aware ones over the training rows, mirrored copies included), and the folder reads
+    back through gazepipe, pyarrow, pandas and Hugging Face ``datasets`` with the ``known`` mask intact."""
+    takes = _null_map_takes(session)
+    built = build_dataset("gaze_map", takes, BuildParams(start_filter_hz=None, start_min_s=0.0))
+    segs = list(load_truth(session.root, takes[0].take.id)["segments"])
+    holed = f"{session.id}/{takes[1].take.id}"
+    info = built.info
+    assert not info["skipped"] and len(built.tables) == 4
+    assert info["counts"]["null_segments"] == {segs[4]: 1, segs[5]: 1} and info["counts"]["takes_with_nulls"] == 1
+    assert info["counts"]["per_take"][holed]["null_segments"] == [segs[4], segs[5]]
+    assert info["masks"] == {"known": [*segs, "eyes", "overshoot"]} and "known" not in info["features"]
+    assert info["schema_version"] == 2 and built.schema.field("known").type == pa.list_(pa.bool_(), 12)
+    write_dataset(built, tmp_path)
+    root = tmp_path / "gaze_map"
+    table, _ = read_dataset(root)
+    known = list_to_numpy(table.column("known"), 12)
+    st = list_to_numpy(table.column("start_times"), 10).astype(np.float64)
+    pp = list_to_numpy(table.column("p_plus"), 44).astype(np.float64).reshape(-1, 11, 4)
+    assert known.dtype == bool and (~known).sum() == 4            # two segments, original and mirrored rows
+    assert (np.isnan(st) == ~known[:, :10]).all() and (np.isnan(pp).all(axis=2) == ~known[:, :11]).all()
+    assert not np.isnan(pp).any(axis=2)[known[:, :11]].any()
+    stats = info["stats"]["overall"]
+    assert stats["rows"] == 8
+    for c, v in (("start_times", st), ("p_plus", pp.reshape(-1, 44))):
+        np.testing.assert_allclose(stats[c]["mean"], np.nanmean(v, axis=0), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(stats[c]["std"], np.nanstd(v, axis=0), rtol=1e-12, atol=1e-15)
+        assert stats[c]["count"] == (~np.isnan(v)).sum(axis=0).tolist()
+    assert stats["start_times"]["count"][4] == 6 and stats["yaw_deg"]["count"] == [8]
+    from gazepipe.datasets import open_dataset as open_gd
+
+    gd = open_gd(root)
+    assert gd.array("known").dtype == bool and gd.array("known").shape == (8, 12)
+    mean, std = gd.mean_std("p_plus")
+    assert np.isfinite(mean).all() and np.isfinite(std).all()
+    df = pd.read_parquet(root)
+    assert [list(k) for k in df["known"]] == known.tolist()
+    assert open_dataset(root).to_table(columns=["known"]).column("known").type == pa.list_(pa.bool_(), 12)
+    hf = __import__("datasets").load_dataset(str(root))
+    assert hf["train"].num_rows == 8 and hf["train"][2]["known"] == known[2].tolist()
+    assert np.isnan(np.array(hf["train"][2]["start_times"], dtype=float)).tolist() == (~known[2, :10]).tolist()
+    # the gaze map trains on it: its nulls are masked, its figures finite
+    from click.testing import CliRunner
+
+    from gazepipe.cli.train import train
+    from gazepipe.trainers.gaze_map import GazeMap
+
+    res = CliRunner().invoke(train, ["gaze_map", "--data", str(root), "--out", str(tmp_path / "m"), "--json"])
+    assert res.exit_code == 0, res.output
+    loo = json.loads(res.output)["leave_one_out"]
+    assert loo["not_compared"] == 4 and np.isfinite(loo["final_pose_error_deg_max"])
+    gmap = GazeMap.load(tmp_path / "m")
+    assert (gmap.known == known).all() and np.isfinite(gmap.motion(10.0, 5.0).p_plus).all()
+
+
+def test_gaze_map_with_null_segments_loads_in_torch_and_masks_a_loss(session, tmp_path):
+    """PyTorch takes the columns as tensors (``known`` as bool); a loss masked by ``known`` is finite and its
+    gradient too: the null values never reach it."""
+    torch = pytest.importorskip("torch")
+    from gazepipe.datasets import open_dataset as open_gd
+
+    write_dataset(build_dataset("gaze_map", _null_map_takes(session)), tmp_path)
+    gd = open_gd(tmp_path / "gaze_map")
+    pp = torch.from_numpy(np.array(gd.array("p_plus")))
+    known = torch.from_numpy(np.array(gd.array("known")))
+    assert known.dtype == torch.bool and pp.dtype == torch.float32 and torch.isnan(pp).any()
+    mask = known[:, :-1].repeat_interleave(4, dim=1)              # segments and eyes, 4 values each
+    pred = torch.zeros_like(pp, requires_grad=True)
+    loss = ((pred - torch.where(mask, pp, 0.0)) ** 2)[mask].mean()
+    loss.backward()
+    assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
+    assert (pred.grad[~mask] == 0).all()
+
+
+def test_mirroring_a_gaze_map_row_moves_its_mask_with_its_values():
+    """mirror_gaze_map permutes ``known`` with the left/right segments (eyes and overshoot stay last), so each
+    entry still marks the NaN values it marked; mirroring twice gives the row back, NaN included."""
+    from gazepipe.stages.build.gaze import mirror_gaze_map, segment_permutation
+
+    segs = ["pelvis", "LeftArm", "RightArm", "head"]
+    rng = np.random.default_rng(4)
+    known = np.array([[True, False, True, True, True, False]])
+    start = rng.random((1, 4)).astype(np.float32)
+    pp = rng.normal(size=(1, 5, 4)).astype(np.float32)
+    start[0, 1], pp[0, 1] = np.nan, np.nan
+    feats = {"yaw_deg": np.float32([30.0]), "pitch_deg": np.float32([5.0]), "duration_s": np.float32([0.8]),
+             "start_times": start, "overshoot_time": np.float32([np.nan]), "overshoot": np.float32([np.nan]),
+             "p_plus": pp.reshape(1, -1), "known": known}
+    perm = segment_permutation(segs)
+    m = mirror_gaze_map(feats, perm)
+    assert m["known"].tolist() == [[True, True, False, True, True, False]]
+    mpp = m["p_plus"].reshape(1, 5, 4)
+    for f in (m, feats):           # NaN exactly where the mask is False, before and after mirroring
+        p = f["p_plus"].reshape(1, 5, 4)
+        assert (np.isnan(f["start_times"][0]) == ~f["known"][0, :4]).all()
+        assert (np.isnan(p[0]).all(axis=1) == ~f["known"][0, :5]).all()
+    np.testing.assert_array_equal(mpp[0, 1], pp[0, 2] * [1, 1, -1, -1])
+    back = mirror_gaze_map(m, perm)
+    for k in feats:
+        np.testing.assert_array_equal(back[k], feats[k])
 
 
 def test_a_rebuild_rewrites_only_the_take_files_that_changed(rnn, tmp_path):

@@ -497,6 +497,69 @@ def test_the_rest_before_the_take_gives_a_gap_at_its_start_its_other_side(take):
     assert [(g["start"], g["stop"]) for g in j.qc["rotation_gaps"]] == [(-10, 10)]
 
 
+def test_the_rest_pose_before_the_take_is_the_mean_of_measured_rotations_only():
+    """rest_pose averages a segment's measured rotations in the last frames of the rest; rotations filled (across
+    a gap of its markers, or from gap-filled markers) never enter (a fill 20° off changes nothing); it falls back
+    to the measured frames of the whole rest, and a segment with no measured frame in the rest has no pose
+    (None), not the fill's."""
+    from gazepipe.stages.frames.stage import rest_pose
+    from gazepipe.stages.geometry import to_wxyz
+
+    truth = Rotation.from_rotvec([0.0, 0.3, 0.0])
+    still = to_wxyz(truth)
+    off = to_wxyz(Rotation.from_rotvec([0.0, 0.3 + np.radians(20.0), 0.0]))
+    n = 40
+    quat = np.tile(still, (n, 3, 1))
+    filled = np.zeros((n, 3), bool)
+    quat[-5:, 0], filled[-5:, 0] = off, True       # segment 0: the last 5 frames filled, 20° off
+    quat[:, 1], filled[:, 1] = off, True           # segment 1: filled over the whole rest
+    quat[-10:, 2], filled[-10:, 2] = off, True     # segment 2: the last n_last frames all filled
+    char = np.tile(still, (n, 1))
+    got = rest_pose(quat, char, 10, ~filled)
+    assert got["quat"][1] is None
+    for j in (0, 2):
+        assert angles_deg(np.array(got["quat"][j]), truth) < 1e-6, j
+    ignored = rest_pose(quat, char, 10)             # without the flags the fills count: 20° in segment 1
+    assert angles_deg(np.array(ignored["quat"][1]), truth) > 19.0
+
+
+def test_rotations_from_gap_filled_markers_are_not_measured(take):
+    """``rot_measured`` marks the rotations whose segment markers were all measured: a spine marker gap-filled
+    (valid, but not measured) makes the spine's rotation unmeasured there and nothing else. In the rest before
+    the take the still pose averages the measured frames only: a fill 40 mm off in its last frames leaves it as
+    it is, and a spine never measured there has no pose."""
+    mk, neutral, _, _ = take
+    measured = np.ones(mk.valid.shape, bool)
+    measured[200:230, mk.index("SPN3")] = False
+    j = compute_frames(mk, markerset(), neutral, measured=measured)
+    spine = j.segments.index("spine")
+    assert not j.rot_filled.any() and j.valid.all()
+    assert not j.rot_measured[200:230, spine].any() and j.rot_measured.sum() == j.rot_measured.size - 30
+    same = compute_frames(mk, markerset(), neutral)
+    np.testing.assert_array_equal(j.quat, same.quat)
+    assert same.rot_measured.all()
+    # a still rest before the take (the pose of its first frame): SPN3 filled 40 mm off over its last 40 frames
+    nr = 100
+    still = {name: Rotation.from_quat(np.tile(r[0].as_quat(), (nr, 1))) for name, r in take[2].items()}
+    rest, _ = build(nr, still, np.full(nr, 0.5), np.tile([1000.0, -500, 955], (nr, 1)), noise=0.5, seed=5)
+    xyz = rest.xyz.copy()
+    xyz[60:, mk.index("SPN3")] += [0.0, 0.0, 40.0]
+    filled = Markers(labels=mk.labels, xyz=xyz, valid=rest.valid, rate_hz=RATE)
+    rest_meas = np.ones(rest.valid.shape, bool)
+    rest_meas[60:, mk.index("SPN3")] = False
+    honest = compute_frames(mk, markerset(), neutral, before=filled, before_measured=rest_meas)
+    fooled = compute_frames(mk, markerset(), neutral, before=filled)
+    k = j.segments.index("spine")
+    truth = still["spine"][0]
+    assert angles_deg(np.array(fooled.rest_before["quat"][k]), truth) > 2.0
+    assert angles_deg(np.array(honest.rest_before["quat"][k]), truth) < 0.3
+    np.testing.assert_array_equal(honest.quat, fooled.quat)     # the rotations themselves are the same
+    never = np.ones(rest.valid.shape, bool)
+    never[:, mk.index("SPN3")] = False
+    assert compute_frames(mk, markerset(), neutral, before=filled,
+                          before_measured=never).rest_before["quat"][k] is None
+
+
 def test_a_missing_head_centre_marker_is_carried_by_the_heads_fit(take):
     """Where the head-centre marker is unfilled but the head is solved, the head centre (and so the target
     direction) comes from the head's rigid fit, within the accuracy of the measured marker."""

@@ -404,7 +404,7 @@ def _mutate_json(text: str, rng: np.random.Generator, only: str | None = None) -
 
 def _set_or_delete(node: dict | list, key, rng: np.random.Generator) -> None:
     if rng.random() < 0.3 and isinstance(node, dict):
-        del node[key]
+        node.pop(key, None)          # an earlier mutation may have deleted it already
     else:
         node[key] = [None, "x", -1, 0, 10**6, 1.5, [], {}, [1, 2], True, "gaze_map"][int(rng.integers(0, 11))]
 

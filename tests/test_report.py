@@ -534,6 +534,55 @@ def test_stats_recomputation_detects_a_biased_mean() -> None:
     assert D.check_stats(info, None, th).severity == "fail"
 
 
+def test_stats_recomputation_leaves_null_values_out() -> None:
+    """With null (NaN) values the statistics are per element over the values that are not null, ``count`` each:
+    the recomputation leaves them out the same way (full sample: exact; a sample: within standard errors),
+    still catches a biased mean, and does not take NaN for agreement."""
+    rng = np.random.default_rng(5)
+    n_total = 4000
+    x = rng.normal(1.0, 2.0, (n_total, 3))
+    x[rng.random(n_total) < 0.3, 1] = np.nan              # element 1: 30 % null
+    x[:, 2] = np.nan                                      # element 2: never known
+    ok = ~np.isnan(x)
+    cols = [x[ok[:, j], j] for j in range(3)]
+    st = {"mean": [float(v.mean()) if v.size else 0.0 for v in cols],
+          "std": [float(v.std()) if v.size else 0.0 for v in cols], "count": ok.sum(0).tolist()}
+    info = {"features": {"f": ["a", "b", "c"]}, "stats": {"overall": {"rows": n_total, "f": st}, "per_pose": {}}}
+    th = C.Thresholds()
+    full = D.StatsSample({"f": x}, np.array(["standing"] * n_total), n_total, {"standing": n_total})
+    idx = np.sort(rng.choice(n_total, 500, replace=False))
+    part = D.StatsSample({"f": x[idx]}, np.array(["standing"] * 500), n_total, {"standing": n_total})
+    for sample in (full, part):
+        c = D.check_stats(info, sample, th)
+        assert c.severity == "pass" and np.isfinite(c.value), c.message
+        assert "null in every training row (mean 0, std 0): f[2]" in c.message and not c.details["constant"]
+    info["stats"]["overall"]["f"]["mean"][1] += 1.0      # half a std: ~10 standard errors at n = 350
+    for sample in (full, part):
+        assert D.check_stats(info, sample, th).severity == "fail"
+    info["stats"]["overall"]["f"]["mean"][1] -= 1.0
+    info["stats"]["overall"]["f"]["count"][1] -= 10       # the full sample holds more values than counted
+    assert D.check_stats(info, full, th).severity == "fail"
+
+
+def test_null_parameters_are_counted_and_warned_not_failed() -> None:
+    info = {"counts": {"null_segments": {"neck2": 2, "head": 1},
+                       "per_take": {"s/a": {"null_segments": ["neck2", "head"],
+                                            "null_reasons": {"neck2": "P+: no measured rotation in the crop's "
+                                                                      "final rest (frames 60–90)"}},
+                                    "s/b": {"null_segments": ["neck2"], "null_reasons": {"neck2": "x"}},
+                                    "s/c": {"null_segments": []}}}}
+    c = D.check_null_parameters(info)
+    assert c.severity == "warning" and c.value == 2
+    assert c.message.startswith("2 of 3 take(s) have null parameters (neck2 2, head 1)")
+    assert "s/a: neck2, head (P+: no measured rotation in the crop's final rest" in c.message
+    assert c.details["takes"] == {"s/a": ["neck2", "head"], "s/b": ["neck2"]}
+    info["counts"]["null_segments"] = {}
+    for t in info["counts"]["per_take"].values():
+        t["null_segments"] = []
+    assert D.check_null_parameters(info).severity == "pass"
+    assert D.check_null_parameters({"counts": {"rows": 3}}).severity == "skipped"     # e.g. gaze_rnn
+
+
 def test_windowed_rows_warns_when_most_rows_feed_no_training_window() -> None:
     from gazepipe.report import checks_datasets as D
 

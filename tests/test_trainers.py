@@ -70,7 +70,7 @@ def test_schema_version_and_columns_are_checked(datasets, tmp_path):
     info["schema_version"] = 99
     (copy / "_dataset.json").write_text(json.dumps(info))
     res = run_train("gaze_map", "--data", str(copy), "--out", str(tmp_path / "m"))
-    assert res.exit_code == 2 and "reads schema version 1, the dataset has 99" in res.output
+    assert res.exit_code == 2 and "reads schema version 2, the dataset has 99" in res.output
 
     class Needy:
         name, dataset, schema_version, required_columns = "needy", "gaze_map", 1, ("p_plus", "gaze_target")
@@ -136,6 +136,66 @@ def test_overshoot_curve():
     # A = 0.44 rad over T = 0.32 s (a linear ramp's corner would give A/T·h = 6.9e-3, thirteen times more)
     second = np.abs(np.diff(ang, 2))
     assert second.max() < 1.05 * (np.pi ** 2 / 2) * 0.44 / 0.32 ** 2 / 200 ** 2
+
+
+def _toy_map(known=None, poison=False):
+    """Five examples of a two-segment map on a yaw line; with ``poison`` the nearest one to yaw 10° has NaN for
+    segment 1 (P+ and start) and the overshoot."""
+    rng = np.random.default_rng(0)
+    yaw = np.array([0.0, 9.0, 20.0, 40.0, -30.0])
+    q = Rotation.from_rotvec(rng.normal(0, 0.2, (15, 3))).as_quat()[:, [3, 0, 1, 2]].reshape(5, 3, 4)
+    start = rng.uniform(0, 0.5, (5, 2))
+    t_b, beta = rng.uniform(0.5, 0.9, 5), rng.uniform(0, 0.1, 5)
+    if poison:
+        q[1, 1], start[1, 1], t_b[1], beta[1] = np.nan, np.nan, np.nan, np.nan
+    return GazeMap(["a", "b"], yaw, np.zeros(5), q.reshape(5, -1), np.full(5, 0.8), start, t_b, beta, k=2,
+                   known=known)
+
+
+def test_gaze_map_never_blends_a_null_parameter(monkeypatch):
+    """An example's null segment and overshoot (NaN, False in its ``known`` mask) never reach a blend: every
+    quaternion blended and every weight is finite, that segment and the overshoot come from the nearest examples
+    that know them (the same as a map without that example gives), and the other joints still use it."""
+    import gazepipe.trainers.gaze_map as gm
+
+    seen = []
+    real = gm.blend_quaternions
+
+    def spy(q, w):
+        assert np.isfinite(q).all() and np.isfinite(w).all()
+        seen.append(q.shape)
+        return real(q, w)
+
+    monkeypatch.setattr(gm, "blend_quaternions", spy)
+    mask = np.ones((5, 4), bool)
+    mask[1, [1, 3]] = False
+    poisoned = _toy_map(mask, poison=True)
+    assert (poisoned.known == mask).all() and (_toy_map(poison=True).known == mask).all()   # NaN alone says it too
+    m = poisoned.motion(10.0, 0.0)
+    assert seen and np.isfinite(m.p_plus).all() and np.isfinite(m.start_times).all()
+    assert np.isfinite([m.overshoot_time, m.overshoot, m.duration_s]).all()
+    full = _toy_map().motion(10.0, 0.0)                      # the example known everywhere
+    keep = np.array([True, False, True, True, True])
+    without = GazeMap(["a", "b"], *(np.asarray(v)[keep] for v in (
+        _toy_map().yaw, _toy_map().pitch, _toy_map().p_plus, _toy_map().duration, _toy_map().start_times,
+        _toy_map().overshoot_time, _toy_map().overshoot)), k=2).motion(10.0, 0.0)
+    np.testing.assert_allclose(m.p_plus[1], without.p_plus[1], atol=1e-12)
+    assert m.start_times[1] == pytest.approx(without.start_times[1])
+    assert (m.overshoot_time, m.overshoot) == pytest.approx((without.overshoot_time, without.overshoot))
+    for j in (0, 2):                                          # segment a and the eyes still blend example 1
+        np.testing.assert_allclose(m.p_plus[j], full.p_plus[j], atol=1e-12)
+    assert m.start_times[0] == pytest.approx(full.start_times[0])
+    assert not np.allclose(full.p_plus[1], without.p_plus[1], atol=1e-3)    # example 1 does weigh in when known
+    # leave-one-out and held-out errors skip what the reference does not know; every figure is finite
+    ev = gm.evaluate(poisoned)
+    assert ev["compared"] == 14 and ev["not_compared"] == 1 and np.isfinite(ev["final_pose_error_deg_max"])
+    assert all(np.isfinite(v) for v in ev["final_pose_error_deg_per_joint_mean"].values())
+    # a joint no example knows is NaN in the motion and stays still in its curve
+    mask[:, 1] = False
+    lone = _toy_map(mask).motion(10.0, 0.0)
+    assert np.isnan(lone.p_plus[1]).all() and np.isnan(lone.start_times[1])
+    _, curve = lone.curve(fps=30)
+    assert np.isfinite(curve).all() and np.allclose(curve[:, 1], [1, 0, 0, 0])
 
 
 def test_gaze_map_reproduces_held_out_examples(datasets, tmp_path):

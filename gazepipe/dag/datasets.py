@@ -17,7 +17,7 @@ from gazepipe.schemas.base import read_meta
 from gazepipe.schemas.datasets import DATASETS
 from gazepipe.stages.build.stage import KINDS, BuildParams, TakeTables, build_dataset
 
-BUILD_VERSION = "3"
+BUILD_VERSION = "4"
 #: per-take tables each dataset reads, and the stages that write them
 NEEDS: dict[str, tuple[str, ...]] = {
     "gaze_rnn": ("frames", "eyes"), "gaze_rnn_lod": ("frames",), "gaze_map": ("frames", "clean"),

@@ -20,7 +20,7 @@ import pyarrow as pa
 from gazepipe.errors import GazepipeError, ResourceError, StageError, printable
 from gazepipe.io.parquet import count_rows, read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
-from gazepipe.model import Markers, Session, Take
+from gazepipe.model import FILL_CODES, Markers, Session, Take
 from gazepipe.pipeline.registry import (
     Stage,
     TableStore,
@@ -176,6 +176,14 @@ def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tu
     return markers, frames, meta
 
 
+def _load_measured(ctx: UnitContext, name: str) -> tuple[Markers, np.ndarray, dict, np.ndarray | None]:
+    """A cleaned markers table (``markers``, ``neutral``) and which of its samples were measured, (T, M) bool
+    (fill code ``measured`` or ``swap_repaired``; None when the table has no fill codes)."""
+    markers, frames, fill, meta = table_to_markers(ctx.load(name))
+    measured = None if fill is None else np.isin(fill, [FILL_CODES["measured"], FILL_CODES["swap_repaired"]])
+    return markers, frames, meta, measured
+
+
 def _bytes(n: int) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
@@ -204,18 +212,21 @@ def run_clean(ctx: UnitContext) -> UnitResult:
     tables = {"markers": (markers_to_table(kept, frames=res.frames, fill_code=res.fill_code, spike=res.spike,
                                            fill_error_mm=res.fill_error_mm, meta=meta),
                           MARKERS_CLEAN)}
+    # the first rest with its fill codes: which of its samples were measured (the frames stage's rest pose)
     if res.neutral is not None:
-        a, b = res.rests[0]
+        a, b = res.rests[0] if res.rests else (0, res.neutral.n_frames)
         neutral = dataclasses.replace(res.neutral, first_frame=raw.first_frame)
-        tables["neutral"] = (markers_to_table(neutral, frames=np.arange(a, b), meta={"rest": [a, b]}), MARKERS_RAW)
+        tables["neutral"] = (markers_to_table(neutral, frames=np.arange(a, b), fill_code=res.neutral_fill_code,
+                                              meta={"rest": [a, b]}), MARKERS_CLEAN)
     else:
-        tables["neutral"] = (markers_to_table(raw, meta={"rest": None}), MARKERS_RAW)
+        tables["neutral"] = (markers_to_table(raw, fill_code=np.zeros(raw.valid.shape, np.int8),
+                                              meta={"rest": None}), MARKERS_CLEAN)
     qc = dict(res.qc)
     return UnitResult(tables=tables, qc=qc, warnings=list(qc.get("warnings", [])))
 
 
 register(Stage(
-    name="clean", version="13", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="14", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     # every subject capture of the session: label swaps are judged against the subject's geometry from all
     sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
@@ -361,7 +372,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
     ms = ctx.session.markerset
     clean_params = _build(CleanParams, ctx.params_of("clean"))
     params = _build(FramesParams, ctx.params)
-    markers, frames, _ = _load_markers(ctx, "markers")
+    markers, frames, _, measured = _load_measured(ctx, "markers")
     sources: list[tuple[str, Markers]] = []    # neutral poses, in order of preference (SPEC §3.3)
     neutral_take = _neutral_take(ctx.session)
     if neutral_take is not None:
@@ -370,7 +381,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         neutral = _neutral_of(ctx.session, neutral_take, ms, clean_params)
         if neutral is not None:
             sources.append((f"neutral take {neutral_take.id}", neutral))
-    own, own_frames, nmeta = _load_markers(ctx, "neutral")
+    own, own_frames, nmeta, own_measured = _load_measured(ctx, "neutral")
     if own.n_frames:
         sources.append((f"first rest period {nmeta.get('rest')}", own))
     # the first rest ends where the crop starts: its frames give rotation gaps open at the crop's start a side
@@ -379,7 +390,8 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         ms = dataclasses.replace(ms, target=None)
 
     def solve(srcs: list[tuple[str, Markers]]):
-        return compute_frames(markers, ms, srcs, params, path=ctx.take.mocap, take=ctx.take.id, before=before)
+        return compute_frames(markers, ms, srcs, params, path=ctx.take.mocap, take=ctx.take.id, before=before,
+                              measured=measured, before_measured=own_measured)
 
     read: list[str] = []
     failure: StageError | None = None
@@ -408,7 +420,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="10", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="11", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
     run=run_frames,

@@ -61,6 +61,10 @@ def card_text(info: dict[str, Any], yaml: str) -> str:
     for col, names in (feats.items() if isinstance(feats, dict) else []):
         first = ", ".join(names[:4]) + (", …" if len(names) > 4 else "")
         out.append(f"| `{col}` | {len(names)} | {units.get(col, '')} | {first} |")
+    masks = info.get("masks", {}) or {}
+    for col, names in (masks.items() if isinstance(masks, dict) else []):
+        first = ", ".join(names[:4]) + (", …" if len(names) > 4 else "")
+        out.append(f"| `{col}` (bool) | {len(names)} | {units.get(col, '')} | {first} |")
     ids = info.get("identifiers", [])
     if ids:
         out += ["", "Identifier columns: " + ", ".join(f"`{c}`" for c in ids)

@@ -12,12 +12,16 @@ check                  warning                                    fail
                                                                   split differs from _dataset.json's
 ``counts``             a split is empty                           takes / rows per split and per pose in the
                                                                   files differ from _dataset.json's counts
-``stats_sanity``       – (constant elements are listed)           a mean or std is not finite; the training rows
-                                                                  counted differ; recomputed mean or variance on
+``stats_sanity``       – (constant elements, and elements null    a mean or std is not finite; the training rows
+                       in every training row, are listed)         counted differ; recomputed mean or variance on
                                                                   a seeded sample of training rows (all rows when
                                                                   fewer than ``stats_sample_rows``) differs by
                                                                   more than ``stats_max_z`` standard errors
 ``skipped_takes``      takes left out of the build                –
+``null_parameters``    rows with null parameters (gaze_map: a     –
+                       segment's, the eyes' or the overshoot's,
+                       NaN and False in ``known``), counted per
+                       entry and take with the first reason
 ``windowed_rows``      under ``windowed_rows_warn`` of the rows   –
                        lie in segments at least one window long
                        (the rest feed no training window)
@@ -28,6 +32,8 @@ check                  warning                                    fail
 Standard errors of the sample checks: mean, σ·√((1 − n/N)/n) with σ the stored std; variance (from n ≥ 30),
 √((m₄ − s⁴)(1 − n/N)/n) with s and m₄ the sample's std and fourth central moment (rows drawn without
 replacement from the N training rows). A full sample (n = N) must match to float rounding (10⁻⁶ relative).
+Null (NaN) values are left out element by element, as the statistics leave them out: n is an element's values
+in the sample, N its stored ``count`` (the training rows without one).
 """
 
 from __future__ import annotations
@@ -197,31 +203,39 @@ def _stat_arrays(block: dict[str, Any], column: str) -> tuple[np.ndarray, np.nda
             np.array([np.nan if x is None else x for x in s["std"]], dtype=np.float64))
 
 
+def _stat_count(block: dict[str, Any], column: str) -> np.ndarray | None:
+    """The stored per-element count of values that are not null, or None (statistics without one)."""
+    c = (block.get(column) or {}).get("count")
+    return np.array([0 if x is None else x for x in c], dtype=np.float64) if isinstance(c, list) else None
+
+
 def _compare(values: np.ndarray, n_total: int, mean: np.ndarray, std: np.ndarray,
-             max_z: float) -> tuple[float, str]:
-    """Largest z of the sample's mean and variance against the stored ones, and which it was."""
-    n = values.shape[0]
-    if n == 0 or values.shape[1] != mean.size:
+             max_z: float, count: np.ndarray | None = None) -> tuple[float, str]:
+    """Largest z of the sample's mean and variance against the stored ones, and which it was. NaN values are
+    left out per element; ``count`` (D,) is each element's values among the ``n_total`` training rows."""
+    if values.shape[0] == 0 or values.shape[1] != mean.size:
         return (float("inf"), f"{values.shape[1]} values per row, statistics have {mean.size}")
-    m = values.mean(axis=0)
-    v = values.var(axis=0)
-    full = n >= n_total
+    ok = ~np.isnan(values)
+    n = ok.sum(axis=0).astype(np.float64)                  # per element
+    total = np.full(mean.size, float(n_total)) if count is None or count.size != mean.size else count
+    if (n > total).any():
+        i = int(np.argmax(n - total))
+        return (float("inf"), f"element {i}: {int(n[i])} values in the sample, statistics count {int(total[i])}")
+    nn = np.maximum(n, 1.0)
+    m = np.where(ok, values, 0.0).sum(axis=0) / nn
+    dev = np.where(ok, values - m, 0.0)
+    v = (dev ** 2).sum(axis=0) / nn
+    full = n >= total
     slack = 1e-6 * (np.abs(mean) + std) + 1e-9
-    if full:
-        z_m = np.abs(m - mean) / slack
-        z_v = np.abs(v - std**2) / (1e-6 * (std**2 + np.abs(mean) * std) + 1e-12)
-    else:
-        # the stored std sets the mean's standard error (a wrong std is the variance test's business); the
-        # variance's standard error needs the fourth moment, estimated only from 30 rows up
-        fpc = max(1.0 - n / n_total, 0.0)
-        se_m = std * np.sqrt(fpc / n) + slack
-        z_m = np.abs(m - mean) / se_m
-        if n >= 30:
-            m4 = np.mean((values - m) ** 4, axis=0)
-            se_v = np.sqrt(np.maximum(m4 - v**2, 0.0) * fpc / n) + slack * (std + 1e-9)
-            z_v = np.abs(v - std**2) / se_v
-        else:
-            z_v = np.zeros_like(z_m)
+    fpc = np.maximum(1.0 - n / np.maximum(total, 1.0), 0.0)
+    # the stored std sets the mean's standard error (a wrong std is the variance test's business); the
+    # variance's standard error needs the fourth moment, estimated only from 30 values up
+    z_m = np.where(full, np.abs(m - mean) / slack, np.abs(m - mean) / (std * np.sqrt(fpc / nn) + slack))
+    m4 = (dev ** 4).sum(axis=0) / nn
+    se_v = np.sqrt(np.maximum(m4 - v**2, 0.0) * fpc / nn) + slack * (std + 1e-9)
+    z_v = np.where(full, np.abs(v - std**2) / (1e-6 * (std**2 + np.abs(mean) * std) + 1e-12),
+                   np.where(n >= 30, np.abs(v - std**2) / se_v, 0.0))
+    z_m, z_v = np.where(n > 0, z_m, 0.0), np.where(n > 0, z_v, 0.0)
     i_m, i_v = int(np.argmax(z_m)), int(np.argmax(z_v))
     if z_m[i_m] >= z_v[i_v]:
         return float(z_m[i_m]), f"mean of element {i_m}: {m[i_m]:.6g} vs {mean[i_m]:.6g}"
@@ -234,7 +248,7 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
         return Check("stats_sanity", "fail", "_dataset.json has no normalisation statistics")
     columns = list((info.get("features") or {}).keys())
     blocks = {"overall": stats["overall"], **{f"pose {p}": b for p, b in sorted(stats.get("per_pose", {}).items())}}
-    nonfinite, constant, missing = [], [], []
+    nonfinite, constant, missing, unknown = [], [], [], []
     for where, block in blocks.items():
         for c in columns:
             arr = _stat_arrays(block, c)
@@ -244,9 +258,15 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
             mean, std = arr
             if not (np.isfinite(mean).all() and np.isfinite(std).all()):
                 nonfinite.append(f"{where} {c}")
-            elif where == "overall" and np.any(std <= 0):
-                constant.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero(std <= 0)[:8])}]")
-    details: dict[str, Any] = {"nonfinite": nonfinite, "constant": constant, "missing": missing}
+            elif where == "overall":
+                count = _stat_count(block, c)
+                none = np.zeros(std.size, bool) if count is None or count.size != std.size else count == 0
+                if none.any():
+                    unknown.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero(none)[:8])}]")
+                if np.any((std <= 0) & ~none):
+                    constant.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero((std <= 0) & ~none)[:8])}]")
+    details: dict[str, Any] = {"nonfinite": nonfinite, "constant": constant, "missing": missing,
+                               "null_in_every_training_row": unknown}
     problems = [f"non-finite statistics in {nonfinite[0]}"] if nonfinite else []
     if missing:
         problems.append(f"no statistics for {missing[0]}")
@@ -270,7 +290,8 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
                 arr = _stat_arrays(block, c)
                 if arr is None or c not in sample.columns or not np.isfinite(arr[0]).all():
                     continue
-                z, what = _compare(sample.columns[c][sel], n_total, arr[0], arr[1], th.stats_max_z)
+                z, what = _compare(sample.columns[c][sel], n_total, arr[0], arr[1], th.stats_max_z,
+                                   _stat_count(block, c))
                 if z > worst_z:
                     worst_z, worst_what = z, f"{where} {c} {what}"
         details["worst_z"] = worst_z
@@ -286,6 +307,8 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
     # rather than blow it up: a fact to show (e.g. a segment that never reaches gaze_map's start speed, a
     # blendshape the tracker never moves), not a problem
     note = f"; constant (std 0, normalised by 1): {', '.join(constant[:4])}" if constant else "; std > 0"
+    if unknown:
+        note += f"; null in every training row (mean 0, std 0): {', '.join(unknown[:4])}"
     return Check("stats_sanity", "pass", f"finite{note}{how}", value=worst_z,
                  threshold={"max_z": th.stats_max_z}, details=details)
 
@@ -300,6 +323,31 @@ def check_skipped(info: dict[str, Any], left_out: list[dict[str, Any]] | None = 
     first = sk[0]
     return Check("skipped_takes", "warning", f"{len(sk)} take(s) left out, e.g. {first.get('session')}/"
                  f"{first.get('take')}: {first.get('reason')}", value=len(sk), details={"skipped": sk})
+
+
+def check_null_parameters(info: dict[str, Any]) -> Check:
+    """Rows that keep their take with some parameters null (gaze_map: a segment's P+ and start time, the eyes'
+    P+, the overshoot; ``counts.null_segments`` and each take's ``null_segments`` / ``null_reasons``): a
+    warning that counts them, never a failure (the rest of those rows is computed)."""
+    counts = info.get("counts") or {}
+    if "null_segments" not in counts:
+        return skipped("null_parameters", "rows of this dataset have no null parameters")
+    per_take = {t: q.get("null_segments") or [] for t, q in (counts.get("per_take") or {}).items()
+                if isinstance(q, dict)}
+    takes = sorted(t for t, v in per_take.items() if v)
+    by = dict(sorted((counts.get("null_segments") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
+    details = {"null_segments": by, "takes": {t: per_take[t] for t in takes},
+               "reasons": {t: (counts["per_take"][t].get("null_reasons") or {}) for t in takes}}
+    if not takes:
+        return Check("null_parameters", "pass", f"every parameter of the {len(per_take)} take(s) computed",
+                     value=0, details=details)
+    first = takes[0]
+    reason = next(iter(details["reasons"][first].values()), "")
+    return Check("null_parameters", "warning",
+                 f"{len(takes)} of {len(per_take)} take(s) have null parameters ("
+                 + ", ".join(f"{k} {v}" for k, v in list(by.items())[:6])
+                 + f"); their other values stand. E.g. {first}: {', '.join(per_take[first])}"
+                 + (f" ({reason})" if reason else ""), value=len(takes), details=details)
 
 
 def check_windowed_rows(info: dict[str, Any], th: Thresholds) -> Check:

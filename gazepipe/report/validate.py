@@ -236,6 +236,7 @@ def dataset_checks(d: DatasetData, th: C.Thresholds, record: dict[str, Any] | No
     out.append(D.check_counts(d.info, d.files))
     out.append(D.check_stats(d.info, d.sample, th))
     out.append(D.check_skipped(d.info, (record or {}).get("left_out")))
+    out.append(D.check_null_parameters(d.info))
     out.append(D.check_windowed_rows(d.info, th))
     return out
 

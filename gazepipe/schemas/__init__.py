@@ -11,7 +11,7 @@ from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 
 #: tables whose schema does not depend on the session
 FIXED_SCHEMAS: dict[str, pa.Schema] = {"markers_raw": MARKERS_RAW, "markers": MARKERS_CLEAN,
-                                       "neutral": MARKERS_RAW, "eyes": EYES, "sync": SYNC}
+                                       "neutral": MARKERS_CLEAN, "eyes": EYES, "sync": SYNC}
 
 
 def expected_schema(name: str, table: pa.Table) -> pa.Schema | None:

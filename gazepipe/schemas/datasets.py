@@ -17,6 +17,8 @@ from gazepipe.errors import SchemaError
 from gazepipe.schemas.base import read_meta, with_identity
 
 SCHEMA_VERSION = 1
+#: gaze_map's own version: 2 added the ``known`` mask, with NaN in the parameters it marks null
+GAZE_MAP_SCHEMA_VERSION = 2
 DATASETS = ("gaze_rnn", "gaze_rnn_lod", "gaze_map", "face_clean")
 
 #: identifier columns, first in every dataset file, in this order
@@ -45,9 +47,21 @@ def gaze_rnn_schema(n_in: int, n_out: int, name: str = "gaze_rnn") -> pa.Schema:
                                     pa.field("y", vec32(n_out), nullable=False)]), name, SCHEMA_VERSION)
 
 
+def schema_version(name: str) -> int:
+    """The schema version of dataset ``name``'s files (and its _dataset.json ``schema_version``)."""
+    return GAZE_MAP_SCHEMA_VERSION if name == "gaze_map" else SCHEMA_VERSION
+
+
 def gaze_map_schema(n_segments: int) -> pa.Schema:
     """``gaze_map``: one row per gaze_shift take; ``p_plus`` holds one w, x, y, z quaternion per segment then the
-    eyes (4·(S+1) values), ``start_times`` one fraction of ``duration_s`` per segment."""
+    eyes (4·(S+1) values), ``start_times`` one fraction of ``duration_s`` per segment.
+
+    ``known`` (S + 2 bools: the segments, then ``eyes``, then ``overshoot``) says which parameters could be
+    computed (SPEC §3.6): False for a segment = its 4 ``p_plus`` values and its ``start_times`` value are NaN;
+    for ``eyes`` = the eyes' 4 ``p_plus`` values are NaN; for ``overshoot`` = ``overshoot_time`` and
+    ``overshoot`` are NaN. Every NaN in a row is marked there; ``yaw_deg``, ``pitch_deg`` and ``duration_s`` are
+    never null. Nulls are NaN, not Arrow nulls, so each list column stays an (N, D) float32 array.
+    """
     f32 = pa.float32()
     return with_identity(pa.schema([
         *IDENTIFIERS,
@@ -58,7 +72,8 @@ def gaze_map_schema(n_segments: int) -> pa.Schema:
         pa.field("overshoot_time", f32, nullable=False),
         pa.field("overshoot", f32, nullable=False),
         pa.field("p_plus", vec32(4 * (n_segments + 1)), nullable=False),
-    ]), "gaze_map", SCHEMA_VERSION)
+        pa.field("known", pa.list_(pa.bool_(), n_segments + 2), nullable=False),
+    ]), "gaze_map", GAZE_MAP_SCHEMA_VERSION)
 
 
 def face_clean_schema(k: int, n_channels: int = 52) -> pa.Schema:
@@ -70,6 +85,12 @@ def face_clean_schema(k: int, n_channels: int = 52) -> pa.Schema:
         fields += [pa.field(f"tracked_d{order}", vec, nullable=False),
                    pa.field(f"clean_d{order}", vec, nullable=False)]
     return with_identity(pa.schema(fields), "face_clean", SCHEMA_VERSION)
+
+
+def mask_columns(schema: pa.Schema) -> list[str]:
+    """Names of the bool list columns (masks, e.g. gaze_map's ``known``) of a dataset schema, in order."""
+    return [f.name for f in schema if f.name not in IDENTIFIER_NAMES and pa.types.is_fixed_size_list(f.type)
+            and f.type.value_type == pa.bool_()]
 
 
 def feature_columns(schema: pa.Schema) -> list[str]:

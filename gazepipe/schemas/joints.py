@@ -4,7 +4,8 @@ Rotations are in the character frame of that frame (SPEC §2): ``quat`` the glob
 (w, x, y, z per segment, segments in markerset order). ``head_centre`` mm and ``target_dir`` (unit) are in the
 character frame; ``char_origin`` (mm, lab) and ``char_rot`` (lab-from-character, w, x, y, z) place the character
 frame in the lab. ``rot_filled`` says per segment whether its rotation was filled across a gap of its markers
-rather than measured. The number of segments lives in the list sizes and in ``meta.segments``; every list
+rather than measured, ``rot_measured`` whether it comes from measured marker samples only (every marker of
+the segment measured, none gap-filled, and the rotation not filled). The number of segments lives in the list sizes and in ``meta.segments``; every list
 column names its elements in its field metadata.
 
 Stored as float32: a unit quaternion's float32 rounding is under 1e-5°, a millimetre position's under
@@ -22,8 +23,9 @@ import pyarrow as pa
 
 from gazepipe.schemas.base import attach_meta, read_meta, with_element_names, with_identity
 
-#: 2 added ``rot_filled``; 3 float32, ``quat_local`` and ``six`` derived on reading instead of stored
-SCHEMA_VERSION = 3
+#: 2 added ``rot_filled``; 3 float32, ``quat_local`` and ``six`` derived on reading instead of stored;
+#: 4 added ``rot_measured``
+SCHEMA_VERSION = 4
 
 
 def _vec(n: int) -> pa.DataType:
@@ -43,6 +45,7 @@ def joints_schema(n_segments: int) -> pa.Schema:
         pa.field("char_origin", _vec(3)),
         pa.field("char_rot", _vec(4)),
         pa.field("rot_filled", pa.list_(pa.bool_(), s), nullable=False),
+        pa.field("rot_measured", pa.list_(pa.bool_(), s), nullable=False),
     ]), "joints", SCHEMA_VERSION)
 
 
@@ -62,6 +65,11 @@ def joints_to_table(joints, frames: np.ndarray, meta: dict[str, Any] | None = No
     """Arrow table of a :class:`gazepipe.stages.frames.stage.Joints`; ``frames`` = original frame index of each row."""
     n, s = joints.quat.shape[:2]
     frames = np.asarray(frames, dtype=np.int64)
+    filled = (np.zeros((n, s), dtype=bool) if getattr(joints, "rot_filled", None) is None
+              else np.asarray(joints.rot_filled, dtype=bool))
+    # without its own record every known rotation that was not filled counts as measured
+    measured = (np.isfinite(joints.quat).all(axis=2) & ~filled if getattr(joints, "rot_measured", None) is None
+                else np.asarray(joints.rot_measured, dtype=bool))
     cols = {
         "frame": pa.array(frames.astype(np.int32)),
         "source_frame": pa.array(frames + int(joints.first_frame)),
@@ -72,9 +80,8 @@ def joints_to_table(joints, frames: np.ndarray, meta: dict[str, Any] | None = No
         "target_dir": fixed_list(joints.target_dir, 3, np.float32),
         "char_origin": fixed_list(joints.char_origin, 3, np.float32),
         "char_rot": fixed_list(joints.char_rot, 4, np.float32),
-        "rot_filled": pa.FixedSizeListArray.from_arrays(pa.array(
-            (np.zeros((n, s), dtype=bool) if getattr(joints, "rot_filled", None) is None
-             else np.asarray(joints.rot_filled, dtype=bool)).reshape(-1)), s),
+        "rot_filled": pa.FixedSizeListArray.from_arrays(pa.array(filled.reshape(-1)), s),
+        "rot_measured": pa.FixedSizeListArray.from_arrays(pa.array(measured.reshape(-1)), s),
     }
     table = pa.Table.from_pydict(cols, schema=with_element_names(joints_schema(s), element_names(joints.segments)))
     info = {"segments": list(joints.segments), "parents": [int(p) for p in joints.parents],
@@ -88,7 +95,7 @@ def element_names(segments: list[str]) -> dict[str, list[str]]:
     segs = list(segments)
     return {"quat": [f"{g}.{c}" for g in segs for c in "wxyz"],
             "head_centre": list("xyz"), "target_dir": list("xyz"), "char_origin": list("xyz"),
-            "char_rot": list("wxyz"), "rot_filled": segs}
+            "char_rot": list("wxyz"), "rot_filled": segs, "rot_measured": segs}
 
 
 def quat_six(quat: np.ndarray) -> np.ndarray:
@@ -131,6 +138,7 @@ def joints_arrays(table: pa.Table) -> dict[str, Any]:
         out[name] = list_to_numpy(table.column(name), width).astype(np.float64).reshape(-1, *shape)
     out["quat_local"] = quat_local(out["quat"], [int(p) for p in meta.get("parents", [-1] + list(range(s - 1)))])
     out["six"] = quat_six(out["quat"])
-    out["rot_filled"] = (table.column("rot_filled").combine_chunks().flatten().to_numpy(zero_copy_only=False)
-                         .reshape(-1, s).astype(bool))
+    for name in ("rot_filled", "rot_measured"):
+        out[name] = (table.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
+                     .reshape(-1, s).astype(bool))
     return out

@@ -15,6 +15,11 @@ The displacement curve of joint j at normalised time u ∈ [0, 1] (Pejsa 5.2.3) 
 with e the ease-in/ease-out e(s) = (1 − cos πs) / 2 (zero slope at both ends, so the curve is C¹ where the
 linear form has corners). The eyes start at u = 0. A joint that starts after the overshoot peak eases from 0 to
 P+_j over [t_j, 1] without overshoot. Time in seconds is u · l.
+
+Null parameters (the dataset's ``known`` mask: a segment's P+ and start time, the eyes' P+, the overshoot) are
+never blended: each joint, and the overshoot, is blended from the k nearest examples that know it (its own
+neighbours and weights), so a NaN never enters a blend or an error; a joint no example knows is NaN in the
+motion (and stays still in its curve), an overshoot none knows is none (t_β = 1, β = 0).
 """
 
 from __future__ import annotations
@@ -90,11 +95,13 @@ class GazeMotion:
     overshoot: float
 
     def scale(self, u: np.ndarray) -> np.ndarray:
-        """Scale factor of each joint's displacement angle at normalised times ``u`` (T,) → (T, S + 1)."""
+        """Scale factor of each joint's displacement angle at normalised times ``u`` (T,) → (T, S + 1); an
+        unknown (NaN) overshoot is none (t_β = 1, β = 0)."""
         u = np.asarray(u, dtype=np.float64)[:, None]
         tj = np.clip(np.append(self.start_times, 0.0), 0.0, 1.0 - 1e-6)[None, :]
-        tb = float(np.clip(self.overshoot_time, 0.0, 1.0))
-        beta = float(self.overshoot)
+        known = np.isfinite(self.overshoot_time) and np.isfinite(self.overshoot)
+        tb = float(np.clip(self.overshoot_time, 0.0, 1.0)) if known else 1.0
+        beta = float(self.overshoot) if known else 0.0
         peaked = tj < tb
         span1 = np.where(peaked, tb - tj, 1.0 - tj)
         rise = ease((u - tj) / span1) * np.where(peaked, 1.0 + beta, 1.0)
@@ -103,9 +110,13 @@ class GazeMotion:
         return np.where(u >= 1.0, 1.0, s)
 
     def at(self, u: np.ndarray) -> np.ndarray:
-        """Displacement quaternions (T, S + 1, 4) w, x, y, z at normalised times ``u`` (T,)."""
-        s = self.scale(u)
-        rv = Rotation.from_quat(self.p_plus[:, [1, 2, 3, 0]]).as_rotvec()
+        """Displacement quaternions (T, S + 1, 4) w, x, y, z at normalised times ``u`` (T,); a joint whose P+
+        is unknown (NaN) stays still (identity)."""
+        s = np.nan_to_num(self.scale(u))
+        ok = np.isfinite(self.p_plus).all(axis=1)
+        rv = np.zeros((len(self.p_plus), 3))
+        if ok.any():
+            rv[ok] = Rotation.from_quat(self.p_plus[ok][:, [1, 2, 3, 0]]).as_rotvec()
         q = Rotation.from_rotvec((s[:, :, None] * rv[None]).reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]]
         return q.reshape(s.shape[0], s.shape[1], 4)
 
@@ -119,56 +130,88 @@ class GazeMotion:
 
 
 class GazeMap:
-    """Pejsa's parametric gaze map: the examples' gaze displacement motions indexed by (yaw, pitch), degrees."""
+    """Pejsa's parametric gaze map: the examples' gaze displacement motions indexed by (yaw, pitch), degrees.
+
+    ``known`` (E, S + 2) bool: per example, which joints' parameters (each segment's P+ and start time, the eyes'
+    P+) and whether the overshoot are known (the dataset's ``known`` mask); it is also False wherever those
+    values are not finite, so NaN values are never used whatever the mask says.
+    """
 
     def __init__(self, segments: list[str], yaw: np.ndarray, pitch: np.ndarray, p_plus: np.ndarray,
                  duration: np.ndarray, start_times: np.ndarray, overshoot_time: np.ndarray, overshoot: np.ndarray,
-                 k: int = 4) -> None:
+                 k: int = 4, known: np.ndarray | None = None) -> None:
         self.segments = list(segments)
         self.yaw = np.asarray(yaw, np.float64)
         self.pitch = np.asarray(pitch, np.float64)
-        self.p_plus = np.asarray(p_plus, np.float64).reshape(len(self.yaw), len(self.segments) + 1, 4)
+        e, ns = len(self.yaw), len(self.segments)
+        self.p_plus = np.asarray(p_plus, np.float64).reshape(e, ns + 1, 4)
         self.duration = np.asarray(duration, np.float64)
-        self.start_times = np.asarray(start_times, np.float64).reshape(len(self.yaw), len(self.segments))
+        self.start_times = np.asarray(start_times, np.float64).reshape(e, ns)
         self.overshoot_time = np.asarray(overshoot_time, np.float64)
         self.overshoot = np.asarray(overshoot, np.float64)
         self.k = int(k)
-        if len(self.yaw) == 0:
+        if e == 0:
             raise ConfigError(None, "a gaze map needs at least one example")
+        finite = np.concatenate([
+            np.isfinite(self.p_plus).all(axis=2) & np.isfinite(np.append(self.start_times, np.zeros((e, 1)), 1)),
+            (np.isfinite(self.overshoot_time) & np.isfinite(self.overshoot))[:, None]], axis=1)
+        given = np.ones((e, ns + 2), bool) if known is None else np.asarray(known, bool).reshape(e, ns + 2)
+        self.known = finite & given
+        if not (np.isfinite(self.yaw).all() and np.isfinite(self.pitch).all() and np.isfinite(self.duration).all()):
+            raise ConfigError(None, "a gaze map's requested angles and durations must be finite")
 
     @classmethod
     def from_table(cls, table, segments: list[str], k: int = 4) -> GazeMap:
-        """From ``gaze_map`` dataset rows (a pyarrow table)."""
+        """From ``gaze_map`` dataset rows (a pyarrow table); its ``known`` mask when it has one."""
         from gazepipe.datasets import column_array
 
+        known = column_array(table, "known") if "known" in table.column_names else None
         return cls(segments, column_array(table, "yaw_deg")[:, 0], column_array(table, "pitch_deg")[:, 0],
                    column_array(table, "p_plus"), column_array(table, "duration_s")[:, 0],
                    column_array(table, "start_times"), column_array(table, "overshoot_time")[:, 0],
-                   column_array(table, "overshoot")[:, 0], k)
+                   column_array(table, "overshoot")[:, 0], k, known)
 
     def __len__(self) -> int:
         return len(self.yaw)
 
+    def neighbours(self, yaw_deg: float, pitch_deg: float, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(example indices, weights) of the Kovar–Gleicher blend among the examples where ``usable`` (E,) is
+        True; empty when none is."""
+        src = np.flatnonzero(usable)
+        if not len(src):
+            return src, np.zeros(0)
+        pts = np.stack([self.yaw[src], self.pitch[src]], axis=1)
+        idx, w = knn_weights(pts, np.array([yaw_deg, pitch_deg], np.float64), self.k)
+        return src[idx], w
+
     def motion(self, yaw_deg: float, pitch_deg: float, exclude: int | None = None) -> GazeMotion:
         """The blended gaze displacement motion for a requested change (degrees); ``exclude`` leaves one example
-        out (leave-one-out checks)."""
+        out (leave-one-out checks). Each joint (P+ and start time) and the overshoot are blended from the
+        nearest examples that know them; the duration from the nearest examples."""
         keep = np.ones(len(self), bool)
         if exclude is not None:
             keep[exclude] = False
-        src = np.flatnonzero(keep)
-        pts = np.stack([self.yaw[src], self.pitch[src]], axis=1)
-        idx, w = knn_weights(pts, np.array([yaw_deg, pitch_deg], np.float64), self.k)
-        idx = src[idx]
+        ns = len(self.segments)
+        idx, w = self.neighbours(yaw_deg, pitch_deg, keep)
+        p_plus = np.full((ns + 1, 4), np.nan)
+        start = np.full(ns, np.nan)
+        for j in range(ns + 1):
+            jdx, jw = self.neighbours(yaw_deg, pitch_deg, keep & self.known[:, j])
+            if len(jdx):
+                p_plus[j] = blend_quaternions(self.p_plus[jdx, j:j + 1], jw)[0]
+                if j < ns:
+                    start[j] = jw @ self.start_times[jdx, j]
+        odx, ow = self.neighbours(yaw_deg, pitch_deg, keep & self.known[:, ns + 1])
         return GazeMotion(
             yaw_deg=float(yaw_deg), pitch_deg=float(pitch_deg), names=[*self.segments, "eyes"],
-            p_plus=blend_quaternions(self.p_plus[idx], w), duration_s=float(w @ self.duration[idx]),
-            start_times=w @ self.start_times[idx], overshoot_time=float(w @ self.overshoot_time[idx]),
-            overshoot=float(w @ self.overshoot[idx]))
+            p_plus=p_plus, duration_s=float(w @ self.duration[idx]), start_times=start,
+            overshoot_time=float(ow @ self.overshoot_time[odx]) if len(odx) else float("nan"),
+            overshoot=float(ow @ self.overshoot[odx]) if len(odx) else float("nan"))
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {"yaw_deg": self.yaw, "pitch_deg": self.pitch, "p_plus": self.p_plus, "duration_s": self.duration,
                 "start_times": self.start_times, "overshoot_time": self.overshoot_time, "overshoot": self.overshoot,
-                "segments": np.array(self.segments), "k": np.array(self.k)}
+                "segments": np.array(self.segments), "k": np.array(self.k), "known": self.known}
 
     @classmethod
     def load(cls, model_dir: str | Path) -> GazeMap:
@@ -181,7 +224,7 @@ class GazeMap:
         except (OSError, ValueError) as exc:
             raise ConfigError(path, f"not a readable gaze map ({exc})") from None
         return cls([str(s) for s in a["segments"]], a["yaw_deg"], a["pitch_deg"], a["p_plus"], a["duration_s"],
-                   a["start_times"], a["overshoot_time"], a["overshoot"], int(a["k"]))
+                   a["start_times"], a["overshoot_time"], a["overshoot"], int(a["k"]), a.get("known"))
 
 
 def pose_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -192,19 +235,25 @@ def pose_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def evaluate(gmap: GazeMap, held: GazeMap | None = None) -> dict[str, Any]:
     """Final-pose errors (degrees, per joint then the worst joint) of the map's motions against examples:
-    ``held`` (examples not in the map) or, when ``None``, each of the map's own left out in turn."""
+    ``held`` (examples not in the map) or, when ``None``, each of the map's own left out in turn. Only the
+    joints an example knows, and the map can give, are compared (``compared`` counts them); an example with
+    none counts for the duration only."""
     ref = held if held is not None else gmap
-    errs, dur = [], []
+    n_joints = len(ref.segments) + 1
+    errs = np.full((len(ref), n_joints), np.nan)
+    dur = []
     for i in range(len(ref)):
         m = gmap.motion(ref.yaw[i], ref.pitch[i], exclude=None if held is not None else i)
-        errs.append(pose_error_deg(m.p_plus, ref.p_plus[i]))
+        ok = ref.known[i, :n_joints] & np.isfinite(m.p_plus).all(axis=1)
+        errs[i, ok] = pose_error_deg(m.p_plus[ok], ref.p_plus[i, ok])
         dur.append(abs(m.duration_s - ref.duration[i]))
-    e = np.array(errs)
-    worst = e.max(axis=1)
-    return {"examples": len(ref), "final_pose_error_deg_mean": float(worst.mean()),
-            "final_pose_error_deg_max": float(worst.max()),
-            "final_pose_error_deg_per_joint_mean": dict(zip(ref.segments + ["eyes"],
-                                                            [float(v) for v in e.mean(axis=0)], strict=True)),
+    seen = np.isfinite(errs)
+    worst = np.array([errs[i, seen[i]].max() for i in range(len(ref)) if seen[i].any()])
+    per_joint = [float(errs[seen[:, j], j].mean()) if seen[:, j].any() else None for j in range(n_joints)]
+    return {"examples": len(ref), "compared": int(seen.sum()), "not_compared": int((~seen).sum()),
+            "final_pose_error_deg_mean": float(worst.mean()) if worst.size else None,
+            "final_pose_error_deg_max": float(worst.max()) if worst.size else None,
+            "final_pose_error_deg_per_joint_mean": dict(zip(ref.segments + ["eyes"], per_joint, strict=True)),
             "duration_error_s_mean": float(np.mean(dur))}
 
 
@@ -213,7 +262,7 @@ class GazeMapTrainer:
 
     name = "gaze_map"
     dataset = "gaze_map"
-    schema_version = 1
+    schema_version = 2
     required_columns = ("yaw_deg", "pitch_deg", "duration_s", "start_times", "overshoot_time", "overshoot", "p_plus")
     knobs: tuple[str, ...] = ()
     options = {"k": "neighbours blended per request (Kovar-Gleicher k; default 4)",

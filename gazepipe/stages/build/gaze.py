@@ -255,18 +255,23 @@ def bridge_rotations(q: np.ndarray, max_run: int) -> tuple[np.ndarray, int]:
     return out, longest
 
 
+#: the ``known`` mask's entries after the segments: the eyes' P+, then the head's overshoot (t_β and β)
+MASK_TAIL = ("eyes", "overshoot")
+
+
 def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
-    """Element names of the gaze_map feature columns."""
+    """Element names of the gaze_map columns (features, then the ``known`` mask: segments, eyes, overshoot)."""
     return {"yaw_deg": ["yaw_deg"], "pitch_deg": ["pitch_deg"], "duration_s": ["duration_s"],
             "start_times": list(segments), "overshoot_time": ["overshoot_time"], "overshoot": ["overshoot"],
-            "p_plus": [f"{s}.{c}" for s in (*segments, "eyes") for c in "wxyz"]}
+            "p_plus": [f"{s}.{c}" for s in (*segments, "eyes") for c in "wxyz"],
+            "known": [*segments, *MASK_TAIL]}
 
 
 def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
                  head: int, start_speed_deg_s: float = 18.0, start_filter_hz: float | None = 2.0,
                  start_min_s: float = 1.0 / 15.0, overshoot_window_s: float = 0.1, max_bridge_s: float = 0.5,
                  path: str | None = None, take: str | None = None) -> TakeRows:
-    """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6).
+    """The ``gaze_map`` row of one gaze_shift take (Pejsa 5.1, 5.2.2.2; SPEC §3.6), with what can be computed.
 
     Rotations are taken in the character frame held fixed at the crop's first frame: G(t) = C(0)ᵀ·C(t)·Q(t)
     (C lab-from-character, Q the segment's rotation in the frame's own character frame), so the root's own
@@ -277,29 +282,50 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
       the mean over the last ``REST_POSE_S`` of the first rest (the joints' ``rest_before``, when the frames
       stage had that rest) and over the crop's last ``REST_POSE_S``, inside the second rest (each over the
       whole rest where those frames lack it); a single frame carries the markers' noise (1–2° on a small
-      three-marker segment);
-    - P+ per segment L(last)·L(first)⁻¹, and the eyes' D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·
-      G_head(first)⁻¹: the eyes' global displacement is the requested change;
+      three-marker segment). A segment's end pose comes from **measured** rotations only (the joints'
+      ``rot_measured``: every marker of the segment measured, none gap-filled, the rotation not filled across a
+      gap; without that column, rotations not marked ``rot_filled``). A rest is still, so any measured frame in
+      it shows the pose. A fill there is estimated from what lies around it: from its edges (outside the rest
+      when none of the rest is measured) or from other segments' markers, and such fills were measured 4–10°
+      off in rests where their own estimate said 1–2 mm; nothing shows such a pose is the still one. Without a
+      measured frame in the rest (for the first pose: nor at the crop's first frame) the segment's end pose is
+      unknown;
+    - P+ per segment L(last)·L(first)⁻¹ (needs the end poses of the segment and of its parent), and the eyes'
+      D_headᵀ·Ry(yaw)·Rx(−pitch), D_head = G_head(last)·G_head(first)⁻¹ (needs the head's end poses): the eyes'
+      global displacement is the requested change;
     - start time per segment: first crop frame where the angular speed of L (central differences of L
       low-passed at ``start_filter_hz``, :func:`start_frame`) exceeds ``start_speed_deg_s`` for at least
       ``start_min_s``, as a fraction of l; 0 when it never does (Pejsa: the joint starts with the shift);
     - overshoot time t_β and amount β of the head's displacement (:func:`overshoot`), t_β a fraction of l
       (1 with β = 0 when there is no overshoot).
 
+    Runs of crop frames without a rotation up to ``max_bridge_s`` are bridged in rotation space
+    (:func:`bridge_rotations`) for the angular speeds and counted in QC (``bridged_frames``); a longer run
+    leaves the frames from it on unknown (QC ``unbridged_frames``), and an event (a segment's start, the head's
+    overshoot) must then be found before it (it is the first one there; after it, it may have happened unseen).
+
+    What cannot be computed is null, not a reason to leave the take out (SPEC §3.6). Feature ``known`` (bool,
+    segments then ``eyes`` then ``overshoot``, :data:`MASK_TAIL`) says what was: a segment is known when its P+
+    and its start time both are (a joint's curve needs both, Pejsa 5.2.3); otherwise both are NaN. The eyes
+    are known when the head's global displacement is (their P+ is NaN otherwise). The overshoot (t_β and β,
+    both NaN when unknown) is a parameter of the whole motion, masked apart from the head's P+ and start: it
+    needs the head's displacement over the crop, so it is known when the head's end poses are and the event
+    is read before any unbridgeable hole. QC ``null_segments`` lists the mask names that are null and
+    ``null_reasons`` says why, one line each.
+
     Parameters
     ----------
     joints : :func:`gazepipe.schemas.joints.joints_arrays` of the cropped take ([end of first rest, end of
-        second rest)).
+        second rest)); ``rot_measured`` (N, S) marks rotations from measured markers (else ``rot_filled``
+        filled ones; all known ones count as measured when neither is given).
     rests : rest periods [start, stop) in frames of the uncropped take (the clean stage's ``rests``).
+    rate_hz : frames per second.
+    yaw_deg, pitch_deg : the requested gaze change, degrees.
     head : index of the head segment.
 
-    Raises :class:`StageError` (the reason the row cannot be computed) when fewer than two rests are given,
-    l ≤ 0, the crop's first or last frame lacks the character frame or a segment rotation (filled rotations
-    count), or a start time or the overshoot cannot be read: runs of crop frames without a rotation up to
-    ``max_bridge_s`` are bridged in rotation space (:func:`bridge_rotations`) for the angular speeds and counted
-    in QC (``bridged_frames``); a longer run leaves the frames from it on unknown, and an event (a segment's
-    start, the head's overshoot) must then be found before it (it is the first one there; after it, it may have
-    happened unseen). QC ``unbridged_frames`` counts the frames left unknown.
+    Raises :class:`StageError` (the reason no row can be computed) when fewer than two rests are given, the crop
+    has fewer than 3 frames, l ≤ 0, or the character frame is unknown at the crop's first or last frame
+    (every rotation is taken in it).
     """
     if len(rests) < 2:
         raise StageError(path, f"gaze_map: {len(rests)} rest period(s), need two", take=take)
@@ -313,35 +339,60 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     names = list(joints["segments"])
     max_run = int(np.floor(max_bridge_s * rate_hz + 1e-9))
     char_rot = np.array(joints["char_rot"], dtype=np.float64)
-    series = {"character frame": char_rot,
-              **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
+    measured = np.isfinite(quat).all(axis=2)
+    if joints.get("rot_measured") is not None:
+        measured &= np.asarray(joints["rot_measured"], dtype=bool)
+    elif joints.get("rot_filled") is not None:
+        measured &= ~np.asarray(joints["rot_filled"], dtype=bool)
     # the crop starts where the first rest ends and ends with the second rest, where the subject is still: the
     # first and last poses are the means over those rests (a single frame carries the markers' noise)
     before = joints["meta"].get("rest_before") or {}
+    before_quat = before.get("quat") or [None] * ns
     second = max(0, min(n - 1, int(rests[1][0]) - int(np.asarray(joints["frame"])[0])))
     tail = max(second, n - int(round(REST_POSE_S * rate_hz)))
-    ends: dict[str, tuple[np.ndarray | None, np.ndarray | None]] = {}
-    for (what, q), first in zip(series.items(), [before.get("char_rot"), *(before.get("quat") or [None] * ns)],
-                                strict=True):
+
+    def last_pose(q: np.ndarray) -> np.ndarray | None:
         last = mean_wxyz(q[tail:], 3)
-        ends[what] = (None if first is None else np.asarray(first, dtype=np.float64),
-                      last if last is not None else mean_wxyz(q[second:], 3))
+        return last if last is not None else mean_wxyz(q[second:], 3)
+
+    reasons: dict[str, str] = {}
+    first_c = before.get("char_rot")
+    first_c = np.asarray(first_c, dtype=np.float64) if first_c is not None else (
+        char_rot[0] if np.isfinite(char_rot[0]).all() else None)
+    last_c = last_pose(char_rot)
+    for end, pose in (("first", first_c), ("last", last_c)):
+        if pose is None:
+            raise StageError(path, f"gaze_map: the crop's {end} frame has no character frame rotation (every "
+                                   "rotation is taken in it)", take=take)
+    char_rot[0], char_rot[n - 1] = first_c, last_c
+    ends_ok = np.zeros(ns, dtype=bool)
+    for k in range(ns):
+        only = np.where(measured[:, k, None], quat[:, k], np.nan)
+        first = (np.asarray(before_quat[k], dtype=np.float64) if before_quat[k] is not None
+                 else only[0] if measured[0, k] else None)
+        last = last_pose(only)
+        if first is not None:
+            quat[0, k] = first
+        if last is not None:
+            quat[n - 1, k] = last
+        ends_ok[k] = first is not None and last is not None
+        if not ends_ok[k]:
+            where = [("no measured rotation in the rest before the crop nor at its first frame" if before else
+                      "no measured rotation at the crop's first frame") if first is None else "",
+                     f"no measured rotation in the crop's final rest (frames {second}–{n - 1})"
+                     if last is None else ""]
+            reasons[names[k]] = "P+: " + "; ".join(w for w in where if w)
+
+    series = {"character frame": char_rot, **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
     bridged = np.zeros(n, dtype=bool)
     unknown: dict[str, np.ndarray] = {}          # frames a bridge cannot reach: longer runs without a rotation
     for what, q in series.items():
         ok = np.isfinite(q).all(axis=1)
-        for end, i, mean in (("first", 0, ends[what][0]), ("last", n - 1, ends[what][1])):
-            if mean is not None:
-                q[i], ok[i] = mean, True
-            if not ok[i]:
-                raise StageError(path, f"gaze_map: the crop's {end} frame has no {what} rotation (P+ needs it)",
-                                 take=take)
         if ok.all():
             continue
-        ok_before = ok.copy()
         q[:], _ = bridge_rotations(q, max_run)
         gone = ~np.isfinite(q).all(axis=1)
-        bridged |= ~ok_before & ~gone
+        bridged |= ~ok & ~gone
         if gone.any():
             unknown[what] = gone
             q[gone] = (1.0, 0.0, 0.0, 0.0)       # placeholders: no event is read at or after them
@@ -355,22 +406,28 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         firsts = [(int(np.argmax(unknown[w])), w) for w in whats if w in unknown]
         return min(firsts) if firsts else (n, None)
 
-    def cannot(quantity: str, stop: int, what: str) -> StageError:
-        run = true_runs(unknown[what])[0]
-        return StageError(path, f"gaze_map: {quantity} cannot be computed: crop frames {run[0]}–{run[1] - 1} "
-                                f"({(run[1] - run[0]) / rate_hz:.2f} s) have no {what} rotation, more than "
-                                f"build.max_bridge_s ({max_bridge_s:g} s) can bridge, and the event is not "
-                                f"found before them", take=take)
+    def cannot(quantity: str, what: str) -> str:
+        a, b = true_runs(unknown[what])[0]
+        return (f"{quantity} cannot be computed: crop frames {a}–{b - 1} ({(b - a) / rate_hz:.2f} s) have no "
+                f"{what} rotation, more than build.max_bridge_s ({max_bridge_s:g} s) can bridge, and the event is "
+                "not found before them")
 
-    p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) for loc in local]
+    nan4 = np.full(4, np.nan)
+    p_ok = np.array([ends_ok[k] and (parents[k] < 0 or ends_ok[parents[k]]) for k in range(ns)], dtype=bool)
+    for k in np.flatnonzero(ends_ok & ~p_ok):
+        reasons[names[k]] = f"P+: it is relative to {names[parents[k]]!r}, whose end pose is unknown"
+    p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) if p_ok[k] else nan4 for k, loc in enumerate(local)]
+    eyes_ok = bool(ends_ok[head])
     d_head = fixed[head][n - 1] * fixed[head][0].inv()
-    eyes = d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg))
-    p_plus.append(to_wxyz(eyes))
+    p_plus.append(to_wxyz(d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg)))
+                  if eyes_ok else nan4)
+    if not eyes_ok:
+        reasons["eyes"] = f"P+: needs the head's displacement, and {names[head]!r} has an unknown end pose"
 
     # an event (a start, the overshoot) read before the first frame that cannot be bridged is the first one;
     # after it, it could have happened unseen
     thr = np.deg2rad(start_speed_deg_s)
-    starts = []
+    starts = np.full(ns, np.nan)
     min_frames = max(1, int(round(start_min_s * rate_hz)))
     for k, loc in enumerate(local):
         chain = ["character frame", f"segment {names[k]!r}"]
@@ -379,40 +436,56 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         stop, what = known_until(*chain)
         j0 = start_frame(loc[:stop], rate_hz, thr, start_filter_hz, min_frames) if stop >= 2 else -1
         if j0 < 0 and what is not None:
-            raise cannot(f"the start time of {names[k]!r}", stop, what)
-        starts.append(j0 / rate_hz / duration if j0 >= 0 else 0.0)
+            why = cannot("start time", what)
+            reasons[names[k]] = f"{reasons[names[k]]}; {why}" if names[k] in reasons else why
+            continue
+        starts[k] = j0 / rate_hz / duration if j0 >= 0 else 0.0
+    seg_ok = p_ok & np.isfinite(starts)
+    for k in np.flatnonzero(~seg_ok):           # a joint's curve needs both (Pejsa 5.2.3): both null
+        starts[k], p_plus[k] = np.nan, nan4
     disp = fixed[head] * fixed[head][0].inv()
     stop, what = known_until("character frame", f"segment {names[head]!r}")
     t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s, known=stop)
-    if j < 0 and what is not None:
-        raise cannot("the overshoot", stop, what)
     t_frac = t_beta / duration if j >= 0 else 1.0
+    ov_ok = eyes_ok and not (j < 0 and what is not None)
+    if not ov_ok:
+        reasons["overshoot"] = (f"needs the head's displacement, and {names[head]!r} has an unknown end pose"
+                                if not eyes_ok else cannot("overshoot", what))
+        t_frac, beta, j = np.nan, np.nan, -1
 
+    known = np.array([*seg_ok, eyes_ok, ov_ok], dtype=bool)
+    mask_names = [*names, *MASK_TAIL]
     f32 = np.float32
     feats = {
         "yaw_deg": np.array([yaw_deg], f32), "pitch_deg": np.array([pitch_deg], f32),
         "duration_s": np.array([duration], f32),
-        "start_times": np.array([starts], f32),
+        "start_times": starts.astype(f32)[None, :],
         "overshoot_time": np.array([t_frac], f32), "overshoot": np.array([beta], f32),
         "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
+        "known": known[None, :],
     }
     frame = np.asarray(joints["frame"], dtype=np.int64)
+    null = [mask_names[i] for i in np.flatnonzero(~known)]
     qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
           "unbridged_frames": int(np.logical_or.reduce([*unknown.values(), np.zeros(n, bool)]).sum()),
           "overshoot_frame": int(frame[j]) if j >= 0 else None,
-          "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1]))}
+          "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1])),
+          "null_segments": null, "null_reasons": {k: reasons[k] for k in null}}
     return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
 
 
 def mirror_gaze_map(features: dict[str, np.ndarray], perm: np.ndarray) -> dict[str, np.ndarray]:
     """Mirror gaze_map rows (SPEC §2): yaw negates, pitch stays; every quaternion becomes that of M·R·M
-    (:func:`mirror_quat`: w, x, −y, −z), left/right segments swap (their start times too); the eyes' entry stays
-    last; durations and overshoot stay."""
+    (:func:`mirror_quat`: w, x, −y, −z), left/right segments swap (their start times and ``known`` entries too);
+    the eyes' quaternion stays last, the mask's eyes and overshoot entries stay after the segments; durations
+    and overshoot stay. Null (NaN) values stay null where their mask entry moves."""
     out = {k: v.copy() for k, v in features.items()}
     out["yaw_deg"] = np.negative(features["yaw_deg"])
     q = features["p_plus"].reshape(len(features["p_plus"]), -1, 4)
     order = np.append(perm, q.shape[1] - 1)
     out["p_plus"] = mirror_quat(q[:, order]).reshape(features["p_plus"].shape)
     out["start_times"] = features["start_times"][:, perm]
+    if "known" in features:
+        out["known"] = features["known"][:, np.concatenate([perm, len(perm) + np.arange(len(MASK_TAIL))])]
     return out

@@ -313,6 +313,7 @@ def mirror_joints(joints: Joints, segment_pairs: Pairs | None = None) -> Joints:
         char_rot=np.array(joints.char_rot, copy=True),
         valid=np.array(joints.valid, copy=True),
         rot_filled=None if joints.rot_filled is None else np.array(joints.rot_filled)[:, perm],
+        rot_measured=None if joints.rot_measured is None else np.array(joints.rot_measured)[:, perm],
         rate_hz=joints.rate_hz,
         first_frame=joints.first_frame,
         qc=copy.deepcopy(joints.qc),

@@ -11,7 +11,10 @@ object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
   rows only, mirrored training rows included, overall and per pose; at least one training take is required.
 
 A take that cannot give rows (no eyes for gaze_rnn, missing rests for gaze_map, …) is left out and listed
-under ``skipped`` in _dataset.json with the reason; the other takes still build.
+under ``skipped`` in _dataset.json with the reason; the other takes still build. A gaze_map row keeps the
+parameters that can be computed: the others are NaN, marked False in its ``known`` mask, and counted per take
+(``null_segments`` in ``counts.per_take``, totals in ``counts.null_segments``). Statistics are taken per element
+over the values that are not null.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import pyarrow as pa
 from gazepipe.errors import GazepipeError, StageError
 from gazepipe.model import MarkerSet, Take
 from gazepipe.schemas.base import attach_meta, check_table, read_meta, with_element_names
-from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns
+from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns, mask_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
 from gazepipe.stages.build.splits import assign_split, check_fractions, rebalance
 from gazepipe.stages.build.summary import DatasetSummary, feature_values, table_hash
@@ -68,7 +71,8 @@ class BuildParams:
         (1/15 s = 2 frames at 30 Hz: a single-frame noise excursion does not count).
     overshoot_window_s : gaze_map overshoot confirmation window each side (s).
     max_bridge_s : gaze_map: runs of crop frames without a rotation up to this long (s) are bridged in rotation
-        space for the start times and the overshoot; a longer run leaves the take out (SPEC §3.6).
+        space for the start times and the overshoot; after a longer run an event not found before it is null in
+        the take's row (its ``known`` entry False; SPEC §3.6).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
@@ -282,8 +286,9 @@ def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
 
 def _column(values: np.ndarray, ftype: pa.DataType) -> pa.Array:
     if pa.types.is_fixed_size_list(ftype):
-        flat = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
-        return pa.FixedSizeListArray.from_arrays(pa.array(flat, pa.float32()), ftype.list_size)
+        vt = ftype.value_type
+        flat = np.ascontiguousarray(values, dtype=bool if vt == pa.bool_() else np.float32).reshape(-1)
+        return pa.FixedSizeListArray.from_arrays(pa.array(flat, vt), ftype.list_size)
     return pa.array(np.ascontiguousarray(values).reshape(-1), ftype)
 
 
@@ -361,7 +366,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
                              params.split_salt)
         if schema is None:
             schema = with_element_names(dataset_schema(name, ctx.sizes), ctx.names)
-            summary = DatasetSummary(name, feature_columns(schema), window)
+            summary = DatasetSummary(name, feature_columns(schema), window, masks=mask_columns(schema))
         mirrored = _mirror(name, rows, ctx) if params.mirror else None
         table = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
         summary.add_take(f"{t.session}/{t.take.id}", t.take.pose, split, table, rows.qc, _input_hashes(t, name),

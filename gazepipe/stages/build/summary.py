@@ -18,7 +18,7 @@ import pyarrow as pa
 
 from gazepipe import __version__
 from gazepipe.model import SPLITS
-from gazepipe.schemas.datasets import IDENTIFIER_NAMES, SCHEMA_VERSION
+from gazepipe.schemas.datasets import IDENTIFIER_NAMES, schema_version
 from gazepipe.schemas.joints import list_to_numpy
 
 
@@ -40,46 +40,59 @@ def table_hash(table: pa.Table) -> str:
 
 @dataclass
 class RunningMoments:
-    """Count, mean and sum of squared deviations per element of one feature (float64), mergeable."""
+    """Count, mean and sum of squared deviations per element of one feature (float64), mergeable.
 
-    n: int = 0
+    NaN values are null (gaze_map's parameters that cannot be computed): each element keeps its own count of
+    the values that are not, and its mean and deviations are over those alone. Without NaN the update is the
+    one of whole rows, bit for bit."""
+
+    n: np.ndarray | int = 0
     mean: np.ndarray | None = None
     m2: np.ndarray | None = None
 
-    def add(self, values: np.ndarray) -> None:
-        """Merge the rows of ``values`` (N, D)."""
-        v = np.asarray(values, dtype=np.float64)
-        nb = v.shape[0]
-        if nb == 0:
-            return
-        mb = v.mean(axis=0)
-        m2b = ((v - mb) ** 2).sum(axis=0)
-        if self.n == 0:
-            self.n, self.mean, self.m2 = nb, mb, m2b
+    def _merge(self, nb: np.ndarray, mb: np.ndarray, m2b: np.ndarray) -> None:
+        """Merge moments (count, mean, squared deviations; each (D,), mean and m2 0 where the count is 0)."""
+        if self.mean is None:
+            self.n, self.mean, self.m2 = nb.copy(), mb.copy(), m2b.copy()
             return
         n = self.n + nb
+        d = np.maximum(n, 1)
         delta = mb - self.mean
-        self.mean = self.mean + delta * (nb / n)
-        self.m2 = self.m2 + m2b + delta ** 2 * (self.n * nb / n)
+        self.mean = self.mean + delta * (nb / d)
+        self.m2 = self.m2 + m2b + delta ** 2 * (self.n * nb / d)
         self.n = n
+
+    def add(self, values: np.ndarray) -> None:
+        """Merge the rows of ``values`` (N, D); NaN values are left out of their element."""
+        v = np.asarray(values, dtype=np.float64)
+        if v.shape[0] == 0:
+            return
+        ok = ~np.isnan(v)
+        if ok.all():
+            nb = np.full(v.shape[1], v.shape[0], dtype=np.int64)
+            mb = v.mean(axis=0)
+            m2b = ((v - mb) ** 2).sum(axis=0)
+        else:
+            nb = ok.sum(axis=0).astype(np.int64)
+            mb = np.where(ok, v, 0.0).sum(axis=0) / np.maximum(nb, 1)
+            m2b = np.where(ok, (np.where(ok, v, 0.0) - mb) ** 2, 0.0).sum(axis=0)
+        self._merge(nb, mb, m2b)
 
     def merge(self, other: RunningMoments) -> None:
         """Merge another set of moments (the same update as :meth:`add` with its rows)."""
-        if other.n == 0:
+        if other.mean is None:
             return
-        if self.n == 0:
-            self.n, self.mean, self.m2 = other.n, other.mean.copy(), other.m2.copy()
-            return
-        n = self.n + other.n
-        delta = other.mean - self.mean
-        self.mean = self.mean + delta * (other.n / n)
-        self.m2 = self.m2 + other.m2 + delta ** 2 * (self.n * other.n / n)
-        self.n = n
+        self._merge(np.asarray(other.n), other.mean, other.m2)
 
-    def result(self) -> dict[str, list[float]]:
-        if self.n == 0:
-            return {"mean": [], "std": []}
-        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in np.sqrt(self.m2 / self.n)]}
+    def result(self) -> dict[str, list]:
+        """``mean``, ``std`` (population) and ``count`` (values that are not null) per element. An element with
+        no value has mean 0 and std 0 (readers then centre nothing and divide by 1)."""
+        if self.mean is None:
+            return {"mean": [], "std": [], "count": []}
+        n = np.asarray(self.n)
+        std = np.sqrt(self.m2 / np.maximum(n, 1))
+        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in std],
+                "count": [int(x) for x in n]}
 
 
 @dataclass
@@ -107,12 +120,17 @@ class DatasetSummary:
     name: str
     columns: list[str]
     window: int | None
+    #: bool mask columns (gaze_map's ``known``): not statistics, their element names go to _dataset.json
+    masks: list[str] = field(default_factory=list)
     by_split: dict[str, dict[str, int]] = field(default_factory=lambda: {s: {"takes": 0, "rows": 0} for s in SPLITS})
     by_pose: dict[str, dict[str, int]] = field(default_factory=dict)
     split_takes: dict[str, list[str]] = field(default_factory=lambda: {s: [] for s in SPLITS})
     per_take: dict[str, Any] = field(default_factory=dict)
     #: frames that gave no row, by reason, over every take (datasets whose rows say why)
     dropped: dict[str, int] = field(default_factory=dict)
+    #: takes whose row has each mask entry null (gaze_map: segment, ``eyes``, ``overshoot`` → takes), or None
+    #: for datasets whose rows have no nulls
+    nulls: dict[str, int] | None = None
     inputs: dict[str, dict[str, str]] = field(default_factory=dict)
     segment_lengths: list[np.ndarray] = field(default_factory=list)
     takes: dict[str, _Take] = field(default_factory=dict)
@@ -136,6 +154,10 @@ class DatasetSummary:
         self.per_take[tid] = {**qc, "split": split, "rows": n}
         for reason, frames in qc.get("dropped", {}).items():
             self.dropped[reason] = self.dropped.get(reason, 0) + int(frames)
+        if "null_segments" in qc:
+            self.nulls = self.nulls or {}
+            for what in qc["null_segments"]:
+                self.nulls[what] = self.nulls.get(what, 0) + 1
         self.inputs[tid] = dict(sorted(hashes.items()))
         if self.window is not None and self.name != "face_clean":
             original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
@@ -183,6 +205,8 @@ class DatasetSummary:
                  "per_pose": {p: summary(per_pose[p]) for p in sorted(per_pose)}}
         stats["rows_used"] = "training rows only, mirrored copies included"
         stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
+        stats["count"] = ("values per element that are not null (NaN) and enter its mean and std; an element "
+                          "without any has mean 0 and std 0")
         return stats
 
     def info(self, *, params: dict[str, Any], names: dict[str, list[str]], sizes: dict[str, int], fps: list[float],
@@ -211,14 +235,18 @@ class DatasetSummary:
             counts["rows_in_segments"] = int(sum(int(v.sum()) for v in lengths))    # mirrored copies not counted
         if self.dropped:
             counts["dropped_frames"] = dict(self.dropped)
+        if self.nulls is not None:
+            counts["null_segments"] = dict(sorted(self.nulls.items()))
+            counts["takes_with_nulls"] = sum(1 for q in self.per_take.values() if q.get("null_segments"))
         counts["per_take"] = self.per_take
         return {
             "name": self.name,
             "description": DESCRIPTIONS[self.name],
             "version": __version__,
-            "schema_version": SCHEMA_VERSION,
+            "schema_version": schema_version(self.name),
             "identifiers": list(IDENTIFIER_NAMES),
             "features": {c: list(names[c]) for c in self.columns},
+            "masks": {c: list(names[c]) for c in self.masks},
             "sizes": dict(sizes),
             "units": UNITS[self.name],
             "fps": fps[0] if len(fps) == 1 else None,
@@ -246,7 +274,9 @@ DESCRIPTIONS: dict[str, str] = {
     "gaze_map": ("Pejsa 5.1 gaze displacement motions: one row per gaze_shift take; rotations in the character "
                  "frame held fixed at the crop's first frame; p_plus = parent-relative displacement per segment "
                  "L(last)·L(first)^-1, then the eyes' D_head^T·Ry(yaw)·Rx(-pitch); start_times and "
-                 "overshoot_time are fractions of duration_s (0: no start found)."),
+                 "overshoot_time are fractions of duration_s (0: no start found). known (segments, eyes, "
+                 "overshoot) marks what could be computed: where False, that segment's p_plus and start_times, "
+                 "the eyes' p_plus, or overshoot_time and overshoot are NaN."),
     "face_clean": ("Berson 3.1 face cleaner: one row per aligned frame of a face take; dt_s = t[n+1] - t[n]; "
                    "tracked_dK / clean_dK are forward derivatives of order K divided by dt; rows of a take form "
                    "one sequence (segment 0)."),
@@ -259,7 +289,8 @@ UNITS: dict[str, dict[str, str]] = {
                      "time_s": "s"},
     "gaze_map": {"yaw_deg": "deg", "pitch_deg": "deg", "duration_s": "s", "start_times": "fraction of duration",
                  "overshoot_time": "fraction of duration", "overshoot": "fraction of the final displacement",
-                 "p_plus": "quaternion w, x, y, z", "time_s": "s"},
+                 "p_plus": "quaternion w, x, y, z", "known": "True = computed, False = NaN in the row",
+                 "time_s": "s"},
     "face_clean": {"tracked": "blendshape coefficient", "clean": "blendshape coefficient", "dt_s": "s",
                    "tracked_dK": "1/s^K", "clean_dK": "1/s^K", "time_s": "s"},
 }

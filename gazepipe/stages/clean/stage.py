@@ -149,6 +149,9 @@ class CleanResult:
     speed_mm_s: np.ndarray
     neutral: Markers | None
     qc: dict
+    #: (R, M) int8 :data:`~gazepipe.model.FILL_CODES` of the ``neutral`` frames (None with no neutral): which of
+    #: the rest's samples were measured
+    neutral_fill_code: np.ndarray | None = None
 
 
 def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], rate_hz: float,
@@ -368,12 +371,14 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
                        first_frame=int(markers.first_frame) + a, warnings=list(markers.warnings))
 
     neutral = _slice(*rests[0]) if rests else None
+    neutral_code = code[slice(*rests[0])].copy() if rests else None
     if kind == "neutral" and neutral is None and markers.n_frames:
-        neutral = _slice(0, markers.n_frames)
+        neutral, neutral_code = _slice(0, markers.n_frames), code.copy()
         qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
     fill_error = error_map(gap_records, code.shape)     # made last: no other take-sized temporary is alive
     fill_error[code == UNFILLED] = np.nan
     # the kept rows are views of the stage's own arrays: a long take's positions are not copied once more
     return CleanResult(markers=_slice(start, stop, copy=False), frames=np.arange(start, stop, dtype=np.int64),
                        fill_code=code[start:stop], spike=spike[start:stop], fill_error_mm=fill_error[start:stop],
-                       crop=(int(start), int(stop)), rests=rests, speed_mm_s=speed, neutral=neutral, qc=qc)
+                       crop=(int(start), int(stop)), rests=rests, speed_mm_s=speed, neutral=neutral, qc=qc,
+                       neutral_fill_code=neutral_code)
