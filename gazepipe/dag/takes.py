@@ -420,7 +420,7 @@ def run_frames(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="11", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="12", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
     run=run_frames,

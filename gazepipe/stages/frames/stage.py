@@ -46,7 +46,7 @@ class FramesParams:
     max_fill_error_deg : a segment whose markers stay unfilled gets its parent-relative rotation filled across
         the gap (:func:`fill_rotation_gaps`: slerp between the rotations on either side, or a model of its
         neighbours' rotations) when the hold-out estimate of that fill's error, on stretches of the gap's length
-        beside it, is at most this many degrees; 0 turns it off.
+        beside it and on stretches that move like it, is at most this many degrees; 0 turns it off.
     min_plane_ratio : a segment of more than three markers with some missing in a frame is fitted to the
         markers present when there are at least three and their neutral reference is not nearly collinear:
         the second singular value of the centred reference subset must be at least this share of the first
@@ -503,6 +503,60 @@ def _candidates(local, known: np.ndarray, span, span_ok: np.ndarray | None, star
     return out
 
 
+def _off_slerp_deg(nb, lo: int, hi: int) -> float:
+    """How far (deg, the largest over [lo, hi)) a rotation stack ``nb`` strays from the slerp between its
+    rotations at lo − 1 and hi: the motion inside a stretch that interpolation across it cannot see."""
+    return float(np.degrees((_slerp_across(nb, lo, hi) * nb[lo:hi].inv()).magnitude()).max())
+
+
+def _motion_deg(local, nb, nb_ok: np.ndarray | None, lo: int, hi: int) -> float:
+    """How much a stretch [lo, hi) moves, deg: the larger of the segment's own turn across it (its rotations at
+    lo − 1 and hi, known on both sides of a gap) and how far its neighbour ``nb`` strays from its own
+    interpolation inside it (where known; :func:`_off_slerp_deg`)."""
+    own = float(np.degrees((local[lo - 1].inv() * local[hi]).magnitude()))
+    if nb is None or not nb_ok[lo - 1:hi + 1].all():
+        return own
+    return max(own, _off_slerp_deg(nb, lo, hi))
+
+
+#: hold-out stretches that move like the gap: at most this many, beside the two next to the gap
+_MATCHED_STRETCHES = 2
+#: a stretch moves at least this much, deg (the rotations' own noise): a still stretch is not taken as frozen
+_MOTION_FLOOR_DEG = 1.0
+
+
+def _holdouts(local, nb, nb_ok: np.ndarray | None, loc_ok: np.ndarray, s: int, e: int, window: int, a: int
+              ) -> tuple[list[int], list[float], float, int]:
+    """Where to hide stretches of the gap's length to estimate a fill's error, with how much each moves.
+
+    The two stretches next to the gap, and up to :data:`_MATCHED_STRETCHES` within ``window`` frames that move
+    at least as much as the gap (:func:`_motion_deg`; the nearest such amounts first). Returns the stretches'
+    first frames (those beside the gap first), their motion and the gap's (deg), and how many are beside it."""
+    n, length = len(loc_ok), e - s
+    usable = [int(lo) for lo in np.arange(max(a + 1, s - window), min(n - length - a - 1, e + window) + 1,
+                                          max(1, length // 4))       # every quarter of the gap's length
+              if (lo + length + a <= s - a or lo - a >= e + a) and loc_ok[lo - a:lo + length + a].all()]
+    beside = [lo for lo in (s - a - length, e + a)
+              if lo - a >= 0 and lo + length + a <= n and loc_ok[lo - a:lo + length + a].all()]
+    gap = _motion_deg(local, nb, nb_ok, s, e)
+    moves = {lo: _motion_deg(local, nb, nb_ok, lo, lo + length) for lo in {*usable, *beside}}
+    like = sorted((moves[lo] - gap, lo) for lo in usable if moves[lo] >= gap and lo not in beside)
+    picked = beside + [lo for _, lo in like[:_MATCHED_STRETCHES]]
+    return picked, [moves[lo] for lo in picked], gap, len(beside)
+
+
+def _estimate(errors: list[float], amounts: list[float], gap: float, n_beside: int) -> float:
+    """A fill's estimated error from its mean misses on the hold-out stretches (deg; the first ``n_beside`` are
+    the stretches next to the gap): when stretches move at least as much as the gap, the worse of the misses
+    beside it and the mean miss on those like it (the evidence on the gap's kind of motion); when none does, each miss scaled by how much more the gap moves than its stretch (a still stretch beside a
+    gap in which the head turns says little of it), the motion floored at :data:`_MOTION_FLOOR_DEG`."""
+    floor = _MOTION_FLOOR_DEG
+    like = [err for err, m in zip(errors, amounts, strict=True) if m >= gap]
+    if like:
+        return max(max(errors[:n_beside], default=0.0), float(np.mean(like)))
+    return max(err * max(1.0, max(gap, floor) / max(m, floor)) for err, m in zip(errors, amounts, strict=True))
+
+
 def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarray,
                        max_error_deg: float, window: int = 300) -> tuple[np.ndarray, list[dict]]:
     """Fill, in place, each segment's rotations (``gmat`` (N, S, 3, 3), character frame, NaN where its markers
@@ -510,10 +564,14 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
     rotation is interpolated by :func:`_slerp_across`, or predicted from its neighbours by :func:`_model_across`
     (where its first child is known through the gap), and composed with the parent's (segments in chain order,
     so a parent filled first carries its children). Each candidate is tried across stretches of the gap's length
-    hidden just before and after it (where the rotation is known, with the anchors it needs); the one that
-    misses the known rotations least on average (the worse of the stretches) fills the gap when that is at most
+    hidden just before and after it, and across stretches that move at least as much as the gap
+    (:func:`_holdouts`, :func:`_motion_deg`: the segment's own turn across the stretch, and how far its
+    neighbour, the parent's rotation in the character frame or for the root its first child's, strays from its
+    own interpolation inside it); a candidate's estimate is its worst mean miss, each scaled by how much more
+    the gap moves than that stretch (:func:`_estimate`: the stretches beside a gap in which the head turns are
+    still, and slerp looks perfect there). The candidate with the smallest estimate fills the gap when that is at most
     ``max_error_deg``; with no stretch to hide the gap stays open. ``window``: frames each side of a gap the
-    neighbour model learns from.
+    neighbour model learns from and the matched stretches are looked for in.
 
     Returns the (N, S) mask of filled rotations and one record per gap (segment, start, stop, method, estimated
     error in degrees, filled).
@@ -546,6 +604,12 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
             if p >= 0:
                 sm = np.where(span_ok[:, None, None], np.swapaxes(gmat[:, p], 1, 2) @ sm, np.eye(3))
             span = Rotation.from_matrix(sm)
+        # the neighbour whose motion says how the gap moves: the parent in the character frame, else a child
+        nb_seg = p if p >= 0 else (int(children[0]) if len(children) else -1)
+        nb = nb_ok = None
+        if nb_seg >= 0:
+            nb_ok = has_char & ok_rot[:, nb_seg]
+            nb = Rotation.from_matrix(np.where(nb_ok[:, None, None], gmat[:, nb_seg], np.eye(3)))
 
         for s, e in true_runs(missing):
             length = e - s
@@ -554,13 +618,13 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
                                 "filled": False})
                 continue
             errs: dict[str, list[float]] = {}
-            for lo in (s - a - length, e + a):               # stretches just before and just after the gap
+            stretches, amounts, gap_moves, n_beside = _holdouts(local, nb, nb_ok, loc_ok, s, e, window, a)
+            for lo in stretches:
                 hi = lo + length
-                if lo - a >= 0 and hi + a <= n and loc_ok[lo - a:hi + a].all():
-                    for name, guess in _candidates(local, loc_ok, span, span_ok, lo, hi, window).items():
-                        errs.setdefault(name, []).append(
-                            float(np.degrees((guess * local[lo:hi].inv()).magnitude()).mean()))
-            scored = {k: max(v) for k, v in errs.items() if len(v) == max(len(x) for x in errs.values())}
+                for name, guess in _candidates(local, loc_ok, span, span_ok, lo, hi, window).items():
+                    errs.setdefault(name, []).append(float(np.degrees((guess * local[lo:hi].inv()).magnitude()).mean()))
+            scored = {k: _estimate(v, amounts, gap_moves, n_beside) for k, v in errs.items()
+                      if len(v) == len(stretches)}
             best = min(scored, key=lambda k: (scored[k], k != "slerp")) if scored else None
             fill = _candidates(local, loc_ok, span, span_ok, s, e, window).get(best) if best else None
             error = scored.get(best) if best else None
