@@ -6,8 +6,9 @@ ten-segment marker layout in a z-up lab and the four-segment layout in a y-up la
 run through the whole pipeline (``gazepipe run``, serial). Printed per layout: takes that failed a stage; every
 segment rotation of every (unmirrored) ``gaze_rnn`` and ``gaze_rnn_lod`` row against the truth (median, p99, max
 degrees, and rows with a segment more than 5° off), and its target direction; the share of the frames with valid eyes inside the true crop
-that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds; the frames each dataset dropped,
-by reason.
+that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds (and again leaving out the frames whose
+target marker is hidden in a gap of more than a second: where the pole moves between goals, no fill can know it,
+and those frames have no input); the frames each dataset dropped, by reason.
 
 With ``--bursts N`` every mocap take gets N occlusion bursts (``SynthConfig.occlusion_bursts``: 30-80 % of the
 subject's markers, on one side, gone for 0.2-1.5 s). With ``--swaps N`` every mocap take also gets N label swaps (``SynthConfig.label_swaps``); ``--no-repair`` runs
@@ -86,12 +87,12 @@ def target_errors(folder: Path, rows: list[dict]) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: bool) -> tuple[int, int]:
-    """(rows, usable frames): frames inside the true crop of every gaze_follow take, with valid eyes when
-    ``eyes``."""
+def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: bool) -> tuple[int, int, int]:
+    """(rows, usable frames, usable frames whose target marker is hidden in a gap longer than a second): frames
+    inside the true crop of every gaze_follow take, with valid eyes when ``eyes``."""
     truth = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
     got = {r["take"]: len(r["frame"]) for r in rows}
-    have = need = 0
+    have = need = hidden = 0
     for take, t in truth.items():
         if t["kind"] != "gaze_follow" or not t.get("crop"):
             continue
@@ -104,7 +105,18 @@ def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: b
                 frames &= {f for f, v in zip(e["frame"], e["valid"], strict=True) if v}
         need += len(frames)
         have += got.get(take, 0)
-    return have, need
+        tr = np.load(folder / "truth" / f"{take}.npz")
+        labels = list(tr["labels"])
+        if "POLE" in labels:
+            gone = tr["gap_mask"][:, labels.index("POLE")]
+            long = np.zeros_like(gone)
+            rate = float(t.get("rate_hz", 29.97))
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], gone.astype(np.int8), [0]])))
+            for a0, b0 in zip(edges[0::2], edges[1::2], strict=True):
+                if b0 - a0 > rate:
+                    long[a0:b0] = True
+            hidden += sum(1 for f in frames if long[f])
+    return have, need, hidden
 
 
 def main() -> None:
@@ -123,7 +135,7 @@ def main() -> None:
     for label, (segments, up) in LAYOUTS.items():
         errs = {"gaze_rnn": [], "gaze_rnn_lod": []}
         terrs: dict[str, list[np.ndarray]] = {"gaze_rnn": [], "gaze_rnn_lod": []}
-        cover = {"gaze_rnn": [0, 0], "gaze_rnn_lod": [0, 0]}
+        cover = {"gaze_rnn": [0, 0, 0], "gaze_rnn_lod": [0, 0, 0]}
         dropped = {"gaze_rnn": Counter(), "gaze_rnn_lod": Counter()}
         failed: list[str] = []
         with tempfile.TemporaryDirectory() as tmp:
@@ -141,16 +153,17 @@ def main() -> None:
                     rows = dataset_rows(out, name)
                     errs[name].append(segment_errors(folder, rows))
                     terrs[name].append(target_errors(folder, rows))
-                    h, n = coverage(folder, out, cfg.session_id, rows, eyes=name == "gaze_rnn")
+                    h, n, hid = coverage(folder, out, cfg.session_id, rows, eyes=name == "gaze_rnn")
                     cover[name][0] += h
                     cover[name][1] += n
+                    cover[name][2] += hid
                     info = out / "datasets" / name / "_dataset.json"
                     if info.is_file():
                         dropped[name].update(json.loads(info.read_text())["counts"].get("dropped_frames", {}))
         print(f"\n{label}: takes failing a stage: {len(failed)}" + "".join(f"\n  {f}" for f in failed[:5]))
         for name in errs:
             e = np.concatenate([x for x in errs[name] if x.size]) if any(x.size for x in errs[name]) else None
-            h, n = cover[name]
+            h, n, hid = cover[name]
             what = "frames with valid eyes in the crop" if name == "gaze_rnn" else "crop frames"
             if e is None or not e.size:
                 print(f"  {name:13s} no rows; {what}: {n}")
@@ -158,7 +171,8 @@ def main() -> None:
             worst = e.max(axis=1)
             print(f"  {name:13s} {len(e):6d} rows: segment error median {np.median(e):.2f}°, p99 "
                   f"{np.percentile(e, 99):.2f}°, max {e.max():.1f}°; rows with a segment > 5°: {(worst > 5).sum()}; "
-                  f"holds {100 * h / max(n, 1):.1f} % of the {n} {what}")
+                  f"holds {100 * h / max(n, 1):.1f} % of the {n} {what} ({hid} of them with the target "
+                  f"marker hidden for more than a second; {100 * h / max(n - hid, 1):.1f} % of the rest)")
             te = np.concatenate(terrs[name])
             print(f"  {'':13s} target direction error median {np.median(te):.2f}°, p99 {np.percentile(te, 99):.2f}°, "
                   f"max {te.max():.1f}°")

@@ -641,3 +641,48 @@ def test_stacked_prediction_is_each_frames_least_squares_on_its_measured_predict
             compared += 1
     # most (frame, k) pairs were predicted and compared, not left NaN on both sides
     assert compared >= 0.5 * frames.size * len(model.ks)
+
+
+def _reach_between_rests(n: int = 400, move: tuple[int, int] = (190, 205), travel_mm: float = 200.0,
+                         seed: int = 0) -> np.ndarray:
+    """(n, 6, 3) mm: six markers of one body part, still, then all moving ``travel_mm`` along x over the frames
+    ``move`` (a gaze shift's head), then still again; 0.3 mm noise."""
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(-80.0, 80.0, (6, 3))
+    u = np.clip((np.arange(n) - move[0]) / (move[1] - move[0]), 0.0, 1.0)
+    shift = (u * u * (3.0 - 2.0 * u))[:, None] * np.array([travel_mm, 0.0, 0.0])
+    return base[None] + shift[:, None, :] + rng.normal(0.0, 0.3, (n, 6, 3))
+
+
+def test_a_gap_over_a_move_between_still_stretches_is_held_to_the_move():
+    """Every marker but one hidden for 40 frames around a 200 mm move, still before and after: the stretches
+    beside the gap are still and every method looks right there (about 0.5 mm), while interpolating across the
+    move is tens of mm off mid-gap. The estimate grows with how much further the gap travels, so the gap stays
+    open under a 5 mm limit instead of being filled as 'within 1 mm'."""
+    truth = _reach_between_rests()
+    gaps = [(m, 180, 220) for m in range(5)]
+    x, valid = hide(truth, gaps)
+    res = fill_gaps(x, valid, 120.0, max_error_mm=5.0)
+    for g in res.gaps:
+        if g.start == 180:
+            assert g.method == "unfilled" and g.error_mm > 5.0
+    # without a limit the fill is made, and its estimate says it is far off
+    free = fill_gaps(x, valid, 120.0)
+    real = np.linalg.norm(free.xyz[180:220, 0] - truth[180:220, 0], axis=1).mean()
+    est = next(g.error_mm for g in free.gaps if g.marker == 0 and g.start == 180)
+    assert real > 5.0 and est >= 0.5 * real
+
+
+def test_a_gap_in_a_steady_move_keeps_its_estimate():
+    """A steady drift through the gap and beside it: the stretches travel as far as the gap, nothing is
+    scaled, and the gap is filled within its limit."""
+    rng = np.random.default_rng(1)
+    n = 400
+    base = rng.uniform(-80.0, 80.0, (6, 3))
+    drift = np.arange(n)[:, None] * np.array([0.5, 0.2, 0.0])
+    truth = base[None] + drift[:, None, :] + rng.normal(0.0, 0.3, (n, 6, 3))
+    x, valid = hide(truth, [(0, 180, 220)])
+    res = fill_gaps(x, valid, 120.0, max_error_mm=5.0)
+    g = next(g for g in res.gaps if g.marker == 0)
+    assert g.method != "unfilled" and g.error_mm < 2.0
+    assert np.linalg.norm(res.xyz[180:220, 0] - truth[180:220, 0], axis=1).mean() < 2.0

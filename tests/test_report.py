@@ -595,3 +595,14 @@ def test_windowed_rows_warns_when_most_rows_feed_no_training_window() -> None:
     assert D.check_windowed_rows(info, C.Thresholds()).severity == "pass"
     assert D.check_windowed_rows(info, C.Thresholds(windowed_rows_warn=0.9)).severity == "warning"
     assert D.check_windowed_rows({"window": None, "counts": {"rows": 10}}, C.Thresholds()).severity == "skipped"
+
+
+def test_crop_check_warns_when_a_gaze_shift_lacks_a_rest():
+    """A gaze_shift take whose markers were hidden through a rest is kept whole by clean (no failed take); the
+    crop check says why it gives no gaze_map row."""
+    from gazepipe.report.checks import Thresholds, check_crop
+
+    got = check_crop({"crop": [0, 118], "rests": [[89, 118]]}, "gaze_shift", 118, 29.97, Thresholds())
+    assert got.severity == "warning" and "gaze shift needs two" in got.message
+    ok = check_crop({"crop": [42, 118], "rests": [[0, 42], [63, 118]]}, "gaze_shift", 118, 29.97, Thresholds())
+    assert ok.severity == "pass"

@@ -354,6 +354,8 @@ def check_crop(clean_qc: dict[str, Any] | None, kind: str, frames: int | None, r
             problems.append("no trailing rest")
     if kind == "gaze_shift" and len(rests) > 2:
         problems.append(f"{len(rests)} rests, cropped between the first two")
+    if kind == "gaze_shift" and len(rests) < 2:
+        problems.append(f"{len(rests)} rest(s) found, a gaze shift needs two: kept whole, no gaze_map row")
     short = kept_s is not None and th.kept_min_s is not None and kept_s < th.kept_min_s
     if short:
         problems.append(f"kept only {kept_s:.2f} s")

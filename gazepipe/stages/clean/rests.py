@@ -175,7 +175,8 @@ def crop_bounds(rests: list[tuple[int, int]], speed: np.ndarray, kind: str,
     """Crop (start, stop) for a take of ``kind`` and its QC warnings; raises ``ValueError`` with a short
     phrase when the rests the kind needs are missing.
 
-    ``gaze_shift``: [end of the first rest, end of the second rest). ``neutral``: everything. Other kinds:
+    ``gaze_shift``: [end of the first rest, end of the second rest); the whole take, with a warning, when only
+    one rest is found (the markers hidden through the other); none is an error. ``neutral``: everything. Other kinds:
     without the leading rest (one that starts at most ``tolerance`` frames after the first frame with a known
     speed) and the trailing rest (likewise before the last).
     """
@@ -184,9 +185,15 @@ def crop_bounds(rests: list[tuple[int, int]], speed: np.ndarray, kind: str,
     if kind == "neutral":
         return (0, n), warnings
     if kind == "gaze_shift":
+        if not rests:
+            raise ValueError("found no rest period, a gaze_shift take needs two (the wait before the cue and the "
+                             "fixation on the target)")
         if len(rests) < 2:
-            raise ValueError(f"found {len(rests)} rest period(s), a gaze_shift take needs two "
-                             "(the wait before the cue and the fixation on the target)")
+            # the markers may be hidden through one rest: the take stays (cleaned, whole) and gaze_map, which
+            # needs both rests, leaves it out with that reason
+            warnings.append(f"found {len(rests)} rest period(s), a gaze_shift take needs two (the wait before the "
+                            "cue and the fixation on the target): kept whole, without a crop")
+            return (0, n), warnings
         if len(rests) > 2:
             warnings.append(f"{len(rests)} rest periods; cropped between the first two")
         return (rests[0][1], rests[1][1]), warnings
