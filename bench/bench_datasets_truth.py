@@ -14,7 +14,11 @@ With ``--bursts N`` every mocap take gets N occlusion bursts (``SynthConfig.occl
 subject's markers, on one side, gone for 0.2-1.5 s). With ``--swaps N`` every mocap take also gets N label swaps (``SynthConfig.label_swaps``); ``--no-repair`` runs
 with ``clean.repair_swaps = false``, to see what the swaps cost without their repair.
 
-Usage: ``python bench/bench_datasets_truth.py [--seeds 2] [--duration 30] [--swaps 0] [--no-repair] [--bursts 0]``
+With ``--clap-hazards S`` that share of the gaze_follow takes gets one of the clapper's hazards (a weak clap, a
+hidden clap, dropped video frames, a clapper marker gap: ``SynthConfig.clap_hazards``).
+
+Usage: ``python bench/bench_datasets_truth.py [--seeds 2] [--duration 30] [--swaps 0] [--no-repair] [--bursts 0]
+[--clap-hazards 0]``
 """
 
 from __future__ import annotations
@@ -126,6 +130,8 @@ def main() -> None:
     ap.add_argument("--swaps", type=int, default=0, help="label swaps per mocap take")
     ap.add_argument("--no-repair", action="store_true", help="clean.repair_swaps = false")
     ap.add_argument("--bursts", type=int, default=0, help="occlusion bursts per mocap take")
+    ap.add_argument("--clap-hazards", type=float, default=0.0,
+                    help="share of gaze_follow takes with a clap hazard (SynthConfig.clap_hazards)")
     args = ap.parse_args()
     print(f"hazards: spikes 1/marker/min, 4 trunk/neck occlusions of 1-3 s per take, 3 gaps/marker/min, "
           f"{args.swaps} label swaps per take{' (not repaired)' if args.no_repair else ''}, "
@@ -143,7 +149,7 @@ def main() -> None:
                 cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=args.duration,
                                   face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0,
                                   segments=segments, up_axis=up, label_swaps=args.swaps,
-                                  occlusion_bursts=args.bursts)
+                                  occlusion_bursts=args.bursts, clap_hazards=args.clap_hazards)
                 folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",

@@ -20,8 +20,9 @@ Printed per layout:
   frames that fall inside its take (those the eye samples come from), and how many of those beyond 5 ms the
   report's ``clock_map`` check fails.
 
-Usage: ``python bench/bench_shifts_truth.py [--seeds 2] [--duration 20] [--long-gaps 4] [--swaps 0]`` (``--swaps N``: N label
-swaps per mocap take)
+Usage: ``python bench/bench_shifts_truth.py [--seeds 2] [--duration 20] [--long-gaps 4] [--swaps 0] [--bursts 0]
+[--clap-hazards 0]`` (``--swaps N``: N label swaps per mocap take; ``--bursts N``: N occlusion bursts per mocap
+take; ``--clap-hazards S``: that share of the gaze_follow takes gets a clap hazard)
 """
 
 from __future__ import annotations
@@ -124,6 +125,9 @@ def main() -> None:
                     help="1–3 s trunk/neck occlusions per mocap take (the cleaning benchmark's 4: inside the first "
                          "rest, across both crop edges, anywhere; a 4-s gaze shift then has little left)")
     ap.add_argument("--swaps", type=int, default=0, help="label swaps per mocap take (SynthConfig.label_swaps)")
+    ap.add_argument("--bursts", type=int, default=0, help="occlusion bursts per mocap take")
+    ap.add_argument("--clap-hazards", type=float, default=0.0,
+                    help="share of gaze_follow takes with a clap hazard (SynthConfig.clap_hazards)")
     args = ap.parse_args()
     print(f"hazards: body steps in half the gaze shifts, a root-segment marker gap in a rest per take, clapper "
           f"rebounds on half the claps, plus the cleaning hazards ({args.long_gaps} long occlusions per take); "
@@ -148,7 +152,8 @@ def main() -> None:
                 cfg = SynthConfig(follow_poses=("standing", "standing", "sitting"), follow_duration_s=args.duration,
                                   shift_targets=SHIFTS, spikes_per_marker_min=1.0, long_gaps=args.long_gaps,
                                   gaps_per_marker_min=3.0, segments=segments, up_axis=up, body_steps=0.5,
-                                  root_rest_gaps=True, clap_rebounds=0.5, label_swaps=args.swaps)
+                                  root_rest_gaps=True, clap_rebounds=0.5, label_swaps=args.swaps,
+                                  clap_hazards=args.clap_hazards, occlusion_bursts=args.bursts)
                 folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",

@@ -521,6 +521,8 @@ def _motion_deg(local, nb, nb_ok: np.ndarray | None, lo: int, hi: int) -> float:
 
 #: hold-out stretches that move like the gap: at most this many, beside the two next to the gap
 _MATCHED_STRETCHES = 2
+#: a stretch moves like a gap when it moves at least this share of the gap's amount (the amounts carry noise)
+_LIKE_SHARE = 0.8
 #: a stretch moves at least this much, deg (the rotations' own noise): a still stretch is not taken as frozen
 _MOTION_FLOOR_DEG = 1.0
 
@@ -540,20 +542,25 @@ def _holdouts(local, nb, nb_ok: np.ndarray | None, loc_ok: np.ndarray, s: int, e
               if lo - a >= 0 and lo + length + a <= n and loc_ok[lo - a:lo + length + a].all()]
     gap = _motion_deg(local, nb, nb_ok, s, e)
     moves = {lo: _motion_deg(local, nb, nb_ok, lo, lo + length) for lo in {*usable, *beside}}
-    like = sorted((moves[lo] - gap, lo) for lo in usable if moves[lo] >= gap and lo not in beside)
+    like = sorted((abs(moves[lo] - gap), lo) for lo in usable if moves[lo] >= _LIKE_SHARE * gap and lo not in beside)
     picked = beside + [lo for _, lo in like[:_MATCHED_STRETCHES]]
     return picked, [moves[lo] for lo in picked], gap, len(beside)
 
 
 def _estimate(errors: list[float], amounts: list[float], gap: float, n_beside: int) -> float:
     """A fill's estimated error from its mean misses on the hold-out stretches (deg; the first ``n_beside`` are
-    the stretches next to the gap): when stretches move at least as much as the gap, the worse of the misses
-    beside it and the mean miss on those like it (the evidence on the gap's kind of motion); when none does, each miss scaled by how much more the gap moves than its stretch (a still stretch beside a
+    the stretches next to the gap; a stretch moves like the gap when it moves at least :data:`_LIKE_SHARE` of
+    its amount): the worst miss beside the gap when one of those moves like it; else, when stretches further
+    off do, the worse of the misses beside it and the mean miss on those (the evidence on the gap's kind of
+    motion); when none does, each miss scaled by how much more the gap moves than its stretch (a still stretch beside a
     gap in which the head turns says little of it), the motion floored at :data:`_MOTION_FLOOR_DEG`."""
     floor = _MOTION_FLOOR_DEG
-    like = [err for err, m in zip(errors, amounts, strict=True) if m >= gap]
+    beside = errors[:n_beside]
+    if any(m >= _LIKE_SHARE * gap for m in amounts[:n_beside]):
+        return max(beside)                     # the stretches next to the gap move like it: they are the evidence
+    like = [err for err, m in zip(errors, amounts, strict=True) if m >= _LIKE_SHARE * gap]
     if like:
-        return max(max(errors[:n_beside], default=0.0), float(np.mean(like)))
+        return max(max(beside, default=0.0), float(np.mean(like)))
     return max(err * max(1.0, max(gap, floor) / max(m, floor)) for err, m in zip(errors, amounts, strict=True))
 
 
@@ -617,14 +624,17 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
                 records.append({"segment": j, "start": s, "stop": e, "method": None, "error_deg": None,
                                 "filled": False})
                 continue
-            errs: dict[str, list[float]] = {}
             stretches, amounts, gap_moves, n_beside = _holdouts(local, nb, nb_ok, loc_ok, s, e, window, a)
-            for lo in stretches:
+            errs: dict[str, dict[int, float]] = {}            # method -> stretch index -> mean miss (deg)
+            for i, lo in enumerate(stretches):
                 hi = lo + length
                 for name, guess in _candidates(local, loc_ok, span, span_ok, lo, hi, window).items():
-                    errs.setdefault(name, []).append(float(np.degrees((guess * local[lo:hi].inv()).magnitude()).mean()))
-            scored = {k: _estimate(v, amounts, gap_moves, n_beside) for k, v in errs.items()
-                      if len(v) == len(stretches)}
+                    errs.setdefault(name, {})[i] = float(np.degrees((guess * local[lo:hi].inv()).magnitude()).mean())
+            # a method is scored when it was tried beside the gap; the stretches further off where it could not be
+            # tried (the neighbour model needs its child there) count for the others only
+            scored = {k: _estimate([v[i] for i in sorted(v)], [amounts[i] for i in sorted(v)], gap_moves,
+                                   sum(i < n_beside for i in v))
+                      for k, v in errs.items() if all(i in v for i in range(n_beside))}
             best = min(scored, key=lambda k: (scored[k], k != "slerp")) if scored else None
             fill = _candidates(local, loc_ok, span, span_ok, s, e, window).get(best) if best else None
             error = scored.get(best) if best else None
