@@ -96,6 +96,35 @@ def test_a_mirror_pair_is_told_from_its_twin_by_handedness() -> None:
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def _mirror_head(n: int, seed: int) -> np.ndarray:
+    """(n, 6, 3) mm: a rigid head of two mirror pairs (front left/right 0, 1; back left/right 2, 3), a top marker
+    (4) and a chin marker (5), turning slowly, with 0.5 mm noise."""
+    rng = np.random.default_rng(seed)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (n, 3)), axis=0)).as_matrix()
+    return np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (n, 6, 3))
+
+
+def test_a_swap_goes_on_while_its_partner_is_hidden_and_the_references_cannot_tell() -> None:
+    # the back pair exchanged over frames 200-260; from 230 on the back-right marker (3) is hidden, and so is
+    # the front pair: the name 3 carries 2's sample, and the only references left (top, chin) sit on the mirror
+    # plane, equally far from both. Only the trajectory says the swap goes on: the sample under 3 continues 2's
+    # path from the proven stretch, and stands the pair's width from 3's
+    xyz = _mirror_head(600, 4)
+    valid = np.ones((600, 6), dtype=bool)
+    valid[230:260, [0, 1, 3]] = False
+    swapped = xyz.copy()
+    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    capture_valid = valid.copy()
+    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
+    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert res.repaired[200:260, 2].all() and res.repaired[200:230, 3].all()
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
+
+
 def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path) -> None:
     takes = _takes(swapped_session)
     ms = load_markerset(swapped_session / "markerset.toml")

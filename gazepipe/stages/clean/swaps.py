@@ -481,12 +481,15 @@ def _extend_by_continuity(st: _State) -> None:
     continuous there and the exchanged ones would jump: a swap goes on until the labeller's next jump, though the
     references that proved it are hidden (a distinguishing mate in a gap; mirror-image markers seen from the
     mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump)."""
+    separation: dict[tuple[int, int], float] = {}
     for rec in list(st.records):
         if not rec.repaired:
             continue
         pair = [rec.first, rec.second]
+        if (rec.first, rec.second) not in separation:
+            separation[rec.first, rec.second] = _separation(st, pair)
         for edge, step in ((rec.stop, 1), (rec.start - 1, -1)):
-            frames = _continued(st, pair, edge, step)
+            frames = _continued(st, pair, edge, step, separation[rec.first, rec.second])
             if frames.size:
                 for arr in (st.xyz, st.valid, st.usable, st.repaired):
                     arr[frames[:, None], pair] = arr[frames[:, None], pair[::-1]]
@@ -494,16 +497,26 @@ def _extend_by_continuity(st: _State) -> None:
                 st.records += _records(pair, frames, st.valid.shape[0], True)
 
 
-def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
+def _separation(st: _State, pair: list[int]) -> float:
+    """The usual distance (mm, median over the frames where both are measured; NaN: never) between the two
+    markers of ``pair``: the same whichever name each carries."""
+    both = np.flatnonzero(st.usable[:, pair].all(axis=1))
+    if both.size == 0:
+        return float("nan")
+    rows = both[even_rows(both.size, REFERENCE_FRAMES)]
+    return float(np.median(norm3(st.xyz[rows, pair[0]] - st.xyz[rows, pair[1]])))
+
+
+def _continued(st: _State, pair: list[int], edge: int, step: int, separation_mm: float) -> np.ndarray:
     """The frames from ``edge`` on (in direction ``step``) over which the stretch of ``pair`` ending just before
     ``edge`` continues (see :func:`_extend_by_continuity`), looked at a block of frames at a time (a swap ends
-    within seconds; the rest of the take is not read)."""
+    within seconds; the rest of the take is not read). ``separation_mm``: the pair's usual distance."""
     n_t = st.valid.shape[0]
     out: list[np.ndarray] = []
     at = edge
     while 0 <= at < n_t:
         rows = np.arange(at, min(n_t, at + _CONTINUITY_BLOCK) if step > 0 else max(-1, at - _CONTINUITY_BLOCK), step)
-        kept = _continued_block(st, pair, rows, step, first=at == edge)
+        kept = _continued_block(st, pair, rows, step, first=at == edge, separation_mm=separation_mm)
         out.append(kept)
         if kept.size < rows.size:
             break
@@ -515,9 +528,17 @@ def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
 _CONTINUITY_BLOCK = 256
 
 
-def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, first: bool) -> np.ndarray:
+def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, first: bool,
+                     separation_mm: float) -> np.ndarray:
     """The leading frames of ``rows`` (consecutive, in direction ``step``) that continue the stretch of ``pair``
-    (everything before ``rows[0]`` continues it, or, when ``first``, was repaired)."""
+    (everything before ``rows[0]`` continues it, or, when ``first``, was repaired).
+
+    With both markers measured in the frame and the one before, the exchange must save a clear share of the
+    two markers' summed steps. With one of them missing in either frame, each sample that has a position a
+    frame before to go on decides alone: a distance to a marker not measured a frame before is bounded below
+    by ``separation_mm`` less the sample's distance to the other marker (the two stood that far apart), and
+    the frame continues the stretch when every such sample is clearly nearer its partner's track than its own
+    and none is the other way (a swap does not end because one of its markers is hidden for a while)."""
     free = ~(st.repaired[rows[:, None], pair].any(axis=1) | st.removed[rows[:, None], pair].any(axis=1))
     rows = rows[:np.argmin(free)] if not free.all() else rows
     if rows.size == 0:
@@ -526,14 +547,22 @@ def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, f
     # where each marker truly was a frame before, if the stretch goes on up to there: at the edge, as
     # repaired; beyond it, under the capture's other name
     at_edge = ((np.arange(rows.size) == 0) & first)[:, None]
-    prev_a = np.where(at_edge, before[:, 0], before[:, 1])
-    prev_b = np.where(at_edge, before[:, 1], before[:, 0])
-    keep = norm3(here[:, 0] - prev_a), norm3(here[:, 1] - prev_b)
-    exchange = norm3(here[:, 1] - prev_a), norm3(here[:, 0] - prev_b)
-    keep_cost = np.nansum(keep, axis=0)
-    exchange_cost = np.nansum(exchange, axis=0)
-    seen = np.isfinite(keep[0]) | np.isfinite(keep[1]) | np.isfinite(exchange[0]) | np.isfinite(exchange[1])
-    decisive = seen & (keep_cost - exchange_cost > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * keep_cost))
+    prev = np.stack([np.where(at_edge, before[:, 0], before[:, 1]),
+                     np.where(at_edge, before[:, 1], before[:, 0])], axis=1)            # (n, 2, 3): a, b
+    own = norm3(here - prev)                                 # (n, 2) each sample's step keeping its name
+    cross = norm3(here - prev[:, ::-1])                      # (n, 2) its step under the other name
+    keep_cost, exchange_cost = own.sum(axis=1), cross.sum(axis=1)
+    full = np.isfinite(own).all(axis=1) & np.isfinite(cross).all(axis=1)
+    decisive = full & (keep_cost - exchange_cost > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * keep_cost))
+    # one sample, or one position a frame before, missing: each sample on its own, the unknown step bounded
+    own_low = np.where(np.isfinite(own), own, separation_mm - cross)
+    cross_low = np.where(np.isfinite(cross), cross, separation_mm - own)
+    with np.errstate(invalid="ignore"):
+        swapped = own_low - cross > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * own_low)
+        kept = cross_low - own > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * cross_low)
+    judged = np.isfinite(own) | np.isfinite(cross)           # a sample with a position a frame before to go on
+    alone = ~full & judged.any(axis=1) & (swapped | ~judged).all(axis=1) & ~kept.any(axis=1)
+    decisive |= alone
     return rows[:np.argmin(decisive)] if not decisive.all() else rows
 
 
