@@ -125,6 +125,26 @@ def test_a_swap_goes_on_while_its_partner_is_hidden_and_the_references_cannot_te
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
+    # as above, but the back-right marker is back from frame 250 while the swap lasts to 260, and the top marker
+    # is hidden then: one reference is left, too few to judge. Each marker's sample at 250 has only one track to
+    # go on (its partner was hidden a frame before): the one under 2 stands the pair's width from 2's track and
+    # says nothing; the one under 3 continues 2's track, so the swap goes on
+    xyz = _mirror_head(600, 4)
+    valid = np.ones((600, 6), dtype=bool)
+    valid[230:260, [0, 1]] = False
+    valid[230:250, 3] = False
+    valid[250:260, 4] = False
+    swapped = xyz.copy()
+    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    capture_valid = valid.copy()
+    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
+    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
+
+
 def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path) -> None:
     takes = _takes(swapped_session)
     ms = load_markerset(swapped_session / "markerset.toml")

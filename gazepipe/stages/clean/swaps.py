@@ -537,8 +537,9 @@ def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, f
     two markers' summed steps. With one of them missing in either frame, each sample that has a position a
     frame before to go on decides alone: a distance to a marker not measured a frame before is bounded below
     by ``separation_mm`` less the sample's distance to the other marker (the two stood that far apart), and
-    the frame continues the stretch when every such sample is clearly nearer its partner's track than its own
-    and none is the other way (a swap does not end because one of its markers is hidden for a while)."""
+    the frame continues the stretch when one sample is clearly nearer its partner's track than its own and
+    none is the other way (a swap does not end because one of its markers is hidden for a while; a sample
+    whose partner's track is unknown a frame before says nothing either way)."""
     free = ~(st.repaired[rows[:, None], pair].any(axis=1) | st.removed[rows[:, None], pair].any(axis=1))
     rows = rows[:np.argmin(free)] if not free.all() else rows
     if rows.size == 0:
@@ -560,8 +561,7 @@ def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, f
     with np.errstate(invalid="ignore"):
         swapped = own_low - cross > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * own_low)
         kept = cross_low - own > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * cross_low)
-    judged = np.isfinite(own) | np.isfinite(cross)           # a sample with a position a frame before to go on
-    alone = ~full & judged.any(axis=1) & (swapped | ~judged).all(axis=1) & ~kept.any(axis=1)
+    alone = ~full & swapped.any(axis=1) & ~kept.any(axis=1)
     decisive |= alone
     return rows[:np.argmin(decisive)] if not decisive.all() else rows
 
