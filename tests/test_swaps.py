@@ -145,6 +145,28 @@ def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def test_a_right_sample_is_not_handed_to_a_missing_marker_while_its_references_are_swapped() -> None:
+    # the mirror head with a neck marker on the plane between front and back; the left pair (front 0, back 2)
+    # exchanged over frames 200-260, and over 220-250 the back-right (3), top and chin markers are hidden. There
+    # the front-right marker's (1) references left are the swapped pair and the neck: against them its right
+    # sample looks displaced and fits the hidden back-right's references exactly (the whole head mirrored front
+    # to back). Only once the left pair is put back (by continuity: too few references to prove it there) is
+    # the front-right sample seen to be right
+    rng = np.random.default_rng(4)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0], [0, -10, -50]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    valid = np.ones((600, 7), dtype=bool)
+    valid[220:250, [3, 4, 5]] = False
+    swapped = xyz.copy()
+    swapped[200:260, [0, 2]] = xyz[200:260, [2, 0]]
+    res = repair_swaps(np.where(valid[..., None], swapped, np.nan), valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(0, 2, 200, 260, True)]
+
+
 def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path) -> None:
     takes = _takes(swapped_session)
     ms = load_markerset(swapped_session / "markerset.toml")

@@ -327,13 +327,17 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
     state = _State(xyz, valid, usable, suspect, displaced, repaired, removed, records, refs)
     # a pass repairs what it can prove; one swap can hide another (two pairs referencing each other), so
     # passes repeat, over the frames the last one changed, while they repair something; a last one, over the
-    # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps
-    frames = np.ones(n_t, dtype=bool)
-    for _ in range(MAX_PASSES):
-        frames = _one_pass(state, frames, markers=None, remove=False)
-        if not frames.any():
-            break
-    _extend_by_continuity(state)
+    # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps. Samples handed
+    # to a missing partner (the weakest proof: no sample of the partner's confirms it) come after every
+    # exchange of two samples and its continuation: a reference of theirs still swapped would make a right
+    # sample look displaced, and a sample handed on wrongly is carried on by continuity
+    for missing_partner in (False, True):
+        frames = np.ones(n_t, dtype=bool)
+        for _ in range(MAX_PASSES):
+            frames = _one_pass(state, frames, markers=None, remove=False, missing_partner=missing_partner)
+            if not frames.any():
+                break
+        _extend_by_continuity(state)
     swapped = sorted({m for r in records for m in (r.first, r.second)})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
@@ -357,10 +361,12 @@ class _State:
     refs: References
 
 
-def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool) -> np.ndarray:
+def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool,
+              missing_partner: bool = True) -> np.ndarray:
     """One pass over the markers suspect in frames ``where`` ((T,) bool; only ``markers`` when given), in column
     order, exchanging (in place) the frames each swap explains and, with ``remove``, marking the unprovable
-    ones removed. Returns the (T,) bool mask of frames it repaired."""
+    ones removed; without ``missing_partner``, only frames where both markers are measured are explained.
+    Returns the (T,) bool mask of frames it repaired."""
     n_t = st.valid.shape[0]
     done = np.zeros(n_t, dtype=bool)
     candidates = np.flatnonzero((st.suspect & where[:, None]).any(axis=0))
@@ -370,7 +376,8 @@ def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove:
         frames = np.flatnonzero(st.suspect[:, a] & ~st.removed[:, a] & where)
         if frames.size == 0:
             continue
-        partner, explained, both = _best_partner(st.xyz, st.usable, st.displaced, st.refs, int(a), frames)
+        partner, explained, both = _best_partner(st.xyz, st.usable, st.displaced, st.refs, int(a), frames,
+                                                 missing_partner)
         if partner < 0:
             continue
         fix, drop = frames[explained], frames[both & ~explained] if remove else frames[:0]
@@ -389,11 +396,12 @@ def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove:
 
 
 def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, refs: References, a: int,
-                  frames: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+                  frames: np.ndarray, missing_partner: bool = True) -> tuple[int, np.ndarray, np.ndarray]:
     """The marker whose name ``a``'s suspect samples (at ``frames``) carry: the one that explains most of them
     (see the module's docstring), judged only by references not ``displaced`` themselves in that frame (two
-    swaps at once, of which one pair are references of the other). Returns (its column or −1, explained (n,)
-    bool, both suspect (n,) bool)."""
+    swaps at once, of which one pair are references of the other); without ``missing_partner``, a partner not
+    measured in a frame explains nothing there. Returns (its column or −1, explained (n,) bool, both suspect
+    (n,) bool)."""
     n_m = valid.shape[1]
     none = np.zeros(frames.size, dtype=bool)
     if not np.isfinite(refs.tolerance[a]):
@@ -429,7 +437,7 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
                 <= refs.tolerance[b]
             b_fits_a = _misfit(xr[:, [b]], xr, tr, np.array([a]), refs, exclude=np.array([b]))[0][:, 0] \
                 <= refs.tolerance[a]
-        gone = ~ok[rows, b]
+        gone = ~ok[rows, b] & missing_partner
         explained[rows, c] = fits_b & ((gone & gone_wrong[rows]) | (own[rows, b] & b_fits_a))
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
