@@ -167,6 +167,27 @@ def test_a_right_sample_is_not_handed_to_a_missing_marker_while_its_references_a
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(0, 2, 200, 260, True)]
 
 
+def test_a_swap_is_proven_once_its_references_are_put_back_by_continuity() -> None:
+    # the front pair (0, 1) exchanged over frames 200-260 and the back-left and top markers (2, 4) over
+    # 230-260, the chin hidden from 220: from 230 each swapped pair is half of the other's references, too
+    # few are left to prove the front pair, and continuity carries it on. Only then, judged anew, do the front
+    # pair's samples vouch for the exchange of the back-left and top
+    rng = np.random.default_rng(4)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0], [0, -10, -50]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    valid = np.ones((600, 7), dtype=bool)
+    valid[220:260, 5] = False
+    swapped = xyz.copy()
+    swapped[200:260, [0, 1]] = xyz[200:260, [1, 0]]
+    swapped[230:260, [2, 4]] = xyz[230:260, [4, 2]]
+    res = repair_swaps(np.where(valid[..., None], swapped, np.nan), valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop) for r in res.records] == [(0, 1, 200, 260), (2, 4, 230, 260)]
+
+
 def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path) -> None:
     takes = _takes(swapped_session)
     ms = load_markerset(swapped_session / "markerset.toml")

@@ -330,14 +330,15 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
     # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps. Samples handed
     # to a missing partner (the weakest proof: no sample of the partner's confirms it) come after every
     # exchange of two samples and its continuation: a reference of theirs still swapped would make a right
-    # sample look displaced, and a sample handed on wrongly is carried on by continuity
+    # sample look displaced, and a sample handed on wrongly is carried on by continuity. Repaired stretches
+    # are carried on by continuity after each pass, and the frames either changed are judged anew
     for missing_partner in (False, True):
         frames = np.ones(n_t, dtype=bool)
         for _ in range(MAX_PASSES):
             frames = _one_pass(state, frames, markers=None, remove=False, missing_partner=missing_partner)
+            frames |= _extend_by_continuity(state)
             if not frames.any():
                 break
-        _extend_by_continuity(state)
     swapped = sorted({m for r in records for m in (r.first, r.second)})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
@@ -484,11 +485,14 @@ CONTINUITY_MARGIN_MM = 10.0
 CONTINUITY_SHARE = 0.5
 
 
-def _extend_by_continuity(st: _State) -> None:
+def _extend_by_continuity(st: _State) -> np.ndarray:
     """Carry each repaired stretch on, frame by frame away from it, while the capture's two trajectories stay
     continuous there and the exchanged ones would jump: a swap goes on until the labeller's next jump, though the
     references that proved it are hidden (a distinguishing mate in a gap; mirror-image markers seen from the
-    mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump)."""
+    mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump). Every
+    marker is judged anew in the frames it repairs (a swapped pair put back can prove another swap that used
+    them as references). Returns the (T,) bool mask of those frames."""
+    done = np.zeros(st.valid.shape[0], dtype=bool)
     separation: dict[tuple[int, int], float] = {}
     for rec in list(st.records):
         if not rec.repaired:
@@ -503,6 +507,9 @@ def _extend_by_continuity(st: _State) -> None:
                     arr[frames[:, None], pair] = arr[frames[:, None], pair[::-1]]
                 st.repaired[frames[:, None], pair] = st.valid[frames[:, None], pair]
                 st.records += _records(pair, frames, st.valid.shape[0], True)
+                st.suspect[frames], st.displaced[frames] = _screen(st.xyz, st.usable, st.refs, frames)
+                done[frames] = True
+    return done
 
 
 def _separation(st: _State, pair: list[int]) -> float:
