@@ -6,9 +6,12 @@ on every mocap take twice: with the take's own references and with the subject's
 session (:func:`~gazepipe.stages.clean.swaps.pooled_references`, what the clean stage uses). Prints, per seed,
 skeleton and reference source: the samples written under a wrong name, the share of them now under the right
 name or removed, the samples still wrong (more than 10 mm from the truth of the name they carry, spikes aside),
-the samples made wrong (right before, wrong or removed after) and the CPU time per take.
+the samples made wrong (wrong after and not before, a name that had no sample given a wrong one included,
+or right before and moved away or removed after) and the CPU time per take. With ``--bursts N`` every mocap
+take also gets N occlusion bursts (``SynthConfig.occlusion_bursts``: 30-80 % of the subject's markers, on one
+side, gone for 0.2-1.5 s), which hide the references that prove a swap.
 
-Usage: ``PYTHONPATH=. python bench/bench_swaps.py [--seeds 0,1,2] [--swaps 3]``
+Usage: ``PYTHONPATH=. python bench/bench_swaps.py [--seeds 0,1,2] [--swaps 3] [--bursts 0]``
 """
 
 from __future__ import annotations
@@ -31,12 +34,13 @@ WORK = ROOT / "bench" / "_work" / "swaps"
 WRONG_MM = 10.0
 
 
-def session(seed: int, skeleton: str, swaps: int) -> Path:
-    folder = WORK / f"seed{seed}-{skeleton}-{swaps}"
+def session(seed: int, skeleton: str, swaps: int, bursts: int = 0) -> Path:
+    folder = WORK / (f"seed{seed}-{skeleton}-{swaps}" + (f"-b{bursts}" if bursts else ""))
     if not (folder / "session.toml").exists():
         base = sample_config()
         cfg: SynthConfig = replace(base, head_camera=False, face_takes=(), label_swaps=swaps,
                                    spikes_per_marker_min=1.0, long_gaps=2, gaps_per_marker_min=1.0,
+                                   occlusion_bursts=bursts,
                                    segments=FOUR_SEGMENTS if skeleton == "four" else SEGMENTS)
         generate_session(folder, seed, cfg)
     return folder
@@ -71,7 +75,7 @@ def evaluate(folder: Path) -> dict[str, dict[str, float]]:
             # a swapped sample is handled when its frame no longer shows a wrong sample under either name
             tot["handled"] += int((swapped & ~after).sum())
             tot["still_wrong"] += int(after.sum())
-            tot["made_wrong"] += int((right_before & (after | res.removed)).sum())
+            tot["made_wrong"] += int(((after & ~before) | (right_before & ~res.valid)).sum())
             tot["takes"] += 1
         out[source] = tot
     return out
@@ -81,12 +85,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--swaps", type=int, default=3, help="swaps per mocap take")
+    ap.add_argument("--bursts", type=int, default=0, help="occlusion bursts per mocap take")
     args = ap.parse_args(argv)
     print(f"{'seed':>4} {'skeleton':>8} {'refs':>8} {'swapped':>8} {'handled':>8} {'still wrong':>11} "
           f"{'made wrong':>10} {'ms/take':>8}")
     for seed in (int(s) for s in args.seeds.split(",")):
         for skeleton in ("ten", "four"):
-            for source, t in evaluate(session(seed, skeleton, args.swaps)).items():
+            for source, t in evaluate(session(seed, skeleton, args.swaps, args.bursts)).items():
                 print(f"{seed:4d} {skeleton:>8} {source:>8} {t['swapped']:8d} "
                       f"{100 * t['handled'] / max(t['swapped'], 1):7.1f}% {t['still_wrong']:11d} "
                       f"{t['made_wrong']:10d} {1000 * t['cpu_s'] / max(t['takes'], 1):8.0f}")

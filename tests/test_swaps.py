@@ -96,6 +96,98 @@ def test_a_mirror_pair_is_told_from_its_twin_by_handedness() -> None:
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def _mirror_head(n: int, seed: int) -> np.ndarray:
+    """(n, 6, 3) mm: a rigid head of two mirror pairs (front left/right 0, 1; back left/right 2, 3), a top marker
+    (4) and a chin marker (5), turning slowly, with 0.5 mm noise."""
+    rng = np.random.default_rng(seed)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (n, 3)), axis=0)).as_matrix()
+    return np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (n, 6, 3))
+
+
+def test_a_swap_goes_on_while_its_partner_is_hidden_and_the_references_cannot_tell() -> None:
+    # the back pair exchanged over frames 200-260; from 230 on the back-right marker (3) is hidden, and so is
+    # the front pair: the name 3 carries 2's sample, and the only references left (top, chin) sit on the mirror
+    # plane, equally far from both. Only the trajectory says the swap goes on: the sample under 3 continues 2's
+    # path from the proven stretch, and stands the pair's width from 3's
+    xyz = _mirror_head(600, 4)
+    valid = np.ones((600, 6), dtype=bool)
+    valid[230:260, [0, 1, 3]] = False
+    swapped = xyz.copy()
+    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    capture_valid = valid.copy()
+    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
+    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert res.repaired[200:260, 2].all() and res.repaired[200:230, 3].all()
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
+
+
+def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
+    # as above, but the back-right marker is back from frame 250 while the swap lasts to 260, and the top marker
+    # is hidden then: one reference is left, too few to judge. Each marker's sample at 250 has only one track to
+    # go on (its partner was hidden a frame before): the one under 2 stands the pair's width from 2's track and
+    # says nothing; the one under 3 continues 2's track, so the swap goes on
+    xyz = _mirror_head(600, 4)
+    valid = np.ones((600, 6), dtype=bool)
+    valid[230:260, [0, 1]] = False
+    valid[230:250, 3] = False
+    valid[250:260, 4] = False
+    swapped = xyz.copy()
+    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    capture_valid = valid.copy()
+    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
+    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
+
+
+def test_a_right_sample_is_not_handed_to_a_missing_marker_while_its_references_are_swapped() -> None:
+    # the mirror head with a neck marker on the plane between front and back; the left pair (front 0, back 2)
+    # exchanged over frames 200-260, and over 220-250 the back-right (3), top and chin markers are hidden. There
+    # the front-right marker's (1) references left are the swapped pair and the neck: against them its right
+    # sample looks displaced and fits the hidden back-right's references exactly (the whole head mirrored front
+    # to back). Only once the left pair is put back (by continuity: too few references to prove it there) is
+    # the front-right sample seen to be right
+    rng = np.random.default_rng(4)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0], [0, -10, -50]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    valid = np.ones((600, 7), dtype=bool)
+    valid[220:250, [3, 4, 5]] = False
+    swapped = xyz.copy()
+    swapped[200:260, [0, 2]] = xyz[200:260, [2, 0]]
+    res = repair_swaps(np.where(valid[..., None], swapped, np.nan), valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(0, 2, 200, 260, True)]
+
+
+def test_a_swap_is_proven_once_its_references_are_put_back_by_continuity() -> None:
+    # the front pair (0, 1) exchanged over frames 200-260 and the back-left and top markers (2, 4) over
+    # 230-260, the chin hidden from 220: from 230 each swapped pair is half of the other's references, too
+    # few are left to prove the front pair, and continuity carries it on. Only then, judged anew, do the front
+    # pair's samples vouch for the exchange of the back-left and top
+    rng = np.random.default_rng(4)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0], [0, -10, -50]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    valid = np.ones((600, 7), dtype=bool)
+    valid[220:260, 5] = False
+    swapped = xyz.copy()
+    swapped[200:260, [0, 1]] = xyz[200:260, [1, 0]]
+    swapped[230:260, [2, 4]] = xyz[230:260, [4, 2]]
+    res = repair_swaps(np.where(valid[..., None], swapped, np.nan), valid)
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop) for r in res.records] == [(0, 1, 200, 260), (2, 4, 230, 260)]
+
+
 def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path) -> None:
     takes = _takes(swapped_session)
     ms = load_markerset(swapped_session / "markerset.toml")

@@ -327,13 +327,18 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
     state = _State(xyz, valid, usable, suspect, displaced, repaired, removed, records, refs)
     # a pass repairs what it can prove; one swap can hide another (two pairs referencing each other), so
     # passes repeat, over the frames the last one changed, while they repair something; a last one, over the
-    # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps
-    frames = np.ones(n_t, dtype=bool)
-    for _ in range(MAX_PASSES):
-        frames = _one_pass(state, frames, markers=None, remove=False)
-        if not frames.any():
-            break
-    _extend_by_continuity(state)
+    # markers of the repaired swaps, makes the frames of their stretches it cannot prove gaps. Samples handed
+    # to a missing partner (the weakest proof: no sample of the partner's confirms it) come after every
+    # exchange of two samples and its continuation: a reference of theirs still swapped would make a right
+    # sample look displaced, and a sample handed on wrongly is carried on by continuity. Repaired stretches
+    # are carried on by continuity after each pass, and the frames either changed are judged anew
+    for missing_partner in (False, True):
+        frames = np.ones(n_t, dtype=bool)
+        for _ in range(MAX_PASSES):
+            frames = _one_pass(state, frames, markers=None, remove=False, missing_partner=missing_partner)
+            frames |= _extend_by_continuity(state)
+            if not frames.any():
+                break
     swapped = sorted({m for r in records for m in (r.first, r.second)})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
@@ -357,10 +362,12 @@ class _State:
     refs: References
 
 
-def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool) -> np.ndarray:
+def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool,
+              missing_partner: bool = True) -> np.ndarray:
     """One pass over the markers suspect in frames ``where`` ((T,) bool; only ``markers`` when given), in column
     order, exchanging (in place) the frames each swap explains and, with ``remove``, marking the unprovable
-    ones removed. Returns the (T,) bool mask of frames it repaired."""
+    ones removed; without ``missing_partner``, only frames where both markers are measured are explained.
+    Returns the (T,) bool mask of frames it repaired."""
     n_t = st.valid.shape[0]
     done = np.zeros(n_t, dtype=bool)
     candidates = np.flatnonzero((st.suspect & where[:, None]).any(axis=0))
@@ -370,7 +377,8 @@ def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove:
         frames = np.flatnonzero(st.suspect[:, a] & ~st.removed[:, a] & where)
         if frames.size == 0:
             continue
-        partner, explained, both = _best_partner(st.xyz, st.usable, st.displaced, st.refs, int(a), frames)
+        partner, explained, both = _best_partner(st.xyz, st.usable, st.displaced, st.refs, int(a), frames,
+                                                 missing_partner)
         if partner < 0:
             continue
         fix, drop = frames[explained], frames[both & ~explained] if remove else frames[:0]
@@ -389,11 +397,12 @@ def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove:
 
 
 def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, refs: References, a: int,
-                  frames: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+                  frames: np.ndarray, missing_partner: bool = True) -> tuple[int, np.ndarray, np.ndarray]:
     """The marker whose name ``a``'s suspect samples (at ``frames``) carry: the one that explains most of them
     (see the module's docstring), judged only by references not ``displaced`` themselves in that frame (two
-    swaps at once, of which one pair are references of the other). Returns (its column or −1, explained (n,)
-    bool, both suspect (n,) bool)."""
+    swaps at once, of which one pair are references of the other); without ``missing_partner``, a partner not
+    measured in a frame explains nothing there. Returns (its column or −1, explained (n,) bool, both suspect
+    (n,) bool)."""
     n_m = valid.shape[1]
     none = np.zeros(frames.size, dtype=bool)
     if not np.isfinite(refs.tolerance[a]):
@@ -429,7 +438,7 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
                 <= refs.tolerance[b]
             b_fits_a = _misfit(xr[:, [b]], xr, tr, np.array([a]), refs, exclude=np.array([b]))[0][:, 0] \
                 <= refs.tolerance[a]
-        gone = ~ok[rows, b]
+        gone = ~ok[rows, b] & missing_partner
         explained[rows, c] = fits_b & ((gone & gone_wrong[rows]) | (own[rows, b] & b_fits_a))
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
@@ -476,34 +485,53 @@ CONTINUITY_MARGIN_MM = 10.0
 CONTINUITY_SHARE = 0.5
 
 
-def _extend_by_continuity(st: _State) -> None:
+def _extend_by_continuity(st: _State) -> np.ndarray:
     """Carry each repaired stretch on, frame by frame away from it, while the capture's two trajectories stay
     continuous there and the exchanged ones would jump: a swap goes on until the labeller's next jump, though the
     references that proved it are hidden (a distinguishing mate in a gap; mirror-image markers seen from the
-    mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump)."""
+    mirror plane only). Stops at a frame that decides nothing (both markers missing, or no clear jump). Every
+    marker is judged anew in the frames it repairs (a swapped pair put back can prove another swap that used
+    them as references). Returns the (T,) bool mask of those frames."""
+    done = np.zeros(st.valid.shape[0], dtype=bool)
+    separation: dict[tuple[int, int], float] = {}
     for rec in list(st.records):
         if not rec.repaired:
             continue
         pair = [rec.first, rec.second]
+        if (rec.first, rec.second) not in separation:
+            separation[rec.first, rec.second] = _separation(st, pair)
         for edge, step in ((rec.stop, 1), (rec.start - 1, -1)):
-            frames = _continued(st, pair, edge, step)
+            frames = _continued(st, pair, edge, step, separation[rec.first, rec.second])
             if frames.size:
                 for arr in (st.xyz, st.valid, st.usable, st.repaired):
                     arr[frames[:, None], pair] = arr[frames[:, None], pair[::-1]]
                 st.repaired[frames[:, None], pair] = st.valid[frames[:, None], pair]
                 st.records += _records(pair, frames, st.valid.shape[0], True)
+                st.suspect[frames], st.displaced[frames] = _screen(st.xyz, st.usable, st.refs, frames)
+                done[frames] = True
+    return done
 
 
-def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
+def _separation(st: _State, pair: list[int]) -> float:
+    """The usual distance (mm, median over the frames where both are measured; NaN: never) between the two
+    markers of ``pair``: the same whichever name each carries."""
+    both = np.flatnonzero(st.usable[:, pair].all(axis=1))
+    if both.size == 0:
+        return float("nan")
+    rows = both[even_rows(both.size, REFERENCE_FRAMES)]
+    return float(np.median(norm3(st.xyz[rows, pair[0]] - st.xyz[rows, pair[1]])))
+
+
+def _continued(st: _State, pair: list[int], edge: int, step: int, separation_mm: float) -> np.ndarray:
     """The frames from ``edge`` on (in direction ``step``) over which the stretch of ``pair`` ending just before
     ``edge`` continues (see :func:`_extend_by_continuity`), looked at a block of frames at a time (a swap ends
-    within seconds; the rest of the take is not read)."""
+    within seconds; the rest of the take is not read). ``separation_mm``: the pair's usual distance."""
     n_t = st.valid.shape[0]
     out: list[np.ndarray] = []
     at = edge
     while 0 <= at < n_t:
         rows = np.arange(at, min(n_t, at + _CONTINUITY_BLOCK) if step > 0 else max(-1, at - _CONTINUITY_BLOCK), step)
-        kept = _continued_block(st, pair, rows, step, first=at == edge)
+        kept = _continued_block(st, pair, rows, step, first=at == edge, separation_mm=separation_mm)
         out.append(kept)
         if kept.size < rows.size:
             break
@@ -515,9 +543,18 @@ def _continued(st: _State, pair: list[int], edge: int, step: int) -> np.ndarray:
 _CONTINUITY_BLOCK = 256
 
 
-def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, first: bool) -> np.ndarray:
+def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, first: bool,
+                     separation_mm: float) -> np.ndarray:
     """The leading frames of ``rows`` (consecutive, in direction ``step``) that continue the stretch of ``pair``
-    (everything before ``rows[0]`` continues it, or, when ``first``, was repaired)."""
+    (everything before ``rows[0]`` continues it, or, when ``first``, was repaired).
+
+    With both markers measured in the frame and the one before, the exchange must save a clear share of the
+    two markers' summed steps. With one of them missing in either frame, each sample that has a position a
+    frame before to go on decides alone: a distance to a marker not measured a frame before is bounded below
+    by ``separation_mm`` less the sample's distance to the other marker (the two stood that far apart), and
+    the frame continues the stretch when one sample is clearly nearer its partner's track than its own and
+    none is the other way (a swap does not end because one of its markers is hidden for a while; a sample
+    whose partner's track is unknown a frame before says nothing either way)."""
     free = ~(st.repaired[rows[:, None], pair].any(axis=1) | st.removed[rows[:, None], pair].any(axis=1))
     rows = rows[:np.argmin(free)] if not free.all() else rows
     if rows.size == 0:
@@ -526,14 +563,21 @@ def _continued_block(st: _State, pair: list[int], rows: np.ndarray, step: int, f
     # where each marker truly was a frame before, if the stretch goes on up to there: at the edge, as
     # repaired; beyond it, under the capture's other name
     at_edge = ((np.arange(rows.size) == 0) & first)[:, None]
-    prev_a = np.where(at_edge, before[:, 0], before[:, 1])
-    prev_b = np.where(at_edge, before[:, 1], before[:, 0])
-    keep = norm3(here[:, 0] - prev_a), norm3(here[:, 1] - prev_b)
-    exchange = norm3(here[:, 1] - prev_a), norm3(here[:, 0] - prev_b)
-    keep_cost = np.nansum(keep, axis=0)
-    exchange_cost = np.nansum(exchange, axis=0)
-    seen = np.isfinite(keep[0]) | np.isfinite(keep[1]) | np.isfinite(exchange[0]) | np.isfinite(exchange[1])
-    decisive = seen & (keep_cost - exchange_cost > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * keep_cost))
+    prev = np.stack([np.where(at_edge, before[:, 0], before[:, 1]),
+                     np.where(at_edge, before[:, 1], before[:, 0])], axis=1)            # (n, 2, 3): a, b
+    own = norm3(here - prev)                                 # (n, 2) each sample's step keeping its name
+    cross = norm3(here - prev[:, ::-1])                      # (n, 2) its step under the other name
+    keep_cost, exchange_cost = own.sum(axis=1), cross.sum(axis=1)
+    full = np.isfinite(own).all(axis=1) & np.isfinite(cross).all(axis=1)
+    decisive = full & (keep_cost - exchange_cost > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * keep_cost))
+    # one sample, or one position a frame before, missing: each sample on its own, the unknown step bounded
+    own_low = np.where(np.isfinite(own), own, separation_mm - cross)
+    cross_low = np.where(np.isfinite(cross), cross, separation_mm - own)
+    with np.errstate(invalid="ignore"):
+        swapped = own_low - cross > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * own_low)
+        kept = cross_low - own > np.maximum(CONTINUITY_MARGIN_MM, CONTINUITY_SHARE * cross_low)
+    alone = ~full & swapped.any(axis=1) & ~kept.any(axis=1)
+    decisive |= alone
     return rows[:np.argmin(decisive)] if not decisive.all() else rows
 
 
