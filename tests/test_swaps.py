@@ -145,6 +145,17 @@ def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def _head_with_neck(n: int = 600, seed: int = 4) -> np.ndarray:
+    """(n, 7, 3) mm: the mirror head's four corners (front-left 0, front-right 1, back-left 2, back-right 3),
+    its top (4), a chin (5) and a neck marker on the plane between front and back (6), turning slowly; 0.5 mm
+    noise."""
+    rng = np.random.default_rng(seed)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
+                     [0, 95, 50.0], [0, -10, -50]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (n, 3)), axis=0)).as_matrix()
+    return np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (n, 7, 3))
+
+
 def test_a_right_sample_is_not_handed_to_a_missing_marker_while_its_references_are_swapped() -> None:
     # the mirror head with a neck marker on the plane between front and back; the left pair (front 0, back 2)
     # exchanged over frames 200-260, and over 220-250 the back-right (3), top and chin markers are hidden. There
@@ -152,11 +163,7 @@ def test_a_right_sample_is_not_handed_to_a_missing_marker_while_its_references_a
     # sample looks displaced and fits the hidden back-right's references exactly (the whole head mirrored front
     # to back). Only once the left pair is put back (by continuity: too few references to prove it there) is
     # the front-right sample seen to be right
-    rng = np.random.default_rng(4)
-    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
-                     [0, 95, 50.0], [0, -10, -50]])
-    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
-    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    xyz = _head_with_neck()
     valid = np.ones((600, 7), dtype=bool)
     valid[220:250, [3, 4, 5]] = False
     swapped = xyz.copy()
@@ -172,11 +179,7 @@ def test_a_swap_is_proven_once_its_references_are_put_back_by_continuity() -> No
     # 230-260, the chin hidden from 220: from 230 each swapped pair is half of the other's references, too
     # few are left to prove the front pair, and continuity carries it on. Only then, judged anew, do the front
     # pair's samples vouch for the exchange of the back-left and top
-    rng = np.random.default_rng(4)
-    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195],
-                     [0, 95, 50.0], [0, -10, -50]])
-    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (600, 3)), axis=0)).as_matrix()
-    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (600, 7, 3))
+    xyz = _head_with_neck()
     valid = np.ones((600, 7), dtype=bool)
     valid[220:260, 5] = False
     swapped = xyz.copy()

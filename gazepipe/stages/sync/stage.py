@@ -111,7 +111,7 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     trust, mocap_trust : the confidence a pair's video and mocap claps need to set the clock ratio
         (:func:`choose_clock`).
     mocap_path, video_path, take : named in error messages.
-    mocap_kw, video_kw : further parameters of :func:`mocap_claps` and :func:`video_claps`.
+    mocap_kw, video_kw : further parameters of :func:`mocap_claps` and :func:`match_clap`.
 
     Raises
     ------
