@@ -686,3 +686,27 @@ def test_a_gap_in_a_steady_move_keeps_its_estimate():
     g = next(g for g in res.gaps if g.marker == 0)
     assert g.method != "unfilled" and g.error_mm < 2.0
     assert np.linalg.norm(res.xyz[180:220, 0] - truth[180:220, 0], axis=1).mean() < 2.0
+
+
+# ------------------------------------------------------------------------------------------- groups
+def test_a_prop_that_moves_on_its_own_is_no_evidence_for_the_subject() -> None:
+    """A clapper held beside a segment follows it for seconds, then claps inside a gap that hides the whole
+    segment. Filled from the subject's markers only (``groups``), each fill's estimated error is honest (the mean
+    real error within twice the estimate plus 1 mm, the bench's honesty criterion); with the prop in the same
+    group, the fills follow its clap while the stretches beside the gap, where it was still, vouch for them."""
+    truth, measured, clusters = body()
+    s, e = 300, 340
+    clap = np.zeros(len(truth))
+    clap[s + 5:e - 5] = 40.0 * np.sin(np.linspace(0.0, np.pi, e - s - 10))     # mm, inside the gap only
+    prop = truth[:, [4, 5]] + np.array([30.0, 0.0, 0.0]) + clap[:, None, None] * np.array([0.0, 0.0, 1.0])
+    rng = np.random.default_rng(1)
+    truth = np.concatenate([truth, prop], axis=1)
+    measured = np.concatenate([measured, prop + rng.normal(0, NOISE, prop.shape)], axis=1)
+    x, valid = hide(measured, [(m, s, e) for m in (4, 5, 6, 7)])
+
+    def dishonest(res) -> list[int]:
+        return [g.marker for g in res.gaps
+                if gap_error(res, truth, g.marker, s, e) > 2.0 * g.error_mm + 1.0]
+
+    assert dishonest(fill_gaps(x, valid, RATE, clusters=clusters, groups=[list(range(12)), [12, 13]])) == []
+    assert len(dishonest(fill_gaps(x, valid, RATE, clusters=clusters))) == 4

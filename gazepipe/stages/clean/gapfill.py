@@ -585,7 +585,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
               max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS, validation: bool = True,
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
               max_error_mm: float | np.ndarray | ErrorLimits | None = None, framewise: bool = True,
-              stats: TakeStatistics | None = None, in_place: bool = False) -> FillResult:
+              stats: TakeStatistics | None = None, in_place: bool = False,
+              groups: list[list[int]] | None = None) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -617,6 +618,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         those of ``xyz``. Given them, a gap's fill depends only on the frames within ``_GapSettings.reach`` of it.
     in_place : fill ``xyz`` itself, a C-contiguous float64 array the caller owns (its samples not ``valid`` are
         set to NaN first), instead of a copy: a long take's positions are then held once, not twice.
+    groups : lists of marker indices that move independently of every other group (the subject; each prop, such
+        as a gaze target or a clapper): a gap is filled from its own group's markers only (PCA predictors,
+        steady mates, frame-by-frame donors). A marker in no group is a group of its own. None: one group.
 
     Returns
     -------
@@ -648,6 +652,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     for c in clusters or []:
         for j in c:
             cluster_of.setdefault(int(j), [int(k) for k in c])
+    same_group = _same_group(groups, n_m)
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
     stats = take_statistics(src, valid) if stats is None else stats
@@ -667,7 +672,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 # the take, and the result does not depend on what lies farther away
                 lo, hi = max(0, s - cfg.reach), min(n_t, e + cfg.reach)
                 limit = None if max_error_mm is None else gap_limit(max_error_mm, m, s, e)
-                record, fill = _fill_gap(src[lo:hi], valid[lo:hi], m, s - lo, e - lo, cluster_of.get(m),
+                near = valid[lo:hi] if same_group is None else valid[lo:hi] & same_group[m]
+                record, fill = _fill_gap(src[lo:hi], near, m, s - lo, e - lo, cluster_of.get(m),
                                          float(limits[m]), limit, float(noise[m]), cfg)
                 record.start, record.stop = s, e
                 records.append(record)
@@ -682,6 +688,16 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     for m, s, e, fill in fills:
         src[s:e, m] = fill
     return FillResult(src, code, qc, records)
+
+
+def _same_group(groups: list[list[int]] | None, n_m: int) -> np.ndarray | None:
+    """(M, M) bool: whether two markers are in one of ``groups`` (a marker in none is alone); None for None."""
+    if groups is None:
+        return None
+    label = np.arange(n_m) + n_m                      # a marker in no group is a group of its own
+    for g, members in enumerate(groups):
+        label[np.asarray(members, dtype=int)] = g
+    return label[:, None] == label[None, :]
 
 
 @dataclass(frozen=True)
