@@ -710,3 +710,25 @@ def test_a_prop_that_moves_on_its_own_is_no_evidence_for_the_subject() -> None:
 
     assert dishonest(fill_gaps(x, valid, RATE, clusters=clusters, groups=[list(range(12)), [12, 13]])) == []
     assert len(dishonest(fill_gaps(x, valid, RATE, clusters=clusters))) == 4
+
+
+def test_a_fill_that_breaks_its_segments_shape_where_the_shape_is_seen_is_held_to_it() -> None:
+    """``distance_miss`` is a lower bound on a fill's error from the gap's own frames: about the noise for the
+    true positions, at most the error (plus noise) for a wrong fill, and large for a fill 20 mm off while two of
+    its mates are measured in half the gap."""
+    from gazepipe.stages.clean.gapfill import distance_miss
+
+    truth, measured, clusters = body()
+    s, e = 300, 360
+    x, valid = hide(measured, [(0, s, e), (1, s + 30, e), (2, s + 30, e), (3, s, e)])
+    exact = distance_miss(x, valid, 0, s, e, clusters[0], truth[s:e, 0], 120)
+    assert exact < 2 * NOISE
+    rng = np.random.default_rng(3)
+    for off_mm in (2.0, 5.0, 20.0):
+        way = rng.normal(size=(e - s, 3))
+        wrong = truth[s:e, 0] + off_mm * way / np.linalg.norm(way, axis=1, keepdims=True)
+        miss = distance_miss(x, valid, 0, s, e, clusters[0], wrong, 120)
+        assert miss <= off_mm + 2 * NOISE
+    assert distance_miss(x, valid, 0, s, e, clusters[0], truth[s:e, 0] + np.array([20.0, 0.0, 0.0]), 120) > 5.0
+    # no mate measured anywhere in the gap: the shape is not seen, nothing to say
+    assert distance_miss(x, valid, 3, s + 30, e, [0, 3], truth[s + 30:e, 3] + 50.0, 120) == 0.0

@@ -837,6 +837,7 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
     ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`). Returns the gap's record and its
     (e - s, 3) fill, or None when it stays unfilled (the record says why)."""
     methods = cfg.methods
+    own = cluster
     hid = hide_stretches(valid, m, s, e, cfg.validation)
     interp = interpolation_candidates(src[:, m], valid[:, m], s, e, hid, methods)
     donors = _donor_errors(src, valid, m, s, e, interp, cfg.mates_window) if cfg.validation else {}
@@ -887,6 +888,8 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
             fill, weights, error = preds["rigid"], {"rigid": 1.0}, rigid_error
         else:
             error = scaled
+    if cfg.validation:
+        error = max(error, distance_miss(src, valid, m, s, e, own, fill, cfg.mates_window))
     if max_error is not None and not np.isfinite(error) and e - s >= _FRAMEWISE_MIN_FRAMES:
         return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_NO_ESTIMATE, error), None
     if max_error is not None and error > max_error:
@@ -895,6 +898,31 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
     if found is not None and not note:
         note = NOTE_NOISE_FLOOR
     return GapRecord(m, s, e, best, full_errors, weights, note, error), fill
+
+
+def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int] | None,
+                  fill: np.ndarray, window: int) -> float:
+    """How far (mm, mean) a fill of gap ``[s, e)`` breaks its segment's shape where the shape is seen: in each
+    frame of the gap where a cluster mate is measured, the filled position's distance to it against their usual
+    distance (the median over ``window`` frames each side where both are measured). A position error is at least
+    its distance error, so this is a lower bound on the fill's error from the gap's own frames, which the
+    stretches beside the gap cannot give when the gap moves unlike them (a chest marker filled from the pelvis,
+    neck and head across a 2 s occlusion: 2 mm on the stretches, 20 mm in the gap, while two of its mates were
+    measured through half of it). 0 without a mate measured in the gap."""
+    if not cluster:
+        return 0.0
+    mates = np.array([j for j in cluster if j != m], dtype=int)
+    shown = valid[s:e][:, mates]
+    if not mates.size or not shown.any():
+        return 0.0
+    lo, hi = max(0, s - window), min(len(valid), e + window)
+    both = valid[lo:hi][:, mates] & valid[lo:hi, m][:, None]
+    usual = norm3(src[lo:hi][:, mates] - src[lo:hi, m][:, None])
+    ref = np.array([np.median(usual[both[:, k], k]) if both[:, k].sum() >= 10 else np.nan
+                    for k in range(mates.size)])
+    dist = norm3(src[s:e][:, mates] - fill[:, None])
+    miss = np.abs(dist - ref)[shown & np.isfinite(ref)]
+    return float(miss.mean()) if miss.size else 0.0
 
 
 #: gaps shorter than this (frames) keep the per-gap blend: over a few frames every method agrees (and may be
