@@ -300,6 +300,24 @@ def test_missing_markers_do_not_end_a_rest():
     assert abs(res.crop[0] - full.crop[0]) <= 1 and abs(res.crop[1] - full.crop[1]) <= 1
 
 
+def test_a_move_hidden_by_an_occlusion_still_splits_the_rests():
+    """Most markers lost across a whole move: the frames are unknown, but the subject is 120 mm from where it
+    was on the other side of them, so they are not joined into one rest; the first rest ends where the
+    occlusion begins (the move's onset is unseen) and the second is unchanged."""
+    rate = 29.97
+    n = int(6 * rate)
+    a, b = int(1.5 * rate), int(1.5 * rate) + int(0.6 * rate)
+    mk, _ = take(rate, [(a, b, 120.0), (int(4.0 * rate), int(4.6 * rate), -120.0)], n, seed=5)
+    full = clean_markers(mk, markerset(), "gaze_shift", P)
+    xyz = mk.xyz.copy()
+    half = [mk.labels.index(lab) for lab in list(SUBJECT)[: len(SUBJECT) // 2 + 1]]
+    xyz[a - 5:b + 5, half] = np.nan
+    cut = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(axis=2), rate_hz=rate)
+    res = clean_markers(cut, markerset(), "gaze_shift", replace(P, max_gap_s=0.0))
+    assert len(res.rests) == len(full.rests) == 3
+    assert a - 6 <= res.crop[0] <= full.crop[0] and abs(res.crop[1] - full.crop[1]) <= 1
+
+
 @pytest.mark.parametrize(("amp", "dur"), [(120.0, 0.6), (60.0, 0.5)])
 def test_rest_end_refined_without_bias(amp, dur):
     """The end of a rest (a motion's onset) against the noise-free speed's first frame at the threshold, over

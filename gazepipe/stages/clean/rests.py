@@ -48,6 +48,40 @@ def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float
     return np.linalg.norm(vel, axis=2)
 
 
+#: frames each side of an unknown run whose positions are averaged, and the mean displacement (mm) across it
+#: that counts as motion (well above the marker noise left after that average)
+_SIDE_FRAMES = 3
+_MOVED_MIN_MM = 3.0
+
+
+def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray, rate_hz: float,
+                         threshold: float, markers: np.ndarray | None = None) -> np.ndarray:
+    """``speed`` (T,) mm/s with each run of unknown frames (NaN) that the subject provably moved across set to
+    the speed it must at least have had: the mean over ``markers`` present (``present`` (T, M)) in the frames
+    just before and just after the run of their displacement between them, over the run's duration. Set only
+    where that is at least ``threshold`` (the run was not a rest; below it, the subject may have moved away and
+    back, and the run stays unknown). A gaze shift hidden by an occlusion that covers most markers left the head
+    36° from where it was, and the unknown frames joined the rests on both sides into one."""
+    out = speed.copy()
+    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    n, k = len(speed), _SIDE_FRAMES
+    for a, b in true_runs(np.isnan(speed)):
+        if a == 0 or b >= n:
+            continue
+        both = cols[present[a - 1, cols] & present[b, cols]]
+        if both.size == 0:
+            continue
+        # each side's position averaged over up to k frames where present: the marker noise, not the motion
+        with np.errstate(invalid="ignore"):
+            before = np.nanmean(np.where(present[max(0, a - k):a, both, None], xyz[max(0, a - k):a, both], np.nan), axis=0)
+            after = np.nanmean(np.where(present[b:b + k, both, None], xyz[b:b + k, both], np.nan), axis=0)
+        moved = float(np.linalg.norm(after - before, axis=1).mean())
+        bound = moved * rate_hz / (b - a + 1)
+        if moved >= _MOVED_MIN_MM and bound >= threshold:
+            out[a:b] = bound
+    return out
+
+
 def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,
                  min_s: float) -> list[tuple[int, int]]:
     """Rest periods (start, stop), half-open rows, from a per-frame speed (Pejsa 5.2.2.1 steps 2–3).

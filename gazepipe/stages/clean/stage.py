@@ -18,7 +18,13 @@ from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
 from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error_map, fill_gaps
-from gazepipe.stages.clean.rests import crop_bounds, mean_speed, refine_rests, rest_periods
+from gazepipe.stages.clean.rests import (
+    crop_bounds,
+    mean_speed,
+    moved_across_unknown,
+    refine_rests,
+    rest_periods,
+)
 from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
 from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
@@ -333,6 +339,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     speed = mean_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, min_share=REST_MIN_PRESENT,
                        markers=subj)
+    speed = moved_across_unknown(speed, xyz, code != UNFILLED, rate, params.rest_speed_mm_s, subj)
 
     # 3. stabilisation
     up = left_pair = None
