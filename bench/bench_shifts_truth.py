@@ -149,6 +149,8 @@ def main() -> None:
         undec = tiny = 0
         worst: list[tuple[float, str]] = []
         worst_start: list[tuple[float, str]] = []
+        worst_l: list[tuple[float, str]] = []
+        worst_eye: list[tuple[float, str]] = []
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(args.seeds):
                 cfg = SynthConfig(follow_poses=("standing", "standing", "sitting"), follow_duration_s=args.duration,
@@ -219,6 +221,7 @@ def main() -> None:
                     tr["crop"] = t["crop"]
                     gm = t
                     l_err.append((r["duration_s"] - gm["l_s"]) * rate)
+                    worst_l.append((abs(l_err[-1]), f"s{seed} {take} {l_err[-1]:+.0f}"))
                     segs = json.loads((out / "datasets" / "gaze_map" / "_dataset.json").read_text())[
                         "features"]["start_times"]
                     local = chain_local(tr, segs)
@@ -246,6 +249,7 @@ def main() -> None:
                     if ok[-1]:
                         eye = from_wxyz(np.array(gm["p_plus"]["eyes"], dtype=np.float64))
                         eye_err.append(float(np.degrees((pp[-1].inv() * eye).magnitude())))
+                        worst_eye.append((eye_err[-1], f"s{seed} {take} {eye_err[-1]:.1f}°"))
         print(f"\n{label}:")
         ce = np.array(crop_err)
         print(f"  crop bounds: {len(ce)} bounds, largest error {ce.max() if ce.size else 0} frames, "
@@ -265,6 +269,7 @@ def main() -> None:
                   f"{a.size} beyond {tol:g}")
 
         stat("l", l_err, "frames", 2.0)
+        print("    worst: " + "; ".join(w for a, w in sorted(worst_l, reverse=True)[:4] if a > 2))
         stat(f"start times ({undec} undecidable left out)", start_err, "frames", 2.0)
         stat(f"overshoot time ({tiny} under 0.5° left out)", tb_err, "frames", 2.0)
         print("    worst: " + "; ".join(w for a, w in sorted(worst_start, reverse=True)[:4] if a > 2))
@@ -272,6 +277,7 @@ def main() -> None:
         stat("P+ per segment", pp_err, "°", 2.0)
         print("    worst: " + "; ".join(f"{w} {a:.1f}°" for a, w in sorted(worst, reverse=True)[:4]))
         stat("P+ eyes", eye_err, "°", 2.0)
+        print("    worst: " + "; ".join(w for a, w in sorted(worst_eye, reverse=True)[:4] if a > 2))
         print("  datasets built per session: " + "; ".join(",".join(b) if len(b) < 4 else "all four"
                                                            for b in built))
         stat("clock map, largest error over each video's frames inside its take", clock_err, "ms", 5.0)

@@ -732,3 +732,15 @@ def test_a_fill_that_breaks_its_segments_shape_where_the_shape_is_seen_is_held_t
     assert distance_miss(x, valid, 0, s, e, clusters[0], truth[s:e, 0] + np.array([20.0, 0.0, 0.0]), 120) > 5.0
     # no mate measured anywhere in the gap: the shape is not seen, nothing to say
     assert distance_miss(x, valid, 3, s + 30, e, [0, 3], truth[s + 30:e, 3] + 50.0, 120) == 0.0
+
+
+def test_neighbours_from_another_segment_are_only_as_rigid_as_they_stay() -> None:
+    """``mates_misfit``: the marker carried rigidly with its own segment's mates stays within the noise; with
+    the trunk's markers, from which its segment swings, it is tens of millimetres off around the gap."""
+    from gazepipe.stages.clean.gapfill import mates_misfit
+
+    truth, measured, clusters = body()
+    s, e = 300, 330
+    x, valid = hide(measured, [(4, s, e)])
+    assert mates_misfit(x, valid, 4, s, e, clusters[1], 120) < 5 * NOISE      # the reference frame's noise, carried
+    assert mates_misfit(x, valid, 4, s, e, [4, *clusters[0][:3]], 120) > 20.0
