@@ -307,3 +307,19 @@ def test_no_swap_is_reported_or_made_where_the_truth_has_none(hazard_session: Pa
         assert not (after & ~before).any(), name
         moved = res.repaired & ~spiked.any(axis=1)[:, None]
         assert (np.linalg.norm(res.xyz[moved] - true_xyz[moved], axis=1) < WRONG_MM).all(), name
+
+
+def test_a_swap_whose_start_a_burst_hides_is_not_left_swapped_before_it(hazard_session: Path) -> None:
+    # seed 2, four segments: NK2A/NK2B swapped over frames 2-91 of a gaze shift, both hidden (a burst) over
+    # 12-35, NK2A hidden before that too; the exchange is proven from 35 on. Before the burst the sample under
+    # NK2B is NK2A's, but only one reference tells the mirror pair apart there: it cannot be handed over, and
+    # continuity cannot reach it across the burst. It is made a gap, not left standing as measured
+    for name, mk, truth, res in _repaired_takes(hazard_session):
+        true_xyz = truth["markers_true"]
+        found = {(r.first, r.second) for r in res.records if r.repaired}
+        for a, b, start, stop in truth["swaps"]:
+            if (min(a, b), max(a, b)) in found:
+                # no sample of the stretch stands under its partner's name any more
+                with np.errstate(invalid="ignore"):
+                    under_other = np.linalg.norm(res.xyz[start:stop, [a, b]] - true_xyz[start:stop, [b, a]], axis=2)
+                assert not (res.valid[start:stop, [a, b]] & (under_other < WRONG_MM)).any(), (name, mk.labels[a])

@@ -354,7 +354,8 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
     # to a missing partner (the weakest proof: no sample of the partner's confirms it) come after every
     # exchange of two samples and its continuation: a reference of theirs still swapped would make a right
     # sample look displaced, and a sample handed on wrongly is carried on by continuity. Repaired stretches
-    # are carried on by continuity after each pass, and the frames either changed are judged anew
+    # are carried on by continuity after each pass, and the frames either changed are judged anew. Where a
+    # repaired swap goes on unproven (its start hidden by a burst, say), its samples are made gaps
     for missing_partner in (False, True):
         frames = np.ones(n_t, dtype=bool)
         for _ in range(MAX_PASSES):
@@ -362,6 +363,7 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
             frames |= _extend_by_continuity(state)
             if not frames.any():
                 break
+    _remove_unproven(state)
     swapped = sorted({m for pair, mask in state.exchanged.items() if mask.any() for m in pair})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
@@ -497,6 +499,52 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     return int(others[best]), explained[:, best], both
 
 
+def _remove_unproven(st: _State) -> None:
+    """Make gaps (in place, both markers) of the frames where a repaired swap goes on unproven: one marker's
+    sample suspect and standing where its partner would (:func:`_fits_as`), the partner's missing or suspect
+    too, in a run of such frames joined to a repaired stretch of the pair (through frames where neither is
+    measured). A burst that hides a swap's start leaves such a run: the references that would tell the two
+    apart are hidden, or too few to hand the sample to its missing partner, and continuity cannot carry the
+    stretch across frames where both are missing; left alone, the sample would stand as measured under the
+    other name. Elsewhere the two are not known to be swapped, and are left to spike removal."""
+    n_t = st.valid.shape[0]
+    for (a, b), exchanged in list(st.exchanged.items()):
+        if not exchanged.any():
+            continue
+        pair = [a, b]
+        free = ~exchanged & ~st.removed[:, pair].any(axis=1)
+        rows = np.flatnonzero(free & st.suspect[:, pair].any(axis=1))
+        unproven = np.zeros(n_t, dtype=bool)
+        if rows.size:
+            x, trusted = st.xyz[rows], st.usable[rows] & ~st.displaced[rows]
+            # suspect against trusted references only (as :func:`_best_partner` judges)
+            worst = _misfit(x[:, pair], x, trusted, np.array(pair), st.refs, exclude=None)[0]
+            with np.errstate(invalid="ignore"):
+                suspect = st.usable[rows][:, pair] & (worst > st.refs.tolerance[pair][None])
+            gone = ~st.usable[rows][:, pair]
+            unproven[rows] = (suspect[:, 0] & _fits_as(x, trusted, st.refs, a, b) & (gone[:, 1] | suspect[:, 1])) \
+                | (suspect[:, 1] & _fits_as(x, trusted, st.refs, b, a) & (gone[:, 0] | suspect[:, 0]))
+        silent = free & ~st.usable[:, pair].any(axis=1)
+        drop = np.flatnonzero(_joined(unproven, silent, exchanged))
+        if drop.size == 0:
+            continue
+        st.removed[drop[:, None], pair] = True
+        st.usable[drop[:, None], pair] = False
+        st.suspect[drop], st.displaced[drop] = _screen(st.xyz, st.usable, st.refs, drop)
+        st.records += _records(pair, drop, n_t, False)
+
+
+def _joined(unproven: np.ndarray, silent: np.ndarray, repaired: np.ndarray) -> np.ndarray:
+    """(T,) bool: the ``unproven`` frames of the runs of ``unproven`` or ``silent`` frames that touch a
+    ``repaired`` frame (the frame before a run's start or after its end)."""
+    out = np.zeros_like(unproven)
+    n_t = unproven.size
+    for start, stop in true_runs(unproven | silent):
+        if (start > 0 and repaired[start - 1]) or (stop < n_t and repaired[stop]):
+            out[start:stop] = unproven[start:stop]
+    return out
+
+
 def _pair_references(refs: References, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What a sample that may be ``a``'s is judged against as ``b``'s: the references of both markers (neither
     marker itself), at ``b``'s steady distance to each. A reference of one of them only can be all that tells
@@ -513,9 +561,10 @@ def _pair_references(refs: References, a: int, b: int) -> tuple[np.ndarray, np.n
 
 
 def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
-    """(n,) bool: frames where ``a``'s sample stands where ``b`` would: within ``b``'s tolerance (in spreads) of
-    each of :func:`_pair_references` trusted there (at least :data:`MIN_REFERENCES` of them), and not turning
-    ``b``'s chiral triple against its handedness. ``x`` (n, M, 3) mm and ``trusted`` (n, M): the frames."""
+    """(n,) bool: frames where ``a``'s sample provably stands where ``b`` would: within ``b``'s tolerance (in
+    spreads) of each of :func:`_pair_references` trusted there (at least :data:`MIN_REFERENCES` of them), not
+    turning ``b``'s chiral triple against its handedness, and told from ``a`` there (:func:`_told_apart`).
+    ``x`` (n, M, 3) mm and ``trusted`` (n, M): the frames."""
     cols, distance, spread = _pair_references(refs, a, b)
     if cols.size == 0:
         return np.zeros(x.shape[0], dtype=bool)
@@ -524,7 +573,26 @@ def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: in
         dev = np.abs(norm3(x[:, [a]] - x[:, cols]) - distance[None]) / spread[None]          # (n, K)
     worst = np.max(np.where(seen, dev, -np.inf), axis=1)
     flipped = _flipped(x[:, [a]], x, trusted, np.array([b]), refs, exclude=np.array([a]))[:, 0]
-    return (seen.sum(axis=1) >= MIN_REFERENCES) & (worst <= refs.tolerance[b]) & ~flipped
+    fits = (seen.sum(axis=1) >= MIN_REFERENCES) & (worst <= refs.tolerance[b]) & ~flipped
+    return fits & _told_apart(x, trusted, refs, a, b, cols)
+
+
+def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray
+                ) -> np.ndarray:
+    """(n,) bool: frames where something trusted can tell ``a``'s place from ``b``'s: a reference among ``cols``
+    whose steady distance to ``b`` is beyond ``a``'s tolerance of its distance to ``a`` (a sample standing where
+    ``b`` would is suspect as ``a`` by it), or ``a``'s chiral triple, which the capture as it stands (``b``'s
+    sample too, where the triple holds ``b``) turns against ``a``'s handedness. A
+    mirror pair's mates on the mirror plane, and references far off that stand about as far from both, cannot:
+    a sample fits either name there, and one reference drifting (a joint turning) makes it look like the
+    other's. Without the (M, M) distances of :class:`References`: every frame."""
+    if refs.distance_all is None or refs.spread_all is None:
+        return np.ones(x.shape[0], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        apart = np.abs(refs.distance_all[a, cols] - refs.distance_all[b, cols]) \
+            > refs.tolerance[a] * refs.spread_all[a, cols]
+    told = (trusted[:, cols] & apart[None]).any(axis=1)
+    return told | _flipped(x[:, [a]], x, trusted, np.array([a]), refs, exclude=None)[:, 0]
 
 
 def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
