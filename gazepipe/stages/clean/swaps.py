@@ -17,7 +17,7 @@ Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 
 import numpy as np
@@ -64,6 +64,11 @@ class References:
     #: distance right again and the handedness wrong
     chiral: np.ndarray | None = None
     handedness: np.ndarray | None = None
+    #: (M, M) every steady distance (mm: median; NaN where its spread is above :data:`MAX_REFERENCE_SPREAD_MM` or
+    #: never measured) and its spread (mm, at least :data:`SPREAD_FLOOR_MM`): a sample that may be another
+    #: marker's is judged as that marker against the references of both (:func:`_pair_references`)
+    distance_all: np.ndarray | None = None
+    spread_all: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,8 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
     index = np.full((n_m, N_REFERENCES), -1, dtype=np.int64)
     distance = np.full((n_m, N_REFERENCES), np.nan)
     spread_mm = np.full((n_m, N_REFERENCES), np.nan)
+    distance_all = np.full((n_m, n_m), np.nan)
+    spread_all = np.full((n_m, n_m), np.nan)
     for m in np.flatnonzero(body):
         d = norm3(x[:, m:m + 1] - x)                                  # (S, M) distance to every marker
         d[~(ok[:, m:m + 1] & ok)] = np.nan
@@ -119,13 +126,16 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
         median = _nanmedian(d[:, enough], axis=0)
         spread = 1.4826 * _nanmedian(np.abs(d[:, enough] - median), axis=0)
         cols = np.flatnonzero(enough)
+        steady = spread <= MAX_REFERENCE_SPREAD_MM
+        distance_all[m, cols[steady]] = median[steady]
+        spread_all[m, cols[steady]] = np.maximum(spread[steady], SPREAD_FLOOR_MM)
         order = np.argsort(spread, kind="stable")[:N_REFERENCES]
         order = order[spread[order] <= MAX_REFERENCE_SPREAD_MM]
         index[m, :order.size] = cols[order]
         distance[m, :order.size] = median[order]
         spread_mm[m, :order.size] = np.maximum(spread[order], SPREAD_FLOOR_MM)
     chiral, handedness = _handedness(x, ok, index)
-    return References(index, distance, spread_mm, np.full(n_m, np.inf), chiral, handedness)
+    return References(index, distance, spread_mm, np.full(n_m, np.inf), chiral, handedness, distance_all, spread_all)
 
 
 #: a reference triple's volume, as a share of the product of its three distances, must be at least this in
@@ -213,7 +223,20 @@ class SubjectReferences:
         handedness = np.where(whole, refs.handedness[rows], 0.0) if refs.handedness is not None else np.zeros(n_m)
         return References(index, np.where(has, refs.distance_mm[rows], np.nan),
                           np.where(has, refs.spread_mm[rows], np.nan), np.full(n_m, np.inf),
-                          np.where(whole[:, None], chiral, -1), handedness)
+                          np.where(whole[:, None], chiral, -1), handedness,
+                          self._square(refs.distance_all, mine), self._square(refs.spread_all, mine))
+
+    @staticmethod
+    def _square(of: np.ndarray | None, mine: list[int]) -> np.ndarray | None:
+        """The (M, M) matrix ``of`` (the subject's columns) for a take whose column ``m`` is the subject's
+        ``mine[m]`` (−1: a marker the subject's takes never had: NaN row and column)."""
+        if of is None:
+            return None
+        src = np.array(mine, dtype=np.int64).reshape(-1)
+        out = of[np.ix_(np.maximum(src, 0), np.maximum(src, 0))].copy()
+        out[src < 0] = np.nan
+        out[:, src < 0] = np.nan
+        return out
 
 
 def pooled_references(takes: list[tuple[list[str], np.ndarray, np.ndarray]],
@@ -331,7 +354,8 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
     # to a missing partner (the weakest proof: no sample of the partner's confirms it) come after every
     # exchange of two samples and its continuation: a reference of theirs still swapped would make a right
     # sample look displaced, and a sample handed on wrongly is carried on by continuity. Repaired stretches
-    # are carried on by continuity after each pass, and the frames either changed are judged anew
+    # are carried on by continuity after each pass, and the frames either changed are judged anew. Where a
+    # repaired swap goes on unproven (its start hidden by a burst, say), its samples are made gaps
     for missing_partner in (False, True):
         frames = np.ones(n_t, dtype=bool)
         for _ in range(MAX_PASSES):
@@ -339,11 +363,12 @@ def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
             frames |= _extend_by_continuity(state)
             if not frames.any():
                 break
-    swapped = sorted({m for r in records for m in (r.first, r.second)})
+    _remove_unproven(state)
+    swapped = sorted({m for pair, mask in state.exchanged.items() if mask.any() for m in pair})
     _one_pass(state, np.ones(n_t, dtype=bool), markers=np.array(swapped, dtype=np.int64), remove=True)
     xyz[removed] = np.nan
     valid &= ~removed
-    return SwapResult(xyz, valid, repaired, removed, _merged(records))
+    return SwapResult(xyz, valid, repaired, removed, _merged(state.repaired_records() + state.records))
 
 
 @dataclass
@@ -358,8 +383,27 @@ class _State:
     displaced: np.ndarray
     repaired: np.ndarray
     removed: np.ndarray
+    #: the stretches made gaps (those repaired are in ``exchanged``)
     records: list[SwapRecord]
     refs: References
+    #: per pair (lower column first), the (T,) frames whose samples stand exchanged now: a frame exchanged
+    #: twice (a repair undone once its references were put back) is under the capture's names again
+    exchanged: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
+
+    def exchange(self, pair: list[int], frames: np.ndarray) -> None:
+        """Exchange the samples of the two columns ``pair`` in ``frames`` (in place), every mask with them; a
+        sample is ``repaired`` while it stands under the other name than the capture gave it."""
+        rows = frames[:, None]
+        for arr in (self.xyz, self.valid, self.usable, self.repaired):
+            arr[rows, pair] = arr[rows, pair[::-1]]
+        self.repaired[rows, pair] = self.valid[rows, pair] & ~self.repaired[rows, pair]
+        mask = self.exchanged.setdefault((min(pair), max(pair)), np.zeros(self.valid.shape[0], dtype=bool))
+        mask[frames] ^= True
+
+    def repaired_records(self) -> list[SwapRecord]:
+        """One repaired :class:`SwapRecord` per run of frames a pair stands exchanged in now."""
+        n_t = self.valid.shape[0]
+        return [r for pair, mask in self.exchanged.items() for r in _records(list(pair), np.flatnonzero(mask), n_t, True)]
 
 
 def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove: bool,
@@ -383,15 +427,13 @@ def _one_pass(st: _State, where: np.ndarray, markers: np.ndarray | None, remove:
             continue
         fix, drop = frames[explained], frames[both & ~explained] if remove else frames[:0]
         pair = [int(a), partner]
-        for arr in (st.xyz, st.valid, st.usable, st.repaired):
-            arr[fix[:, None], pair] = arr[fix[:, None], pair[::-1]]
-        st.repaired[fix[:, None], pair] = st.valid[fix[:, None], pair] & ~st.repaired[fix[:, None], pair]
+        st.exchange(pair, fix)
         st.removed[drop[:, None], pair] = True
         st.usable[drop[:, None], pair] = False
         changed = np.union1d(fix, drop)
         if changed.size:                           # every marker judged in those frames anew
             st.suspect[changed], st.displaced[changed] = _screen(st.xyz, st.usable, st.refs, changed)
-        st.records += _records(pair, fix, n_t, True) + _records(pair, drop, n_t, False)
+        st.records += _records(pair, drop, n_t, False)
         done[fix] = True
     return done
 
@@ -432,12 +474,8 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     for c, b in enumerate(others):               # each candidate on its own frames only
         rows = np.flatnonzero(maybe[:, b])
         xr, tr = x[rows], trusted[rows]
-        with np.errstate(invalid="ignore"):
-            # a's sample judged as b; b's sample judged as a
-            fits_b = _misfit(xr[:, [a]], xr, tr, np.array([b]), refs, exclude=np.array([a]))[0][:, 0] \
-                <= refs.tolerance[b]
-            b_fits_a = _misfit(xr[:, [b]], xr, tr, np.array([a]), refs, exclude=np.array([b]))[0][:, 0] \
-                <= refs.tolerance[a]
+        # a's sample judged as b; b's sample judged as a
+        fits_b, b_fits_a = _fits_as(xr, tr, refs, a, b), _fits_as(xr, tr, refs, b, a)
         gone = ~ok[rows, b] & missing_partner
         explained[rows, c] = fits_b & ((gone & gone_wrong[rows]) | (own[rows, b] & b_fits_a))
     b_suspect = own[:, others]
@@ -459,6 +497,102 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     span = np.flatnonzero(explained[:, best])
     both &= (frames >= frames[span[0]]) & (frames <= frames[span[-1]])
     return int(others[best]), explained[:, best], both
+
+
+def _remove_unproven(st: _State) -> None:
+    """Make gaps (in place, both markers) of the frames where a repaired swap goes on unproven: one marker's
+    sample suspect and standing where its partner would (:func:`_fits_as`), the partner's missing or suspect
+    too, in a run of such frames joined to a repaired stretch of the pair (through frames where neither is
+    measured). A burst that hides a swap's start leaves such a run: the references that would tell the two
+    apart are hidden, or too few to hand the sample to its missing partner, and continuity cannot carry the
+    stretch across frames where both are missing; left alone, the sample would stand as measured under the
+    other name. Elsewhere the two are not known to be swapped, and are left to spike removal."""
+    n_t = st.valid.shape[0]
+    for (a, b), exchanged in list(st.exchanged.items()):
+        if not exchanged.any():
+            continue
+        pair = [a, b]
+        free = ~exchanged & ~st.removed[:, pair].any(axis=1)
+        rows = np.flatnonzero(free & st.suspect[:, pair].any(axis=1))
+        unproven = np.zeros(n_t, dtype=bool)
+        if rows.size:
+            x, trusted = st.xyz[rows], st.usable[rows] & ~st.displaced[rows]
+            # suspect against trusted references only (as :func:`_best_partner` judges)
+            worst = _misfit(x[:, pair], x, trusted, np.array(pair), st.refs, exclude=None)[0]
+            with np.errstate(invalid="ignore"):
+                suspect = st.usable[rows][:, pair] & (worst > st.refs.tolerance[pair][None])
+            gone = ~st.usable[rows][:, pair]
+            unproven[rows] = (suspect[:, 0] & _fits_as(x, trusted, st.refs, a, b) & (gone[:, 1] | suspect[:, 1])) \
+                | (suspect[:, 1] & _fits_as(x, trusted, st.refs, b, a) & (gone[:, 0] | suspect[:, 0]))
+        silent = free & ~st.usable[:, pair].any(axis=1)
+        drop = np.flatnonzero(_joined(unproven, silent, exchanged))
+        if drop.size == 0:
+            continue
+        st.removed[drop[:, None], pair] = True
+        st.usable[drop[:, None], pair] = False
+        st.suspect[drop], st.displaced[drop] = _screen(st.xyz, st.usable, st.refs, drop)
+        st.records += _records(pair, drop, n_t, False)
+
+
+def _joined(unproven: np.ndarray, silent: np.ndarray, repaired: np.ndarray) -> np.ndarray:
+    """(T,) bool: the ``unproven`` frames of the runs of ``unproven`` or ``silent`` frames that touch a
+    ``repaired`` frame (the frame before a run's start or after its end)."""
+    out = np.zeros_like(unproven)
+    n_t = unproven.size
+    for start, stop in true_runs(unproven | silent):
+        if (start > 0 and repaired[start - 1]) or (stop < n_t and repaired[stop]):
+            out[start:stop] = unproven[start:stop]
+    return out
+
+
+def _pair_references(refs: References, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a sample that may be ``a``'s is judged against as ``b``'s: the references of both markers (neither
+    marker itself), at ``b``'s steady distance to each. A reference of one of them only can be all that tells
+    the two apart (a mirror pair's mates stand as far from either), so ``b``'s own are not enough. Without the
+    (M, M) distances of :class:`References`, ``b``'s own references. Returns the columns (K,), the distances
+    (K,, mm, median) and their spreads (K,, mm)."""
+    if refs.distance_all is None or refs.spread_all is None:
+        keep = (refs.index[b] >= 0) & (refs.index[b] != a)
+        return refs.index[b][keep], refs.distance_mm[b][keep], refs.spread_mm[b][keep]
+    cols = np.union1d(refs.index[a], refs.index[b])
+    cols = cols[(cols >= 0) & (cols != a) & (cols != b)]
+    cols = cols[np.isfinite(refs.distance_all[b, cols])]
+    return cols, refs.distance_all[b, cols], refs.spread_all[b, cols]
+
+
+def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
+    """(n,) bool: frames where ``a``'s sample provably stands where ``b`` would: within ``b``'s tolerance (in
+    spreads) of each of :func:`_pair_references` trusted there (at least :data:`MIN_REFERENCES` of them), not
+    turning ``b``'s chiral triple against its handedness, and told from ``a`` there (:func:`_told_apart`).
+    ``x`` (n, M, 3) mm and ``trusted`` (n, M): the frames."""
+    cols, distance, spread = _pair_references(refs, a, b)
+    if cols.size == 0:
+        return np.zeros(x.shape[0], dtype=bool)
+    seen = trusted[:, cols]
+    with np.errstate(invalid="ignore"):
+        dev = np.abs(norm3(x[:, [a]] - x[:, cols]) - distance[None]) / spread[None]          # (n, K)
+    worst = np.max(np.where(seen, dev, -np.inf), axis=1)
+    flipped = _flipped(x[:, [a]], x, trusted, np.array([b]), refs, exclude=np.array([a]))[:, 0]
+    fits = (seen.sum(axis=1) >= MIN_REFERENCES) & (worst <= refs.tolerance[b]) & ~flipped
+    return fits & _told_apart(x, trusted, refs, a, b, cols)
+
+
+def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray
+                ) -> np.ndarray:
+    """(n,) bool: frames where something trusted can tell ``a``'s place from ``b``'s: a reference among ``cols``
+    whose steady distance to ``b`` is beyond ``a``'s tolerance of its distance to ``a`` (a sample standing where
+    ``b`` would is suspect as ``a`` by it), or ``a``'s chiral triple, which the capture as it stands (``b``'s
+    sample too, where the triple holds ``b``) turns against ``a``'s handedness. A
+    mirror pair's mates on the mirror plane, and references far off that stand about as far from both, cannot:
+    a sample fits either name there, and one reference drifting (a joint turning) makes it look like the
+    other's. Without the (M, M) distances of :class:`References`: every frame."""
+    if refs.distance_all is None or refs.spread_all is None:
+        return np.ones(x.shape[0], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        apart = np.abs(refs.distance_all[a, cols] - refs.distance_all[b, cols]) \
+            > refs.tolerance[a] * refs.spread_all[a, cols]
+    told = (trusted[:, cols] & apart[None]).any(axis=1)
+    return told | _flipped(x[:, [a]], x, trusted, np.array([a]), refs, exclude=None)[:, 0]
 
 
 def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
@@ -494,19 +628,14 @@ def _extend_by_continuity(st: _State) -> np.ndarray:
     them as references). Returns the (T,) bool mask of those frames."""
     done = np.zeros(st.valid.shape[0], dtype=bool)
     separation: dict[tuple[int, int], float] = {}
-    for rec in list(st.records):
-        if not rec.repaired:
-            continue
+    for rec in st.repaired_records():
         pair = [rec.first, rec.second]
         if (rec.first, rec.second) not in separation:
             separation[rec.first, rec.second] = _separation(st, pair)
         for edge, step in ((rec.stop, 1), (rec.start - 1, -1)):
             frames = _continued(st, pair, edge, step, separation[rec.first, rec.second])
             if frames.size:
-                for arr in (st.xyz, st.valid, st.usable, st.repaired):
-                    arr[frames[:, None], pair] = arr[frames[:, None], pair[::-1]]
-                st.repaired[frames[:, None], pair] = st.valid[frames[:, None], pair]
-                st.records += _records(pair, frames, st.valid.shape[0], True)
+                st.exchange(pair, frames)
                 st.suspect[frames], st.displaced[frames] = _screen(st.xyz, st.usable, st.refs, frames)
                 done[frames] = True
     return done
