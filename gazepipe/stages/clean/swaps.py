@@ -268,7 +268,7 @@ def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     """Misfits (n, C) of ``points`` (n, C, 3), each judged as marker ``as_marker[c]`` against its references in
     the same frames (``xyz`` (n, M, 3), ``valid`` (n, M)); references equal to ``exclude[c]`` are left out.
     Two of them: the largest deviation (a swap of mirror-image markers is seen by the one or two references
-    off the mirror plane only), and the median (a marker most of its references disagree with: displaced
+    off the mirror plane only), and the lower median (a marker most of its references disagree with: displaced
     itself, not one of its references). NaN where fewer than :data:`MIN_REFERENCES` references are measured."""
     idx = refs.index[as_marker]                                         # (C, K)
     has = idx >= 0
@@ -282,7 +282,9 @@ def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     dev.sort(axis=2)                                                    # NaN last
     at = np.maximum(count - 1, 0)[..., None]
     worst = np.take_along_axis(dev, at, axis=2)[..., 0]
-    median = 0.5 * (np.take_along_axis(dev, at // 2, axis=2) + np.take_along_axis(dev, (at + 1) // 2, axis=2))[..., 0]
+    # the lower median: above the tolerance only where most of them disagree (of two, both: one astray and one
+    # agreeing cannot say which of the two markers is wrong)
+    median = np.take_along_axis(dev, at // 2, axis=2)[..., 0]
     enough = count >= MIN_REFERENCES
     # a mirror image of the marker keeps every distance and turns its chiral triple the other way
     worst = np.where(_flipped(points, xyz, valid, as_marker, refs, exclude), np.inf, worst)
