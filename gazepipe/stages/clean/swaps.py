@@ -477,9 +477,17 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
         rows = np.flatnonzero(maybe[:, b])
         xr, tr = x[rows], trusted[rows]
         # a's sample judged as b; b's sample judged as a
-        fits_b, b_fits_a = _fits_as(xr, tr, refs, a, b), _fits_as(xr, tr, refs, b, a)
-        gone = ~ok[rows, b] & missing_partner
-        explained[rows, c] = fits_b & ((gone & gone_wrong[rows]) | (own[rows, b] & b_fits_a))
+        # two samples exchanged: a reference across a joint held beyond the subject's usual range may be out
+        # of tolerance for either, as long as it is nearer the exchanged name's distance (both samples say
+        # so); a sample handed to a missing partner has no second sample to confirm it: strictly within
+        gone = ~ok[rows, b] & missing_partner & gone_wrong[rows]
+        both = own[rows, b]
+        if both.any():
+            xb, tb = xr[both], tr[both]
+            explained[rows[both], c] = _fits_as(xb, tb, refs, a, b, lenient=True) \
+                & _fits_as(xb, tb, refs, b, a, lenient=True)
+        if gone.any():
+            explained[rows[gone], c] = _fits_as(xr[gone], tr[gone], refs, a, b)
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
     best = -1
@@ -562,38 +570,52 @@ def _pair_references(refs: References, a: int, b: int) -> tuple[np.ndarray, np.n
     return cols, refs.distance_all[b, cols], refs.spread_all[b, cols]
 
 
-def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
+def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, lenient: bool = False
+             ) -> np.ndarray:
     """(n,) bool: frames where ``a``'s sample provably stands where ``b`` would: within ``b``'s tolerance (in
     spreads) of each of :func:`_pair_references` trusted there (at least :data:`MIN_REFERENCES` of them), not
     turning ``b``'s chiral triple against its handedness, and told from ``a`` there (:func:`_told_apart`).
-    ``x`` (n, M, 3) mm and ``trusted`` (n, M): the frames."""
+    ``x`` (n, M, 3) mm and ``trusted`` (n, M): the frames. With ``lenient`` (two samples exchanged, each judged
+    so), a reference out of ``b``'s tolerance but nearer ``b``'s distance than ``a``'s (in spreads) does not
+    speak against it (a joint held bent beyond the subject's usual range: the head-centre marker against the
+    neck's with the head pitched down), though it cannot be what tells the two apart."""
     cols, distance, spread = _pair_references(refs, a, b)
     if cols.size == 0:
         return np.zeros(x.shape[0], dtype=bool)
     seen = trusted[:, cols]
+    d = norm3(x[:, [a]] - x[:, cols])
     with np.errstate(invalid="ignore"):
-        dev = np.abs(norm3(x[:, [a]] - x[:, cols]) - distance[None]) / spread[None]          # (n, K)
-    worst = np.max(np.where(seen, dev, -np.inf), axis=1)
+        dev = np.abs(d - distance[None]) / spread[None]                                     # (n, K)
+        within = dev <= refs.tolerance[b]
+        # a reference across a joint held beyond what the subject's takes showed (the head pitched down): out
+        # of b's tolerance, yet still nearer b's distance than a's, it does not speak against b
+        as_a = np.abs(d - refs.distance_all[a, cols][None]) / refs.spread_all[a, cols][None]
+        nearer_b = ~within & (as_a > dev) & lenient
+    agree = seen & within
+    against = seen & ~within & ~nearer_b
     flipped = _flipped(x[:, [a]], x, trusted, np.array([b]), refs, exclude=np.array([a]))[:, 0]
-    fits = (seen.sum(axis=1) >= MIN_REFERENCES) & (worst <= refs.tolerance[b]) & ~flipped
-    return fits & _told_apart(x, trusted, refs, a, b, cols)
+    fits = (agree.sum(axis=1) >= MIN_REFERENCES) & ~against.any(axis=1) & ~flipped
+    # what tells the two apart must be a reference the sample fits as b (or the handedness): one merely
+    # nearer b's distance than a's proves nothing
+    return fits & _told_apart(x, trusted, refs, a, b, cols, telling=agree)
 
 
-def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray
-                ) -> np.ndarray:
+def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray,
+                telling: np.ndarray | None = None) -> np.ndarray:
     """(n,) bool: frames where something trusted can tell ``a``'s place from ``b``'s: a reference among ``cols``
     whose steady distance to ``b`` is beyond ``a``'s tolerance of its distance to ``a`` (a sample standing where
     ``b`` would is suspect as ``a`` by it), or ``a``'s chiral triple, which the capture as it stands (``b``'s
     sample too, where the triple holds ``b``) turns against ``a``'s handedness. A
     mirror pair's mates on the mirror plane, and references far off that stand about as far from both, cannot:
     a sample fits either name there, and one reference drifting (a joint turning) makes it look like the
-    other's. Without the (M, M) distances of :class:`References`: every frame."""
+    other's. ``telling`` (n, K): the references among ``cols`` that may tell them apart in each frame (default:
+    those trusted). Without the (M, M) distances of :class:`References`: every frame."""
     if refs.distance_all is None or refs.spread_all is None:
         return np.ones(x.shape[0], dtype=bool)
     with np.errstate(invalid="ignore"):
         apart = np.abs(refs.distance_all[a, cols] - refs.distance_all[b, cols]) \
             > refs.tolerance[a] * refs.spread_all[a, cols]
-    told = (trusted[:, cols] & apart[None]).any(axis=1)
+    told = ((trusted[:, cols] if telling is None else telling) & apart[None]).any(axis=1)
     return told | _flipped(x[:, [a]], x, trusted, np.array([a]), refs, exclude=None)[:, 0]
 
 
