@@ -106,6 +106,15 @@ def _mirror_head(n: int, seed: int) -> np.ndarray:
     return np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (n, 6, 3))
 
 
+def _back_pair_swapped(xyz: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The capture of the mirror head with its back pair (2, 3) exchanged over frames 200-260, samples and
+    visibility both: (positions NaN where not measured, measured)."""
+    swapped, capture_valid = xyz.copy(), valid.copy()
+    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
+    return np.where(capture_valid[..., None], swapped, np.nan), capture_valid
+
+
 def test_a_swap_goes_on_while_its_partner_is_hidden_and_the_references_cannot_tell() -> None:
     # the back pair exchanged over frames 200-260; from 230 on the back-right marker (3) is hidden, and so is
     # the front pair: the name 3 carries 2's sample, and the only references left (top, chin) sit on the mirror
@@ -114,11 +123,7 @@ def test_a_swap_goes_on_while_its_partner_is_hidden_and_the_references_cannot_te
     xyz = _mirror_head(600, 4)
     valid = np.ones((600, 6), dtype=bool)
     valid[230:260, [0, 1, 3]] = False
-    swapped = xyz.copy()
-    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
-    capture_valid = valid.copy()
-    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
-    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    res = repair_swaps(*_back_pair_swapped(xyz, valid))
     assert (res.valid == valid).all()
     assert np.allclose(res.xyz[valid], xyz[valid])
     assert res.repaired[200:260, 2].all() and res.repaired[200:230, 3].all()
@@ -135,11 +140,7 @@ def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
     valid[230:260, [0, 1]] = False
     valid[230:250, 3] = False
     valid[250:260, 4] = False
-    swapped = xyz.copy()
-    swapped[200:260, [2, 3]] = xyz[200:260, [3, 2]]
-    capture_valid = valid.copy()
-    capture_valid[200:260, [2, 3]] = valid[200:260, [3, 2]]
-    res = repair_swaps(np.where(capture_valid[..., None], swapped, np.nan), capture_valid)
+    res = repair_swaps(*_back_pair_swapped(xyz, valid))
     assert (res.valid == valid).all()
     assert np.allclose(res.xyz[valid], xyz[valid])
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]

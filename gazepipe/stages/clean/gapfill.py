@@ -78,6 +78,7 @@ from gazepipe.stages.clean.fill_methods import (
     rigid_fill_many,
     speed_over,
 )
+from gazepipe.stages.clean.spikes import _nanmedian
 from gazepipe.stages.geometry import kabsch, norm3
 
 METHODS = ("rigid", "pca", "pchip", "linear")
@@ -849,7 +850,7 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
     ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`). Returns the gap's record and its
     (e - s, 3) fill, or None when it stays unfilled (the record says why)."""
     methods = cfg.methods
-    own = cluster
+    own_mates = cluster                  # the segment's; ``cluster`` may become steady mates from other segments
     hid = hide_stretches(valid, m, s, e, cfg.validation)
     interp = interpolation_candidates(src[:, m], valid[:, m], s, e, hid, methods)
     donors = _donor_errors(src, valid, m, s, e, interp, cfg.mates_window) if cfg.validation else {}
@@ -895,16 +896,16 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
         # scaled estimate would leave the gap open
         scaled = error * moving
         rigid_error = full_errors.get("rigid", np.nan)
-        if (max_error is not None and scaled > max_error and rigid_error < scaled and cluster is own and own
-                and "rigid" in preds and _mates_through(valid, cluster, m, s, e)):
+        if (max_error is not None and scaled > max_error and rigid_error < scaled and cluster
+                and cluster is own_mates and "rigid" in preds and _mates_through(valid, cluster, m, s, e)):
             fill, weights, error = preds["rigid"], {"rigid": 1.0}, rigid_error
         else:
             error = scaled
-    if weights.get("rigid", 0.0) > 0 and cluster and cluster is not own:
+    if weights.get("rigid", 0.0) > 0 and cluster and cluster is not own_mates:
         # mates from other segments: rigid with the marker only as far as they stay so around the gap
         error = max(error, weights["rigid"] * mates_misfit(src, valid, m, s, e, cluster, cfg.mates_window))
     if cfg.validation:
-        error = max(error, distance_miss(src, valid, m, s, e, own, fill, cfg.mates_window))
+        error = max(error, distance_miss(src, valid, m, s, e, own_mates, fill, cfg.mates_window))
     if max_error is not None and not np.isfinite(error) and e - s >= _FRAMEWISE_MIN_FRAMES:
         return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_NO_ESTIMATE, error), None
     if max_error is not None and error > max_error:
@@ -925,15 +926,17 @@ def mates_misfit(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, mat
     standing in for a hidden chest fitted those stretches at 1.5 mm and the gap at 24 mm, the chest turning
     against them. 0 with fewer than three neighbours or ten such frames."""
     others = np.array([j for j in mates if j != m], dtype=int)
+    if others.size < 3:
+        return 0.0
     lo, hi = max(0, s - window), min(len(valid), e + window)
     rows = np.flatnonzero(valid[lo:hi, m] & valid[lo:hi][:, others].all(axis=1)) + lo
-    if others.size < 3 or rows.size < 10:
+    if rows.size < 10:
         return 0.0
     ref_row = rows[np.argmin(np.minimum(np.abs(rows - (s - 1)), np.abs(rows - e)))]
     ref = src[ref_row, others]
     cur = src[rows][:, others]
     rot = kabsch(ref, cur)
-    carried = (rot @ (src[ref_row, m] - ref.mean(axis=0)))  + cur.mean(axis=1)
+    carried = rot @ (src[ref_row, m] - ref.mean(axis=0)) + cur.mean(axis=1)
     return float(norm3(carried - src[rows, m]).mean())
 
 
@@ -954,9 +957,8 @@ def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cl
         return 0.0
     lo, hi = max(0, s - window), min(len(valid), e + window)
     both = valid[lo:hi][:, mates] & valid[lo:hi, m][:, None]
-    usual = norm3(src[lo:hi][:, mates] - src[lo:hi, m][:, None])
-    ref = np.array([np.median(usual[both[:, k], k]) if both[:, k].sum() >= 10 else np.nan
-                    for k in range(mates.size)])
+    usual = np.where(both, norm3(src[lo:hi][:, mates] - src[lo:hi, m][:, None]), np.nan)
+    ref = np.where(both.sum(axis=0) >= 10, _nanmedian(usual, axis=0), np.nan)
     dist = norm3(src[s:e][:, mates] - fill[:, None])
     miss = np.abs(dist - ref)[shown & np.isfinite(ref)]
     return float(miss.mean()) if miss.size else 0.0
