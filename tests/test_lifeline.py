@@ -34,8 +34,9 @@ def test_killing_the_run_alone_ends_every_worker(session: Path, tmp_path: Path, 
            "--executor", executor, "-j", "2", "--log-format", "json"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, start_new_session=True)
     try:
-        for line in proc.stderr:   # the first unit done: the workers are up
-            if json.loads(line).get("event") == "unit":
+        for line in proc.stderr:   # the first take unit done (after the session's units): the workers are up
+            event = json.loads(line)
+            if event.get("event") == "unit" and event.get("take") != "*":
                 break
         helpers = [p for p in session_processes(proc.pid) if p != proc.pid]
         assert len(helpers) >= 2, "the run has its workers"

@@ -1,6 +1,7 @@
 """Neutral calibration's last resort (SPEC §3.3): a segment whose markers are never all there in the take's own
-first rest, in a session without a neutral take, is calibrated on another take's first rest; the unit records
-that capture as an input it read, so changing it re-runs the unit."""
+first rest, in a session without a neutral take, is calibrated on another take's first rest. The session's
+neutral poses are cleaned once, by the session unit ``neutral_poses``; changing a capture it read re-runs it and
+the frames units that read it."""
 
 from __future__ import annotations
 
@@ -54,7 +55,11 @@ def test_the_segment_is_calibrated_on_another_takes_rest(session):
     other = [t.id for t in load_session(folder / "session.toml").takes if t.id != take and t.mocap]
     assert rec["qc"]["neutral_sources"]["chest"] == f"first rest period of take {other[0]}"
     assert rec["qc"]["neutral_sources"]["head"].startswith("first rest period [")
-    assert list(rec["read"]) == [f"mocap/{other[0]}.c3d"]
+    assert rec["read"] == {}     # the frames unit reads no other take's capture: the session unit did
+    poses = json.loads((out / ".gazepipe" / "session_units" / "session01" / "neutral_poses.json").read_text())
+    # no neutral take: first rests in session order until every segment has one (this take's lacks the chest)
+    assert poses["qc"]["sources"] == [f"first rest period of take {take}", f"first rest period of take {other[0]}"]
+    assert poses["qc"]["segments_without_neutral"] == []
     # the chest is right once its markers are back, calibrated on the other take's rest
     joints = joints_arrays(pq.read_table(out / "takes" / "session01" / take / "joints.parquet"))
     tr = np.load(folder / "truth" / f"{take}.npz")
@@ -77,4 +82,5 @@ def test_changing_the_capture_it_read_reruns_the_unit(session):
     write_c3d(path, list(mk.labels), mk.xyz + 0.01, mk.rate_hz)
     third = _run(folder, out)
     reran = {(o.take, o.stage): o.reason for o in third.outcomes if o.status == "ok"}
-    assert reran[(take, "frames")] == f"input changed: mocap/{other.id}.c3d"
+    assert reran[("*", "neutral_poses")] == f"input changed: mocap/{other.id}.c3d"
+    assert "session:neutral_poses" in reran[(take, "frames")]

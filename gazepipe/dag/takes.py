@@ -11,8 +11,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from types import SimpleNamespace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -20,13 +22,16 @@ import pyarrow as pa
 from gazepipe.errors import GazepipeError, ResourceError, StageError, printable
 from gazepipe.io.parquet import count_rows, read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
-from gazepipe.model import FILL_CODES, Markers, Session, Take
+from gazepipe.model import FILL_CODES, Markers, MarkerSet, Session, Take
 from gazepipe.pipeline.registry import (
+    SessionContext,
+    SessionStage,
     Stage,
     TableStore,
     UnitContext,
     UnitResult,
     register,
+    register_session_stage,
     rules_of,
     set_source_check,
     set_table_store,
@@ -43,11 +48,15 @@ from gazepipe.schemas.markers import (
     markers_to_table,
     table_to_markers,
 )
+from gazepipe.schemas.poses import MARKER_STACK, PoseSource, stack_to_table, table_to_stack
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.frames.stage import FramesParams
 from gazepipe.stages.sync.stage import SyncParams
+
+if TYPE_CHECKING:
+    from gazepipe.stages.clean.swaps import SubjectReferences
 
 #: tables in the long markers layout, whose metadata must agree with their rows
 MARKERS_TABLES = ("markers_raw", "markers", "neutral")
@@ -147,6 +156,111 @@ register(Stage(
 ))
 
 
+
+# ---------------------------------------------------------------------------------------- session stages
+
+@functools.lru_cache(maxsize=8)
+def _file_id(path: str) -> tuple[int, int, int]:
+    """Size, mtime and inode of a file: a changed file is looked at again by :func:`_usable_capture`."""
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def _subject_captures(session: Session) -> list[Take]:
+    """The session's subject takes whose capture is a regular file that passes the engine's look at an input
+    (:func:`check_source`): the subject's marker geometry comes from all of them. A broken capture fails its
+    own take's units only; the others go on without it (and re-run once it is mended: it then joins their
+    sources)."""
+    out = []
+    for t in session.takes:
+        if _subject_take(session, t) and t.mocap:
+            try:
+                if _usable_capture(t.mocap, _file_id(t.mocap)):
+                    out.append(t)
+            except OSError:
+                continue
+    return out
+
+
+@functools.lru_cache(maxsize=1024)
+def _usable_capture(path: str, file_id: tuple[int, int, int]) -> bool:
+    """Whether the capture at ``path`` (identified by ``file_id``, :func:`_file_id`) is a regular file that
+    passes :func:`check_source`."""
+    import stat as stat_mode
+
+    if not stat_mode.S_ISREG(os.stat(path).st_mode):
+        return False
+    try:
+        check_source(Path(path))
+    except GazepipeError:
+        return False
+    return True
+
+
+def _subject_files(session: Session) -> list[str]:
+    return [t.mocap for t in _subject_captures(session) if t.mocap]
+
+
+def _has_subject(session: Session) -> bool:
+    return session.markerset is not None and any(_subject_take(session, t) for t in session.takes)
+
+
+def _read_capture(take: Take, ms: MarkerSet) -> Markers:
+    """A take's capture with the markerset's names (as its ingest unit reads it)."""
+    from gazepipe.io.capture import read_markers
+
+    assert take.mocap is not None
+    raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
+    raw.labels = _renamed(raw.labels, check_capture_labels(ms, raw.labels, take.mocap, take.id,
+                                                            required=_required_markers(ms, take)))
+    return raw
+
+
+#: frames of each take kept for the subject's references (they sample the stack evenly again)
+_REFERENCE_FRAMES_PER_TAKE = 2000
+
+
+def run_subject_markers(ctx: SessionContext[Session]) -> UnitResult:
+    """Evenly spread frames of every subject capture of the session, raw, stacked by take: the subject's marker
+    geometry that each take's label swaps are judged against (:func:`_subject_references`). A capture that
+    cannot be read is passed over (its own take fails)."""
+    from gazepipe.stages.clean.swaps import even_rows
+
+    ms = ctx.session.markerset
+    assert ms is not None
+    samples = []
+    for take in _subject_captures(ctx.session):
+        try:
+            raw = _read_capture(take, ms)
+        except GazepipeError:
+            continue
+        rows = even_rows(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE)
+        sample = dataclasses.replace(raw, xyz=raw.xyz[rows], valid=raw.valid[rows], warnings=[], model_outputs=[])
+        samples.append(PoseSource(f"take {take.id}", take.id, "sample", sample))
+    table = stack_to_table(samples, meta={"frames_per_take": _REFERENCE_FRAMES_PER_TAKE})
+    return UnitResult(tables={"subject_markers": (table, MARKER_STACK)}, qc={"takes": len(samples)})
+
+
+def _subject_references(table: pa.Table, ms: MarkerSet) -> SubjectReferences | None:
+    """The subject's marker geometry (:func:`gazepipe.stages.clean.swaps.pooled_references`) from the session's
+    ``subject_markers`` table; None when no capture could be read."""
+    from gazepipe.stages.clean.swaps import pooled_references
+
+    samples = table_to_stack(table)
+    if not samples:
+        return None
+    pooled = [(s.markers.labels, s.markers.xyz, s.markers.valid) for s in samples]
+    return pooled_references(pooled, markers=set(ms.subject_markers))
+
+
+register_session_stage(SessionStage(
+    name="subject_markers", version="1", requires=(), uses=(), outputs=("subject_markers",),
+    applies=_has_subject, sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
+    run=run_subject_markers,
+    help="frames of every subject capture of the session: the geometry label swaps are judged against",
+))
+
+
 # ------------------------------------------------------------------------------------------------- clean
 
 def _params_of(cls) -> dict:
@@ -202,7 +316,8 @@ def run_clean(ctx: UnitContext) -> UnitResult:
                                             "on a larger machine", take=ctx.take.id)
     raw, _, _ = _load_markers(ctx, "markers_raw")
     params = _build(CleanParams, ctx.params)
-    refs = _subject_references(_subject_key(ctx.session), ctx.session.markerset) if params.repair_swaps else None
+    ms = ctx.session.markerset
+    refs = _subject_references(ctx.load_session("subject_markers"), ms) if params.repair_swaps else None
     res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id,
                         references=refs)
     # the raw positions are not needed any more: a long take's are let go before the tables are built
@@ -228,8 +343,8 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 register(Stage(
     name="clean", version="22", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
-    # every subject capture of the session: label swaps are judged against the subject's geometry from all
-    sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
+    # label swaps are judged against the subject's geometry from every subject capture of the session
+    sources=lambda s, t: _markerset_file(s), session_requires=("subject_markers",),
     run=run_clean,
     help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
     rules=rules_of(CleanParams),
@@ -246,141 +361,105 @@ def _frames_take(session: Session, take: Take) -> bool:
     return _subject_take(session, take) and take.kind in ("gaze_follow", "gaze_shift")
 
 
-@functools.lru_cache(maxsize=8)
-def _file_id(path: str) -> tuple[int, int, int]:
-    """Size, mtime and inode of a file: a changed file is read again by the caches below."""
-    st = os.stat(path)
-    return st.st_size, st.st_mtime_ns, st.st_ino
-
-
-def _subject_captures(session: Session) -> list[tuple[Take, tuple[int, int, int]]]:
-    """The session's subject takes whose capture is a regular file that passes the engine's look at an input
-    (:func:`check_source`), with the file's identity: the subject's marker geometry comes from all of them. A
-    broken capture fails its own take's units only; the others go on without it (and re-run once it is
-    mended: it then joins their sources)."""
-    out = []
-    for t in session.takes:
-        if _subject_take(session, t) and t.mocap:
-            try:
-                file_id = _file_id(t.mocap)
-                if _usable_capture(t.mocap, file_id):
-                    out.append((t, file_id))
-            except OSError:
-                continue
-    return out
-
-
-@functools.lru_cache(maxsize=1024)
-def _usable_capture(path: str, file_id: tuple[int, int, int]) -> bool:
-    import stat as stat_mode
-
-    if not stat_mode.S_ISREG(os.stat(path).st_mode):
-        return False
-    try:
-        check_source(Path(path))
-    except GazepipeError:
-        return False
-    return True
-
-
-def _subject_files(session: Session) -> list[str]:
-    return [t.mocap for t, _ in _subject_captures(session)]
-
-
-def _subject_key(session: Session) -> tuple[tuple[Take, tuple[int, int, int]], ...]:
-    return tuple(_subject_captures(session))
-
-
-#: frames of each take kept for the subject's references (they sample the stack evenly again)
-_REFERENCE_FRAMES_PER_TAKE = 2000
-
-
-@functools.lru_cache(maxsize=4)
-def _subject_references(key: tuple[tuple[Take, tuple[int, int, int]], ...], ms):
-    """The subject's marker geometry (:func:`gazepipe.stages.clean.swaps.pooled_references`) from every subject
-    take's capture of a session (``key``: :func:`_subject_key`); a take that cannot be read is passed over.
-    Cached per worker: every take's clean reads the same."""
-    from gazepipe.io.capture import read_markers
-    from gazepipe.stages.clean.swaps import even_rows, pooled_references
-
-    pooled = []
-    for take, _ in key:
-        try:
-            raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
-            labels = _renamed(raw.labels, check_capture_labels(ms, raw.labels, take.mocap, take.id,
-                                                                required=_required_markers(ms, take)))
-        except GazepipeError:
-            continue
-        rows = even_rows(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE)
-        pooled.append((labels, raw.xyz[rows], raw.valid[rows]))
-    return pooled_references(pooled, markers=set(ms.subject_markers)) if pooled else None
-
-
-@functools.lru_cache(maxsize=8)
-def _clean_neutral(take: Take, ms, params: CleanParams, file_id: tuple[int, int, int],
-                   subject: tuple[tuple[Take, tuple[int, int, int]], ...]) -> Markers | None:
-    """A take's neutral pose, cleaned from its capture as its clean unit cleans it: the whole take for the
-    ``neutral`` take, else its first rest period (None when it has none). ``file_id`` = size, mtime, inode of
-    the capture, ``subject`` those of the session's captures (:func:`_subject_key`): a changed file is read
-    again."""
-    from gazepipe.io.capture import read_markers
+def _clean_pose(take: Take, ms: MarkerSet, params: CleanParams, refs: SubjectReferences | None) -> Markers | None:
+    """A take's neutral pose, cleaned from its capture as its clean unit cleans it: the whole take for a
+    ``neutral`` take, else its first rest period (None when it has none)."""
     from gazepipe.stages.clean.stage import clean_markers
 
-    raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
-    mapping = check_capture_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))
-    raw.labels = _renamed(raw.labels, mapping)
-    refs = _subject_references(subject, ms) if params.repair_swaps else None
+    raw = _read_capture(take, ms)
     res = clean_markers(raw, ms, take.kind, params, path=take.mocap, take=take.id, references=refs)
     return res.markers if take.kind == "neutral" else res.neutral
 
 
-def _neutral_of(session: Session, take: Take, ms, params: CleanParams) -> Markers | None:
-    return _clean_neutral(take, ms, params, _file_id(take.mocap), _subject_key(session))
+def _gives_segment(pose: Markers, names: Sequence[str], min_frames: int) -> bool:
+    """Whether ``pose`` has every marker ``names`` measured or filled in at least ``min_frames`` frames."""
+    if not all(n in pose.labels for n in names):
+        return False
+    return int(np.isfinite(pose.xyz[:, [pose.index(n) for n in names]]).all(axis=(1, 2)).sum()) >= min_frames
 
 
-def _other_rests(ctx: UnitContext, ms, params: CleanParams, missing: list[str],
-                 min_frames: int) -> list[tuple[str, Markers, str]]:
-    """Neutral sources of last resort (SPEC §3.3): the first rest periods of the session's other mocap takes,
-    in session order, that hold ``min_frames`` frames with every marker of a segment in ``missing``; as
-    (label, markers, capture path). A take that cannot be read or cleaned is passed over."""
-    out: list[tuple[str, Markers, str]] = []
-    need = {seg: ms.segment(seg).markers for seg in missing}
-    for other in ctx.session.takes:
-        if other.id == ctx.take.id or other.kind == "neutral" or not _subject_take(ctx.session, other):
+def run_neutral_poses(ctx: SessionContext[Session]) -> UnitResult:
+    """The session's neutral poses (SPEC §3.3), cleaned once for every take's frames: the neutral take's, then,
+    for each segment it cannot calibrate, the first rest periods of the other subject takes in session order
+    until every such segment has one (a take whose capture cannot be read or cleaned is passed over)."""
+    from gazepipe.stages.frames.stage import calibrated_segments
+
+    session = ctx.session
+    ms = session.markerset
+    assert ms is not None
+    clean_params = _build(CleanParams, ctx.params_of("clean"))
+    frames_params = _build(FramesParams, ctx.params_of("frames"))
+    refs = _subject_references(ctx.load("subject_markers"), ms) if clean_params.repair_swaps else None
+    poses: list[PoseSource] = []
+    calibrated: set[str] | None = set()
+    neutral_take = _neutral_take(session)
+    if neutral_take is not None:
+        pose = _clean_pose(neutral_take, ms, clean_params, refs)
+        if pose is not None:
+            poses.append(PoseSource(f"neutral take {neutral_take.id}", neutral_take.id, "neutral", pose))
+            calibrated = calibrated_segments(pose, ms, frames_params)
+    # a segment the neutral take cannot calibrate (or all, when the take's other sources decide) may be
+    # missing in a take's frames: the first rest periods that give it, for that take to fall back on
+    need = {seg.name: seg.markers for seg in ms.segments if calibrated is None or seg.name not in calibrated}
+    for other in session.takes:
+        if not need:
+            break
+        if other.kind == "neutral" or not _subject_take(session, other):
             continue
         try:
-            rest = _neutral_of(ctx.session, other, ms, params)
+            rest = _clean_pose(other, ms, clean_params, refs)
         except GazepipeError:
             continue
         if rest is None or not rest.n_frames:
             continue
-        solved = [seg for seg, names in need.items() if all(n in rest.labels for n in names)
-                  and int(np.isfinite(rest.xyz[:, [rest.index(n) for n in names]]).all(axis=(1, 2)).sum())
-                  >= min_frames]
+        solved = [seg for seg, names in need.items() if _gives_segment(rest, names, frames_params.min_neutral_frames)]
         if solved:
-            out.append((f"first rest period of take {other.id}", rest, other.mocap))
+            poses.append(PoseSource(f"first rest period of take {other.id}", other.id, "rest", rest))
             for seg in solved:
                 need.pop(seg)
+    qc = {"sources": [p.label for p in poses], "segments_without_neutral": sorted(need)}
+    return UnitResult(tables={"neutral_poses": (stack_to_table(poses), MARKER_STACK)}, qc=qc)
+
+
+register_session_stage(SessionStage(
+    name="neutral_poses", version="1", requires=("subject_markers",), uses=("clean", "frames"),
+    outputs=("neutral_poses",), applies=lambda s: any(_frames_take(s, t) for t in s.takes),
+    sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
+    run=run_neutral_poses,
+    help="the neutral take's pose and, for segments it lacks, other takes' first rest periods, cleaned once",
+))
+
+
+def _fallback_rests(poses: list[PoseSource], take_id: str, ms: MarkerSet, missing: list[str],
+                    min_frames: int) -> list[PoseSource]:
+    """Neutral sources of last resort (SPEC §3.3) for a take whose segments ``missing`` have none: the first
+    rest periods among the session's (``poses``, in session order) of the other takes, each kept when it gives
+    a segment still missing."""
+    out = []
+    need = {seg: ms.segment(seg).markers for seg in missing}
+    for pose in poses:
         if not need:
             break
+        if pose.role != "rest" or pose.take == take_id:
+            continue
+        solved = [seg for seg, names in need.items() if _gives_segment(pose.markers, names, min_frames)]
+        if solved:
+            out.append(pose)
+            for seg in solved:
+                need.pop(seg)
     return out
 
 
-def run_frames(ctx: UnitContext) -> UnitResult:
+def run_frames(ctx: UnitContext[Session, Take]) -> UnitResult:
     from gazepipe.stages.frames.stage import compute_frames
 
     ms = ctx.session.markerset
-    clean_params = _build(CleanParams, ctx.params_of("clean"))
+    assert ms is not None
     params = _build(FramesParams, ctx.params)
     markers, frames, _, measured = _load_measured(ctx, "markers")
-    sources: list[tuple[str, Markers]] = []    # neutral poses, in order of preference (SPEC §3.3)
-    neutral_take = _neutral_take(ctx.session)
-    if neutral_take is not None:
-        # the neutral take is cleaned here again (it is short) so takes never wait on each other; a worker
-        # cleans it once for all the takes it runs (keyed by the file's identity and the parameters)
-        neutral = _neutral_of(ctx.session, neutral_take, ms, clean_params)
-        if neutral is not None:
-            sources.append((f"neutral take {neutral_take.id}", neutral))
+    poses = table_to_stack(ctx.load_session("neutral_poses"))
+    # neutral poses, in order of preference (SPEC §3.3)
+    sources: list[tuple[str, Markers]] = [(p.label, p.markers) for p in poses if p.role == "neutral"]
     own, own_frames, nmeta, own_measured = _load_measured(ctx, "neutral")
     if own.n_frames:
         sources.append((f"first rest period {nmeta.get('rest')}", own))
@@ -393,7 +472,6 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         return compute_frames(markers, ms, srcs, params, path=ctx.take.mocap, take=ctx.take.id, before=before,
                               measured=measured, before_measured=own_measured)
 
-    read: list[str] = []
     failure: StageError | None = None
     try:
         joints = solve(sources)
@@ -401,11 +479,10 @@ def run_frames(ctx: UnitContext) -> UnitResult:
     except StageError as exc:      # no segment has a neutral pose among these sources
         joints, missing, failure = None, [seg.name for seg in ms.segments], exc
     if missing:
-        # last resort: another take's first rest; only read when needed, so the unit records what it read
-        extra = _other_rests(ctx, ms, clean_params, missing, params.min_neutral_frames)
+        # last resort: another take's first rest
+        extra = _fallback_rests(poses, ctx.take.id, ms, missing, params.min_neutral_frames)
         if extra:
-            joints = solve(sources + [(label, m) for label, m, _ in extra])
-            read = [path for _, _, path in extra]
+            joints = solve(sources + [(p.label, p.markers) for p in extra])
         elif failure is not None:
             raise failure
     source = sources[0][0] if sources else "none"
@@ -416,13 +493,13 @@ def run_frames(ctx: UnitContext) -> UnitResult:
         meta["rest_before"] = joints.rest_before
     table = joints_to_table(joints, frames, meta=meta)
     return UnitResult(tables={"joints": (table, joints_schema(len(joints.segments)))}, qc=qc,
-                      warnings=list(qc.get("warnings", [])), read=read)
+                      warnings=list(qc.get("warnings", [])))
 
 
 register(Stage(
     name="frames", version="12", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
-    sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
+    sources=lambda s, t: _markerset_file(s), session_requires=("neutral_poses",),
     run=run_frames,
     help="segment orientations in the character frame, head centre, target direction",
     rules=rules_of(FramesParams),

@@ -21,12 +21,16 @@ from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.registry import SessionLike
 from gazepipe.pipeline.runner import (
+    SESSION_UNIT,
+    SessionJob,
     TakeJob,
     UnitOutcome,
     UnitPlan,
     new_run_id,
     os_problem,
+    plan_session,
     plan_take,
+    run_session_job,
     run_take_job,
 )
 from gazepipe.pipeline.state import OutLayout, read_json
@@ -48,7 +52,8 @@ class RunSummary:
     def count(self, status: str, *, datasets: bool | None = None) -> int:
         """Outcomes with ``status``: of take units only (``datasets=False``), datasets only (``True``), or
         both (``None``)."""
-        return sum(o.status == status for o in self.outcomes if datasets is None or is_dataset(o) == datasets)
+        return sum(o.status == status for o in self.outcomes
+                   if (datasets is None or is_dataset(o) == datasets) and (datasets is not False or not is_session(o)))
 
     def end_message(self) -> tuple[str, dict[str, int]]:
         """The line that ends a run and its counts. Take units (a stage on a take, what ``run_start`` counts)
@@ -61,6 +66,10 @@ class RunSummary:
              "datasets_up_to_date": self.count("skipped", datasets=True),
              "datasets_failed": self.count("failed", datasets=True)}
         msg = f"done: {n['ran']} take units ran, {n['up_to_date']} up to date, {n['failed']} failed"
+        n_session = sum(o.status == "failed" for o in self.outcomes if is_session(o))
+        if n_session:
+            n["session_failed"] = n_session
+            msg += f", {n_session} session unit{'s' if n_session > 1 else ''} failed"
         if n["blocked"]:
             msg += f", {n['blocked']} not run after a failure"
         if any(n[k] for k in ("datasets_built", "datasets_up_to_date", "datasets_failed")):
@@ -85,27 +94,55 @@ def is_dataset(outcome: UnitOutcome) -> bool:
     return outcome.stage.startswith("build:")
 
 
+def is_session(outcome: UnitOutcome) -> bool:
+    """Whether an outcome is a session stage's unit (run once for its session, before its takes)."""
+    return outcome.take == SESSION_UNIT
+
+
+@dataclass
+class RunPlan:
+    """Every unit of a run planned: the sessions' and takes' jobs (each with its units' plans), the outcomes of
+    units that failed while planning, and every plan (session units first)."""
+
+    session_jobs: list[SessionJob] = field(default_factory=list)
+    take_jobs: list[TakeJob] = field(default_factory=list)
+    failures: list[UnitOutcome] = field(default_factory=list)
+    plans: list[UnitPlan] = field(default_factory=list)
+
+
 def plan_run(sessions: Sequence[SessionLike], out: Path, *, until: str | None = None,
              params: dict[str, Any] | None = None, force: bool = False,
-             hashes: HashCache | None = None) -> tuple[list[TakeJob], list[UnitOutcome], list[UnitPlan]]:
-    """Plan every take: jobs for takes with work, outcomes for takes that failed while planning, all plans."""
+             hashes: HashCache | None = None) -> RunPlan:
+    """Plan every session and take: jobs for those with work, outcomes for units that failed while planning."""
     layout = OutLayout(Path(out))
     stages = registry.upto(until) if until and until != BUILD else registry.stages()
+    session_stages = registry.session_stages_for(stages)
     params = params or {}
     hashes = hashes or HashCache(layout.hashes)
-    jobs, failures, plans = [], [], []
+    run = RunPlan()
+    dag = registry.modules()
     for session in sessions:
+        try:
+            session_plans = plan_session(session, session_stages, params, layout, hashes, force)
+        except GazepipeError as exc:
+            run.failures.append(UnitOutcome(session.id, SESSION_UNIT, session_stages[0].name, "failed",
+                                            error=f"session {session.id}: {exc.one_line()}"))
+            continue
+        run.plans.extend(session_plans)
+        if session_plans:
+            run.session_jobs.append(SessionJob(str(layout.root), session, session_plans, params, dag=dag))
         for take in session.takes:
             try:
-                take_plans = plan_take(session, take, stages, params, layout, hashes, force)
+                take_plans = plan_take(session, take, stages, params, layout, hashes, force, session_plans)
             except GazepipeError as exc:
                 exc.take = f"{session.id}/{take.id}" if exc.take in (None, take.id) else exc.take
-                failures.append(UnitOutcome(session.id, take.id, stages[0].name, "failed", error=exc.one_line()))
+                run.failures.append(UnitOutcome(session.id, take.id, stages[0].name, "failed",
+                                                error=exc.one_line()))
                 continue
-            plans.extend(take_plans)
+            run.plans.extend(take_plans)
             if take_plans:
-                jobs.append(TakeJob(str(layout.root), session, take, take_plans, params, dag=registry.modules()))
-    return jobs, failures, plans
+                run.take_jobs.append(TakeJob(str(layout.root), session, take, take_plans, params, dag=dag))
+    return run
 
 
 def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str | None = None,
@@ -126,8 +163,8 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
     summary = RunSummary(run_id=log.run_id or new_run_id())
     if dry_run:
         hashes = HashCache(layout.hashes)
-        take_jobs, failures, plans = plan_run(sessions, layout.root, until=until, params=params, force=force,
-                                              hashes=hashes)
+        planned = plan_run(sessions, layout.root, until=until, params=params, force=force, hashes=hashes)
+        plans, failures = planned.plans, planned.failures
         summary.plans = plans
         summary.outcomes = failures
         for p in plans:
@@ -152,8 +189,8 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
         except OSError as exc:   # nothing can be recorded: stop before anything runs
             raise GazepipeError(None, os_problem(exc, layout.sessions)) from None
         hashes = HashCache(layout.hashes)
-        take_jobs, failures, plans = plan_run(sessions, layout.root, until=until, params=params, force=force,
-                                              hashes=hashes)
+        planned = plan_run(sessions, layout.root, until=until, params=params, force=force, hashes=hashes)
+        take_jobs, failures, plans = planned.take_jobs, planned.failures, planned.plans
         summary.plans = plans
         summary.outcomes.extend(failures)
         for f in failures:
@@ -170,14 +207,19 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                 log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
                          session=u.session, take=u.take, stage=u.stage, status="failed")
         n_units = sum(u.run for j in todo for u in j.units)
-        n_before = sum(bool(u.error) for u in plans)   # failed before on the same inputs: not retried
-        with _Workers(executor, jobs, scheduler, len(todo)) as workers:
+        take_plans = [u for u in plans if u.take != SESSION_UNIT]
+        n_before = sum(bool(u.error) for u in take_plans)   # failed before on the same inputs: not retried
+        session_todo = [j for j in planned.session_jobs if any(u.run for u in j.units)]
+        with _Workers(executor, jobs, scheduler, max(len(todo), len(session_todo))) as workers:
+            failed_session = _run_sessions(planned.session_jobs, session_todo, summary, log, workers)
+            for j in todo:
+                j.failed_session = frozenset(failed_session.get(j.session.id, ()))
             if todo:
                 before = f", {n_before} failed before on the same inputs" if n_before else ""
                 later = ", then the datasets" if until in (None, BUILD) else ""
                 log.emit("info", "run_start", f"running {n_units} take units on {len(todo)} takes "
-                         f"({len(plans) - n_units - n_before} up to date{before}){later}", takes=len(todo),
-                         units=n_units, up_to_date=len(plans) - n_units - n_before, failed_before=n_before)
+                         f"({len(take_plans) - n_units - n_before} up to date{before}){later}", takes=len(todo),
+                         units=n_units, up_to_date=len(take_plans) - n_units - n_before, failed_before=n_before)
                 if report is not None:
                     report.takes_started(workers.pool())
                 _execute(todo, summary, log, workers, heartbeat_every, report)
@@ -191,12 +233,12 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                 report.takes_done()
             if report is not None and todo:
                 report.datasets_done()   # still on the workers: what the report put on them is finished
-        if not todo and not built:
+        if not todo and not built and not session_todo:
             n_ds = summary.count("skipped", datasets=True)
             also = f" and {n_ds} datasets" if n_ds else ""
             before = f" ({n_before} take units failed before on the same inputs)" if n_before else ""
-            log.emit("info", "nothing_to_do", f"nothing to do: {len(plans) - n_before} take units{also} up to "
-                     f"date{before}", status="up_to_date", units=len(plans) - n_before, datasets=n_ds)
+            log.emit("info", "nothing_to_do", f"nothing to do: {len(take_plans) - n_before} take units{also} up to "
+                     f"date{before}", status="up_to_date", units=len(take_plans) - n_before, datasets=n_ds)
         _keep(summary, log, layout.hashes, lambda: hashes.save(layout.write_bytes))
         run_record = layout.runs() / f"{summary.run_id}.json"
         _keep(summary, log, run_record, lambda: layout.write_json(run_record, {
@@ -352,6 +394,51 @@ def _dataset_result(fut, d: DatasetPlan) -> UnitOutcome:
     except Exception as exc:  # the worker itself died
         return UnitOutcome("-", "-", f"build:{d.name}", "failed",
                            error=f"dataset {d.name}: worker died while building ({type(exc).__name__}: {exc})")
+
+
+def _run_sessions(jobs: list[SessionJob], todo: list[SessionJob], summary: RunSummary, log: EventLog,
+                  workers: _Workers) -> dict[str, set[str]]:
+    """Run the session stages' units that have work (the sessions in parallel on the workers), before any take;
+    record every session unit's outcome. Returns, by session id, the session stages that failed (now or before
+    on the same inputs): the take units that read them are not run."""
+    outcomes: list[UnitOutcome] = []
+    for job in jobs:
+        if job not in todo:
+            outcomes.extend(_not_run(u) for u in job.units)
+    if todo:
+        parent = os.getpid() if workers.local else None
+        for job in todo:
+            job.parent_pid = parent
+        if workers.kind == "serial":
+            done = [run_session_job(job) for job in todo]
+        else:
+            futures = {workers.executor.submit(run_session_job, job): job for job in todo}
+            done = [_session_result(f, futures[f]) for f in as_completed(futures)]
+        outcomes.extend(o for out in done for o in out)
+    failed: dict[str, set[str]] = {}
+    for o in outcomes:
+        summary.outcomes.append(o)
+        if o.status in ("failed", "blocked"):
+            failed.setdefault(o.session, set()).add(o.stage)
+        if o.status == "ok":
+            log.emit("info", "unit", f"{o.session} (session) {o.stage}: ok ({o.duration_s:.2f} s)",
+                     session=o.session, take=o.take, stage=o.stage, status="ok", duration_s=round(o.duration_s, 4))
+            for w in o.warnings:
+                log.emit("warning", "qc_warning", f"{o.session} (session) {o.stage}: {w}", session=o.session,
+                         take=o.take, stage=o.stage)
+        elif o.status == "failed":
+            log.emit("error", "unit", o.error, session=o.session, take=o.take, stage=o.stage, status="failed",
+                     duration_s=round(o.duration_s, 4), traceback=o.traceback or None)
+    return failed
+
+
+def _session_result(fut: Future, job: SessionJob) -> list[UnitOutcome]:
+    try:
+        return fut.result()
+    except Exception as exc:  # the worker itself died
+        return [UnitOutcome(u.session, u.take, u.stage, "failed",
+                            error=f"session {u.session}: worker died while running ({type(exc).__name__}: {exc})")
+                for u in job.units if u.run]
 
 
 def _execute(todo: list[TakeJob], summary: RunSummary, log: EventLog, workers: _Workers,

@@ -7,6 +7,9 @@ The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:
   :class:`UnitContext` (the take, its parameters, and a loader for upstream tables) and returns a
   :class:`UnitResult` (Arrow tables to write and a QC record); the engine does all reading and writing, so the
   stage functions stay pure;
+- session stages (:func:`register_session_stage`): work done once per session that take stages read (their
+  ``session_requires``), such as a pose every take is calibrated against; they run before the session's take
+  units, with a :class:`SessionContext`;
 - datasets built from many takes' tables (:func:`register_dataset`, :mod:`gazepipe.pipeline.datasets`);
 - parameter groups that belong to no take stage (:func:`register_params`: the datasets' parameters);
 - the table store (:func:`set_table_store`): how a table is written and read back schema-checked.
@@ -24,7 +27,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import pyarrow as pa
 
@@ -46,6 +49,10 @@ class SessionLike(Protocol):
     root: str
     path: str
     takes: Sequence[TakeLike]
+
+
+SessionT = TypeVar("SessionT", bound=SessionLike)
+TakeT = TypeVar("TakeT", bound=TakeLike)
 
 
 @dataclass(frozen=True)
@@ -79,24 +86,51 @@ class UnitResult:
 
 
 @dataclass
-class UnitContext:
-    """Everything a stage may use while running on one take."""
+class UnitContext(Generic[SessionT, TakeT]):
+    """Everything a stage may use while running on one take: the DAG's own session and take types
+    (``UnitContext[Session, Take]``), the stage's parameter values, and loaders for upstream tables."""
 
-    session: SessionLike
-    take: TakeLike
+    session: SessionT
+    take: TakeT
     params: dict[str, Any]
     out_dir: Path
     loader: Callable[[str, str, str], pa.Table]
     all_params: dict[str, Any] = field(default_factory=dict)
+    #: reads a session stage's table: ``(session id, table name)``
+    session_loader: Callable[[str, str], pa.Table] | None = None
 
     def params_of(self, stage: str) -> dict[str, Any]:
         """Another stage's parameter values (defaults overridden), for a stage that repeats its work."""
-        st = get(stage)
-        return {k: self.all_params.get(f"{stage}.{k}", v) for k, v in st.params.items()}
+        return group_values(stage, self.all_params)
 
     def load(self, table: str, take_id: str | None = None) -> pa.Table:
         """Read an upstream table of this take (or of ``take_id`` in the same session), schema-checked."""
         return self.loader(self.session.id, take_id or self.take.id, table)
+
+    def load_session(self, table: str) -> pa.Table:
+        """Read a table of one of the stage's ``session_requires`` (this take's session), schema-checked."""
+        if self.session_loader is None:
+            raise RuntimeError(f"no session tables in this context (asked for {table})")
+        return self.session_loader(self.session.id, table)
+
+
+@dataclass
+class SessionContext(Generic[SessionT]):
+    """Everything a session stage may use while running once for a session."""
+
+    session: SessionT
+    params: dict[str, Any]
+    out_dir: Path
+    loader: Callable[[str, str], pa.Table]
+    all_params: dict[str, Any] = field(default_factory=dict)
+
+    def params_of(self, stage: str) -> dict[str, Any]:
+        """The parameter values (defaults overridden) of stage or group ``stage``."""
+        return group_values(stage, self.all_params)
+
+    def load(self, table: str) -> pa.Table:
+        """Read a table of an upstream session stage of this session, schema-checked."""
+        return self.loader(self.session.id, table)
 
 
 @dataclass(frozen=True)
@@ -114,6 +148,8 @@ class Stage:
     run : the work itself.
     rules : the allowed values of its parameters, by name (see :func:`value_problem`); none = any value of
         the default's type.
+    session_requires : session stages (:class:`SessionStage`) whose tables it loads
+        (:meth:`UnitContext.load_session`); they run first, and a change of theirs re-runs it.
     """
 
     name: str
@@ -121,11 +157,39 @@ class Stage:
     requires: tuple[str, ...]
     params: Mapping[str, Any]
     outputs: tuple[str, ...]
-    applies: Callable[[SessionLike, TakeLike], bool]
-    sources: Callable[[SessionLike, TakeLike], Sequence[str]]
-    run: Callable[[UnitContext], UnitResult]
+    applies: Callable[[Any, Any], bool]
+    sources: Callable[[Any, Any], Sequence[str]]
+    run: Callable[[Any], UnitResult]
     help: str = ""
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    session_requires: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class SessionStage:
+    """A registered session stage: work done once per session, before its take units, that take stages read.
+
+    Attributes
+    ----------
+    name, version : bump ``version`` whenever the stage's output for the same inputs changes.
+    requires : upstream session stages whose tables it loads.
+    uses : parameter groups (take stages or :class:`ParamGroup`) whose values it uses; part of its
+        fingerprint (a session stage repeats a take stage's work, with that stage's parameters).
+    outputs : table names it writes under ``sessions/<session>/``.
+    applies : whether the session needs it.
+    sources : the raw input files it reads (content-hashed into its fingerprint).
+    run : the work itself: a :class:`SessionContext` in, a :class:`UnitResult` out.
+    """
+
+    name: str
+    version: str
+    requires: tuple[str, ...]
+    uses: tuple[str, ...]
+    outputs: tuple[str, ...]
+    applies: Callable[[Any], bool]
+    sources: Callable[[Any], Sequence[str]]
+    run: Callable[[Any], UnitResult]
+    help: str = ""
 
 
 @dataclass(frozen=True)
@@ -167,19 +231,34 @@ class ParamGroup:
 
 
 _STAGES: dict[str, Stage] = {}
+_SESSION_STAGES: dict[str, SessionStage] = {}
 _DATASETS: dict[str, Dataset] = {}
 _GROUPS: dict[str, ParamGroup] = {}
 _TABLES: list[TableStore] = []
 
 
 def register(stage: Stage) -> Stage:
-    """Add a take stage; the stages it requires must be registered before it."""
-    if stage.name in _STAGES or stage.name in _GROUPS:
+    """Add a take stage; the stages and session stages it requires must be registered before it."""
+    if stage.name in _STAGES or stage.name in _GROUPS or stage.name in _SESSION_STAGES:
         raise ValueError(f"stage {stage.name} registered twice")
     for up in stage.requires:
         if up not in _STAGES:
             raise ValueError(f"stage {stage.name} requires unknown stage {up}")
+    for up in stage.session_requires:
+        if up not in _SESSION_STAGES:
+            raise ValueError(f"stage {stage.name} requires unknown session stage {up}")
     _STAGES[stage.name] = stage
+    return stage
+
+
+def register_session_stage(stage: SessionStage) -> SessionStage:
+    """Add a session stage; the session stages it requires must be registered first."""
+    if stage.name in _SESSION_STAGES or stage.name in _STAGES or stage.name in _GROUPS:
+        raise ValueError(f"stage {stage.name} registered twice")
+    unknown = [u for u in stage.requires if u not in _SESSION_STAGES]
+    if unknown:   # the groups it uses may come later: take stages that read it are registered after it
+        raise ValueError(f"session stage {stage.name} requires unknown session stages: {unknown}")
+    _SESSION_STAGES[stage.name] = stage
     return stage
 
 
@@ -230,7 +309,8 @@ def _loaded() -> None:
 def modules() -> tuple[str, ...]:
     """The modules whose functions the registered stages and datasets run, in registration order: importing
     them registers the same stages and datasets in another process (:func:`ensure`)."""
-    runs = [st.run for st in _STAGES.values()] + [ds.run for ds in _DATASETS.values()]
+    runs = ([st.run for st in _SESSION_STAGES.values()] + [st.run for st in _STAGES.values()]
+            + [ds.run for ds in _DATASETS.values()])
     return tuple(dict.fromkeys(f.__module__ for f in runs))
 
 
@@ -251,6 +331,20 @@ def stages() -> list[Stage]:
 def get(name: str) -> Stage:
     _loaded()
     return _STAGES[name]
+
+
+def get_session_stage(name: str) -> SessionStage:
+    _loaded()
+    return _SESSION_STAGES[name]
+
+
+def session_stages_for(take_stages: Sequence[Stage]) -> list[SessionStage]:
+    """The session stages that ``take_stages`` read, with those they require, in registration order."""
+    need = {name for st in take_stages for name in st.session_requires}
+    for st in reversed(list(_SESSION_STAGES.values())):
+        if st.name in need:
+            need.update(st.requires)
+    return [st for st in _SESSION_STAGES.values() if st.name in need]
 
 
 def upto(name: str) -> list[Stage]:

@@ -27,7 +27,15 @@ from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_path
 from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
 from gazepipe.pipeline.lock import pid_alive
-from gazepipe.pipeline.registry import SessionLike, Stage, TakeLike, UnitContext
+from gazepipe.pipeline.registry import (
+    SessionContext,
+    SessionLike,
+    SessionStage,
+    Stage,
+    TakeLike,
+    UnitContext,
+    UnitResult,
+)
 from gazepipe.pipeline.state import OutLayout, read_json
 
 
@@ -58,6 +66,22 @@ class UnitOutcome:
     warnings: list[str] = field(default_factory=list)
 
 
+#: the take named in the plan and outcome of a session stage's unit (it belongs to every take of the session)
+SESSION_UNIT = "*"
+
+
+@dataclass
+class SessionJob:
+    """A session's session-stage units in order (run before its takes' units); picklable."""
+
+    out: str
+    session: SessionLike
+    units: list[UnitPlan]
+    params: dict[str, Any]
+    parent_pid: int | None = None
+    dag: tuple[str, ...] = ()
+
+
 @dataclass
 class TakeJob:
     """A take's units in stage order; picklable, so any executor can run it."""
@@ -72,6 +96,8 @@ class TakeJob:
     #: run after the units, on the same worker: ``after(out, session_id, take, parent_pid)`` (a picklable
     #: module-level function; what the run's report needs from the take); its errors are ignored
     after: Callable[[str, str, Any, int | None], None] | None = None
+    #: session stages whose unit failed: the take's units that read them are not run
+    failed_session: frozenset[str] = frozenset()
 
 
 # --------------------------------------------------------------------------------------------- planning
@@ -90,41 +116,80 @@ def _take_config(session: SessionLike, take: TakeLike) -> dict[str, Any]:
     return cfg
 
 
-def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], params: dict[str, Any],
-              layout: OutLayout, hashes: HashCache, force: bool = False) -> list[UnitPlan]:
-    """Fingerprint every applicable stage of ``take`` and decide whether it must run."""
+def session_key(name: str) -> str:
+    """How a take unit's fingerprint names a session stage among its upstream units."""
+    return f"session:{name}"
+
+
+def plan_session(session: SessionLike, stages: Sequence[SessionStage], params: dict[str, Any],
+                 layout: OutLayout, hashes: HashCache, force: bool = False) -> list[UnitPlan]:
+    """Fingerprint every session stage that applies to ``session`` and decide whether it must run (plans with
+    take :data:`SESSION_UNIT`)."""
     plans: list[UnitPlan] = []
     fps: dict[str, str] = {}
     running: set[str] = set()
+    for st in stages:
+        if not st.applies(session):
+            continue
+        check = registry.source_check()
+        sources = {os.path.relpath(p, session.root): hashes.hash(p, check) for p in st.sources(session)}
+        comp = {
+            "stage": st.name, "version": st.version,
+            "params": {f"{g}.{k}": v for g in st.uses for k, v in registry.group_values(g, params).items()},
+            "sources": sources, "upstream": {u: fps[u] for u in st.requires if u in fps},
+        }
+        fps[st.name] = sha256_json(comp)
+        plans.append(_decide(session, SESSION_UNIT, st.name, comp, fps[st.name],
+                             layout.session_record(session.id, st.name),
+                             [layout.session_table(session.id, o) for o in st.outputs], running, force, hashes))
+    return plans
+
+
+def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], params: dict[str, Any],
+              layout: OutLayout, hashes: HashCache, force: bool = False,
+              session_units: Sequence[UnitPlan] = ()) -> list[UnitPlan]:
+    """Fingerprint every applicable stage of ``take`` and decide whether it must run. ``session_units``: the
+    plans of the take's session stages (:func:`plan_session`); a take stage that reads one re-runs when it
+    runs."""
+    plans: list[UnitPlan] = []
+    fps: dict[str, str] = {session_key(u.stage): u.fingerprint for u in session_units}
+    running: set[str] = {session_key(u.stage) for u in session_units if u.run}
     for st in stages:
         if not st.applies(session, take):
             continue
         check = registry.source_check()
         sources = {os.path.relpath(p, session.root): hashes.hash(p, check) for p in st.sources(session, take)}
+        upstream = [*st.requires, *map(session_key, st.session_requires)]
         comp = {
             "stage": st.name, "version": st.version, "params": stage_params(st, params),
             "take": _take_config(session, take), "sources": sources,
-            "upstream": {u: fps[u] for u in st.requires if u in fps},
+            "upstream": {u: fps[u] for u in upstream if u in fps},
         }
-        fp = sha256_json(comp)
-        fps[st.name] = fp
-        record_path = layout.record(session.id, take.id, st.name)
-        reason = _why(st, comp, fp, record_path, [layout.table(session.id, take.id, o) for o in st.outputs],
-                      running, force, lambda rel: hashes.hash(os.path.join(session.root, rel)))
-        error = ""
-        if reason:
-            running.add(st.name)
-        else:
-            rec = read_json(record_path) or {}
-            if rec.get("status") == "failed":
-                error = rec.get("error", "failed")
-        plans.append(UnitPlan(session.id, take.id, st.name, fp, comp, bool(reason),
-                              reason or ("failed earlier on these same inputs (--force retries)" if error
-                                         else "up to date"), error))
+        fps[st.name] = sha256_json(comp)
+        plans.append(_decide(session, take.id, st.name, comp, fps[st.name], layout.record(session.id, take.id, st.name),
+                             [layout.table(session.id, take.id, o) for o in st.outputs], running, force, hashes))
     return plans
 
 
-def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: list[Path],
+def _decide(session: SessionLike, take_id: str, stage: str, comp: dict[str, Any], fp: str, record_path: Path,
+            outputs: list[Path], running: set[str], force: bool, hashes: HashCache) -> UnitPlan:
+    """A unit's plan: whether it must run (adding it to ``running``) and why, or the error it failed with
+    before on the same inputs."""
+    reason = _why(stage, comp, fp, record_path, outputs, running, force,
+                  lambda rel: hashes.hash(os.path.join(session.root, rel)))
+    error = ""
+    if reason:
+        running.add(stage)
+    else:
+        rec = read_json(record_path) or {}
+        if rec.get("status") == "failed":
+            error = rec.get("error", "failed")
+    return UnitPlan(session.id, take_id, stage, fp, comp, bool(reason),
+                    reason or ("failed earlier on these same inputs (--force retries)" if error else "up to date"),
+                    error)
+
+
+def _why(stage: str, comp: dict[str, Any], fp: str, record_path: Path, outputs: list[Path],
          running: set[str], force: bool, hash_of: Callable[[str], str]) -> str:
     """Why a unit must run, or '' when it is up to date (``hash_of`` hashes a path relative to the session,
     for the inputs the unit's last run found it needed, :attr:`UnitResult.read`)."""
@@ -156,12 +221,12 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
     if old.get("version") != comp["version"]:
         return f"stage version {old.get('version')} -> {comp['version']}"
     changed = [k for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
-    if changed:
-        return "parameters changed: " + ", ".join(f"{st.name}.{k}" for k in changed)
+    if changed:   # a session stage's parameters are named with their group already
+        return "parameters changed: " + ", ".join(k if "." in k else f"{stage}.{k}" for k in changed)
     files = [k for k in comp["sources"] if old.get("sources", {}).get(k) != comp["sources"][k]]
     if files:
         return "input changed: " + ", ".join(files)
-    if old.get("take") != comp["take"]:
+    if old.get("take") != comp.get("take"):
         return "take settings changed"
     ups = [u for u in comp["upstream"] if u in running or old.get("upstream", {}).get(u) != comp["upstream"][u]]
     if ups:
@@ -171,20 +236,29 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
 
 # -------------------------------------------------------------------------------------------- execution
 
-def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None):
+def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None) -> Callable[[str, str, str], pa.Table]:
     """A function reading a take's table by name, schema-checked (by the registered table store); ``written``
     holds tables this process just wrote (by path), returned instead of reading the file back, checked as
     well."""
-    store = registry.table_store()
-
     def load(session_id: str, take_id: str, name: str) -> pa.Table:
-        path = layout.table(session_id, take_id, name)
-        table = written.get(path) if written else None
-        if table is None:
-            table = store.read(path)
-        store.check(table, path, name)
-        return table
+        return _read_checked(layout.table(session_id, take_id, name), name, written)
     return load
+
+
+def _session_loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None) -> Callable[[str, str], pa.Table]:
+    """A function reading a session stage's table by name, schema-checked (see :func:`_loader`)."""
+    def load(session_id: str, name: str) -> pa.Table:
+        return _read_checked(layout.session_table(session_id, name), name, written)
+    return load
+
+
+def _read_checked(path: Path, name: str, written: dict[Path, pa.Table] | None) -> pa.Table:
+    store = registry.table_store()
+    table = written.get(path) if written else None
+    if table is None:
+        table = store.read(path)
+    store.check(table, path, name)
+    return table
 
 
 def release_memory() -> None:
@@ -210,7 +284,7 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
         if job.parent_pid is not None and not pid_alive(job.parent_pid):
             break  # the run died (its lock with it): write nothing more, a new run may already be going
         st = registry.get(plan.stage)
-        if any(u in failed for u in st.requires):
+        if any(u in failed for u in st.requires) or any(u in job.failed_session for u in st.session_requires):
             failed.add(st.name)
             outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "blocked",
                                         reason="an upstream stage failed"))
@@ -223,7 +297,11 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
                 continue
             outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "skipped", reason=plan.reason))
             continue
-        out = _run_unit(st, plan, job, layout, written)
+        ctx: UnitContext[Any, Any] = UnitContext(
+            job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written), job.params,
+            session_loader=_session_loader(layout))
+        out = _run_unit(st.name, st.outputs, lambda c=ctx, run=st.run: run(c), plan, job.session, _files_of(job),
+                        layout, written)
         if out.status == "failed":
             failed.add(st.name)
         outcomes.append(out)
@@ -234,12 +312,53 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
     return outcomes
 
 
-def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
+def run_session_job(job: SessionJob) -> list[UnitOutcome]:
+    """Run a session's session-stage units in order; record each; a failure blocks the units that need it."""
+    registry.ensure(job.dag)
+    layout = OutLayout(Path(job.out))
+    outcomes: list[UnitOutcome] = []
+    failed: set[str] = set()
+    written: dict[Path, pa.Table] = {}
+    for plan in job.units:
+        if job.parent_pid is not None and not pid_alive(job.parent_pid):
+            break
+        st = registry.get_session_stage(plan.stage)
+        if any(u in failed for u in st.requires):
+            failed.add(st.name)
+            outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "blocked",
+                                        reason="an upstream stage failed"))
+        elif not plan.run:
+            if plan.error:
+                failed.add(st.name)
+            outcomes.append(UnitOutcome(plan.session, plan.take, plan.stage, "failed" if plan.error else "skipped",
+                                        reason=plan.reason, error=plan.error))
+        else:
+            ctx: SessionContext[Any] = SessionContext(job.session, {}, layout.root,
+                                                      _session_loader(layout, written), job.params)
+            out = _run_unit(st.name, st.outputs, lambda c=ctx, run=st.run: run(c), plan, job.session, [],
+                            layout, written)
+            if out.status == "failed":
+                failed.add(st.name)
+            outcomes.append(out)
+    return outcomes
+
+
+def _unit_paths(layout: OutLayout, plan: UnitPlan) -> tuple[Callable[[str], Path], Path, str]:
+    """Where a unit's tables and record go, and how its errors name it (``take S/T`` or ``session S``)."""
+    if plan.take == SESSION_UNIT:
+        return (lambda name: layout.session_table(plan.session, name), layout.session_record(plan.session, plan.stage),
+                f"session {plan.session}")
+    return (lambda name: layout.table(plan.session, plan.take, name), layout.record(plan.session, plan.take, plan.stage),
+            f"take {plan.session}/{plan.take}")
+
+
+def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult], plan: UnitPlan,
+              session: SessionLike, files: list[str], layout: OutLayout,
               written: dict[Path, pa.Table] | None = None) -> UnitOutcome:
+    """Run one unit (``run``: the stage's work on its context), write its tables atomically and its record."""
     t0 = time.perf_counter()
     store = registry.table_store()
-    ctx = UnitContext(job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written),
-                      job.params)
+    table_path, record_path, who = _unit_paths(layout, plan)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
                               "fingerprint": plan.fingerprint, "components": plan.components,
                               "gazepipe_version": __version__}
@@ -249,25 +368,30 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
         # one BLAS thread whatever the executor: results must not depend on where a unit ran (a multi-threaded
         # BLAS sums in another order), and takes already run in parallel
         with one_blas_thread():
-            result = st.run(ctx)
-        missing = [o for o in st.outputs if o not in result.tables]
+            result = run()
+        missing = [o for o in outputs if o not in result.tables]
         if missing:
-            raise RuntimeError(f"stage {st.name} produced no {missing}")
+            raise RuntimeError(f"stage {stage} produced no {missing}")
         sizes = {}
         for name, (table, schema) in sorted(result.tables.items()):
-            final = writing = layout.table(plan.session, plan.take, name)
+            final = writing = table_path(name)
             with atomic_path(final, layout.tmp) as tmp:
                 store.write(table, tmp, schema)
             sizes[final.name] = final.stat().st_size
             if written is not None:
                 written[final] = table
         record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings,
-                      read={os.path.relpath(p, job.session.root): sha256_file(p) for p in sorted(set(result.read))})
+                      read={os.path.relpath(p, session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)
     except GazepipeError as exc:
-        if exc.take is None or exc.take == plan.take:   # a take is (session, take): name both
-            exc.take = f"{plan.session}/{plan.take}"
-        outcome.status, outcome.error = "failed", exc.one_line()
+        if plan.take == SESSION_UNIT and exc.take is None:
+            outcome.status, outcome.error = "failed", f"{who}: stage {stage}: {exc.one_line()}"
+        else:   # a take is (session, take): name both
+            if exc.take is None or exc.take == plan.take:
+                exc.take = f"{plan.session}/{plan.take}"
+            elif plan.take == SESSION_UNIT and "/" not in exc.take:   # one of the session's takes
+                exc.take = f"{plan.session}/{exc.take}"
+            outcome.status, outcome.error = "failed", exc.one_line()
         # the inputs are at fault (the same inputs fail the same way), unless the machine was (memory)
         record["retry"] = bool(getattr(exc, "retry", False))
         if isinstance(exc, SchemaError | InputError):
@@ -275,32 +399,31 @@ def _run_unit(st: Stage, plan: UnitPlan, job: TakeJob, layout: OutLayout,
     except OSError as exc:   # the disk, not the take: full, read-only, no permission; retried next time
         record["retry"] = True
         outcome.status = "failed"
-        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, writing)}"
+        outcome.error = f"{who}: stage {stage}: {os_problem(exc, writing)}"
         outcome.traceback = traceback.format_exc()
     except MemoryError:   # the machine, not the take: tried again next time
         record["retry"] = True
         outcome.status = "failed"
-        outcome.error = (f"take {plan.session}/{plan.take}: stage {st.name}: out of memory "
-                         f"(inputs: {', '.join(_files_of(job)) or 'none'}); run it alone or on a larger machine")
+        outcome.error = (f"{who}: stage {stage}: out of memory "
+                         f"(inputs: {', '.join(files) or 'none'}); run it alone or on a larger machine")
         outcome.traceback = traceback.format_exc()
     except Exception as exc:  # a bug: the take fails, the run goes on, --debug shows the traceback
         record["retry"] = True
         outcome.status = "failed"
-        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: internal error: {type(exc).__name__}: {exc}"
+        outcome.error = f"{who}: stage {stage}: internal error: {type(exc).__name__}: {exc}"
         outcome.traceback = traceback.format_exc()
     if outcome.status == "failed":
         record.update(status="failed", error=outcome.error)
-        for name in st.outputs:  # a failed unit leaves no output that disagrees with its inputs
+        for name in outputs:  # a failed unit leaves no output that disagrees with its inputs
             with contextlib.suppress(FileNotFoundError):
-                layout.table(plan.session, plan.take, name).unlink()
+                table_path(name).unlink()
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)
-    path = layout.record(plan.session, plan.take, plan.stage)
     try:
-        layout.write_json(path, record)
+        layout.write_json(record_path, record)
     except OSError as exc:   # the unit's outputs stand unrecorded: the next run does it again
         outcome.status = "failed"
-        outcome.error = f"take {plan.session}/{plan.take}: stage {st.name}: {os_problem(exc, path)}"
+        outcome.error = f"{who}: stage {stage}: {os_problem(exc, record_path)}"
     return outcome
 
 

@@ -2,8 +2,10 @@
 
 Layout::
 
-    OUT/takes/<session>/<take>/<table>.parquet       outputs
+    OUT/takes/<session>/<take>/<table>.parquet       outputs of take stages
+    OUT/sessions/<session>/<table>.parquet           outputs of session stages
     OUT/.gazepipe/units/<session>/<take>/<stage>.json  unit records (fingerprint, status, QC, error, timing)
+    OUT/.gazepipe/session_units/<session>/<stage>.json records of session stages' units
     OUT/.gazepipe/sessions.json                      session id -> session folder, for `gazepipe status`
     OUT/.gazepipe/hashes.json                        input hash cache
     OUT/.gazepipe/runs/<run id>.json                 what each run did
@@ -63,6 +65,12 @@ class OutLayout:
     def record(self, session: str, take: str, stage: str) -> Path:
         return self.state / "units" / session / take / f"{stage}.json"
 
+    def session_table(self, session: str, name: str) -> Path:
+        return self.root / "sessions" / session / f"{name}.parquet"
+
+    def session_record(self, session: str, stage: str) -> Path:
+        return self.state / "session_units" / session / f"{stage}.json"
+
     def write_bytes(self, path: Path, data: bytes) -> None:
         atomic_write_bytes(path, data, self.tmp)
 
@@ -99,7 +107,8 @@ def outputs_fingerprint(layout: OutLayout) -> str:
     import hashlib
 
     h = hashlib.sha256()
-    for p in sorted(layout.state.glob("units/*/*/*.json")) + sorted(layout.state.glob("datasets/*.json")):
+    for p in (sorted(layout.state.glob("session_units/*/*.json")) + sorted(layout.state.glob("units/*/*/*.json"))
+              + sorted(layout.state.glob("datasets/*.json"))):
         rec = read_json(p) or {}
         h.update(f"{p.relative_to(layout.state)}\0{rec.get('fingerprint')}\0{rec.get('status')}\n".encode())
     return h.hexdigest()

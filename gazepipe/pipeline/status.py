@@ -11,6 +11,7 @@ from gazepipe.pipeline.datasets import plan_datasets
 from gazepipe.pipeline.engine import plan_run
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.registry import SessionLike
+from gazepipe.pipeline.runner import SESSION_UNIT
 from gazepipe.pipeline.state import OutLayout, all_records, read_json
 
 
@@ -31,14 +32,16 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
         except GazepipeError as exc:
             rows.append({"session": sid, "take": "-", "stage": "-", "state": "stale",
                          "detail": f"session cannot be read now: {exc.one_line()}"})
-    _, failures, plans = plan_run(sessions, out, params=params, hashes=HashCache(layout.hashes))
+    planned = plan_run(sessions, out, params=params, hashes=HashCache(layout.hashes))
+    failures, plans = planned.failures, planned.plans
     for f in failures:
         rows.append({"session": f.session, "take": f.take, "stage": f.stage, "state": "failed", "detail": f.error})
         seen.add((f.session, f.take, f.stage))
     for p in plans:
         key = (p.session, p.take, p.stage)
         seen.add(key)
-        rec = records.get(key)
+        rec = (read_json(layout.session_record(p.session, p.stage)) if p.take == SESSION_UNIT
+               else records.get(key))
         row = {"session": p.session, "take": p.take, "stage": p.stage}
         if rec is None:
             row.update(state="pending", detail="never ran")

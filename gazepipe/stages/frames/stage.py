@@ -153,6 +153,28 @@ def root_reference(sources: Sequence[tuple[str, Markers]], markerset: MarkerSet,
     return None
 
 
+def calibrated_segments(pose: Markers, markerset: MarkerSet, params: FramesParams) -> set[str] | None:
+    """The segments that ``pose``, as a take's first neutral source, calibrates in :func:`compute_frames`
+    (every marker of the segment and a character frame in at least ``min_neutral_frames`` frames); ``None``
+    when the pose does not give the root reference itself (then which it calibrates depends on the take's
+    other sources)."""
+    root_ref = root_reference([("pose", pose)], markerset, params.min_neutral_frames)
+    if root_ref is None:
+        return None
+    try:
+        origin, cmat, _ = fitted_character_frame(pose, markerset, root_ref, params.min_plane_ratio)
+    except StageError:
+        return None
+    has_char = np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
+    out = set()
+    for s in markerset.segments:
+        if all(m in pose.labels for m in s.markers):
+            pts = np.stack([pose.xyz[:, pose.index(m)] for m in s.markers], axis=1)
+            if (has_char & np.isfinite(pts).all(axis=(1, 2))).sum() >= params.min_neutral_frames:
+                out.add(s.name)
+    return out
+
+
 def fitted_character_frame(markers: Markers, markerset: MarkerSet, root_ref: np.ndarray | None,
                            min_plane_ratio: float, *, path: str | None = None,
                            take: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
