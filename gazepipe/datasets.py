@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -50,8 +50,8 @@ def column_array(table: pa.Table, name: str) -> np.ndarray:
     col = table.column(name)
     arr = col.combine_chunks() if col.num_chunks != 1 else col.chunk(0)
     if pa.types.is_fixed_size_list(arr.type):
-        width = arr.type.list_size
-        return arr.flatten().to_numpy(zero_copy_only=False).reshape(-1, width)
+        lists = cast(pa.FixedSizeListArray, arr)
+        return lists.flatten().to_numpy(zero_copy_only=False).reshape(-1, lists.type.list_size)
     return arr.to_numpy(zero_copy_only=False).reshape(-1, 1)
 
 
@@ -64,9 +64,10 @@ def run_bounds(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
     change[0] = True
     for name in ("subject", "session", "take", "mirrored", "segment"):
         col = table.column(name)
+        values: pa.ChunkedArray | pa.Array = col
         if pa.types.is_string(col.type):
-            col = pc.dictionary_encode(col).combine_chunks().indices
-        v = np.asarray(col.to_numpy(zero_copy_only=False))
+            values = cast(pa.DictionaryArray, pc.dictionary_encode(col).combine_chunks()).indices
+        v = np.asarray(values.to_numpy(zero_copy_only=False))
         change[1:] |= v[1:] != v[:-1]
     starts = np.flatnonzero(change)
     stops = np.append(starts[1:], n)
@@ -301,7 +302,9 @@ class TorchWindows:
     def __new__(cls, windows: Windows):
         torch = _torch()
 
-        class _TorchWindows(torch.utils.data.Dataset):
+        dataset_base: Any = torch.utils.data.Dataset   # torch is optional and untyped here
+
+        class _TorchWindows(dataset_base):
             def __init__(self, w: Windows) -> None:
                 self.windows = w
                 names = [*w.pair, *[c for c in w.arrays if c not in w.pair]]

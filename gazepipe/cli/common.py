@@ -7,7 +7,7 @@ import functools
 import sys
 import tomllib
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +54,7 @@ def handle_errors(fn: Callable) -> Callable:
     return wrapper
 
 
-def raise_all(problems: list[GazepipeError]) -> None:
+def raise_all(problems: Sequence[GazepipeError]) -> None:
     """Print every problem but the last as an ``error:`` line, then raise the last (nothing when none)."""
     if problems:
         for e in problems[:-1]:

@@ -18,6 +18,7 @@ if TYPE_CHECKING:
     import numpy as np
 
     from gazepipe.model import Markers
+    from gazepipe.report.run_report import ReportInBackground
 
 EPILOG = """\b
 Exit codes: 0 ok; 1 a take failed (the others finished); 2 usage or configuration
@@ -88,7 +89,12 @@ class _RunReport:
     def __init__(self, out: Path, log) -> None:
         self.out = out
         self.log = log
-        self.background = None
+        self.background: ReportInBackground | None = None
+
+    def _started(self) -> ReportInBackground:
+        # the hooks below run only after takes_started made the report
+        assert self.background is not None, "takes_started was not called"
+        return self.background
 
     def take_job(self):
         from gazepipe.report.run_report import take_part
@@ -102,16 +108,16 @@ class _RunReport:
         self.background = ReportInBackground(self.out, plot_takes=REPORT_PLOT_TAKES, pool=pool)
 
     def take_finished(self, session, take, waiting: int) -> None:
-        self.background.take_finished(session, take, waiting)
+        self._started().take_finished(session, take, waiting)
 
     def takes_done(self) -> None:
-        self.background.start()
+        self._started().start()
 
     def dataset_built(self, name: str) -> None:
-        self.background.dataset_built(name)
+        self._started().dataset_built(name)
 
     def datasets_done(self) -> None:
-        self.background.wait_for_workers()
+        self._started().wait_for_workers()
 
     def finish(self) -> None:
         from gazepipe.pipeline.state import OutLayout, outputs_fingerprint, read_json
@@ -260,6 +266,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                                         "and are written as gaps (counted as filled below)")
             summary["samples_written_as_gaps"] = n_wide
         else:
+            assert text is not None   # read above for every format but C3D
             write_filled_text(src_p, tmp, filled, fmt, removed=removed, original=text)
             n_lineless = _filled_without_a_line(markers, filled, text[1].rows)
             if n_lineless:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -51,7 +52,7 @@ def _thresholds(pairs: tuple[str, ...]):
     from gazepipe.report.checks import Thresholds
 
     fields = {f.name: f for f in dataclasses.fields(Thresholds)}
-    values = {}
+    values: dict[str, Any] = {}   # each threshold's own type (a number, or None for off)
     for pair in pairs:
         key, sep, raw = pair.partition("=")
         key = key.strip()

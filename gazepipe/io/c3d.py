@@ -442,7 +442,7 @@ def _agrees_with_file(p: Path, fh, lay: Layout, lib: np.ndarray, gap: np.ndarray
 
 def _model_points(meta: C3DMeta, raw_labels: list[str]) -> np.ndarray:
     """(P,) bool: the points that are model outputs (listed in a POINT parameter of ``MODEL_OUTPUT_PARAMS``)."""
-    model_names = set()
+    model_names: set[str] = set()
     for name in MODEL_OUTPUT_PARAMS:
         model_names.update(s.strip() for s in meta.get_strings("POINT", name) if s.strip())
     return np.array([lab.strip() in model_names for lab in raw_labels], dtype=bool)

@@ -87,7 +87,7 @@ def table_split(table: pa.Table) -> str:
     """The one ``split`` value of a take's table."""
     values = table.column("split").unique().to_pylist()
     if len(values) != 1:
-        raise SchemaError(None, f"a take's table holds splits {sorted(values)}, expected one")
+        raise SchemaError(None, f"a take's table holds splits {sorted(values, key=str)}, expected one")
     return str(values[0])
 
 
@@ -300,7 +300,7 @@ def read_take(path: str | Path, schema: pa.Schema) -> pa.Table:
     for col, want in parts.items():
         got = set(table.column(col).unique().to_pylist())
         if table.num_rows and got != {want}:
-            raise SchemaError(str(path), f"column {col!r} holds {sorted(got)}, the path says {want!r}")
+            raise SchemaError(str(path), f"column {col!r} holds {sorted(got, key=str)}, the path says {want!r}")
     return table
 
 

@@ -97,7 +97,7 @@ def _cell_text(values: np.ndarray, filled: np.ndarray, decimals: int) -> dict[tu
     return {(int(t), int(m)): cells[3 * k:3 * k + 3] for k, (t, m) in enumerate(zip(t_idx, m_idx, strict=True))}
 
 
-def _rewrite_row(line: bytes, layout: TextLayout, markers: np.ndarray, text: dict, t: int) -> bytes:
+def _rewrite_row(line: bytes, layout: TextLayout, markers: np.ndarray, text: dict, t: int | np.integer) -> bytes:
     """One data row with the cells of ``markers`` replaced: their filled values, or empty for a gap."""
     end = b"\r" if line.endswith(b"\r") else b""
     fields = line[:len(line) - len(end)].split(layout.sep.encode())

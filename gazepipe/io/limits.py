@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,7 @@ _CHUNK = 4 << 20   # bytes read at a time by check_line_lengths
 
 
 @functools.cache
-def exact_floats() -> dict[str, str]:
+def exact_floats() -> dict[str, Any]:
     """``pandas.read_csv`` keyword arguments (C engine) that parse every float to the nearest double, whatever the pandas version.
 
     Before pandas 3.1 the C parser's default converter can be one unit in the last place off on some inputs;

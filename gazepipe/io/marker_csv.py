@@ -45,6 +45,7 @@ import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -129,6 +130,12 @@ class _Lines:
             return None
         return _text(self.raw[a:b]).rstrip("\r\n")
 
+    def before(self, i: int) -> str:
+        """Line ``i`` where a later line is known to exist."""
+        text = self[i]
+        assert text is not None
+        return text
+
 
 class _ByteRange(io.RawIOBase):
     """``raw[start:stop]`` as a readable stream, without copying it (a slice of a large export would double
@@ -160,8 +167,9 @@ def _numbers(raw: bytes, start: int, stop: int, sep: str, n_cols: int) -> np.nda
     """
     if not re.search(rb"\S", memoryview(raw)[start:stop]):
         return np.zeros((0, n_cols))
-    kw = dict(sep=sep, header=None, keep_default_na=False, skip_blank_lines=True, engine="c",
-              names=range(max(n_cols, 1)), index_col=False, on_bad_lines="error", encoding="latin-1")
+    kw: dict[str, Any] = dict(sep=sep, header=None, keep_default_na=False, skip_blank_lines=True, engine="c",
+                              names=range(max(n_cols, 1)), index_col=False, on_bad_lines="error",
+                              encoding="latin-1")
     src = (raw, start, stop)
     with warnings.catch_warnings():
         # pandas only warns when a row has more cells than there are names: the row is malformed unless
@@ -364,9 +372,9 @@ def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[st
         file_rate = None
     if rate_hz is not None and not (math.isfinite(float(rate_hz)) and float(rate_hz) > 0):
         raise _Bad(f"rate_hz must be a positive number, got {rate_hz!r}")
-    if file_rate is None and rate_hz is None:
-        raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
     if file_rate is None:
+        if rate_hz is None:
+            raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
         return snap_rate(float(rate_hz))
     rate = snap_rate(file_rate)
     if rate_hz is not None and abs(snap_rate(float(rate_hz)) - rate) > 5e-4 * rate:
@@ -474,13 +482,13 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     lines = _Lines(raw, found.start())
     if lines[4] is None:
         raise _Bad("'Trajectories' block truncated before its data")
-    rate_cell = lines[1].split(",", 1)[0].strip()
+    rate_cell = lines.before(1).split(",", 1)[0].strip()
     try:
         file_rate = float(rate_cell) if rate_cell else None
     except ValueError:
         raise _Bad(f"rate line reads {rate_cell[:20]!r}, not a number") from None
-    names = [c.strip() for c in next(csv.reader([lines[2]]), [])]
-    comps = [c.strip() for c in next(csv.reader([lines[3]]), [])]
+    names = [c.strip() for c in next(csv.reader([lines.before(2)]), [])]
+    comps = [c.strip() for c in next(csv.reader([lines.before(3)]), [])]
     units_row = [c.strip() for c in next(csv.reader([lines[4]]), [])]
     if len(comps) < 2 or comps[0].lower() != "frame":
         raise _Bad("the row after the marker names does not start with 'Frame'")
@@ -554,8 +562,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     lines = _Lines(raw)
     header: dict[str, list[str]] = {}
     i = 0
-    while lines[i] is not None and i < 10000:
-        cells = lines[i].split("\t")
+    while (line := lines[i]) is not None and i < 10000:
+        cells = line.split("\t")
         key = cells[0].strip()
         if not _QTM_KEY.match(key):
             break
@@ -582,11 +590,11 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     except ValueError:
         raise _Bad(f"FREQUENCY reads {freq[:20]!r}, not a number") from None
 
-    while lines[i] is not None and not lines[i].strip():
+    while (line := lines[i]) is not None and not line.strip():
         i += 1
     col_names: list[str] | None = None
-    if lines[i] is not None and lines[i].split("\t", 1)[0].strip().lower() in ("frame", "time"):
-        col_names = [c.strip() for c in lines[i].split("\t")]
+    if (line := lines[i]) is not None and line.split("\t", 1)[0].strip().lower() in ("frame", "time"):
+        col_names = [c.strip() for c in line.split("\t")]
         i += 1
     first_row = lines[i] or ""
     n_cells = len(first_row.split("\t"))
@@ -654,8 +662,10 @@ def rate_from_times(t: np.ndarray, rows: np.ndarray | None = None) -> tuple[floa
         raise _Bad("the time column needs at least two finite values")
     d = np.diff(t)
     if (d <= 0).any():
-        r = int(np.argmax(d <= 0)) + 2
-        raise _Bad(f"the time column is not strictly increasing (data row {r})")
+        row = int(np.argmax(d <= 0)) + 2
+        raise _Bad(f"the time column is not strictly increasing (data row {row})")
+    r: float
+    steps: float | np.ndarray
     if rows is None:
         r = (t.size - 1) / (t[-1] - t[0])
         steps = 1.0

@@ -94,15 +94,15 @@ def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
         if not isinstance(value, list):
             col.add("lod.segments", f"must be an array of segment names, got {type_name(value)}")
         else:
-            names = []
+            lod_names: list[str] = []
             for i, v in enumerate(value):
                 if not isinstance(v, str) or v not in seg_names:
                     col.add(f"lod.segments[{i}]", f"{show(v)} is not a segment{suggest(str(v), seg_names)}")
-                elif v in names:
+                elif v in lod_names:
                     col.add(f"lod.segments[{i}]", f"segment {v!r} listed twice")
                 else:
-                    names.append(v)
-            lod = tuple(names)
+                    lod_names.append(v)
+            lod = tuple(lod_names)
 
     rotation = None
     if "camera" in doc and (table := col.table(doc["camera"], "camera")) is not None:

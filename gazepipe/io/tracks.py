@@ -10,6 +10,7 @@ import csv
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -187,10 +188,10 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise InputError(path, f"{what}: missing required column{more}", key=missing[0])
-    order = sorted(pos, key=pos.get)
+    order = sorted(pos, key=pos.__getitem__)
     dtypes = {pos[c]: (str if c in text else np.float64) for c in order}
-    kw = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
-              keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
+    kw: dict[str, Any] = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
+                              keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
     try:
         df = pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
     except pd.errors.EmptyDataError:

@@ -221,20 +221,26 @@ class FrameReader:
             _raise_with(failed, self.messages)
         return window
 
+    def _capture(self) -> cv2.VideoCapture:
+        """The open capture (the methods below run only under ``__call__``, which checked the reader is open)."""
+        assert self._cap is not None
+        return self._cap
+
     def _window(self, start: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
         pending = self._reach(start)  # the timestamp of frame ``start`` when a seek check already grabbed it
+        cap = self._capture()
         ts: list[float] = []
         frames: list[np.ndarray] = []
         interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
         for i in range(start, stop):
             if pending is None:
-                if not self._cap.grab():
+                if not cap.grab():
                     self._next = None
                     break
-                t = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+                t = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
             else:
                 t, pending = pending, None
-            good, img = self._cap.retrieve()
+            good, img = cap.retrieve()
             if not good:
                 self._next = None
                 break
@@ -250,10 +256,12 @@ class FrameReader:
         return np.asarray(ts, dtype=np.float64), np.stack(frames).astype(np.uint8, copy=False)
 
     def _grab(self, n: int) -> None:
+        cap = self._capture()
         for _ in range(n):  # grab() skips the colour conversion and the copy to numpy
-            if not self._cap.grab():
+            if not cap.grab():
                 self._next = None
                 return
+            assert self._next is not None   # known whenever _reach grabs forward
             self._next += 1
 
     def _reach(self, start: int) -> float | None:
@@ -271,7 +279,7 @@ class FrameReader:
             self._seek_ok = False
             self._next = None  # wherever the inexact seek left the capture
         if self._next is None or start < self._next:
-            self._cap.release()
+            self._capture().release()
             self._cap = _open(self.path, self.threads)
             self._next = 0
         self._grab(start - self._next)
@@ -280,14 +288,15 @@ class FrameReader:
     def _seek(self, start: int) -> float | None | bool:
         """Seek to frame ``start``: False when the seek cannot be trusted; else None, or the frame's timestamp
         when the check against the probe's timestamps grabbed it."""
-        if not self._cap.set(cv2.CAP_PROP_POS_FRAMES, float(start)):
+        cap = self._capture()
+        if not cap.set(cv2.CAP_PROP_POS_FRAMES, float(start)):
             return False
         ts = self.timestamps_s
         if ts is None or start >= ts.size:
             return None  # nothing to check against (past the end: the call reports the short video)
-        if not self._cap.grab():
+        if not cap.grab():
             return False
-        got = self._cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+        got = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
         return got if abs(got - ts[start]) <= self._tolerance else False  # within half a frame
 
 

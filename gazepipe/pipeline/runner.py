@@ -16,7 +16,7 @@ import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import pyarrow as pa
 
@@ -37,6 +37,9 @@ from gazepipe.pipeline.registry import (
     UnitResult,
 )
 from gazepipe.pipeline.state import OutLayout, read_json
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 
 @dataclass
@@ -109,7 +112,7 @@ def stage_params(stage: Stage, params: dict[str, Any]) -> dict[str, Any]:
 
 def _take_config(session: SessionLike, take: TakeLike) -> dict[str, Any]:
     """The take's settings with paths relative to the session folder (moving the folder changes nothing)."""
-    cfg = asdict(take)
+    cfg = asdict(cast("DataclassInstance", take))   # a TakeLike's settings are its dataclass fields
     for k, v in cfg.items():
         if isinstance(v, str) and os.path.isabs(v):
             cfg[k] = os.path.relpath(v, session.root)

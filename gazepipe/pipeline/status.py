@@ -42,7 +42,7 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
         seen.add(key)
         rec = (read_json(layout.session_record(p.session, p.stage)) if p.take == SESSION_UNIT
                else records.get(key))
-        row = {"session": p.session, "take": p.take, "stage": p.stage}
+        row: dict[str, Any] = {"session": p.session, "take": p.take, "stage": p.stage}
         if rec is None:
             row.update(state="pending", detail="never ran")
         elif rec.get("status") == "failed":
@@ -67,9 +67,9 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
         else:
             row.update(state="ok", detail="")
         rows.append(row)
-    for key, rec in sorted(records.items(), key=lambda kv: tuple(map(str, kv[0]))):
-        if key not in seen:
-            rows.append({"session": key[0], "take": key[1], "stage": key[2],
+    for rec_key, rec in sorted(records.items(), key=lambda kv: tuple(map(str, kv[0]))):
+        if rec_key not in seen:
+            rows.append({"session": rec_key[0], "take": rec_key[1], "stage": rec_key[2],
                          "state": "failed" if rec.get("status") == "failed" else "ok",
                          "detail": "no longer in its session", "duration_s": rec.get("duration_s")})
     return rows

@@ -8,7 +8,7 @@ Every table carries its schema's name and version in the Arrow schema metadata (
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, cast
 
 import pyarrow as pa
 
@@ -27,6 +27,10 @@ def with_identity(schema: pa.Schema, name: str, version: int) -> pa.Schema:
     return schema.with_metadata(md)
 
 
+#: Arrow metadata as pyarrow's type stubs take it (an exact dict type: a ``dict[bytes, bytes]`` read back from a
+#: schema has to be cast or copied into it)
+ArrowMetadata = dict[bytes | str, bytes | str]
+
 #: field-metadata key of a list column's element names (a JSON list: one name per value, in order)
 ELEMENTS_KEY = b"gazepipe.elements"
 
@@ -40,9 +44,11 @@ def with_element_names(schema: pa.Schema, names: dict[str, list[str]]) -> pa.Sch
         if elems is not None and pa.types.is_fixed_size_list(f.type):
             if len(elems) != f.type.list_size:
                 raise SchemaError(None, f"column {f.name!r} holds {f.type.list_size} values, {len(elems)} names given")
-            f = f.with_metadata({**(f.metadata or {}), ELEMENTS_KEY: json.dumps(list(elems)).encode()})
+            md: ArrowMetadata = {k: v for k, v in (f.metadata or {}).items()}
+            md[ELEMENTS_KEY] = json.dumps(list(elems)).encode()
+            f = f.with_metadata(md)
         fields.append(f)
-    return pa.schema(fields, metadata=schema.metadata)
+    return pa.schema(fields, metadata=cast(ArrowMetadata | None, schema.metadata))
 
 
 def element_names(field: pa.Field) -> list[str] | None:

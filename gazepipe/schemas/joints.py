@@ -16,7 +16,7 @@ not stored: :func:`joints_arrays` derives them.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -34,7 +34,7 @@ def _vec(n: int) -> pa.DataType:
 
 def joints_schema(n_segments: int) -> pa.Schema:
     s = n_segments
-    return with_identity(pa.schema([
+    fields: list[pa.Field] = [
         pa.field("frame", pa.int32(), nullable=False),
         pa.field("source_frame", pa.int64(), nullable=False),
         pa.field("time_s", pa.float64(), nullable=False),
@@ -46,18 +46,19 @@ def joints_schema(n_segments: int) -> pa.Schema:
         pa.field("char_rot", _vec(4)),
         pa.field("rot_filled", pa.list_(pa.bool_(), s), nullable=False),
         pa.field("rot_measured", pa.list_(pa.bool_(), s), nullable=False),
-    ]), "joints", SCHEMA_VERSION)
+    ]
+    return with_identity(pa.schema(fields), "joints", SCHEMA_VERSION)
 
 
 def fixed_list(values: np.ndarray, width: int, dtype: type = np.float64) -> pa.FixedSizeListArray:
     """(N, ...) float array → a fixed-size list column of ``width`` values of ``dtype`` per row."""
-    flat = np.ascontiguousarray(values, dtype=dtype).reshape(-1)
+    flat: np.ndarray = np.ascontiguousarray(values, dtype=dtype).reshape(-1)
     return pa.FixedSizeListArray.from_arrays(pa.array(flat), width)
 
 
 def list_to_numpy(column: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
     """A fixed-size list column → (N, width) array (NaN stays NaN)."""
-    arr = column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
+    arr = cast(pa.FixedSizeListArray, column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column)
     return arr.flatten().to_numpy(zero_copy_only=False).reshape(-1, width)
 
 
@@ -139,6 +140,6 @@ def joints_arrays(table: pa.Table) -> dict[str, Any]:
     out["quat_local"] = quat_local(out["quat"], [int(p) for p in meta.get("parents", [-1] + list(range(s - 1)))])
     out["six"] = quat_six(out["quat"])
     for name in ("rot_filled", "rot_measured"):
-        out[name] = (table.column(name).combine_chunks().flatten().to_numpy(zero_copy_only=False)
-                     .reshape(-1, s).astype(bool))
+        lists = cast(pa.FixedSizeListArray, table.column(name).combine_chunks())
+        out[name] = lists.flatten().to_numpy(zero_copy_only=False).reshape(-1, s).astype(bool)
     return out

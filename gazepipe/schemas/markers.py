@@ -10,7 +10,7 @@ marker's noise; readers get float64 (:func:`table_to_markers`).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -67,7 +67,7 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
                            mask=invalid) for k in range(3)]
     marker_idx = np.repeat(np.arange(M, dtype=np.int32), T)
     cols: dict[str, pa.Array] = {
-        "marker": pa.DictionaryArray.from_arrays(pa.array(marker_idx), pa.array(markers.labels, pa.string())),
+        "marker": pa.DictionaryArray.from_arrays(pa.array(marker_idx, pa.int32()), pa.array(markers.labels, pa.string())),
         "frame": pa.array(np.tile(frames, M)),
         "source_frame": pa.array(np.tile(frames.astype(np.int64) + markers.first_frame, M)),
         "time_s": pa.array(np.tile(frames / markers.rate_hz, M)),
@@ -77,7 +77,7 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
     schema = MARKERS_RAW
     if fill_code is not None:
         codes = np.asarray(fill_code, dtype=np.int8).T.reshape(-1)
-        cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes), pa.array(FILL_NAMES, pa.string()))
+        cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes, pa.int8()), pa.array(FILL_NAMES, pa.string()))
         cols["spike"] = pa.array(np.zeros(M * T, dtype=bool) if spike is None
                                  else np.asarray(spike, dtype=bool).T.reshape(-1))
         err = (np.full(M * T, np.nan) if fill_error_mm is None
@@ -114,7 +114,7 @@ def check_markers_meta(table: pa.Table, path: str | None = None) -> None:
     if m == 0 or table.num_rows % m:
         raise SchemaError(path, f"{table.num_rows} rows do not make {m} markers x whole frames")
     t = table.num_rows // m
-    marker = table.column("marker").combine_chunks()
+    marker = cast(pa.DictionaryArray, table.column("marker").combine_chunks())   # checked against the schema
     idx = marker.indices.to_numpy(zero_copy_only=False) if t else np.zeros(0, np.int64)
     # a table of no frames (a take without a rest) comes back from Parquet with an empty dictionary
     if (t and len(marker.dictionary) != m) or not np.array_equal(idx, np.repeat(np.arange(m), t)):
@@ -131,7 +131,7 @@ def fill_codes(table: pa.Table) -> tuple[list[str], np.ndarray, np.ndarray]:
     m = len(labels)
     t = table.num_rows // m if m else 0
     frames = table.column("frame").to_numpy()[:t].astype(np.int64)
-    fill = table.column("fill").combine_chunks().indices.to_numpy(zero_copy_only=False)
+    fill = cast(pa.DictionaryArray, table.column("fill").combine_chunks()).indices.to_numpy(zero_copy_only=False)
     return labels, frames, fill.astype(np.int8).reshape(m, t).T
 
 
@@ -150,8 +150,8 @@ def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray |
     xyz[~valid] = np.nan
     fill = None
     if "fill" in table.column_names:
-        fill = table.column("fill").combine_chunks().indices.to_numpy(zero_copy_only=False)
-        fill = fill.astype(np.int8).reshape(M, T).T
+        codes = cast(pa.DictionaryArray, table.column("fill").combine_chunks()).indices
+        fill = codes.to_numpy(zero_copy_only=False).astype(np.int8).reshape(M, T).T
     markers = Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=float(meta["rate_hz"]),
                       first_frame=int(meta["first_frame"]), units=meta.get("units_found"),
                       source_format=meta.get("source_format", ""), model_outputs=list(meta.get("model_outputs", [])),

@@ -22,7 +22,7 @@ from gazepipe.schemas.base import with_identity
 SCHEMA_VERSION = 2
 N_BLENDSHAPES = 52
 
-EYES = with_identity(pa.schema([
+_EYES_FIELDS: list[pa.Field] = [
     pa.field("frame", pa.int32(), nullable=False),
     pa.field("source_frame", pa.int64(), nullable=False),
     pa.field("time_s", pa.float64(), nullable=False),
@@ -31,9 +31,10 @@ EYES = with_identity(pa.schema([
     pa.field("confidence", pa.float64()),
     pa.field("eye_dir_char", pa.list_(pa.float32(), 3)),
     pa.field("eye_dir_head", pa.list_(pa.float32(), 3)),
-]), "eyes", SCHEMA_VERSION)
+]
+EYES = with_identity(pa.schema(_EYES_FIELDS), "eyes", SCHEMA_VERSION)
 
-SYNC = with_identity(pa.schema([
+_SYNC_FIELDS: list[pa.Field] = [
     pa.field("clap", pa.int32(), nullable=False),
     pa.field("mocap_s", pa.float64(), nullable=False),
     pa.field("video_s", pa.float64(), nullable=False),
@@ -41,13 +42,14 @@ SYNC = with_identity(pa.schema([
     pa.field("confidence_video", pa.float64(), nullable=False),
     pa.field("offset_s", pa.float64(), nullable=False),
     pa.field("ratio", pa.float64(), nullable=False),
-]), "sync", SCHEMA_VERSION)
+]
+SYNC = with_identity(pa.schema(_SYNC_FIELDS), "sync", SCHEMA_VERSION)
 
 
 def face_schema(k: int) -> pa.Schema:
     """The ``face`` table for derivatives up to order ``k``."""
     vec = pa.list_(pa.float32(), N_BLENDSHAPES)
-    fields = [
+    fields: list[pa.Field] = [
         pa.field("frame", pa.int64(), nullable=False),
         pa.field("timecode", pa.string(), nullable=False),
         pa.field("time_s", pa.float64(), nullable=False),

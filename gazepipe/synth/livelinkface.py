@@ -159,6 +159,7 @@ def clean_track(rng: np.random.Generator, t: np.ndarray, rate: float, head: bool
 def tracked_track(rng: np.random.Generator, clean: np.ndarray, angles: np.ndarray,
                   head: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """What a tracker reports for a clean take: (values (n, 52), angles (n, 9), spike mask (n, 52), bias)."""
+    c: int   # channels: sizes the per-channel arrays below
     n, c = clean.shape
     k = np.arange(n, dtype=np.float64)
     jitter = np.clip(0.25 * rng.standard_normal(n), -0.6, 0.6)        # capture-time jitter, frames
@@ -193,9 +194,9 @@ def _drops(rng: np.random.Generator, n: int, rate: float, avoid: np.ndarray | No
     for f in np.flatnonzero(rng.random(n) < 1.0 / 80.0):
         if 2 <= f < n - 3 and not drop[f - 1:f + 2].any() and (avoid is None or not avoid[f - 1:f + 2].any()):
             drop[f] = True
-    f = int(rng.integers(n // 3, 2 * n // 3))
-    if not drop[f - 1:f + 3].any() and (avoid is None or not avoid[f - 1:f + 3].any()):
-        drop[f:f + 2] = True                                          # one double drop
+    mid = int(rng.integers(n // 3, 2 * n // 3))
+    if not drop[mid - 1:mid + 3].any() and (avoid is None or not avoid[mid - 1:mid + 3].any()):
+        drop[mid:mid + 2] = True                                      # one double drop
     return drop
 
 

@@ -185,7 +185,7 @@ def make_long_gaps(rng: np.random.Generator, labels: list[str], n: int, rate_hz:
     trunk = [i for i, lab in enumerate(labels) if any(lab in SEGMENT_MARKERS[s] for s in LONG_GAP_SEGMENTS)]
     free = [i for i, lab in enumerate(labels)
             if lab not in ROOT_MARKERS and lab != TARGET_MARKER and lab not in CLAPPER_MARKERS]
-    anchors: list[int | None] = []
+    anchors: list[int] = []
     if len(rests):
         anchors.append(int(rng.integers(rests[0, 0], max(rests[0, 0] + 1, rests[0, 1]))))
     if crop is not None:
@@ -260,7 +260,7 @@ def make_spikes(rng: np.random.Generator, labels: list[str], gap_mask: np.ndarra
 
 def gap_runs(mask: np.ndarray) -> np.ndarray:
     """Every run of True per column of a (T, M) mask as rows (marker, start, stop), stop exclusive, int64."""
-    rows = []
+    rows: list[tuple[int, np.integer, np.integer]] = []
     pad = np.zeros((1, mask.shape[1]), dtype=np.int8)
     d = np.diff(np.vstack([pad, mask.astype(np.int8), pad]), axis=0)
     for m in range(mask.shape[1]):

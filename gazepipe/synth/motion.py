@@ -159,7 +159,7 @@ def _goals(rng: np.random.Generator, n: int, floor_lab: np.ndarray, eye_lab: np.
     """``n`` random goals in a 6 m x 6 m x 3 m box around the subject, each leg keeping 0.8 m off the head
     and 0.45 m off the body's axis."""
     body_a = floor_lab + np.array([0.0, 0.0, 200.0])
-    goals = []
+    goals: list[np.ndarray] = []
     prev = start
     while len(goals) < n:
         g = floor_lab + np.array([rng.uniform(-3000, 3000), rng.uniform(-3000, 3000), 0.0])

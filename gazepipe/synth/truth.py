@@ -109,7 +109,7 @@ def _overshoot(rot: Rotation, c0: int, c1: int, rate_hz: float, l_s: float) -> t
     last = c1 - 1
     disp = rot * rot[c0].inv()
     axis = disp[last].as_rotvec()
-    theta = disp.as_rotvec() @ (axis / max(np.linalg.norm(axis), 1e-12))
+    theta = disp.as_rotvec() @ (axis / max(float(np.linalg.norm(axis)), 1e-12))
     omega = np.gradient(theta) * rate_hz
     win = max(1, int(round(OVERSHOOT_WINDOW_S * rate_hz)))
     for i in range(max(c0 + 1, win), min(c1, len(omega) - win)):

@@ -157,7 +157,7 @@ def write_head_video(path: Path, rng: np.random.Generator, clock: CameraClock, n
     expo = np.arange(n_frames) if exposures is None else np.asarray(exposures, dtype=np.int64)
     bg = _background(rng)
     path.parent.mkdir(parents=True, exist_ok=True)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), clock.fps, (WIDTH, HEIGHT))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), clock.fps, (WIDTH, HEIGHT))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV cannot write {path} with the mp4v codec")
     try:

@@ -50,7 +50,7 @@ def build_model(n: int, hidden: int, dropout: float, scales: dict[str, np.ndarra
     """The cleaner for ``n`` channels; ``scales``: mean/std of ``clean``, ``clean_d1``, ``tracked_d1`` (stored
     as buffers so a saved model carries them)."""
     torch = require_torch()
-    nn = torch.nn
+    nn: Any = torch.nn   # torch is optional and untyped here; its classes are subclassed below
 
     class FaceClean(nn.Module):
         def __init__(self) -> None:
@@ -163,6 +163,7 @@ class FaceCleanTrainer:
                 return loss, loss
 
             def val_fn() -> float:
+                assert val is not None   # fit calls val_fn only when there are validation rows
                 total = 0.0
                 for i in range(0, val.n, EVAL_CHUNK):
                     idx = np.arange(i, min(i + EVAL_CHUNK, val.n))

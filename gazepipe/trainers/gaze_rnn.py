@@ -63,12 +63,12 @@ def build_model(n_in: int, n_out: int, hidden: int, residual: bool = True,
 
     ``model(x)`` maps normalised inputs (B, T, n_in) to normalised outputs (B, T, n_out), closed loop."""
     torch = require_torch()
-    nn = torch.nn
+    nn: Any = torch.nn   # torch is optional and untyped here; its classes are subclassed below
     if n_in - TARGET_DIMS != n_out:
         raise ConfigError(None, f"x has {n_in} values and y {n_out}: x must be the 3-value target direction then "
                                 "y's layout")
-    stats = stats or {"x_mean": np.zeros(n_in), "x_std": np.ones(n_in), "y_mean": np.zeros(n_out),
-                      "y_std": np.ones(n_out)}
+    buffers = stats or {"x_mean": np.zeros(n_in), "x_std": np.ones(n_in), "y_mean": np.zeros(n_out),
+                        "y_std": np.ones(n_out)}
 
     class GazeRnn(nn.Module):
         def __init__(self) -> None:
@@ -80,7 +80,7 @@ def build_model(n_in: int, n_out: int, hidden: int, residual: bool = True,
                 nn.init.zeros_(self.out.weight)
                 nn.init.zeros_(self.out.bias)
             for k in STATS:
-                self.register_buffer(k, torch.as_tensor(np.asarray(stats[k], np.float32)))
+                self.register_buffer(k, torch.as_tensor(np.asarray(buffers[k], np.float32)))
 
         def forward(self, x, closed: bool = True):
             """x (B, T, n_in) normalised → y (B, T, n_out) normalised. Closed loop: from the second frame on,
@@ -189,6 +189,7 @@ class GazeRnnTrainer:
                 return mse + l2 * l2_penalty(model), mse
 
             def val_fn() -> float:
+                assert val is not None   # fit calls val_fn only when there are validation rows
                 total = 0.0
                 for i in range(0, val.n, EVAL_CHUNK):
                     b = val.batch(np.arange(i, min(i + EVAL_CHUNK, val.n)))

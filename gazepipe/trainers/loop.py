@@ -116,7 +116,7 @@ def fit(model, optimizer, data: DeviceArrays, loss_fn: Callable[[dict[str, Any]]
             with torch.no_grad():
                 val = float(val_fn())
         is_best = val is not None and val < best
-        if is_best:
+        if is_best and val is not None:
             best, best_epoch = val, epoch
             if cfg.patience is not None:
                 best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}

@@ -13,6 +13,8 @@ accurate than the raw prediction.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 
 from gazepipe.stages.geometry import cross3, frame_from_points, kabsch, norm3
@@ -130,7 +132,7 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
         t_all = np.concatenate([np.arange(a, b, dtype=np.float64) for (a, b), good in zip(intervals, ok,
                                                                                          strict=True) if good])
         q_all = pchip_eval(knots, xyz_m[knots], t_all)
-    i0 = 0
+    at = 0   # where the next good interval starts in q_all
     for (a, b), good in zip(intervals, ok, strict=True):
         if not good:
             out.append(None)
@@ -142,8 +144,8 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             w = ((t - t0) / (t1 - t0))[:, None]
             out.append((1.0 - w) * xyz_m[t0] + w * xyz_m[t1])
         else:
-            out.append(q_all[i0:i0 + b - a])
-            i0 += b - a
+            out.append(q_all[at:at + b - a])
+            at += b - a
     return out
 
 
@@ -360,7 +362,9 @@ class PcaModel:
         predictors' weighted coordinates in each frame (NaN where not predicted): how far the frame's pose is
         from what the components can express."""
         ks = [self.k] if ks is None else ks
-        vis = valid[frames] if vis is None else vis
+        if vis is None:
+            assert valid is not None, "predict needs valid or vis"
+            vis = valid[frames]
         return predict_stack([self], xyz, frames, vis, [ks], residuals=residuals)
 
 
@@ -411,6 +415,17 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
         model.v_all = np.ascontiguousarray(evecs[i][:, :max(model.ks)])
         models.append(model)
     return models
+
+
+@overload
+def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, vis: np.ndarray,
+                  kss: list[list[int]] | None = None, *, residuals: Literal[False] = False) -> np.ndarray: ...
+
+
+@overload
+def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, vis: np.ndarray,
+                  kss: list[list[int]] | None = None, *, residuals: bool
+                  ) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
 
 
 def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, vis: np.ndarray,
@@ -567,7 +582,7 @@ def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarra
     lo, hi = (0, n_t) if window is None else window
     # measured in the gap's edge frames too: the edge correction compares the prediction there with the
     # measured marker, and a prediction there from fewer predictors would carry its own error into the gap
-    through = valid[max(a - 1, 0):min(b + 1, n_t)].all(axis=0)
+    through = np.all(valid[max(a - 1, 0):min(b + 1, n_t)], axis=0)
     through[m] = False
     preds = np.flatnonzero(through)
     rows = known_m[lo:hi]
@@ -603,7 +618,8 @@ def pca_fill_packed(models: PcaModel | list[PcaModel], xyz: np.ndarray,
     intervals one after the other (NaN where not predicted; with ``partial`` false an interval with such a frame
     has none), ``none`` (predictions, len(jobs)) True where an interval has no prediction."""
     if isinstance(models, PcaModel):
-        models, kss = [models], [ks or [models.k]]
+        kss = [ks or [models.k]]
+        models = [models]
     else:
         kss = [mod.ks for mod in models]
     n_t = xyz.shape[0]

@@ -7,6 +7,8 @@ low-pass. Positions are (T, M, 3) float64 mm; ``valid`` is (T, M) bool; runs are
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 
@@ -45,7 +47,7 @@ def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def lowpass_runs(xyz: np.ndarray, valid: np.ndarray, sos: np.ndarray,
-                 padtype: str = "odd") -> tuple[np.ndarray, int]:
+                 padtype: Literal["odd", "even"] = "odd") -> tuple[np.ndarray, int]:
     """Zero-phase filter every marker's runs of valid samples separately (never across a gap).
 
     Parameters

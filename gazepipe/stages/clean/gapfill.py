@@ -58,7 +58,9 @@ by validation error that passes, or the gap stays unfilled (``GapRecord.reason``
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -292,7 +294,7 @@ class Candidates:
     #: method -> (e - s, 3) its fill of the gap, mm, in ``methods`` order
     gap: dict[str, np.ndarray]
     #: method -> its prediction of each hidden stretch (None where it has none)
-    stretch: dict[str, dict[tuple[int, int], np.ndarray | None]]
+    stretch: dict[str, Mapping[tuple[int, int], np.ndarray | None]]
     #: the PCA model of the best (model, component count) pair, when PCA predicted
     pca_model: PcaModel | None = None
     pca_stretches: list[tuple[int, int]] = field(default_factory=list)
@@ -328,7 +330,8 @@ def interpolation_candidates(xyz_m: np.ndarray, valid_m: np.ndarray, s: int, e: 
                              methods: tuple[str, ...]) -> Candidates:
     """Linear and PCHIP (those of ``methods``) over the gap from the marker's measured samples ``valid_m``, and
     over each hidden stretch from its ``known`` ones."""
-    gap, stretch = {}, {}
+    gap: dict[str, np.ndarray] = {}
+    stretch: dict[str, Mapping[tuple[int, int], np.ndarray | None]] = {}
     for meth in (k for k in methods if k in _INTERP):
         fill = interp_fill(xyz_m, valid_m, [(s, e)], meth)[0]
         if fill is not None:
@@ -590,7 +593,7 @@ def fill_error(weights: dict[str, float], errors: dict[str, float], stretches: S
 
 def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """The blend's prediction of the hidden samples (n, 3) and the frames where every blended method has one."""
-    q = sum(w * hidden[k] for k, w in weights.items())
+    q = cast(np.ndarray, sum(w * hidden[k] for k, w in weights.items()))   # weights is never empty
     return q, np.isfinite(q).all(axis=1)
 
 
@@ -670,7 +673,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     qc: list[MarkerQC] = []
     stats = take_statistics(src, valid) if stats is None else stats
     limits, noise = stats.step_limit_mm, stats.noise_mm
-    ever = valid.any(axis=0)
+    ever = np.any(valid, axis=0)
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
     with one_blas_thread():
         for m in range(n_m):
@@ -795,7 +798,7 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     ok = np.logical_and.reduce([valid[i:n_t - 3 + i:step] for i in range(4)])
     enough = ok.sum(axis=0) >= _NOISE_MIN_FRAMES
 
-    def d3(cols: np.ndarray | int) -> np.ndarray:
+    def d3(cols: np.ndarray | int | np.integer) -> np.ndarray:
         lag = [xyz[i:n_t - 3 + i:step, cols] for i in range(4)]
         return lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0]
 
@@ -1156,7 +1159,7 @@ def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarr
         return bool(np.all(np.isfinite(fill)) and not (steps > limit).any())
 
     best = max(weights, key=lambda k: (weights[k], -methods.index(k)))
-    first = sum(w * preds[k] for k, w in weights.items()) if len(weights) > 1 else preds[best]
+    first = cast(np.ndarray, sum(w * preds[k] for k, w in weights.items())) if len(weights) > 1 else preds[best]
     if ok(first):
         return weights, first, ""
     err = {k: errors.get(k, np.nan) for k in preds}

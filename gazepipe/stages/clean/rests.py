@@ -8,6 +8,8 @@ are half-open.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from gazepipe.stages.clean.filters import gaussian_runs, true_runs
@@ -18,7 +20,7 @@ _SPEED_MARKERS = 4
 
 
 def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
-               min_share: float = 0.0, markers: np.ndarray | None = None) -> np.ndarray:
+               min_share: float = 0.0, markers: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
     """Per-frame mean over markers (``markers``, columns of ``xyz`` and ``valid``; default all) of the speed
     (mm/s) by central differences, (T,); NaN (unknown) where no marker, or fewer than ``min_share`` of them, has
     a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
@@ -55,7 +57,7 @@ _MOVED_MIN_MM = 3.0
 
 
 def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray, rate_hz: float,
-                         threshold: float, markers: np.ndarray | None = None) -> np.ndarray:
+                         threshold: float, markers: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
     """``speed`` (T,) mm/s with each run of unknown frames (NaN) that the subject provably moved across set to
     the speed it must at least have had: the mean over ``markers`` present (``present`` (T, M)) in the frames
     just before and just after the run of their displacement between them, over the run's duration. Set only
@@ -170,14 +172,14 @@ def refine_onset(speed: np.ndarray, b: int, sigma: float, threshold: float, lo: 
         sse = np.sum((np.sqrt(g * g + (q * floor) ** 2) + (1.0 - q) * floor - y) ** 2, axis=-1)
         ia, it = np.unravel_index(int(np.argmin(sse)), sse.shape)
         if sse[ia, it] < best[0]:
-            best = (float(sse[ia, it]), ia, ik, it)
-    _, ia, ik, it = best
-    a, tau = amp[ia], _ONSET_TAUS[ik]
+            best = (float(sse[ia, it]), int(ia), ik, int(it))
+    _, best_a, best_k, best_t = best
+    a, tau = amp[best_a], _ONSET_TAUS[best_k]
     if a * tau * tau >= threshold:
         d_c = np.sqrt(threshold / a)
     else:
         d_c = tau + (threshold - a * tau * tau) / (2.0 * a * tau)
-    t_c = t0[it] + d_c * sigma
+    t_c = t0[best_t] + d_c * sigma
     return int(np.clip(np.ceil(t_c - 1e-9), b - 1, b + int(np.ceil(2.0 * sigma))))
 
 

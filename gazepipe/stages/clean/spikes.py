@@ -156,7 +156,7 @@ def _by_blocks(block: Callable[[np.ndarray, np.ndarray], np.ndarray], xyz: np.nd
     """A per-frame test ``block(xyz_rows, valid_rows) -> (n, M)`` over the take in blocks of ``_BLOCK_FRAMES``
     frames, each given ``_BLOCK_MARGIN`` frames more on either side."""
     n_t = valid.shape[0]
-    out = np.empty(valid.shape, dtype=dtype)
+    out: np.ndarray = np.empty(valid.shape, dtype=dtype)
     for lo in range(0, n_t, _BLOCK_FRAMES):
         hi = min(n_t, lo + _BLOCK_FRAMES)
         a, b = max(0, lo - _BLOCK_MARGIN), min(n_t, hi + _BLOCK_MARGIN)

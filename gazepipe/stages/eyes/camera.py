@@ -226,7 +226,7 @@ def _robust_fits(gaze: np.ndarray, target: np.ndarray, weights: np.ndarray, cand
     """
     n_cand = np.count_nonzero(cand, axis=-1)
     ok = n_cand >= max(p.min_fixation_frames, 3)
-    g = np.where(cand.any(axis=0)[:, None], gaze, 0.0)
+    g = np.where(np.any(cand, axis=0)[:, None], gaze, 0.0)
     t = np.ascontiguousarray(np.moveaxis(np.where(cand[..., None], target, 0.0), -1, 0))  # (3, L, N)
     w = np.where(cand, weights[None, :], 0.0)
     rot = np.broadcast_to(np.eye(3), (cand.shape[0], 3, 3)).copy()

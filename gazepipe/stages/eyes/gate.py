@@ -168,7 +168,7 @@ def _gate_qc(n: int, reason: np.ndarray, filled: np.ndarray, valid: np.ndarray, 
         gaps_between_valid = hop[valid[:-1] & valid[1:]]
         if gaps_between_valid.size:
             longest = max(longest, int(gaps_between_valid.max()))
-    qc = {
+    qc: dict[str, Any] = {
         "samples": int(n),
         "video_rate_hz": float(1.0 / dt) if np.isfinite(dt) else None,
         "gated_share": share(np.count_nonzero(reason)),

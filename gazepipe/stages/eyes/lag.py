@@ -42,17 +42,17 @@ def world_targets(head_q: np.ndarray, target_dir_char: np.ndarray, char_rot: np.
     n = head_q.shape[0]
     w_head = np.full((n, 3, 3), np.nan)
     tw = np.full((n, 3), np.nan)
-    use_lab = char_rot is not None and np.isfinite(char_rot).all(axis=1).any()
-    c_ok = np.isfinite(char_rot).all(axis=1) if use_lab else np.ones(n, dtype=bool)
+    lab = char_rot if char_rot is not None and np.isfinite(char_rot).all(axis=1).any() else None
+    c_ok = np.isfinite(lab).all(axis=1) if lab is not None else np.ones(n, dtype=bool)
     ok = np.isfinite(head_q).all(axis=1) & c_ok
     if ok.any():
         r = from_wxyz(head_q[ok])
-        if use_lab:
-            r = from_wxyz(char_rot[ok]) * r
+        if lab is not None:
+            r = from_wxyz(lab[ok]) * r
         w_head[ok] = r.as_matrix()
     okt = c_ok & np.isfinite(target_dir_char).all(axis=1)
     if okt.any():
-        tw[okt] = from_wxyz(char_rot[okt]).apply(target_dir_char[okt]) if use_lab else target_dir_char[okt]
+        tw[okt] = from_wxyz(lab[okt]).apply(target_dir_char[okt]) if lab is not None else target_dir_char[okt]
     return w_head, tw
 
 

@@ -512,13 +512,19 @@ def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window
     return pred[1:-1] * Rotation.from_rotvec((1.0 - f) * miss0 + f * miss1)
 
 
+def _given(known: np.ndarray | None) -> np.ndarray:
+    """The frames where a span or neighbour is known: always passed along with the span or neighbour."""
+    assert known is not None
+    return known
+
+
 def _candidates(local, known: np.ndarray, span, span_ok: np.ndarray | None, start: int, stop: int,
                 window: int) -> dict:
     """Each way of filling [start, stop) that applies: slerp, and the neighbour model where the span is known
     from the frame before to the frame after (``known``, ``span_ok``: frames where the segment's rotation and the
     span are known)."""
     out = {"slerp": _slerp_across(local, start, stop)}
-    if span is not None and span_ok[start - 1:stop + 1].all():
+    if span is not None and _given(span_ok)[start - 1:stop + 1].all():
         model = _model_across(local, span, known & span_ok, start, stop, window)
         if model is not None:
             out["model"] = model
@@ -536,7 +542,7 @@ def _motion_deg(local, nb, nb_ok: np.ndarray | None, lo: int, hi: int) -> float:
     lo − 1 and hi, known on both sides of a gap) and how far its neighbour ``nb`` strays from its own
     interpolation inside it (where known; :func:`_off_slerp_deg`)."""
     own = float(np.degrees((local[lo - 1].inv() * local[hi]).magnitude()))
-    if nb is None or not nb_ok[lo - 1:hi + 1].all():
+    if nb is None or not _given(nb_ok)[lo - 1:hi + 1].all():
         return own
     return max(own, _off_slerp_deg(nb, lo, hi))
 
@@ -660,10 +666,10 @@ def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarr
             best = min(scored, key=lambda k: (scored[k], k != "slerp")) if scored else None
             fill = _candidates(local, loc_ok, span, span_ok, s, e, window).get(best) if best else None
             error = scored.get(best) if best else None
-            ok = fill is not None and error <= max_error_deg
+            ok = fill is not None and error is not None and error <= max_error_deg
             records.append({"segment": j, "start": s, "stop": e, "method": best, "error_deg": error,
                             "filled": ok})
-            if not ok:
+            if fill is None or not ok:
                 continue
             fill = fill.as_matrix()
             gmat[s:e, j] = fill if p < 0 else gmat[s:e, p] @ fill

@@ -9,6 +9,7 @@ typically with a small ``scale``). The clap is the end of the closing burst of p
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -328,15 +329,15 @@ def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_ti
     steps 1–2 come out late by up to half a frame.
     """
     ts = np.asarray(probe_timestamps, dtype=np.float64)
-    kw = dict(post_s=post_s, exclude_s=exclude_s, roi=roi, chunk=chunk, z_lo=z_lo, z_hi=z_hi,
-              min_distinct=min_distinct, refine=refine)
+    clap_in = functools.partial(_clap_in, post_s=post_s, exclude_s=exclude_s, roi=roi, chunk=chunk, z_lo=z_lo,
+                                z_hi=z_hi, min_distinct=min_distinct, refine=refine)
     if approx_times is None:
         span = min(search_s, 0.5 * float(ts[-1] - ts[0]))
-        head = _clap_in(ts, read_window, float(ts[0]), float(ts[0]) + span, **kw)
+        head = clap_in(ts, read_window, float(ts[0]), float(ts[0]) + span)
         if head is not None and head.confidence > 0:
             return [head]
-        return [_clap_in(ts, read_window, float(ts[-1]) - span, float(ts[-1]), **kw)]
-    return [_clap_in(ts, read_window, t - window_s, t + window_s, **kw) for t in approx_times]
+        return [clap_in(ts, read_window, float(ts[-1]) - span, float(ts[-1]))]
+    return [clap_in(ts, read_window, t - window_s, t + window_s) for t in approx_times]
 
 
 
