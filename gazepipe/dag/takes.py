@@ -14,7 +14,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 from types import SimpleNamespace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -58,6 +58,10 @@ from gazepipe.stages.sync.stage import SyncParams
 if TYPE_CHECKING:
     from gazepipe.stages.clean.swaps import SubjectReferences
 
+#: what a take stage's unit and a session stage's unit are given, with gazepipe's own session and take types
+TakeContext = UnitContext[Session, Take]
+SessionUnitContext = SessionContext[Session]
+
 #: tables in the long markers layout, whose metadata must agree with their rows
 MARKERS_TABLES = ("markers_raw", "markers", "neutral")
 
@@ -86,6 +90,16 @@ def check_source(path: Path) -> None:
 
 
 set_source_check(check_source)
+
+
+X = TypeVar("X")
+
+
+def _given(value: X | None, what: str) -> X:
+    """A setting the stage's ``applies`` guarantees its takes have (a capture path, the markerset)."""
+    if value is None:
+        raise RuntimeError(f"{what} is missing, yet the stage applies")
+    return value
 
 
 def _has_mocap(session: Session, take: Take) -> bool:
@@ -117,20 +131,21 @@ def _renamed(labels: list[str], mapping: dict[str, int]) -> list[str]:
     return new if len(set(new)) == len(new) else list(labels)
 
 
-def _file_notes(ctx: UnitContext, path: str, notes: list[str]) -> list[str]:
+def _file_notes(ctx: TakeContext, path: str, notes: list[str]) -> list[str]:
     """A reader's notes on ``path``, each starting with the file's path in the session folder."""
     rel = os.path.relpath(path, ctx.session.root)
     return [f"{printable(rel)}: {n}" for n in notes]
 
 
-def run_ingest(ctx: UnitContext) -> UnitResult:
+def run_ingest(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.capture import read_markers
 
     take, ms = ctx.take, ctx.session.markerset
-    markers = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
+    mocap = _given(take.mocap, "mocap")
+    markers = read_markers(mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
     meta: dict = {}
     if ms is not None:
-        mapping = check_capture_labels(ms, markers.labels, take.mocap, take.id, required=_required_markers(ms, take))
+        mapping = check_capture_labels(ms, markers.labels, mocap, take.id, required=_required_markers(ms, take))
         labels = _renamed(markers.labels, mapping)
         if labels != markers.labels:
             meta["renamed_labels"] = {a: b for a, b in zip(markers.labels, labels, strict=True) if a != b}
@@ -144,7 +159,7 @@ def run_ingest(ctx: UnitContext) -> UnitResult:
     }
     table = markers_to_table(markers, meta=meta)
     return UnitResult(tables={"markers_raw": (table, MARKERS_RAW)}, qc=qc,
-                      warnings=_file_notes(ctx, take.mocap, markers.warnings))
+                      warnings=_file_notes(ctx, mocap, markers.warnings))
 
 
 register(Stage(
@@ -220,7 +235,7 @@ def _read_capture(take: Take, ms: MarkerSet) -> Markers:
 _REFERENCE_FRAMES_PER_TAKE = 2000
 
 
-def run_subject_markers(ctx: SessionContext[Session]) -> UnitResult:
+def run_subject_markers(ctx: SessionUnitContext) -> UnitResult:
     """Evenly spread frames of every subject capture of the session, raw, stacked by take: the subject's marker
     geometry that each take's label swaps are judged against (:func:`_subject_references`). A capture that
     cannot be read is passed over (its own take fails)."""
@@ -285,12 +300,12 @@ def _subject_take(session: Session, take: Take) -> bool:
     return take.mocap is not None and session.markerset is not None and take.kind != "face"
 
 
-def _load_markers(ctx: UnitContext, name: str, take_id: str | None = None) -> tuple[Markers, np.ndarray, dict]:
+def _load_markers(ctx: TakeContext, name: str, take_id: str | None = None) -> tuple[Markers, np.ndarray, dict]:
     markers, frames, _, meta = table_to_markers(ctx.load(name, take_id))
     return markers, frames, meta
 
 
-def _load_measured(ctx: UnitContext, name: str) -> tuple[Markers, np.ndarray, dict, np.ndarray | None]:
+def _load_measured(ctx: TakeContext, name: str) -> tuple[Markers, np.ndarray, dict, np.ndarray | None]:
     """A cleaned markers table (``markers``, ``neutral``) and which of its samples were measured, (T, M) bool
     (fill code ``measured`` or ``swap_repaired``; None when the table has no fill codes)."""
     markers, frames, fill, meta = table_to_markers(ctx.load(name))
@@ -302,7 +317,7 @@ def _bytes(n: int) -> str:
     return f"{n / 2**30:.1f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
-def run_clean(ctx: UnitContext) -> UnitResult:
+def run_clean(ctx: TakeContext) -> UnitResult:
     from gazepipe.pipeline.resources import available_memory_bytes
     from gazepipe.stages.clean.stage import clean_markers, clean_memory_bytes
 
@@ -316,9 +331,9 @@ def run_clean(ctx: UnitContext) -> UnitResult:
                                             "on a larger machine", take=ctx.take.id)
     raw, _, _ = _load_markers(ctx, "markers_raw")
     params = _build(CleanParams, ctx.params)
-    ms = ctx.session.markerset
+    ms = _given(ctx.session.markerset, "markerset")
     refs = _subject_references(ctx.load_session("subject_markers"), ms) if params.repair_swaps else None
-    res = clean_markers(raw, ctx.session.markerset, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id,
+    res = clean_markers(raw, ms, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id,
                         references=refs)
     # the raw positions are not needed any more: a long take's are let go before the tables are built
     raw = dataclasses.replace(raw, xyz=raw.xyz[:0].copy(), valid=raw.valid[:0].copy())
@@ -378,7 +393,7 @@ def _gives_segment(pose: Markers, names: Sequence[str], min_frames: int) -> bool
     return int(np.isfinite(pose.xyz[:, [pose.index(n) for n in names]]).all(axis=(1, 2)).sum()) >= min_frames
 
 
-def run_neutral_poses(ctx: SessionContext[Session]) -> UnitResult:
+def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
     """The session's neutral poses (SPEC §3.3), cleaned once for every take's frames: the neutral take's, then,
     for each segment it cannot calibrate, the first rest periods of the other subject takes in session order
     until every such segment has one (a take whose capture cannot be read or cleaned is passed over)."""
@@ -450,7 +465,7 @@ def _fallback_rests(poses: list[PoseSource], take_id: str, ms: MarkerSet, missin
     return out
 
 
-def run_frames(ctx: UnitContext[Session, Take]) -> UnitResult:
+def run_frames(ctx: TakeContext) -> UnitResult:
     from gazepipe.stages.frames.stage import compute_frames
 
     ms = ctx.session.markerset
@@ -512,16 +527,17 @@ def _face_take(session: Session, take: Take) -> bool:
     return take.kind == "face" and take.tracked is not None and take.clean is not None
 
 
-def run_face(ctx: UnitContext) -> UnitResult:
+def run_face(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.livelinkface import read_livelinkface
     from gazepipe.stages.face.stage import align_face
 
     take = ctx.take
-    tracked = read_livelinkface(take.tracked, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
-    clean = read_livelinkface(take.clean, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
+    tracked_path, clean_path = _given(take.tracked, "tracked"), _given(take.clean, "clean")
+    tracked = read_livelinkface(tracked_path, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
+    clean = read_livelinkface(clean_path, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
     aligned = align_face(tracked, clean, k=int(ctx.params["k"]))
     qc = dict(aligned.qc)
-    warnings = _file_notes(ctx, take.tracked, tracked.warnings) + _file_notes(ctx, take.clean, clean.warnings)
+    warnings = _file_notes(ctx, tracked_path, tracked.warnings) + _file_notes(ctx, clean_path, clean.warnings)
     qc["warnings"] = warnings
     table = face_to_table(aligned, meta={"rate_hz": tracked.rate_hz, "timecode_fps": take.timecode_fps})
     return UnitResult(tables={"face": (table, face_schema(aligned.k))}, qc=qc, warnings=warnings)
@@ -546,19 +562,20 @@ def _sync_take(session: Session, take: Take) -> bool:
     return _subject_take(session, take) and take.video is not None and ms is not None and len(ms.clapper) == 2
 
 
-def run_sync(ctx: UnitContext) -> UnitResult:
+def run_sync(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.video import FrameReader, probe_video
     from gazepipe.stages.sync.stage import sync_take
 
-    take, ms = ctx.take, ctx.session.markerset
+    take, ms = ctx.take, _given(ctx.session.markerset, "markerset")
+    video = _given(take.video, "video")
     p = _build(SyncParams, ctx.params)
     raw, _, _ = _load_markers(ctx, "markers_raw")
     a, b = raw.index(ms.clapper[0]), raw.index(ms.clapper[1])
-    probe = probe_video(take.video)
+    probe = probe_video(video)
     ts = probe.timestamps_s
 
     # one open capture for all of the take's windows, read forward
-    with FrameReader(take.video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
+    with FrameReader(video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
         res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts,
                         read_window, window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
                         min_confidence=p.min_confidence, trust=p.trust, mocap_trust=p.mocap_trust,
@@ -577,7 +594,7 @@ def run_sync(ctx: UnitContext) -> UnitResult:
     table = attach_meta(pa.Table.from_pydict(rows, schema=SYNC), {"video_frames": int(ts.size),
                                                                   "video_nominal_fps": probe.nominal_fps})
     qc = dict(res.qc)
-    qc["warnings"] = list(qc.get("warnings", [])) + _file_notes(ctx, take.video, probe.warnings + ([damage] if damage else []))
+    qc["warnings"] = list(qc.get("warnings", [])) + _file_notes(ctx, video, probe.warnings + ([damage] if damage else []))
     return UnitResult(tables={"sync": (table, SYNC)}, qc=qc, warnings=qc["warnings"])
 
 
@@ -597,13 +614,14 @@ def _eyes_take(session: Session, take: Take) -> bool:
     return _frames_take(session, take) and take.eyes is not None
 
 
-def run_eyes(ctx: UnitContext) -> UnitResult:
+def run_eyes(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.openface import read_openface
     from gazepipe.stages.eyes.stage import eyes_take
     from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
-    take, ms = ctx.take, ctx.session.markerset
-    eye = read_openface(take.eyes)
+    take, ms = ctx.take, _given(ctx.session.markerset, "markerset")
+    eyes_path = _given(take.eyes, "eyes")
+    eye = read_openface(eyes_path)
     ja = joints_arrays(ctx.load("joints"))
     joints = SimpleNamespace(segments=ja["segments"], quat=ja["quat"], target_dir=ja["target_dir"],
                              char_rot=ja["char_rot"], rate_hz=ja["meta"]["rate_hz"])
@@ -633,7 +651,7 @@ def run_eyes(ctx: UnitContext) -> UnitResult:
     table = attach_meta(table, {"camera_rotation": [float(x) for x in res.camera_rotation],
                                 "camera_source": res.camera_source, "rate_hz": float(joints.rate_hz)})
     qc = dict(res.qc)
-    qc["warnings"] = _file_notes(ctx, take.eyes, eye.warnings) + list(qc.get("warnings", []))
+    qc["warnings"] = _file_notes(ctx, eyes_path, eye.warnings) + list(qc.get("warnings", []))
     return UnitResult(tables={"eyes": (table, EYES)}, qc=qc, warnings=qc["warnings"])
 
 

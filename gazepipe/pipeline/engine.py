@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, as_completed
+from concurrent.futures import Executor, Future, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -320,7 +320,7 @@ class _Workers:
         self.n = min(n_takes, jobs or os.cpu_count() or 1)
         self.kind = "serial" if (executor == "process" and self.n <= 1) else executor
         self.scheduler = scheduler
-        self._ex = None
+        self._ex: Executor | None = None
 
     @property
     def local(self) -> bool:

@@ -38,17 +38,25 @@ class TakeLike(Protocol):
     """A take as the engine sees it: an id unique in its session, and its settings as dataclass fields (part of
     every unit's fingerprint; absolute paths among them are made relative to the session folder)."""
 
-    id: str
+    @property
+    def id(self) -> str: ...
 
 
 class SessionLike(Protocol):
     """A session as the engine sees it: an id, the folder its relative paths start from (``root``), the path it
     was loaded from (remembered for ``gazepipe status``), and its takes."""
 
-    id: str
-    root: str
-    path: str
-    takes: Sequence[TakeLike]
+    @property
+    def id(self) -> str: ...
+
+    @property
+    def root(self) -> str: ...
+
+    @property
+    def path(self) -> str: ...
+
+    @property
+    def takes(self) -> Sequence[TakeLike]: ...
 
 
 SessionT = TypeVar("SessionT", bound=SessionLike)

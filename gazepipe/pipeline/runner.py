@@ -9,6 +9,7 @@ killed at any moment loses only the unit in progress.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import time
 import traceback
@@ -303,7 +304,7 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
         ctx: UnitContext[Any, Any] = UnitContext(
             job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written), job.params,
             session_loader=_session_loader(layout))
-        out = _run_unit(st.name, st.outputs, lambda c=ctx, run=st.run: run(c), plan, job.session, _files_of(job),
+        out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, _files_of(job),
                         layout, written)
         if out.status == "failed":
             failed.add(st.name)
@@ -338,7 +339,7 @@ def run_session_job(job: SessionJob) -> list[UnitOutcome]:
         else:
             ctx: SessionContext[Any] = SessionContext(job.session, {}, layout.root,
                                                       _session_loader(layout, written), job.params)
-            out = _run_unit(st.name, st.outputs, lambda c=ctx, run=st.run: run(c), plan, job.session, [],
+            out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, [],
                             layout, written)
             if out.status == "failed":
                 failed.add(st.name)

@@ -54,7 +54,7 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
         if rec is not None:
             row["duration_s"] = rec.get("duration_s")
         rows.append(row)
-    planned = {d.name: d for d in plan_datasets(sessions, layout, plans, {})}
+    datasets = {d.name: d for d in plan_datasets(sessions, layout, plans, {})}
     for path in sorted((layout.state / "datasets").glob("*.json")):
         rec = read_json(path) or {}
         name = path.stem
@@ -62,8 +62,8 @@ def collect_status(out: Path, load_session: Callable[[str], SessionLike],
                "duration_s": rec.get("duration_s")}
         if rec.get("status") == "failed":
             row.update(state="failed", detail=rec.get("error", ""))
-        elif name in planned and planned[name].run:
-            row.update(state="stale", detail=planned[name].reason)
+        elif name in datasets and datasets[name].run:
+            row.update(state="stale", detail=datasets[name].reason)
         else:
             row.update(state="ok", detail="")
         rows.append(row)

@@ -58,8 +58,7 @@ def stack_to_table(sources: list[PoseSource], meta: dict[str, Any] | None = None
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     cols: dict[str, pa.Array] = {
         "source": pa.array(cat["source"].astype(np.int32)),
-        "marker": pa.DictionaryArray.from_arrays(pa.array(cat["marker"].astype(np.int32)),
-                                                 pa.array(labels, pa.string())),
+        "marker": pa.DictionaryArray.from_arrays(cat["marker"].astype(np.int32), pa.array(labels, pa.string())),
         "frame": pa.array(cat["frame"].astype(np.int32)),
         **{axis: pa.array(cat[axis].astype(np.float64), mask=~np.isfinite(cat[axis])) for axis in "xyz"},
         "valid": pa.array(cat["valid"].astype(bool)),
