@@ -157,30 +157,14 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
     that is not a dry run).
     """
     check_executor(executor, scheduler)
-    _check_params(params or {})
+    params = params or {}
+    _check_params(params)
     layout = OutLayout(Path(out))
     log = log or EventLog()
     summary = RunSummary(run_id=log.run_id or new_run_id())
     if dry_run:
-        hashes = HashCache(layout.hashes)
-        planned = plan_run(sessions, layout.root, until=until, params=params, force=force, hashes=hashes)
-        plans, failures = planned.plans, planned.failures
-        summary.plans = plans
-        summary.outcomes = failures
-        for p in plans:
-            what = "would run" if p.run else "up to date"
-            log.emit("info", "plan", f"{p.session}/{p.take} {p.stage}: {what}"
-                     + (f" ({p.reason})" if p.run else ""), session=p.session, take=p.take, stage=p.stage,
-                     status="run" if p.run else "skip", reason=p.reason)
-        for f in failures:
-            log.emit("error", "plan_failed", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
-        if until in (None, BUILD):
-            for d in plan_datasets(sessions, layout, plans, params or {}, force, optimistic=True):
-                what = f"would build ({d.reason})" if d.run else "up to date"
-                log.emit("info", "plan", f"dataset {d.name}: {what} from {len(d.takes)} takes", stage="build",
-                         dataset=d.name, status="run" if d.run else "skip", reason=d.reason)
+        _dry_run(sessions, layout, until, params, force, log, summary)
         return summary
-
     layout.state.mkdir(parents=True, exist_ok=True)
     with OutputLock(layout.lock):
         clear_stale_temporaries(layout.tmp)
@@ -190,36 +174,14 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
             raise GazepipeError(None, os_problem(exc, layout.sessions)) from None
         hashes = HashCache(layout.hashes)
         planned = plan_run(sessions, layout.root, until=until, params=params, force=force, hashes=hashes)
-        take_jobs, failures, plans = planned.take_jobs, planned.failures, planned.plans
-        summary.plans = plans
-        summary.outcomes.extend(failures)
-        for f in failures:
-            log.emit("error", "unit", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
-        todo = [j for j in take_jobs if any(u.run for u in j.units)]
-        after = report.take_job() if report is not None else None
-        for j in todo:
-            j.after = after
-        for j in take_jobs:
-            if j not in todo:
-                summary.outcomes.extend(_not_run(u) for u in j.units)
-        for u in plans:
-            if u.error:
-                log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
-                         session=u.session, take=u.take, stage=u.stage, status="failed")
-        n_units = sum(u.run for j in todo for u in j.units)
-        take_plans = [u for u in plans if u.take != SESSION_UNIT]
-        n_before = sum(bool(u.error) for u in take_plans)   # failed before on the same inputs: not retried
-        session_todo = [j for j in planned.session_jobs if any(u.run for u in j.units)]
+        todo, session_todo = _record_plan(planned, summary, log, report)
+        n_before = sum(bool(u.error) for u in planned.plans if u.take != SESSION_UNIT)
         with _Workers(executor, jobs, scheduler, max(len(todo), len(session_todo))) as workers:
             failed_session = _run_sessions(planned.session_jobs, session_todo, summary, log, workers)
             for j in todo:
                 j.failed_session = frozenset(failed_session.get(j.session.id, ()))
             if todo:
-                before = f", {n_before} failed before on the same inputs" if n_before else ""
-                later = ", then the datasets" if until in (None, BUILD) else ""
-                log.emit("info", "run_start", f"running {n_units} take units on {len(todo)} takes "
-                         f"({len(take_plans) - n_units - n_before} up to date{before}){later}", takes=len(todo),
-                         units=n_units, up_to_date=len(take_plans) - n_units - n_before, failed_before=n_before)
+                _log_start(planned, todo, n_before, until, log)
                 if report is not None:
                     report.takes_started(workers.pool())
                 _execute(todo, summary, log, workers, heartbeat_every, report)
@@ -227,18 +189,14 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                     _keep(summary, log, layout.hashes, lambda: hashes.save(layout.write_bytes))
             built = 0
             if until in (None, BUILD):
-                built = _build_datasets(sessions, layout, plans, params or {}, force, summary, log, workers,
+                built = _build_datasets(sessions, layout, planned.plans, params, force, summary, log, workers,
                                         report if todo else None)
             elif report is not None and todo:
                 report.takes_done()
             if report is not None and todo:
                 report.datasets_done()   # still on the workers: what the report put on them is finished
         if not todo and not built and not session_todo:
-            n_ds = summary.count("skipped", datasets=True)
-            also = f" and {n_ds} datasets" if n_ds else ""
-            before = f" ({n_before} take units failed before on the same inputs)" if n_before else ""
-            log.emit("info", "nothing_to_do", f"nothing to do: {len(take_plans) - n_before} take units{also} up to "
-                     f"date{before}", status="up_to_date", units=len(take_plans) - n_before, datasets=n_ds)
+            _log_nothing_to_do(planned, n_before, summary, log)
         _keep(summary, log, layout.hashes, lambda: hashes.save(layout.write_bytes))
         run_record = layout.runs() / f"{summary.run_id}.json"
         _keep(summary, log, run_record, lambda: layout.write_json(run_record, {
@@ -246,6 +204,67 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
         if report is not None:
             _keep(summary, log, layout.root / "qc", report.finish)
     return summary
+
+
+def _dry_run(sessions: Sequence[SessionLike], layout: OutLayout, until: str | None, params: dict[str, Any],
+             force: bool, log: EventLog, summary: RunSummary) -> None:
+    """Plan every unit and dataset and say what would run, writing nothing."""
+    planned = plan_run(sessions, layout.root, until=until, params=params, force=force,
+                       hashes=HashCache(layout.hashes))
+    summary.plans = planned.plans
+    summary.outcomes = planned.failures
+    for p in planned.plans:
+        what = "would run" if p.run else "up to date"
+        log.emit("info", "plan", f"{p.session}/{p.take} {p.stage}: {what}" + (f" ({p.reason})" if p.run else ""),
+                 session=p.session, take=p.take, stage=p.stage, status="run" if p.run else "skip", reason=p.reason)
+    for f in planned.failures:
+        log.emit("error", "plan_failed", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
+    if until in (None, BUILD):
+        for d in plan_datasets(sessions, layout, planned.plans, params, force, optimistic=True):
+            what = f"would build ({d.reason})" if d.run else "up to date"
+            log.emit("info", "plan", f"dataset {d.name}: {what} from {len(d.takes)} takes", stage="build",
+                     dataset=d.name, status="run" if d.run else "skip", reason=d.reason)
+
+
+def _record_plan(planned: RunPlan, summary: RunSummary, log: EventLog,
+                 report: RunReport | None) -> tuple[list[TakeJob], list[SessionJob]]:
+    """Record what planning decided (failures, units not run, units that failed before on the same inputs);
+    the take jobs and session jobs with work, the take jobs told what to run after their units."""
+    summary.plans = planned.plans
+    summary.outcomes.extend(planned.failures)
+    for f in planned.failures:
+        log.emit("error", "unit", f.error, session=f.session, take=f.take, stage=f.stage, status="failed")
+    todo = [j for j in planned.take_jobs if any(u.run for u in j.units)]
+    after = report.take_job() if report is not None else None
+    for j in todo:
+        j.after = after
+    for j in planned.take_jobs:
+        if j not in todo:
+            summary.outcomes.extend(_not_run(u) for u in j.units)
+    for u in planned.plans:
+        if u.error:
+            log.emit("error", "unit", f"{u.error} (failed earlier on these same inputs; --force retries)",
+                     session=u.session, take=u.take, stage=u.stage, status="failed")
+    return todo, [j for j in planned.session_jobs if any(u.run for u in j.units)]
+
+
+def _log_start(planned: RunPlan, todo: list[TakeJob], n_before: int, until: str | None, log: EventLog) -> None:
+    n_plans = sum(u.take != SESSION_UNIT for u in planned.plans)
+    n_units = sum(u.run for j in todo for u in j.units)
+    before = f", {n_before} failed before on the same inputs" if n_before else ""
+    later = ", then the datasets" if until in (None, BUILD) else ""
+    log.emit("info", "run_start", f"running {n_units} take units on {len(todo)} takes "
+             f"({n_plans - n_units - n_before} up to date{before}){later}", takes=len(todo),
+             units=n_units, up_to_date=n_plans - n_units - n_before, failed_before=n_before)
+
+
+def _log_nothing_to_do(planned: RunPlan, n_before: int, summary: RunSummary, log: EventLog) -> None:
+    n_plans = sum(u.take != SESSION_UNIT for u in planned.plans)
+    n_ds = summary.count("skipped", datasets=True)
+    also = f" and {n_ds} datasets" if n_ds else ""
+    before = f" ({n_before} take units failed before on the same inputs)" if n_before else ""
+    log.emit("info", "nothing_to_do", f"nothing to do: {n_plans - n_before} take units{also} up to "
+             f"date{before}", status="up_to_date", units=n_plans - n_before, datasets=n_ds)
 
 
 def _keep(summary: RunSummary, log: EventLog, path: Path, write: Callable[[], None]) -> None:
