@@ -436,6 +436,10 @@ _register_commands()
 
 
 def main() -> None:
+    """The ``gazepipe`` command: the BLAS threads capped, then the command line."""
+    from gazepipe.cli.threads import cap_blas_threads
+
+    cap_blas_threads()
     cli(prog_name="gazepipe")
 
 

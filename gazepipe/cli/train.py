@@ -9,8 +9,8 @@ from typing import Any
 
 import click
 
-from gazepipe.cli import CAPPED
 from gazepipe.cli.common import handle_errors
+from gazepipe.cli.threads import capped
 from gazepipe.errors import ConfigError
 
 EPILOG = """\b
@@ -118,7 +118,7 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     options = TrainOptions(epochs=epochs, hidden=hidden, lr=lr, seed=seed, device=device, patience=patience,
                            extra=parse_options(opts), progress=lambda e: _progress(log, e))
     check_options(trainer, options)
-    if "OMP_NUM_THREADS" in CAPPED and "threads" in (getattr(trainer, "options", None) or {}):
+    if capped("OMP_NUM_THREADS") and "threads" in (getattr(trainer, "options", None) or {}):
         options.extra.setdefault("threads", cores())   # training is not a pipeline stage: every core
     data_path = Path(data_dir)
     info, columns = dataset_header(data_path)
