@@ -146,6 +146,20 @@ def test_a_swap_goes_on_when_its_hidden_marker_comes_back_unproven() -> None:
     assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
 
 
+def test_a_mirror_pair_is_not_exchanged_for_its_twin_while_the_chin_is_hidden() -> None:
+    # the back pair exchanged over frames 200-260 with the chin (5) hidden all that while: exchanging the front
+    # pair instead restores every distance too (the whole head mirrored), and each marker's most chiral triple
+    # holds the chin. The handedness of the triples seen there (top and the two pairs) tells the back pair's
+    # exchange from the front pair's
+    xyz = _mirror_head(600, 4)
+    valid = np.ones((600, 6), dtype=bool)
+    valid[200:260, 5] = False
+    res = repair_swaps(*_back_pair_swapped(xyz, valid))
+    assert (res.valid == valid).all()
+    assert np.allclose(res.xyz[valid], xyz[valid])
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(2, 3, 200, 260, True)]
+
+
 def _head_with_neck(n: int = 600, seed: int = 4) -> np.ndarray:
     """(n, 7, 3) mm: the mirror head's four corners (front-left 0, front-right 1, back-left 2, back-right 3),
     its top (4), a chin (5) and a neck marker on the plane between front and back (6), turning slowly; 0.5 mm
