@@ -11,7 +11,8 @@ sample (one reference astray cannot hand a sample to a missing marker). Distance
 mirror image (a segment with two mirror pairs: exchanging either pair restores every distance of a swap of the
 other), so an exchange must also leave each marker's chiral reference triples with their handedness, most of those
 seen in the frame (:class:`References`: several per marker, rigid ones first, so that one hidden marker leaves the
-others to judge). Those samples are exchanged (``repaired``); frames in which both
+others to judge). A sample that fits two missing markers (mirror twins) proves no swap and is left to spike
+removal. Those samples are exchanged (``repaired``); frames in which both
 markers are suspect but the exchange does not restore them are made gaps (``removed``). Anything else suspect is
 left to spike removal. A sample never moves unless the exchange is proven frame by frame, so a swap that starts
 or ends in a gap, or across neighbouring segments, is handled like any other.
@@ -562,16 +563,29 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
     best = -1
+    checked = np.zeros(others.size, dtype=bool)
     for c in np.argsort(-score, kind="stable"):
         if score[c] == 0:
             break
         explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
+        checked[c] = True
         if explained[:, c].sum() == score[c]:         # every explained frame keeps both hands: no better one
             best = int(c)
             break
         if best < 0 or explained[:, c].sum() > explained[:, best].sum():
             best = int(c)
     if best < 0 or not explained[:, best].any():
+        return -1, none, none
+    handed = explained[:, best] & ~ok[:, others[best]]
+    # a sample handed to a missing marker that fits another name as well (a mirror twin: the left and right
+    # chest markers, both hidden, and too few references seen to tell them apart by handedness) proves
+    # neither: the order of the columns would choose
+    rivals = np.flatnonzero((explained & handed[:, None]).any(axis=0))
+    rivals = rivals[rivals != best]
+    for c in rivals[~checked[rivals]]:
+        explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
+    explained[:, best] &= ~(handed & explained[:, rivals].any(axis=1))
+    if not explained[:, best].any():
         return -1, none, none
     both = own[:, a] & b_suspect[:, best]
     # not provable inside the stretch the exchange explains (a glitch on one of them, say): both made gaps
