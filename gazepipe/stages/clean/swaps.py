@@ -11,8 +11,9 @@ sample (one reference astray cannot hand a sample to a missing marker). Distance
 mirror image (a segment with two mirror pairs: exchanging either pair restores every distance of a swap of the
 other), so an exchange must also leave each marker's chiral reference triples with their handedness, most of those
 seen in the frame (:class:`References`: several per marker, rigid ones first, so that one hidden marker leaves the
-others to judge). A sample that fits two missing markers (mirror twins) proves no swap and is left to spike
-removal. Those samples are exchanged (``repaired``); frames in which both
+others to judge). A sample that fits two missing markers (mirror twins), or is handed to a missing marker for no
+more than the one or two frames of a ghost while its own marker is measured on both sides, proves no swap and is
+left to spike removal. Those samples are exchanged (``repaired``); frames in which both
 markers are suspect but the exchange does not restore them are made gaps (``removed``). Anything else suspect is
 left to spike removal. A sample never moves unless the exchange is proven frame by frame, so a swap that starts
 or ends in a gap, or across neighbouring segments, is handled like any other.
@@ -28,7 +29,7 @@ from itertools import combinations
 import numpy as np
 
 from gazepipe.stages.clean.filters import true_runs
-from gazepipe.stages.clean.spikes import _nanmedian
+from gazepipe.stages.clean.spikes import _MEDIAN_HALF, _nanmedian
 from gazepipe.stages.geometry import norm3
 
 #: references per marker (the steadiest distances): several, so that one astray is outvoted
@@ -584,7 +585,9 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     rivals = rivals[rivals != best]
     for c in rivals[~checked[rivals]]:
         explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
-    explained[:, best] &= ~(handed & explained[:, rivals].any(axis=1))
+    twin = handed & explained[:, rivals].any(axis=1)
+    explained[:, best] &= ~twin
+    explained[:, best] &= ~_ghosts(frames, handed & ~twin, explained[:, best], valid[:, a])
     if not explained[:, best].any():
         return -1, none, none
     both = own[:, a] & b_suspect[:, best]
@@ -592,6 +595,36 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     span = np.flatnonzero(explained[:, best])
     both &= (frames >= frames[span[0]]) & (frames <= frames[span[-1]])
     return int(others[best]), explained[:, best], both
+
+
+#: the longest glitch spike removal outvotes (frames): a sample handed to a missing marker over no more than this,
+#: with its own marker measured on both sides, may be a ghost off its own path as well as a swap
+GHOST_FRAMES = _MEDIAN_HALF
+
+
+def _ghosts(frames: np.ndarray, handed: np.ndarray, explained: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """(n,) bool: the frames of ``frames`` (ascending) in runs of consecutive ``explained`` frames that are all
+    ``handed`` to a missing partner, at most :data:`GHOST_FRAMES` long, with the marker ``measured`` ((T,) bool)
+    in the frames just before and after. Such a run is a ghost of one or two frames as much as a swap: a sample
+    that lands where a hidden marker would be, within the tolerance of the references seen there, proves no
+    swap (a spike's ghost lands anywhere; a hidden marker's loose references across a joint leave it room),
+    and the exchange would carry a ghost under another name. Left alone, spike removal makes it a gap."""
+    out = np.zeros(frames.size, dtype=bool)
+    at = np.flatnonzero(explained)
+    if at.size == 0:
+        return out
+    f = frames[at]
+    cut = np.flatnonzero(np.diff(f) != 1) + 1
+    starts, stops = np.r_[0, cut], np.r_[cut, f.size]                # runs of consecutive frames, in ``at``
+    length = stops - starts
+    all_handed = np.add.reduceat(handed[at].astype(np.int64), starts) == length
+    first, last = f[starts], f[stops - 1]
+    n_t = measured.size
+    bounded = (first > 0) & (last < n_t - 1)
+    bounded[bounded] = measured[first[bounded] - 1] & measured[last[bounded] + 1]
+    ghost = (length <= GHOST_FRAMES) & all_handed & bounded
+    out[at] = np.repeat(ghost, length)
+    return out
 
 
 def _remove_unproven(st: _State) -> None:
