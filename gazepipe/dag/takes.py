@@ -226,7 +226,7 @@ def run_clean(ctx: UnitContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="22", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="23", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     # every subject capture of the session: label swaps are judged against the subject's geometry from all
     sources=lambda s, t: [*_markerset_file(s), *_subject_files(s)],
