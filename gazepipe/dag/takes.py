@@ -356,7 +356,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="22", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="23", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_requires=("subject_markers",),

@@ -7,7 +7,13 @@ distance's own spread (:func:`_misfit`). A sample is *suspect* where its misfit 
 suspect sample of marker ``a`` is explained by a swap with ``b`` when it fits ``b``'s references within ``b``'s
 tolerance and ``b``'s own sample in that frame is either suspect and fits ``a``'s references (exchanging the
 two names restores both markers' distances), or missing while most of ``a``'s references disagree with ``a``'s
-sample (one reference astray cannot hand a sample to a missing marker). Those samples are exchanged (``repaired``); frames in which both
+sample (one reference astray cannot hand a sample to a missing marker). Distances cannot tell a body from its
+mirror image (a segment with two mirror pairs: exchanging either pair restores every distance of a swap of the
+other), so an exchange must also leave each marker's chiral reference triples with their handedness, most of those
+seen in the frame (:class:`References`: several per marker, rigid ones first, so that one hidden marker leaves the
+others to judge). A sample that fits two missing markers (mirror twins), or is handed to a missing marker for no
+more than the one or two frames of a ghost while its own marker is measured on both sides, proves no swap and is
+left to spike removal. Those samples are exchanged (``repaired``); frames in which both
 markers are suspect but the exchange does not restore them are made gaps (``removed``). Anything else suspect is
 left to spike removal. A sample never moves unless the exchange is proven frame by frame, so a swap that starts
 or ends in a gap, or across neighbouring segments, is handled like any other.
@@ -23,7 +29,7 @@ from itertools import combinations
 import numpy as np
 
 from gazepipe.stages.clean.filters import true_runs
-from gazepipe.stages.clean.spikes import _nanmedian
+from gazepipe.stages.clean.spikes import _MEDIAN_HALF, _nanmedian
 from gazepipe.stages.geometry import norm3
 
 #: references per marker (the steadiest distances): several, so that one astray is outvoted
@@ -40,6 +46,8 @@ MIN_REFERENCES = 2
 #: two markers closer than this (mm) are never exchanged: within a few tolerances of each other, either name
 #: fits either sample, and camera systems merge markers that close anyway
 MIN_SEPARATION_MM = 30.0
+#: the misfit (in reference spreads) above which a sample is suspect, unless the caller says otherwise
+TOLERANCE = 6.0
 #: passes of repair at most (each pass after the first finds swaps an earlier repair uncovered)
 MAX_PASSES = 3
 #: frames sampled (evenly) to choose references: distance medians settle long before that
@@ -58,10 +66,12 @@ class References:
     distance_mm: np.ndarray
     spread_mm: np.ndarray
     tolerance: np.ndarray
-    #: (M, 3) three references whose directions from the marker span a clear volume (−1: none), and (M,) the
-    #: sign of that volume (0: none). Distances cannot tell a rigid body from its mirror image: when two
-    #: mirror pairs (left and right, front and back) share a segment, exchanging the wrong pair makes every
-    #: distance right again and the handedness wrong
+    #: (M, J, 3) up to :data:`N_CHIRAL` triples of references whose directions from the marker span a clear
+    #: volume of one sign in nearly every frame of the subject's (−1: none), and (M, J) that sign (0: none).
+    #: Distances cannot tell a rigid body from its mirror image: when two mirror pairs (left and right, front
+    #: and back) share a segment, exchanging the wrong pair makes every distance right again and the handedness
+    #: wrong. Several triples, so that one hidden marker (or one astray) does not leave the marker's handedness
+    #: unknown (or turn it)
     chiral: np.ndarray | None = None
     handedness: np.ndarray | None = None
     #: (M, M) every steady distance (mm: median; NaN where its spread is above :data:`MAX_REFERENCE_SPREAD_MM` or
@@ -134,7 +144,11 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
         index[m, :order.size] = cols[order]
         distance[m, :order.size] = median[order]
         spread_mm[m, :order.size] = np.maximum(spread[order], SPREAD_FLOOR_MM)
-    chiral, handedness = _handedness(x, ok, index)
+    # the handedness from the samples that keep their distances only: a marker's own swaps (a large share of a
+    # short take's frames) are no part of its body's shape
+    plain = with_tolerances(References(index, distance, spread_mm, np.full(n_m, np.inf)), TOLERANCE)
+    suspect = _screen(x, ok, plain, slice(None))[0]
+    chiral, handedness = _handedness(x, ok & ~suspect, index, spread_all)
     return References(index, distance, spread_mm, np.full(n_m, np.inf), chiral, handedness, distance_all, spread_all)
 
 
@@ -147,24 +161,43 @@ def _volume(origin: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> 
     """Triple product of the directions (..., 3) from ``origin`` to ``a``, ``b``, ``c``, as a share of the product
     of their lengths: in [−1, 1], its sign the triple's handedness."""
     u, v, w = a - origin, b - origin, c - origin
-    det = np.einsum("...i,...i->...", u, np.cross(v, w))
+    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]       # by components: np.cross costs more in its set-up than
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]       # in its arithmetic on the small blocks judged here
+    w0, w1, w2 = w[..., 0], w[..., 1], w[..., 2]
+    det = u0 * (v1 * w2 - v2 * w1) + u1 * (v2 * w0 - v0 * w2) + u2 * (v0 * w1 - v1 * w0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return det / (norm3(u) * norm3(v) * norm3(w))
+        return det / np.sqrt((u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2)
+                             * (w0 * w0 + w1 * w1 + w2 * w2))
 
 
 #: frames (evenly spread) on which the chiral triples are chosen
 CHIRAL_FRAMES = 500
+#: chiral triples per marker at most
+N_CHIRAL = 4
+#: a quadruple (the marker and a triple) whose six distances all spread at most this (mm) is one rigid body:
+#: marker noise alone. Its handedness cannot change but by a wrong name, so its median sign is its handedness
+RIGID_SPREAD_MM = 2.0
+#: a triple that is not rigid (across a joint) tells a body from its mirror image only when its volume keeps
+#: its sign, by a clear share (half of :data:`MIN_CHIRAL_VOLUME`), in all but this share of the frames where it
+#: is seen (the swaps and ghosts the sample frames hold themselves aside): one a joint turns over does not
+CHIRAL_OUTLIERS = 0.05
 
 
-def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each marker's chiral reference triple and its handedness (see :class:`References`), from sample frames:
-    of its references, the three whose directions from it span the largest volume in the median frame."""
+def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Each marker's chiral reference triples and their handedness (see :class:`References`), from sample
+    frames ``x`` (S, M, 3) where ``ok`` (S, M), the references ``index`` (M, K) and every pair's distance
+    spread ``spread_all`` (M, M; NaN: not steady): of its references' triples whose volume from it is clear in
+    the median frame, the rigid ones (:data:`RIGID_SPREAD_MM`) first, largest volume first, then those across
+    a joint that keep their sign (:data:`CHIRAL_OUTLIERS`), farthest from turning over first; at most
+    :data:`N_CHIRAL`."""
     n_m, k = index.shape
-    chiral = np.full((n_m, 3), -1, dtype=np.int64)
-    handedness = np.zeros(n_m)
+    chiral = np.full((n_m, N_CHIRAL, 3), -1, dtype=np.int64)
+    handedness = np.zeros((n_m, N_CHIRAL))
     triples = np.array(list(combinations(range(k), 3)), dtype=np.int64)           # (C, 3) slots of index
     keep = even_rows(len(x), CHIRAL_FRAMES)
     x, ok = x[keep], ok[keep]                      # a handedness's sign settles on a few hundred frames
+    spread = np.nan_to_num(spread_all, nan=np.inf)
     for m in range(n_m):
         usable = triples[(index[m][triples] >= 0).all(axis=1)]
         rows = np.flatnonzero(ok[:, m])
@@ -175,13 +208,39 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray) -> tuple[np.nd
         vol = _volume(x[rows, m][:, None], corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
         seen = ok[rows[:, None, None], tri[None]].all(axis=2)
         vol[~seen] = np.nan
+        enough = seen.sum(axis=0) >= 10
+        if not enough.any():
+            continue
+        tri, vol = tri[enough], vol[:, enough]
         median = _nanmedian(vol, axis=0)
-        median[seen.sum(axis=0) < 10] = np.nan
-        size = np.nan_to_num(np.abs(median), nan=0.0)
-        best = int(np.argmax(size))
-        if size[best] >= MIN_CHIRAL_VOLUME:
-            chiral[m], handedness[m] = tri[best], np.sign(median[best])
+        sign = np.sign(median)
+        rigid = np.maximum.reduce([spread[m, tri[:, 0]], spread[m, tri[:, 1]], spread[m, tri[:, 2]],
+                                   spread[tri[:, 0], tri[:, 1]], spread[tri[:, 0], tri[:, 2]],
+                                   spread[tri[:, 1], tri[:, 2]]]) <= RIGID_SPREAD_MM
+        # how near each triple comes to turning over: its signed volume's low quantile over the frames
+        low = np.nanquantile(sign[None] * vol, CHIRAL_OUTLIERS, axis=0)
+        clear = np.abs(median) >= MIN_CHIRAL_VOLUME
+        good = clear & (rigid | (low >= 0.5 * MIN_CHIRAL_VOLUME))
+        rank = np.where(rigid, 1.0 + np.abs(median), low)        # rigid first (a share is at most 1)
+        order = _spread_out(tri, np.flatnonzero(good)[np.argsort(-rank[good], kind="stable")])
+        chiral[m, :order.size], handedness[m, :order.size] = tri[order], sign[order]
     return chiral, handedness
+
+
+def _spread_out(tri: np.ndarray, ranked: np.ndarray) -> np.ndarray:
+    """Up to :data:`N_CHIRAL` of the triples ``tri[ranked]`` (best first), taken so that each marker is a corner
+    of as few of them as it can be: one hidden marker then leaves the others to judge."""
+    chosen: list[int] = []
+    uses: dict[int, int] = {}
+    for cap in range(1, N_CHIRAL + 1):
+        for t in ranked:
+            if len(chosen) == N_CHIRAL:
+                break
+            if t not in chosen and all(uses.get(int(c), 0) < cap for c in tri[t]):
+                chosen.append(int(t))
+                for c in tri[t]:
+                    uses[int(c)] = uses.get(int(c), 0) + 1
+    return np.array(chosen, dtype=np.int64)
 
 
 def with_tolerances(refs: References, tolerance: float) -> References:
@@ -218,12 +277,16 @@ class SubjectReferences:
         index = columns(refs.index)
         rows = np.array([max(src, 0) for src in mine], dtype=np.int64)
         has = index >= 0
-        chiral = columns(refs.chiral) if refs.chiral is not None else np.full((n_m, 3), -1, dtype=np.int64)
-        whole = (chiral >= 0).all(axis=1) & (np.array(mine) >= 0)     # a triple the take lacks a marker of: none
-        handedness = np.where(whole, refs.handedness[rows], 0.0) if refs.handedness is not None else np.zeros(n_m)
+        n_j = refs.chiral.shape[1] if refs.chiral is not None else 1
+        chiral = columns(refs.chiral.reshape(len(self.labels), -1)).reshape(n_m, n_j, 3) \
+            if refs.chiral is not None else np.full((n_m, n_j, 3), -1, dtype=np.int64)
+        # a triple the take lacks a marker of: none
+        whole = (chiral >= 0).all(axis=2) & (np.array(mine) >= 0)[:, None]
+        handedness = np.where(whole, refs.handedness[rows], 0.0) if refs.handedness is not None \
+            else np.zeros((n_m, n_j))
         return References(index, np.where(has, refs.distance_mm[rows], np.nan),
                           np.where(has, refs.spread_mm[rows], np.nan), np.full(n_m, np.inf),
-                          np.where(whole[:, None], chiral, -1), handedness,
+                          np.where(whole[..., None], chiral, -1), handedness,
                           self._square(refs.distance_all, mine), self._square(refs.spread_all, mine))
 
     @staticmethod
@@ -293,23 +356,33 @@ def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
 
 def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
              exclude: np.ndarray | None) -> np.ndarray:
-    """(n, C) bool: ``points`` judged as ``as_marker`` turn its chiral triple (all three measured there, and
-    none of them ``exclude``) against its handedness, by a clear volume."""
+    """(n, C) bool: ``points`` judged as ``as_marker`` turn more of its chiral triples (all three measured there,
+    and none of them ``exclude``) against their handedness, by a clear volume, than they leave with it: one
+    corner astray turns the triples it is in only."""
     if refs.chiral is None or refs.handedness is None:
         return np.zeros(points.shape[:2], dtype=bool)
-    tri = refs.chiral[as_marker]                                        # (C, 3)
-    hand = refs.handedness[as_marker]
-    usable = (tri >= 0).all(axis=1) & (hand != 0)
+    tri = refs.chiral[as_marker]                                        # (C, J, 3)
+    hand = refs.handedness[as_marker]                                   # (C, J)
+    usable = (tri >= 0).all(axis=2) & (hand != 0)
     if exclude is not None:
-        usable &= ~(tri == np.asarray(exclude)[:, None]).any(axis=1)
+        usable &= ~(tri == np.asarray(exclude)[:, None, None]).any(axis=2)
     if not usable.any():
         return np.zeros(points.shape[:2], dtype=bool)
-    cols = np.where(tri >= 0, tri, 0)
-    corners = xyz[:, cols]                                              # (n, C, 3, 3)
-    vol = _volume(points, corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
-    seen = usable[None] & valid[:, cols].all(axis=2)
+    c, j = np.nonzero(usable)                       # the triples there are only (most markers have fewer)
+    vol = np.full((points.shape[0],) + usable.shape, np.nan)
+    vol[:, c, j] = _volume(points[:, c], xyz[:, tri[c, j, 0]], xyz[:, tri[c, j, 1]], xyz[:, tri[c, j, 2]])
+    seen = np.zeros(vol.shape, dtype=bool)
+    seen[:, c, j] = valid[:, tri[c, j]].all(axis=2)
+    return _turned(vol, hand[None], seen)
+
+
+def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(...) bool from (..., J) volumes, their usual handedness and where they are seen: more of them turned
+    against it by a clear volume than left with it."""
     with np.errstate(invalid="ignore"):
-        return seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == -hand[None])
+        turned = seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == -hand)
+        kept = seen & (np.sign(vol) == hand)
+    return turned.sum(axis=-1) > kept.sum(axis=-1)
 
 
 def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice
@@ -323,7 +396,7 @@ def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndar
         return ok & (worst > refs.tolerance[None]), ok & (median > refs.tolerance[None])
 
 
-def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = 6.0,
+def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = TOLERANCE,
                  references: References | None = None, markers: np.ndarray | None = None,
                  in_place: bool = False) -> SwapResult:
     """Find and undo label swaps (see the module's docstring). Unless ``in_place``, ``xyz`` and ``valid`` are
@@ -491,10 +564,12 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
     best = -1
+    checked = np.zeros(others.size, dtype=bool)
     for c in np.argsort(-score, kind="stable"):
         if score[c] == 0:
             break
         explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
+        checked[c] = True
         if explained[:, c].sum() == score[c]:         # every explained frame keeps both hands: no better one
             best = int(c)
             break
@@ -502,11 +577,54 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
             best = int(c)
     if best < 0 or not explained[:, best].any():
         return -1, none, none
+    handed = explained[:, best] & ~ok[:, others[best]]
+    # a sample handed to a missing marker that fits another name as well (a mirror twin: the left and right
+    # chest markers, both hidden, and too few references seen to tell them apart by handedness) proves
+    # neither: the order of the columns would choose
+    rivals = np.flatnonzero((explained & handed[:, None]).any(axis=0))
+    rivals = rivals[rivals != best]
+    for c in rivals[~checked[rivals]]:
+        explained[:, c] &= _keeps_handedness(x, trusted, refs, a, int(others[c]))
+    twin = handed & explained[:, rivals].any(axis=1)
+    explained[:, best] &= ~twin
+    explained[:, best] &= ~_ghosts(frames, handed & ~twin, explained[:, best], valid[:, a])
+    if not explained[:, best].any():
+        return -1, none, none
     both = own[:, a] & b_suspect[:, best]
     # not provable inside the stretch the exchange explains (a glitch on one of them, say): both made gaps
     span = np.flatnonzero(explained[:, best])
     both &= (frames >= frames[span[0]]) & (frames <= frames[span[-1]])
     return int(others[best]), explained[:, best], both
+
+
+#: the longest glitch spike removal outvotes (frames): a sample handed to a missing marker over no more than this,
+#: with its own marker measured on both sides, may be a ghost off its own path as well as a swap
+GHOST_FRAMES = _MEDIAN_HALF
+
+
+def _ghosts(frames: np.ndarray, handed: np.ndarray, explained: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """(n,) bool: the frames of ``frames`` (ascending) in runs of consecutive ``explained`` frames that are all
+    ``handed`` to a missing partner, at most :data:`GHOST_FRAMES` long, with the marker ``measured`` ((T,) bool)
+    in the frames just before and after. Such a run is a ghost of one or two frames as much as a swap: a sample
+    that lands where a hidden marker would be, within the tolerance of the references seen there, proves no
+    swap (a spike's ghost lands anywhere; a hidden marker's loose references across a joint leave it room),
+    and the exchange would carry a ghost under another name. Left alone, spike removal makes it a gap."""
+    out = np.zeros(frames.size, dtype=bool)
+    at = np.flatnonzero(explained)
+    if at.size == 0:
+        return out
+    f = frames[at]
+    cut = np.flatnonzero(np.diff(f) != 1) + 1
+    starts, stops = np.r_[0, cut], np.r_[cut, f.size]                # runs of consecutive frames, in ``at``
+    length = stops - starts
+    all_handed = np.add.reduceat(handed[at].astype(np.int64), starts) == length
+    first, last = f[starts], f[stops - 1]
+    n_t = measured.size
+    bounded = (first > 0) & (last < n_t - 1)
+    bounded[bounded] = measured[first[bounded] - 1] & measured[last[bounded] + 1]
+    ghost = (length <= GHOST_FRAMES) & all_handed & bounded
+    out[at] = np.repeat(ghost, length)
+    return out
 
 
 def _remove_unproven(st: _State) -> None:
@@ -620,20 +738,24 @@ def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b:
 
 
 def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int) -> np.ndarray:
-    """(n,) bool: frames where exchanging ``a`` and ``b`` leaves each with its usual handedness (or where it cannot
-    be told: no chiral triple, or one of its markers not trusted there)."""
+    """(n,) bool: frames where exchanging ``a`` and ``b`` leaves each with its usual handedness: not more of its
+    chiral triples turned than kept (:func:`_turned`; a triple counts where its corners are trusted, or hold
+    ``a`` or ``b``; where none does, it cannot be told)."""
     ok = np.ones(x.shape[0], dtype=bool)
     if refs.chiral is None or refs.handedness is None:
         return ok
     exchanged = x.copy()
     exchanged[:, [a, b]] = x[:, [b, a]]
     for m in (a, b):
-        triple = refs.chiral[m]
-        if refs.handedness[m] == 0 or (triple < 0).any():
+        tri, hand = refs.chiral[m], refs.handedness[m]                  # (J, 3), (J,)
+        use = (hand != 0) & (tri >= 0).all(axis=1)
+        if not use.any():
             continue
-        seen = trusted[:, triple].all(axis=1) | np.isin(triple, [a, b]).any()
-        vol = _volume(exchanged[:, m], *(exchanged[:, k] for k in triple))
-        ok &= ~seen | ~np.isfinite(vol) | (np.sign(vol) == refs.handedness[m])
+        tri, hand = tri[use], hand[use]
+        seen = trusted[:, tri].all(axis=2) | np.isin(tri, [a, b]).any(axis=1)[None]       # (n, J)
+        corners = exchanged[:, tri]                                                     # (n, J, 3, 3)
+        vol = _volume(exchanged[:, m][:, None], corners[..., 0, :], corners[..., 1, :], corners[..., 2, :])
+        ok &= ~_turned(vol, hand[None], seen & np.isfinite(vol))
     return ok
 
 
