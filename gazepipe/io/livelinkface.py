@@ -19,7 +19,8 @@ import pandas as pd
 
 from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, normalise_name
 from gazepipe.errors import InputError, printable
-from gazepipe.io.tracks import FaceTrack, read_columns, read_header
+from gazepipe.io.tracks import read_columns, read_header
+from gazepipe.model import FaceTrack
 from gazepipe.timebase import snap_rate
 
 __all__ = ["FaceTrack", "parse_timecodes", "read_livelinkface"]

@@ -13,7 +13,8 @@ import numpy as np
 
 from gazepipe.errors import InputError
 from gazepipe.io.limits import MAX_FRAME
-from gazepipe.io.tracks import EyeTrack, read_columns
+from gazepipe.io.tracks import read_columns
+from gazepipe.model import EyeTrack
 
 __all__ = ["EyeTrack", "read_openface"]
 

@@ -1,134 +1,26 @@
-"""Containers for eye, face and video tracks, and the numeric-CSV reading they share.
+"""The numeric-CSV reading the eye and face track readers share.
 
-:class:`EyeTrack` comes from :func:`gazepipe.io.openface.read_openface`, :class:`FaceTrack` from
-:func:`gazepipe.io.livelinkface.read_livelinkface`, :class:`VideoProbe` from :func:`gazepipe.io.video.probe_video`.
+The containers they fill live in the model (:class:`~gazepipe.model.EyeTrack` from
+:func:`gazepipe.io.openface.read_openface`, :class:`~gazepipe.model.FaceTrack` from
+:func:`gazepipe.io.livelinkface.read_livelinkface`, :class:`~gazepipe.model.VideoProbe` from
+:func:`gazepipe.io.video.probe_video`): stages use them without depending on a reader.
 """
 
 from __future__ import annotations
 
 import csv
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
 from gazepipe.errors import InputError
 from gazepipe.io.limits import MAX_LINE_BYTES, check_line_lengths, exact_floats
+from gazepipe.model import EyeTrack, FaceTrack, VideoProbe
 
-
-@dataclass
-class EyeTrack:
-    """Per-frame eye tracking of one video (OpenFace), on the video clock.
-
-    Attributes
-    ----------
-    time_s : (N,) float64 seconds, the video's timestamps as written by OpenFace.
-    frame : (N,) int64 video frame numbers as written (1-based in OpenFace).
-    success : (N,) bool, OpenFace's tracking success; rows with False are kept, their values are junk.
-    confidence : (N,) float64 in [0, 1].
-    gaze_left, gaze_right : (N, 3) float64 unit gaze vectors of the subject's own left / right eye, camera
-        axes (x right, y down, z forward; looking into the camera is about (0, 0, -1)). NaN where the file's
-        vector has zero length.
-    blink : (N,) bool, or ``None`` when the file has no AU45 column.
-    face_id : the face kept when the file holds several, else ``None``.
-    layout : ``"openface2"`` (has ``face_id`` or ``gaze_angle_*``) or ``"openface_legacy"``.
-    warnings : one-line notes about the file.
-    """
-
-    time_s: np.ndarray
-    frame: np.ndarray
-    success: np.ndarray
-    confidence: np.ndarray
-    gaze_left: np.ndarray
-    gaze_right: np.ndarray
-    blink: np.ndarray | None
-    face_id: int | None = None
-    layout: str = ""
-    warnings: list[str] = field(default_factory=list)
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.time_s.shape[0])
-
-
-@dataclass
-class FaceTrack:
-    """Per-frame ARKit blendshapes and head/eye rotations of one Live Link Face take.
-
-    Attributes
-    ----------
-    timecode : (N,) str, the timecodes as written (``HH:MM:SS:FF.fff``).
-    tc_frame : (N,) int64 timecode frames since midnight at ``timecode_fps`` (a take that crosses midnight keeps
-        counting past 24 h).
-    tc_subframe : (N,) float64 fraction of a timecode frame, in [0, 1).
-    time_s : (N,) float64 seconds since the first row, from the timecode.
-    timecode_fps : frames per second the timecode's FF field counts.
-    rate_hz : capture rate in Hz.
-    frame_index : (N,) int64 capture frame of every row, 0 at the first row; gaps are dropped frames.
-    values : (N, 52) float32 blendshape coefficients, columns in :data:`gazepipe.arkit.ARKIT_NAMES` order.
-    head : (N, 3) float64 head yaw, pitch, roll in radians; NaN when head tracking was off or absent.
-    eyes : (N, 6) float64 left eye yaw, pitch, roll, right eye yaw, pitch, roll, radians (face's own
-        left/right); NaN when absent.
-    dropped_frames : capture frames missing between rows.
-    blendshape_count : the file's ``BlendShapeCount`` when constant, else ``None``.
-    warnings : one-line notes about the file.
-    """
-
-    timecode: np.ndarray
-    tc_frame: np.ndarray
-    tc_subframe: np.ndarray
-    time_s: np.ndarray
-    timecode_fps: float
-    rate_hz: float
-    frame_index: np.ndarray
-    values: np.ndarray
-    head: np.ndarray
-    eyes: np.ndarray
-    dropped_frames: int = 0
-    blendshape_count: int | None = None
-    warnings: list[str] = field(default_factory=list)
-    names: tuple[str, ...] = ARKIT_NAMES
-    head_names: tuple[str, ...] = HEAD_NAMES
-    eye_names: tuple[str, ...] = EYE_NAMES
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.time_s.shape[0])
-
-    @property
-    def timecode_s(self) -> np.ndarray:
-        """(N,) float64 seconds since midnight of the first row's day (for matching two takes' rows)."""
-        return (self.tc_frame.astype(np.float64) + self.tc_subframe) / float(self.timecode_fps)
-
-
-@dataclass
-class VideoProbe:
-    """What a video holds, from its container, without decoding pictures.
-
-    Attributes
-    ----------
-    n_frames : frames actually found by reading the stream.
-    nominal_fps : the container's declared frame rate (can differ from the real one).
-    timestamps_s : (n_frames,) float64 presentation time of every frame in seconds, 0 at the stream start.
-    width, height : picture size in pixels.
-    header_frames : the frame count the container declares (may be an estimate).
-    timestamp_source : ``"packets"`` (undecoded packets' timestamps), ``"decoded"`` (grabbed frames) or
-        ``"nominal"`` (frame index / nominal fps, when the container has no usable timestamps).
-    warnings : one-line notes (frame count mismatch, missing timestamps, …).
-    """
-
-    n_frames: int
-    nominal_fps: float
-    timestamps_s: np.ndarray
-    width: int
-    height: int
-    header_frames: int
-    timestamp_source: str = "packets"
-    warnings: list[str] = field(default_factory=list)
+__all__ = ["EyeTrack", "FaceTrack", "VideoProbe", "read_columns", "read_header"]
 
 
 def read_header(path: Path) -> list[str]:

@@ -17,7 +17,7 @@ import numpy as np
 
 from gazepipe.errors import InputError
 from gazepipe.io.native_log import native_output, summarise
-from gazepipe.io.tracks import VideoProbe
+from gazepipe.model import VideoProbe
 
 __all__ = ["FrameReader", "VideoProbe", "probe_video", "read_frames"]
 

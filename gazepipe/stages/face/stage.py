@@ -17,7 +17,7 @@ import numpy as np
 
 from gazepipe.arkit import mirror_permutation, normalise_name
 from gazepipe.errors import StageError
-from gazepipe.io.tracks import FaceTrack
+from gazepipe.model import FaceTrack
 
 __all__ = ["FaceAligned", "align_face", "forward_derivatives", "mirror_face"]
 
