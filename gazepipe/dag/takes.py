@@ -44,8 +44,10 @@ from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, jo
 from gazepipe.schemas.markers import (
     MARKERS_CLEAN,
     MARKERS_RAW,
+    REST_SPEED,
     check_markers_meta,
     markers_to_table,
+    rest_speed_to_table,
     table_to_markers,
 )
 from gazepipe.schemas.poses import MARKER_STACK, PoseSource, stack_to_table, table_to_stack
@@ -351,13 +353,14 @@ def run_clean(ctx: TakeContext) -> UnitResult:
     else:
         tables["neutral"] = (markers_to_table(raw, fill_code=np.zeros(raw.valid.shape, np.int8),
                                               meta={"rest": None}), MARKERS_CLEAN)
+    tables["rest_speed"] = (rest_speed_to_table(res.speed_mm_s), REST_SPEED)
     qc = dict(res.qc)
     return UnitResult(tables=tables, qc=qc, warnings=list(qc.get("warnings", [])))
 
 
 register(Stage(
-    name="clean", version="23", requires=("ingest",), params=_params_of(CleanParams),
-    outputs=("markers", "neutral"), applies=_subject_take,
+    name="clean", version="24", requires=("ingest",), params=_params_of(CleanParams),
+    outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_requires=("subject_markers",),
     run=run_clean,

@@ -157,3 +157,18 @@ def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray |
                       source_format=meta.get("source_format", ""), model_outputs=list(meta.get("model_outputs", [])),
                       warnings=list(meta.get("warnings", [])))
     return markers, frames, fill, meta
+
+
+#: the clean stage's rest-speed trace: the subject's mean marker speed per frame of the uncropped take (mm/s, NaN
+#: where unknown), which its rests and crop were found on; the report plots it
+REST_SPEED = with_identity(pa.schema([
+    pa.field("frame", pa.int32(), nullable=False),
+    pa.field("speed_mm_s", pa.float64()),
+]), "rest_speed", 1)
+
+
+def rest_speed_to_table(speed_mm_s: np.ndarray) -> pa.Table:
+    """Arrow table (:data:`REST_SPEED`) of a take's rest-speed trace, (T,) mm/s, one row per frame."""
+    speed = np.asarray(speed_mm_s, dtype=np.float64)
+    return pa.Table.from_pydict({"frame": pa.array(np.arange(speed.size, dtype=np.int32)),
+                                 "speed_mm_s": pa.array(speed, mask=~np.isfinite(speed))}, schema=REST_SPEED)
