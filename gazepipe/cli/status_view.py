@@ -57,9 +57,10 @@ def table_lines(rows: list[dict[str, Any]], holder: LockHolder | None) -> list[s
     if not rows:
         return [*lines, "nothing has run in this output folder yet"]
     width = max(len(HEADER[0]), *(len(what(r)) for r in rows))
-    lines.append(f"{HEADER[0]:<{width}}  {HEADER[1]:<8} {HEADER[2]:<7} {HEADER[3]}".rstrip())
+    stage = max(8, *(len(str(r["stage"])) for r in rows))
+    lines.append(f"{HEADER[0]:<{width}}  {HEADER[1]:<{stage}} {HEADER[2]:<7} {HEADER[3]}".rstrip())
     for r in rows:
-        lines.append(f"{what(r):<{width}}  {r['stage']:<8} {r['state']:<7} {r.get('detail') or ''}".rstrip())
+        lines.append(f"{what(r):<{width}}  {r['stage']:<{stage}} {r['state']:<7} {r.get('detail') or ''}".rstrip())
     lines.append(_count_line(rows))
     return lines
 
