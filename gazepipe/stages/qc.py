@@ -95,7 +95,7 @@ def _parse_dataclass(cls: type, value: Any, where: str, path: str | Path | None)
     if not isinstance(value, Mapping):
         raise _fail(path, where, f"is {_kind(value)}, not an object ({cls.__name__})")
     hints = _hints(cls)
-    kw = {}
+    kw: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         at = f"{where}.{f.name}"
         if f.name not in value:
@@ -157,7 +157,7 @@ def _convert(tp: Any, v: Any, where: str, path: str | Path | None) -> Any:
         args = typing.get_args(tp) or (str, Any)
         if not isinstance(v, Mapping):
             raise _fail(path, where, f"is {_kind(v)}, not an object")
-        out = {}
+        out: dict[str, Any] = {}
         for k, x in v.items():
             if not isinstance(k, str):
                 raise _fail(path, where, f"has a key {k!r} that is not a string")

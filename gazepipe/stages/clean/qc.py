@@ -91,21 +91,22 @@ class CleanQC(QCRecord):
     swaps: tuple[SwapQC, ...]
     #: per pair ``"A/B"``: stretches repaired and made gaps
     swap_pairs: Mapping[str, SwapPairQC]
-    # absent when swaps were looked for (or their repair is switched off): only a take too short to tell swaps
-    # by itself, cleaned without the session's references, says why they were not
-    swaps_not_checked: str | None = absent_when("swaps were looked for, or clean.repair_swaps is off")
     spikes_removed: int
     #: every gap the filler decided (none when the take had no gap)
     gaps: tuple[GapQC, ...]
     markers: Mapping[str, MarkerQC]
     root_missing_frames: int
-    # absent unless clean.lowpass_hz is set: nothing was low-passed
-    lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
     #: rest periods, ``[start, stop)`` frames of the uncropped take
     rests: tuple[tuple[int, int], ...]
     #: kept frames ``[start, stop)`` of the uncropped take
     crop: tuple[int, int]
     kept_frames: int
+    # the keys a clean stage writes only sometimes (last: the fields without one come first)
+    # absent when swaps were looked for (or their repair is switched off): only a take too short to tell swaps
+    # by itself, cleaned without the session's references, says why they were not
+    swaps_not_checked: str | None = absent_when("swaps were looked for, or clean.repair_swaps is off")
+    # absent unless clean.lowpass_hz is set: nothing was low-passed
+    lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
 
 
 __all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC"]
