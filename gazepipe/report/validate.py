@@ -13,6 +13,7 @@ time (a tenth of a second or more a take), checking is not. ``plot_takes`` / ``-
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -188,16 +189,19 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
                                raw.labels, raw.n_frames, raw.rate_hz, [] if clean is None else clean.gaps,
                                None if clean is None else clean.crop, raw.valid if clean is None else None,
                                salt + "gaps")))
-        cp = e.params("clean")
+        from gazepipe.stages.clean.stage import CleanParams
+
+        # the parameters the clean unit ran with (its record's); the defaults where it has no record
+        cp = {**dataclasses.asdict(CleanParams()), **e.params("clean")}
         # drawn for a take whose clean stage failed too: a take whose rests were not found shows why
-        speed = speed_trace(raw, markerset, cp.get("rest_filter_hz", 1.75))
+        speed = speed_trace(raw, markerset, cp["rest_filter_hz"])
         if speed is not None and np.isfinite(speed).any():
             failed = "" if clean is not None else " The clean stage failed on this take: no rests or crop."
             figs.append(Figure("Speed and crop", "Mean speed of the subject's markers in the room, recomputed from "
                                "the raw markers (gaps unfilled, so it can differ slightly from the speed the crop "
                                "used), with the rest threshold, the rests and the crop bounds." + failed,
                                plots.speed_plot(speed, raw.rate_hz, None if clean is None else clean.crop,
-                                                [] if clean is None else clean.rests, cp.get("rest_speed_mm_s"),
+                                                [] if clean is None else clean.rests, cp["rest_speed_mm_s"],
                                                 salt + "speed")))
         else:
             notes.append("speed trace not drawn: the session's markerset cannot be read")

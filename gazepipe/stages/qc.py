@@ -66,12 +66,16 @@ class QCRecord:
         return []
 
     def to_record(self) -> dict[str, Any]:
-        """The JSON-ready dict (lists for tuples); ``from_record(x.to_record()) == x``."""
-        return typing.cast(dict[str, Any], _plain(dataclasses.asdict(typing.cast(Any, self))))
+        """The JSON-ready dict the stage writes: lists for tuples, a key of :func:`absent_when` left out when it is
+        ``None``; ``from_record(x.to_record()) == x``."""
+        return typing.cast(dict[str, Any], _plain(self))
 
 
 def _plain(v: Any) -> Any:
-    if isinstance(v, dict):
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _plain(x) for f in dataclasses.fields(v)
+                if not ((x := getattr(v, f.name)) is None and ABSENT_WHEN in f.metadata)}
+    if isinstance(v, Mapping):
         return {k: _plain(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
         return [_plain(x) for x in v]
