@@ -81,9 +81,10 @@ class TakeEntry:
         rec = self.records.get(stage)
         return rec is not None and rec.get("status") == "ok"
 
-    def record_path(self, stage: str) -> Path:
-        """The stage's unit record file, relative to the output folder (the report names no absolute path)."""
-        return OutLayout(Path()).record(self.session, self.take, stage)
+    def record_path(self, stage: str) -> str:
+        """The stage's unit record file, relative to the output folder and with ``/`` (the report names no
+        absolute path, and reads the same on every system)."""
+        return OutLayout(Path()).record(self.session, self.take, stage).as_posix()
 
     def _parsed(self, cls: type[QCRecord]) -> QCRecord | str | None:
         if not self.ran(cls.stage):
