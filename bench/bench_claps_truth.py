@@ -35,6 +35,7 @@ from gazepipe.errors import StageError
 from gazepipe.io.capture import read_markers
 from gazepipe.io.video import FrameReader, probe_video
 from gazepipe.report.checks import Thresholds, sync_checks
+from gazepipe.stages.sync.qc import SyncQC
 from gazepipe.stages.sync.stage import SyncParams, sync_take
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.skeleton import CLAPPER_MARKERS, FOUR_SEGMENTS, SEGMENTS
@@ -101,7 +102,7 @@ def main() -> None:
                     c0, c1 = (np.array(t["crop"], dtype=np.float64) - [0, 1]) / float(t["rate_hz"])
                     vm = tr["video_mocap_time_s"][inside]
                     crop_err = float(miss[(vm >= c0) & (vm <= c1)].max())
-                    checks = sync_checks(qc, True, int(t["n_frames"]), float(t["rate_hz"]), Thresholds())
+                    checks = sync_checks(SyncQC.from_record(qc), True, int(t["n_frames"]), float(t["rate_hz"]), Thresholds())
                     cm = next((c for c in checks if c.id == "clock_map"), None)
                     sev = cm.severity if cm is not None else "(none)"
                     ok = map_err <= 5.0 or sev == "fail"

@@ -43,6 +43,7 @@ from gazepipe.pipeline.events import EventLog
 from gazepipe.report.checks import Thresholds, sync_checks
 from gazepipe.stages.build.gaze import angular_speed
 from gazepipe.stages.geometry import from_wxyz
+from gazepipe.stages.sync.qc import SyncQC
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.skeleton import FOUR_SEGMENTS, SEGMENTS
 
@@ -187,7 +188,8 @@ def main() -> None:
                         miss_ms = np.abs(got - vm[inside]) * 1e3
                         err_ms = float(miss_ms.max())
                         clock_err.append(err_ms)
-                        check = next(c for c in sync_checks(sync, True, t["n_frames"], rate, Thresholds())
+                        check = next(c for c in sync_checks(SyncQC.from_record(sync), True, t["n_frames"], rate,
+                                                            Thresholds())
                                      if c.id == "clock_map")
                         clock_flagged += int(err_ms > 5.0 and check.severity == "fail")
                         if t.get("crop"):

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -21,6 +22,10 @@ from gazepipe.io.session_toml import load_session
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
 from gazepipe.report.schema import REPORT_JSON_SCHEMA, REPORT_SCHEMA_VERSION, validate_report
+from gazepipe.stages.clean.qc import CleanQC
+from gazepipe.stages.eyes.qc import EyesQC
+from gazepipe.stages.face.qc import FaceQC
+from gazepipe.stages.sync.qc import SyncQC
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_data" / "session01"
@@ -465,13 +470,19 @@ def test_unfilled_share_and_grading() -> None:
     assert C.grade(0.4, 0.5, None, below=True) == "warning"
 
 
+def _clap(mocap_s: float, mocap_confidence: float, video_s: float, video_confidence: float) -> dict:
+    return {"mocap_s": mocap_s, "mocap_confidence": mocap_confidence, "video_s": video_s,
+            "video_confidence": video_confidence, "video_match": 0.9, "mocap_gap_frames": 0, "used": True}
+
+
 def test_sync_and_eye_checks_read_their_stage_records() -> None:
     th = C.Thresholds()
-    sync = {"offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0025, "drift_ppm": 2500.0,
-            "drift_ms_over_take": 90.0, "n_claps": 2, "residual_ms": 0.0,
-            "claps": [{"mocap_s": 2.0, "mocap_confidence": 0.9, "video_s": 0.75, "video_confidence": 0.3},
-                      {"mocap_s": 60.0, "mocap_confidence": 0.8, "video_s": 58.66, "video_confidence": 0.9}],
-            "frames_without_video": 300, "frames_decoded": 120, "video_frames": 3600}
+    sync = SyncQC.from_record({
+        "offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0025, "drift_ppm": 2500.0,
+        "drift_ms_over_take": 90.0, "n_claps": 2, "residual_ms": 0.0,
+        "claps": [_clap(2.0, 0.9, 0.75, 0.3), _clap(60.0, 0.8, 58.66, 0.9)],
+        "frames_without_video": 300, "frames_decoded": 120, "video_frames": 3600, "clock_bound_ms": 1.0,
+        "claps_used": [1, 2], "warnings": []})
     got = {c.id: c for c in C.sync_checks(sync, True, 1800, 30.0, th)}
     assert got["clap_offset"].value == 1.25
     assert got["clap_confidence"].severity == "warning" and got["clap_confidence"].value == 0.3
@@ -480,15 +491,21 @@ def test_sync_and_eye_checks_read_their_stage_records() -> None:
     assert got["frames_without_video"].severity == "warning" and got["frames_without_video"].value == \
         pytest.approx(300 / 1800)
     assert all(c.severity == "skipped" for c in C.sync_checks(None, False, 1800, 30.0, th))
-    assert all(c.severity == "error" for c in C.sync_checks({"claps": []}, True, 1800, 30.0, th))
+    no_clap = dataclasses.replace(sync, claps=())
+    assert {c.id: c for c in C.sync_checks(no_clap, True, 1800, 30.0, th)}["clap_confidence"].severity == "error"
 
-    eyes = {"gated_share": 0.65, "gated_by": {"confidence": 0.5, "blink": 0.15}, "longest_invalid_run_s": 0.4,
-            "camera_residual_deg": 3.5, "camera_rotation_source": "estimated", "camera_frames_used": 200}
+    eyes = EyesQC.from_record({
+        "samples": 3600, "video_rate_hz": 60.0, "gated_share": 0.65, "gated_by": {"confidence": 0.5, "blink": 0.15},
+        "filled_samples": 0, "invalid_share": 0.65, "longest_invalid_run_s": 0.4, "missing_video_frames": 0,
+        "min_confidence": 0.8, "max_eye_gap_s": 0.1, "warnings": [], "frames": 1800, "valid_frames": 630,
+        "valid_share": 0.35, "frames_without_coverage": 0, "frames_without_head": 0, "clock_offset_s": 0.0,
+        "clock_ratio": 1.0, "camera_rotation": [1.0, 0.0, 0.0, 0.0], "camera_rotation_source": "estimated",
+        "camera_residual_deg": 3.5, "camera_frames_used": 200, "eye_lag_s": 0.2, "camera_target_spread_deg": 40.0})
     got = {c.id: c for c in C.eyes_checks(eyes, True, th)}
     assert got["eye_gated"].severity == "fail"
     assert got["eye_longest_invalid"].severity == "pass"
     assert got["camera_residual"].severity == "warning"
-    eyes["camera_residual_deg"] = None
+    eyes = dataclasses.replace(eyes, camera_residual_deg=None)
     assert {c.id: c for c in C.eyes_checks(eyes, True, th)}["camera_residual"].severity == "skipped"
 
 
@@ -504,12 +521,14 @@ def test_stage_warnings_are_surfaced() -> None:
 
 def test_face_checks() -> None:
     th = C.Thresholds()
-    qc = {"rows_tracked": 1000, "rows_clean": 990, "dropped_frames_tracked": 80, "dropped_frames_clean": 2,
-          "unmatched_tracked": 30, "unmatched_clean": 20, "rows_out": 969}
+    qc = FaceQC.from_record({
+        "rows_tracked": 1000, "rows_clean": 990, "dropped_frames_tracked": 80, "dropped_frames_clean": 2,
+        "rows_matched": 970, "unmatched_tracked": 30, "unmatched_clean": 20, "last_frames_dropped": 1, "rows_out": 969,
+        "k": 1, "max_match_error_s": 0.0, "dt_min_s": 0.016, "dt_median_s": 0.016, "dt_max_s": 0.05, "warnings": []})
     got = {c.id: c for c in C.face_checks(qc, th)}
     assert got["face_unmatched"].severity == "pass" and got["face_unmatched"].value == pytest.approx(0.03)
     assert got["face_dropped"].severity == "warning" and got["face_dropped"].value == pytest.approx(80 / 1080)
-    qc["unmatched_tracked"] = 600
+    qc = dataclasses.replace(qc, unmatched_tracked=600)
     assert {c.id: c for c in C.face_checks(qc, th)}["face_unmatched"].severity == "fail"
     assert [c.severity for c in C.face_checks(None, th)] == ["skipped", "skipped"]
 
@@ -602,7 +621,12 @@ def test_crop_check_warns_when_a_gaze_shift_lacks_a_rest():
     crop check says why it gives no gaze_map row."""
     from gazepipe.report.checks import Thresholds, check_crop
 
-    got = check_crop({"crop": [0, 118], "rests": [[89, 118]]}, "gaze_shift", 118, 29.97, Thresholds())
+    def clean(crop: list[int], rests: list[list[int]]) -> CleanQC:
+        return CleanQC.from_record({"warnings": [], "failures": [], "swaps": [], "swap_pairs": {},
+                                    "spikes_removed": 0, "gaps": [], "markers": {}, "root_missing_frames": 0,
+                                    "rests": rests, "crop": crop, "kept_frames": crop[1] - crop[0]})
+
+    got = check_crop(clean([0, 118], [[89, 118]]), "gaze_shift", 118, 29.97, Thresholds())
     assert got.severity == "warning" and "gaze shift needs two" in got.message
-    ok = check_crop({"crop": [42, 118], "rests": [[0, 42], [63, 118]]}, "gaze_shift", 118, 29.97, Thresholds())
+    ok = check_crop(clean([42, 118], [[0, 42], [63, 118]]), "gaze_shift", 118, 29.97, Thresholds())
     assert ok.severity == "pass"

@@ -245,14 +245,20 @@ def test_clean_codes_repaired_samples_and_lists_the_swaps(swapped_session: Path)
 
 def test_the_report_check_passes_repaired_swaps_and_warns_of_stretches_made_gaps() -> None:
     from gazepipe.report.checks import check_swaps
+    from gazepipe.stages.clean.qc import CleanQC
+
+    def clean_qc(**swaps: object) -> CleanQC:
+        return CleanQC.from_record({"warnings": [], "failures": [], "swaps": [], "spikes_removed": 0, "gaps": [],
+                                    "markers": {}, "root_missing_frames": 0, "rests": [], "crop": [0, 10],
+                                    "kept_frames": 10, **swaps})
 
     assert check_swaps(None).severity == "skipped"
-    assert check_swaps({"swap_pairs": {}}).severity == "pass"
-    assert check_swaps({"swap_pairs": {}, "swaps_not_checked": "a short take"}).severity == "skipped"
-    fixed = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 2, "removed": 0}}})
+    assert check_swaps(clean_qc(swap_pairs={})).severity == "pass"
+    assert check_swaps(clean_qc(swap_pairs={}, swaps_not_checked="a short take")).severity == "skipped"
+    fixed = check_swaps(clean_qc(swap_pairs={"CHA/CHB": {"repaired": 2, "removed": 0}}))
     assert fixed.severity == "pass" and "CHA/CHB 2" in fixed.message and fixed.value == 2.0
-    lost = check_swaps({"swap_pairs": {"CHA/CHB": {"repaired": 1, "removed": 1}, "SACR/PEL_B": {"repaired": 1,
-                                                                                           "removed": 0}}})
+    lost = check_swaps(clean_qc(swap_pairs={"CHA/CHB": {"repaired": 1, "removed": 1},
+                                            "SACR/PEL_B": {"repaired": 1, "removed": 0}}))
     assert lost.severity == "warning" and "became gaps" in lost.message and lost.value == 3.0
 
 

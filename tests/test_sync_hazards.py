@@ -14,6 +14,7 @@ from gazepipe.io.video import FrameReader, probe_video
 from gazepipe.report.checks import Thresholds, sync_checks
 from gazepipe.stages.sync.clap import Clap, mocap_claps
 from gazepipe.stages.sync.clock import CLAP_TIMING_MS, choose_clock
+from gazepipe.stages.sync.qc import SyncQC
 from gazepipe.stages.sync.stage import sync_take
 from gazepipe.stages.sync.video import VideoClap
 from gazepipe.synth import SynthConfig, generate_session
@@ -83,16 +84,18 @@ def test_no_pair_at_all_is_an_error():
 
 
 def test_clock_map_check_fails_beyond_5_ms_and_names_the_clap():
-    qc = {"offset_s": 1.0, "ratio": 1.0, "claps": [{"mocap_s": 1.0, "mocap_confidence": 1.0, "video_s": 0.0,
-                                                    "video_confidence": 1.0},
-                                                   {"mocap_s": 50.0, "mocap_confidence": 1.0, "video_s": 49.0,
-                                                    "video_confidence": 0.37}],
+    claps = [{"mocap_s": 1.0, "mocap_confidence": 1.0, "video_s": 0.0, "video_confidence": 1.0, "video_match": 0.9,
+              "mocap_gap_frames": 0, "used": True},
+             {"mocap_s": 50.0, "mocap_confidence": 1.0, "video_s": 49.0, "video_confidence": 0.37,
+              "video_match": 0.4, "mocap_gap_frames": 0, "used": False}]
+    qc = {"offset_s": 1.0, "offset_at_video_zero_s": 1.0, "ratio": 1.0, "drift_ppm": 0.0, "drift_ms_over_take": 0.0,
+          "residual_ms": 0.0, "claps": claps, "frames_without_video": 0, "frames_decoded": 300, "video_frames": 3000,
           "n_claps": 1, "clock_bound_ms": 66.3, "claps_used": [1],
           "warnings": ["v.mp4: clap 2 (mocap 50.00 s, video 49.00 s) found with low confidence"]}
-    got = {c.id: c for c in sync_checks(qc, True, 1500, 30.0, Thresholds())}
+    got = {c.id: c for c in sync_checks(SyncQC.from_record(qc), True, 1500, 30.0, Thresholds())}
     assert got["clock_map"].severity == "fail" and "clap 2" in got["clock_map"].message
     qc.update(clock_bound_ms=2.0, claps_used=[1, 2], warnings=[])
-    got = {c.id: c for c in sync_checks(qc, True, 1500, 30.0, Thresholds())}
+    got = {c.id: c for c in sync_checks(SyncQC.from_record(qc), True, 1500, 30.0, Thresholds())}
     assert got["clock_map"].severity == "pass"
 
 
@@ -167,6 +170,6 @@ def test_no_take_fails_for_a_clap_and_a_bad_map_is_flagged(hazard_session):
         c0, c1 = np.array(t["crop"]) / raw.rate_hz
         inside = (tr["video_mocap_time_s"] >= c0) & (tr["video_mocap_time_s"] <= c1)
         err_ms = np.abs(res.clock.to_mocap(tr["video_time_s"][inside]) - tr["video_mocap_time_s"][inside]).max() * 1e3
-        check = next(c for c in sync_checks(res.qc, True, t["n_frames"], raw.rate_hz, Thresholds())
+        check = next(c for c in sync_checks(SyncQC.from_record(res.qc), True, t["n_frames"], raw.rate_hz, Thresholds())
                      if c.id == "clock_map")
         assert err_ms <= 5.0 or check.severity == "fail", (take, t["design"]["clap_hazard"], err_ms)

@@ -1,5 +1,9 @@
 """Quality checks of one take, as pure functions of its unit records and tables (``gazepipe validate``).
 
+A stage's QC comes in as its QC dataclass (:class:`~gazepipe.stages.sync.qc.SyncQC`, …), read by attribute;
+``None`` when the stage did not run ok on the take. A record whose QC does not parse never gets here: its checks
+are ``error`` (:func:`qc_record_errors`).
+
 Every check returns :class:`Check` results with a severity: ``pass``, ``warning``, ``fail``, ``error`` (the
 check could not be evaluated: an unreadable table, a record without the keys it needs) or ``skipped`` (not
 applicable: the take has no video, no eye tracking, …). Dataset checks are in
@@ -53,6 +57,7 @@ check                                   warning         fail         measured on
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -60,6 +65,12 @@ from typing import Any
 import numpy as np
 
 from gazepipe.model import FILL_CODES
+from gazepipe.stages.clean.qc import CleanQC
+from gazepipe.stages.eyes.qc import EyesQC
+from gazepipe.stages.face.qc import FaceQC
+from gazepipe.stages.frames.qc import FramesQC
+from gazepipe.stages.ingest_qc import IngestQC
+from gazepipe.stages.sync.qc import SyncQC
 
 SEVERITIES = ("skipped", "pass", "warning", "fail", "error")
 #: sort rank: failing checks first
@@ -181,6 +192,34 @@ def skipped(check_id: str, why: str) -> Check:
     return Check(check_id, "skipped", f"not applicable: {why}")
 
 
+#: the stages whose QC each take check reads: its own stage first, then those it takes counts from (the ingest's
+#: frames and rate, the clean stage's kept frames)
+CHECK_READS: dict[str, tuple[str, ...]] = {
+    "gap_share": ("ingest",), "longest_gap": ("clean",), "fill_error": ("clean",), "spikes": ("clean", "ingest"),
+    "swaps": ("clean",), "crop": ("clean", "ingest"), "invalid_frames": ("frames", "clean"),
+    "clap_offset": ("sync",), "clap_confidence": ("sync",), "clock_drift": ("sync", "ingest"),
+    "clap_residual": ("sync", "ingest"), "clock_map": ("sync",), "frames_without_video": ("sync", "ingest"),
+    "eye_gated": ("eyes",), "eye_longest_invalid": ("eyes",), "camera_residual": ("eyes",),
+    "face_unmatched": ("face",), "face_dropped": ("face",),
+}
+
+
+def qc_record_errors(checks: list[Check], errors: dict[str, str], parsed: set[str]) -> list[Check]:
+    """``checks`` with each check that reads a QC record that does not parse made an ``error`` naming the record
+    file and the key (``errors``: stage → why, one line): always when it is the check's own stage's record; when
+    it is a record the check takes counts from, if the check's own stage's QC is there (``parsed``: the stages
+    whose QC parsed), so a check never passes, or is skipped, for want of a key."""
+    out = []
+    for c in checks:
+        reads = CHECK_READS.get(c.id, ())
+        bad = [s for i, s in enumerate(reads) if s in errors and (i == 0 or reads[0] in parsed)]
+        if bad:
+            c = Check(c.id, "error", f"{bad[0]} QC record unreadable: {errors[bad[0]]}",
+                      details={"unreadable_qc": {s: errors[s] for s in bad}})
+        out.append(c)
+    return out
+
+
 # ------------------------------------------------------------------------------------------------ stages
 
 def check_stages(records: dict[str, dict[str, Any]], states: list[dict[str, Any]] | None = None) -> Check:
@@ -227,9 +266,9 @@ def check_stage_warnings(records: dict[str, dict[str, Any]]) -> Check:
 
 # ------------------------------------------------------------------------------------------------ markers
 
-def check_gap_share(ingest_qc: dict[str, Any] | None, th: Thresholds) -> Check:
+def check_gap_share(ingest_qc: IngestQC | None, th: Thresholds) -> Check:
     """Worst marker's share of frames that were gaps at ingest."""
-    gf = (ingest_qc or {}).get("gap_fraction")
+    gf = None if ingest_qc is None else ingest_qc.gap_fraction
     if not gf:
         return skipped("gap_share", "no ingest record with gap shares")
     worst_m = max(sorted(gf), key=lambda k: gf[k])
@@ -243,33 +282,30 @@ def check_gap_share(ingest_qc: dict[str, Any] | None, th: Thresholds) -> Check:
                  details={"per_marker": dict(sorted(gf.items())), "over": over})
 
 
-def check_longest_gap(clean_qc: dict[str, Any] | None, th: Thresholds) -> Check:
-    markers = (clean_qc or {}).get("markers")
+def check_longest_gap(clean_qc: CleanQC | None, th: Thresholds) -> Check:
+    markers = None if clean_qc is None else clean_qc.markers
     if not markers:
         return skipped("longest_gap", "no clean record")
-    per = {k: float(v.get("longest_gap_s", 0.0)) for k, v in sorted(markers.items())}
+    per = {k: float(v.longest_gap_s) for k, v in sorted(markers.items())}
     worst_m = max(per, key=lambda k: per[k])
     v = per[worst_m]
     return Check("longest_gap", grade(v, th.longest_gap_warn_s, None), f"longest gap {v:.2f} s ({worst_m})",
                  value=v, threshold=_thr(th.longest_gap_warn_s), details={"per_marker_s": per})
 
 
-def check_fill_error(clean_qc: dict[str, Any] | None, th: Thresholds) -> Check:
+def check_fill_error(clean_qc: CleanQC | None, th: Thresholds) -> Check:
     """The chosen method's validation error of every filled gap; the worst one is graded."""
     if clean_qc is None:
         return skipped("fill_error", "no clean record")
-    gaps = clean_qc.get("gaps", [])
-    errs = [(g.get("errors_mm", {}).get(g["method"]), g) for g in gaps if g.get("method") not in (None, "unfilled")]
-    errs = [(e, g) for e, g in errs if e is not None and np.isfinite(e)]
-    methods: dict[str, int] = {}
-    for g in gaps:
-        methods[g.get("method", "?")] = methods.get(g.get("method", "?"), 0) + 1
+    gaps = clean_qc.gaps
+    errs = [(e, g) for g in gaps if (e := g.method_error_mm) is not None and np.isfinite(e)]
+    methods = Counter(g.method for g in gaps)
     if not errs:
         return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled with a validation error",
                      details={"gaps_by_method": dict(sorted(methods.items()))})
     e, g = max(errs, key=lambda eg: eg[0])
     over = sum(1 for x, _ in errs if th.fill_error_warn_mm is not None and x > th.fill_error_warn_mm)
-    msg = f"worst fill validation error {e:.1f} mm ({g['marker']} frames {g['start']}-{g['stop']}, {g['method']})"
+    msg = f"worst fill validation error {e:.1f} mm ({g.marker} frames {g.start}-{g.stop}, {g.method})"
     if over:
         msg += f"; {over} gap(s) above {th.fill_error_warn_mm:g} mm"
     return Check("fill_error", grade(e, th.fill_error_warn_mm, None), msg, value=float(e),
@@ -304,11 +340,11 @@ def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Threshold
                           "unfilled_share_all": float(np.count_nonzero(fill == UNFILLED) / fill.size)})
 
 
-def check_spikes(clean_qc: dict[str, Any] | None, frames: int | None, th: Thresholds) -> Check:
-    markers = (clean_qc or {}).get("markers")
+def check_spikes(clean_qc: CleanQC | None, frames: int | None, th: Thresholds) -> Check:
+    markers = None if clean_qc is None else clean_qc.markers
     if not markers or not frames:
         return skipped("spikes", "no clean record")
-    per = {k: int(v.get("spikes_removed", 0)) for k, v in sorted(markers.items())}
+    per = {k: int(v.spikes_removed) for k, v in sorted(markers.items())}
     worst_m = max(per, key=lambda k: per[k])
     v = per[worst_m] / frames
     total = sum(per.values())
@@ -318,33 +354,33 @@ def check_spikes(clean_qc: dict[str, Any] | None, frames: int | None, th: Thresh
                  threshold=_thr(th.spikes_warn), details={"per_marker": {k: n for k, n in per.items() if n}})
 
 
-def check_swaps(clean_qc: dict[str, Any] | None) -> Check:
+def check_swaps(clean_qc: CleanQC | None) -> Check:
     """Label swaps the clean stage found: repaired ones pass (their samples are measured, under the right names,
     coded ``swap_repaired`` on the gap timeline); a stretch it could not prove, made gaps, is a warning."""
-    if clean_qc is None or "swap_pairs" not in clean_qc:
+    if clean_qc is None:
         return skipped("swaps", "no clean record of label swaps")
-    if clean_qc.get("swaps_not_checked"):
-        return skipped("swaps", clean_qc["swaps_not_checked"])
-    pairs = clean_qc["swap_pairs"]
-    repaired = sum(c["repaired"] for c in pairs.values())
-    removed = sum(c["removed"] for c in pairs.values())
+    if clean_qc.swaps_not_checked:
+        return skipped("swaps", clean_qc.swaps_not_checked)
+    pairs = clean_qc.swap_pairs
+    repaired = sum(c.repaired for c in pairs.values())
+    removed = sum(c.removed for c in pairs.values())
     if not pairs:
         return Check("swaps", "pass", "no label swap found", value=0.0)
-    by_pair = ", ".join(f"{k} {c['repaired'] + c['removed']}" for k, c in sorted(pairs.items()))
+    by_pair = ", ".join(f"{k} {c.repaired + c.removed}" for k, c in sorted(pairs.items()))
     msg = f"{repaired} label-swap stretch(es) repaired ({by_pair})"
     if removed:
         msg += f"; {removed} stretch(es) not provable: both markers' samples there became gaps"
     return Check("swaps", "warning" if removed else "pass", msg, value=float(repaired + removed),
-                 details={"per_pair": pairs})
+                 details={"per_pair": {k: c.to_record() for k, c in pairs.items()}})
 
 
-def check_crop(clean_qc: dict[str, Any] | None, kind: str, frames: int | None, rate_hz: float | None,
+def check_crop(clean_qc: CleanQC | None, kind: str, frames: int | None, rate_hz: float | None,
                th: Thresholds) -> Check:
     """Crop bounds from rests: long enough, and bounded by the rests the kind needs."""
-    if clean_qc is None or "crop" not in clean_qc:
+    if clean_qc is None:
         return skipped("crop", "no clean record")
-    a, b = clean_qc["crop"]
-    rests = clean_qc.get("rests", [])
+    a, b = clean_qc.crop
+    rests = [list(r) for r in clean_qc.rests]
     kept_s = (b - a) / rate_hz if rate_hz else None
     problems = []
     if kind not in ("neutral", "gaze_shift") and frames:
@@ -367,10 +403,10 @@ def check_crop(clean_qc: dict[str, Any] | None, kind: str, frames: int | None, r
                  threshold={"kept_min_s": th.kept_min_s}, details={"crop": [a, b], "rests": rests})
 
 
-def check_invalid_frames(frames_qc: dict[str, Any] | None, kept: int | None, th: Thresholds) -> Check:
-    if frames_qc is None or "invalid_frames" not in frames_qc:
+def check_invalid_frames(frames_qc: FramesQC | None, kept: int | None, th: Thresholds) -> Check:
+    if frames_qc is None:
         return skipped("invalid_frames", "no frames record")
-    n = int(frames_qc["invalid_frames"])
+    n = int(frames_qc.invalid_frames)
     v = n / kept if kept else 0.0
     return Check("invalid_frames", grade(v, th.invalid_frames_warn, th.invalid_frames_fail),
                  f"{n} of {kept} kept frames ({_pct(v)}) without a full set of segment rotations", value=v,
@@ -379,59 +415,55 @@ def check_invalid_frames(frames_qc: dict[str, Any] | None, kept: int | None, th:
 
 # --------------------------------------------------------------------------------------------------- sync
 
-def check_clock_map(sync_qc: dict[str, Any], th: Thresholds) -> Check:
+def check_clock_map(sync_qc: SyncQC, th: Thresholds) -> Check:
     """Whether the clock map can be shown within ``clock_bound_fail_ms`` over the video (SPEC §3.4); the message
     names the claps it rests on and, when it fails, the sync's warnings say which claps were left out."""
-    if "clock_bound_ms" not in sync_qc:
-        return skipped("clock_map", "sync record has no clock bound (made before it was recorded)")
-    bound = float(sync_qc["clock_bound_ms"])
-    claps = sync_qc.get("claps", [])
-    used = [int(j) for j in sync_qc.get("claps_used", [])]
-    on = ", ".join(f"clap {j} (mocap {float(claps[j - 1]['mocap_s']):.2f} s)" for j in used if 0 < j <= len(claps))
+    bound = float(sync_qc.clock_bound_ms)
+    claps = sync_qc.claps
+    used = [int(j) for j in sync_qc.claps_used]
+    on = ", ".join(f"clap {j} (mocap {float(claps[j - 1].mocap_s):.2f} s)" for j in used if 0 < j <= len(claps))
     alone = " and the nominal rate" if len(used) == 1 else ""
     msg = f"clock map within {bound:.1f} ms over the video, from {on or 'no clap'}{alone}"
-    left = [w for w in sync_qc.get("warnings", []) if "clap" in w]
+    left = [w for w in sync_qc.warnings if "clap" in w]
     if left and th.clock_bound_fail_ms is not None and bound > th.clock_bound_fail_ms:
         msg += f"; {left[0]}"
     return Check("clock_map", grade(bound, None, th.clock_bound_fail_ms), msg, value=bound,
                  threshold=_thr(None, th.clock_bound_fail_ms), details={"warnings": left})
 
 
-def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | None, rate_hz: float | None,
+SYNC_CHECKS = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "clock_map", "frames_without_video")
+
+
+def sync_checks(sync_qc: SyncQC | None, has_video: bool, frames: int | None, rate_hz: float | None,
                 th: Thresholds) -> list[Check]:
     """clap_offset, clap_confidence, clock_drift, clap_residual, clock_map and frames_without_video from the sync
     QC."""
-    ids = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "clock_map", "frames_without_video")
     if sync_qc is None:
         why = "the take has no video" if not has_video else "no sync record"
-        return [skipped(i, why) for i in ids]
+        return [skipped(i, why) for i in SYNC_CHECKS]
     out: list[Check] = []
-    need = ("offset_s", "ratio", "claps")
-    if any(k not in sync_qc for k in need):
-        missing = [k for k in need if k not in sync_qc]
-        return [Check(i, "error", f"sync record lacks {missing}") for i in ids]
-    off = float(sync_qc["offset_s"])
+    off = float(sync_qc.offset_s)
     out.append(Check("clap_offset", "pass", f"mocap minus video clock at the first clap: {off:+.3f} s",
                      value=off))
     confs = []
-    for c in sync_qc["claps"]:
-        for k in ("mocap_confidence", "video_confidence"):
-            if c.get(k) is not None:
-                confs.append(float(c[k]))
-    unmatched = sum(1 for c in sync_qc["claps"] if c.get("video_s") is None)
+    for c in sync_qc.claps:
+        for conf in (c.mocap_confidence, c.video_confidence):
+            if conf is not None:
+                confs.append(float(conf))
+    unmatched = sum(1 for c in sync_qc.claps if c.video_s is None)
     if confs:
         v = min(confs)
         sev = grade(v, th.clap_confidence_warn, None, below=True)
-        msg = f"lowest clap confidence {v:.2f} over {len(sync_qc['claps'])} clap(s)"
+        msg = f"lowest clap confidence {v:.2f} over {len(sync_qc.claps)} clap(s)"
         if unmatched:
             sev = worst([sev, "warning"])
             msg += f"; {unmatched} mocap clap(s) without a video clap"
         out.append(Check("clap_confidence", sev, msg, value=v, threshold=_thr(th.clap_confidence_warn),
-                         details={"claps": sync_qc["claps"]}))
+                         details={"claps": [c.to_record() for c in sync_qc.claps]}))
     else:
-        out.append(Check("clap_confidence", "error", "sync record lists no clap confidence"))
-    n_claps = int(sync_qc.get("n_claps", 1))
-    ppm = float(sync_qc.get("drift_ppm", (float(sync_qc["ratio"]) - 1.0) * 1e6))
+        out.append(Check("clap_confidence", "error", "sync record lists no clap"))
+    n_claps = int(sync_qc.n_claps)
+    ppm = float(sync_qc.drift_ppm)
     take_s = frames / rate_hz if frames and rate_hz else None  # the video's own length is not recorded
     if n_claps < 2:
         long = take_s is not None and th.single_clap_max_video_s is not None and take_s > th.single_clap_max_video_s
@@ -441,88 +473,86 @@ def sync_checks(sync_qc: dict[str, Any] | None, has_video: bool, frames: int | N
         out.append(Check("clock_drift", "warning" if long else "pass", msg, value=None,
                          threshold={"single_clap_max_video_s": th.single_clap_max_video_s}))
     else:
-        drift_ms = sync_qc.get("drift_ms_over_take")
-        msg = f"clock drift {ppm:+.0f} ppm (ratio {float(sync_qc['ratio']):.6f}" + \
-            (f", {float(drift_ms):+.1f} ms over the video)" if drift_ms is not None else ")") + ", corrected"
+        msg = f"clock drift {ppm:+.0f} ppm (ratio {float(sync_qc.ratio):.6f}, " \
+            f"{float(sync_qc.drift_ms_over_take):+.1f} ms over the video), corrected"
         out.append(Check("clock_drift", grade(abs(ppm), th.drift_warn_ppm, None), msg, value=ppm,
                          threshold=_thr(th.drift_warn_ppm)))
     if n_claps >= 3 and rate_hz:
-        res_frames = float(sync_qc.get("residual_ms", 0.0)) / 1000.0 * rate_hz
+        res_frames = float(sync_qc.residual_ms) / 1000.0 * rate_hz
         out.append(Check("clap_residual", grade(res_frames, th.clap_residual_warn_frames, None),
-                         f"largest clap-pair misfit {float(sync_qc.get('residual_ms', 0.0)):.1f} ms "
+                         f"largest clap-pair misfit {float(sync_qc.residual_ms):.1f} ms "
                          f"({res_frames:.2f} mocap frames)", value=res_frames,
                          threshold=_thr(th.clap_residual_warn_frames)))
     else:
         out.append(skipped("clap_residual", f"{n_claps} clap pair(s): the map fits them exactly"))
     out.append(check_clock_map(sync_qc, th))
-    if "frames_without_video" in sync_qc and frames:
-        n = int(sync_qc["frames_without_video"])
+    if frames:
+        n = int(sync_qc.frames_without_video)
         v = n / frames
         out.append(Check("frames_without_video", grade(v, th.no_video_warn, th.no_video_fail),
                          f"{n} of {frames} mocap frames ({_pct(v)}) outside the video", value=v,
                          threshold=_thr(th.no_video_warn, th.no_video_fail)))
     else:
-        out.append(skipped("frames_without_video", "sync record has no frame count"))
+        out.append(skipped("frames_without_video", "no mocap frame count (ingest record)"))
     return out
 
 
 # --------------------------------------------------------------------------------------------------- eyes
 
-def eyes_checks(eyes_qc: dict[str, Any] | None, has_eyes: bool, th: Thresholds) -> list[Check]:
+EYES_CHECKS = ("eye_gated", "eye_longest_invalid", "camera_residual")
+
+
+def eyes_checks(eyes_qc: EyesQC | None, has_eyes: bool, th: Thresholds) -> list[Check]:
     """eye_gated, eye_longest_invalid and camera_residual from the eyes QC."""
-    ids = ("eye_gated", "eye_longest_invalid", "camera_residual")
     if eyes_qc is None:
         why = "the take has no eye tracking" if not has_eyes else "no eyes record"
-        return [skipped(i, why) for i in ids]
+        return [skipped(i, why) for i in EYES_CHECKS]
     out: list[Check] = []
-    if "gated_share" in eyes_qc:
-        v = float(eyes_qc["gated_share"])
-        by = eyes_qc.get("gated_by", {})
-        top = ", ".join(f"{k} {_pct(float(x))}" for k, x in sorted(by.items(), key=lambda kv: -kv[1]) if x)
-        out.append(Check("eye_gated", grade(v, th.eye_gated_warn, th.eye_gated_fail),
-                         f"{_pct(v)} of eye samples gated out" + (f" ({top})" if top else ""), value=v,
-                         threshold=_thr(th.eye_gated_warn, th.eye_gated_fail), details={"gated_by": by}))
-    else:
-        out.append(skipped("eye_gated", "eyes record has no gated share"))
-    if "longest_invalid_run_s" in eyes_qc:
-        v = float(eyes_qc["longest_invalid_run_s"])
-        out.append(Check("eye_longest_invalid", grade(v, th.eye_longest_invalid_warn_s, None),
-                         f"longest invalid eye run {v:.2f} s", value=v,
-                         threshold=_thr(th.eye_longest_invalid_warn_s)))
-    else:
-        out.append(skipped("eye_longest_invalid", "eyes record has no invalid runs"))
-    res = eyes_qc.get("camera_residual_deg")
+    v = float(eyes_qc.gated_share)
+    by = dict(eyes_qc.gated_by)
+    top = ", ".join(f"{k} {_pct(float(x))}" for k, x in sorted(by.items(), key=lambda kv: -kv[1]) if x)
+    out.append(Check("eye_gated", grade(v, th.eye_gated_warn, th.eye_gated_fail),
+                     f"{_pct(v)} of eye samples gated out" + (f" ({top})" if top else ""), value=v,
+                     threshold=_thr(th.eye_gated_warn, th.eye_gated_fail), details={"gated_by": by}))
+    v = float(eyes_qc.longest_invalid_run_s)
+    out.append(Check("eye_longest_invalid", grade(v, th.eye_longest_invalid_warn_s, None),
+                     f"longest invalid eye run {v:.2f} s", value=v,
+                     threshold=_thr(th.eye_longest_invalid_warn_s)))
+    res = eyes_qc.camera_residual_deg
     if res is None:
         out.append(skipped("camera_residual", "no camera rotation residual (too few fixation frames)"))
     else:
         v = float(res)
-        src = eyes_qc.get("camera_rotation_source", "?")
+        src = eyes_qc.camera_rotation_source
         out.append(Check("camera_residual", grade(v, th.camera_residual_warn_deg, th.camera_residual_fail_deg),
                          f"camera rotation ({src}) residual {v:.2f} deg over "
-                         f"{eyes_qc.get('camera_frames_used', '?')} fixation frames", value=v,
+                         f"{eyes_qc.camera_frames_used} fixation frames", value=v,
                          threshold=_thr(th.camera_residual_warn_deg, th.camera_residual_fail_deg)))
     return out
 
 
 # --------------------------------------------------------------------------------------------------- face
 
-def face_checks(face_qc: dict[str, Any] | None, th: Thresholds) -> list[Check]:
+FACE_CHECKS = ("face_unmatched", "face_dropped")
+
+
+def face_checks(face_qc: FaceQC | None, th: Thresholds) -> list[Check]:
     """face_unmatched and face_dropped from the face QC (Live Link Face tracks aligned on timecode)."""
     if face_qc is None:
-        return [skipped("face_unmatched", "no face record"), skipped("face_dropped", "no face record")]
+        return [skipped(i, "no face record") for i in FACE_CHECKS]
     out = []
-    n = int(face_qc.get("rows_tracked", 0))
+    n = int(face_qc.rows_tracked)
     if n:
-        v = int(face_qc.get("unmatched_tracked", 0)) / n
+        v = int(face_qc.unmatched_tracked) / n
         out.append(Check("face_unmatched", grade(v, th.face_unmatched_warn, th.face_unmatched_fail),
-                         f"{face_qc.get('unmatched_tracked', 0)} of {n} tracked frames ({_pct(v)}) without a clean "
-                         f"frame; {face_qc.get('rows_out', '?')} rows kept", value=v,
+                         f"{face_qc.unmatched_tracked} of {n} tracked frames ({_pct(v)}) without a clean "
+                         f"frame; {face_qc.rows_out} rows kept", value=v,
                          threshold=_thr(th.face_unmatched_warn, th.face_unmatched_fail)))
     else:
         out.append(Check("face_unmatched", "fail", "the tracked face track has no frame", value=1.0))
     shares = {}
-    for side in ("tracked", "clean"):
-        rows, dropped = int(face_qc.get(f"rows_{side}", 0)), int(face_qc.get(f"dropped_frames_{side}", 0))
+    for side, rows, dropped in (("tracked", face_qc.rows_tracked, face_qc.dropped_frames_tracked),
+                                ("clean", face_qc.rows_clean, face_qc.dropped_frames_clean)):
         shares[side] = dropped / (rows + dropped) if rows + dropped else 0.0
     side = max(shares, key=lambda k: shares[k])
     v = shares[side]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -25,7 +25,20 @@ from gazepipe.schemas import expected_schema
 from gazepipe.schemas.base import check_table
 from gazepipe.schemas.joints import list_to_numpy
 from gazepipe.schemas.markers import check_markers_meta, fill_codes, table_to_markers
+from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.clean.rests import mean_speed
+from gazepipe.stages.eyes.qc import EyesQC
+from gazepipe.stages.face.qc import FaceQC
+from gazepipe.stages.frames.qc import FramesQC
+from gazepipe.stages.ingest_qc import IngestQC
+from gazepipe.stages.qc import QCRecord, QCRecordError
+from gazepipe.stages.sync.qc import SyncQC
+
+#: the QC type of each take stage's unit record
+QC_TYPES: dict[str, type[QCRecord]] = {cls.stage: cls for cls in (IngestQC, CleanQC, FramesQC, SyncQC, EyesQC,
+                                                                   FaceQC)}
+
+Q = TypeVar("Q", bound=QCRecord)
 
 
 def open_output(out: str | Path) -> OutLayout:
@@ -42,7 +55,11 @@ def open_output(out: str | Path) -> OutLayout:
 
 @dataclass
 class TakeEntry:
-    """One take known to the output folder: its settings and its unit records by stage."""
+    """One take known to the output folder: its settings and its unit records by stage.
+
+    The records are the engine's (status, error, warnings, components); the QC a stage recorded in one is read
+    as that stage's QC dataclass (:meth:`qc`), converted once.
+    """
 
     session: str
     take: str
@@ -51,16 +68,48 @@ class TakeEntry:
     has_video: bool = False
     has_eyes: bool = False
     records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: stage → its QC dataclass, or why the record's QC does not parse (one line naming the record file and the
+    #: key; filled as :meth:`qc` is asked)
+    _qc: dict[str, QCRecord | str] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def key(self) -> str:
         return f"{self.session}/{self.take}"
 
-    def qc(self, stage: str) -> dict[str, Any] | None:
+    def ran(self, stage: str) -> bool:
+        """Whether the stage's unit has a record that says it ran ok."""
         rec = self.records.get(stage)
-        if rec is None or rec.get("status") != "ok":
+        return rec is not None and rec.get("status") == "ok"
+
+    def record_path(self, stage: str) -> str:
+        """The stage's unit record file, relative to the output folder and with ``/`` (the report names no
+        absolute path, and reads the same on every system)."""
+        return OutLayout(Path()).record(self.session, self.take, stage).as_posix()
+
+    def _parsed(self, cls: type[QCRecord]) -> QCRecord | str | None:
+        if not self.ran(cls.stage):
             return None
-        return rec.get("qc") or {}
+        if cls.stage not in self._qc:
+            rec, path = self.records[cls.stage], self.record_path(cls.stage)
+            try:
+                if "qc" not in rec:
+                    raise QCRecordError(path, "missing from the unit record", key="qc")
+                self._qc[cls.stage] = cls.from_record(rec["qc"], path)
+            except QCRecordError as exc:
+                self._qc[cls.stage] = exc.one_line()
+        return self._qc[cls.stage]
+
+    def qc(self, cls: type[Q]) -> Q | None:
+        """The QC the stage of ``cls`` (:data:`QC_TYPES`) recorded, as ``cls``; ``None`` when its unit has no
+        record, did not run ok, or its QC does not parse (:meth:`qc_error` says why)."""
+        got = self._parsed(cls)
+        return got if isinstance(got, cls) else None
+
+    def qc_error(self, cls: type[QCRecord]) -> str | None:
+        """Why the stage's QC record does not parse as ``cls`` (one line naming the record file and the key), or
+        ``None``."""
+        got = self._parsed(cls)
+        return got if isinstance(got, str) else None
 
     def params(self, stage: str) -> dict[str, Any]:
         return ((self.records.get(stage) or {}).get("components") or {}).get("params") or {}

@@ -24,6 +24,7 @@ from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
 from gazepipe.model import FILL_CODES
+from gazepipe.stages.clean.qc import GapQC
 
 #: colours of the fill methods (measured light grey, unfilled red)
 FILL_COLOURS = {"measured": "#eeeeee", "linear": "#1f77b4", "pchip": "#17becf", "rigid": "#2ca02c",
@@ -103,20 +104,19 @@ def envelope(x: np.ndarray, y: np.ndarray, max_bins: int = 2000) -> tuple[np.nda
     return np.repeat(xc, 2), np.column_stack([lo, hi]).reshape(-1)
 
 
-def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Sequence[dict],
+def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Sequence[GapQC],
                  crop: Sequence[int] | None, raw_valid: np.ndarray | None, salt: str) -> str:
     """Markers × time, each sample coloured by how it was filled; outside the crop shaded.
 
-    ``gaps``: the clean stage's gap records (marker, start, stop, method); without them (``None`` clean
-    record) the raw gaps are drawn as unfilled.
+    ``gaps``: the clean stage's gap records (marker, start, stop, method); without them (no clean QC) the raw
+    gaps are drawn as unfilled.
     """
     code = np.full((len(labels), n_frames), FILL_CODES["measured"], dtype=np.int8)
     row = {lab: i for i, lab in enumerate(labels)}
     if gaps:
         for g in gaps:
-            if g.get("marker") in row:
-                code[row[g["marker"]], int(g["start"]):int(g["stop"])] = FILL_CODES.get(g.get("method", "unfilled"),
-                                                                                     FILL_CODES["unfilled"])
+            if g.marker in row:
+                code[row[g.marker], int(g.start):int(g.stop)] = FILL_CODES[g.method]
     elif raw_valid is not None:
         code[~raw_valid.T] = FILL_CODES["unfilled"]
     names = sorted(FILL_CODES, key=FILL_CODES.__getitem__)

@@ -13,6 +13,7 @@ time (a tenth of a second or more a take), checking is not. ``plot_takes`` / ``-
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -33,6 +34,7 @@ from gazepipe.report import checks_datasets as D
 from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache, stored_checks
 from gazepipe.report.collect import (
     PLOT_TABLES,
+    QC_TYPES,
     DatasetData,
     TakeEntry,
     TakeTables,
@@ -49,6 +51,12 @@ from gazepipe.report.collect import (
 )
 from gazepipe.report.html import Figure, PlotSelection, render_html
 from gazepipe.report.schema import REPORT_SCHEMA_VERSION, TAKES_SCHEMA
+from gazepipe.stages.clean.qc import CleanQC
+from gazepipe.stages.eyes.qc import EyesQC
+from gazepipe.stages.face.qc import FaceQC
+from gazepipe.stages.frames.qc import FramesQC
+from gazepipe.stages.ingest_qc import IngestQC
+from gazepipe.stages.sync.qc import SyncQC
 
 FAIL_ON = ("warning", "fail")
 GATE = {"fail": ("fail", "error"), "warning": ("warning", "fail", "error")}
@@ -80,31 +88,38 @@ def take_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds,
 def take_output_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Check]:
     """The checks of one take's outputs: all but ``stages`` (whether its units are up to date with the inputs
     now), so they depend on the records and tables alone and can be computed as soon as the take ran."""
-    ingest, clean, frames_qc = e.qc("ingest"), e.qc("clean"), e.qc("frames")
-    n_frames = (ingest or {}).get("frames")
-    rate = (ingest or {}).get("rate_hz")
     out = [C.check_stage_warnings(e.records)]
     for name, err in sorted(tables.errors.items()):
         out.append(C.Check(f"table_{name}", "error", f"{name} table unreadable: {err}"))
+    errors = {cls.stage: why for cls in QC_TYPES.values() if (why := e.qc_error(cls)) is not None}
+    parsed = {cls.stage for cls in QC_TYPES.values() if e.qc(cls) is not None}
+    return C.qc_record_errors(out + _qc_checks(e, tables, th), errors, parsed)
+
+
+def _qc_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Check]:
+    """The checks of the take's stages' QC records (and its cleaned markers' fill codes)."""
     if e.kind == "face":
-        return out + C.face_checks(e.qc("face"), th)
-    out.append(C.check_gap_share(ingest, th))
+        return C.face_checks(e.qc(FaceQC), th)
+    ingest, clean, frames_qc = e.qc(IngestQC), e.qc(CleanQC), e.qc(FramesQC)
+    n_frames = None if ingest is None else ingest.frames
+    rate = None if ingest is None else ingest.rate_hz
+    out = [C.check_gap_share(ingest, th)]
     out.append(C.check_longest_gap(clean, th))
     out.append(C.check_fill_error(clean, th))
     if "markers" in tables.errors:
         out.append(C.Check("unfilled", "error", "cleaned markers table unreadable"))
     else:
-        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th) if clean is not None
+        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th) if e.ran("clean")
                    else C.skipped("unfilled", "no clean record"))
     out.append(C.check_spikes(clean, n_frames, th))
     out.append(C.check_swaps(clean))
     out.append(C.check_crop(clean, e.kind, n_frames, rate, th))
-    kept = (clean or {}).get("kept_frames")
+    kept = None if clean is None else clean.kept_frames
     if e.kind in ("gaze_follow", "gaze_shift"):
         out.append(C.check_invalid_frames(frames_qc, kept, th))
-    out.extend(C.sync_checks(e.qc("sync"), e.has_video, n_frames, rate, th))
+    out.extend(C.sync_checks(e.qc(SyncQC), e.has_video, n_frames, rate, th))
     if e.kind == "gaze_follow":
-        out.extend(C.eyes_checks(e.qc("eyes"), e.has_eyes, th))
+        out.extend(C.eyes_checks(e.qc(EyesQC), e.has_eyes, th))
     return out
 
 
@@ -127,30 +142,31 @@ def _num(v: Any) -> float | None:
 
 
 def take_row(e: TakeEntry, checks: list[C.Check], severity: str) -> dict[str, Any]:
-    ingest, clean = e.qc("ingest") or {}, e.qc("clean") or {}
-    crop = clean.get("crop") or [None, None]
+    ingest, clean, sync, eyes = e.qc(IngestQC), e.qc(CleanQC), e.qc(SyncQC), e.qc(EyesQC)
+    crop = (None, None) if clean is None else clean.crop
     bad = sorted((c for c in checks if C.RANK[c.severity] >= C.RANK["warning"]),
                  key=lambda c: (-C.RANK[c.severity], c.id))
-    sync = e.qc("sync") or {}
-    eyes = e.qc("eyes") or {}
     return {
         "session": e.session, "take": e.take, "kind": e.kind, "pose": e.pose, "severity": severity,
         "n_fail": sum(c.severity in ("fail", "error") for c in checks),
         "n_warning": sum(c.severity == "warning" for c in checks),
         "failing": ",".join(c.id for c in bad),
         "stages_failed": ",".join(sorted(s for s, r in e.records.items() if r.get("status") != "ok")),
-        "frames": ingest.get("frames"), "rate_hz": _num(ingest.get("rate_hz")),
-        "kept_frames": clean.get("kept_frames"), "crop_start": crop[0], "crop_stop": crop[1],
+        "frames": None if ingest is None else ingest.frames,
+        "rate_hz": None if ingest is None else _num(ingest.rate_hz),
+        "kept_frames": None if clean is None else clean.kept_frames, "crop_start": crop[0], "crop_stop": crop[1],
         "gap_share_max": _num(_value(checks, "gap_share")), "longest_gap_s": _num(_value(checks, "longest_gap")),
         "fill_error_max_mm": _num(_value(checks, "fill_error")),
         "filled_share": _num(_detail(checks, "unfilled", "filled_share")),
         "unfilled_share_max": _num(_value(checks, "unfilled")),
-        "spikes_removed": clean.get("spikes_removed"),
+        "spikes_removed": None if clean is None else clean.spikes_removed,
         "invalid_frames_share": _num(_value(checks, "invalid_frames")),
-        "clap_offset_s": _num(sync.get("offset_s")), "clock_drift_ppm": _num(sync.get("drift_ppm")),
+        "clap_offset_s": None if sync is None else _num(sync.offset_s),
+        "clock_drift_ppm": None if sync is None else _num(sync.drift_ppm),
         "clap_confidence_min": _num(_value(checks, "clap_confidence")),
         "frames_without_video_share": _num(_value(checks, "frames_without_video")),
-        "eye_gated_share": _num(eyes.get("gated_share")), "camera_residual_deg": _num(eyes.get("camera_residual_deg")),
+        "eye_gated_share": None if eyes is None else _num(eyes.gated_share),
+        "camera_residual_deg": None if eyes is None else _num(eyes.camera_residual_deg),
     }
 
 
@@ -160,48 +176,54 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
 
     figs: list[Figure] = []
     notes: list[str] = []
-    clean = e.qc("clean")
+    clean = e.qc(CleanQC)
+    for cls in QC_TYPES.values():
+        why = e.qc_error(cls)
+        if why is not None:
+            notes.append(f"{cls.stage} QC record unreadable, its plots drawn as if the stage had not run: {why}")
     raw = tables.raw
     salt = f"take:{e.key}:"
     if raw is not None and raw.n_frames:
         figs.append(Figure("Gap timeline", "Every marker's samples over the whole take, coloured by how they were "
                            "filled; red samples stayed gaps.", plots.gap_timeline(
-                               raw.labels, raw.n_frames, raw.rate_hz, (clean or {}).get("gaps", []),
-                               (clean or {}).get("crop"), raw.valid if clean is None else None, salt + "gaps")))
-        cp = e.params("clean")
+                               raw.labels, raw.n_frames, raw.rate_hz, [] if clean is None else clean.gaps,
+                               None if clean is None else clean.crop, raw.valid if clean is None else None,
+                               salt + "gaps")))
+        from gazepipe.stages.clean.stage import CleanParams
+
+        # the parameters the clean unit ran with (its record's); the defaults where it has no record
+        cp = {**dataclasses.asdict(CleanParams()), **e.params("clean")}
         # drawn for a take whose clean stage failed too: a take whose rests were not found shows why
-        speed = speed_trace(raw, markerset, cp.get("rest_filter_hz", 1.75))
+        speed = speed_trace(raw, markerset, cp["rest_filter_hz"])
         if speed is not None and np.isfinite(speed).any():
             failed = "" if clean is not None else " The clean stage failed on this take: no rests or crop."
             figs.append(Figure("Speed and crop", "Mean speed of the subject's markers in the room, recomputed from "
                                "the raw markers (gaps unfilled, so it can differ slightly from the speed the crop "
                                "used), with the rest threshold, the rests and the crop bounds." + failed,
-                               plots.speed_plot(speed, raw.rate_hz, (clean or {}).get("crop"),
-                                                (clean or {}).get("rests", []), cp.get("rest_speed_mm_s"),
+                               plots.speed_plot(speed, raw.rate_hz, None if clean is None else clean.crop,
+                                                [] if clean is None else clean.rests, cp["rest_speed_mm_s"],
                                                 salt + "speed")))
         else:
             notes.append("speed trace not drawn: the session's markerset cannot be read")
-    sync = e.qc("sync")
+    sync = e.qc(SyncQC)
     if sync is not None and raw is not None and markerset is not None and len(markerset.clapper) == 2 \
             and all(c in raw.labels for c in markerset.clapper):
         a, b = (raw.labels.index(c) for c in markerset.clapper)
         dist = np.linalg.norm(np.where(raw.valid[:, [a]] & raw.valid[:, [b]], raw.xyz[:, a] - raw.xyz[:, b], np.nan),
                               axis=1)
-        off = float(sync.get("offset_at_video_zero_s", sync.get("offset_s", 0.0)))
-        ratio = float(sync.get("ratio", 1.0))
-        claps = sync.get("claps", [])
+        off, ratio, claps = float(sync.offset_at_video_zero_s), float(sync.ratio), sync.claps
         figs.append(Figure("Clap alignment", "Clapper marker distance around each clap; blue: the mocap clap, "
                            "orange: the video clap mapped onto the mocap clock by the clock map.", plots.clap_plot(
-                               dist, raw.rate_hz, [float(c["mocap_s"]) for c in claps],
-                               [None if c.get("video_s") is None else off + ratio * float(c["video_s"])
+                               dist, raw.rate_hz, [float(c.mocap_s) for c in claps],
+                               [None if c.video_s is None else off + ratio * float(c.video_s)
                                 for c in claps], salt + "clap")))
     if tables.eyes is not None and tables.eyes["time_s"].size:
-        eq = e.qc("eyes") or {}
+        eq = e.qc(EyesQC)
         ey = tables.eyes
         figs.append(Figure("Eye confidence", "OpenFace confidence on the mocap frames (the lower of the two video "
                            "samples around each frame) against the gate; red: invalid frames, blue: frames bridged by slerp.",
                            plots.eye_plot(ey["time_s"], ey["confidence"], ey["valid"], ey["filled"],
-                                          eq.get("min_confidence"), salt + "eyes")))
+                                          None if eq is None else eq.min_confidence, salt + "eyes")))
     return figs, notes
 
 

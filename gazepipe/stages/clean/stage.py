@@ -18,6 +18,7 @@ from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
 from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error_map, fill_gaps
+from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.clean.rests import (
     crop_bounds,
     mean_speed,
@@ -392,6 +393,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     if kind == "neutral" and neutral is None and markers.n_frames:
         neutral, neutral_code = _slice(0, markers.n_frames), code.copy()
         qc["warnings"].append("no rest period in the neutral take; its every frame is the neutral pose")
+    # the record the report reads, checked against its type here: a key renamed or left out fails the stage's
+    # own tests, not a report check later
+    qc = CleanQC.from_record(qc).to_record()
     fill_error = error_map(gap_records, code.shape)     # made last: no other take-sized temporary is alive
     fill_error[code == UNFILLED] = np.nan
     # the kept rows are views of the stage's own arrays: a long take's positions are not copied once more

@@ -39,6 +39,7 @@ from gazepipe.stages.eyes.camera import (
 from gazepipe.stages.eyes.gate import Gated, gate
 from gazepipe.stages.eyes.lag import check_camera_rotation, estimate_camera_rotation_lagged, world_targets
 from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.eyes.qc import EyesQC
 from gazepipe.stages.geometry import from_wxyz, to_wxyz
 from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
@@ -172,10 +173,9 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     cmap = _clock(clock)
     gaze_cam, eye_valid, conf, covered = _resample(g, mt, cmap)
 
-    qc = dict(g.qc)
-    qc["warnings"] = list(g.qc["warnings"])
+    warnings = list(g.qc["warnings"])
     if clock is None:
-        qc["warnings"].append("no clock map: video and mocap clocks taken as the same")
+        warnings.append("no clock map: video and mocap clocks taken as the same")
 
     # the camera rotation: configured, or fitted together with the eyes' delay behind the target
     rate = float(joints.rate_hz)
@@ -204,7 +204,7 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     seen = eye_valid & np.isfinite(tdir_head).all(axis=1)
     spread = _target_spread_deg(tdir_head[seen]) if np.count_nonzero(seen) >= 3 else None
     if source == "estimated" and spread is not None and spread < p.min_target_spread_deg:
-        qc["warnings"].append(f"target directions spread only {spread:.1f} deg in head axes: "
+        warnings.append(f"target directions spread only {spread:.1f} deg in head axes: "
                               "the camera rotation is poorly determined")
 
     eye_dir_head = np.where(eye_valid[:, None], camera_to_head(gaze_cam, r_cam), np.nan)
@@ -212,20 +212,25 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
     valid = eye_valid & head_ok
     eye_dir_char[~valid] = np.nan
 
-    qc.update({
-        "frames": int(n),
-        "valid_frames": int(np.count_nonzero(valid)),
-        "valid_share": float(np.count_nonzero(valid) / n) if n else 0.0,
-        "frames_without_coverage": int(np.count_nonzero(~covered)),
-        "frames_without_head": int(np.count_nonzero(covered & ~head_ok)),
-        "clock_offset_s": float(cmap.offset_s),
-        "clock_ratio": float(cmap.ratio),
-        "camera_rotation": [float(x) for x in r_cam],
-        "camera_rotation_source": source,
-        "camera_residual_deg": residual,
-        "camera_frames_used": int(n_used),
-        "eye_lag_s": lag,
-        "camera_target_spread_deg": spread,
-    })
+    gq = g.qc                                   # the gate's counts, on the video's samples
+    qc = EyesQC(
+        samples=gq["samples"], video_rate_hz=gq["video_rate_hz"], gated_share=gq["gated_share"],
+        gated_by=gq["gated_by"], filled_samples=gq["filled_samples"], invalid_share=gq["invalid_share"],
+        longest_invalid_run_s=gq["longest_invalid_run_s"], missing_video_frames=gq["missing_video_frames"],
+        min_confidence=gq["min_confidence"], max_eye_gap_s=gq["max_eye_gap_s"], warnings=tuple(warnings),
+        frames=int(n),
+        valid_frames=int(np.count_nonzero(valid)),
+        valid_share=float(np.count_nonzero(valid) / n) if n else 0.0,
+        frames_without_coverage=int(np.count_nonzero(~covered)),
+        frames_without_head=int(np.count_nonzero(covered & ~head_ok)),
+        clock_offset_s=float(cmap.offset_s),
+        clock_ratio=float(cmap.ratio),
+        camera_rotation=(float(r_cam[0]), float(r_cam[1]), float(r_cam[2]), float(r_cam[3])),
+        camera_rotation_source=source,
+        camera_residual_deg=residual,
+        camera_frames_used=int(n_used),
+        eye_lag_s=lag,
+        camera_target_spread_deg=spread,
+    ).to_record()
     return EyesResult(eye_dir_char=eye_dir_char, eye_dir_head=eye_dir_head, valid=valid, confidence=conf,
                       covered=covered, camera_rotation=r_cam, camera_source=source, gated=g, qc=qc)

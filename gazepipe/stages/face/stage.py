@@ -18,6 +18,7 @@ import numpy as np
 from gazepipe.arkit import mirror_permutation, normalise_name
 from gazepipe.errors import StageError
 from gazepipe.model import FaceTrack
+from gazepipe.stages.face.qc import FaceQC
 
 __all__ = ["FaceAligned", "align_face", "forward_derivatives", "mirror_face"]
 
@@ -140,22 +141,23 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1) -> FaceAlign
     d_cln = forward_derivatives(clean.values[crow], dt, k)
     m = rows.size - k
     keep, ckeep = rows[:m], crow[:m]
-    qc = {
-        "rows_tracked": tracked.n_frames,
-        "rows_clean": clean.n_frames,
-        "dropped_frames_tracked": int(tracked.dropped_frames),
-        "dropped_frames_clean": int(clean.dropped_frames),
-        "rows_matched": int(rows.size),
-        "unmatched_tracked": int(tracked.n_frames - rows.size),
-        "unmatched_clean": int(clean.n_frames - rows.size),
-        "last_frames_dropped": int(k),
-        "rows_out": int(m),
-        "k": int(k),
-        "max_match_error_s": float(err.max()),
-        "dt_min_s": float(dt[:m].min()),
-        "dt_median_s": float(np.median(dt[:m])),
-        "dt_max_s": float(dt[:m].max()),
-    }
+    qc = FaceQC(
+        rows_tracked=tracked.n_frames,
+        rows_clean=clean.n_frames,
+        dropped_frames_tracked=int(tracked.dropped_frames),
+        dropped_frames_clean=int(clean.dropped_frames),
+        rows_matched=int(rows.size),
+        unmatched_tracked=int(tracked.n_frames - rows.size),
+        unmatched_clean=int(clean.n_frames - rows.size),
+        last_frames_dropped=int(k),
+        rows_out=int(m),
+        k=int(k),
+        max_match_error_s=float(err.max()),
+        dt_min_s=float(dt[:m].min()),
+        dt_median_s=float(np.median(dt[:m])),
+        dt_max_s=float(dt[:m].max()),
+        warnings=(),                  # the alignment itself has none; the unit adds the readers'
+    ).to_record()
     return FaceAligned(
         names=names,
         timecode=tracked.timecode[keep],

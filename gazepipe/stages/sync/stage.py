@@ -35,6 +35,7 @@ from gazepipe.errors import StageError
 from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.sync.clap import Clap, clap_profile, clapper_distance, mocap_claps
 from gazepipe.stages.sync.clock import ClockMap, choose_clock
+from gazepipe.stages.sync.qc import ClapQC, SyncQC
 from gazepipe.stages.sync.video import ReadWindow, VideoClap, match_clap
 
 
@@ -74,7 +75,7 @@ class SyncResult:
     video_claps : the video clap paired with each mocap clap (``None`` where none was found).
     frames_without_video : mocap frames outside the video's span once mapped.
     frames_decoded : video frames decoded to find the claps.
-    qc : the QC record (plain JSON-able values).
+    qc : the QC record (plain JSON-able values): :class:`~gazepipe.stages.sync.qc.SyncQC` as a dict.
     """
 
     clock: ClockMap
@@ -185,28 +186,28 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     span = clock.to_mocap(ts[[0, -1]])
     uncovered = int(np.count_nonzero((frame_t < span[0]) | (frame_t > span[1])))
     duration_v = float(ts[-1] - ts[0])
-    qc = {
-        "offset_s": clock.offset_at_first_clap_s,
-        "offset_at_video_zero_s": clock.offset_s,
-        "ratio": clock.ratio,
-        "drift_ppm": clock.drift_ppm,
-        "drift_ms_over_take": clock.drift_ms(duration_v),
-        "n_claps": clock.n_claps,
-        "residual_ms": clock.residual_ms,
-        "claps": [{"mocap_s": m.time_s, "mocap_confidence": m.confidence,
-                   "video_s": None if v is None else v.time_s,
-                   "video_confidence": None if v is None else v.confidence,
-                   "video_match": None if v is None else v.match,
-                   "mocap_gap_frames": m.gap_frames, "used": u}
-                  for m, v, u in zip(mc, vc, choice.used, strict=True)],
-        "frames_without_video": uncovered,
-        "frames_decoded": counted[0],
-        "video_frames": int(ts.size),
-        "clock_bound_ms": choice.bound_ms,
-        "claps_used": [j + 1 for j, u in enumerate(choice.used) if u],
-        "warnings": [f"{video_path or 'the video'}: mocap clap {j + 1} at {m.time_s:.3f} s has no video "
-                     f"counterpart" for j, (m, v) in enumerate(zip(mc, vc, strict=True)) if v is None]
-        + choice.warnings,
-    }
+    qc = SyncQC(
+        offset_s=clock.offset_at_first_clap_s,
+        offset_at_video_zero_s=clock.offset_s,
+        ratio=clock.ratio,
+        drift_ppm=clock.drift_ppm,
+        drift_ms_over_take=clock.drift_ms(duration_v),
+        n_claps=clock.n_claps,
+        residual_ms=clock.residual_ms,
+        claps=tuple(ClapQC(mocap_s=m.time_s, mocap_confidence=m.confidence,
+                           video_s=None if v is None else v.time_s,
+                           video_confidence=None if v is None else v.confidence,
+                           video_match=None if v is None else v.match,
+                           mocap_gap_frames=m.gap_frames, used=u)
+                    for m, v, u in zip(mc, vc, choice.used, strict=True)),
+        frames_without_video=uncovered,
+        frames_decoded=counted[0],
+        video_frames=int(ts.size),
+        clock_bound_ms=choice.bound_ms,
+        claps_used=tuple(j + 1 for j, u in enumerate(choice.used) if u),
+        warnings=tuple([f"{video_path or 'the video'}: mocap clap {j + 1} at {m.time_s:.3f} s has no video "
+                        f"counterpart" for j, (m, v) in enumerate(zip(mc, vc, strict=True)) if v is None]
+                       + choice.warnings),
+    ).to_record()
     return SyncResult(clock=clock, mocap_claps=mc, video_claps=vc, frames_without_video=uncovered,
                       frames_decoded=counted[0], qc=qc)
