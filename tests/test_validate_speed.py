@@ -98,7 +98,8 @@ def test_a_failed_take_is_ranked_and_plotted_first(out: Path) -> None:
     assert _validate(out, "--no-plots").exit_code == 0
     best = rank_takes(json.loads((out / "qc" / "report.json").read_text())["takes"])[-1]
     # the clean stage of the take that ranked last failed (its rests were not found, say): it fails the gate, it
-    # now ranks first, and its plots (drawn from the raw markers) are the ones a single plot goes to
+    # now ranks first, and its plots (the gap timeline from the raw markers; no speed trace, which only a clean
+    # unit that finished records) are the ones a single plot goes to
     record = out / ".gazepipe" / "units" / best / "clean.json"
     rec = json.loads(record.read_text())
     rec.update(status="failed", error="clean: no rest found at the start of the take")
@@ -110,7 +111,8 @@ def test_a_failed_take_is_ranked_and_plotted_first(out: Path) -> None:
     assert _plotted(out) == [best]
     html = (out / "qc" / "report.html").read_text()
     sec = _section(html, best)
-    assert "Gap timeline" in sec and "The clean stage failed on this take" in sec
+    assert "Gap timeline" in sec and "Speed and crop" not in sec
+    assert "the clean stage did not finish on this take" in html
     plots = html[html.index('<div id="plots">'):html.index("</div>", html.index('<div id="plots">'))]
     assert f'href="#{anchor("take", best)}"' in plots
 

@@ -17,7 +17,7 @@ import pyarrow.parquet as pq
 
 from gazepipe.errors import ConfigError, GazepipeError
 from gazepipe.io.parquet import read_schema, read_table
-from gazepipe.model import Markers, MarkerSet
+from gazepipe.model import Markers
 from gazepipe.pipeline.state import OutLayout, all_records, read_json
 from gazepipe.report.checks import Thresholds
 from gazepipe.report.checks_datasets import FileFacts, StatsSample, schema_hash
@@ -26,7 +26,6 @@ from gazepipe.schemas.base import check_table
 from gazepipe.schemas.joints import list_to_numpy
 from gazepipe.schemas.markers import check_markers_meta, fill_codes, table_to_markers
 from gazepipe.stages.clean.qc import CleanQC
-from gazepipe.stages.clean.rests import mean_speed
 from gazepipe.stages.eyes.qc import EyesQC
 from gazepipe.stages.face.qc import FaceQC
 from gazepipe.stages.frames.qc import FramesQC
@@ -183,6 +182,7 @@ class TakeTables:
     fill: np.ndarray | None = None          # (N, M) fill codes of the kept frames
     fill_labels: list[str] = field(default_factory=list)
     kept_frames: np.ndarray | None = None   # (N,) rows of the uncropped take
+    rest_speed: np.ndarray | None = None    # (T,) mm/s, the speed the clean stage found the rests on
     eyes: dict[str, np.ndarray] | None = None
     sync: dict[str, np.ndarray] | None = None
     errors: dict[str, str] = field(default_factory=dict)
@@ -222,7 +222,7 @@ def _probe(layout: OutLayout, e: TakeEntry, name: str, tables: TakeTables) -> No
 
 
 #: the take tables the plots draw from (the raw markers: gaps, speed, clapper; the eyes: confidence)
-PLOT_TABLES = ("markers_raw", "eyes")
+PLOT_TABLES = ("markers_raw", "rest_speed", "eyes")
 
 
 def has_plot_tables(layout: OutLayout, e: TakeEntry) -> bool:
@@ -253,7 +253,7 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
             except Exception as exc:
                 out.errors["markers"] = f"{path}: {type(exc).__name__}: {exc}"
         return out
-    wanted = set(only) if only is not None else {"markers_raw", "markers", "eyes", "sync"}
+    wanted = set(only) if only is not None else {"markers_raw", "markers", "rest_speed", "eyes", "sync"}
     t = _read(layout, e, "markers_raw", out) if "markers_raw" in wanted else None
     if t is not None:
         out.raw = table_to_markers(t)[0]
@@ -261,6 +261,9 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
     if t is not None:
         m, frames, fill, _ = table_to_markers(t)
         out.fill, out.fill_labels, out.kept_frames = fill, list(m.labels), frames
+    t = _read(layout, e, "rest_speed", out) if "rest_speed" in wanted else None
+    if t is not None:
+        out.rest_speed = t.column("speed_mm_s").to_numpy(zero_copy_only=False).astype(np.float64)
     t = _read(layout, e, "eyes", out) if "eyes" in wanted else None
     if t is not None:
         out.eyes = {"time_s": t.column("time_s").to_numpy(), "frame": t.column("frame").to_numpy(),
@@ -271,26 +274,6 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
     if t is not None:
         out.sync = {c: t.column(c).to_numpy() for c in t.column_names}
     return out
-
-
-def speed_trace(raw: Markers, markerset: MarkerSet | None, filter_hz: float | None) -> np.ndarray | None:
-    """Per-frame mean subject-marker speed (mm/s) of the uncropped take, recomputed from the raw markers.
-
-    Like the clean stage (SPEC §3.2 step 5): the subject's markers in the lab frame, smoothed at ``filter_hz``,
-    central differences, unknown where fewer than half of them are there. Unlike it, gaps are not filled and
-    spikes not removed (a failed take has no cleaned markers), so near gaps the trace can differ slightly.
-    """
-    from gazepipe.stages.clean.stage import REST_MIN_PRESENT
-
-    if markerset is None:
-        return None
-    labels = list(raw.labels)
-    subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    if not subj:
-        return None
-    valid = raw.valid[:, subj] & np.isfinite(raw.xyz[:, subj]).all(axis=2)
-    pos = np.where(valid[..., None], raw.xyz[:, subj], 0.0)
-    return mean_speed(pos, valid, raw.rate_hz, filter_hz, min_share=REST_MIN_PRESENT)
 
 
 # ---------------------------------------------------------------------------------------------- datasets

@@ -45,7 +45,6 @@ from gazepipe.report.collect import (
     load_sessions,
     load_take_tables,
     open_output,
-    speed_trace,
     take_entries,
     unit_states,
 )
@@ -193,18 +192,17 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
 
         # the parameters the clean unit ran with (its record's); the defaults where it has no record
         cp = {**dataclasses.asdict(CleanParams()), **e.params("clean")}
-        # drawn for a take whose clean stage failed too: a take whose rests were not found shows why
-        speed = speed_trace(raw, markerset, cp["rest_filter_hz"])
-        if speed is not None and np.isfinite(speed).any():
-            failed = "" if clean is not None else " The clean stage failed on this take: no rests or crop."
-            figs.append(Figure("Speed and crop", "Mean speed of the subject's markers in the room, recomputed from "
-                               "the raw markers (gaps unfilled, so it can differ slightly from the speed the crop "
-                               "used), with the rest threshold, the rests and the crop bounds." + failed,
-                               plots.speed_plot(speed, raw.rate_hz, None if clean is None else clean.crop,
-                                                [] if clean is None else clean.rests, cp["rest_speed_mm_s"],
+        speed = tables.rest_speed
+        if speed is not None and clean is not None and np.isfinite(speed).any():
+            figs.append(Figure("Speed and crop", "Mean speed of the subject's markers in the room, as the clean "
+                               "stage measured it to find the rests, with the rest threshold, the rests and the "
+                               "crop bounds.",
+                               plots.speed_plot(speed, raw.rate_hz, clean.crop, clean.rests, cp["rest_speed_mm_s"],
                                                 salt + "speed")))
+        elif clean is None:
+            notes.append("speed trace not drawn: the clean stage did not finish on this take")
         else:
-            notes.append("speed trace not drawn: the session's markerset cannot be read")
+            notes.append("speed trace not drawn: the clean stage recorded no speed (an output of an older gazepipe)")
     sync = e.qc(SyncQC)
     if sync is not None and raw is not None and markerset is not None and len(markerset.clapper) == 2 \
             and all(c in raw.labels for c in markerset.clapper):

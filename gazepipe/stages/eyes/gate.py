@@ -84,7 +84,7 @@ def gate(eye: Any, *, min_confidence: float = 0.8, max_eye_gap_s: float = 0.1) -
 
     Parameters
     ----------
-    eye : an :class:`~gazepipe.io.tracks.EyeTrack` or any object with ``time_s`` (N,), ``success`` (N,),
+    eye : an :class:`~gazepipe.model.EyeTrack` or any object with ``time_s`` (N,), ``success`` (N,),
         ``confidence`` (N,), ``gaze_left``/``gaze_right`` (N, 3) unit camera-axes vectors, ``blink`` (N,) or
         ``None``, and optionally ``frame`` (N,) video frame numbers.
     min_confidence : a sample needs ``confidence >= min_confidence``.

@@ -134,7 +134,7 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
 
     Parameters
     ----------
-    eye : the take's :class:`~gazepipe.io.tracks.EyeTrack` (video clock).
+    eye : the take's :class:`~gazepipe.model.EyeTrack` (video clock).
     joints : the take's :class:`~gazepipe.stages.frames.stage.Joints` (``segments``, ``quat`` (N, S, 4) in the
         character frame, ``target_dir`` (N, 3) from the eyes' centre, ``rate_hz``, and optionally ``char_rot``
         (N, 4), the lab-from-character rotation, so target motion is judged in lab axes).
