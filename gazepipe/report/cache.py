@@ -158,7 +158,7 @@ class DatasetCache(_KeyedFiles):
         try:
             for f in sorted(path.rglob("*")) if path is not None else []:
                 st = f.stat()
-                feed(h, [f.relative_to(path).as_posix(), st.st_size, st.st_mtime_ns])
+                feed(h, [f.relative_to(path).as_posix() if path is not None else "", st.st_size, st.st_mtime_ns])
         except OSError:
             return None
         return h.hexdigest()[:40]

@@ -276,7 +276,7 @@ def check_gap_share(ingest_qc: IngestQC | None, th: Thresholds) -> Check:
     over = sorted(k for k, x in gf.items() if th.gap_share_warn is not None and x > th.gap_share_warn)
     sev = grade(v, th.gap_share_warn, None)
     msg = f"largest gap share {_pct(v)} ({worst_m})"
-    if over:
+    if over and th.gap_share_warn is not None:
         msg += f"; {len(over)} marker(s) above {_pct(th.gap_share_warn)}"
     return Check("gap_share", sev, msg, value=v, threshold=_thr(th.gap_share_warn),
                  details={"per_marker": dict(sorted(gf.items())), "over": over})

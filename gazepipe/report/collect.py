@@ -245,16 +245,16 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
         path = layout.table(e.session, e.take, "markers")
         if path.exists() and "markers" not in out.errors:
             try:  # the fill codes, with the rows' layout checked against the metadata; not the coordinates
-                t = read_table(path, columns=["marker", "frame", "fill"])
-                check_markers_meta(t, str(path))
-                out.fill_labels, out.kept_frames, out.fill = fill_codes(t)
+                fills = read_table(path, columns=["marker", "frame", "fill"])
+                check_markers_meta(fills, str(path))
+                out.fill_labels, out.kept_frames, out.fill = fill_codes(fills)
             except GazepipeError as exc:
                 out.errors["markers"] = exc.one_line()
             except Exception as exc:
                 out.errors["markers"] = f"{path}: {type(exc).__name__}: {exc}"
         return out
     wanted = set(only) if only is not None else {"markers_raw", "markers", "rest_speed", "eyes", "sync"}
-    t = _read(layout, e, "markers_raw", out) if "markers_raw" in wanted else None
+    t: pa.Table | None = _read(layout, e, "markers_raw", out) if "markers_raw" in wanted else None
     if t is not None:
         out.raw = table_to_markers(t)[0]
     t = _read(layout, e, "markers", out) if "markers" in wanted else None

@@ -15,6 +15,7 @@ import io
 import re
 import warnings
 from collections.abc import Sequence
+from typing import Any
 
 import matplotlib
 import numpy as np
@@ -40,7 +41,8 @@ _TAB10 = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e3
 
 def _style(salt: str):
     """The rcParams of every plot (and the SVG id salt), for building and saving one figure."""
-    return matplotlib.rc_context({**_STYLE, "svg.hashsalt": salt})
+    style: dict[Any, Any] = {**_STYLE, "svg.hashsalt": salt}   # rcParams are keyed by literal names
+    return matplotlib.rc_context(style)
 
 
 def to_svg(fig: Figure, salt: str) -> str:

@@ -192,6 +192,7 @@ class ReportInBackground:
         """Wait for the take checks and for what was given to the workers."""
         if self._thread is None:
             self.start()
+        assert self._thread is not None
         self._thread.join()
         if self._dispatcher is not None:
             with self._cond:

@@ -132,7 +132,7 @@ def validate_report(obj: Any, schema: dict[str, Any] | None = None, where: str =
     return problems
 
 
-TAKES_SCHEMA = with_identity(pa.schema([
+_TAKES_FIELDS: list[pa.Field] = [
     pa.field("session", pa.string(), nullable=False),
     pa.field("take", pa.string(), nullable=False),
     pa.field("kind", pa.string(), nullable=False),
@@ -160,4 +160,5 @@ TAKES_SCHEMA = with_identity(pa.schema([
     pa.field("frames_without_video_share", pa.float64()),
     pa.field("eye_gated_share", pa.float64()),
     pa.field("camera_residual_deg", pa.float64()),
-]), "qc_takes", TAKES_SCHEMA_VERSION)
+]
+TAKES_SCHEMA = with_identity(pa.schema(_TAKES_FIELDS), "qc_takes", TAKES_SCHEMA_VERSION)

@@ -305,9 +305,9 @@ def dataset_part(layout: OutLayout, name: str, path: Path | None, record: dict[s
     key = parts.key(name, path, record, th)
     part = parts.get(key)
     if part is not None:
-        figs = figures.get(part["figure_key"]) if plots_on else ([], [])
-        if figs is not None:
-            return part["entry"], part["take_splits"], figs[0]
+        cached = figures.get(part["figure_key"]) if plots_on else ([], [])
+        if cached is not None:
+            return part["entry"], part["take_splits"], cached[0]
     d = load_dataset(path, th) if path is not None else DatasetData(name)
     checks = _sorted_checks(dataset_checks(d, th, record, path is not None))
     counts = d.info.get("counts") or {}
