@@ -161,10 +161,9 @@ def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray |
 
 #: the clean stage's rest-speed trace: the subject's mean marker speed per frame of the uncropped take (mm/s, NaN
 #: where unknown), which its rests and crop were found on; the report plots it
-REST_SPEED = with_identity(pa.schema([
-    pa.field("frame", pa.int32(), nullable=False),
-    pa.field("speed_mm_s", pa.float64()),
-]), "rest_speed", 1)
+_REST_SPEED_FIELDS: list[pa.Field] = [pa.field("frame", pa.int32(), nullable=False),
+                                      pa.field("speed_mm_s", pa.float64())]
+REST_SPEED = with_identity(pa.schema(_REST_SPEED_FIELDS), "rest_speed", 1)
 
 
 def rest_speed_to_table(speed_mm_s: np.ndarray) -> pa.Table:

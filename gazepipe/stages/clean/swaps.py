@@ -322,8 +322,9 @@ def pooled_references(takes: list[tuple[list[str], np.ndarray, np.ndarray]],
         xs.append(x)
         vs.append(v)
     body = None if markers is None else np.array([i for i, lab in enumerate(labels) if lab in markers])
-    stacked = (np.concatenate(xs), np.concatenate(vs)) if xs else (np.zeros((0, 0, 3)), np.zeros((0, 0), bool))
-    return SubjectReferences(labels, steady_references(*stacked, markers=body))
+    xyz_all = np.concatenate(xs) if xs else np.zeros((0, 0, 3))
+    valid_all = np.concatenate(vs) if vs else np.zeros((0, 0), bool)
+    return SubjectReferences(labels, steady_references(xyz_all, valid_all, markers=body))
 
 
 def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
@@ -546,21 +547,21 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     if others.size == 0:
         return -1, none, none
     explained = np.zeros((n, others.size), dtype=bool)
-    for c, b in enumerate(others):               # each candidate on its own frames only
-        rows = np.flatnonzero(maybe[:, b])
-        xr, tr = x[rows], trusted[rows]
+    for c, b in enumerate(others.tolist()):      # each candidate on its own frames only
+        at = np.flatnonzero(maybe[:, b])
+        xr, tr = x[at], trusted[at]
         # a's sample judged as b; b's sample judged as a
         # two samples exchanged: a reference across a joint held beyond the subject's usual range may be out
         # of tolerance for either, as long as it is nearer the exchanged name's distance (both samples say
         # so); a sample handed to a missing partner has no second sample to confirm it: strictly within
-        gone = ~ok[rows, b] & missing_partner & gone_wrong[rows]
-        both = own[rows, b]
+        gone = ~ok[at, b] & missing_partner & gone_wrong[at]
+        both = own[at, b]
         if both.any():
             xb, tb = xr[both], tr[both]
-            explained[rows[both], c] = _fits_as(xb, tb, refs, a, b, lenient=True) \
+            explained[at[both], c] = _fits_as(xb, tb, refs, a, b, lenient=True) \
                 & _fits_as(xb, tb, refs, b, a, lenient=True)
         if gone.any():
-            explained[rows[gone], c] = _fits_as(xr[gone], tr[gone], refs, a, b)
+            explained[at[gone], c] = _fits_as(xr[gone], tr[gone], refs, a, b)
     b_suspect = own[:, others]
     score = explained.sum(axis=0)
     best = -1
@@ -700,6 +701,7 @@ def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: in
     cols, distance, spread = _pair_references(refs, a, b)
     if cols.size == 0:
         return np.zeros(x.shape[0], dtype=bool)
+    assert refs.distance_all is not None and refs.spread_all is not None   # set whenever there are references
     seen = trusted[:, cols]
     d = norm3(x[:, [a]] - x[:, cols])
     with np.errstate(invalid="ignore"):
@@ -752,7 +754,8 @@ def _keeps_handedness(x: np.ndarray, trusted: np.ndarray, refs: References, a: i
         if not use.any():
             continue
         tri, hand = tri[use], hand[use]
-        seen = trusted[:, tri].all(axis=2) | np.isin(tri, [a, b]).any(axis=1)[None]       # (n, J)
+        involved = np.any(np.isin(tri, [a, b]), axis=1, keepdims=True).T                # (1, J)
+        seen = np.all(trusted[:, tri], axis=2) | involved                                # (n, J)
         corners = exchanged[:, tri]                                                     # (n, J, 3, 3)
         vol = _volume(exchanged[:, m][:, None], corners[..., 0, :], corners[..., 1, :], corners[..., 2, :])
         ok &= ~_turned(vol, hand[None], seen & np.isfinite(vol))
