@@ -13,7 +13,6 @@ import functools
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from types import SimpleNamespace
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
@@ -619,15 +618,15 @@ def _eyes_take(session: Session, take: Take) -> bool:
 
 def run_eyes(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.openface import read_openface
-    from gazepipe.stages.eyes.stage import eyes_take
+    from gazepipe.stages.eyes.stage import HeadMotion, eyes_take
     from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
     take, ms = ctx.take, _given(ctx.session.markerset, "markerset")
     eyes_path = _given(take.eyes, "eyes")
     eye = read_openface(eyes_path)
     ja = joints_arrays(ctx.load("joints"))
-    joints = SimpleNamespace(segments=ja["segments"], quat=ja["quat"], target_dir=ja["target_dir"],
-                             char_rot=ja["char_rot"], rate_hz=ja["meta"]["rate_hz"])
+    joints = HeadMotion(segments=tuple(ja["segments"]), quat=ja["quat"], rate_hz=float(ja["meta"]["rate_hz"]),
+                        target_dir=ja["target_dir"], char_rot=ja["char_rot"])
     clock = ClockMap(offset_s=0.0, ratio=1.0, n_claps=0)
     if take.video is not None:
         sync = ctx.load("sync")

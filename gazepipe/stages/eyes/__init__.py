@@ -15,5 +15,6 @@ searched with it). :mod:`.params` holds the parameters.
 
 from gazepipe.stages import lazy_exports
 
-__all__ = ["EyesParams", "EyesResult", "eyes_take"]
-__getattr__ = lazy_exports(__name__, {"EyesParams": ".params", "EyesResult": ".stage", "eyes_take": ".stage"})
+__all__ = ["EyesParams", "EyesResult", "HeadMotion", "eyes_take"]
+__getattr__ = lazy_exports(__name__, {"EyesParams": ".params", "EyesResult": ".stage", "HeadMotion": ".stage",
+                                      "eyes_take": ".stage"})

@@ -127,7 +127,21 @@ def _head_index(names: list[str], head_segment: str | None, path: Any, take: str
     return names.index("head") if "head" in names else len(names) - 1
 
 
-def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None, *,
+@dataclass(frozen=True)
+class HeadMotion:
+    """What the eyes stage reads of a take's segment orientations (the ``joints`` table, or a
+    :class:`~gazepipe.stages.frames.stage.Joints`): ``segments`` names, ``quat`` (N, S, 4) w, x, y, z in the
+    character frame, ``rate_hz``, and optionally ``target_dir`` (N, 3) from the eyes' centre and ``char_rot``
+    (N, 4), the lab-from-character rotation."""
+
+    segments: tuple[str, ...]
+    quat: np.ndarray
+    rate_hz: float
+    target_dir: np.ndarray | None = None
+    char_rot: np.ndarray | None = None
+
+
+def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, clock: Any = None, *,
               camera_rotation: np.ndarray | None = None, params: EyesParams | None = None,
               path: Any = None, take: str | None = None) -> EyesResult:
     """Eye direction per mocap frame of one take (SPEC §3.5).
@@ -179,7 +193,8 @@ def eyes_take(eye: Any, joints: Any, mocap_time_s: np.ndarray, clock: Any = None
 
     # the camera rotation: configured, or fitted together with the eyes' delay behind the target
     rate = float(joints.rate_hz)
-    tdir_char = np.asarray(getattr(joints, "target_dir", np.full((n, 3), np.nan)), dtype=np.float64)
+    tdir = getattr(joints, "target_dir", None)
+    tdir_char = np.full((n, 3), np.nan) if tdir is None else np.asarray(tdir, dtype=np.float64)
     char_rot = getattr(joints, "char_rot", None)
     char_rot = None if char_rot is None else np.asarray(char_rot, dtype=np.float64)
     lag: float | None = None
