@@ -49,12 +49,12 @@ def test_session_units_run_once_before_the_takes_and_are_then_up_to_date(tiny_se
     summary = _run(folder, out, until="frames")
     assert summary.exit_code == 0, [o.error for o in summary.failed]
     order = [(o.take, o.stage) for o in summary.outcomes]
-    assert order[:2] == [("*", "subject_markers"), ("*", "neutral_poses")]
+    assert order[:2] == [("*", "subject_geometry"), ("*", "neutral_poses")]
     # the neutral take is cleaned by its own clean unit and once more for the session, however many takes
     # need its pose (t1 and t2 each used to clean it again in their frames unit)
     assert cleaned.count("t0") == 2
     assert sorted(cleaned) == ["t0", "t0", "t1", "t2"]
-    for name in ("subject_markers", "neutral_poses"):
+    for name in ("subject_geometry", "neutral_poses"):
         assert (out / "sessions" / "tiny" / f"{name}.parquet").is_file()
         rec = json.loads((out / ".gazepipe" / "session_units" / "tiny" / f"{name}.json").read_text())
         assert rec["status"] == "ok"
@@ -76,7 +76,7 @@ def test_a_changed_parameter_of_the_session_unit_reruns_it_and_the_takes_that_re
     again = _run(folder, out, until="frames", params={"frames.min_neutral_frames": 4})
     reasons = {(o.take, o.stage): o.reason for o in again.outcomes if o.status == "ok"}
     assert reasons[("*", "neutral_poses")] == "parameters changed: frames.min_neutral_frames"
-    assert ("*", "subject_markers") not in reasons
+    assert ("*", "subject_geometry") not in reasons
     assert set(reasons) == {("*", "neutral_poses"), ("t1", "frames"), ("t2", "frames")}
 
 
@@ -105,7 +105,7 @@ def test_a_failed_session_unit_blocks_only_the_take_units_that_read_it(tiny_sess
 def test_the_dry_run_lists_the_session_units(tiny_session, tmp_path):
     summary = _run(tiny_session, tmp_path / "out", dry_run=True)
     planned = [(p.take, p.stage, p.run) for p in summary.plans]
-    assert planned[:2] == [("*", "subject_markers", True), ("*", "neutral_poses", True)]
+    assert planned[:2] == [("*", "subject_geometry", True), ("*", "neutral_poses", True)]
     assert not (tmp_path / "out" / "sessions").exists()
 
 
@@ -126,10 +126,10 @@ def test_a_pose_stack_keeps_every_bit_of_its_positions():
         assert got.markers.xyz.tobytes() == np.where(np.isnan(want.xyz), got.markers.xyz, want.xyz).tobytes()
 
 
-@pytest.mark.parametrize("name", ["subject_markers", "neutral_poses"])
+@pytest.mark.parametrize("name", ["subject_geometry", "neutral_poses"])
 def test_session_stages_are_registered_with_their_readers(name):
     readers = [st.name for st in registry.stages() if name in st.session_requires]
-    assert readers == {"subject_markers": ["clean"], "neutral_poses": ["frames"]}[name]
+    assert readers == {"subject_geometry": ["clean"], "neutral_poses": ["frames"]}[name]
 
 
 def test_a_take_without_a_rest_has_an_empty_neutral_table_that_reads_back(tmp_path):
@@ -144,3 +144,30 @@ def test_a_take_without_a_rest_has_an_empty_neutral_table_that_reads_back(tmp_pa
     write_table(markers_to_table(empty, fill_code=np.zeros((0, 2), np.int8), meta={"rest": None}), path,
                 MARKERS_CLEAN)
     check_stored_table(read_table(path), path, "neutral")
+
+
+def test_the_subject_geometry_reads_back_with_every_bit():
+    """The swap references a session unit computes are what each take's clean reads, bit for bit."""
+    import dataclasses as dc
+
+    from gazepipe.schemas.poses import arrays_to_table, table_to_arrays
+    from gazepipe.stages.clean.swaps import References, pooled_references
+
+    rng = np.random.default_rng(1)
+    base = rng.normal(0, 100, (6, 3))
+    takes = []
+    for t in range(2):
+        xyz = base[None] + rng.normal(0, 0.5, (300, 6, 3))
+        valid = rng.random((300, 6)) > 0.05
+        xyz[~valid] = np.nan
+        takes.append(([f"M{i}" for i in range(6)], xyz, valid))
+    refs = pooled_references(takes).references
+    arrays = {f.name: getattr(refs, f.name) for f in dc.fields(refs) if getattr(refs, f.name) is not None}
+    back = References(**table_to_arrays(arrays_to_table(arrays)))
+    for f in dc.fields(refs):
+        want, got = getattr(refs, f.name), getattr(back, f.name)
+        if want is None:
+            assert got is None
+            continue
+        assert got.dtype == want.dtype and got.shape == want.shape, f.name
+        assert got.tobytes() == want.tobytes(), f.name

@@ -13,7 +13,7 @@ import functools
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -37,7 +37,7 @@ from gazepipe.pipeline.registry import (
 )
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas import expected_schema
-from gazepipe.schemas.base import attach_meta, check_table
+from gazepipe.schemas.base import attach_meta, check_table, read_meta
 from gazepipe.schemas.face_table import face_to_table
 from gazepipe.schemas.joints import fixed_list, joints_arrays, joints_schema, joints_to_table
 from gazepipe.schemas.markers import (
@@ -49,7 +49,15 @@ from gazepipe.schemas.markers import (
     rest_speed_to_table,
     table_to_markers,
 )
-from gazepipe.schemas.poses import MARKER_STACK, PoseSource, stack_to_table, table_to_stack
+from gazepipe.schemas.poses import (
+    ARRAYS,
+    MARKER_STACK,
+    PoseSource,
+    arrays_to_table,
+    stack_to_table,
+    table_to_arrays,
+    table_to_stack,
+)
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.stages.eyes.params import EyesParams
@@ -236,44 +244,50 @@ def _read_capture(take: Take, ms: MarkerSet) -> Markers:
 _REFERENCE_FRAMES_PER_TAKE = 2000
 
 
-def run_subject_markers(ctx: SessionUnitContext) -> UnitResult:
-    """Evenly spread frames of every subject capture of the session, raw, stacked by take: the subject's marker
-    geometry that each take's label swaps are judged against (:func:`_subject_references`). A capture that
-    cannot be read is passed over (its own take fails)."""
-    from gazepipe.stages.clean.swaps import even_rows
+def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
+    """The subject's marker geometry that each take's label swaps are judged against
+    (:func:`gazepipe.stages.clean.swaps.pooled_references`), from evenly spread frames of every subject capture
+    of the session. A capture that cannot be read is passed over (its own take fails)."""
+    from gazepipe.stages.clean.swaps import even_rows, pooled_references
 
     ms = ctx.session.markerset
     assert ms is not None
-    samples = []
+    pooled, used = [], []
     for take in _subject_captures(ctx.session):
         try:
             raw = _read_capture(take, ms)
         except GazepipeError:
             continue
         rows = even_rows(raw.n_frames, _REFERENCE_FRAMES_PER_TAKE)
-        sample = dataclasses.replace(raw, xyz=raw.xyz[rows], valid=raw.valid[rows], warnings=[], model_outputs=[])
-        samples.append(PoseSource(f"take {take.id}", take.id, "sample", sample))
-    table = stack_to_table(samples, meta={"frames_per_take": _REFERENCE_FRAMES_PER_TAKE})
-    return UnitResult(tables={"subject_markers": (table, MARKER_STACK)}, qc={"takes": len(samples)})
+        pooled.append((raw.labels, raw.xyz[rows], raw.valid[rows]))
+        used.append(take.id)
+    meta: dict[str, Any] = {"takes": used, "labels": []}
+    arrays: dict[str, np.ndarray] = {}
+    if pooled:
+        refs = pooled_references(pooled, markers=set(ms.subject_markers))
+        meta["labels"] = list(refs.labels)
+        arrays = {f.name: getattr(refs.references, f.name) for f in dataclasses.fields(refs.references)
+                  if getattr(refs.references, f.name) is not None}
+    return UnitResult(tables={"subject_geometry": (arrays_to_table(arrays, meta), ARRAYS)}, qc={"takes": len(used)})
 
 
-def _subject_references(table: pa.Table, ms: MarkerSet) -> SubjectReferences | None:
-    """The subject's marker geometry (:func:`gazepipe.stages.clean.swaps.pooled_references`) from the session's
-    ``subject_markers`` table; None when no capture could be read."""
-    from gazepipe.stages.clean.swaps import pooled_references
+def _subject_references(table: pa.Table) -> SubjectReferences | None:
+    """The subject's marker geometry from the session's ``subject_geometry`` table; None when no capture could be
+    read."""
+    from gazepipe.stages.clean.swaps import References, SubjectReferences
 
-    samples = table_to_stack(table)
-    if not samples:
+    labels = read_meta(table).get("labels") or []
+    if not labels:
         return None
-    pooled = [(s.markers.labels, s.markers.xyz, s.markers.valid) for s in samples]
-    return pooled_references(pooled, markers=set(ms.subject_markers))
+    return SubjectReferences(tuple(labels), References(**table_to_arrays(table)))
 
 
 register_session_stage(SessionStage(
-    name="subject_markers", version="1", requires=(), uses=(), outputs=("subject_markers",),
+    name="subject_geometry", version="1", requires=(), uses=(), outputs=("subject_geometry",),
     applies=_has_subject, sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
-    run=run_subject_markers,
-    help="frames of every subject capture of the session: the geometry label swaps are judged against",
+    run=run_subject_geometry,
+    help="the subject's marker geometry from every subject capture of the session, that label swaps are judged "
+         "against",
 ))
 
 
@@ -333,7 +347,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
     raw, _, _ = _load_markers(ctx, "markers_raw")
     params = _build(CleanParams, ctx.params)
     ms = _given(ctx.session.markerset, "markerset")
-    refs = _subject_references(ctx.load_session("subject_markers"), ms) if params.repair_swaps else None
+    refs = _subject_references(ctx.load_session("subject_geometry")) if params.repair_swaps else None
     res = clean_markers(raw, ms, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id,
                         references=refs)
     # the raw positions are not needed any more: a long take's are let go before the tables are built
@@ -361,7 +375,7 @@ register(Stage(
     name="clean", version="24", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
-    sources=lambda s, t: _markerset_file(s), session_requires=("subject_markers",),
+    sources=lambda s, t: _markerset_file(s), session_requires=("subject_geometry",),
     run=run_clean,
     help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
     rules=rules_of(CleanParams),
@@ -406,7 +420,7 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
     assert ms is not None
     clean_params = _build(CleanParams, ctx.params_of("clean"))
     frames_params = _build(FramesParams, ctx.params_of("frames"))
-    refs = _subject_references(ctx.load("subject_markers"), ms) if clean_params.repair_swaps else None
+    refs = _subject_references(ctx.load("subject_geometry")) if clean_params.repair_swaps else None
     poses: list[PoseSource] = []
     calibrated: set[str] | None = set()
     neutral_take = _neutral_take(session)
@@ -439,7 +453,7 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
 
 
 register_session_stage(SessionStage(
-    name="neutral_poses", version="1", requires=("subject_markers",), uses=("clean", "frames"),
+    name="neutral_poses", version="1", requires=("subject_geometry",), uses=("clean", "frames"),
     outputs=("neutral_poses",), applies=lambda s: any(_frames_take(s, t) for t in s.takes),
     sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
     run=run_neutral_poses,

@@ -7,13 +7,13 @@ import pyarrow as pa
 from gazepipe.schemas.base import read_meta
 from gazepipe.schemas.joints import joints_schema
 from gazepipe.schemas.markers import MARKERS_CLEAN, MARKERS_RAW, REST_SPEED
-from gazepipe.schemas.poses import MARKER_STACK
+from gazepipe.schemas.poses import ARRAYS, MARKER_STACK
 from gazepipe.schemas.tracks import EYES, SYNC, face_schema
 
 #: tables whose schema does not depend on the session
 FIXED_SCHEMAS: dict[str, pa.Schema] = {"markers_raw": MARKERS_RAW, "markers": MARKERS_CLEAN,
                                        "neutral": MARKERS_CLEAN, "eyes": EYES, "sync": SYNC,
-                                       "subject_markers": MARKER_STACK, "neutral_poses": MARKER_STACK,
+                                       "subject_geometry": ARRAYS, "neutral_poses": MARKER_STACK,
                                        "rest_speed": REST_SPEED}
 
 

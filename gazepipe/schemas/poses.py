@@ -1,4 +1,5 @@
-"""Session tables of marker poses: several takes' markers stacked (``subject_markers``, ``neutral_poses``).
+"""Session tables: several takes' marker poses stacked (``neutral_poses``), and named arrays computed once for
+a session (``subject_geometry``).
 
 Long format: one row per (source, marker, frame), each source's rows marker-major as in the markers tables
 (:mod:`gazepipe.schemas.markers`). Positions are millimetres in the lab frame, stored as float64: these poses
@@ -84,4 +85,35 @@ def table_to_stack(table: pa.Table) -> list[PoseSource]:
                           first_frame=int(s["first_frame"]), units=s.get("units"))
         out.append(PoseSource(s["label"], s["take"], s["role"], markers))
         start = stop
+    return out
+
+
+ARRAYS = with_identity(pa.schema([
+    pa.field("name", pa.string(), nullable=False),
+    pa.field("dtype", pa.string(), nullable=False),
+    pa.field("shape", pa.list_(pa.int64()), nullable=False),
+    pa.field("data", pa.binary(), nullable=False),
+]), "arrays", 1)
+
+
+def arrays_to_table(arrays: dict[str, np.ndarray], meta: dict[str, Any] | None = None) -> pa.Table:
+    """Arrow table (:data:`ARRAYS`) of named numeric arrays, one row each, with their exact bytes (a result a
+    stage computes once for a session and other stages read back bit for bit); ``meta``: table-level facts."""
+    names = list(arrays)
+    values = [np.ascontiguousarray(arrays[n]) for n in names]
+    table = pa.Table.from_pydict({
+        "name": pa.array(names, pa.string()),
+        "dtype": pa.array([v.dtype.str for v in values], pa.string()),
+        "shape": pa.array([list(v.shape) for v in values], pa.list_(pa.int64())),
+        "data": pa.array([v.tobytes() for v in values], pa.binary()),
+    }, schema=ARRAYS)
+    return attach_meta(table, meta or {})
+
+
+def table_to_arrays(table: pa.Table) -> dict[str, np.ndarray]:
+    """Inverse of :func:`arrays_to_table`: the arrays by name, as written."""
+    out = {}
+    for name, dtype, shape, data in zip(*(table.column(c).to_pylist() for c in ("name", "dtype", "shape", "data")),
+                                        strict=True):
+        out[name] = np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape).copy()
     return out
