@@ -599,7 +599,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="sync", version="3", requires=("ingest",), params=_params_of(SyncParams),
+    name="sync", version="4", requires=("ingest",), params=_params_of(SyncParams),
     outputs=("sync",), applies=_sync_take,
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,
