@@ -125,7 +125,9 @@ def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: b
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--seeds", default="2",
+                    help="a count (seeds 0..N-1) or a comma-separated list of seeds (\"3,\" is seed 3 alone; \"1,3\")")
+    ap.add_argument("--layouts", default="10,4", help="which marker layouts: 10, 4 or both (10,4)")
     ap.add_argument("--duration", type=float, default=30.0, help="seconds of each gaze_follow take")
     ap.add_argument("--swaps", type=int, default=0, help="label swaps per mocap take")
     ap.add_argument("--no-repair", action="store_true", help="clean.repair_swaps = false")
@@ -133,19 +135,21 @@ def main() -> None:
     ap.add_argument("--clap-hazards", type=float, default=0.0,
                     help="share of gaze_follow takes with a clap hazard (SynthConfig.clap_hazards)")
     args = ap.parse_args()
+    seeds = [int(x) for x in args.seeds.split(",") if x] if "," in args.seeds else list(range(int(args.seeds)))
+    layouts = {k: v for k, v in LAYOUTS.items() if k.split()[0] in args.layouts.split(",")}
     print(f"hazards: spikes 1/marker/min, 4 trunk/neck occlusions of 1-3 s per take, 3 gaps/marker/min, "
           f"{args.swaps} label swaps per take{' (not repaired)' if args.no_repair else ''}, "
           f"{args.bursts} occlusion bursts per take; "
-          f"{args.seeds} seeds; two {args.duration:g} s gaze_follow takes and 10 gaze_shift takes per session")
+          f"seeds {seeds}; two {args.duration:g} s gaze_follow takes and 10 gaze_shift takes per session")
     params = {"clean.repair_swaps": False} if args.no_repair else None
-    for label, (segments, up) in LAYOUTS.items():
+    for label, (segments, up) in layouts.items():
         errs = {"gaze_rnn": [], "gaze_rnn_lod": []}
         terrs: dict[str, list[np.ndarray]] = {"gaze_rnn": [], "gaze_rnn_lod": []}
         cover = {"gaze_rnn": [0, 0, 0], "gaze_rnn_lod": [0, 0, 0]}
         dropped = {"gaze_rnn": Counter(), "gaze_rnn_lod": Counter()}
         failed: list[str] = []
         with tempfile.TemporaryDirectory() as tmp:
-            for seed in range(args.seeds):
+            for seed in seeds:
                 cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=args.duration,
                                   face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0,
                                   segments=segments, up_axis=up, label_swaps=args.swaps,

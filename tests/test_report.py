@@ -472,7 +472,7 @@ def test_unfilled_share_and_grading() -> None:
 
 def _clap(mocap_s: float, mocap_confidence: float, video_s: float, video_confidence: float) -> dict:
     return {"mocap_s": mocap_s, "mocap_confidence": mocap_confidence, "video_s": video_s,
-            "video_confidence": video_confidence, "video_match": 0.9, "mocap_gap_frames": 0, "used": True}
+            "video_confidence": video_confidence, "video_match": 0.9, "video_timing_ms": 1.0, "mocap_gap_frames": 0, "used": True}
 
 
 def test_sync_and_eye_checks_read_their_stage_records() -> None:

@@ -156,7 +156,7 @@ def test_the_subject_geometry_reads_back_with_every_bit():
     rng = np.random.default_rng(1)
     base = rng.normal(0, 100, (6, 3))
     takes = []
-    for t in range(2):
+    for _ in range(2):
         xyz = base[None] + rng.normal(0, 0.5, (300, 6, 3))
         valid = rng.random((300, 6)) > 0.05
         xyz[~valid] = np.nan

@@ -372,3 +372,21 @@ def test_a_take_that_lost_its_first_clap_pairs_its_last_with_the_videos_last(two
     assert len(res.mocap_claps) == 1 and res.clock.n_claps == 1
     truth_video = (contacts[1] - OFFSET) / RATIO
     assert abs(res.video_claps[0].time_s - truth_video) < 0.005
+
+
+def test_a_wobble_on_the_open_plateau_keeps_the_displacement_refinement(monkeypatch):
+    """A partly hidden arm's displacement wobbles by a few hundredths while it is open; the approach is followed
+    from the plateau's last frame, so the clap is still refined (it was timed by the burst alone, 7 ms off)."""
+    from gazepipe.stages.sync import video
+
+    s = np.array([24.69, 24.66, 24.67, 23.41, 19.18, 11.81, 1.84, 0.0, 0.0])
+    monkeypatch.setattr(video, "_displacement", lambda frames, shut, thr: s)
+    ts = np.arange(100) / 60.0
+
+    def read(a: int, b: int):
+        return ts[a:b], np.zeros((b - a, 8, 8), np.uint8)
+
+    t = video._refine_by_displacement(ts, read, ts[50], None)
+    y = s[4:7]
+    root = [r.real for r in np.roots(np.polyfit([-2.0, -1.0, 0.0], y, 2)) if 0 <= r.real <= 1.5][0]
+    assert t == pytest.approx((50 + root) / 60.0)

@@ -84,10 +84,10 @@ def test_no_pair_at_all_is_an_error():
 
 
 def test_clock_map_check_fails_beyond_5_ms_and_names_the_clap():
-    claps = [{"mocap_s": 1.0, "mocap_confidence": 1.0, "video_s": 0.0, "video_confidence": 1.0, "video_match": 0.9,
+    claps = [{"mocap_s": 1.0, "mocap_confidence": 1.0, "video_s": 0.0, "video_confidence": 1.0, "video_match": 0.9, "video_timing_ms": 1.0,
               "mocap_gap_frames": 0, "used": True},
              {"mocap_s": 50.0, "mocap_confidence": 1.0, "video_s": 49.0, "video_confidence": 0.37,
-              "video_match": 0.4, "mocap_gap_frames": 0, "used": False}]
+              "video_match": 0.4, "video_timing_ms": 8.3, "mocap_gap_frames": 0, "used": False}]
     qc = {"offset_s": 1.0, "offset_at_video_zero_s": 1.0, "ratio": 1.0, "drift_ppm": 0.0, "drift_ms_over_take": 0.0,
           "residual_ms": 0.0, "claps": claps, "frames_without_video": 0, "frames_decoded": 300, "video_frames": 3000,
           "n_claps": 1, "clock_bound_ms": 66.3, "claps_used": [1],
@@ -173,3 +173,20 @@ def test_no_take_fails_for_a_clap_and_a_bad_map_is_flagged(hazard_session):
         check = next(c for c in sync_checks(SyncQC.from_record(res.qc), True, t["n_frames"], raw.rate_hz, Thresholds())
                      if c.id == "clock_map")
         assert err_ms <= 5.0 or check.severity == "fail", (take, t["design"]["clap_hazard"], err_ms)
+
+
+def test_a_clap_timed_by_its_burst_alone_widens_the_bound():
+    """A video clap that could not be refined by the arm's displacement (a clapper partly hidden) is known to
+    half a video frame only: the map's bound carries that, and a warning names the video and the clap, so the
+    clock_map check fails rather than passing a map it cannot show within 5 ms."""
+    (m1, v1), (m2, v2) = _pair(1.0), _pair(50.0)
+    v2.timing_ms = 500.0 / 60.0
+    c = choose_clock([m1, m2], [v1, v2], video_span=(0.0, 55.0), video="video/t3.mp4")
+    assert c.used == [True, True]
+    # at the video's end, 5 s past clap 2 on a 49 s baseline: 5/49 of clap 1's error and 54/49 of clap 2's
+    assert c.bound_ms == pytest.approx(CLAP_TIMING_MS * 5.0 / 49.0 + 500.0 / 60.0 * 54.0 / 49.0)
+    assert len(c.warnings) == 1 and "video/t3.mp4" in c.warnings[0] and "clap 2" in c.warnings[0]
+    # both refined: the bound is the claps' typical timing carried along the line, as before
+    v2.timing_ms = None
+    c = choose_clock([m1, m2], [v1, v2], video_span=(0.0, 55.0))
+    assert c.bound_ms == pytest.approx(CLAP_TIMING_MS * 29.5 / 24.5) and not c.warnings

@@ -45,6 +45,7 @@ from gazepipe.schemas.markers import (
     MARKERS_RAW,
     REST_SPEED,
     check_markers_meta,
+    fill_errors,
     markers_to_table,
     rest_speed_to_table,
     table_to_markers,
@@ -320,10 +321,12 @@ def _load_markers(ctx: TakeContext, name: str, take_id: str | None = None) -> tu
     return markers, frames, meta
 
 
-def _load_measured(ctx: TakeContext, name: str) -> tuple[Markers, np.ndarray, dict, np.ndarray | None]:
-    """A cleaned markers table (``markers``, ``neutral``) and which of its samples were measured, (T, M) bool
-    (fill code ``measured`` or ``swap_repaired``; None when the table has no fill codes)."""
-    markers, frames, fill, meta = table_to_markers(ctx.load(name))
+def _load_measured(ctx: TakeContext, name: str, table: pa.Table | None = None
+                   ) -> tuple[Markers, np.ndarray, dict, np.ndarray | None]:
+    """A cleaned markers table (``markers``, ``neutral``; ``table`` when already loaded) and which of its samples
+    were measured, (T, M) bool (fill code ``measured`` or ``swap_repaired``; None when the table has no fill
+    codes)."""
+    markers, frames, fill, meta = table_to_markers(ctx.load(name) if table is None else table)
     measured = None if fill is None else np.isin(fill, [FILL_CODES["measured"], FILL_CODES["swap_repaired"]])
     return markers, frames, meta, measured
 
@@ -487,7 +490,8 @@ def run_frames(ctx: TakeContext) -> UnitResult:
     ms = ctx.session.markerset
     assert ms is not None
     params = _build(FramesParams, ctx.params)
-    markers, frames, _, measured = _load_measured(ctx, "markers")
+    table = ctx.load("markers")
+    markers, frames, _, measured = _load_measured(ctx, "markers", table)
     poses = table_to_stack(ctx.load_session("neutral_poses"))
     # neutral poses, in order of preference (SPEC §3.3)
     sources: list[tuple[str, Markers]] = [(p.label, p.markers) for p in poses if p.role == "neutral"]
@@ -501,7 +505,7 @@ def run_frames(ctx: TakeContext) -> UnitResult:
 
     def solve(srcs: list[tuple[str, Markers]]):
         return compute_frames(markers, ms, srcs, params, path=ctx.take.mocap, take=ctx.take.id, before=before,
-                              measured=measured, before_measured=own_measured)
+                              measured=measured, before_measured=own_measured, fill_error_mm=fill_errors(table))
 
     failure: StageError | None = None
     try:
@@ -528,7 +532,7 @@ def run_frames(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="12", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="13", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: _markerset_file(s), session_requires=("neutral_poses",),
     run=run_frames,
@@ -615,7 +619,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="sync", version="3", requires=("ingest",), params=_params_of(SyncParams),
+    name="sync", version="4", requires=("ingest",), params=_params_of(SyncParams),
     outputs=("sync",), applies=_sync_take,
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,

@@ -171,3 +171,16 @@ def rest_speed_to_table(speed_mm_s: np.ndarray) -> pa.Table:
     speed = np.asarray(speed_mm_s, dtype=np.float64)
     return pa.Table.from_pydict({"frame": pa.array(np.arange(speed.size, dtype=np.int32)),
                                  "speed_mm_s": pa.array(speed, mask=~np.isfinite(speed))}, schema=REST_SPEED)
+
+
+def fill_errors(table: pa.Table) -> np.ndarray | None:
+    """(T, M) float64 estimated error (mm) of each filled sample of a cleaned markers table (its
+    ``fill_error_mm`` column, :func:`markers_to_table`): NaN where measured, unfilled or filled without an
+    estimate; None when the table has no such column (the ``neutral`` table, a raw table)."""
+    if "fill_error_mm" not in table.column_names:
+        return None
+    m = len(read_meta(table)["labels"])
+    t = table.num_rows // m if m else 0
+    col = table.column("fill_error_mm").combine_chunks()
+    err = col.to_numpy(zero_copy_only=False).astype(np.float64)   # nulls come back as NaN
+    return err.reshape(m, t).T

@@ -42,6 +42,9 @@ class FramesQC(QCRecord):
     heading_fitted_frames: int
     invalid_frames: int
     rotation_gaps: tuple[RotationGapQC, ...]
+    #: per segment, frames whose rotation the filled markers' estimated errors may turn by more than
+    #: ``max_fit_uncertainty_deg`` (treated as a gap of the segment's markers)
+    fill_uncertain_frames: Mapping[str, int]
     # absent when the markerset has no head_centre marker: nothing is carried
     head_centre_carried_frames: int | None = absent_when("the markerset names no head_centre marker")
 

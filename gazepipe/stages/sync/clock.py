@@ -20,7 +20,8 @@ if TYPE_CHECKING:
     from gazepipe.stages.sync.clap import Clap
     from gazepipe.stages.sync.video import VideoClap
 
-__all__ = ["CLAP_TIMING_MS", "ClockChoice", "ClockMap", "choose_clock", "clock_map", "resample_to_mocap"]
+__all__ = ["CLAP_TIMING_MS", "ClockChoice", "ClockMap", "choose_clock", "clap_timing_ms", "clock_map",
+           "resample_to_mocap"]
 
 #: how far a trusted clap pair's offset typically is from the truth, ms: ``bench/bench_sync.py`` (29.97–120 Hz
 #: mocap, 60 fps video, 0.4–2 mm marker noise) gives a median of 0.7 ms (the worst of 24 takes: 6 ms, at 29.97 Hz)
@@ -86,9 +87,10 @@ class ClockChoice:
     ----------
     clock : the map.
     used : per clap pair, whether it set the map.
-    bound_ms : how far the map may be from the truth anywhere over the video, ms: the claps' timing
-        (:data:`CLAP_TIMING_MS`) carried along the fitted line, plus, on a single clap, what an unmeasured
-        ratio of up to ``max_drift`` does over the video's distance from that clap.
+    bound_ms : how far the map may be from the truth anywhere over the video, ms: each clap's timing
+        (:func:`clap_timing_ms`: :data:`CLAP_TIMING_MS`, or half a video frame for a clap timed by its closing
+        burst alone) carried along the fitted line, plus, on a single clap, what an unmeasured ratio of up to
+        ``max_drift`` does over the video's distance from that clap.
     warnings : one line per clap left out and why (naming the video and the clap).
     """
 
@@ -103,13 +105,25 @@ def _floor2(x: float) -> str:
     return f"{np.floor(x * 100.0) / 100.0:.2f}"
 
 
-def _bound_ms(tv_used: np.ndarray, video_span: tuple[float, float], max_drift: float) -> float:
+def clap_timing_ms(clap: VideoClap) -> float:
+    """How far a video clap's instant may be off, ms: the claps' typical timing (:data:`CLAP_TIMING_MS`), or
+    more where the clap could not be refined by the arm's displacement (``VideoClap.timing_ms``)."""
+    return CLAP_TIMING_MS if clap.timing_ms is None else max(CLAP_TIMING_MS, float(clap.timing_ms))
+
+
+def _bound_ms(tv_used: np.ndarray, eps_ms: np.ndarray, video_span: tuple[float, float], max_drift: float) -> float:
+    """How far the map fitted to claps at video times ``tv_used``, each within ``eps_ms``, may be off over
+    ``video_span``: one clap, its timing plus what an unmeasured ratio of up to ``max_drift`` does at the
+    span's far end; more, the least-squares line's error Σ |h_i(t)| ε_i (h_i(t) = 1/n + (t − t̄)(t_i − t̄) /
+    Σ(t_j − t̄)², each clap's weight in the line at t) at the span's ends and at the claps (it is convex in t):
+    with two claps of equal timing ε, ε between them and ε·distance/half-span beyond."""
     far = max(abs(video_span[0] - tv_used.mean()), abs(video_span[1] - tv_used.mean()))
     if tv_used.size == 1:
-        return CLAP_TIMING_MS + max_drift * far * 1000.0
-    half = 0.5 * float(tv_used.max() - tv_used.min())
-    # a line through claps each within ε: within ε between them, ε·distance/half-span beyond
-    return CLAP_TIMING_MS * max(1.0, far / half)
+        return float(eps_ms[0]) + max_drift * far * 1000.0
+    c = tv_used - tv_used.mean()
+    at = np.concatenate([np.asarray(video_span, dtype=np.float64), tv_used])
+    h = 1.0 / tv_used.size + np.outer(at - tv_used.mean(), c) / float(c @ c)      # (points, claps)
+    return float((np.abs(h) @ eps_ms).max())
 
 
 def choose_clock(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | None], *,
@@ -162,8 +176,14 @@ def choose_clock(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | 
                         f"mocap {mocap_trust:g} and video {trust:g}): {what}")
     clock = clock_map(mocap_claps, [v if j in use else None for j, v in enumerate(video_claps)])
     tv = np.array([video_claps[j].time_s for j in use])  # type: ignore[union-attr]
+    eps = np.array([clap_timing_ms(video_claps[j]) for j in use])  # type: ignore[arg-type]
+    for j, e in zip(use, eps, strict=True):
+        if e > CLAP_TIMING_MS:
+            warnings.append(f"{video}: {name(j)} is timed by the closing burst alone (the arm's approach to shut "
+                            f"could not be followed frame by frame, e.g. a clapper partly hidden): its instant "
+                            f"may be {e:.1f} ms off, and the clock map with it")
     return ClockChoice(clock=clock, used=[j in use for j in range(len(mocap_claps))],
-                       bound_ms=_bound_ms(tv, video_span, max_drift if len(use) == 1 else 0.0),
+                       bound_ms=_bound_ms(tv, eps, video_span, max_drift if len(use) == 1 else 0.0),
                        warnings=warnings)
 
 

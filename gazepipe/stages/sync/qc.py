@@ -21,6 +21,8 @@ class ClapQC(QCRecord):
     video_confidence: float | None
     #: null: no video clap, or one found without a profile match
     video_match: float | None
+    #: how well the video clap is timed (ms, one standard deviation); null: no video clap
+    video_timing_ms: float | None
     mocap_gap_frames: int
     #: whether the clock map rests on this clap
     used: bool

@@ -34,7 +34,7 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.sync.clap import Clap, clap_profile, clapper_distance, mocap_claps
-from gazepipe.stages.sync.clock import ClockMap, choose_clock
+from gazepipe.stages.sync.clock import ClockMap, choose_clock, clap_timing_ms
 from gazepipe.stages.sync.qc import ClapQC, SyncQC
 from gazepipe.stages.sync.video import ReadWindow, VideoClap, match_clap
 
@@ -198,6 +198,7 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
                            video_s=None if v is None else v.time_s,
                            video_confidence=None if v is None else v.confidence,
                            video_match=None if v is None else v.match,
+                           video_timing_ms=None if v is None else clap_timing_ms(v),
                            mocap_gap_frames=m.gap_frames, used=u)
                     for m, v, u in zip(mc, vc, choice.used, strict=True)),
         frames_without_video=uncovered,

@@ -37,6 +37,11 @@ class VideoClap:
     match : how well the motion energy around it follows the mocap clapper's speed (normalised correlation,
         −1..1; :func:`match_clap`), or None when it was found without the mocap's help.
     match_time_s : the contact as the match alone places it (video clock), or None.
+    timing_ms : how far ``time_s`` may be off, ms, when it is known less well than a clap refined by the arm's
+        displacement (:func:`_refine_by_displacement`): half a video frame where it is the closing burst's end
+        alone (which comes out late by up to half a frame when the arm moves more than its width between
+        frames) or the match alone; None for a refined clap (the claps' typical timing,
+        :data:`gazepipe.stages.sync.clock.CLAP_TIMING_MS`).
     """
 
     time_s: float
@@ -47,6 +52,7 @@ class VideoClap:
     window: tuple[int, int]
     match: float | None = None
     match_time_s: float | None = None
+    timing_ms: float | None = None
 
 
 def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[int, int, int, int] | None = None,
@@ -189,8 +195,11 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     if moving.size == 0:
         return None
     # the approach: from the largest displacement down to where it stops falling (a stick that bounces open
-    # after contact moves again, and those frames are not the approach)
-    k = int(np.argmax(s[: n_before + 1]))
+    # after contact moves again, and those frames are not the approach). It starts at the last frame still on
+    # the open plateau (within a tenth of the largest displacement): a partly hidden arm's plateau wobbles by a
+    # few hundredths, and a walk from its first frame would stop on the wobble, losing the refinement
+    head = s[: n_before + 1]
+    k = int(np.flatnonzero(head >= 0.9 * head.max())[-1])
     while k + 1 < s.size and s[k + 1] < s[k] and s[k + 1] > 0.02 * s.max():
         k += 1
     if k < 2 or not (s[k - 2] > s[k - 1] > s[k]):
@@ -271,10 +280,12 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
         return None
     t, conf, peak, still = r
     refined = _refine_by_displacement(ts, read_window, t, roi) if refine else None
+    timing_ms: float | None = 500.0 * dt              # the burst's end alone: up to half a frame late
     if refined is not None and abs(refined - t) <= dt:
-        t = refined
+        t, timing_ms = refined, None
     frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
-    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=peak, still=still, window=(i0, i0 + n))
+    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=peak, still=still, window=(i0, i0 + n),
+                     timing_ms=timing_ms)
 
 
 def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_times: Sequence[float] | None,
@@ -412,10 +423,11 @@ def match_clap(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, pr
     burst = float(e[near].max()) if near.any() else still
     conf *= _score((burst - still) / max(noise, 1e-9 * max(burst, 1.0)), z_lo, z_hi)
     t_match = t
+    timing_ms: float | None = 500.0 * dt
     if edge is not None and abs(edge.time_s - t) <= dt:
-        t, conf = edge.time_s, conf * edge.confidence
+        t, conf, timing_ms = edge.time_s, conf * edge.confidence, edge.timing_ms
     else:
         conf *= 0.5                            # the burst's end disagrees with the match: the match alone
     frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
     return VideoClap(time_s=t, frame=frame, confidence=conf, peak=burst, still=still,
-                     window=(i0, i0 + n), match=score, match_time_s=t_match)
+                     window=(i0, i0 + n), match=score, match_time_s=t_match, timing_ms=timing_ms)
