@@ -21,8 +21,9 @@ skip those; a ``README.md`` in the folder makes them fail with "Could not read s
 Files are produced as bytes and handed to a ``write_bytes(path, data)`` callback (the engine's atomic writer;
 a plain file write by default), take files first, then the side files, ``_dataset.json`` last, so it always
 describes complete take files. The engine's streaming build stages take files as they are built
-(:class:`StagedDatasetWriter`) and publishes them only when the whole dataset built; a take file whose bytes are
-unchanged is left as it is. Take files of an earlier build that are no longer part of the dataset are removed
+(:class:`StagedDatasetWriter`; a take file made beforehand, on the worker that ran the take, is linked in rather
+than copied) and publishes them only when the whole dataset built; a take file whose bytes are unchanged is left
+as it is. Take files of an earlier build that are no longer part of the dataset are removed
 afterwards. Every table is checked against its schema before it is written and after it is read.
 """
 
@@ -186,6 +187,25 @@ class StagedDatasetWriter:
             fh.flush()
             os.fsync(fh.fileno())
         self.staged[key] = (self.root / rel, tmp, _Made.of(data))
+
+    def place(self, key: TakeKey, split: str, source: str | Path) -> None:
+        """Stage a take's file that is already written in its final bytes (the take's rows, made on the worker
+        that ran the take): linked where the file system allows (no copy; every write of the pipeline replaces
+        a file, so the two names never see different bytes), else copied."""
+        rel = take_path(split, *key)
+        if key in self.staged:
+            self.staged.pop(key)[1].unlink(missing_ok=True)
+        tmp = self.staging / rel
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.link(source, tmp)
+        except OSError:
+            shutil.copyfile(source, tmp)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+        with open(tmp, "rb") as fh:
+            made = _Made(os.fstat(fh.fileno()).st_size, hashlib.file_digest(fh, "sha256").digest())
+        self.staged[key] = (self.root / rel, tmp, made)
 
     def commit(self, built) -> list[Path]:
         """Publish the staged take files, then the side files and ``_dataset.json`` of ``built``; the paths

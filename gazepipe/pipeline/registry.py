@@ -114,6 +114,8 @@ class Stage:
     run : the work itself.
     rules : the allowed values of its parameters, by name (see :func:`value_problem`); none = any value of
         the default's type.
+    groups : parameter groups (:func:`register_params`) whose values it reads too (``ctx.all_params``); they
+        are part of its fingerprint as its own parameters are.
     """
 
     name: str
@@ -126,6 +128,7 @@ class Stage:
     run: Callable[[UnitContext], UnitResult]
     help: str = ""
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    groups: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,9 @@ def register(stage: Stage) -> Stage:
     for up in stage.requires:
         if up not in _STAGES:
             raise ValueError(f"stage {stage.name} requires unknown stage {up}")
+    for group in stage.groups:
+        if group not in _GROUPS:
+            raise ValueError(f"stage {stage.name} reads unknown parameter group {group}")
     _STAGES[stage.name] = stage
     return stage
 

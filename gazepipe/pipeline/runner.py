@@ -106,6 +106,8 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
             "take": _take_config(session, take), "sources": sources,
             "upstream": {u: fps[u] for u in st.requires if u in fps},
         }
+        if st.groups:
+            comp["groups"] = {g: registry.group_values(g, params) for g in st.groups}
         fp = sha256_json(comp)
         fps[st.name] = fp
         record_path = layout.record(session.id, take.id, st.name)
@@ -155,9 +157,11 @@ def _why(st: Stage, comp: dict[str, Any], fp: str, record_path: Path, outputs: l
     old = rec.get("components", {})
     if old.get("version") != comp["version"]:
         return f"stage version {old.get('version')} -> {comp['version']}"
-    changed = [k for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
+    changed = [f"{st.name}.{k}" for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
+    changed += [f"{g}.{k}" for g, values in comp.get("groups", {}).items() for k in values
+                if old.get("groups", {}).get(g, {}).get(k) != values[k]]
     if changed:
-        return "parameters changed: " + ", ".join(f"{st.name}.{k}" for k in changed)
+        return "parameters changed: " + ", ".join(changed)
     files = [k for k in comp["sources"] if old.get("sources", {}).get(k) != comp["sources"][k]]
     if files:
         return "input changed: " + ", ".join(files)
