@@ -117,8 +117,8 @@ def info_bytes(info: dict[str, Any]) -> bytes:
 
 def stored_schema(built) -> pa.Schema:
     """The dataset schema tagged with its sizes (stored in ``_common_metadata`` and every take file)."""
-    return attach_meta(pa.table({f.name: pa.array([], f.type) for f in built.schema}, schema=built.schema),
-                       {"dataset": built.name, "sizes": built.info["sizes"]}).schema
+    empty = pa.Table.from_batches([], schema=built.schema)   # (Schema.empty_table would import pandas)
+    return attach_meta(empty, {"dataset": built.name, "sizes": built.info["sizes"]}).schema
 
 
 def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | None = None) -> list[Path]:
