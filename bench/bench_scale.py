@@ -145,6 +145,21 @@ def stage_times(out: Path) -> dict[str, float]:
     return dict(per)
 
 
+def output_files(produced: Path) -> list[Path]:
+    """The Parquet files a run wrote (not its state), each once: a dataset's take file is the take's
+    ``rows_<dataset>`` table linked in, the same bytes written once."""
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for p in sorted(produced.rglob("*.parquet")):
+        if ".gazepipe" in p.parts:
+            continue
+        st = p.stat()
+        if (st.st_dev, st.st_ino) not in seen:
+            seen.add((st.st_dev, st.st_ino))
+            out.append(p)
+    return out
+
+
 def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     """Seconds to read every input (each C3D's point block decoded as the pipeline decodes it, which no
     pipeline can do much faster; pandas for CSV) and to write the same output tables with pyarrow and the
@@ -168,7 +183,7 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     for p in csvs:
         pd.read_csv(p, skipinitialspace=True)
     t_csv = time.perf_counter() - t0
-    files = sorted(p for p in produced.rglob("*.parquet") if ".gazepipe" not in p.parts)
+    files = output_files(produced)
     tables = [pq.read_table(p) for p in files]
     sink = produced.parent / "_floor_write"
     sink.mkdir(exist_ok=True)
@@ -205,7 +220,7 @@ def physical_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     for p in csvs:
         pd.read_csv(p, skipinitialspace=True)
     t_csv = time.perf_counter() - t0
-    blobs = [p.read_bytes() for p in sorted(produced.rglob("*.parquet")) if ".gazepipe" not in p.parts]
+    blobs = [p.read_bytes() for p in output_files(produced)]
     dest = produced.parent / "_physical_floor.bin"
     t0 = time.perf_counter()
     with open(dest, "wb") as fh:

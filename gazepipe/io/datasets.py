@@ -212,7 +212,7 @@ class StagedDatasetWriter:
         written (take files whose published bytes were already the same are kept as they are, and listed)."""
         written: dict[Path, _Made] = {}
         for final, tmp, made in sorted(self.staged.values()):
-            if not _published(final, made):
+            if not _published(final, made, tmp):
                 final.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp, final)
             written[final] = made
@@ -223,10 +223,14 @@ class StagedDatasetWriter:
         shutil.rmtree(self.staging, ignore_errors=True)
 
 
-def _published(path: Path, made: _Made) -> bool:
-    """Whether ``path`` already holds the bytes ``made`` describes (read only when the sizes agree)."""
+def _published(path: Path, made: _Made, staged: Path | None = None) -> bool:
+    """Whether ``path`` already holds the bytes ``made`` describes (read only when the sizes agree and it is not
+    the ``staged`` file itself, linked in twice)."""
     try:
-        return path.stat().st_size == made.size and hashlib.sha256(path.read_bytes()).digest() == made.digest
+        st = path.stat()
+        if staged is not None and os.path.samestat(st, staged.stat()):
+            return True
+        return st.st_size == made.size and hashlib.sha256(path.read_bytes()).digest() == made.digest
     except OSError:
         return False
 

@@ -15,6 +15,13 @@ under ``skipped`` in _dataset.json with the reason; the other takes still build.
 parameters that can be computed: the others are NaN, marked False in its ``known`` mask, and counted per take
 (``null_segments`` in ``counts.per_take``, totals in ``counts.null_segments``). Statistics are taken per element
 over the values that are not null.
+
+The work splits in two halves: :func:`take_part` makes one take's part from its tables alone (its table, in the
+split its key draws, and :class:`TakePart`'s facts: shape, frame rate, why it gives no rows, counts, QC, input
+hashes, per-column moments), and :class:`DatasetMerge` merges the parts in (session, take) order (which takes
+fit the dataset, the moves that fill an empty split, _dataset.json). :func:`build_dataset` does both in one
+process; a run makes the parts in each take's own unit and merges their JSON in the dataset's build, with the
+same bytes.
 """
 
 from __future__ import annotations
