@@ -159,7 +159,7 @@ def test_a_run_makes_each_takes_rows_in_its_unit_and_links_them_into_the_dataset
     for f in files:
         rows = out / "takes" / "faces" / f.stem / "rows_face_clean.parquet"
         rec = json.loads((out / ".gazepipe" / "units" / "faces" / f.stem / "rows_face_clean.json").read_text())
-        assert rec["status"] == "ok" and rec["qc"]["part"]["facts"]["rows"] == pq.read_metadata(f).num_rows
+        assert rec["status"] == "ok" and rec["qc"]["rows"] == pq.read_metadata(f).num_rows
         # the take's own file, linked in; a take moved to another split is made again with that split
         assert os.path.samefile(f, rows) == (f"faces/{f.stem}" not in moved)
 

@@ -4,9 +4,10 @@ merges them and publishes the dataset (SPEC §3.6, §4, §7).
 
 A dataset's rows are made take by take, in the take's own unit on the worker that ran the take: the stage
 ``rows_<dataset>`` (:func:`gazepipe.stages.build.stage.take_part`) writes the take's dataset table (rows, mirrored
-copies, identifiers, the split its key draws) as ``takes/<session>/<take>/rows_<dataset>.parquet`` and records what
-the dataset needs of it (shape, frame rate, why it gives no rows, counts, QC, input hashes, the per-column
-moments of the statistics) in its unit record. The dataset's build then only merges those records in
+copies, identifiers, the split its key draws) as ``takes/<session>/<take>/rows_<dataset>.parquet`` and what the
+dataset needs of it (shape, frame rate, why it gives no rows, counts, QC, input hashes, the per-column moments of
+the statistics) as ``rows_<dataset>_part.parquet`` (one JSON text; its unit record keeps only rows, split and
+problem: the report reads and hashes every take's records). The dataset's build then only merges those parts in
 (session, take) order (:class:`gazepipe.stages.build.stage.DatasetMerge`: the same statistics, bit for bit, as
 one process would compute), moves the takes that fill an empty split (their files made again with the new
 split) and places the take files (linked, not copied) with the side files.
@@ -15,6 +16,7 @@ split) and places the take files (linked, not copied) with the side files.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections import Counter
 from typing import Any
 
@@ -62,7 +64,11 @@ NEEDS: dict[str, tuple[str, ...]] = {
 OPTIONAL = {"gaze_rnn": ("eyes",)}
 #: each dataset's per-take stage, and the name of the table it writes
 ROWS: dict[str, str] = {name: f"rows_{name}" for name in DATASETS}
-#: the table of a take that gives a dataset no rows (why is in the unit's record)
+#: each dataset's per-take table of the take's part (:class:`TakePart` as JSON, in one row): apart from the unit
+#: record, which the report reads (and hashes) for every take
+PARTS: dict[str, str] = {name: f"rows_{name}_part" for name in DATASETS}
+PART = pa.schema([pa.field("part", pa.string(), nullable=False)], metadata={b"gazepipe.table": b"dataset_part"})
+#: the table of a take that gives a dataset no rows (why is in its part and its unit's record)
 NO_ROWS = pa.schema([], metadata={b"gazepipe.table": b"no_rows"})
 
 
@@ -96,7 +102,11 @@ def _rows_stage(name: str):
         params = BuildParams(**registry.group_values("build", ctx.all_params))
         part = take_part(name, tt, params, known=stages)   # the units' fingerprints stand for those tables
         table = part.table if part.table is not None else NO_ROWS.empty_table()
-        return UnitResult(tables={ROWS[name]: (table, table.schema)}, qc={"part": part.to_json()})
+        facts = pa.Table.from_arrays([pa.array([json.dumps(part.to_json(), sort_keys=True)], pa.string())],
+                                     schema=PART)
+        qc = {"rows": part.facts.rows if part.facts is not None else 0, "split": part.split,
+              "problem": part.problem or part.fatal}
+        return UnitResult(tables={ROWS[name]: (table, table.schema), PARTS[name]: (facts, PART)}, qc=qc)
 
     run.__qualname__ = run.__name__ = f"run_rows_{name}"
     return run
@@ -110,14 +120,13 @@ def _rows_applies(name: str):
 
 
 def _part(ctx: DatasetContext, session: str, take: str, units: dict[str, str]) -> TakePart:
-    """A take's part as its ``rows_<dataset>`` unit recorded it, with the fingerprints of the units it was made
+    """A take's part as its ``rows_<dataset>`` unit stored it, with the fingerprints of the units it was made
     from as its input hashes."""
     stage = ROWS[ctx.name]
-    rec = ctx.record(session, take, stage) or {}
-    got = (rec.get("qc") or {}).get("part")
-    if not isinstance(got, dict):
-        raise StageError(f"datasets/{ctx.name}", f"take {session}/{take}: its {stage} record holds no rows")
-    part = TakePart.from_json(got)
+    table = ctx.load(session, take, PARTS[ctx.name])
+    if table.schema.names != PART.names or table.num_rows != 1:
+        raise StageError(f"datasets/{ctx.name}", f"take {session}/{take}: its {PARTS[ctx.name]} table holds no part")
+    part = TakePart.from_json(json.loads(table.column("part")[0].as_py()))
     if part.facts is not None:
         part.facts.hashes = {**{k: v for k, v in units.items() if k != stage}, **part.facts.hashes}
     return part
@@ -170,7 +179,7 @@ register_params(ParamGroup(
 ))
 for _name in DATASETS:
     register(Stage(
-        name=ROWS[_name], version=ROWS_VERSION, requires=NEEDS[_name], params={}, outputs=(ROWS[_name],),
+        name=ROWS[_name], version=ROWS_VERSION, requires=NEEDS[_name], params={}, outputs=(ROWS[_name], PARTS[_name]),
         applies=_rows_applies(_name), sources=lambda s, t: [], run=_rows_stage(_name), groups=("build",),
         help=f"the take's rows of dataset {_name} (mirrored copies, its split) and their partial statistics",
     ))

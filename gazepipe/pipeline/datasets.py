@@ -60,8 +60,6 @@ class DatasetContext:
     load : ``load(session, take, table)``: a take's table, schema-checked.
     table_path : ``table_path(session, take, table)``: where that table lies (to read its schema alone, or to
         place the file itself).
-    record : ``record(session, take, stage)``: the unit record of a stage on a take (its ``qc`` holds what the
-        unit made for the build), ``None`` when there is none.
     root : the folder the dataset is published under (``OUT/datasets``; the dataset is ``root / name``).
     tmp : a path of its own, beside ``root``'s file system, to stage the dataset in before publishing it.
     write_bytes : an atomic writer of small files (``write_bytes(path, data)``).
@@ -77,7 +75,6 @@ class DatasetContext:
     tmp: Path
     write_bytes: Callable[[Path, bytes], None]
     check_alive: Callable[[], None]
-    record: Callable[[str, str, str], dict[str, Any] | None] = lambda session, take, stage: None
 
 
 @dataclass
@@ -207,8 +204,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
                          params=registry.group_values(ds.params, params) if ds.params else {},
                          load=_loader(layout), table_path=layout.table, root=layout.root / "datasets",
                          tmp=layout.tmp / f"{plan.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.part",
-                         write_bytes=layout.write_bytes, check_alive=check_alive,
-                         record=lambda session, take, stage: read_json(layout.record(session, take, stage)))
+                         write_bytes=layout.write_bytes, check_alive=check_alive)
     try:
         if not plan.takes:
             reasons = "; ".join(f"{s}/{t}: {why}" for s, t, why in plan.left_out[:3]) or "no take applies"
