@@ -305,6 +305,12 @@ def _check_info(info: Any, path: Path) -> None:
     for key in ("features",):
         if key in info and not isinstance(info[key], dict | list):
             raise InputError(path, f"'{key}' must be an object or a list", key=key)
+    # the derivative order sets the number of columns (two per order): checked against the features listed
+    # before a schema is built from it (an order of a million would take that long)
+    k, features = sizes.get("k"), info.get("features")
+    if k is not None and 2 * k > len(features or ()):
+        raise InputError(path, f"'sizes.k' is {k}, but 'features' lists {len(features or ())} columns (two per "
+                               "derivative order and more)", key="sizes")
 
 
 def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.Schema:
