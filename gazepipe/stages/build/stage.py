@@ -561,6 +561,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
     # no split left empty when a take can fill it (SPEC §3.6): the few takes that move are built again
     for tid, _, new, _ in merge.rebalance():
         part = take_part(name, by_id[tid], params, split=new)
+        assert part.table is not None
         emit(part.key, part.table)
     assert merge.schema is not None
     return BuiltDataset(name=name, tables=kept, info=merge.info(), schema=merge.schema)

@@ -91,7 +91,7 @@ class RunningMoments:
 
     def to_json(self) -> dict[str, list] | None:
         """The moments as JSON values (exact: Python's float repr round-trips), ``None`` when empty."""
-        if self.mean is None:
+        if self.mean is None or self.m2 is None:
             return None
         return {"n": [int(x) for x in np.asarray(self.n)], "mean": [float(x) for x in self.mean],
                 "m2": [float(x) for x in self.m2]}
