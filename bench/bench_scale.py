@@ -8,7 +8,8 @@
 - the encode floor: every mocap file decoded as the pipeline decodes it, every CSV read with pandas, and the tables the pipeline produced
   re-written with pyarrow with the pipeline's own writer options (the same output bytes); the output bytes per
   mocap frame;
-- the share of each run's wall time after its last take unit (dataset builds and the QC report);
+- the share of each run's wall time after its last take unit (dataset builds and the QC report), also from the
+  unit records' times, and the CPU seconds its processes used after it (what a shared machine does not blur);
 - with ``--scaling``: a process-executor run at each worker count (as far as the machine's cores go) and its
   speed-up over serial;
 - end-to-end ``gazepipe run`` wall time (a fresh ``python -m gazepipe`` process, serial executor) and its ratio
@@ -46,12 +47,16 @@ if str(REPO) not in sys.path:
 # ----------------------------------------------------------------------------------------------- measuring
 
 class TreeMemory:
-    """Peak resident memory of a process and all its descendants (sum over the tree, sampled)."""
+    """Peak resident memory of a process and all its descendants (sum over the tree, sampled), and the CPU time
+    the tree has used at each sample (``cpu``: (time.time(), CPU seconds); a process that ended counts with its
+    last sample)."""
 
     def __init__(self, pid: int, every_s: float = 0.05) -> None:
         self.pid, self.every_s = pid, every_s
         self.peak_total = 0
         self.peak_single = 0
+        self.cpu: list[tuple[float, float]] = []
+        self._cpu_of: dict[int, float] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._thread.start()
@@ -70,11 +75,14 @@ class TreeMemory:
             for p in procs:
                 try:
                     rss = p.memory_info().rss
+                    times = p.cpu_times()
                 except (psutil.NoSuchProcess, psutil.AccessDenied):
                     continue
                 total += rss
                 self.peak_single = max(self.peak_single, rss)
+                self._cpu_of[p.pid] = times.user + times.system
             self.peak_total = max(self.peak_total, total)
+            self.cpu.append((time.time(), sum(self._cpu_of.values())))
             self._stop.wait(self.every_s)
 
     def stop(self) -> None:
@@ -105,10 +113,11 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
         mem = TreeMemory(proc.pid)
         rc = proc.wait()
     wall = time.perf_counter() - t0
+    end = time.time()
     mem.stop()
     if rc != 0:
         print(f"warning: {' '.join(cmd[-8:])} exited {rc}; see {log}", file=sys.stderr)
-    return {"wall_s": wall, "rc": rc, "peak_tree_mb": mem.peak_total / 2**20,
+    return {"wall_s": wall, "end": end, "cpu": mem.cpu, "out": str(out), "rc": rc, "peak_tree_mb": mem.peak_total / 2**20,
             "peak_process_mb": mem.peak_single / 2**20, "log": str(log)}
 
 
@@ -134,6 +143,19 @@ def timeline(log: Path) -> dict[str, float] | None:
             "end_s": last["run_end"]}
 
 
+def after_takes(run: dict, out: Path) -> dict[str, float] | None:
+    """Seconds from the end of the last take unit (its record's modification time: no log's 1 s resolution) to
+    the end of the run, and the CPU seconds the run's process tree used in them and in all (sampled every 50 ms):
+    on a machine shared with other work, the CPU seconds say what the run itself left for after its takes."""
+    records = [p.stat().st_mtime for p in (out / ".gazepipe" / "units").glob("*/*/*.json")]
+    if not records or not run.get("cpu"):
+        return None
+    last = max(records)
+    cpu_end = run["cpu"][-1][1]
+    cpu_at = next((c for t, c in run["cpu"] if t >= last), cpu_end)
+    return {"tail_s": max(run["end"] - last, 0.0), "cpu_s": cpu_end, "cpu_after_s": cpu_end - cpu_at}
+
+
 def stage_times(out: Path) -> dict[str, float]:
     """Seconds per stage summed over takes (unit records), and per dataset build."""
     per: dict[str, float] = defaultdict(float)
@@ -143,6 +165,21 @@ def stage_times(out: Path) -> dict[str, float]:
     for p in (out / ".gazepipe" / "datasets").glob("*.json"):
         per[f"build:{p.stem}"] += float(json.loads(p.read_text()).get("duration_s", 0.0))
     return dict(per)
+
+
+def output_files(produced: Path) -> list[Path]:
+    """The Parquet files a run wrote (not its state), each once: a dataset's take file is the take's
+    ``rows_<dataset>`` table linked in, the same bytes written once."""
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for p in sorted(produced.rglob("*.parquet")):
+        if ".gazepipe" in p.parts:
+            continue
+        st = p.stat()
+        if (st.st_dev, st.st_ino) not in seen:
+            seen.add((st.st_dev, st.st_ino))
+            out.append(p)
+    return out
 
 
 def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
@@ -168,7 +205,7 @@ def io_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     for p in csvs:
         pd.read_csv(p, skipinitialspace=True)
     t_csv = time.perf_counter() - t0
-    files = sorted(p for p in produced.rglob("*.parquet") if ".gazepipe" not in p.parts)
+    files = output_files(produced)
     tables = [pq.read_table(p) for p in files]
     sink = produced.parent / "_floor_write"
     sink.mkdir(exist_ok=True)
@@ -205,7 +242,7 @@ def physical_floor(sessions: list[Path], produced: Path) -> dict[str, float]:
     for p in csvs:
         pd.read_csv(p, skipinitialspace=True)
     t_csv = time.perf_counter() - t0
-    blobs = [p.read_bytes() for p in sorted(produced.rglob("*.parquet")) if ".gazepipe" not in p.parts]
+    blobs = [p.read_bytes() for p in output_files(produced)]
     dest = produced.parent / "_physical_floor.bin"
     t0 = time.perf_counter()
     with open(dest, "wb") as fh:
@@ -306,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
           f"({phys['output_bytes']} bytes of Parquet over {floor['mocap_frames']} frames)")
     runs = {**results, **{f"process -j {j}": r for j, r in sweep.items()}}
     print(f"{'run':<24}{'wall s':>9}{'x phys':>8}{'x encode':>9}{'speed-up':>10}{'after takes':>12}"
-          f"{'peak tree MB':>14}{'peak proc MB':>14}  exit")
+          f"{'peak tree MB':>14}{'peak proc MB':>14}  exit{'tail s':>8}{'CPU s':>8}{'CPU after':>10}")
     for name, r in runs.items():
         label = {"serial": "end-to-end serial", "noop": "no-op re-run", "profiled": "serial under cProfile"
                  }.get(name, f"end-to-end {name}" if name.startswith("process -j") else f"end-to-end {name} -j {a.jobs}")
@@ -315,10 +352,16 @@ def main(argv: list[str] | None = None) -> int:
         if tl:
             r["timeline"] = tl
         tail = (f"{100 * max(r['wall_s'] - tl['takes_done_s'], 0.0) / r['wall_s']:10.0f} %" if tl else "")
+        at = after_takes(r, Path(r["out"])) if name not in ("noop", "profiled") else None
+        if at:
+            r["after_takes"] = at
+        cpu = (f"{at['tail_s']:8.2f}{at['cpu_s']:8.1f}{at['cpu_after_s']:6.1f} s ({100 * at['cpu_after_s'] / at['cpu_s']:.0f} %)"
+               if at else "")
         print(f"{label:<24}{r['wall_s']:9.2f}{r['wall_s'] / phys['total_s']:8.2f}{r['wall_s'] / floor['total_s']:9.2f}"
-              f"{speed:>10}{tail:>12}{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}")
+              f"{speed:>10}{tail:>12}{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}   {cpu}")
     print("\ntimeline from the run's start (s, 1 s resolution): last take unit, last dataset, QC report; "
-          "'after takes' above is the share of the wall time after the last take unit")
+          "'after takes' above is the share of the wall time after the last take unit; 'tail s' the same from the "
+          "unit records' times, 'CPU after' the CPU seconds of the run's processes after it (of 'CPU s')")
     for name, r in runs.items():
         tl = r.get("timeline")
         if tl:
@@ -331,6 +374,8 @@ def main(argv: list[str] | None = None) -> int:
     if prof_rows:
         print("\nprofile of the serial run, top functions by own time:")
         print("\n".join("  " + r for r in prof_rows))
+    for r in runs.values():
+        r.pop("cpu", None)
     summary = {"corpus": str(corpus), "floor": floor, "physical_floor": phys, "runs": runs, "stages": st}
     (work / "results.json").write_text(json.dumps(summary, indent=1))
     return 0

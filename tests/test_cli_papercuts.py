@@ -86,13 +86,14 @@ def test_status_prints_a_header_and_names_datasets_plainly(built):
     assert any(re.fullmatch(r"faces/face_01\s+face\s+ok", ln) for ln in lines), lines
     assert any(re.fullmatch(r"dataset face_clean\s+build\s+ok", ln) for ln in lines), lines
     assert "-/dataset" not in res.stdout and "a run is in progress" not in res.stdout
-    assert lines[-1] == "take units: 1 ok; datasets: 1 ok"
+    assert lines[-1] == "take units: 2 ok; datasets: 1 ok"   # face, rows_face_clean
     doc = json.loads(invoke("status", str(built), "--json").stdout)
     assert doc["lock"] is None
     assert [(d["dataset"], d["state"]) for d in doc["datasets"]] == [("face_clean", "ok")]
     assert "session" not in doc["datasets"][0] and "take" not in doc["datasets"][0]
-    assert [(u["session"], u["take"], u["stage"]) for u in doc["units"]] == [("faces", "face_01", "face")]
-    assert doc["counts"] == {"units": {"ok": 1, "failed": 0, "stale": 0, "pending": 0},
+    assert [(u["session"], u["take"], u["stage"]) for u in doc["units"]] == [("faces", "face_01", "face"),
+                                                                            ("faces", "face_01", "rows_face_clean")]
+    assert doc["counts"] == {"units": {"ok": 2, "failed": 0, "stale": 0, "pending": 0},
                              "datasets": {"ok": 1, "failed": 0, "stale": 0, "pending": 0}}
 
 
@@ -154,16 +155,16 @@ def test_a_run_counts_the_same_units_at_its_start_and_its_end(face_session, tmp_
     end = next(e for e in ev if e["event"] == "run_end")
     units_ok = [e for e in ev if e["event"] == "unit" and e.get("status") == "ok"]
     built_ds = [e for e in ev if e["event"] == "dataset" and e.get("status") == "ok"]
-    assert start["units"] == end["ran"] == len(units_ok) == 1
+    assert start["units"] == end["ran"] == len(units_ok) == 2   # face, rows_face_clean
     assert end["datasets_built"] == len(built_ds) == 1
-    assert start["message"].startswith("running 1 take units on 1 takes")
-    assert end["message"] == ("done: 1 take units ran, 0 up to date, 0 failed; "
+    assert start["message"].startswith("running 2 take units on 1 takes")
+    assert end["message"] == ("done: 2 take units ran, 0 up to date, 0 failed; "
                               "datasets: 1 built, 0 up to date, 0 failed")
     again = events(invoke("build", str(face_session), "--out", str(out), "--executor", "serial",
                           "--log-format", "json").stderr)
     idle = next(e for e in again if e["event"] == "nothing_to_do")
     end = next(e for e in again if e["event"] == "run_end")
-    assert idle["units"] == end["up_to_date"] == 1 and idle["datasets"] == end["datasets_up_to_date"] == 1
+    assert idle["units"] == end["up_to_date"] == 2 and idle["datasets"] == end["datasets_up_to_date"] == 1
     assert end["ran"] == 0 and end["datasets_built"] == 0
 
 

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.errors import GazepipeError, ResourceError, StageError, printable
+from gazepipe.errors import GazepipeError, ResourceError, SchemaError, StageError, printable
 from gazepipe.io.parquet import count_rows, read_table, write_table
 from gazepipe.io.session_toml import check_capture_labels
 from gazepipe.model import FILL_CODES, Markers, MarkerSet, Session, Take
@@ -80,7 +80,10 @@ def check_stored_table(table: pa.Table, path: Path, name: str) -> None:
     """Raise :class:`~gazepipe.errors.SchemaError` when a take's table ``name`` does not have the schema a table
     of that name must have (sized tables: from their metadata), or a markers table's metadata disagrees with
     its rows."""
-    schema = expected_schema(name, table)
+    try:
+        schema = expected_schema(name, table)
+    except ValueError as exc:   # its metadata, read for its sizes, is not JSON
+        raise SchemaError(str(path), f"table {name}: unreadable metadata ({exc})") from None
     if schema is not None:
         check_table(table, schema, path=str(path))
     if name in MARKERS_TABLES:

@@ -21,8 +21,9 @@ skip those; a ``README.md`` in the folder makes them fail with "Could not read s
 Files are produced as bytes and handed to a ``write_bytes(path, data)`` callback (the engine's atomic writer;
 a plain file write by default), take files first, then the side files, ``_dataset.json`` last, so it always
 describes complete take files. The engine's streaming build stages take files as they are built
-(:class:`StagedDatasetWriter`) and publishes them only when the whole dataset built; a take file whose bytes are
-unchanged is left as it is. Take files of an earlier build that are no longer part of the dataset are removed
+(:class:`StagedDatasetWriter`; a take file made beforehand, on the worker that ran the take, is linked in rather
+than copied) and publishes them only when the whole dataset built; a take file whose bytes are unchanged is left
+as it is. Take files of an earlier build that are no longer part of the dataset are removed
 afterwards. Every table is checked against its schema before it is written and after it is read.
 """
 
@@ -116,8 +117,8 @@ def info_bytes(info: dict[str, Any]) -> bytes:
 
 def stored_schema(built) -> pa.Schema:
     """The dataset schema tagged with its sizes (stored in ``_common_metadata`` and every take file)."""
-    return attach_meta(pa.table({f.name: pa.array([], f.type) for f in built.schema}, schema=built.schema),
-                       {"dataset": built.name, "sizes": built.info["sizes"]}).schema
+    empty = pa.Table.from_batches([], schema=built.schema)   # (Schema.empty_table would import pandas)
+    return attach_meta(empty, {"dataset": built.name, "sizes": built.info["sizes"]}).schema
 
 
 def write_dataset(built, datasets_dir: str | Path, write_bytes: WriteBytes | None = None) -> list[Path]:
@@ -187,12 +188,31 @@ class StagedDatasetWriter:
             os.fsync(fh.fileno())
         self.staged[key] = (self.root / rel, tmp, _Made.of(data))
 
+    def place(self, key: TakeKey, split: str, source: str | Path) -> None:
+        """Stage a take's file that is already written in its final bytes (the take's rows, made on the worker
+        that ran the take): linked where the file system allows (no copy; every write of the pipeline replaces
+        a file, so the two names never see different bytes), else copied."""
+        rel = take_path(split, *key)
+        if key in self.staged:
+            self.staged.pop(key)[1].unlink(missing_ok=True)
+        tmp = self.staging / rel
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.link(source, tmp)
+        except OSError:
+            shutil.copyfile(source, tmp)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+        with open(tmp, "rb") as fh:
+            made = _Made(os.fstat(fh.fileno()).st_size, hashlib.file_digest(fh, "sha256").digest())
+        self.staged[key] = (self.root / rel, tmp, made)
+
     def commit(self, built) -> list[Path]:
         """Publish the staged take files, then the side files and ``_dataset.json`` of ``built``; the paths
         written (take files whose published bytes were already the same are kept as they are, and listed)."""
         written: dict[Path, _Made] = {}
         for final, tmp, made in sorted(self.staged.values()):
-            if not _published(final, made):
+            if not _published(final, made, tmp):
                 final.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp, final)
             written[final] = made
@@ -203,10 +223,14 @@ class StagedDatasetWriter:
         shutil.rmtree(self.staging, ignore_errors=True)
 
 
-def _published(path: Path, made: _Made) -> bool:
-    """Whether ``path`` already holds the bytes ``made`` describes (read only when the sizes agree)."""
+def _published(path: Path, made: _Made, staged: Path | None = None) -> bool:
+    """Whether ``path`` already holds the bytes ``made`` describes (read only when the sizes agree and it is not
+    the ``staged`` file itself, linked in twice)."""
     try:
-        return path.stat().st_size == made.size and hashlib.sha256(path.read_bytes()).digest() == made.digest
+        st = path.stat()
+        if staged is not None and os.path.samestat(st, staged.stat()):
+            return True
+        return st.st_size == made.size and hashlib.sha256(path.read_bytes()).digest() == made.digest
     except OSError:
         return False
 
@@ -281,6 +305,12 @@ def _check_info(info: Any, path: Path) -> None:
     for key in ("features",):
         if key in info and not isinstance(info[key], dict | list):
             raise InputError(path, f"'{key}' must be an object or a list", key=key)
+    # the derivative order sets the number of columns (two per order): checked against the features listed
+    # before a schema is built from it (an order of a million would take that long)
+    k, features = sizes.get("k"), info.get("features")
+    if k is not None and 2 * k > len(features or ()):
+        raise InputError(path, f"'sizes.k' is {k}, but 'features' lists {len(features or ())} columns (two per "
+                               "derivative order and more)", key="sizes")
 
 
 def expected_schema(info: dict[str, Any], path: str | Path | None = None) -> pa.Schema:

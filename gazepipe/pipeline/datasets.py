@@ -20,13 +20,12 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe import __version__
-from gazepipe.blas import one_blas_thread
 from gazepipe.errors import GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.hashing import sha256_json
 from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import SessionLike, TakeLike
-from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, os_problem, release_memory
+from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, os_problem
 from gazepipe.pipeline.state import OutLayout, read_json
 
 
@@ -59,7 +58,8 @@ class DatasetContext:
     takes : the contributing takes, each with the fingerprints of its units (by stage).
     params : the values of the dataset's parameter group.
     load : ``load(session, take, table)``: a take's table, schema-checked.
-    table_path : ``table_path(session, take, table)``: where that table lies (to read its schema alone).
+    table_path : ``table_path(session, take, table)``: where that table lies (to read its schema alone, or to
+        place the file itself).
     root : the folder the dataset is published under (``OUT/datasets``; the dataset is ``root / name``).
     tmp : a path of its own, beside ``root``'s file system, to stage the dataset in before publishing it.
     write_bytes : an atomic writer of small files (``write_bytes(path, data)``).
@@ -188,7 +188,6 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     ``parent_pid``: the run's process when this runs in a local worker; when that process is gone (its lock
     with it) the build stops before publishing anything or writing its record.
     """
-    release_memory()  # what the takes run before in this process left behind
     registry.ensure(plan.dag)
     t0 = time.perf_counter()
     ds = next(d for d in registry.datasets() if d.name == plan.name)
@@ -210,8 +209,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
         if not plan.takes:
             reasons = "; ".join(f"{s}/{t}: {why}" for s, t, why in plan.left_out[:3]) or "no take applies"
             raise GazepipeError(None, f"no take can feed it ({reasons})")
-        with one_blas_thread():  # as for take units: results independent of the BLAS thread count
-            result = ds.run(ctx)
+        result = ds.run(ctx)
         root = ctx.root / plan.name
         record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in result.outputs})
         record.update(result.record)

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 from gazepipe.errors import ConfigError, GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
-from gazepipe.pipeline.datasets import DatasetPlan, plan_datasets, run_dataset
+from gazepipe.pipeline.datasets import plan_datasets, run_dataset
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import check_executor, make_executor
 from gazepipe.pipeline.hashing import HashCache
@@ -335,7 +335,6 @@ class _Workers:
     """The run's executor, started when first needed (a run with nothing to do starts no cluster)."""
 
     def __init__(self, executor: str, jobs: int | None, scheduler: str | None, n_takes: int) -> None:
-        # the datasets are built on the same workers after the takes
         self.n = min(n_takes, jobs or os.cpu_count() or 1)
         self.kind = "serial" if (executor == "process" and self.n <= 1) else executor
         self.scheduler = scheduler
@@ -370,7 +369,7 @@ class _Workers:
 def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: list[UnitPlan], params: dict[str, Any],
                     force: bool, summary: RunSummary, log: EventLog, workers: _Workers,
                     report: RunReport | None = None) -> int:
-    """Build the datasets that are not up to date (on the workers when there are several); the number built.
+    """Build the datasets that are not up to date, in this process; the number built.
     ``report`` is told when the builds are on their way (:meth:`RunReport.takes_done`: what it starts then does
     not hold them up) and of each dataset built."""
     todo = []
@@ -383,12 +382,9 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
         if d.error:
             log.emit("error", "dataset", f"{d.error} (failed earlier on these same inputs; --force retries)",
                      stage="build", dataset=d.name, status="failed")
-    if workers.kind == "serial" or len(todo) <= 1:
-        results = ((d, run_dataset(d, layout, params)) for d in todo)
-    else:
-        parent = os.getpid() if workers.local else None
-        futures = {workers.executor.submit(run_dataset, d, layout, params, parent): d for d in todo}
-        results = ((futures[f], _dataset_result(f, futures[f])) for f in as_completed(futures))
+    # here, one after the other: a build only merges what the takes' units made and places their files (a
+    # worker would first have to finish what the report gave it)
+    results = ((d, run_dataset(d, layout, params)) for d in todo)
     if report is not None:
         report.takes_done()
     for d, o in results:
@@ -405,14 +401,6 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
             log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
                      traceback=o.traceback or None)
     return len(todo)
-
-
-def _dataset_result(fut, d: DatasetPlan) -> UnitOutcome:
-    try:
-        return fut.result()
-    except Exception as exc:  # the worker itself died
-        return UnitOutcome("-", "-", f"build:{d.name}", "failed",
-                           error=f"dataset {d.name}: worker died while building ({type(exc).__name__}: {exc})")
 
 
 def _run_sessions(jobs: list[SessionJob], todo: list[SessionJob], summary: RunSummary, log: EventLog,

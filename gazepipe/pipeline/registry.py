@@ -158,6 +158,8 @@ class Stage:
         the default's type.
     session_requires : session stages (:class:`SessionStage`) whose tables it loads
         (:meth:`UnitContext.load_session`); they run first, and a change of theirs re-runs it.
+    groups : parameter groups (:func:`register_params`) whose values it reads too (``ctx.all_params``); they
+        are part of its fingerprint as its own parameters are.
     """
 
     name: str
@@ -171,6 +173,7 @@ class Stage:
     help: str = ""
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     session_requires: tuple[str, ...] = ()
+    groups: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -255,6 +258,9 @@ def register(stage: Stage) -> Stage:
     for up in stage.session_requires:
         if up not in _SESSION_STAGES:
             raise ValueError(f"stage {stage.name} requires unknown session stage {up}")
+    for group in stage.groups:
+        if group not in _GROUPS:
+            raise ValueError(f"stage {stage.name} reads unknown parameter group {group}")
     _STAGES[stage.name] = stage
     return stage
 

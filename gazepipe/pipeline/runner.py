@@ -169,6 +169,8 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
             "take": _take_config(session, take), "sources": sources,
             "upstream": {u: fps[u] for u in upstream if u in fps},
         }
+        if st.groups:
+            comp["groups"] = {g: registry.group_values(g, params) for g in st.groups}
         fps[st.name] = sha256_json(comp)
         plans.append(_decide(session, take.id, st.name, comp, fps[st.name], layout.record(session.id, take.id, st.name),
                              [layout.table(session.id, take.id, o) for o in st.outputs], running, force, hashes))
@@ -224,9 +226,12 @@ def _why(stage: str, comp: dict[str, Any], fp: str, record_path: Path, outputs: 
     old = rec.get("components", {})
     if old.get("version") != comp["version"]:
         return f"stage version {old.get('version')} -> {comp['version']}"
-    changed = [k for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
-    if changed:   # a session stage's parameters are named with their group already
-        return "parameters changed: " + ", ".join(k if "." in k else f"{stage}.{k}" for k in changed)
+    changed = [k if "." in k else f"{stage}.{k}"   # a session stage's parameters are named with their group
+               for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
+    changed += [f"{g}.{k}" for g, values in comp.get("groups", {}).items() for k in values
+                if old.get("groups", {}).get(g, {}).get(k) != values[k]]
+    if changed:
+        return "parameters changed: " + ", ".join(changed)
     files = [k for k in comp["sources"] if old.get("sources", {}).get(k) != comp["sources"][k]]
     if files:
         return "input changed: " + ", ".join(files)

@@ -15,6 +15,13 @@ under ``skipped`` in _dataset.json with the reason; the other takes still build.
 parameters that can be computed: the others are NaN, marked False in its ``known`` mask, and counted per take
 (``null_segments`` in ``counts.per_take``, totals in ``counts.null_segments``). Statistics are taken per element
 over the values that are not null.
+
+The work splits in two halves: :func:`take_part` makes one take's part from its tables alone (its table, in the
+split its key draws, and :class:`TakePart`'s facts: shape, frame rate, why it gives no rows, counts, QC, input
+hashes, per-column moments), and :class:`DatasetMerge` merges the parts in (session, take) order (which takes
+fit the dataset, the moves that fill an empty split, _dataset.json). :func:`build_dataset` does both in one
+process; a run makes the parts in each take's own unit and merges their JSON in the dataset's build, with the
+same bytes.
 """
 
 from __future__ import annotations
@@ -22,7 +29,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -35,7 +42,7 @@ from gazepipe.schemas.base import attach_meta, check_table, read_meta, with_elem
 from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns, mask_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
 from gazepipe.stages.build.splits import assign_split, check_fractions, rebalance
-from gazepipe.stages.build.summary import DatasetSummary, feature_values, table_hash
+from gazepipe.stages.build.summary import DatasetSummary, TakeFacts, feature_values, table_hash, take_facts
 
 if TYPE_CHECKING:  # the row builders import scipy and pandas: loaded when a dataset is built, not when planned
     from gazepipe.stages.build.gaze import TakeRows
@@ -172,19 +179,26 @@ def _where(name: str) -> str:
 # --------------------------------------------------------------------------------------------- per take
 
 @dataclass
-class _Context:
-    name: str
-    params: BuildParams
-    segments: list[str] | None = None
-    names: dict[str, list[str]] | None = None
-    sizes: dict[str, int] | None = None
-    fps: set = field(default_factory=set)
+class Shape:
+    """What every take of a dataset must share: its segments (face_clean: its blendshape channels), the names
+    of the feature elements and the sizes of the schema."""
+
+    segments: list[str]
+    names: dict[str, list[str]]
+    sizes: dict[str, int]
 
 
-def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
+@dataclass
+class _Progress:
+    """How far a take's rows got before a problem: its shape is known, its frame rate counted."""
+
+    shape: Shape | None = None
+    fps: float | None = None
+
+
+def _rnn(tt: TakeTables, lod: bool, got: _Progress) -> TakeRows:
     from gazepipe.stages.build.gaze import align_eyes, rnn_feature_names, rnn_rows
 
-    lod = ctx.name == "gaze_rnn_lod"
     if tt.joints is None:
         raise StageError(None, "no joints table", take=tt.take.id)
     j = joints_arrays(tt.joints)
@@ -198,12 +212,8 @@ def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
             raise StageError(None, f"[lod] segments {missing} are not in the joints table", take=tt.take.id)
     else:
         want = segs
-    if ctx.segments is None:
-        ctx.segments = want
-        ctx.names = rnn_feature_names(want, with_eyes=not lod)
-        ctx.sizes = {"n_in": len(ctx.names["x"]), "n_out": len(ctx.names["y"])}
-    elif want != ctx.segments:
-        raise StageError(None, f"segments {want} differ from the dataset's {ctx.segments}", take=tt.take.id)
+    names = rnn_feature_names(want, with_eyes=not lod)
+    got.shape = Shape(want, names, {"n_in": len(names["x"]), "n_out": len(names["y"])})
     eyes = None
     if not lod:
         if tt.eyes is None:
@@ -211,11 +221,11 @@ def _rnn(tt: TakeTables, ctx: _Context) -> TakeRows:
         e = tt.eyes
         eyes = align_eyes(np.asarray(j["frame"]), e.column("frame").to_numpy(), e.column("valid").to_numpy(),
                           list_to_numpy(e.column("eye_dir_char"), 3).astype(np.float64))
-    ctx.fps.add(float(tt.meta.get("rate_hz", j["meta"].get("rate_hz"))))
+    got.fps = float(tt.meta.get("rate_hz", j["meta"].get("rate_hz")))
     return rnn_rows(j, [segs.index(s) for s in want], eyes)
 
 
-def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
+def _gaze_map(tt: TakeTables, params: BuildParams, got: _Progress) -> TakeRows:
     from gazepipe.stages.build.gaze import gaze_map_names, gaze_map_row
 
     take = tt.take
@@ -227,25 +237,20 @@ def _gaze_map(tt: TakeTables, ctx: _Context) -> TakeRows:
         raise StageError(None, "no rest periods given", take=take.id)
     j = joints_arrays(tt.joints)
     segs = list(j["segments"])
-    if ctx.segments is None:
-        ctx.segments = segs
-        ctx.names = gaze_map_names(segs)
-        ctx.sizes = {"n_segments": len(segs)}
-    elif segs != ctx.segments:
-        raise StageError(None, f"segments {segs} differ from the dataset's {ctx.segments}", take=take.id)
-    p = ctx.params
+    got.shape = Shape(segs, gaze_map_names(segs), {"n_segments": len(segs)})
+    p = params
     head_name = p.head_segment or ("head" if "head" in segs else segs[-1])
     if head_name not in segs:
         raise StageError(None, f"head segment {head_name!r} is not in the joints table", take=take.id)
     rate = float(tt.meta.get("rate_hz", j["meta"].get("rate_hz")))
-    ctx.fps.add(rate)
+    got.fps = rate
     return gaze_map_row(j, tt.meta["rests"], rate, float(take.target_yaw_deg), float(take.target_pitch_deg),
                         head=segs.index(head_name), start_speed_deg_s=p.start_speed_deg_s,
                         start_filter_hz=p.start_filter_hz, start_min_s=p.start_min_s,
                         overshoot_window_s=p.overshoot_window_s, max_bridge_s=p.max_bridge_s, take=take.id)
 
 
-def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
+def _face(tt: TakeTables, got: _Progress) -> TakeRows:
     from gazepipe.stages.build.face import face_columns, face_rows
 
     if tt.face is None:
@@ -255,31 +260,40 @@ def _face(tt: TakeTables, ctx: _Context) -> TakeRows:
     channels = list(meta.get("names", []))
     if not channels:
         raise StageError(None, "the face table's metadata has no channel names", take=tt.take.id)
-    if ctx.sizes is None:
-        ctx.sizes = {"k": k, "n_channels": len(channels)}
-        ctx.segments = channels
-        ctx.names = {c: [f"{c}.{n}" for n in channels] for c in face_columns(k)}
-    elif {"k": k, "n_channels": len(channels)} != ctx.sizes or channels != ctx.segments:
-        raise StageError(None, f"face channels or derivative order (k={k}) differ from the dataset's",
-                         take=tt.take.id)
+    got.shape = Shape(channels, {c: [f"{c}.{n}" for n in channels] for c in face_columns(k)},
+                      {"k": k, "n_channels": len(channels)})
     if "rate_hz" in meta:
-        ctx.fps.add(float(meta["rate_hz"]))
+        got.fps = float(meta["rate_hz"])
     return face_rows(tt.face, k)
 
 
-def _mirror(name: str, rows: TakeRows, ctx: _Context) -> dict[str, np.ndarray]:
+def _rows(name: str, tt: TakeTables, params: BuildParams, got: _Progress) -> TakeRows:
+    if name == "gaze_map":
+        return _gaze_map(tt, params, got)
+    if name == "face_clean":
+        return _face(tt, got)
+    return _rnn(tt, name == "gaze_rnn_lod", got)
+
+
+def _differs(name: str, shape: Shape, ref: Shape) -> str:
+    """Why a take's shape does not fit the dataset's (that of its first take), or ""."""
+    if shape.segments == ref.segments and shape.sizes == ref.sizes:
+        return ""
+    if name == "face_clean":
+        return f"face channels or derivative order (k={shape.sizes['k']}) differ from the dataset's"
+    return f"segments {shape.segments} differ from the dataset's {ref.segments}"
+
+
+def _mirror(name: str, rows: TakeRows, segments: list[str]) -> dict[str, np.ndarray]:
     from gazepipe.stages.build.face import mirror_face_rows
     from gazepipe.stages.build.gaze import mirror_gaze_map, mirror_rnn, segment_permutation
 
     if name == "face_clean":
-        return mirror_face_rows(rows.features, ctx.segments)
-    try:
-        perm = segment_permutation(ctx.segments)
-    except StageError as exc:
-        raise StageError(_where(name), f"mirroring: {exc.problem}") from None
+        return mirror_face_rows(rows.features, segments)
+    perm = segment_permutation(segments)
     if name == "gaze_map":
         return mirror_gaze_map(rows.features, perm)
-    return mirror_rnn(rows.features, len(ctx.segments), name == "gaze_rnn", perm)
+    return mirror_rnn(rows.features, len(segments), name == "gaze_rnn", perm)
 
 
 # -------------------------------------------------------------------------------------------- assembly
@@ -315,9 +329,203 @@ def _take_table(tt: TakeTables, split: str, rows: TakeRows, mirrored: dict[str, 
     return table
 
 
+def with_split(table: pa.Table, split: str, schema: pa.Schema | None = None) -> pa.Table:
+    """A take's dataset table with every row in ``split`` (a take the dataset moved to fill an empty split):
+    the table :func:`take_part` makes with that split. ``schema``: the dataset's, for a table read back from
+    Parquet (whose list items come back named ``element``, not ``item``)."""
+    if schema is not None:
+        table = table.cast(schema.with_metadata(table.schema.metadata))
+    i = table.schema.get_field_index("split")
+    return table.set_column(i, table.schema.field(i), pa.array([split] * table.num_rows, pa.string()))
+
+
+def _schema(name: str, shape: Shape) -> pa.Schema:
+    return with_element_names(dataset_schema(name, shape.sizes), shape.names)
+
+
+@dataclass
+class TakePart:
+    """One take's share of a dataset, made from the take's tables alone (:func:`take_part`; in a run, on the
+    worker that ran the take), and all the dataset's build needs of it (:class:`DatasetMerge`) besides its table.
+
+    Attributes
+    ----------
+    session, take, pose : the take's identity and pose.
+    pinned : the split session.toml pins it to, or ``None``.
+    shape : its segments, element names and sizes (``None``: it gave up before they were known).
+    fps : its frame rate, when it got as far as counting it.
+    problem : why it gives no rows ("" when it gives some).
+    split : the split its own key draws (:func:`~gazepipe.stages.build.splits.assign_split`); the dataset may
+        move it to fill an empty split.
+    fatal : a problem that fails the whole dataset if the take is kept (its segments cannot be mirrored).
+    facts : what the dataset's summary needs of its table (:class:`~gazepipe.stages.build.summary.TakeFacts`).
+    table : its dataset table (rows, mirrored copies, identifiers, ``split``); not part of :meth:`to_json`.
+    """
+
+    session: str
+    take: str
+    pose: str
+    pinned: str | None
+    shape: Shape | None = None
+    fps: float | None = None
+    problem: str = ""
+    split: str = ""
+    fatal: str = ""
+    facts: TakeFacts | None = None
+    table: pa.Table | None = None
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return (self.session, self.take)
+
+    def to_json(self) -> dict[str, Any]:
+        """Everything but the table, as JSON values that come back exactly (:meth:`from_json`)."""
+        out = {k: v for k, v in dataclasses.asdict(dataclasses.replace(self, table=None, facts=None)).items()
+               if k not in ("table", "facts")}
+        out["facts"] = self.facts.to_json() if self.facts is not None else None
+        return out
+
+    @staticmethod
+    def from_json(obj: dict[str, Any]) -> TakePart:
+        shape = obj.get("shape")
+        facts = obj.get("facts")
+        return TakePart(session=obj["session"], take=obj["take"], pose=obj["pose"], pinned=obj["pinned"],
+                        shape=Shape(**shape) if shape is not None else None, fps=obj["fps"],
+                        problem=obj["problem"], split=obj["split"], fatal=obj["fatal"],
+                        facts=TakeFacts.from_json(facts) if facts is not None else None)
+
+
+def take_part(name: str, tt: TakeTables, params: BuildParams | None = None, split: str | None = None,
+              known: Collection[str] = ()) -> TakePart:
+    """Take ``tt``'s share of dataset ``name``: its rows with their mirrored copies as a table, in the split its
+    key draws (or ``split``), and the facts the dataset's statistics, counts and checks need.
+
+    A take with a ``loader`` is loaded here. A take that cannot give rows has ``problem`` set and no table;
+    whether it fits the dataset (its segments those of the dataset's first take) is the dataset's to decide
+    (:meth:`DatasetMerge.add`). ``known``: tables whose input hash the caller gives (not computed here).
+    """
+    params = params or BuildParams()
+    part = TakePart(session=tt.session, take=tt.take.id, pose=tt.take.pose, pinned=tt.take.split)
+    got = _Progress()
+    try:
+        t = tt.loaded()
+        rows = _rows(name, t, params, got)
+    except GazepipeError as exc:
+        part.shape, part.fps, part.problem = got.shape, got.fps, exc.problem
+        return part
+    part.shape, part.fps = got.shape, got.fps
+    if rows.n_rows == 0:
+        part.problem = "no usable frames"
+        return part
+    assert got.shape is not None
+    part.split = split or assign_split(f"{t.session}/{t.take.id}", t.take.split, params.train_frac,
+                                       params.val_frac, params.split_salt)
+    mirrored = None
+    if params.mirror:
+        try:
+            mirrored = _mirror(name, rows, got.shape.segments)
+        except StageError as exc:
+            part.fatal = f"mirroring: {exc.problem}"
+            return part
+    schema = _schema(name, got.shape)
+    part.table = _take_table(t, part.split, rows, mirrored, schema, got.shape.sizes)
+    part.facts = take_facts(part.table, feature_columns(schema), rows.qc, _input_hashes(t, name, known),
+                            segments=name in ("gaze_rnn", "gaze_rnn_lod"))
+    return part
+
+
+# ---------------------------------------------------------------------------------------------- merge
+
+class DatasetMerge:
+    """The dataset's half of a build: the takes' parts (:func:`take_part`) in (session, take) order in, which
+    of them the dataset keeps, the takes it moves so that no split is empty, and ``_dataset.json``.
+
+    Call :meth:`add` for each take in order, then :meth:`rebalance` once, then :meth:`info`. Only the parts'
+    facts are used (no table), so the merge holds a few numbers per take whatever the dataset's size.
+    """
+
+    def __init__(self, name: str, params: BuildParams) -> None:
+        self.name, self.params = name, params
+        self.ref: Shape | None = None         # the dataset's shape: its first take's that got so far
+        self.fps: set[float] = set()
+        self.skipped: list[dict[str, str]] = []
+        self.schema: pa.Schema | None = None
+        self.summary: DatasetSummary | None = None
+        self.split: dict[tuple[str, str], str] = {}     # kept take → its split
+
+    def add(self, part: TakePart) -> bool:
+        """Count take ``part`` in, or list it under ``skipped``; whether it is kept. Raises
+        :class:`StageError` for a kept take whose rows cannot be mirrored."""
+        def skip(reason: str) -> bool:
+            self.skipped.append({"session": part.session, "take": part.take, "reason": reason})
+            return False
+
+        if part.shape is None:
+            return skip(part.problem)
+        if self.ref is None:
+            self.ref = part.shape
+        elif why := _differs(self.name, part.shape, self.ref):
+            return skip(why)
+        if part.fps is not None:
+            self.fps.add(part.fps)
+        if part.problem:
+            return skip(part.problem)
+        if self.summary is None:
+            self.schema = _schema(self.name, self.ref)
+            window = {"gaze_rnn": self.params.rnn_window, "gaze_rnn_lod": self.params.rnn_window,
+                      "face_clean": self.params.face_window}.get(self.name)
+            self.summary = DatasetSummary(self.name, feature_columns(self.schema), window,
+                                          masks=mask_columns(self.schema))
+        if part.fatal:
+            raise StageError(_where(self.name), part.fatal)
+        assert part.facts is not None
+        self.summary.add_take(f"{part.session}/{part.take}", part.pose, part.split, part.facts,
+                              pinned=part.pinned is not None)
+        self.split[part.key] = part.split
+        return True
+
+    def rebalance(self) -> list[tuple[str, str, str, str]]:
+        """Move takes so that no split is empty when a take can fill it (SPEC §3.6): the moves, as
+        ``(take, from, to, why)`` with take ``<session>/<take>``; their tables must be made again in their new
+        split (:func:`with_split`). Raises :class:`StageError` when no take was kept or none is in train."""
+        if self.summary is None:
+            reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in self.skipped[:3])
+            raise StageError(_where(self.name), f"no take gave rows ({reasons})")
+        p, summary = self.params, self.summary
+        moves = rebalance([(k, v.split, v.pinned) for k, v in summary.takes.items()], p.train_frac, p.val_frac,
+                          p.split_salt)
+        keys = {f"{s}/{t}": (s, t) for s, t in self.split}
+        for tid, _, new, why in moves:
+            summary.move(tid, new, why)
+            self.split[keys[tid]] = new
+        if not summary.train_takes:
+            raise StageError(_where(self.name), f"no training take among {summary.n_takes}: every take is pinned "
+                                                "to another split; statistics need one (pin a take with split = "
+                                                "\"train\")")
+        return moves
+
+    def info(self) -> dict[str, Any]:
+        """The _dataset.json object."""
+        assert self.summary is not None and self.ref is not None
+        p = self.params
+        stride = {"gaze_rnn": p.rnn_stride, "gaze_rnn_lod": p.rnn_stride, "face_clean": p.face_stride}.get(self.name)
+        return self.summary.info(params=p.to_dict(), names=self.ref.names, sizes=self.ref.sizes,
+                                 fps=sorted(self.fps), stride=stride, mirror=p.mirror, salt=p.split_salt,
+                                 train_frac=p.train_frac, val_frac=p.val_frac, skipped=self.skipped)
+
+
+def check_dataset(name: str, params: BuildParams) -> None:
+    """Raise for an unknown dataset or split fractions that do not add up."""
+    if name not in DATASETS:
+        raise StageError(_where(name), f"unknown dataset (known: {', '.join(DATASETS)})")
+    check_fractions(params.train_frac, params.val_frac)
+
+
 def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None = None,
                   sink: TakeSink | None = None) -> BuiltDataset:
-    """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables.
+    """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables: each
+    take's part (:func:`take_part`), merged (:class:`DatasetMerge`), as a run does on its workers and then in
+    the dataset's build.
 
     Takes are processed one at a time in (session, take) order: a take with a ``loader`` is loaded when
     its turn comes, its table goes to ``sink(key, table)`` as soon as it is built (and is then dropped), and
@@ -330,9 +538,7 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
     have received tables then.
     """
     params = params or BuildParams()
-    if name not in DATASETS:
-        raise StageError(_where(name), f"unknown dataset (known: {', '.join(DATASETS)})")
-    check_fractions(params.train_frac, params.val_frac)
+    check_dataset(name, params)
     kind = KINDS[name]
     mine = sorted((t for t in takes if t.take.kind == kind), key=lambda t: t.key)
     if not mine:
@@ -341,70 +547,38 @@ def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None
     if twice:
         raise StageError(_where(name), f"take {twice[0][1]!r} of session {twice[0][0]!r} is given twice")
 
-    ctx = _Context(name=name, params=params)
-    build = {"gaze_rnn": _rnn, "gaze_rnn_lod": _rnn, "gaze_map": _gaze_map, "face_clean": _face}[name]
-    window, stride = {"gaze_rnn": (params.rnn_window, params.rnn_stride),
-                      "gaze_rnn_lod": (params.rnn_window, params.rnn_stride),
-                      "face_clean": (params.face_window, params.face_stride)}.get(name, (None, None))
+    merge = DatasetMerge(name, params)
     kept: dict[tuple[str, str], pa.Table] = {}
     emit = sink or kept.__setitem__
-    skipped: list[dict[str, str]] = []
-    schema: pa.Schema | None = None
-    summary: DatasetSummary | None = None
     by_id: dict[str, TakeTables] = {}
     for ref in mine:
-        try:
-            t = ref.loaded()
-            rows = build(t, ctx)
-        except GazepipeError as exc:
-            skipped.append({"session": ref.session, "take": ref.take.id, "reason": exc.problem})
-            continue
-        if rows.n_rows == 0:
-            skipped.append({"session": t.session, "take": t.take.id, "reason": "no usable frames"})
-            continue
-        split = assign_split(f"{t.session}/{t.take.id}", t.take.split, params.train_frac, params.val_frac,
-                             params.split_salt)
-        if schema is None:
-            schema = with_element_names(dataset_schema(name, ctx.sizes), ctx.names)
-            summary = DatasetSummary(name, feature_columns(schema), window, masks=mask_columns(schema))
-        mirrored = _mirror(name, rows, ctx) if params.mirror else None
-        table = _take_table(t, split, rows, mirrored, schema, ctx.sizes)
-        summary.add_take(f"{t.session}/{t.take.id}", t.take.pose, split, table, rows.qc, _input_hashes(t, name),
-                         pinned=t.take.split is not None)
-        emit(t.key, table)
-        by_id[f"{t.session}/{t.take.id}"] = ref
-        del t, rows, mirrored, table
-    if summary is None:
-        reasons = "; ".join(f"{s['take']}: {s['reason']}" for s in skipped[:3])
-        raise StageError(_where(name), f"no take gave rows ({reasons})")
+        part = take_part(name, ref, params)
+        if merge.add(part):
+            assert part.table is not None
+            emit(part.key, part.table)
+            by_id[f"{part.session}/{part.take}"] = ref
+        del part
     # no split left empty when a take can fill it (SPEC §3.6): the few takes that move are built again
-    for tid, _, new, why in rebalance([(k, v.split, v.pinned) for k, v in summary.takes.items()],
-                                      params.train_frac, params.val_frac, params.split_salt):
-        t = by_id[tid].loaded()
-        rows = build(t, ctx)
-        mirrored = _mirror(name, rows, ctx) if params.mirror else None
-        emit(t.key, _take_table(t, new, rows, mirrored, schema, ctx.sizes))
-        summary.move(tid, new, why)
-    if not summary.train_takes:
-        raise StageError(_where(name), f"no training take among {summary.n_takes}: every take is pinned to "
-                                       "another split; statistics need one (pin a take with split = \"train\")")
-    info = summary.info(params=params.to_dict(), names=ctx.names, sizes=ctx.sizes, fps=sorted(ctx.fps),
-                        stride=stride, mirror=params.mirror, salt=params.split_salt, train_frac=params.train_frac,
-                        val_frac=params.val_frac, skipped=skipped)
-    return BuiltDataset(name=name, tables=kept, info=info, schema=schema)
+    for tid, _, new, _ in merge.rebalance():
+        part = take_part(name, by_id[tid], params, split=new)
+        assert part.table is not None
+        emit(part.key, part.table)
+    assert merge.schema is not None
+    return BuiltDataset(name=name, tables=kept, info=merge.info(), schema=merge.schema)
 
 
-def _input_hashes(t: TakeTables, name: str) -> dict[str, str]:
-    """The take's input hashes for _dataset.json: those given, plus a content hash of every table not given."""
+def _input_hashes(t: TakeTables, name: str, known: Collection[str] = ()) -> dict[str, str]:
+    """The take's input hashes for _dataset.json: those given, plus a content hash of every table neither given
+    nor ``known`` (its hash given later by the caller)."""
     hashes = dict(t.hashes)
     for tname in ("joints", "eyes", "face"):
         tab = getattr(t, tname)
-        if tab is not None and tname not in hashes:
+        if tab is not None and tname not in hashes and tname not in known:
             hashes[tname] = table_hash(tab)
     if "rests" in t.meta and name == "gaze_map":
         hashes.setdefault("rests", hashlib.sha256(repr(t.meta["rests"]).encode()).hexdigest())
     return hashes
 
 
-__all__ = ["KINDS", "BuildParams", "BuiltDataset", "TakeSink", "TakeTables", "build_dataset", "feature_values",
-           "table_hash"]
+__all__ = ["KINDS", "BuildParams", "BuiltDataset", "DatasetMerge", "Shape", "TakePart", "TakeSink", "TakeTables",
+           "build_dataset", "feature_values", "table_hash", "take_part", "with_split"]

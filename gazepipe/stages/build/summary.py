@@ -5,6 +5,11 @@ take's QC, its input hashes, segment lengths) and running statistics, so a datas
 the memory of one take. Statistics are the mean and population standard deviation of the stored float32 values
 over the training rows, overall and per pose, merged take by take with Chan et al.'s pairwise update (equal to a
 two-pass computation over the concatenated rows to ~1e-15 relative).
+
+A take's part of it (:class:`TakeFacts`: its row count, QC, input hashes, segment lengths and per-column moments)
+is computed from the take's table alone (:func:`take_facts`), on the worker that built the take's rows, and
+travels as JSON (:meth:`TakeFacts.to_json`: floats as their shortest round-trip repr, so the moments come back
+bit for bit); merged in the same take order, the statistics are the same bits as those of one process.
 """
 
 from __future__ import annotations
@@ -84,6 +89,21 @@ class RunningMoments:
             return
         self._merge(np.asarray(other.n), other.mean, other.m2)
 
+    def to_json(self) -> dict[str, list] | None:
+        """The moments as JSON values (exact: Python's float repr round-trips), ``None`` when empty."""
+        if self.mean is None or self.m2 is None:
+            return None
+        return {"n": [int(x) for x in np.asarray(self.n)], "mean": [float(x) for x in self.mean],
+                "m2": [float(x) for x in self.m2]}
+
+    @staticmethod
+    def from_json(obj: dict[str, list] | None) -> RunningMoments:
+        """The moments :meth:`to_json` gave."""
+        if obj is None:
+            return RunningMoments()
+        return RunningMoments(np.asarray(obj["n"], dtype=np.int64), np.asarray(obj["mean"], dtype=np.float64),
+                              np.asarray(obj["m2"], dtype=np.float64))
+
     def result(self) -> dict[str, list]:
         """``mean``, ``std`` (population) and ``count`` (values that are not null) per element. An element with
         no value has mean 0 and std 0 (readers then centre nothing and divide by 1)."""
@@ -93,6 +113,45 @@ class RunningMoments:
         std = np.sqrt(self.m2 / np.maximum(n, 1))
         return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in std],
                 "count": [int(x) for x in n]}
+
+
+@dataclass
+class TakeFacts:
+    """What a dataset's summary needs of one take's table: its rows (mirrored ones included), its QC, its input
+    hashes, the lengths of its segments (original rows; windowed gaze datasets only) and each feature column's
+    moments (partial sums: the statistics are exact whichever takes end up in train)."""
+
+    rows: int
+    qc: dict[str, Any]
+    hashes: dict[str, str]
+    segment_lengths: list[int] | None
+    moments: dict[str, RunningMoments]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"rows": self.rows, "qc": self.qc, "hashes": dict(self.hashes),
+                "segment_lengths": self.segment_lengths,
+                "moments": {c: m.to_json() for c, m in self.moments.items()}}
+
+    @staticmethod
+    def from_json(obj: dict[str, Any]) -> TakeFacts:
+        return TakeFacts(rows=int(obj["rows"]), qc=dict(obj["qc"]), hashes=dict(obj["hashes"]),
+                         segment_lengths=obj["segment_lengths"],
+                         moments={c: RunningMoments.from_json(m) for c, m in obj["moments"].items()})
+
+
+def take_facts(table: pa.Table, columns: list[str], qc: dict[str, Any], hashes: dict[str, str],
+               segments: bool) -> TakeFacts:
+    """A take's :class:`TakeFacts` from its dataset table (``columns``: the feature columns; ``segments``:
+    whether its segment lengths count, as for the windowed gaze datasets)."""
+    lengths = None
+    if segments:
+        original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
+        lengths = [int(x) for x in np.bincount(table.column("segment").to_numpy()[original])]
+    moments = {}
+    for c in columns:
+        moments[c] = RunningMoments()
+        moments[c].add(feature_values(table, c))
+    return TakeFacts(table.num_rows, qc, dict(hashes), lengths, moments)
 
 
 @dataclass
@@ -139,10 +198,9 @@ class DatasetSummary:
     n_takes: int = 0
     n_rows: int = 0
 
-    def add_take(self, tid: str, pose: str, split: str, table: pa.Table, qc: dict[str, Any],
-                 hashes: dict[str, str], pinned: bool = False) -> None:
-        """Count one take's table (its rows, mirrored ones included) and keep its statistics' partial sums."""
-        n = table.num_rows
+    def add_take(self, tid: str, pose: str, split: str, facts: TakeFacts, pinned: bool = False) -> None:
+        """Count one take (its rows, mirrored ones included) and keep its statistics' partial sums."""
+        n, qc = facts.rows, facts.qc
         self.n_takes += 1
         self.n_rows += n
         self.by_split[split]["takes"] += 1
@@ -158,15 +216,15 @@ class DatasetSummary:
             self.nulls = self.nulls or {}
             for what in qc["null_segments"]:
                 self.nulls[what] = self.nulls.get(what, 0) + 1
-        self.inputs[tid] = dict(sorted(hashes.items()))
-        if self.window is not None and self.name != "face_clean":
-            original = ~table.column("mirrored").to_numpy(zero_copy_only=False)
-            self.segment_lengths.append(np.bincount(table.column("segment").to_numpy()[original]))
-        moments = {}
-        for c in self.columns:
-            moments[c] = RunningMoments()
-            moments[c].add(feature_values(table, c))
-        self.takes[tid] = _Take(pose, split, n, moments, pinned)
+        self.inputs[tid] = dict(sorted(facts.hashes.items()))
+        if self.segmented:
+            self.segment_lengths.append(np.asarray(facts.segment_lengths or [], dtype=np.int64))
+        self.takes[tid] = _Take(pose, split, n, {c: facts.moments[c] for c in self.columns}, pinned)
+
+    @property
+    def segmented(self) -> bool:
+        """Whether the dataset counts its segments against its window (the windowed gaze datasets)."""
+        return self.window is not None and self.name != "face_clean"
 
     def move(self, tid: str, split: str, why: str) -> None:
         """Move take ``tid`` to ``split`` (its table re-emitted by the caller with that split)."""
@@ -227,7 +285,7 @@ class DatasetSummary:
         counts: dict[str, Any] = {"takes": self.n_takes, "rows": self.n_rows, "mirrored": bool(mirror),
                                   "by_split": self.by_split, "by_pose": dict(sorted(self.by_pose.items())),
                                   "skipped": len(skipped)}
-        if self.window is not None and self.name != "face_clean":
+        if self.segmented:
             lengths, w = self.segment_lengths, self.window
             counts["segments"] = int(sum(len(v) for v in lengths))
             counts["segments_with_a_window"] = int(sum(int((v >= w).sum()) for v in lengths))
