@@ -339,7 +339,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     names = list(joints["segments"])
     max_run = int(np.floor(max_bridge_s * rate_hz + 1e-9))
     char_rot = np.array(joints["char_rot"], dtype=np.float64)
-    measured = np.isfinite(quat).all(axis=2)
+    measured = np.all(np.isfinite(quat), axis=2)
     if joints.get("rot_measured") is not None:
         measured &= np.asarray(joints["rot_measured"], dtype=bool)
     elif joints.get("rot_filled") is not None:
@@ -367,7 +367,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     char_rot[0], char_rot[n - 1] = first_c, last_c
     ends_ok = np.zeros(ns, dtype=bool)
     for k in range(ns):
-        only = np.where(measured[:, k, None], quat[:, k], np.nan)
+        only: np.ndarray = np.where(measured[:, k, None], quat[:, k], np.nan)
         first = (np.asarray(before_quat[k], dtype=np.float64) if before_quat[k] is not None
                  else only[0] if measured[0, k] else None)
         last = last_pose(only)
@@ -386,7 +386,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     series = {"character frame": char_rot, **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
     bridged = np.zeros(n, dtype=bool)
     unknown: dict[str, np.ndarray] = {}          # frames a bridge cannot reach: longer runs without a rotation
-    for what, q in series.items():
+    for series_name, q in series.items():
         ok = np.isfinite(q).all(axis=1)
         if ok.all():
             continue
@@ -394,7 +394,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         gone = ~np.isfinite(q).all(axis=1)
         bridged |= ~ok & ~gone
         if gone.any():
-            unknown[what] = gone
+            unknown[series_name] = gone
             q[gone] = (1.0, 0.0, 0.0, 0.0)       # placeholders: no event is read at or after them
     parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
     rc = from_wxyz(char_rot)
@@ -403,8 +403,8 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
 
     def known_until(*whats: str) -> tuple[int, str | None]:
         """The first frame none of ``whats`` can be bridged to (n when all are known), and which one."""
-        firsts = [(int(np.argmax(unknown[w])), w) for w in whats if w in unknown]
-        return min(firsts) if firsts else (n, None)
+        firsts: list[tuple[int, str | None]] = [(int(np.argmax(unknown[w])), w) for w in whats if w in unknown]
+        return min(firsts, key=lambda f: f[0]) if firsts else (n, None)
 
     def cannot(quantity: str, what: str) -> str:
         a, b = true_runs(unknown[what])[0]
@@ -414,7 +414,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
 
     nan4 = np.full(4, np.nan)
     p_ok = np.array([ends_ok[k] and (parents[k] < 0 or ends_ok[parents[k]]) for k in range(ns)], dtype=bool)
-    for k in np.flatnonzero(ends_ok & ~p_ok):
+    for k in np.flatnonzero(ends_ok & ~p_ok).tolist():
         reasons[names[k]] = f"P+: it is relative to {names[parents[k]]!r}, whose end pose is unknown"
     p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) if p_ok[k] else nan4 for k, loc in enumerate(local)]
     eyes_ok = bool(ends_ok[head])
@@ -441,7 +441,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
             continue
         starts[k] = j0 / rate_hz / duration if j0 >= 0 else 0.0
     seg_ok = p_ok & np.isfinite(starts)
-    for k in np.flatnonzero(~seg_ok):           # a joint's curve needs both (Pejsa 5.2.3): both null
+    for k in np.flatnonzero(~seg_ok).tolist():  # a joint's curve needs both (Pejsa 5.2.3): both null
         starts[k], p_plus[k] = np.nan, nan4
     disp = fixed[head] * fixed[head][0].inv()
     stop, what = known_until("character frame", f"segment {names[head]!r}")
@@ -449,8 +449,8 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     t_frac = t_beta / duration if j >= 0 else 1.0
     ov_ok = eyes_ok and not (j < 0 and what is not None)
     if not ov_ok:
-        reasons["overshoot"] = (f"needs the head's displacement, and {names[head]!r} has an unknown end pose"
-                                if not eyes_ok else cannot("overshoot", what))
+        reasons["overshoot"] = (cannot("overshoot", what) if eyes_ok and what is not None else
+                                f"needs the head's displacement, and {names[head]!r} has an unknown end pose")
         t_frac, beta, j = np.nan, np.nan, -1
 
     known = np.array([*seg_ok, eyes_ok, ov_ok], dtype=bool)

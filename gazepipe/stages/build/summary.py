@@ -85,7 +85,7 @@ class RunningMoments:
 
     def merge(self, other: RunningMoments) -> None:
         """Merge another set of moments (the same update as :meth:`add` with its rows)."""
-        if other.mean is None:
+        if other.mean is None or other.m2 is None:
             return
         self._merge(np.asarray(other.n), other.mean, other.m2)
 
@@ -244,7 +244,7 @@ class DatasetSummary:
         return self.by_split["train"]["takes"]
 
     def _stats(self) -> dict[str, Any]:
-        overall, per_pose = _Group(), {}
+        overall, per_pose = _Group(), dict[str, _Group]()
         for t in self.takes.values():             # in build order: the merge is the same whatever moved
             if t.split != "train":
                 continue
@@ -259,8 +259,8 @@ class DatasetSummary:
                 out[c] = g.moments.get(c, RunningMoments()).result()
             return out
 
-        stats = {"overall": summary(overall),
-                 "per_pose": {p: summary(per_pose[p]) for p in sorted(per_pose)}}
+        stats: dict[str, Any] = {"overall": summary(overall),
+                                 "per_pose": {p: summary(per_pose[p]) for p in sorted(per_pose)}}
         stats["rows_used"] = "training rows only, mirrored copies included"
         stats["std"] = "population standard deviation (ddof = 0) of the stored float32 values"
         stats["count"] = ("values per element that are not null (NaN) and enter its mean and std; an element "
