@@ -1,79 +1,44 @@
-"""Shared fixtures: paths to the real corpus and the sample session, and a tiny hand-made session."""
+"""Shared fixtures: a tiny hand-made session, the README examples' working folder, and the outputs built once
+per test run and shared read-only (``generated_datasets``: the small datasets of :mod:`tests.helpers.datasets`).
+The helpers they use are in :mod:`tests.helpers`."""
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SAMPLE = REPO / "sample_data" / "session01"
-CORPUS = REPO / "tests" / "data" / "corpus"
+from tests.helpers import make_tiny_session
+from tests.helpers.shared import build_once, changes
+
+#: shared outputs by fixture name: every test that uses one (directly or through another fixture) fails if the
+#: folder differs afterwards from what was built
+_SHARED: dict[str, tuple[Path, dict[str, list]]] = {}
 
 
-def write_wide_csv(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:
-    """A plain wide CSV (frame, time, <m>_x, <m>_y, <m>_z); NaN samples become empty cells."""
-    T = xyz.shape[0]
-    cols = ["frame", "time"] + [f"{m}_{a}" for m in labels for a in "xyz"]
-    rows = [",".join(cols)]
-    flat = xyz.reshape(T, -1)
-    for i in range(T):
-        vals = ["" if np.isnan(v) else f"{v:.4f}" for v in flat[i]]
-        rows.append(",".join([str(i + 1), f"{i / rate_hz:.6f}", *vals]))
-    path.write_text("\n".join(rows) + "\n")
+def _build_generated_datasets(folder: Path) -> None:
+    from tests.helpers.datasets import make_datasets
+
+    make_datasets(folder)
 
 
-TINY_MARKERSET = """\
-schema = 1
-up_axis = "z"
-units = "mm"
-root = "SACR"
-target = "POLE"
-
-[segments.pelvis]
-markers = ["PL", "PR", "PB"]
-[segments.head]
-markers = ["H1", "H2", "H3"]
-parent = "pelvis"
-"""
+@pytest.fixture(scope="session")
+def generated_datasets(tmp_path_factory) -> Path:
+    """The datasets folder of :func:`tests.helpers.datasets.make_datasets`, built once per test run. Read only."""
+    folder, recorded = build_once(tmp_path_factory, "generated_datasets", _build_generated_datasets)
+    _SHARED["generated_datasets"] = (folder, recorded)
+    yield folder / "datasets"
+    assert not changes(folder, recorded), "the shared generated datasets changed"
 
 
-def tiny_motion(seed: int, T: int = 90, rate_hz: float = 30.0) -> tuple[list[str], np.ndarray]:
-    """Smooth, seeded motion of 8 markers: the root, a pelvis and a head triangle, the target (mm)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(T) / rate_hz
-    base = np.array([[0, 0, 1000], [100, 0, 1000], [-100, 0, 1000], [0, -80, 1000],
-                     [30, 0, 1650], [-30, 0, 1650], [0, 40, 1700], [0, 1500, 1600]], float)
-    wobble = 20 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 6))[:, None, None]
-    xyz = base[None] + wobble * np.array([1.0, 0.5, 0.0]) + rng.normal(0, 0.3, (T, 8, 3))
-    return ["SACR", "PL", "PR", "PB", "H1", "H2", "H3", "POLE"], xyz
-
-
-def make_tiny_session(root: Path, n_takes: int = 3, kind: str = "gaze_follow") -> Path:
-    """A session folder with ``n_takes`` wide-CSV mocap takes and a two-segment markerset."""
-    (root / "mocap").mkdir(parents=True, exist_ok=True)
-    (root / "markerset.toml").write_text(TINY_MARKERSET)
-    takes = []
-    for i in range(n_takes):
-        labels, xyz = tiny_motion(i)
-        write_wide_csv(root / "mocap" / f"t{i}.csv", labels, xyz, 30.0)
-        takes.append(textwrap.dedent(f"""\
-            [[takes]]
-            id = "t{i}"
-            kind = "gaze_follow"
-            pose = "standing"
-            mocap = "mocap/t{i}.csv"
-            """))
-    (root / "session.toml").write_text(textwrap.dedent("""\
-        schema = 1
-        [session]
-        id = "tiny"
-        subject = "p01"
-        markerset = "markerset.toml"
-        """) + "\n" + "\n".join(takes))
-    return root
+@pytest.fixture(autouse=True)
+def _shared_outputs_unchanged(request):
+    """After each test that used a shared output: the output is what was built (the test fails otherwise)."""
+    yield
+    for name in _SHARED.keys() & set(request.fixturenames):
+        folder, recorded = _SHARED[name]
+        diff = changes(folder, recorded)
+        assert not diff, f"{request.node.nodeid} changed the shared {name} output: {diff[:20]}"
 
 
 @pytest.fixture

@@ -13,10 +13,15 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pytest
-from acceptance_helpers import (
+from click.testing import CliRunner
+
+from gazepipe.cli.main import cli
+from gazepipe.stages.build.mirror import mirror_quat
+from gazepipe.stages.build.summary import feature_values
+from tests.helpers import SAMPLE, tree_digest
+from tests.helpers.sample import (
     FILL_MEASURED,
     FILL_UNFILLED,
-    SAMPLE,
     Output,
     angle_deg,
     frame_rows,
@@ -28,15 +33,9 @@ from acceptance_helpers import (
     overshoot_amplitude_deg,
     session_takes,
     take_ids,
-    tree_digest,
     truth,
     vec_angle_deg,
 )
-from click.testing import CliRunner
-
-from gazepipe.cli.main import cli
-from gazepipe.stages.build.mirror import mirror_quat
-from gazepipe.stages.build.summary import feature_values
 
 FOLLOW = take_ids("gaze_follow")
 SHIFT = take_ids("gaze_shift")

@@ -17,7 +17,7 @@ from gazepipe.io.capture import read_markers
 from gazepipe.io.export import write_markers
 from gazepipe.model import FILL_CODES
 from gazepipe.schemas.markers import table_to_markers
-from tests.conftest import CORPUS, SAMPLE
+from tests.helpers import CORPUS, SAMPLE
 
 
 def invoke(*args: str):

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from gazepipe.cli.main import cli
 from gazepipe.cli.validate import validate
 from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 TAKES = {"neutral": None, "shift_y000_p12": "train", "shift_y036_p12": "train", "shift_ym036_p00": "val",
          "shift_ym072_p12": None}
@@ -41,7 +41,7 @@ def _entries(out: Path, cache) -> list[Path]:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("run_report")
-    session = _session_copy(root / "session", TAKES)
+    session = session_copy(root / "session", TAKES)
     outs = {"serial": root / "serial", "process": root / "process"}
     _run(session, outs["serial"], "--executor", "serial")
     _run(session, outs["process"], "--executor", "process", "-j", "2")

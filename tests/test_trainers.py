@@ -1,6 +1,6 @@
 """Trainer plugins and ``gazepipe train``: discovery, refusing the wrong dataset, and the three reference
 trainers against their baselines on datasets built from generated sessions
-(tests/readme_examples/_make_datasets.py)."""
+(tests/helpers/datasets.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from readme_examples._make_datasets import GAZE_MAP_VAL, shared_datasets
 from scipy.spatial.transform import Rotation
 
 from gazepipe.cli.train import train as train_cmd
@@ -22,11 +21,12 @@ from gazepipe.errors import ConfigError
 from gazepipe.trainers import base
 from gazepipe.trainers.base import TrainOptions, check_compatible, load_trainer
 from gazepipe.trainers.gaze_map import GazeMap, GazeMotion, knn_weights
+from tests.helpers.datasets import GAZE_MAP_VAL
 
 
 @pytest.fixture(scope="module")
-def datasets() -> Path:
-    return shared_datasets()
+def datasets(generated_datasets) -> Path:
+    return generated_datasets
 
 
 def run_train(*args: str):

@@ -26,7 +26,7 @@ from gazepipe.report.validate import (
     rank_takes,
     take_rank_key,
 )
-from tests.test_report import _run, _session_copy
+from tests.helpers import run_session, session_copy
 
 # the neutral take and seven gaze-shift takes of the sample session: eight takes with something to draw, more
 # than the default number of plotted takes
@@ -40,7 +40,7 @@ FILES = ("report.json", "takes.parquet", "report.html")
 def many_out(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("validate_speed")
     out = root / "out"
-    _run(_session_copy(root / "session", TAKES), out)
+    run_session(session_copy(root / "session", TAKES), out)
     return out
 
 
