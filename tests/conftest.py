@@ -1,14 +1,17 @@
 """Shared fixtures: a tiny hand-made session, the README examples' working folder, and the outputs built once
-per test run and shared read-only (``generated_datasets``: the small datasets of :mod:`tests.helpers.datasets`).
-The helpers they use are in :mod:`tests.helpers`."""
+per test run and shared read-only (``sample_run`` and ``sample_process_run``: ``gazepipe run`` on the sample
+session, serial and in worker processes; ``generated_datasets``: the small datasets of
+:mod:`tests.helpers.datasets`). The helpers they use are in :mod:`tests.helpers`."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
-from tests.helpers import make_tiny_session
+from tests.helpers import SAMPLE, make_tiny_session, tree_digest
 from tests.helpers.shared import build_once, changes
 
 #: shared outputs by fixture name: every test that uses one (directly or through another fixture) fails if the
@@ -16,10 +19,62 @@ from tests.helpers.shared import build_once, changes
 _SHARED: dict[str, tuple[Path, dict[str, list]]] = {}
 
 
+def _run_sample(folder: Path) -> None:
+    from click.testing import CliRunner
+
+    from gazepipe.cli.main import cli
+
+    res = CliRunner().invoke(cli, ["run", str(SAMPLE), "--out", str(folder / "out"), "--executor", "serial",
+                                   "--log-format", "json"])
+    assert res.exit_code == 0, res.output[-3000:]
+
+
+def _run_sample_twice_in_processes(folder: Path) -> None:
+    """The process executor's run, then the same command again with nothing changed: what the second one said,
+    and the digests of the products before and after it, in ``second_run.json``."""
+    from click.testing import CliRunner
+
+    from gazepipe.cli.main import cli
+    from tests.helpers.sample import PRODUCT_PARTS
+
+    out = folder / "out"
+    args = ["run", str(SAMPLE), "--out", str(out), "--executor", "process", "--log-format", "json"]
+    first = CliRunner().invoke(cli, args)
+    assert first.exit_code == 0, first.output[-3000:]
+    before = tree_digest(out, PRODUCT_PARTS)
+    second = CliRunner().invoke(cli, args)
+    after = tree_digest(out, PRODUCT_PARTS)
+    (folder / "second_run.json").write_text(json.dumps({"exit_code": second.exit_code, "output": second.output,
+                                                        "before": before, "after": after}))
+
+
 def _build_generated_datasets(folder: Path) -> None:
     from tests.helpers.datasets import make_datasets
 
     make_datasets(folder)
+
+
+@pytest.fixture(scope="session")
+def sample_run(tmp_path_factory) -> Path:
+    """``OUT`` of ``gazepipe run sample_data/session01 --out OUT --executor serial`` (exit 0), built once per test
+    run. Read only: a test that changes outputs copies this folder (``shutil.copytree``) or runs its own."""
+    folder, recorded = build_once(tmp_path_factory, "sample_run", _run_sample)
+    _SHARED["sample_run"] = (folder, recorded)
+    yield folder / "out"
+    assert not changes(folder, recorded), "the shared sample run's output changed"
+
+
+@pytest.fixture(scope="session")
+def sample_process_run(tmp_path_factory) -> dict:
+    """``gazepipe run sample_data/session01 --out OUT --executor process`` (exit 0), then the same command again
+    with nothing changed, once per test run: ``{"out": OUT, "second": its exit_code and output, "before": ...,
+    "after": ...}`` (digests of the products before and after the second run). Read only."""
+    folder, recorded = build_once(tmp_path_factory, "sample_process_run", _run_sample_twice_in_processes)
+    _SHARED["sample_process_run"] = (folder, recorded)
+    second = json.loads((folder / "second_run.json").read_text())
+    yield {"out": folder / "out", "second": SimpleNamespace(exit_code=second["exit_code"], output=second["output"]),
+           "before": second["before"], "after": second["after"]}
+    assert not changes(folder, recorded), "the shared process run's output changed"
 
 
 @pytest.fixture(scope="session")

@@ -22,6 +22,8 @@ from tests.helpers import SAMPLE
 
 SESSION_ID = "session01"
 FILL_MEASURED, FILL_UNFILLED = "measured", "unfilled"
+#: what a run with nothing to do must leave byte for byte as it was
+PRODUCT_PARTS = ("takes", "datasets", ".gazepipe/units", ".gazepipe/datasets")
 
 
 def session_takes() -> list[dict[str, Any]]:

@@ -7,8 +7,11 @@ lock, by whichever worker asks first, and the others wait for it and use the sam
 missing (Windows) each worker builds its own.
 
 Nothing may change such a folder: :func:`changes` compares it with its snapshot, and the fixtures in
-``tests/conftest.py`` fail every test after which it changed, and the run's end once more. A test that needs to
-change an output works on its own copy (``shutil.copytree``) or its own run.
+``tests/conftest.py`` fail every test after which it changed, and the run's end once more. (Under pytest-xdist a
+change made by a test on one worker can be reported first by a test on the other; the file list in the message
+says what changed.) A test that needs to change an output works on its own copy (``shutil.copytree``) or its
+own run. The folder is not made read-only on disk: the suite often runs as root, which ignores the modes, and a
+snapshot catches a change whoever runs it.
 """
 
 from __future__ import annotations
