@@ -12,11 +12,7 @@ from types import SimpleNamespace
 import pytest
 
 from tests.helpers import SAMPLE, make_tiny_session, tree_digest
-from tests.helpers.shared import build_once, changes
-
-#: shared outputs by fixture name: every test that uses one (directly or through another fixture) fails if the
-#: folder differs afterwards from what was built
-_SHARED: dict[str, tuple[Path, dict[str, list]]] = {}
+from tests.helpers.shared import REGISTRY, changes, shared_folder
 
 
 def _run_sample(folder: Path) -> None:
@@ -58,10 +54,7 @@ def _build_generated_datasets(folder: Path) -> None:
 def sample_run(tmp_path_factory) -> Path:
     """``OUT`` of ``gazepipe run sample_data/session01 --out OUT --executor serial`` (exit 0), built once per test
     run. Read only: a test that changes outputs copies this folder (``shutil.copytree``) or runs its own."""
-    folder, recorded = build_once(tmp_path_factory, "sample_run", _run_sample)
-    _SHARED["sample_run"] = (folder, recorded)
-    yield folder / "out"
-    assert not changes(folder, recorded), "the shared sample run's output changed"
+    return shared_folder(tmp_path_factory, "sample_run", _run_sample) / "out"
 
 
 @pytest.fixture(scope="session")
@@ -69,31 +62,37 @@ def sample_process_run(tmp_path_factory) -> dict:
     """``gazepipe run sample_data/session01 --out OUT --executor process`` (exit 0), then the same command again
     with nothing changed, once per test run: ``{"out": OUT, "second": its exit_code and output, "before": ...,
     "after": ...}`` (digests of the products before and after the second run). Read only."""
-    folder, recorded = build_once(tmp_path_factory, "sample_process_run", _run_sample_twice_in_processes)
-    _SHARED["sample_process_run"] = (folder, recorded)
+    folder = shared_folder(tmp_path_factory, "sample_process_run", _run_sample_twice_in_processes)
     second = json.loads((folder / "second_run.json").read_text())
-    yield {"out": folder / "out", "second": SimpleNamespace(exit_code=second["exit_code"], output=second["output"]),
-           "before": second["before"], "after": second["after"]}
-    assert not changes(folder, recorded), "the shared process run's output changed"
+    return {"out": folder / "out", "second": SimpleNamespace(exit_code=second["exit_code"], output=second["output"]),
+            "before": second["before"], "after": second["after"]}
 
 
 @pytest.fixture(scope="session")
 def generated_datasets(tmp_path_factory) -> Path:
     """The datasets folder of :func:`tests.helpers.datasets.make_datasets`, built once per test run. Read only."""
-    folder, recorded = build_once(tmp_path_factory, "generated_datasets", _build_generated_datasets)
-    _SHARED["generated_datasets"] = (folder, recorded)
-    yield folder / "datasets"
-    assert not changes(folder, recorded), "the shared generated datasets changed"
+    return shared_folder(tmp_path_factory, "generated_datasets", _build_generated_datasets) / "datasets"
 
 
 @pytest.fixture(autouse=True)
 def _shared_outputs_unchanged(request):
     """After each test that used a shared output: the output is what was built (the test fails otherwise)."""
     yield
-    for name in _SHARED.keys() & set(request.fixturenames):
-        folder, recorded = _SHARED[name]
-        diff = changes(folder, recorded)
-        assert not diff, f"{request.node.nodeid} changed the shared {name} output: {diff[:20]}"
+    used = set(request.fixturenames)
+    for name, (fixture, folder, recorded) in sorted(REGISTRY.items()):
+        if fixture in used:
+            diff = changes(folder, recorded)
+            assert not diff, f"{request.node.nodeid} changed the shared {name} output: {diff[:20]}"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _shared_outputs_unchanged_at_the_end():
+    """At the end of the run (of each pytest-xdist worker): every shared output this process used is what was
+    built."""
+    yield
+    changed = {name: diff for name, (_, folder, recorded) in sorted(REGISTRY.items())
+               if (diff := changes(folder, recorded))}
+    assert not changed, f"shared outputs changed during the run: {changed}"
 
 
 @pytest.fixture

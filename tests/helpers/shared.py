@@ -6,8 +6,9 @@ workers of one run share ``tmp_path_factory.getbasetemp().parent``: the folder i
 lock, by whichever worker asks first, and the others wait for it and use the same folder. Where ``fcntl`` is
 missing (Windows) each worker builds its own.
 
-Nothing may change such a folder: :func:`changes` compares it with its snapshot, and the fixtures in
-``tests/conftest.py`` fail every test after which it changed, and the run's end once more. (Under pytest-xdist a
+Nothing may change such a folder: :func:`changes` compares it with its snapshot, and ``tests/conftest.py``
+fails every test after which a folder it used (through the fixture named in :func:`shared_folder`) changed,
+and the run's end once more. (Under pytest-xdist a
 change made by a test on one worker can be reported first by a test on the other; the file list in the message
 says what changed.) A test that needs to change an output works on its own copy (``shutil.copytree``) or its
 own run. The folder is not made read-only on disk: the suite often runs as root, which ignores the modes, and a
@@ -86,3 +87,16 @@ def build_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> tu
             tmp.write_text(json.dumps(snapshot(folder)))
             tmp.replace(record)
     return folder, json.loads(record.read_text())
+
+
+#: the shared folders this process uses, by name: (the fixture that gives it, folder, snapshot)
+REGISTRY: dict[str, tuple[str, Path, dict[str, list]]] = {}
+
+
+def shared_folder(tmp_path_factory, name: str, build: Callable[[Path], None], fixture: str | None = None) -> Path:
+    """The folder ``build(folder)`` makes, built once per test run (:func:`build_once`; ``name`` is unique in
+    the suite), for the fixture named ``fixture`` (default ``name``): every test that uses that fixture fails if
+    the folder changed afterwards."""
+    folder, recorded = build_once(tmp_path_factory, name, build)
+    REGISTRY[name] = (fixture or name, folder, recorded)
+    return folder
