@@ -1,79 +1,98 @@
-"""Shared fixtures: paths to the real corpus and the sample session, and a tiny hand-made session."""
+"""Shared fixtures: a tiny hand-made session, the README examples' working folder, and the outputs built once
+per test run and shared read-only (``sample_run`` and ``sample_process_run``: ``gazepipe run`` on the sample
+session, serial and in worker processes; ``generated_datasets``: the small datasets of
+:mod:`tests.helpers.datasets`). The helpers they use are in :mod:`tests.helpers`."""
 
 from __future__ import annotations
 
-import textwrap
+import json
 from pathlib import Path
+from types import SimpleNamespace
 
-import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SAMPLE = REPO / "sample_data" / "session01"
-CORPUS = REPO / "tests" / "data" / "corpus"
+from tests.helpers import SAMPLE, make_tiny_session, tree_digest
+from tests.helpers.shared import REGISTRY, changes, shared_folder
 
 
-def write_wide_csv(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) -> None:
-    """A plain wide CSV (frame, time, <m>_x, <m>_y, <m>_z); NaN samples become empty cells."""
-    T = xyz.shape[0]
-    cols = ["frame", "time"] + [f"{m}_{a}" for m in labels for a in "xyz"]
-    rows = [",".join(cols)]
-    flat = xyz.reshape(T, -1)
-    for i in range(T):
-        vals = ["" if np.isnan(v) else f"{v:.4f}" for v in flat[i]]
-        rows.append(",".join([str(i + 1), f"{i / rate_hz:.6f}", *vals]))
-    path.write_text("\n".join(rows) + "\n")
+def _run_sample(folder: Path) -> None:
+    from click.testing import CliRunner
+
+    from gazepipe.cli.main import cli
+
+    res = CliRunner().invoke(cli, ["run", str(SAMPLE), "--out", str(folder / "out"), "--executor", "serial",
+                                   "--log-format", "json"])
+    assert res.exit_code == 0, res.output[-3000:]
 
 
-TINY_MARKERSET = """\
-schema = 1
-up_axis = "z"
-units = "mm"
-root = "SACR"
-target = "POLE"
+def _run_sample_twice_in_processes(folder: Path) -> None:
+    """The process executor's run, then the same command again with nothing changed: what the second one said,
+    and the digests of the products before and after it, in ``second_run.json``."""
+    from click.testing import CliRunner
 
-[segments.pelvis]
-markers = ["PL", "PR", "PB"]
-[segments.head]
-markers = ["H1", "H2", "H3"]
-parent = "pelvis"
-"""
+    from gazepipe.cli.main import cli
+    from tests.helpers.sample import PRODUCT_PARTS
 
-
-def tiny_motion(seed: int, T: int = 90, rate_hz: float = 30.0) -> tuple[list[str], np.ndarray]:
-    """Smooth, seeded motion of 8 markers: the root, a pelvis and a head triangle, the target (mm)."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(T) / rate_hz
-    base = np.array([[0, 0, 1000], [100, 0, 1000], [-100, 0, 1000], [0, -80, 1000],
-                     [30, 0, 1650], [-30, 0, 1650], [0, 40, 1700], [0, 1500, 1600]], float)
-    wobble = 20 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 6))[:, None, None]
-    xyz = base[None] + wobble * np.array([1.0, 0.5, 0.0]) + rng.normal(0, 0.3, (T, 8, 3))
-    return ["SACR", "PL", "PR", "PB", "H1", "H2", "H3", "POLE"], xyz
+    out = folder / "out"
+    args = ["run", str(SAMPLE), "--out", str(out), "--executor", "process", "--log-format", "json"]
+    first = CliRunner().invoke(cli, args)
+    assert first.exit_code == 0, first.output[-3000:]
+    before = tree_digest(out, PRODUCT_PARTS)
+    second = CliRunner().invoke(cli, args)
+    after = tree_digest(out, PRODUCT_PARTS)
+    (folder / "second_run.json").write_text(json.dumps({"exit_code": second.exit_code, "output": second.output,
+                                                        "before": before, "after": after}))
 
 
-def make_tiny_session(root: Path, n_takes: int = 3, kind: str = "gaze_follow") -> Path:
-    """A session folder with ``n_takes`` wide-CSV mocap takes and a two-segment markerset."""
-    (root / "mocap").mkdir(parents=True, exist_ok=True)
-    (root / "markerset.toml").write_text(TINY_MARKERSET)
-    takes = []
-    for i in range(n_takes):
-        labels, xyz = tiny_motion(i)
-        write_wide_csv(root / "mocap" / f"t{i}.csv", labels, xyz, 30.0)
-        takes.append(textwrap.dedent(f"""\
-            [[takes]]
-            id = "t{i}"
-            kind = "gaze_follow"
-            pose = "standing"
-            mocap = "mocap/t{i}.csv"
-            """))
-    (root / "session.toml").write_text(textwrap.dedent("""\
-        schema = 1
-        [session]
-        id = "tiny"
-        subject = "p01"
-        markerset = "markerset.toml"
-        """) + "\n" + "\n".join(takes))
-    return root
+def _build_generated_datasets(folder: Path) -> None:
+    from tests.helpers.datasets import make_datasets
+
+    make_datasets(folder)
+
+
+@pytest.fixture(scope="session")
+def sample_run(tmp_path_factory) -> Path:
+    """``OUT`` of ``gazepipe run sample_data/session01 --out OUT --executor serial`` (exit 0), built once per test
+    run. Read only: a test that changes outputs copies this folder (``shutil.copytree``) or runs its own."""
+    return shared_folder(tmp_path_factory, "sample_run", _run_sample) / "out"
+
+
+@pytest.fixture(scope="session")
+def sample_process_run(tmp_path_factory) -> dict:
+    """``gazepipe run sample_data/session01 --out OUT --executor process`` (exit 0), then the same command again
+    with nothing changed, once per test run: ``{"out": OUT, "second": its exit_code and output, "before": ...,
+    "after": ...}`` (digests of the products before and after the second run). Read only."""
+    folder = shared_folder(tmp_path_factory, "sample_process_run", _run_sample_twice_in_processes)
+    second = json.loads((folder / "second_run.json").read_text())
+    return {"out": folder / "out", "second": SimpleNamespace(exit_code=second["exit_code"], output=second["output"]),
+            "before": second["before"], "after": second["after"]}
+
+
+@pytest.fixture(scope="session")
+def generated_datasets(tmp_path_factory) -> Path:
+    """The datasets folder of :func:`tests.helpers.datasets.make_datasets`, built once per test run. Read only."""
+    return shared_folder(tmp_path_factory, "generated_datasets", _build_generated_datasets) / "datasets"
+
+
+@pytest.fixture(autouse=True)
+def _shared_outputs_unchanged(request):
+    """After each test that used a shared output: the output is what was built (the test fails otherwise)."""
+    yield
+    used = set(request.fixturenames)
+    for name, (fixture, folder, recorded) in sorted(REGISTRY.items()):
+        if fixture in used:
+            diff = changes(folder, recorded)
+            assert not diff, f"{request.node.nodeid} changed the shared {name} output: {diff[:20]}"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _shared_outputs_unchanged_at_the_end():
+    """At the end of the run (of each pytest-xdist worker): every shared output this process used is what was
+    built."""
+    yield
+    changed = {name: diff for name, (_, folder, recorded) in sorted(REGISTRY.items())
+               if (diff := changes(folder, recorded))}
+    assert not changed, f"shared outputs changed during the run: {changed}"
 
 
 @pytest.fixture

@@ -40,8 +40,8 @@ from gazepipe.stages.build.stage import BuildParams, TakeTables, build_dataset
 from gazepipe.stages.frames.stage import Joints
 from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation, to_wxyz
 from gazepipe.synth import load_truth
-from tests.acceptance_helpers import near_threshold, truth_joints
-from tests.conftest import SAMPLE  # noqa: E402
+from tests.helpers import SAMPLE
+from tests.helpers.sample import near_threshold, truth_joints
 
 RATE = 30000 / 1001
 FOLLOW = ("follow_standing_01", "follow_standing_02", "follow_sitting_01")

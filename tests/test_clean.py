@@ -505,7 +505,7 @@ def test_spike_removed_and_filled():
 
 # ------------------------------------------------------------------------------------------------ sample session
 
-from tests.conftest import SAMPLE  # noqa: E402
+from tests.helpers import SAMPLE  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ import pytest
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-from tests.conftest import CORPUS, SAMPLE
+from tests.helpers import CORPUS, SAMPLE
 
 ISO_UTC = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ"
 
@@ -407,7 +407,7 @@ def test_two_sessions_with_one_id_are_refused_naming_both_files(tmp_path):
     from click.testing import CliRunner
 
     from gazepipe.cli.main import cli
-    from tests.conftest import make_tiny_session
+    from tests.helpers import make_tiny_session
 
     a = make_tiny_session(tmp_path / "day1", n_takes=1)
     b = make_tiny_session(tmp_path / "day2", n_takes=1)

@@ -11,9 +11,9 @@ from gazepipe.cli.main import cli
 from gazepipe.errors import InputError
 from gazepipe.io.capture import read_markers
 from gazepipe.io.marker_csv import read_qtm_tsv, read_vicon_csv, read_wide_csv
-from tests.conftest import write_wide_csv
-from tests.test_io_marker_csv import QTM, QTM_OLD
-from tests.test_io_marker_csv import VICON as NEXUS
+from tests.helpers import write_wide_csv
+from tests.helpers.captures import QTM, QTM_OLD
+from tests.helpers.captures import VICON as NEXUS
 
 # the readers' own Nexus fixture (Devices, Trajectories, Model Outputs), cut before its Model Outputs block
 _CUT = NEXUS.index("\nModel Outputs")

@@ -6,8 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-from tests.conftest import SAMPLE, make_tiny_session
-from tests.test_pipeline import output_digests
+from tests.helpers import SAMPLE, make_tiny_session, output_digests
 
 distributed = pytest.importorskip("distributed", reason="the dask extra is not installed")
 

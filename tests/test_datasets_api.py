@@ -1,5 +1,5 @@
 """The reading API (gazepipe.datasets) and the README's loading examples, on datasets built from generated
-sessions by the dataset builder (tests/readme_examples/_make_datasets.py)."""
+sessions by the dataset builder (tests/helpers/datasets.py)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 import pyarrow.parquet as pq
 import pytest
-from readme_examples._make_datasets import shared_datasets
 
 from gazepipe.datasets import open_dataset
 from gazepipe.errors import ConfigError, InputError
@@ -21,8 +20,8 @@ EXAMPLES = Path(__file__).parent / "readme_examples"
 
 
 @pytest.fixture(scope="module")
-def datasets() -> Path:
-    return shared_datasets()
+def datasets(generated_datasets) -> Path:
+    return generated_datasets
 
 
 @pytest.fixture(scope="module")

@@ -17,19 +17,18 @@ from gazepipe.io.capture import read_markers
 from gazepipe.io.export import write_markers
 from gazepipe.model import FILL_CODES
 from gazepipe.schemas.markers import table_to_markers
-from tests.conftest import CORPUS, SAMPLE
+from tests.helpers import CORPUS
 
 
 def invoke(*args: str):
     return CliRunner().invoke(cli, list(args), catch_exceptions=False)
 
 
-@pytest.fixture(scope="module")
-def cleaned(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("out")
-    res = invoke("clean", str(SAMPLE), "--out", str(out), "--executor", "serial")
-    assert res.exit_code == 0, res.stderr
-    return out
+@pytest.fixture
+def cleaned(sample_run) -> Path:
+    """An output folder with the sample session's cleaned takes: the shared run of the whole pipeline (which
+    cleans every take as ``gazepipe clean`` does), read only."""
+    return sample_run
 
 
 def test_exported_c3d_reingests_with_same_coordinates_and_gap_mask(cleaned, tmp_path):

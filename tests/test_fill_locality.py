@@ -14,7 +14,7 @@ from gazepipe.stages.clean.gapfill import (
     interpolation_noise_mm,
     take_statistics,
 )
-from tests.test_gapfill import RATE, body, hide
+from tests.helpers.captures import RATE, body, hide
 
 #: gaps of every kind the filler treats differently: short (interpolation), medium, long (frame-by-frame
 #: average), two markers of one segment at once, and a marker of each swinging segment

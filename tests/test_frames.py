@@ -269,7 +269,7 @@ def test_deterministic(take):
 
 # ------------------------------------------------------------------------------------------------ sample session
 
-from tests.conftest import SAMPLE  # noqa: E402
+from tests.helpers import SAMPLE  # noqa: E402
 
 
 @pytest.fixture(scope="module")

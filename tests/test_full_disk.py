@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 
 @pytest.fixture
@@ -32,7 +32,7 @@ def small_disk(tmp_path: Path):
 @pytest.mark.parametrize("executor", ["serial", "process"])
 def test_a_full_disk_gives_one_line_per_failure_and_the_summary(small_disk: Path, tmp_path: Path,
                                                                 executor: str) -> None:
-    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": None,
+    session = session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": None,
                                                     "shift_ym036_p00": "train"})
     res = subprocess.run([sys.executable, "-m", "gazepipe", "run", str(session), "--out", str(small_disk / "out"),
                           "--executor", executor, "-j", "2", "--log-format", "json"],

@@ -11,42 +11,9 @@ from scipy.spatial.transform import Rotation
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean.gapfill import fill_gaps, find_gaps, find_rigid_clusters
 from gazepipe.stages.clean.spikes import remove_spikes
+from tests.helpers.captures import NOISE, RATE, body, hide
 
 CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
-RATE = 60.0
-NOISE = 0.5
-
-
-def body(n_t: int = 600, seed: int = 0, noise: float = NOISE) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
-    """Three rigid 4-marker segments on a walking, turning trunk: (truth, measured, clusters).
-
-    Segment 0 is the trunk; segments 1 and 2 hang from it and swing about their own joints, so markers are
-    intercorrelated (PCA has something to learn) but only segment mates are rigid together.
-    """
-    rng = np.random.default_rng(seed)
-    t = np.arange(n_t) / RATE
-    root = np.stack([400 * np.sin(2 * np.pi * 0.15 * t), 100 * np.sin(2 * np.pi * 0.3 * t),
-                     1000 + 20 * np.sin(2 * np.pi * 0.5 * t)], axis=1)
-    trunk = Rotation.from_euler("zxy", np.stack([0.6 * np.sin(2 * np.pi * 0.2 * t), 0.1 * np.sin(2 * np.pi * 0.4 * t),
-                                                 0.1 * np.cos(2 * np.pi * 0.3 * t)], axis=1))
-    shapes = [rng.normal(0, 70, (4, 3)) for _ in range(3)]
-    joints = [np.zeros(3), np.array([150.0, 0, -200]), np.array([-150.0, 0, -200])]
-    parts = [np.stack([trunk.apply(p) for p in shapes[0]], axis=1)]
-    for k in (1, 2):
-        swing = Rotation.from_euler("x", 0.5 * np.sin(2 * np.pi * 0.8 * t + k)[:, None])
-        rot = trunk * swing
-        parts.append(trunk.apply(joints[k])[:, None, :]
-                     + np.stack([rot.apply(p + np.array([0, 0, -150.0])) for p in shapes[k]], axis=1))
-    truth = np.concatenate(parts, axis=1) + root[:, None, :]
-    measured = truth + rng.normal(0, noise, truth.shape)
-    return truth, measured, [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]]
-
-
-def hide(measured: np.ndarray, gaps: list[tuple[int, int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    valid = np.ones(measured.shape[:2], bool)
-    for m, s, e in gaps:
-        valid[s:e, m] = False
-    return np.where(valid[..., None], measured, np.nan), valid
 
 
 def gap_error(res, truth: np.ndarray, m: int, s: int, e: int) -> float:

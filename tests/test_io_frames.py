@@ -211,7 +211,7 @@ def test_c3d_absurd_and_infinite_coordinates_become_gaps(tmp_path):
 
 
 def test_sample_capture_has_nothing_beyond_the_bound(tmp_path):
-    from tests.conftest import SAMPLE
+    from tests.helpers import SAMPLE
 
     shutil.copy(SAMPLE / "mocap" / "neutral.c3d", tmp_path / "n.c3d")
     assert not any("farther" in w or "infinite" in w for w in read_c3d(tmp_path / "n.c3d").warnings)

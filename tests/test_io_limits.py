@@ -26,7 +26,7 @@ from gazepipe.io.marker_csv import read_vicon_csv, read_wide_csv
 from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import load_session, validate_session
 from gazepipe.model import Markers
-from tests.conftest import SAMPLE, make_tiny_session
+from tests.helpers import SAMPLE, make_tiny_session
 
 CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 

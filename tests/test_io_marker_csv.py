@@ -15,64 +15,7 @@ from gazepipe.io.marker_csv import (
     write_wide_csv,
 )
 from gazepipe.model import Markers
-
-# A Nexus 2.x export with a Devices block before the trajectories and a Model Outputs block after them.
-VICON = """Devices
-1000
-,,Imported AMTI OR6 Series Force Plate #1 - Force,,
-Frame,Sub Frame,Fx,Fy,Fz
-,,N,N,N
-1,0,0.1,0.2,0.3
-
-Trajectories
-100
-,,Ann:LASI,,,Ann:RASI,,,Ann:HEADC,,
-Frame,Sub Frame,X,Y,Z,X,Y,Z,X,Y,Z
-,,mm,mm,mm,mm,mm,mm,mm,mm,mm
-12,0,101.5,-20.25,950,,,,0,0,1600
-13,0,102.5,-20.5,951,230.125,25,948.5,0.5,0,1601
-14,0,103.5,-20.75,952,231.125,25.5,949,1,0,1602
-
-Model Outputs
-100
-,,Ann:LHipAngles,,
-Frame,Sub Frame,X,Y,Z
-,,deg,deg,deg
-12,0,1,2,3
-"""
-
-# QTM 2019 3D export: header keys, a Frame/Time column row, empty cells and 0.000 for missing markers.
-QTM = """NO_OF_FRAMES\t3
-NO_OF_CAMERAS\t8
-NO_OF_MARKERS\t2
-FREQUENCY\t120
-NO_OF_ANALOG\t0
-ANALOG_FREQUENCY\t0
-DESCRIPTION\t--
-TIME_STAMP\t2019-11-28, 13:43:42.715\t1476252.89504471
-DATA_INCLUDED\t3D
-MARKER_NAMES\tHFL\tHFR
-TRAJECTORY_TYPES\tMeasured\tMeasured
-Frame\tTime\tHFL X\tHFL Y\tHFL Z\tHFR X\tHFR Y\tHFR Z
-1\t0.00000\t10.000\t20.000\t1700.000\t0.000\t0.000\t0.000
-2\t0.00833\t10.500\t20.500\t1700.500\t60.000\t20.000\t1699.000
-3\t0.01667\t\t\t\t61.000\t21.000\t1698.000
-"""
-
-# Older QTM export: no Frame/Time row, data rows carry only the coordinates.
-QTM_OLD = """NO_OF_FRAMES\t2
-NO_OF_CAMERAS\t6
-NO_OF_MARKERS\t1
-FREQUENCY\t100
-NO_OF_ANALOG\t0
-ANALOG_FREQUENCY\t0
-DESCRIPTION\t--
-TIME_STAMP\t2006-03-07, 11:12:03
-DATA_INCLUDED\t3D
-MARKER_NAMES\tTOP
-1.5\t2.5\t3.5
-1.25\t2.25\t3.25
-"""
+from tests.helpers.captures import QTM, QTM_OLD, VICON
 
 
 def _write(tmp_path, name, text):

@@ -15,14 +15,14 @@ from pathlib import Path
 import pytest
 
 from bench.bench_faults import session_processes
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="parent-death signals are Linux's")
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory) -> Path:
-    return _session_copy(tmp_path_factory.mktemp("lifeline") / "session",
+    return session_copy(tmp_path_factory.mktemp("lifeline") / "session",
                          {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": None, "shift_y000_p12": None})
 
 

@@ -9,13 +9,13 @@ from pathlib import Path
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 
 def _events(tmp_path: Path, *extra: str) -> list[dict]:
     session = tmp_path / "session"
     if not session.exists():
-        _session_copy(session, {"neutral": None, "shift_y036_p12": None})
+        session_copy(session, {"neutral": None, "shift_y036_p12": None})
         # a capture that lacks a marker of the markerset: each take fails in its ingest unit
         ms = session / "markerset.toml"
         ms.write_text(ms.read_text().replace('markers = ["', 'markers = ["NOPE", "', 1))

@@ -15,7 +15,7 @@ from gazepipe.cli.common import load_sessions
 from gazepipe.dag import run_pipeline
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.resources import available_memory_bytes
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 TAKES = {"neutral": None, "shift_y036_p12": None}
 
@@ -44,7 +44,7 @@ def test_the_memory_a_process_may_use_is_known_and_follows_its_limit():
 
 
 def test_a_take_too_large_to_clean_is_refused_then_tried_again(tmp_path, monkeypatch):
-    session = _session_copy(tmp_path / "s", TAKES)
+    session = session_copy(tmp_path / "s", TAKES)
     out = tmp_path / "out"
     monkeypatch.setattr("gazepipe.pipeline.resources.available_memory_bytes", lambda: 1 << 20)
     summary = _run(session, out)
@@ -61,7 +61,7 @@ def test_a_take_too_large_to_clean_is_refused_then_tried_again(tmp_path, monkeyp
 
 
 def test_running_out_of_memory_in_a_stage_is_one_line_naming_the_take_and_its_files(tmp_path, monkeypatch):
-    session = _session_copy(tmp_path / "s", TAKES)
+    session = session_copy(tmp_path / "s", TAKES)
 
     def no_memory(*args, **kwargs):
         raise MemoryError()
@@ -79,7 +79,7 @@ def test_a_take_too_long_to_plot_is_left_out_of_the_plots_with_a_note(tmp_path, 
     spending gigabytes on a 20-hour capture."""
     from gazepipe.report.validate import validate_output
 
-    session = _session_copy(tmp_path / "s", TAKES)
+    session = session_copy(tmp_path / "s", TAKES)
     out = tmp_path / "out"
     _run(session, out)
     monkeypatch.setattr("gazepipe.report.validate.PLOT_MAX_SAMPLES", 1000)   # neutral: 120 x 35 samples

@@ -13,8 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+from tests.helpers import SAMPLE
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.frames.stage import FramesParams
 from gazepipe.stages.sync.stage import SyncParams
-from tests.conftest import SAMPLE
+from tests.helpers import SAMPLE
 
 
 def run(tmp_path, *args: str):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import signal
@@ -18,7 +17,7 @@ from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
 from gazepipe.schemas.markers import table_to_markers
-from tests.conftest import make_tiny_session, tiny_motion, write_wide_csv
+from tests.helpers import make_tiny_session, output_digests, tiny_motion, write_wide_csv
 
 
 def run_cli(*args: str) -> tuple[int, str, str]:
@@ -28,12 +27,6 @@ def run_cli(*args: str) -> tuple[int, str, str]:
 
 def events(stderr: str) -> list[dict]:
     return [json.loads(line) for line in stderr.splitlines() if line.startswith("{")]
-
-
-def output_digests(out: Path) -> dict[str, str]:
-    """sha256 of every file under OUT except the run state."""
-    return {str(p.relative_to(out)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(out.rglob("*")) if p.is_file() and ".gazepipe" not in p.parts}
 
 
 def test_ingest_writes_canonical_tables_that_match_the_input(tiny_session, tmp_path):

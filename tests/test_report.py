@@ -16,7 +16,6 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from gazepipe.cli.main import cli
 from gazepipe.cli.validate import validate
 from gazepipe.io.session_toml import load_session
 from gazepipe.report import checks as C
@@ -26,9 +25,8 @@ from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.eyes.qc import EyesQC
 from gazepipe.stages.face.qc import FaceQC
 from gazepipe.stages.sync.qc import SyncQC
+from tests.helpers import run_session, session_copy
 
-REPO = Path(__file__).resolve().parents[1]
-SAMPLE = REPO / "sample_data" / "session01"
 CHROMIUM = Path("/usr/bin/chromium")
 
 # a slice of the sample session: the neutral take, one gaze_follow take, three gaze_shift takes (one pinned to
@@ -37,45 +35,12 @@ TAKES = {"neutral": None, "follow_sitting_01": "train", "shift_y036_p12": "train
          "shift_y072_p00": None}
 
 
-def _session_copy(dest: Path, takes: dict[str, str | None]) -> Path:
-    """A session folder with the chosen takes of the sample session (same files, same markerset)."""
-    src = load_session(SAMPLE)
-    (dest / "mocap").mkdir(parents=True)
-    shutil.copy(Path(src.root) / "markerset.toml", dest / "markerset.toml")
-    lines = ['schema = 1', '[session]', f'id = "{src.id}"', f'subject = "{src.subject}"',
-             'markerset = "markerset.toml"', '']
-    for t in src.takes:
-        if t.id not in takes:
-            continue
-        lines += ['[[takes]]', f'id = "{t.id}"', f'kind = "{t.kind}"', f'pose = "{t.pose}"']
-        for key in ("mocap", "video", "eyes"):
-            path = getattr(t, key)
-            if path:
-                rel = Path(path).relative_to(src.root)
-                (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy(path, dest / rel)
-                lines.append(f'{key} = "{rel.as_posix()}"')
-        if t.target_yaw_deg is not None:
-            lines.append(f"target = {{ yaw_deg = {t.target_yaw_deg}, pitch_deg = {t.target_pitch_deg} }}")
-        if takes[t.id]:
-            lines.append(f'split = "{takes[t.id]}"')
-        lines.append("")
-    (dest / "session.toml").write_text("\n".join(lines))
-    return dest
-
-
-def _run(session: Path, out: Path) -> None:
-    res = CliRunner().invoke(cli, ["run", str(session), "--out", str(out), "--executor", "serial",
-                                   "--log-format", "json"])
-    assert res.exit_code in (0, 1), res.output
-
-
 @pytest.fixture(scope="module")
 def clean_out(tmp_path_factory) -> Path:
     """The whole pipeline's output for the sample slice (take stages and datasets)."""
     root = tmp_path_factory.mktemp("report_clean")
     out = root / "out"
-    _run(_session_copy(root / "session", TAKES), out)
+    run_session(session_copy(root / "session", TAKES), out)
     return out
 
 
@@ -83,12 +48,12 @@ def clean_out(tmp_path_factory) -> Path:
 def broken_out(tmp_path_factory) -> Path:
     """Two good takes and one whose C3D file is cut in half."""
     root = tmp_path_factory.mktemp("report_broken")
-    session = _session_copy(root / "session", {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": "train"})
+    session = session_copy(root / "session", {"neutral": None, "shift_y036_p12": None, "shift_ym036_p00": "train"})
     c3d = session / "mocap" / "shift_y036_p12.c3d"
     data = c3d.read_bytes()
     c3d.write_bytes(data[: len(data) // 2])
     out = root / "out"
-    _run(session, out)
+    run_session(session, out)
     return out
 
 
@@ -221,9 +186,9 @@ def test_unreadable_table_is_an_error_that_fails_the_gate(broken_out: Path, tmp_
 
 
 def test_outputs_older_than_their_inputs_are_flagged(tmp_path: Path) -> None:
-    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train"})
+    session = session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train"})
     out = tmp_path / "out"
-    _run(session, out)
+    run_session(session, out)
     assert _validate(out, "--no-plots").exit_code == 0
     stages = {t["take"]: next(c for c in t["checks"] if c["id"] == "stages") for t in _report(out)["takes"]}
     assert all(c["severity"] == "pass" and "up to date" in c["message"] for c in stages.values())
@@ -288,7 +253,7 @@ def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) ->
     from gazepipe.pipeline.events import EventLog
     from gazepipe.report.validate import validate_output
 
-    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train",
+    session = session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": "train",
                                                     "shift_ym036_p00": "val"})
     out = tmp_path / "out"
     calls: list[tuple[str, bool]] = []

@@ -18,7 +18,8 @@ from click.testing import CliRunner
 from gazepipe.cli.main import cli
 from gazepipe.cli.validate import validate
 from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
+from tests.helpers.shared import shared_folder
 
 TAKES = {"neutral": None, "shift_y000_p12": "train", "shift_y036_p12": "train", "shift_ym036_p00": "val",
          "shift_ym072_p12": None}
@@ -38,14 +39,18 @@ def _entries(out: Path, cache) -> list[Path]:
     return sorted((out / ".gazepipe" / cache.DIRNAME).glob("*.json"))
 
 
+def _run_both(root: Path) -> None:
+    session = session_copy(root / "session", TAKES)
+    _run(session, root / "serial", "--executor", "serial")
+    _run(session, root / "process", "--executor", "process", "-j", "2")
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
-    root = tmp_path_factory.mktemp("run_report")
-    session = _session_copy(root / "session", TAKES)
-    outs = {"serial": root / "serial", "process": root / "process"}
-    _run(session, outs["serial"], "--executor", "serial")
-    _run(session, outs["process"], "--executor", "process", "-j", "2")
-    return outs
+    """A serial and a parallel run of the slice, once per test run (shared by pytest-xdist's workers), read
+    only: a test that validates or changes an output copies it."""
+    root = shared_folder(tmp_path_factory, "run_report_runs", _run_both, fixture="runs")
+    return {"serial": root / "serial", "process": root / "process"}
 
 
 @pytest.fixture

@@ -10,11 +10,11 @@ from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
 from gazepipe.pipeline import hashing
-from tests.test_report import _session_copy
+from tests.helpers import session_copy
 
 
 def test_a_c3d_that_cannot_hold_its_frames_fails_its_take_before_it_is_hashed(tmp_path: Path, monkeypatch) -> None:
-    session = _session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": None})
+    session = session_copy(tmp_path / "session", {"neutral": None, "shift_y036_p12": None})
     bad = session / "mocap" / "shift_y036_p12.c3d"
     bad.write_bytes(bad.read_bytes()[: bad.stat().st_size // 3])
     hashed: list[str] = []

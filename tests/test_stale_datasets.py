@@ -12,8 +12,7 @@ import pandas as pd
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+from tests.helpers import SAMPLE
 
 
 def _session(root: Path) -> Path:

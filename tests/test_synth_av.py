@@ -16,7 +16,7 @@ from gazepipe.io.livelinkface import read_livelinkface
 from gazepipe.io.openface import read_openface
 from gazepipe.io.video import probe_video, read_frames
 from gazepipe.synth import SynthConfig, generate_session, load_truth
-from tests.conftest import CORPUS, SAMPLE
+from tests.helpers import CORPUS, SAMPLE
 
 FPS = 60.0
 # neutral first, so the three follow takes have indices 1, 2, 3: every camera clock variant occurs

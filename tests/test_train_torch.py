@@ -1,6 +1,6 @@
 """The torch trainers at work: devices, determinism, progress, early stopping, saved files, the inference API
 and the README's inference examples, on datasets built from generated sessions
-(tests/readme_examples/_make_datasets.py). Tiny models and few epochs: the learning itself is measured by
+(tests/helpers/datasets.py). Tiny models and few epochs: the learning itself is measured by
 bench/bench_train.py."""
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from readme_examples._make_datasets import shared_datasets
 
 from gazepipe.cli.train import train as train_cmd
 
@@ -27,8 +26,8 @@ CUDA = torch.cuda.is_available()
 
 
 @pytest.fixture(scope="module")
-def datasets() -> Path:
-    return shared_datasets()
+def datasets(generated_datasets) -> Path:
+    return generated_datasets
 
 
 def run_train(*args: str):

@@ -1,6 +1,6 @@
 """Trainer plugins and ``gazepipe train``: discovery, refusing the wrong dataset, and the three reference
 trainers against their baselines on datasets built from generated sessions
-(tests/readme_examples/_make_datasets.py)."""
+(tests/helpers/datasets.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from readme_examples._make_datasets import GAZE_MAP_VAL, shared_datasets
 from scipy.spatial.transform import Rotation
 
 from gazepipe.cli.train import train as train_cmd
@@ -22,11 +21,12 @@ from gazepipe.errors import ConfigError
 from gazepipe.trainers import base
 from gazepipe.trainers.base import TrainOptions, check_compatible, load_trainer
 from gazepipe.trainers.gaze_map import GazeMap, GazeMotion, knn_weights
+from tests.helpers.datasets import GAZE_MAP_VAL
 
 
 @pytest.fixture(scope="module")
-def datasets() -> Path:
-    return shared_datasets()
+def datasets(generated_datasets) -> Path:
+    return generated_datasets
 
 
 def run_train(*args: str):
@@ -310,17 +310,10 @@ def test_face_clean_beats_the_tracked_input(datasets, tmp_path):
 # ------------------------------------------------------------------------------------- on a pipeline run
 
 @pytest.mark.slow
-def test_trainers_on_the_sample_session_run(tmp_path_factory):
-    """`gazepipe run` on sample_data/session01, then every trainer through `gazepipe train` on what it wrote;
-    the reader's runs agree with the builder's own segment counts in dataset.json."""
-    from gazepipe.cli.main import cli
-
-    sample = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
-    root = tmp_path_factory.mktemp("sample_run")
-    out = root / "out"
-    res = CliRunner().invoke(cli, ["run", str(sample), "--out", str(out), "--executor", "serial",
-                                   "--log-format", "json"])
-    assert res.exit_code == 0, res.output[-2000:]
+def test_trainers_on_the_sample_session_run(sample_run, tmp_path):
+    """`gazepipe run` on sample_data/session01 (the shared run, exit 0), then every trainer through `gazepipe
+    train` on what it wrote; the reader's runs agree with the builder's own segment counts in dataset.json."""
+    out, root = sample_run, tmp_path
     for name in ("gaze_rnn", "gaze_rnn_lod"):
         ds = open_dataset(out / "datasets" / name)
         counts = ds.info["counts"]

@@ -26,7 +26,8 @@ from gazepipe.report.validate import (
     rank_takes,
     take_rank_key,
 )
-from tests.test_report import _run, _session_copy
+from tests.helpers import run_session, session_copy
+from tests.helpers.shared import shared_folder
 
 # the neutral take and seven gaze-shift takes of the sample session: eight takes with something to draw, more
 # than the default number of plotted takes
@@ -36,12 +37,14 @@ KEYS = sorted(f"session01/{t}" for t in TAKES)
 FILES = ("report.json", "takes.parquet", "report.html")
 
 
+def _run_many(folder: Path) -> None:
+    run_session(session_copy(folder / "session", TAKES), folder / "out")
+
+
 @pytest.fixture(scope="module")
 def many_out(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("validate_speed")
-    out = root / "out"
-    _run(_session_copy(root / "session", TAKES), out)
-    return out
+    """The run of the eight takes, once per test run (shared by pytest-xdist's workers), read only."""
+    return shared_folder(tmp_path_factory, "validate_speed_many_out", _run_many, fixture="many_out") / "out"
 
 
 @pytest.fixture

@@ -1,9 +1,8 @@
-"""Helpers of the end-to-end acceptance tests: read what ``gazepipe run`` wrote and compare it with the
-sample session's ground truth (sample_data/session01/truth)."""
+"""Read what ``gazepipe run`` wrote for the sample session and compare it with the session's ground truth
+(sample_data/session01/truth): the end-to-end acceptance tests and the dataset tests."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import tomllib
 from functools import cache
@@ -19,11 +18,12 @@ from gazepipe.schemas.joints import joints_arrays
 from gazepipe.schemas.markers import table_to_markers
 from gazepipe.stages.build.summary import feature_values
 from gazepipe.synth import load_truth
+from tests.helpers import SAMPLE
 
-REPO = Path(__file__).resolve().parents[1]
-SAMPLE = REPO / "sample_data" / "session01"
 SESSION_ID = "session01"
 FILL_MEASURED, FILL_UNFILLED = "measured", "unfilled"
+#: what a run with nothing to do must leave byte for byte as it was
+PRODUCT_PARTS = ("takes", "datasets", ".gazepipe/units", ".gazepipe/datasets")
 
 
 def session_takes() -> list[dict[str, Any]]:
@@ -120,17 +120,6 @@ def vec_angle_deg(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, float)
     cross = np.linalg.norm(np.cross(u, v), axis=-1)
     return np.degrees(np.arctan2(cross, np.einsum("...i,...i->...", u, v)))
-
-
-def tree_digest(root: Path, parts: tuple[str, ...]) -> dict[str, str]:
-    """SHA-256 of every file under ``root/<part>`` for each part, keyed by relative path."""
-    out = {}
-    for part in parts:
-        base = root / part
-        for p in sorted(base.rglob("*")):
-            if p.is_file():
-                out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
-    return out
 
 
 def json_events(text: str) -> list[dict[str, Any]]:

@@ -10,27 +10,23 @@ Generated sessions (:mod:`gazepipe.synth`) go through the dataset builder's pure
 - face_clean: four 30 s Live Link Face takes at 60 Hz through the face stage (reader, alignment); three train,
   one val.
 
-Built once per process (:func:`shared_datasets`), in a temporary folder removed at exit.
+Built once per test run by the ``generated_datasets`` fixture (tests/conftest.py) and shared read-only.
 """
 
 from __future__ import annotations
 
-import atexit
 import dataclasses
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
-from tests.acceptance_helpers import truth_joints
+from tests.helpers.sample import truth_joints
 
 GAZE_MAP_VAL = ((18.0, 12.0), (-36.0, 0.0), (54.0, -12.0))
 FOLLOW_POSES = ("standing", "standing", "sitting", "standing", "sitting")
 FOLLOW_VAL = "follow_standing_03"
 FACE_VAL = "face_04"
-_CACHE: dict[str, Path] = {}
 
 
 def _eyes_table(tr: dict, frames: np.ndarray) -> pa.Table:
@@ -109,12 +105,3 @@ def make_datasets(out: Path) -> Path:
                                face=table))
     write_dataset(build_dataset("face_clean", face, params), datasets)
     return datasets
-
-
-def shared_datasets() -> Path:
-    """The datasets folder, built on first use in this process."""
-    if "root" not in _CACHE:
-        tmp = Path(tempfile.mkdtemp(prefix="gazepipe-datasets-"))
-        atexit.register(shutil.rmtree, tmp, ignore_errors=True)
-        _CACHE["root"] = make_datasets(tmp)
-    return _CACHE["root"]
