@@ -42,6 +42,7 @@ from gazepipe.pipeline.registry import (
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas.base import read_meta
 from gazepipe.schemas.datasets import DATASETS
+from gazepipe.stages.build.qc import RowsQC
 from gazepipe.stages.build.stage import (
     KINDS,
     BuildParams,
@@ -104,8 +105,8 @@ def _rows_stage(name: str):
         table = part.table if part.table is not None else NO_ROWS.empty_table()
         facts = pa.Table.from_arrays([pa.array([json.dumps(part.to_json(), sort_keys=True)], pa.string())],
                                      schema=PART)
-        qc = {"rows": part.facts.rows if part.facts is not None else 0, "split": part.split,
-              "problem": part.problem or part.fatal}
+        qc = RowsQC(rows=part.facts.rows if part.facts is not None else 0, split=part.split,
+                    problem=part.problem or part.fatal).to_record()
         return UnitResult(tables={ROWS[name]: (table, table.schema), PARTS[name]: (facts, PART)}, qc=qc)
 
     run.__qualname__ = run.__name__ = f"run_rows_{name}"
