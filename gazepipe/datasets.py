@@ -28,8 +28,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from gazepipe.errors import ConfigError
-from gazepipe.io.datasets import read_dataset
-from gazepipe.schemas.datasets import IDENTIFIER_NAMES
+from gazepipe.io.dataset_files import read_dataset
+from gazepipe.schemas.dataset_tables import IDENTIFIER_NAMES
 
 #: the (input, target) columns a window yields by default, per dataset
 DEFAULT_PAIR: dict[str, tuple[str, str]] = {

@@ -22,7 +22,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import SchemaError, StageError
-from gazepipe.io.datasets import (
+from gazepipe.io.dataset_files import (
     StagedDatasetWriter,
     open_dataset,
     read_dataset,
@@ -669,7 +669,7 @@ def test_unknown_dataset_and_no_takes():
 
 def test_schema_identity_is_checked():
     from gazepipe.schemas.base import check_table
-    from gazepipe.schemas.datasets import gaze_rnn_schema
+    from gazepipe.schemas.dataset_tables import gaze_rnn_schema
 
     s = gaze_rnn_schema(21, 18, "gaze_rnn_lod")
     t = s.empty_table()

@@ -17,7 +17,7 @@ import pytest
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
-from gazepipe.io.datasets import info_bytes, read_info, table_bytes, take_files
+from gazepipe.io.dataset_files import info_bytes, read_info, table_bytes, take_files
 from gazepipe.io.parquet import read_table
 from gazepipe.io.session_toml import load_session
 from gazepipe.model import Take

@@ -87,7 +87,7 @@ def run(case):
         elif case["table"] == "joints":
             joints_arrays(t)
     elif kind == "dataset":
-        from gazepipe.io.datasets import read_dataset
+        from gazepipe.io.dataset_files import read_dataset
         read_dataset(p)
     else:
         raise RuntimeError(kind)

@@ -45,7 +45,7 @@ def dataset_header(data_dir: Path) -> tuple[dict[str, Any], list[str]]:
     import pyarrow.parquet as pq
 
     from gazepipe.errors import GazepipeError
-    from gazepipe.io.datasets import COMMON_METADATA, read_info
+    from gazepipe.io.dataset_files import COMMON_METADATA, read_info
 
     if not data_dir.is_dir():
         raise ConfigError(data_dir, "no such dataset folder")

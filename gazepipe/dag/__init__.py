@@ -4,7 +4,7 @@
   eyes; face), each wiring a pure function of :mod:`gazepipe.stages` to the files it reads through
   :mod:`gazepipe.io` and the tables it writes (:mod:`gazepipe.schemas`), and the table store the engine writes
   and reads them with;
-- :mod:`.datasets`: the training datasets, which stages' tables each reads, and the ``build`` parameters.
+- :mod:`.builds`: the training datasets, which stages' tables each reads, and the ``build`` parameters.
 
 Import this package (the command line does) before using the engine. :func:`run_pipeline` is the engine's, here
 with gazepipe's stages and datasets registered; :func:`collect_status` is the engine's with gazepipe's session
@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from gazepipe.dag import datasets, takes  # noqa: F401  (registers the stages, then the datasets)
+from gazepipe.dag import builds, takes  # noqa: F401  (registers the stages, then the datasets)
 from gazepipe.pipeline import status
 from gazepipe.pipeline.engine import run_pipeline
 

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 from gazepipe.errors import ConfigError, GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
-from gazepipe.pipeline.datasets import plan_datasets, run_dataset
+from gazepipe.pipeline.builds import plan_datasets, run_dataset
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import check_executor, make_executor
 from gazepipe.pipeline.hashing import HashCache

@@ -10,7 +10,7 @@ The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:
 - session stages (:func:`register_session_stage`): work done once per session that take stages read (their
   ``session_requires``), such as a pose every take is calibrated against; they run before the session's take
   units, with a :class:`SessionContext`;
-- datasets built from many takes' tables (:func:`register_dataset`, :mod:`gazepipe.pipeline.datasets`);
+- datasets built from many takes' tables (:func:`register_dataset`, :mod:`gazepipe.pipeline.builds`);
 - parameter groups that belong to no take stage (:func:`register_params`: the datasets' parameters);
 - the table store (:func:`set_table_store`): how a table is written and read back schema-checked.
 
@@ -206,7 +206,7 @@ class SessionStage:
 @dataclass(frozen=True)
 class Dataset:
     """A registered dataset: built from every take that feeds it, after the takes ran
-    (:mod:`gazepipe.pipeline.datasets`).
+    (:mod:`gazepipe.pipeline.builds`).
 
     Attributes
     ----------
@@ -214,8 +214,8 @@ class Dataset:
     needs : stages whose tables it reads from each contributing take. A take contributes when each of them has
         an up-to-date ``ok`` unit, except an ``optional`` one that does not apply to the take.
     applies : which takes may feed it.
-    run : the build: a :class:`~gazepipe.pipeline.datasets.DatasetContext` in, a
-        :class:`~gazepipe.pipeline.datasets.DatasetResult` out.
+    run : the build: a :class:`~gazepipe.pipeline.builds.DatasetContext` in, a
+        :class:`~gazepipe.pipeline.builds.DatasetResult` out.
     params : the parameter group (:func:`register_params`) whose values it uses; part of its fingerprint.
     """
 

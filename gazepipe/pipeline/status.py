@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import GazepipeError
-from gazepipe.pipeline.datasets import plan_datasets
+from gazepipe.pipeline.builds import plan_datasets
 from gazepipe.pipeline.engine import plan_run
 from gazepipe.pipeline.hashing import HashCache
 from gazepipe.pipeline.registry import SessionLike

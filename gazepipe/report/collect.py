@@ -1,7 +1,7 @@
 """Gather what the report needs from an output folder: unit records, per-take tables, datasets.
 
 Reading goes through :mod:`gazepipe.pipeline.state` (records), :mod:`gazepipe.io.parquet` /
-:mod:`gazepipe.io.datasets` (tables, schema-checked) and :mod:`gazepipe.schemas`. A table that cannot be read is
+:mod:`gazepipe.io.dataset_files` (tables, schema-checked) and :mod:`gazepipe.schemas`. A table that cannot be read is
 not fatal: its error is kept and the checks that need it report ``error``.
 """
 
@@ -314,8 +314,8 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     """Read dataset.json, ``_common_metadata`` and every take file's identifiers; sample the training rows."""
     from urllib.parse import unquote
 
-    from gazepipe.io.datasets import COMMON_METADATA, read_info, take_files
-    from gazepipe.io.datasets import expected_schema as ds_schema
+    from gazepipe.io.dataset_files import COMMON_METADATA, read_info, take_files
+    from gazepipe.io.dataset_files import expected_schema as ds_schema
 
     d = DatasetData(path.name)
     try:

@@ -50,7 +50,7 @@ def _pin(take, split: str):
 
 def make_datasets(out: Path) -> Path:
     """Generate the sessions under ``out/sessions`` and write the four datasets under ``out/datasets``."""
-    from gazepipe.io.datasets import write_dataset
+    from gazepipe.io.dataset_files import write_dataset
     from gazepipe.io.livelinkface import read_livelinkface
     from gazepipe.io.session_toml import load_session
     from gazepipe.schemas.face_table import face_to_table

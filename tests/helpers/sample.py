@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
-from gazepipe.io.datasets import read_dataset
+from gazepipe.io.dataset_files import read_dataset
 from gazepipe.schemas.joints import joints_arrays
 from gazepipe.schemas.markers import table_to_markers
 from gazepipe.stages.build.summary import feature_values

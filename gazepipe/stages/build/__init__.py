@@ -10,7 +10,7 @@ Read top-down: :mod:`.stage` (:func:`build_dataset`) makes each take's part (:fu
 :mod:`.gaze` (the gaze datasets) or :mod:`.face` (face_clean), :mod:`.mirror` (the mirrored copies), its table and
 the facts :mod:`.summary` needs of it), then merges the parts (:class:`DatasetMerge`: take-disjoint train / val /
 test by :mod:`.splits`, _dataset.json accumulated one take at a time). A run makes the parts in the takes' own
-units, on the workers (:mod:`gazepipe.dag.datasets`), and only merges them in the dataset's build.
+units, on the workers (:mod:`gazepipe.dag.builds`), and only merges them in the dataset's build.
 """
 
 from gazepipe.stages import lazy_exports

@@ -2,7 +2,7 @@
 ``face_clean`` from every take's per-take tables.
 
 :func:`build_dataset` is pure: per-take Arrow tables in, per-take dataset tables and the ``_dataset.json``
-object out (:mod:`gazepipe.io.datasets` writes them). For each dataset:
+object out (:mod:`gazepipe.io.dataset_files` writes them). For each dataset:
 
 - take-disjoint splits (:mod:`gazepipe.stages.build.splits`): a take's rows, mirrored copies included, all go to
   its split;
@@ -39,7 +39,7 @@ import pyarrow as pa
 from gazepipe.errors import GazepipeError, StageError
 from gazepipe.model import MarkerSet, Take
 from gazepipe.schemas.base import attach_meta, check_table, read_meta, with_element_names
-from gazepipe.schemas.datasets import DATASETS, dataset_schema, feature_columns, mask_columns
+from gazepipe.schemas.dataset_tables import DATASETS, dataset_schema, feature_columns, mask_columns
 from gazepipe.schemas.joints import joints_arrays, list_to_numpy
 from gazepipe.stages.build.splits import assign_split, check_fractions, rebalance
 from gazepipe.stages.build.summary import DatasetSummary, TakeFacts, feature_values, table_hash, take_facts
@@ -523,7 +523,7 @@ def check_dataset(name: str, params: BuildParams) -> None:
 
 def build_dataset(name: str, takes: list[TakeTables], params: BuildParams | None = None,
                   sink: TakeSink | None = None) -> BuiltDataset:
-    """Build dataset ``name`` (one of :data:`gazepipe.schemas.datasets.DATASETS`) from the takes' tables: each
+    """Build dataset ``name`` (one of :data:`gazepipe.schemas.dataset_tables.DATASETS`) from the takes' tables: each
     take's part (:func:`take_part`), merged (:class:`DatasetMerge`), as a run does on its workers and then in
     the dataset's build.
 

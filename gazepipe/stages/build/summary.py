@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from gazepipe import __version__
 from gazepipe.model import SPLITS
-from gazepipe.schemas.datasets import IDENTIFIER_NAMES, schema_version
+from gazepipe.schemas.dataset_tables import IDENTIFIER_NAMES, schema_version
 from gazepipe.schemas.joints import list_to_numpy
 
 

@@ -6,7 +6,7 @@ Every dataset file starts with the identifier columns (``subject``, ``session``,
 float32 (an (N, D) numpy array without copying); per-row scalars of ``gaze_map`` are plain float32 columns.
 Identifier strings are plain ``string`` columns: ``pyarrow.dataset`` with hive partitioning merges them with
 the folder names as they are; pandas, which infers dictionary-typed partition keys, needs the schema stored in
-``_common_metadata`` (see :mod:`gazepipe.io.datasets` for both calls).
+``_common_metadata`` (see :mod:`gazepipe.io.dataset_files` for both calls).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ from gazepipe.errors import InputError, SchemaError
 from gazepipe.io.dataset_card import card_text, hf_yaml
 from gazepipe.io.parquet import read_table, write_options
 from gazepipe.schemas.base import attach_meta, check_table
-from gazepipe.schemas.datasets import dataset_schema
+from gazepipe.schemas.dataset_tables import dataset_schema
 
 WriteBytes = Callable[[Path, bytes], None]
 INFO_NAME = "_dataset.json"

@@ -24,11 +24,11 @@ import pyarrow as pa
 
 import gazepipe.dag.takes  # noqa: F401  (the stages the datasets read from are registered first)
 from gazepipe.errors import StageError
-from gazepipe.io.datasets import StagedDatasetWriter
+from gazepipe.io.dataset_files import StagedDatasetWriter
 from gazepipe.io.parquet import read_schema, read_table
 from gazepipe.model import Session, Take
 from gazepipe.pipeline import registry
-from gazepipe.pipeline.datasets import DatasetContext, DatasetResult
+from gazepipe.pipeline.builds import DatasetContext, DatasetResult
 from gazepipe.pipeline.registry import (
     Dataset,
     ParamGroup,
@@ -41,7 +41,7 @@ from gazepipe.pipeline.registry import (
 )
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas.base import read_meta
-from gazepipe.schemas.datasets import DATASETS
+from gazepipe.schemas.dataset_tables import DATASETS
 from gazepipe.stages.build.qc import RowsQC
 from gazepipe.stages.build.stage import (
     KINDS,
