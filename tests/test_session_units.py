@@ -171,3 +171,20 @@ def test_the_subject_geometry_reads_back_with_every_bit():
             continue
         assert got.dtype == want.dtype and got.shape == want.shape, f.name
         assert got.tobytes() == want.tobytes(), f.name
+
+
+def test_a_broken_neutral_capture_fails_its_own_take_and_the_others_go_on_without_it(tiny_session, tmp_path):
+    folder = _with_neutral_take(tiny_session)
+    (folder / "mocap" / "t0.csv").write_bytes(b"\x00\xff garbage, not a capture\n" * 3)
+    summary = _run(folder, tmp_path / "out", until="frames")
+    assert summary.exit_code == 1
+    by_unit = {(o.take, o.stage): o for o in summary.outcomes}
+    assert by_unit[("t0", "ingest")].status == "failed" and "t0.csv" in by_unit[("t0", "ingest")].error
+    # the session's poses are made without it, saying so, instead of failing every take's frames with it
+    assert by_unit[("*", "neutral_poses")].status == "ok"
+    assert any("neutral take t0 left out" in w and "t0.csv" in w for w in by_unit[("*", "neutral_poses")].warnings)
+    # the tiny takes sway without a rest: with no neutral take their frames have no pose, each its own verdict
+    for take in ("t1", "t2"):
+        frames = by_unit[(take, "frames")]
+        assert frames.status == "failed" and "no neutral take and no rest period" in frames.error
+        assert f"{take}.csv" in frames.error

@@ -428,10 +428,15 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
     frames_params = _build(FramesParams, ctx.params_of("frames"))
     refs = _subject_references(ctx.load("subject_geometry")) if clean_params.repair_swaps else None
     poses: list[PoseSource] = []
+    warnings: list[str] = []
     calibrated: set[str] | None = set()
     neutral_take = _neutral_take(session)
+    pose: Markers | None = None
     if neutral_take is not None:
-        pose = _clean_pose(neutral_take, ms, clean_params, refs)
+        try:
+            pose = _clean_pose(neutral_take, ms, clean_params, refs)
+        except GazepipeError as exc:   # its own take fails; the others calibrate on their rests (SPEC §3.3)
+            warnings.append(f"neutral take {neutral_take.id} left out: {exc.one_line()}")
         if pose is not None:
             poses.append(PoseSource(f"neutral take {neutral_take.id}", neutral_take.id, "neutral", pose))
             calibrated = calibrated_segments(pose, ms, frames_params)
@@ -454,8 +459,8 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
             poses.append(PoseSource(f"first rest period of take {other.id}", other.id, "rest", rest))
             for seg in solved:
                 need.pop(seg)
-    qc = {"sources": [p.label for p in poses], "segments_without_neutral": sorted(need)}
-    return UnitResult(tables={"neutral_poses": (stack_to_table(poses), MARKER_STACK)}, qc=qc)
+    qc = {"sources": [p.label for p in poses], "segments_without_neutral": sorted(need), "warnings": warnings}
+    return UnitResult(tables={"neutral_poses": (stack_to_table(poses), MARKER_STACK)}, qc=qc, warnings=warnings)
 
 
 register_session_stage(SessionStage(
