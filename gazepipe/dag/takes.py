@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -443,22 +443,7 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
     # a segment the neutral take cannot calibrate (or all, when the take's other sources decide) may be
     # missing in a take's frames: the first rest periods that give it, for that take to fall back on
     need = {seg.name: seg.markers for seg in ms.segments if calibrated is None or seg.name not in calibrated}
-    for other in session.takes:
-        if not need:
-            break
-        if other.kind == "neutral" or not _subject_take(session, other):
-            continue
-        try:
-            rest = _clean_pose(other, ms, clean_params, refs)
-        except GazepipeError:
-            continue
-        if rest is None or not rest.n_frames:
-            continue
-        solved = [seg for seg, names in need.items() if _gives_segment(rest, names, frames_params.min_neutral_frames)]
-        if solved:
-            poses.append(PoseSource(f"first rest period of take {other.id}", other.id, "rest", rest))
-            for seg in solved:
-                need.pop(seg)
+    poses += _first_givers(_other_rests(session, ms, clean_params, refs), need, frames_params.min_neutral_frames)
     qc = {"sources": [p.label for p in poses], "segments_without_neutral": sorted(need), "warnings": warnings}
     return UnitResult(tables={"neutral_poses": (stack_to_table(poses), MARKER_STACK)}, qc=qc, warnings=warnings)
 
@@ -472,24 +457,45 @@ register_session_stage(SessionStage(
 ))
 
 
-def _fallback_rests(poses: list[PoseSource], take_id: str, ms: MarkerSet, missing: list[str],
-                    min_frames: int) -> list[PoseSource]:
-    """Neutral sources of last resort (SPEC §3.3) for a take whose segments ``missing`` have none: the first
-    rest periods among the session's (``poses``, in session order) of the other takes, each kept when it gives
-    a segment still missing."""
-    out = []
-    need = {seg: ms.segment(seg).markers for seg in missing}
-    for pose in poses:
-        if not need:
-            break
-        if pose.role != "rest" or pose.take == take_id:
+def _other_rests(session: Session, ms: MarkerSet, params: CleanParams,
+                 refs: SubjectReferences | None) -> Iterator[PoseSource]:
+    """The first rest periods of the session's subject takes other than the neutral take, in session order,
+    each cleaned when drawn (a take whose capture cannot be read or cleaned, or without a rest, is passed over)."""
+    for other in session.takes:
+        if other.kind == "neutral" or not _subject_take(session, other):
             continue
+        try:
+            rest = _clean_pose(other, ms, params, refs)
+        except GazepipeError:
+            continue
+        if rest is not None and rest.n_frames:
+            yield PoseSource(f"first rest period of take {other.id}", other.id, "rest", rest)
+
+
+def _first_givers(rests: Iterable[PoseSource], need: dict[str, tuple[str, ...]], min_frames: int) -> list[PoseSource]:
+    """Of ``rests``, in order, those that give a segment of ``need`` (name: markers) still without one; the
+    segments given leave ``need``. No rest is drawn once every segment has one."""
+    out: list[PoseSource] = []
+    if not need:
+        return out
+    for pose in rests:
         solved = [seg for seg, names in need.items() if _gives_segment(pose.markers, names, min_frames)]
         if solved:
             out.append(pose)
             for seg in solved:
                 need.pop(seg)
+            if not need:
+                break
     return out
+
+
+def _fallback_rests(poses: list[PoseSource], take_id: str, ms: MarkerSet, missing: list[str],
+                    min_frames: int) -> list[PoseSource]:
+    """Neutral sources of last resort (SPEC §3.3) for a take whose segments ``missing`` have none: among the
+    session's first rest periods (``poses``, in session order) of the other takes, each that gives a segment
+    still missing."""
+    rests = (pose for pose in poses if pose.role == "rest" and pose.take != take_id)
+    return _first_givers(rests, {seg: ms.segment(seg).markers for seg in missing}, min_frames)
 
 
 def run_frames(ctx: TakeContext) -> UnitResult:
