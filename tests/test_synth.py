@@ -388,7 +388,20 @@ def test_module_entry_writes_the_bundled_sample(tmp_path: Path) -> None:
     theirs = sorted(p.relative_to(sample) for p in sample.rglob("*") if p.is_file())
     assert ours == theirs
     _, mismatch, errors = filecmp.cmpfiles(tmp_path / "s", sample, [str(p) for p in ours], shallow=False)
-    assert not mismatch and not errors, mismatch[:5]
+    assert not errors
+    # the inputs a run reads are the same bytes; the ground truth is float64 arithmetic whose last bits may
+    # differ between numpy releases (seen: 2e-13 mm), so its arrays are compared to round-off
+    assert not [m for m in mismatch if not m.endswith(".npz")], mismatch[:5]
+    for name in mismatch:
+        with np.load(tmp_path / "s" / name) as ours_npz, np.load(sample / name) as theirs_npz:
+            assert ours_npz.files == theirs_npz.files
+            for key in ours_npz.files:
+                a, b = ours_npz[key], theirs_npz[key]
+                assert a.dtype == b.dtype and a.shape == b.shape, (name, key)
+                if a.dtype.kind == "f":
+                    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9, err_msg=f"{name}:{key}")
+                else:
+                    assert np.array_equal(a, b), (name, key)
 
 
 def test_a_four_segment_layout_in_a_y_up_lab(tmp_path):

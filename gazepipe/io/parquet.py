@@ -56,7 +56,13 @@ def read_table(path: str | Path, schema: pa.Schema | None = None, columns: list[
     """Read a Parquet file (only ``columns`` when given; the schema's metadata is kept) and check it against
     ``schema`` (when given)."""
     try:
-        table = pq.read_table(str(path), columns=columns)
+        # one file's reader, not pq.read_table: that goes through pyarrow.dataset, whose first import (with
+        # pandas) costs a process about a second, and ignores nothing a single file needs
+        with pq.ParquetFile(str(path)) as pf:
+            missing = [c for c in columns or () if c not in pf.schema_arrow.names]
+            if missing:
+                raise InputError(path, f"no column {', '.join(map(repr, missing))}")
+            table = pf.read(columns=columns)
     except FileNotFoundError:
         raise InputError(path, "file not found") from None
     except (pa.ArrowException, OSError) as exc:

@@ -149,8 +149,11 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
                  params: dict[str, Any] | None = None, executor: str = "process", jobs: int | None = None,
                  scheduler: str | None = None, force: bool = False, dry_run: bool = False,
                  log: EventLog | None = None, heartbeat_every: int = 10,
-                 report: RunReport | None = None) -> RunSummary:
+                 report: RunReport | None = None, preload: Sequence[str] = ()) -> RunSummary:
     """Run the stages (up to ``until``) on every take of ``sessions`` into ``out``.
+
+    ``preload``: modules the workers import before their first job, besides those of the registered stages (say,
+    what ``report``'s jobs run); with the process executor they are imported once and shared by every worker.
 
     ``report``: told when the takes are done, of each dataset built and when the datasets are done (only when
     units ran; :class:`RunReport`) and, at the end, still under the output folder's lock, ``finish`` (every run
@@ -176,7 +179,8 @@ def run_pipeline(sessions: Sequence[SessionLike], out: str | Path, *, until: str
         planned = plan_run(sessions, layout.root, until=until, params=params, force=force, hashes=hashes)
         todo, session_todo = _record_plan(planned, summary, log, report)
         n_before = sum(bool(u.error) for u in planned.plans if u.take != SESSION_UNIT)
-        with _Workers(executor, jobs, scheduler, max(len(todo), len(session_todo))) as workers:
+        with _Workers(executor, jobs, scheduler, max(len(todo), len(session_todo)),
+                      (*registry.modules(), *preload)) as workers:
             failed_session = _run_sessions(planned.session_jobs, session_todo, summary, log, workers)
             for j in todo:
                 j.failed_session = frozenset(failed_session.get(j.session.id, ()))
@@ -334,8 +338,10 @@ class RunReport(Protocol):
 class _Workers:
     """The run's executor, started when first needed (a run with nothing to do starts no cluster)."""
 
-    def __init__(self, executor: str, jobs: int | None, scheduler: str | None, n_takes: int) -> None:
+    def __init__(self, executor: str, jobs: int | None, scheduler: str | None, n_takes: int,
+                 preload: Sequence[str] = ()) -> None:
         self.n = min(n_takes, jobs or os.cpu_count() or 1)
+        self.preload = tuple(preload)
         self.kind = "serial" if (executor == "process" and self.n <= 1) else executor
         self.scheduler = scheduler
         self._ex: Executor | None = None
@@ -355,7 +361,7 @@ class _Workers:
     @property
     def executor(self):
         if self._ex is None:
-            self._ex = make_executor(self.kind, self.n, self.scheduler)
+            self._ex = make_executor(self.kind, self.n, self.scheduler, self.preload)
         return self._ex
 
     def __enter__(self) -> _Workers:

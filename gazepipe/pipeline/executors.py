@@ -8,12 +8,15 @@ from __future__ import annotations
 import importlib.util
 import multiprocessing
 import os
+from collections.abc import Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 
 from gazepipe.errors import ConfigError
 from gazepipe.pipeline.lifeline import worker_initializer
 
 EXECUTORS = ("serial", "process", "dask")
+#: the preload module that makes a helper process die with its parent (:mod:`gazepipe.pipeline.lifeline`)
+LIFELINE = "gazepipe.pipeline.lifeline_preload"
 
 #: how to get the Dask executor, said when it is asked for and missing
 DASK_INSTALL = "pip install 'gazepipe[dask]' (in a source checkout: pip install -e \".[dask]\")"
@@ -46,7 +49,8 @@ QUIET_LOCAL_CLUSTER = {
 class DaskExecutor(Executor):
     """A ``dask.distributed`` client as an executor: a local cluster, or an existing scheduler's address."""
 
-    def __init__(self, scheduler: str | None = None, workers: int | None = None) -> None:
+    def __init__(self, scheduler: str | None = None, workers: int | None = None,
+                 preload: Sequence[str] = ()) -> None:
         try:
             from distributed import Client, LocalCluster
         except ImportError:
@@ -71,7 +75,7 @@ class DaskExecutor(Executor):
                 # each worker process dies with this one (gazepipe.pipeline.lifeline)
                 self._cluster = LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1,
                                              processes=True, dashboard_address=None,
-                                             preload=["gazepipe.pipeline.lifeline_preload"])
+                                             preload=[LIFELINE, *preload])
                 self._client = Client(self._cluster)
             except BaseException:
                 self._config.__exit__(None, None, None)
@@ -120,8 +124,11 @@ def default_workers() -> int:
     return max(1, min(os.cpu_count() or 1, 8))
 
 
-def make_executor(kind: str, jobs: int | None = None, scheduler: str | None = None) -> Executor:
-    """Build the executor named ``kind`` (``serial``, ``process`` or ``dask``)."""
+def make_executor(kind: str, jobs: int | None = None, scheduler: str | None = None,
+                  preload: Sequence[str] = ()) -> Executor:
+    """Build the executor named ``kind`` (``serial``, ``process`` or ``dask``). ``preload``: modules each worker
+    imports before its first job (a local cluster's workers; with ``process``, the forkserver imports them once
+    and every worker it forks shares them, which spares each worker seconds of imports)."""
     if scheduler and kind != "dask":
         kind = "dask"
     if kind == "serial" or (kind == "process" and (jobs or default_workers()) == 1):
@@ -130,9 +137,9 @@ def make_executor(kind: str, jobs: int | None = None, scheduler: str | None = No
         # forkserver: workers do not inherit the parent's threads or locks. The forkserver dies with this
         # process and the workers with the forkserver (gazepipe.pipeline.lifeline)
         ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(["gazepipe.pipeline.lifeline_preload"])
+        ctx.set_forkserver_preload([LIFELINE, *preload])
         return ProcessPoolExecutor(max_workers=jobs or default_workers(), mp_context=ctx,
                                    initializer=worker_initializer)
     if kind == "dask":
-        return DaskExecutor(scheduler, jobs)
+        return DaskExecutor(scheduler, jobs, preload)
     raise ConfigError(None, f"unknown executor '{kind}' (choose from {', '.join(EXECUTORS)})")

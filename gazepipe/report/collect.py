@@ -372,7 +372,10 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
             if not (t_idx.size or a_idx.size):
                 continue
             try:
-                t = pq.read_table(str(f), columns=feature_cols)
+                t = read_table(f, columns=feature_cols)
+            except GazepipeError as exc:
+                d.errors.append(exc.one_line())
+                continue
             except (OSError, pa.ArrowException) as exc:
                 d.errors.append(f"{f}: unreadable ({' '.join(str(exc).split())})")
                 continue

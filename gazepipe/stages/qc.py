@@ -87,8 +87,19 @@ def _hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
-def _fail(path: str | Path | None, where: str, problem: str) -> QCRecordError:
-    return QCRecordError(path, problem, key=where)
+class _Bad(Exception):
+    """A value that does not parse; ``where`` collects the keys and indices from the value up (joined only on
+    failure, so a record that parses builds no key strings)."""
+
+    def __init__(self, problem: str) -> None:
+        super().__init__(problem)
+        self.problem = problem
+        self.where: list[str] = []
+
+
+def _at(bad: _Bad, key: str) -> _Bad:
+    bad.where.append(key)
+    return bad
 
 
 def _kind(v: Any) -> str:
@@ -96,78 +107,162 @@ def _kind(v: Any) -> str:
 
 
 def _parse_dataclass(cls: type, value: Any, where: str, path: str | Path | None) -> Any:
-    if not isinstance(value, Mapping):
-        raise _fail(path, where, f"is {_kind(value)}, not an object ({cls.__name__})")
-    hints = _hints(cls)
-    kw: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
-        at = f"{where}.{f.name}"
-        if f.name not in value:
-            if ABSENT_WHEN in f.metadata:
-                kw[f.name] = None
-                continue
-            raise _fail(path, at, f"missing from the {cls.__name__} record")
-        kw[f.name] = _convert(hints[f.name], value[f.name], at, path)
-    out = cls(**kw)
-    if isinstance(out, QCRecord):
-        for key, problem in out.problems():
-            raise _fail(path, f"{where}.{key}", problem)
-    return out
+    try:
+        return _converter(cls)(value)
+    except _Bad as bad:
+        raise QCRecordError(path, bad.problem, key=where + "".join(reversed(bad.where))) from None
 
 
-def _convert(tp: Any, v: Any, where: str, path: str | Path | None) -> Any:
+Converter = typing.Callable[[Any], Any]
+
+
+@functools.cache
+def _converter(tp: Any) -> Converter:
+    """The function that checks and converts a JSON value to the field type ``tp`` (made once per type)."""
     if tp is Any:
-        return v
+        return _as_is
     origin = typing.get_origin(tp)
     if origin is typing.Union or origin is types.UnionType:
-        args = typing.get_args(tp)
-        if v is None:
-            if type(None) in args:
-                return None
-            raise _fail(path, where, "is null")
-        rest = [a for a in args if a is not type(None)]
-        if len(rest) != 1:
-            raise TypeError(f"unsupported QC field type {tp}")
-        return _convert(rest[0], v, where, path)
+        return _optional(tp)
     if dataclasses.is_dataclass(tp):
-        return _parse_dataclass(typing.cast(type, tp), v, where, path)
-    if tp is bool:
-        if isinstance(v, bool | np.bool_):
-            return bool(v)
-        raise _fail(path, where, f"is {_kind(v)}, not a boolean")
-    if tp is int:
-        if isinstance(v, numbers.Integral) and not isinstance(v, bool | np.bool_):
-            return int(v)
-        raise _fail(path, where, f"is {_kind(v)}, not an integer")
-    if tp is float:
-        if isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_):
-            # a JSON integer stays one (the report echoes some values as the record has them)
-            return v if type(v) in (int, float) else float(v)
-        raise _fail(path, where, f"is {_kind(v)}, not a number")
-    if tp is str:
-        if isinstance(v, str):
-            return v
-        raise _fail(path, where, f"is {_kind(v)}, not a string")
+        return _dataclass(typing.cast(type, tp))
+    if tp in _SCALARS:
+        return _SCALARS[tp]
     if origin is tuple:
-        args = typing.get_args(tp)
-        if not isinstance(v, list | tuple):
-            raise _fail(path, where, f"is {_kind(v)}, not a list")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], x, f"{where}[{i}]", path) for i, x in enumerate(v))
-        if len(v) != len(args):
-            raise _fail(path, where, f"has {len(v)} item(s), not {len(args)}")
-        return tuple(_convert(a, x, f"{where}[{i}]", path) for i, (a, x) in enumerate(zip(args, v, strict=True)))
+        return _tuple(tp)
     if origin in (Mapping, dict) or tp in (Mapping, dict):
-        args = typing.get_args(tp) or (str, Any)
+        return _mapping(tp)
+    raise TypeError(f"unsupported QC field type {tp}")
+
+
+def _as_is(v: Any) -> Any:
+    return v
+
+
+def _optional(tp: Any) -> Converter:
+    args = typing.get_args(tp)
+    rest = [a for a in args if a is not type(None)]
+    if len(rest) != 1:
+        raise TypeError(f"unsupported QC field type {tp}")
+    inner, nullable = _converter(rest[0]), type(None) in args
+
+    def convert(v: Any) -> Any:
+        if v is None:
+            if nullable:
+                return None
+            raise _Bad("is null")
+        return inner(v)
+    return convert
+
+
+def _dataclass(cls: type) -> Converter:
+    hints = _hints(cls)
+    fields = [(f.name, ABSENT_WHEN in f.metadata, _converter(hints[f.name])) for f in dataclasses.fields(cls)]
+    checked = issubclass(cls, QCRecord)
+
+    def convert(value: Any) -> Any:
+        if not isinstance(value, Mapping):
+            raise _Bad(f"is {_kind(value)}, not an object ({cls.__name__})")
+        kw: dict[str, Any] = {}
+        for name, may_be_absent, conv in fields:
+            if name not in value:
+                if may_be_absent:
+                    kw[name] = None
+                    continue
+                raise _at(_Bad(f"missing from the {cls.__name__} record"), f".{name}")
+            try:
+                kw[name] = conv(value[name])
+            except _Bad as bad:
+                bad.where.append(f".{name}")
+                raise
+        out = cls(**kw)
+        if checked:
+            for key, problem in out.problems():
+                raise _at(_Bad(problem), f".{key}")
+        return out
+    return convert
+
+
+def _boolean(v: Any) -> bool:
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    raise _Bad(f"is {_kind(v)}, not a boolean")
+
+
+def _integer(v: Any) -> int:
+    if isinstance(v, numbers.Integral) and not isinstance(v, bool | np.bool_):
+        return int(v)
+    raise _Bad(f"is {_kind(v)}, not an integer")
+
+
+def _number(v: Any) -> Any:
+    if isinstance(v, numbers.Real) and not isinstance(v, bool | np.bool_):
+        # a JSON integer stays one (the report echoes some values as the record has them)
+        return v if type(v) in (int, float) else float(v)
+    raise _Bad(f"is {_kind(v)}, not a number")
+
+
+def _string(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    raise _Bad(f"is {_kind(v)}, not a string")
+
+
+_SCALARS: dict[Any, Converter] = {bool: _boolean, int: _integer, float: _number, str: _string}
+
+
+def _tuple(tp: Any) -> Converter:
+    args = typing.get_args(tp)
+    if len(args) == 2 and args[1] is Ellipsis:
+        item = _converter(args[0])
+
+        def convert_all(v: Any) -> tuple[Any, ...]:
+            if not isinstance(v, list | tuple):
+                raise _Bad(f"is {_kind(v)}, not a list")
+            out = []
+            for i, x in enumerate(v):
+                try:
+                    out.append(item(x))
+                except _Bad as bad:
+                    bad.where.append(f"[{i}]")
+                    raise
+            return tuple(out)
+        return convert_all
+    items = [_converter(a) for a in args]
+
+    def convert_fixed(v: Any) -> tuple[Any, ...]:
+        if not isinstance(v, list | tuple):
+            raise _Bad(f"is {_kind(v)}, not a list")
+        if len(v) != len(items):
+            raise _Bad(f"has {len(v)} item(s), not {len(items)}")
+        out = []
+        for i, (conv, x) in enumerate(zip(items, v, strict=True)):
+            try:
+                out.append(conv(x))
+            except _Bad as bad:
+                bad.where.append(f"[{i}]")
+                raise
+        return tuple(out)
+    return convert_fixed
+
+
+def _mapping(tp: Any) -> Converter:
+    conv = _converter((typing.get_args(tp) or (str, Any))[1])
+
+    def convert(v: Any) -> dict[str, Any]:
         if not isinstance(v, Mapping):
-            raise _fail(path, where, f"is {_kind(v)}, not an object")
+            raise _Bad(f"is {_kind(v)}, not an object")
         out: dict[str, Any] = {}
         for k, x in v.items():
             if not isinstance(k, str):
-                raise _fail(path, where, f"has a key {k!r} that is not a string")
-            out[k] = _convert(args[1], x, f"{where}.{k}", path)
+                raise _Bad(f"has a key {k!r} that is not a string")
+            try:
+                out[k] = conv(x)
+            except _Bad as bad:
+                bad.where.append(f".{k}")
+                raise
         return out
-    raise TypeError(f"unsupported QC field type {tp}")
+    return convert
 
 
 __all__ = ["ABSENT_WHEN", "QCRecord", "QCRecordError", "absent_when"]
