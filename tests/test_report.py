@@ -244,8 +244,9 @@ def test_report_is_byte_identical_on_a_second_run(clean_out: Path) -> None:
 
 
 def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) -> None:
-    """A run starts the report's take checks when its takes are done (before any dataset exists), finishes it
-    after the datasets, and writes what `gazepipe validate` writes; a run with nothing to do keeps it."""
+    """A run starts the report's take checks once its takes and dataset builds are done (the builds are not held
+    up by the report's work in the run's process), finishes it after the datasets, and writes what `gazepipe
+    validate` writes; a run with nothing to do keeps it."""
     import io
 
     from gazepipe.cli.main import REPORT_PLOT_TAKES, _RunReport
@@ -272,7 +273,7 @@ def test_run_report_starts_with_the_takes_and_equals_validate(tmp_path: Path) ->
         run_pipeline([load_session(session)], out, executor="serial", log=log, report=Spy(out, log))
 
     run()
-    assert calls == [("takes_done", False), ("finish", True)]
+    assert calls == [("takes_done", True), ("finish", True)]
     written = {n: (out / "qc" / n).read_bytes() for n in ("report.json", "takes.parquet", "report.html")}
     validate_output(out, plot_takes=REPORT_PLOT_TAKES)
     for n, data in written.items():

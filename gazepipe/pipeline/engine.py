@@ -310,8 +310,9 @@ class WorkerPool:
 class RunReport(Protocol):
     """What a run tells the QC report (see :func:`run_pipeline`). When take units run, in this order:
     :meth:`take_job` (before the takes are planned onto the workers), :meth:`takes_started`,
-    :meth:`take_finished` for each take, :meth:`takes_done`, :meth:`dataset_built` for each dataset built,
-    :meth:`datasets_done` (the workers are still there, for the last time). Then :meth:`finish`, always."""
+    :meth:`take_finished` for each take, :meth:`dataset_built` for each dataset built, :meth:`takes_done` (the
+    takes, and the dataset builds when the run makes them, are done), :meth:`datasets_done` (the workers are
+    still there, for the last time). Then :meth:`finish`, always."""
 
     def take_job(self) -> Callable[[str, str, Any, int | None], None] | None:
         """A picklable function each take's job runs after its units, on its worker (see
@@ -376,8 +377,7 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
                     force: bool, summary: RunSummary, log: EventLog, workers: _Workers,
                     report: RunReport | None = None) -> int:
     """Build the datasets that are not up to date, in this process; the number built.
-    ``report`` is told when the builds are on their way (:meth:`RunReport.takes_done`: what it starts then does
-    not hold them up) and of each dataset built."""
+    ``report`` is told of each dataset built, then that the builds are done (:meth:`RunReport.takes_done`)."""
     todo = []
     for d in plan_datasets(sessions, layout, plans, params, force):
         if d.run:
@@ -389,11 +389,11 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
             log.emit("error", "dataset", f"{d.error} (failed earlier on these same inputs; --force retries)",
                      stage="build", dataset=d.name, status="failed")
     # here, one after the other: a build only merges what the takes' units made and places their files (a
-    # worker would first have to finish what the report gave it)
-    results = ((d, run_dataset(d, layout, params)) for d in todo)
-    if report is not None:
-        report.takes_done()
-    for d, o in results:
+    # worker would first have to finish what the report gave it). The report's own work in this process waits
+    # for the builds: both are Python, and sharing this process's interpreter would only hold up the builds,
+    # which the report's dataset jobs on the workers wait for
+    for d in todo:
+        o = run_dataset(d, layout, params)
         summary.outcomes.append(o)
         if o.status == "ok":
             log.emit("info", "dataset", f"dataset {d.name}: built from {len(d.takes)} takes "
@@ -406,6 +406,8 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
         else:
             log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
                      traceback=o.traceback or None)
+    if report is not None:
+        report.takes_done()
     return len(todo)
 
 

@@ -74,11 +74,11 @@ class ReportInBackground:
     """The report of a run that is going on, on its workers ``pool`` (a
     :class:`gazepipe.pipeline.engine.WorkerPool`; ``None``: everything is done by :meth:`finish`).
 
-    The run calls, in order: :meth:`take_finished` for each take whose units are done; :meth:`start` when every
-    take is done and the dataset builds are on their way (the checks of every take are then gathered in a
-    thread, mostly from the cache the workers filled; then the plots the page will show and are not drawn yet
-    go to the workers); :meth:`dataset_built` for each dataset built (its checks and plots go to a worker);
-    :meth:`wait_for_workers` before its workers stop; :meth:`finish`, which writes ``qc/`` as
+    The run calls, in order: :meth:`take_finished` for each take whose units are done; :meth:`dataset_built` for
+    each dataset built (its checks and plots go to a worker); :meth:`start` when every take and build is done
+    (the checks of every take are then gathered in a thread, mostly from the cache the workers filled; then the
+    plots the page will show and are not drawn yet go to the workers); :meth:`wait_for_workers` before its
+    workers stop; :meth:`finish`, which writes ``qc/`` as
     :func:`gazepipe.report.validate.validate_output` would have.
 
     The plots are drawn ahead, before every take is done, once no take waits for a worker (the workers would
