@@ -19,22 +19,42 @@ plus any installed under the "gazepipe.trainers" entry-point group.
 Progress (torch trainers): per epoch the training loss, the validation loss and the
 seconds, on stderr: a bar on a terminal, JSON lines otherwise (--log-format).
 Exit codes: 0 ok; 1 the data could not be read or training failed; 2 usage error,
-unknown trainer, a dataset the trainer cannot use, or --device cuda without a GPU.
+unknown trainer, a dataset the trainer cannot use, a bad --option, --device cuda
+without a GPU, or an --out folder that is not empty without --force.
 """
 
 
-def parse_options(pairs: tuple[str, ...]) -> dict[str, Any]:
-    """``key=value`` pairs → dict; values parsed as JSON where they parse (3, 0.5, true, "a"), else text."""
-    out: dict[str, Any] = {}
+class _TrainCommand(click.Command):
+    """``gazepipe train``, whose help ends with every trainer's ``--option``s (read from their declarations
+    when the help is shown)."""
+
+    def format_epilog(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        super().format_epilog(ctx, formatter)
+        from gazepipe.errors import GazepipeError
+        from gazepipe.trainers.base import available, load_trainer, option_lines
+
+        for name in available():
+            try:
+                lines = option_lines(load_trainer(name)) or ["(none)"]
+            except (GazepipeError, ImportError, AttributeError) as exc:
+                lines = [f"(cannot be loaded: {exc})"]
+            formatter.write_paragraph()
+            formatter.write_text(f"--option for {name}:")
+            with formatter.indentation():
+                for line in lines:
+                    formatter.write_text(line)
+
+
+def parse_options(pairs: tuple[str, ...]) -> dict[str, str]:
+    """``key=value`` pairs → dict of texts (the trainer's declarations type them:
+    :func:`gazepipe.trainers.base.check_options`)."""
+    out: dict[str, str] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         key = key.strip()
         if not sep or not key:
             raise ConfigError(None, f"--option {pair!r}: expected KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
+        out[key] = value
     return out
 
 
@@ -74,7 +94,7 @@ def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
     return lines
 
 
-@click.command("train", epilog=EPILOG)
+@click.command("train", cls=_TrainCommand, epilog=EPILOG)
 @click.argument("name")
 @click.option("--data", "data_dir", required=True, type=click.Path(file_okay=False),
               help="A built dataset folder (OUT/datasets/<name>).")
@@ -91,14 +111,16 @@ def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
 @click.option("--patience", type=click.IntRange(min=1), default=None, metavar="N",
               help="Stop after N epochs without a lower validation loss; keep the best weights.")
 @click.option("--option", "opts", multiple=True, metavar="KEY=VALUE",
-              help="A trainer-specific option; repeatable.")
+              help="A trainer-specific option, typed and range-checked (listed below); repeatable.")
+@click.option("--force", is_flag=True, help="Train into an --out folder that is not empty, overwriting the model "
+              "there (default: refuse).")
 @click.option("--json", "as_json", is_flag=True, help="Print the metrics as JSON.")
 @click.option("--log-format", type=click.Choice(["auto", "text", "json"]), default="auto", show_default=True,
               help="Progress on stderr: a bar on a terminal, JSON lines otherwise (auto).")
 @handle_errors
 def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: int | None, lr: float | None,
-          seed: int, device: str | None, patience: int | None, opts: tuple[str, ...], as_json: bool,
-          log_format: str) -> None:
+          seed: int, device: str | None, patience: int | None, opts: tuple[str, ...], force: bool,
+          as_json: bool, log_format: str) -> None:
     """Train the model NAME on a built dataset and save it in --out.
 
     The trainer checks the dataset first (its name, schema version and columns) and refuses one it cannot use.
@@ -111,10 +133,11 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     """
     from gazepipe.datasets import open_dataset
     from gazepipe.pipeline.events import EventLog
+    from gazepipe.pipeline.runner import new_run_id
     from gazepipe.trainers.base import TrainOptions, check_compatible, check_options, load_trainer
 
     trainer = load_trainer(name)
-    log = EventLog(log_format)
+    log = EventLog(log_format, run_id=new_run_id())
     options = TrainOptions(epochs=epochs, hidden=hidden, lr=lr, seed=seed, device=device, patience=patience,
                            extra=parse_options(opts), progress=lambda e: _progress(log, e))
     check_options(trainer, options)
@@ -123,8 +146,9 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     data_path = Path(data_dir)
     info, columns = dataset_header(data_path)
     check_compatible(trainer, info, columns, data_path)
-    data = open_dataset(data_path)
     out = Path(out_dir)
+    _check_out(out, force)
+    data = open_dataset(data_path)
     out.mkdir(parents=True, exist_ok=True)
     metrics = trainer.train(data, out, options)
     if metrics.get("epochs_run"):
@@ -139,6 +163,16 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
         click.echo(f"  {line}")
     for line in _summary(metrics):
         click.echo(line)
+
+
+def _check_out(out: Path, force: bool) -> None:
+    """Refuse (exit 2, naming the folder) an ``--out`` that is a file, or a folder with something in it unless
+    ``force``: training writes over the model there."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(out, "--out is a file, not a folder")
+    if not force and out.is_dir() and any(out.iterdir()):
+        raise ConfigError(out, "--out is not empty (it may hold a model): give --force to overwrite it, or "
+                               "another folder")
 
 
 def cores() -> int:

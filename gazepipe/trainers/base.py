@@ -15,6 +15,8 @@ from __future__ import annotations
 import importlib
 import io
 import json
+import math
+import re
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,7 +54,7 @@ class TrainOptions:
     device : ``auto`` (``None``), ``cpu``, ``cuda`` or ``cuda:N``: where a torch trainer trains.
     patience : stop after this many epochs without a lower validation loss, keeping the best weights
         (``None``: every epoch, the last weights).
-    extra : every ``--option key=value`` (values parsed as JSON where they parse: 3, 0.5, true, "text").
+    extra : every ``--option key=value``, typed by :func:`check_options` from the trainer's declarations.
     progress : called with a dict after every minibatch and every epoch (see :mod:`gazepipe.trainers.loop`);
         ``None``: silent.
     """
@@ -83,7 +85,8 @@ class Trainer(Protocol):
     dataset : the dataset name(s) it trains on (_dataset.json ``name``); a string or a tuple of accepted names.
     schema_version : the dataset schema version it reads (_dataset.json ``schema_version``).
     required_columns : columns the dataset's files must have.
-    options : known ``--option`` keys → one-line help (unknown keys are refused).
+    options : known ``--option`` keys → :class:`Option` (type, default, range, help; a plain text instead is
+        an untyped option's help); unknown keys are refused.
     knobs : optional; which of ``epochs``, ``hidden``, ``lr``, ``device``, ``patience`` it uses (default the first
         three; others are refused).
     """
@@ -92,7 +95,7 @@ class Trainer(Protocol):
     dataset: str | tuple[str, ...]
     schema_version: int
     required_columns: tuple[str, ...]
-    options: dict[str, str]
+    options: dict[str, Option] | dict[str, str]
 
     def train(self, data: Any, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
         """Train on ``data`` (a :class:`gazepipe.datasets.Dataset`), save the model in ``out_dir``, return the
@@ -149,18 +152,184 @@ def check_compatible(trainer: Trainer, info: dict[str, Any], columns: list[str],
 
 
 def check_options(trainer: Trainer, options: TrainOptions) -> None:
-    """Refuse (exit 2) an ``--option`` the trainer does not declare and a knob (``--epochs``, ``--hidden``,
+    """Check and type ``options.extra`` against the trainer's declared ``--option``s (:func:`typed_options`,
+    in place) and refuse (exit 2) an ``--option`` the trainer does not declare and a knob (``--epochs``, ``--hidden``,
     ``--lr``, ``--device``, ``--patience``) it does not use (its optional ``knobs`` attribute; the first three
     when absent)."""
     uses = tuple(getattr(trainer, "knobs", DEFAULT_KNOBS))
     unused = [f"--{k}" for k in KNOBS if getattr(options, k) is not None and k not in uses]
     if unused:
         raise ConfigError(None, f"trainer {trainer.name!r} does not use {', '.join(unused)}")
-    known = dict(getattr(trainer, "options", {}) or {})
-    unknown = sorted(k for k in options.extra if k not in known)
+    options.extra = typed_options(trainer, options.extra)
+
+
+# ------------------------------------------------------------------------------------------- --option values
+
+#: what a boolean ``--option`` accepts (any case)
+TRUE_WORDS = ("true", "1", "yes")
+FALSE_WORDS = ("false", "0", "no")
+_INT_RE = re.compile(r"^[+-]?\d+$")
+
+
+@dataclass(frozen=True)
+class Option:
+    """One ``--option NAME=VALUE`` a trainer declares: its type, default, allowed range and help.
+
+    Attributes
+    ----------
+    name : the key.
+    type : ``bool``, ``int``, ``float`` or ``str``.
+    default : the value when the option is not given; ``None`` when the trainer derives it (``help`` says how).
+    help : one line for ``gazepipe train --help``.
+    min, max : inclusive bounds of a number (``None``: unbounded).
+    min_open, max_open : the bound itself is not allowed.
+    choices : the values a ``str`` option accepts.
+    default_text : what a ``None`` default means, for people (``all``, ``the dataset's``).
+    """
+
+    name: str
+    type: type
+    default: Any
+    help: str
+    min: float | None = None
+    max: float | None = None
+    min_open: bool = False
+    max_open: bool = False
+    choices: tuple[str, ...] = ()
+    default_text: str = ""
+
+    def allowed(self) -> str:
+        """What the option accepts, for people (``a whole number >= 1``, ``true or false``)."""
+        if self.type is bool:
+            return "true or false"
+        if self.type is str:
+            return f"one of {', '.join(self.choices)}" if self.choices else "a text"
+        kind = "a whole number" if self.type is int else "a number"
+        lo = None if self.min is None else ("(" if self.min_open else "[", self.min)
+        hi = None if self.max is None else (self.max, ")" if self.max_open else "]")
+        if lo and hi:
+            return f"{kind} in {lo[0]}{lo[1]:g}, {hi[0]:g}{hi[1]}"
+        if lo:
+            return f"{kind} {'>' if self.min_open else '>='} {lo[1]:g}"
+        if hi:
+            return f"{kind} {'<' if self.max_open else '<='} {hi[0]:g}"
+        return kind
+
+    def shown_default(self) -> str:
+        if self.default is None:
+            return self.default_text or "none"
+        if self.type is bool:
+            return "true" if self.default else "false"
+        return f"{self.default:g}" if self.type is float else str(self.default)
+
+    def parse(self, value: Any) -> Any:
+        """``value`` (the text after ``=``, or a Python value through the API) as the option's type; a
+        :class:`ConfigError` (exit 2) naming the option, the value and what is allowed when it is not."""
+        got = self._typed(value)
+        if got is None or not self._in_range(got):
+            raise ConfigError(None, f"--option {self.name}={value}: {self.name} must be {self.allowed()}")
+        return got
+
+    def _typed(self, value: Any) -> Any:
+        if isinstance(value, str):
+            text = value.strip()
+            if self.type is bool:
+                word = text.lower()
+                return True if word in TRUE_WORDS else False if word in FALSE_WORDS else None
+            if self.type is int:
+                return int(text) if _INT_RE.match(text) else None
+            if self.type is float:
+                try:
+                    x = float(text)
+                except ValueError:
+                    return None
+                return x if math.isfinite(x) else None
+            return text
+        if self.type is bool:
+            return value if isinstance(value, bool) else None
+        if isinstance(value, bool):
+            return None
+        if self.type is int:
+            return value if isinstance(value, int) else None
+        if self.type is float:
+            ok = isinstance(value, int | float) and math.isfinite(value)
+            return float(value) if ok else None
+        return None
+
+    def _in_range(self, x: Any) -> bool:
+        if self.type is str:
+            return not self.choices or x in self.choices
+        if self.type is bool:
+            return True
+        if self.min is not None and (x < self.min or (self.min_open and x == self.min)):
+            return False
+        return not (self.max is not None and (x > self.max or (self.max_open and x == self.max)))
+
+
+def declared_options(trainer: Any) -> dict[str, Option | str]:
+    """A trainer's ``options``: name → :class:`Option` (a plain text is the help of an untyped option of a
+    third-party trainer, whose value is parsed as JSON where it parses, else kept as text)."""
+    return dict(getattr(trainer, "options", None) or {})
+
+
+def options_table(*options: Option) -> dict[str, Option]:
+    """The ``options`` attribute of a trainer: name → declaration."""
+    return {o.name: o for o in options}
+
+
+def _untyped(value: Any) -> Any:
+    if not isinstance(value, str):
+        return value
+    try:
+        return json.loads(value)
+    except json.JSONDecodeError:
+        return value
+
+
+def typed_options(trainer: Any, values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` (``--option`` texts, or Python values) checked against the trainer's declarations and
+    converted to their types; an unknown name or a bad value is a :class:`ConfigError` (exit 2)."""
+    known = declared_options(trainer)
+    unknown = sorted(k for k in values if k not in known)
     if unknown:
         listed = ", ".join(sorted(known)) or "none"
         raise ConfigError(None, f"trainer {trainer.name!r} has no option {', '.join(unknown)} (options: {listed})")
+    out: dict[str, Any] = {}
+    for k, v in values.items():
+        decl = known[k]
+        out[k] = decl.parse(v) if isinstance(decl, Option) else _untyped(v)
+    return out
+
+
+def option_lines(trainer: Any) -> list[str]:
+    """One line per ``--option`` of a trainer: name, type, default, what it accepts and its help."""
+    lines = []
+    for name, decl in sorted(declared_options(trainer).items()):
+        if isinstance(decl, Option):
+            lines.append(f"{name} ({decl.type.__name__}, default {decl.shown_default()}; {decl.allowed()}): "
+                         f"{decl.help}")
+        else:
+            lines.append(f"{name}: {decl}")
+    return lines
+
+
+def loop_options(unit: str, window_default: str, stride_default: str) -> tuple[Option, ...]:
+    """The ``--option`` declarations of the torch trainers' common training loop
+    (:func:`gazepipe.trainers.loop.fit_config`); ``unit`` names what a minibatch holds (``windows``)."""
+    return (
+        Option("batch", int, 64, f"{unit} per minibatch", min=1),
+        Option("window", int, None, f"frames per {unit[:-1]}", min=1, default_text=window_default),
+        Option("stride", int, None, f"step between {unit}, in frames", min=1, default_text=stride_default),
+        Option("max_windows", int, None, f"use at most this many training {unit} (a seeded subset)", min=1,
+               default_text="all"),
+        Option("threads", int, None, "torch CPU threads", min=1,
+               default_text="every core the process may use, under gazepipe train"),
+        Option("schedule", str, "cosine", "learning rate: cosine (decayed to 0 over the epochs) or constant",
+               choices=("cosine", "constant")),
+        Option("clip", float, 1.0, "largest gradient norm (0: no clipping)", min=0),
+        Option("max_seconds", float, None, "stop after the epoch that passes this much training time, in s",
+               min=0, min_open=True, default_text="no limit"),
+    )
 
 
 # ------------------------------------------------------------------------------------------- saving models

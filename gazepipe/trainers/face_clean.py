@@ -26,7 +26,14 @@ from typing import Any
 import numpy as np
 
 from gazepipe.errors import ConfigError
-from gazepipe.trainers.base import TrainOptions, read_model_json
+from gazepipe.trainers.base import (
+    Option,
+    TrainOptions,
+    check_options,
+    loop_options,
+    options_table,
+    read_model_json,
+)
 from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
 from gazepipe.trainers.torch_utils import (
     DeviceArrays,
@@ -108,20 +115,14 @@ class FaceCleanTrainer:
     schema_version = 1
     required_columns = COLUMNS
     knobs = ("epochs", "hidden", "lr", "device", "patience")
-    options = {
-        "dropout": "dropout after the LSTM (default 0.3)",
-        "w_der": "weight of the derivative loss (default 0.01)",
-        "batch": "chunks per minibatch (default 64)",
-        "window": "frames per chunk (default _dataset.json's, 200)",
-        "stride": "step between chunks (default _dataset.json's, 50)",
-        "max_windows": "use at most this many training chunks (seeded subset; default all)",
-        "threads": "torch CPU threads (default: every core the process may use, under gazepipe train)",
-        "schedule": "learning rate: cosine (decayed to 0 over the epochs; default) or constant",
-        "clip": "largest gradient norm (default 1; 0: no clipping)",
-        "max_seconds": "stop after the epoch that passes this much training time, s (default: no limit)",
-    }
+    options = options_table(
+        Option("dropout", float, 0.3, "dropout after the LSTM", min=0, max=1, max_open=True),
+        Option("w_der", float, 0.01, "weight of the derivative loss", min=0),
+        *loop_options("chunks", "_dataset.json's, 200", "_dataset.json's, 50"),
+    )
 
     def train(self, data, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
+        check_options(self, options)
         device = resolve_device(options.device)
         hidden = int(options.get("hidden", 128))
         fc = fit_config(options)
@@ -129,8 +130,6 @@ class FaceCleanTrainer:
         w_der = float(options.get("w_der", 0.01))
         window, stride = options.get("window", None), options.get("stride", None)
         max_windows = options.get("max_windows", None)
-        if not 0.0 <= dropout < 1.0:
-            raise ConfigError(None, f"option dropout must be in [0, 1), got {dropout}")
         rng = np.random.default_rng(options.seed)
         arrays, w = _chunks(data, "train", window, stride)
         if len(w) == 0:

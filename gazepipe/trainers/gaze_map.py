@@ -32,7 +32,16 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import ConfigError
-from gazepipe.trainers.base import TrainOptions, npz_bytes, read_model_json, save_model_json, write_atomic
+from gazepipe.trainers.base import (
+    Option,
+    TrainOptions,
+    check_options,
+    npz_bytes,
+    options_table,
+    read_model_json,
+    save_model_json,
+    write_atomic,
+)
 
 WEIGHTS = "gaze_map.npz"
 
@@ -265,13 +274,14 @@ class GazeMapTrainer:
     schema_version = 2
     required_columns = ("yaw_deg", "pitch_deg", "duration_s", "start_times", "overshoot_time", "overshoot", "p_plus")
     knobs: tuple[str, ...] = ()
-    options = {"k": "neighbours blended per request (Kovar-Gleicher k; default 4)",
-               "train_split": "the split whose rows form the map (default train)"}
+    options = options_table(
+        Option("k", int, 4, "neighbours blended per request (Kovar-Gleicher k)", min=1),
+        Option("train_split", str, "train", "the split whose rows form the map", choices=("train", "val", "test")),
+    )
 
     def train(self, data, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
+        check_options(self, options)
         k = int(options.get("k", 4))
-        if k < 1:
-            raise ConfigError(None, f"option k must be at least 1, got {k}")
         split = str(options.get("train_split", "train"))
         segments = list(data.features["start_times"])
         train = data.table(split=split)

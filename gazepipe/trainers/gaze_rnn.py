@@ -30,7 +30,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from gazepipe.errors import ConfigError
-from gazepipe.trainers.base import TrainOptions, read_model_json
+from gazepipe.trainers.base import (
+    Option,
+    TrainOptions,
+    check_options,
+    loop_options,
+    options_table,
+    read_model_json,
+)
 from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
 from gazepipe.trainers.torch_utils import (
     DeviceArrays,
@@ -138,20 +145,15 @@ class GazeRnnTrainer:
     schema_version = 1
     required_columns = ("x", "y")
     knobs = ("epochs", "hidden", "lr", "device", "patience")
-    options = {
-        "l2": "L2 weight-decay coefficient (default 8e-5; 1e-4 for gaze_rnn_lod)",
-        "batch": "windows per minibatch (default 64)",
-        "window": "frames per window (default _dataset.json's, 120)",
-        "stride": "step between windows (default _dataset.json's)",
-        "max_windows": "use at most this many training windows (seeded subset; default all)",
-        "threads": "torch CPU threads (default: every core the process may use, under gazepipe train)",
-        "residual": "predict the change of pose (Klein 8.2's residual variant; default true)",
-        "schedule": "learning rate: cosine (decayed to 0 over the epochs; default) or constant",
-        "clip": "largest gradient norm (default 1; 0: no clipping)",
-        "max_seconds": "stop after the epoch that passes this much training time, s (default: no limit)",
-    }
+    options = options_table(
+        Option("l2", float, None, "L2 weight-decay coefficient", min=0,
+               default_text="8e-5; 1e-4 for gaze_rnn_lod"),
+        *loop_options("windows", "_dataset.json's, 120", "_dataset.json's"),
+        Option("residual", bool, True, "predict the change of pose (Klein 8.2's residual variant)"),
+    )
 
     def train(self, data, out_dir: Path, options: TrainOptions) -> dict[str, Any]:
+        check_options(self, options)
         d = DEFAULTS[data.name]
         device = resolve_device(options.device)
         hidden = int(options.get("hidden", d["hidden"]))
