@@ -15,6 +15,35 @@ import click
 
 from gazepipe.errors import ConfigError, GazepipeError, printable
 
+#: where ``--debug`` is kept: the context's ``meta``, shared by a command and the group above it
+_DEBUG_KEY = "gazepipe.debug"
+DEBUG_HELP = "Show tracebacks for errors (accepted before or after the command)."
+
+
+def _remember_debug(ctx: click.Context, param: click.Parameter, value: bool) -> bool:
+    if value:
+        ctx.meta[_DEBUG_KEY] = True
+    return value
+
+
+def debug_option() -> click.Option:
+    """The one ``--debug`` option: the group has it and so does every command (:func:`add_debug_option`), so it
+    may come before or after the command's name; either sets :func:`debug_enabled`."""
+    return click.Option(["--debug"], is_flag=True, expose_value=False, is_eager=True, callback=_remember_debug,
+                        help=DEBUG_HELP)
+
+
+def add_debug_option(command: click.Command) -> None:
+    """Give ``command`` the shared ``--debug`` option (once)."""
+    if not any(p.name == "debug" for p in command.params):
+        command.params.append(debug_option())
+
+
+def debug_enabled() -> bool:
+    """Whether ``--debug`` was given, before or after the command."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.meta.get(_DEBUG_KEY))
+
 
 def fail(message: str, code: int) -> None:
     click.echo(f"error: {printable(message)}", err=True)
@@ -26,7 +55,7 @@ def handle_errors(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        debug = bool(click.get_current_context().find_root().params.get("debug"))
+        debug = debug_enabled()
         try:
             return fn(*args, **kwargs)
         except GazepipeError as exc:

@@ -11,7 +11,14 @@ from typing import TYPE_CHECKING
 import click
 
 from gazepipe import __version__
-from gazepipe.cli.common import handle_errors, load_sessions, parse_params, run_options
+from gazepipe.cli.common import (
+    add_debug_option,
+    debug_enabled,
+    handle_errors,
+    load_sessions,
+    parse_params,
+    run_options,
+)
 from gazepipe.cli.validate import DEFAULT_PLOT_TAKES
 from gazepipe.errors import ConfigError
 
@@ -34,8 +41,7 @@ Exit codes: 0 ok; 1 a file could not be read or written; 2 usage error.
 
 @click.group(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="gazepipe")
-@click.option("--debug", is_flag=True, help="Show tracebacks for errors.")
-def cli(debug: bool) -> None:
+def cli() -> None:
     """gazepipe turns capture sessions (mocap, head camera, eye tracking, face tracks) into clean,
     synchronised, validated Parquet training sets.
 
@@ -57,7 +63,7 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     from gazepipe.pipeline.events import EventLog
     from gazepipe.pipeline.runner import new_run_id
 
-    debug = bool(click.get_current_context().find_root().params.get("debug"))
+    debug = debug_enabled()
     loaded = load_sessions(sessions)
     values = parse_params(params, params_file)
     log = EventLog(log_format, run_id=new_run_id(), debug=debug)
@@ -434,6 +440,9 @@ def _register_commands() -> None:
 
     cli.add_command(validate)
     cli.add_command(train)
+    add_debug_option(cli)
+    for command in cli.commands.values():
+        add_debug_option(command)
 
 
 _register_commands()
