@@ -4,6 +4,8 @@ storage and on files that are not captures."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from click.testing import CliRunner
 
@@ -47,3 +49,47 @@ def test_debug_after_a_stage_command_is_accepted(tmp_path):
     assert "No such option" not in res.output
     res = invoke("run", "--debug", "--help")
     assert res.exit_code == 0
+
+
+# ---------------------------------------------------------------------------------------- QC gate at the end
+
+def _fake_run(monkeypatch, gate: dict | None, exit_code: int = 0):
+    """``run_pipeline`` replaced by one that writes ``qc/report.json`` with ``gate`` and ends as given."""
+    import json
+    import types
+
+    import gazepipe.cli.main as main
+    import gazepipe.dag
+
+    def run_pipeline(sessions, out, **kw):
+        if gate is not None:
+            (Path(out) / "qc").mkdir(parents=True, exist_ok=True)
+            (Path(out) / "qc" / "report.json").write_text(json.dumps({"gate": gate}))
+        return types.SimpleNamespace(failed=[], exit_code=exit_code,
+                                     end_message=lambda: ("done: 3 take units ran, 0 up to date, 0 failed",
+                                                                  {"up_to_date": 0}))
+
+    monkeypatch.setattr(gazepipe.dag, "run_pipeline", run_pipeline)
+    monkeypatch.setattr(main, "load_sessions", lambda paths: [])
+
+
+def test_run_says_on_its_last_lines_that_the_qc_gate_would_fail(tmp_path, monkeypatch):
+    hit = [{"scope": "take", "target": f"s01/t{i}", "id": "sync_residual", "severity": "fail", "message": "m"}
+           for i in range(5)]
+    _fake_run(monkeypatch, {"fail_on": "fail", "passed": False, "hit": hit})
+    out = tmp_path / "o"
+    res = invoke("run", str(tmp_path), "--out", str(out), "--log-format", "text")
+    assert res.exit_code == 0, res.output
+    lines = res.stderr.splitlines()
+    assert lines[-1].startswith("done: ")
+    assert lines[-2] == (f"warning: QC gate: would fail (5 checks at fail: sync_residual (s01/t0), sync_residual "
+                         f"(s01/t1), sync_residual (s01/t2), 2 more); see {out / 'qc' / 'report.html'}")
+
+
+def test_run_says_nothing_of_a_gate_that_passes(tmp_path, monkeypatch):
+    _fake_run(monkeypatch, {"fail_on": "fail", "passed": True, "hit": []})
+    res = invoke("run", str(tmp_path), "--out", str(tmp_path / "o"), "--log-format", "text")
+    assert res.exit_code == 0 and "QC gate" not in res.output
+    _fake_run(monkeypatch, None, exit_code=1)   # no report: nothing to say
+    res = invoke("run", str(tmp_path), "--out", str(tmp_path / "o2"), "--log-format", "text")
+    assert res.exit_code == 1 and "QC gate" not in res.output

@@ -78,9 +78,29 @@ def _run(sessions: tuple[str, ...], until: str | None, out: str, force: bool, dr
     if not dry_run:
         msg, counts = summary.end_message()
         failed = summary.exit_code != 0
+        gate = qc_gate_line(Path(out)) if report is not None else None
+        if gate is not None:
+            log.emit("warning", "qc_gate", gate, status="would_fail", path=str(Path(out) / "qc" / "report.html"))
         log.emit("error" if failed else "info", "run_end", msg, status="failed" if failed else "ok",
                  skipped=counts["up_to_date"], **counts)
     sys.exit(summary.exit_code)
+
+
+def qc_gate_line(out: Path, shown: int = 3) -> str | None:
+    """The line saying that the QC gate of ``out/qc/report.json`` (``gazepipe validate``'s exit 3) would fail,
+    with the first ``shown`` checks that hit it; ``None`` when it passes or there is no readable report."""
+    from gazepipe.pipeline.state import read_json
+
+    rep = read_json(out / "qc" / "report.json") or {}
+    gate = rep.get("gate") if isinstance(rep, dict) else None
+    if not isinstance(gate, dict) or gate.get("passed", True):
+        return None
+    hit = [h for h in gate.get("hit") or [] if isinstance(h, dict)]
+    names = [f"{h.get('id')} ({h.get('target')})" for h in hit[:shown]]
+    more = f", {len(hit) - shown} more" if len(hit) > shown else ""
+    checks = f"{len(hit)} check{'' if len(hit) == 1 else 's'} at {gate.get('fail_on', 'fail')}"
+    listed = f": {', '.join(names)}{more}" if names else ""
+    return f"QC gate: would fail ({checks}{listed}); see {out / 'qc' / 'report.html'}"
 
 
 #: takes plotted in the report that `gazepipe run` writes (the worst first; `validate`'s default too); report.json
