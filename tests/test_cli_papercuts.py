@@ -271,11 +271,11 @@ def test_every_parameter_of_every_stage_has_a_meaning():
 
 def test_params_prints_each_meaning_above_its_parameter():
     import gazepipe.dag  # noqa: F401
-    from gazepipe.cli.param_help import param_meanings
+    from gazepipe.cli.param_help import user_help
     from gazepipe.pipeline.registry import default_params
 
     lines = invoke("params").stdout.splitlines()
-    meanings = param_meanings()
+    meanings = user_help()
     for key in default_params():
         i = next(i for i, ln in enumerate(lines) if re.match(rf"(# )?{re.escape(key)} = ", ln))
         assert lines[i - 1] == f"# {meanings[key]}", key

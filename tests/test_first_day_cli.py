@@ -4,6 +4,7 @@ storage and on files that are not captures."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -93,3 +94,18 @@ def test_run_says_nothing_of_a_gate_that_passes(tmp_path, monkeypatch):
     _fake_run(monkeypatch, None, exit_code=1)   # no report: nothing to say
     res = invoke("run", str(tmp_path), "--out", str(tmp_path / "o2"), "--log-format", "text")
     assert res.exit_code == 1 and "QC gate" not in res.output
+
+
+# ------------------------------------------------------------------------------------------------- params
+
+def test_params_says_each_thing_once_in_words_for_users():
+    import gazepipe.dag  # noqa: F401
+    from gazepipe.pipeline.registry import default_params
+
+    lines = invoke("params").stdout.splitlines()
+    comments = [ln for ln, nxt in zip(lines, lines[1:] + [""], strict=True)
+                if ln.startswith("# ") and re.match(r"(# )?\w+\.\w+ = ", nxt)]
+    assert len(comments) == len(default_params())
+    assert len(set(comments)) == len(comments)          # no explanation repeated
+    assert not [c for c in comments if "()" in c or len(c) > 110]   # no function names, short
+    assert "# longest gap, in s, that gets filled; longer gaps stay gaps" in lines

@@ -432,13 +432,13 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
 
 @cli.command("params")
 def params_cmd() -> None:
-    """List every stage parameter with what it means, its default and the values it accepts, as TOML that
+    """List every stage parameter once: what it does, its default and the values it accepts, as TOML that
     `--params` reads (set them with --param STAGE.NAME=VALUE or --params FILE)."""
     import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
-    from gazepipe.cli.param_help import param_meanings
+    from gazepipe.cli.param_help import user_help
     from gazepipe.pipeline.registry import allowed_values, default_params, param_rules, show_value
 
-    rules, meanings = param_rules(), param_meanings()
+    rules, meanings = param_rules(), user_help()
     # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is;
     # each parameter under a comment saying what it means
     lines = [(k, f"{k} = {show_value(v)}" if v is not None else f"# {k} = (off by default)",
