@@ -106,7 +106,7 @@ USER_HELP: dict[str, str] = {
     "clean.swap_tolerance": "how far off (in spreads of a marker-to-marker distance) a sample is suspect of "
                             "a swap",
     "frames.min_neutral_frames": "fewest neutral-pose frames needed to calibrate a segment",
-    "frames.head_segment": "name of the head segment (default: the one named head, else the last)",
+    "frames.head_segment": "the head segment, which carries the eyes (default: the one named head, else the last)",
     "frames.triangle": "how a three-marker segment's frame is built: rigid_fit or gram_schmidt",
     "frames.min_plane_ratio": "fit a segment to some of its markers only when they are not nearly in a line",
     "frames.max_fill_error_deg": "fill a segment's rotation across a marker gap when its estimated error is "
@@ -123,7 +123,7 @@ USER_HELP: dict[str, str] = {
     "sync.video_scale": "video frames are scaled by this before looking for claps (faster when smaller)",
     "eyes.min_confidence": "OpenFace samples below this confidence are not used",
     "eyes.max_eye_gap_s": "longest run of unusable eye samples, in s, bridged by interpolation",
-    "eyes.head_segment": "name of the head segment (default: the one named head, else the last)",
+    "eyes.head_segment": "the head segment the gaze is measured from (default: the one named head, else the last)",
     "eyes.smooth_s": "smoothing window, in s, of the gaze directions used to find fixations",
     "eyes.max_target_speed_deg_s": "frames where the target moves faster than this (degrees/s) are not used "
                                    "to find the camera rotation",
