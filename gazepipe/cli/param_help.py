@@ -110,7 +110,7 @@ USER_HELP: dict[str, str] = {
     "frames.triangle": "how a three-marker segment's frame is built: rigid_fit or gram_schmidt",
     "frames.min_plane_ratio": "fit a segment to some of its markers only when they are not nearly in a line",
     "frames.max_fill_error_deg": "fill a segment's rotation across a marker gap when its estimated error is "
-                                 "at most this, in degrees (0: never)",
+                                 "at most this, in degrees (0: off)",
     "frames.max_fit_uncertainty_deg": "a rotation fitted to filled markers more uncertain than this (degrees) is "
                                       "treated as a gap (0: never)",
     "face.k": "highest time derivative of the blendshapes to compute",
