@@ -109,3 +109,22 @@ def test_params_says_each_thing_once_in_words_for_users():
     assert len(set(comments)) == len(comments)          # no explanation repeated
     assert not [c for c in comments if "()" in c or len(c) > 110]   # no function names, short
     assert "# longest gap, in s, that gets filled; longer gaps stay gaps" in lines
+
+
+# ------------------------------------------------------------------------------------ README torch example
+
+def test_readme_torch_comment_is_what_the_example_prints_on_the_sample(sample_run, tmp_path, monkeypatch):
+    import contextlib
+    import io
+    import runpy
+
+    pytest.importorskip("torch")
+    example = Path(__file__).parent / "readme_examples" / "torch_example.py"
+    said = re.search(r"# on the sample: (.*)$", example.read_text(), re.M)
+    assert said is not None
+    (tmp_path / "out").symlink_to(sample_run)
+    monkeypatch.chdir(tmp_path)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        runpy.run_path(str(example), run_name="__main__")
+    assert printed.getvalue().strip() == said.group(1).strip()
