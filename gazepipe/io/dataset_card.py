@@ -12,6 +12,7 @@ every file of a folder whose name starts with neither "_" nor "."; rename it whe
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 #: the Hugging Face split each ``split`` value loads as
@@ -44,6 +45,43 @@ def hf_yaml(name: str, splits: dict[str, tuple[int, int]], fingerprint: str) -> 
     return "\n".join(lines) + "\n"
 
 
+_DERIVATIVE = re.compile(r"^(?P<base>.+)_d(?P<k>\d+)$")
+
+
+def column_units(units: dict[str, Any], col: str) -> str:
+    """The units of ``col``: its own entry, else for a derivative ``<base>_d<N>`` the ``<base>_dK`` entry with
+    K = N (for blendshape values: per second of the value, ``1/s`` for the first derivative)."""
+    if col in units:
+        return str(units[col])
+    m = _DERIVATIVE.match(col)
+    if m is None or f"{m['base']}_dK" not in units:
+        return ""
+    k = int(m["k"])
+    per = "1/s" if k == 1 else f"1/s^{k}"
+    of = units.get(m["base"])
+    return f"{per} ({'per second' if k == 1 else f'per second^{k}'} of the {of or m['base']} value)"
+
+
+def _rate_line(info: dict[str, Any]) -> str:
+    fps = info.get("fps")
+    if fps:
+        return f"Frame rate: {float(fps):.6g} Hz."
+    rates = sorted({float(r) for r in info.get("rates_hz") or []})
+    if not rates:
+        return ""
+    if len(rates) == 1:
+        return f"Frame rate: {rates[0]:.6g} Hz."
+    return (f"Frame rates: {', '.join(f'{r:.6g}' for r in rates)} Hz (per take; `dt_s`, where present, is each "
+            "frame's step).")
+
+
+def _mirror_line(info: dict[str, Any]) -> str:
+    if not (info.get("params") or {}).get("mirror") or "mirrored" not in (info.get("identifiers") or []):
+        return ""
+    return ("Every row has a left-right mirrored copy: column `mirrored` is false for the captured row and true "
+            "for its copy (filter on it for captured rows only).")
+
+
 def card_text(info: dict[str, Any], yaml: str) -> str:
     """``_README.md``: ``yaml`` as front matter, then what the dataset holds, from its ``_dataset.json``."""
     name = info.get("name", "?")
@@ -60,15 +98,18 @@ def card_text(info: dict[str, Any], yaml: str) -> str:
     out += ["## Features", "", "| column | values | units and frame | first elements |", "|---|---|---|---|"]
     for col, names in (feats.items() if isinstance(feats, dict) else []):
         first = ", ".join(names[:4]) + (", …" if len(names) > 4 else "")
-        out.append(f"| `{col}` | {len(names)} | {units.get(col, '')} | {first} |")
+        out.append(f"| `{col}` | {len(names)} | {column_units(units, col)} | {first} |")
     masks = info.get("masks", {}) or {}
     for col, names in (masks.items() if isinstance(masks, dict) else []):
         first = ", ".join(names[:4]) + (", …" if len(names) > 4 else "")
-        out.append(f"| `{col}` (bool) | {len(names)} | {units.get(col, '')} | {first} |")
+        out.append(f"| `{col}` (bool) | {len(names)} | {column_units(units, col)} | {first} |")
     ids = info.get("identifiers", [])
     if ids:
         out += ["", "Identifier columns: " + ", ".join(f"`{c}`" for c in ids)
                 + (f"; `time_s` in {units['time_s']}" if "time_s" in units else "") + "."]
+    notes = [line for line in (_rate_line(info), _mirror_line(info)) if line]
+    for line in notes:
+        out += ["", line]
     counts = info.get("counts", {}) or {}
     out += ["", "## Counts", "", "| split | takes | rows |", "|---|---|---|"]
     for split, c in sorted((counts.get("by_split") or {}).items(), key=lambda kv: list(HF_SPLITS).index(kv[0])
