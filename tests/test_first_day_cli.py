@@ -128,3 +128,41 @@ def test_readme_torch_comment_is_what_the_example_prints_on_the_sample(sample_ru
     with contextlib.redirect_stdout(printed):
         runpy.run_path(str(example), run_name="__main__")
     assert printed.getvalue().strip() == said.group(1).strip()
+
+
+# ------------------------------------------------------------------------------------------------ inspect
+
+CORPUS = Path(__file__).parent / "data" / "corpus" / "c3d"
+PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)) * 8
+
+
+@pytest.mark.parametrize("name, data, what", [
+    ("shot.png", PNG, "a PNG image"),
+    ("shot.c3d", PNG, "a PNG image"),
+    ("notes.pdf", b"%PDF-1.7\n" + bytes(600), "a PDF document"),
+    ("blob.dat", b"\x02\x50" + bytes(range(256)) * 4, "binary data, neither a C3D file nor a text export"),
+])
+def test_inspect_says_a_file_is_not_a_capture_in_one_line(tmp_path, name, data, what):
+    f = tmp_path / name
+    f.write_bytes(data)
+    res = invoke("inspect", str(f))
+    assert res.exit_code == 1
+    assert res.stderr.count("\n") == 1 and res.stdout == ""
+    assert res.stderr.startswith(f"error: {f}: not a capture file ({what}; inspect reads C3D")
+    assert "processor" not in res.stderr
+
+
+def test_inspect_shows_a_c3ds_processor_storage_scale_and_analog_channels():
+    import json
+
+    res = invoke("inspect", str(CORPUS / "gait-raw.c3d"))
+    assert res.exit_code == 0, res.output
+    assert ("  processor dec, storage integer (POINT:SCALE 0.166829 mm per unit), 30 analog channels at 800 Hz"
+            in res.stdout.splitlines())
+    res = invoke("inspect", str(CORPUS / "Eb015pr.c3d"), "--json")
+    info = json.loads(res.stdout)
+    assert {k: info[k] for k in ("processor", "storage", "analog_channels", "analog_rate_hz")} == {
+        "processor": "intel", "storage": "float", "analog_channels": 16, "analog_rate_hz": 200.0}
+    assert info["point_scale"] == pytest.approx(-0.0833333)
+    res = invoke("inspect", "sample_data/session01/mocap/neutral.c3d")
+    assert "storage float (POINT:SCALE -1, applied to residuals only), 0 analog channels" in res.stdout

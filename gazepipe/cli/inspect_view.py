@@ -24,11 +24,27 @@ def _duration(info: dict[str, Any]) -> str:
     return "duration unknown" if d is None else f"{d:.3f} s"
 
 
+def c3d_storage_text(info: dict[str, Any]) -> str:
+    """A C3D's processor, storage (with POINT:SCALE) and analog channels, on one line."""
+    scale = info.get("point_scale")
+    if info["storage"] == "float":
+        storage = "float" + ("" if scale is None else f" (POINT:SCALE {scale:g}, applied to residuals only)")
+    else:
+        storage = "integer" + ("" if scale is None else f" (POINT:SCALE {scale:g} {info.get('units') or ''} "
+                                                         "per unit)".replace("  ", " "))
+    n = info.get("analog_channels") or 0
+    rate = info.get("analog_rate_hz")
+    analog = f"{n} analog channel{'' if n == 1 else 's'}" + (f" at {rate:g} Hz" if n and rate else "")
+    return f"processor {info.get('processor', '?')}, storage {storage}, {analog}"
+
+
 def capture_lines(info: dict[str, Any]) -> list[str]:
     """A marker capture: format, frames, rate, units, then every marker's gap share."""
     lines = [f"  format {info['format']}, {info['frames']} frames at {info['rate_hz']:.6g} Hz, "
              f"first frame {info['first_frame']}, units {info['units'] or 'not stated'}",
              f"  {len(info['markers'])} markers, {len(info['model_outputs'])} model outputs"]
+    if info["format"] == "c3d" and "storage" in info:
+        lines.insert(1, "  " + c3d_storage_text(info))
     lines += [f"    {printable(m['label']):<24} gaps {100 * m['gap_fraction']:6.2f} %" for m in info["markers"]]
     return lines
 

@@ -12,6 +12,7 @@ file), and :func:`summarise_c3d` is what inspect uses whenever the full read wou
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from gazepipe.io import c3d as _c3d
 from gazepipe.io.limits import MAX_ABS_MM
 from gazepipe.timebase import snap_rate
 
-__all__ = ["STREAM_OVER_BYTES", "summarise_c3d"]
+__all__ = ["STREAM_OVER_BYTES", "c3d_storage", "summarise_c3d"]
 
 #: inspect streams a C3D whose decoded markers (float64 mm) would take more than this
 STREAM_OVER_BYTES = 256 << 20
@@ -131,3 +132,22 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
         "processor": lay.processor, "storage": "float" if lay.is_float else "int",
         "analog_channels": lay.analog_channels,
     }
+
+
+def c3d_storage(path: str | Path) -> dict[str, Any] | None:
+    """How a C3D file stores its data, from its header and parameters only: ``processor`` (intel, dec, mips),
+    ``storage`` (``int`` or ``float``), ``point_scale`` (POINT:SCALE as written: negative for float storage,
+    where it scales only the residuals), ``analog_channels`` and ``analog_rate_hz`` (``None`` without analog
+    channels or ANALOG:RATE). ``None`` when the metadata cannot be decoded (the full read says why)."""
+    from gazepipe.io.c3d_meta import HEAD_BYTES, MetaError, parse_c3d_meta
+
+    try:
+        with open(path, "rb") as fh:
+            meta = parse_c3d_meta(fh.read(HEAD_BYTES))
+            lay = meta.layout(os.fstat(fh.fileno()).st_size)
+    except (OSError, MetaError, ValueError):
+        return None
+    rate = meta.get_number("ANALOG", "RATE") if lay.analog_channels else None
+    return {"processor": lay.processor, "storage": "float" if lay.is_float else "int",
+            "point_scale": float(lay.scale), "analog_channels": int(lay.analog_channels),
+            "analog_rate_hz": float(rate) if rate is not None and np.isfinite(rate) and rate > 0 else None}

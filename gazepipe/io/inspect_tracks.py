@@ -10,13 +10,63 @@ from typing import Any
 import numpy as np
 
 from gazepipe.arkit import ARKIT_NAMES, HEAD_NAMES, normalise_name
+from gazepipe.errors import InputError
+from gazepipe.io.c3d_summary import c3d_storage
 from gazepipe.io.capture import inspect_capture, track_file_format
 from gazepipe.io.livelinkface import read_livelinkface
 from gazepipe.io.openface import read_openface
 from gazepipe.io.tracks import read_header
 from gazepipe.timebase import video_frames
 
-__all__ = ["inspect_file", "inspect_livelinkface", "inspect_openface"]
+__all__ = ["inspect_file", "inspect_livelinkface", "inspect_openface", "not_a_capture"]
+
+#: the first bytes of common files that are not captures → what they are
+SIGNATURES: tuple[tuple[bytes, str], ...] = (
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"), (b"GIF8", "a GIF image"),
+    (b"%PDF", "a PDF document"), (b"PK\x03\x04", "a ZIP archive (or an Office document)"),
+    (b"\x1f\x8b", "a gzip archive"), (b"BM", "a BMP image"), (b"II*\x00", "a TIFF image"),
+    (b"MM\x00*", "a TIFF image"), (b"\x7fELF", "a program"), (b"PAR1", "a Parquet file"),
+    (b"\x1a\x45\xdf\xa3", "a Matroska/WebM video"), (b"RIFF", "a RIFF file (AVI video or WAV audio)"),
+    (b"\x93NUMPY", "a NumPy array"), (b"\x89HDF", "an HDF5 file"),
+)
+#: what ``gazepipe inspect`` reads
+READS = "inspect reads C3D, Vicon CSV, QTM TSV, wide CSV, OpenFace CSV and Live Link Face CSV"
+_C3D_BLOCK = 512
+
+
+def _looks_c3d(head: bytes, fh) -> bool:
+    """The C3D signature: header byte 2 is 0x50 and byte 1 points at a parameter block whose fourth byte names
+    a processor type (84 + 1, 2 or 3)."""
+    if len(head) < 2 or head[1] != 0x50 or head[0] < 1:
+        return False
+    fh.seek((head[0] - 1) * _C3D_BLOCK)
+    block = fh.read(4)
+    return len(block) == 4 and 85 <= block[3] <= 87
+
+
+def not_a_capture(path: str | Path) -> str | None:
+    """Why ``path`` is not a capture file ``gazepipe inspect`` reads (``a PNG image``, ``binary data ...``), from
+    its first bytes; ``None`` when it may be one (its reader then says what is wrong, if anything)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+            if not head:
+                return None
+            for magic, what in SIGNATURES:
+                if head.startswith(magic):
+                    return what
+            if head[:4] == b"\x00\x00\x00" + head[3:4] and head[4:8] == b"ftyp":
+                return "an MP4/MOV video"
+            if _looks_c3d(head, fh):
+                return None
+    except OSError:
+        return None   # the reader says why it cannot be read
+    if Path(path).suffix.lower() == ".c3d":
+        return None   # a damaged C3D: its reader names the fault
+    if b"\x00" in head:
+        return "binary data, neither a C3D file nor a text export"
+    return None
+
 
 #: a Live Link Face row counts as a blink when an eye's ``eyeBlink`` coefficient is above this
 LLF_BLINK_ABOVE = 0.5
@@ -28,14 +78,22 @@ def inspect_file(path: str | Path, *, rate_hz: float | None = None, timecode_fps
 
     ``rate_hz`` serves marker CSVs and Live Link Face CSVs (which carry no rate); ``timecode_fps`` is the rate
     a Live Link Face timecode counts; ``min_confidence`` is the OpenFace confidence a valid sample needs.
-    Every problem with the file is an :class:`~gazepipe.errors.InputError` naming it.
+    A C3D's summary also has processor, storage, point_scale, analog_channels and analog_rate_hz
+    (:func:`gazepipe.io.c3d_summary.c3d_storage`). Every problem with the file, a file that is not a capture
+    (:func:`not_a_capture`) included, is an :class:`~gazepipe.errors.InputError` naming it.
     """
+    what = not_a_capture(path)
+    if what is not None:
+        raise InputError(path, f"not a capture file ({what}; {READS})")
     kind = track_file_format(path)
     if kind == "openface":
         return inspect_openface(path, min_confidence=min_confidence)
     if kind == "livelinkface":
         return inspect_livelinkface(path, rate_hz=rate_hz, timecode_fps=timecode_fps)
-    return inspect_capture(path, rate_hz=rate_hz)
+    info = inspect_capture(path, rate_hz=rate_hz)
+    if info.get("format") == "c3d":
+        info.update(c3d_storage(path) or {})
+    return info
 
 
 def _share(mask: np.ndarray) -> float | None:
