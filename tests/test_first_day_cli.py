@@ -166,3 +166,22 @@ def test_inspect_shows_a_c3ds_processor_storage_scale_and_analog_channels():
     assert info["point_scale"] == pytest.approx(-0.0833333)
     res = invoke("inspect", "sample_data/session01/mocap/neutral.c3d")
     assert "storage float (POINT:SCALE -1, applied to residuals only), 0 analog channels" in res.stdout
+
+
+# ------------------------------------------------------------------------------------------ stage helps
+
+@pytest.mark.parametrize("name, writes, not_written", [
+    ("ingest", "markers_raw.parquet", "no dataset or QC report"),
+    ("clean", "joints", "no sync, eyes, face, dataset or QC report"),
+    ("build", "OUT/datasets/<name>/", "no QC report"),
+    ("run", "OUT/qc/", None),
+])
+def test_each_stage_command_says_what_it_does_and_writes(name, writes, not_written):
+    def summary(cmd: str) -> str:
+        text = invoke(cmd, "--help", terminal_width=400).output
+        return " ".join(text.split("Examples:")[0].split("\n", 1)[1].split())
+
+    own = summary(name)
+    assert "Writes OUT/" in own and writes in own
+    if not_written:
+        assert not_written in own and own != summary("run")

@@ -203,14 +203,22 @@ def _stage_command(name: str, until: str | None, summary: str) -> None:
         _run(sessions, until, **kw)
 
 
-_stage_command("run", None, "Run every stage on every take of SESSIONS (folders or session.toml files). "
-               "Incremental: units whose inputs, parameters and code are unchanged are skipped.")
-_stage_command("ingest", "ingest", "Read every take's capture files into canonical per-take tables "
-               "(OUT/takes/<session>/<take>/markers_raw.parquet).")
-_stage_command("build", "build", "Run every take stage, then build the training datasets "
-               "(OUT/datasets/<name>/: gaze_rnn, gaze_rnn_lod, gaze_map, face_clean).")
-_stage_command("clean", "frames", "Ingest, then clean the markers (spikes, gap filling, stabilisation, rest "
-               "cropping) and compute segment frames (markers.parquet, joints.parquet).")
+_stage_command("run", None, "Run every stage on every take of SESSIONS (folders or session.toml files), build "
+               "the training datasets and write the QC report. Incremental: units whose inputs, parameters and "
+               "code are unchanged are skipped. Writes OUT/takes/<session>/<take>/ (every stage's tables), "
+               "OUT/datasets/<name>/ and OUT/qc/ (report.json, takes.parquet, report.html).")
+_stage_command("ingest", "ingest", "Only read each take's capture files (C3D, Vicon CSV, QTM TSV, wide CSV) into "
+               "one canonical table per take, to check that every file reads before a full run. Writes "
+               "OUT/takes/<session>/<take>/markers_raw.parquet; nothing is cleaned, no dataset or QC report is "
+               "made.")
+_stage_command("clean", "frames", "Ingest, then clean each take's markers (label swaps repaired, spikes removed, "
+               "gaps filled, stabilised, rests cropped) and compute the segment orientations. Writes "
+               "OUT/takes/<session>/<take>/markers_raw, markers, neutral, rest_speed and joints (.parquet); "
+               "no sync, eyes, face, dataset or QC report.")
+_stage_command("build", "build", "Run every take stage (ingest, clean, frames, sync, eyes, face and each take's "
+               "dataset rows), then build the training datasets. Writes OUT/takes/<session>/<take>/ and "
+               "OUT/datasets/<name>/ (gaze_rnn, gaze_rnn_lod, gaze_map, face_clean); no QC report "
+               "(`gazepipe validate OUT` or `gazepipe run` writes it).")
 
 
 @cli.command(epilog=FILE_EPILOG)

@@ -151,7 +151,7 @@ def check_compatible(trainer: Trainer, info: dict[str, Any], columns: list[str],
                                        "from the dataset")
 
 
-def check_options(trainer: Trainer, options: TrainOptions) -> None:
+def check_options(trainer: Any, options: TrainOptions) -> None:
     """Check and type ``options.extra`` against the trainer's declared ``--option``s (:func:`typed_options`,
     in place) and refuse (exit 2) an ``--option`` the trainer does not declare and a knob (``--epochs``, ``--hidden``,
     ``--lr``, ``--device``, ``--patience``) it does not use (its optional ``knobs`` attribute; the first three
