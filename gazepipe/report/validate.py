@@ -231,6 +231,9 @@ def build_check(record: dict[str, Any] | None, built: bool) -> C.Check:
     """The engine's build of the dataset succeeded (its record) and left a dataset folder."""
     if record is None:
         return C.skipped("build", "no build record (built outside the engine)")
+    if record.get("status") == "skipped":
+        return C.Check("build", "skipped", f"dataset skipped: {record.get('reason', '?')}",
+                       details={"skipped": record.get("reason", "")})
     if record.get("status") != "ok":
         return C.Check("build", "fail", f"build failed: {record.get('error', '?')}")
     if not built:
