@@ -168,9 +168,11 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
         writer.abort()
         raise
     skipped = built.info.get("skipped", [])
+    # the dataset card's warnings (a take moved between splits, an empty split, mixed frame rates) go to the
+    # run's log too, one line each
     return DatasetResult(outputs=written, record={"counts": built.info.get("counts"), "skipped": skipped},
                          warnings=[f"{ctx.name}: take {s['session']}/{s['take']} left out: {s['reason']}"
-                                   for s in skipped])
+                                   for s in skipped] + [f"{ctx.name}: {w}" for w in built.info.get("warnings", [])])
 
 
 def _feeds(name: str):
