@@ -108,7 +108,9 @@ def _qc_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Che
     if "markers" in tables.errors:
         out.append(C.Check("unfilled", "error", "cleaned markers table unreadable"))
     else:
-        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th) if e.ran("clean")
+        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th, kept_frames=tables.kept_frames,
+                                    row_frames=tables.row_frames, feeds=e.kind in ("gaze_follow", "gaze_shift"))
+                   if e.ran("clean")
                    else C.skipped("unfilled", "no clean record"))
     out.append(C.check_spikes(clean, n_frames, th))
     out.append(C.check_swaps(clean))
