@@ -184,6 +184,33 @@ def grade(value: float, warn: float | None, fail: float | None, *, below: bool =
     return "pass"
 
 
+#: checks whose value is worse the lower it is (the others: the higher)
+_LOWER_IS_WORSE = frozenset({"clap_confidence"})
+
+
+def threshold_reach(c: dict[str, Any]) -> float:
+    """How far a check's value (a report.json check) has gone towards its warning threshold (its fail threshold
+    when it has no warning one): 0.5 halfway, 1 at it, 2 twice past it; 0 for a check without a number or a
+    threshold."""
+    value, thr = c.get("value"), c.get("threshold") or {}
+    limit = thr.get("warning") if thr.get("warning") is not None else thr.get("fail")
+    if isinstance(value, bool) or not isinstance(value, int | float) or not isinstance(limit, int | float) \
+            or not np.isfinite(value) or limit <= 0:
+        return 0.0
+    if c["id"] in _LOWER_IS_WORSE:
+        return float(limit) / value if value > 0 else float("inf")
+    return max(float(value), 0.0) / float(limit)
+
+
+def rank_key(severity: str, checks: Sequence[dict[str, Any]], name: str) -> tuple:
+    """Sort key of a take or dataset of the report, worst first: its severity (error, fail, warning, pass), then
+    its number of checks at fail or error, then of warnings, then the check nearest to (or furthest past) its
+    threshold (:func:`threshold_reach`), then its name. The plots and the summary table both rank by it."""
+    return (-RANK[severity], -sum(c["severity"] in ("fail", "error") for c in checks),
+            -sum(c["severity"] == "warning" for c in checks), -max(map(threshold_reach, checks), default=0.0),
+            name)
+
+
 def _thr(warn: float | None, fail: float | None = None) -> dict[str, Any]:
     return {"warning": warn, "fail": fail}
 
