@@ -400,7 +400,7 @@ def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Threshold
     lost_per = {lab: float(np.count_nonzero(unfilled[:, k] & lost)) / fill.shape[0]
                 for k, lab in enumerate(labels) if share[k]}
     if not cost:
-        cost = (f"costs {_pct(lost_share)} of the take's rows (kept frames with a marker unfilled and no complete joints row)"
+        cost = (f"costs {_pct(lost_share)} of the take's dataset rows (kept frames with a marker unfilled and no complete joints row)"
                 if lost_share else "costs no dataset row (the frames' rotations were still computed)")
     sev = worst([grade(v, th.unfilled_warn, None), grade(lost_share, th.unfilled_warn, th.unfilled_fail)]
                 if lost_share else [grade(v, th.unfilled_warn, None)])
