@@ -63,6 +63,8 @@ NEEDS: dict[str, tuple[str, ...]] = {
     "face_clean": ("face",),
 }
 OPTIONAL = {"gaze_rnn": ("eyes",)}
+#: a dataset whose take-level optional input no contributing take has is skipped (not failed), with the reason
+NEEDS_ANY: dict[str, tuple[str, str]] = {"gaze_rnn": ("eyes", "no take has eye tracking")}
 #: each dataset's per-take stage, and the name of the table it writes
 ROWS: dict[str, str] = {name: f"rows_{name}" for name in DATASETS}
 #: each dataset's per-take table of the take's part (:class:`TakePart` as JSON, in one row): apart from the unit
@@ -142,6 +144,10 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
     twice = sorted(k for k, c in Counter((s.id, t.id) for s, t, _ in takes).items() if c > 1)
     if twice:
         raise StageError(f"datasets/{ctx.name}", f"take {twice[0][1]!r} of session {twice[0][0]!r} is given twice")
+    if ctx.name in NEEDS_ANY:
+        stage, why = NEEDS_ANY[ctx.name]
+        if not any(stage in units for _, _, units in takes):
+            return DatasetResult(outputs=[], skipped=why)
     writer = StagedDatasetWriter(ctx.root, ctx.name, ctx.tmp, ctx.write_bytes)
     try:
         merge = DatasetMerge(ctx.name, params)
@@ -162,9 +168,11 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
         writer.abort()
         raise
     skipped = built.info.get("skipped", [])
+    # the dataset card's warnings (a take moved between splits, an empty split, mixed frame rates) go to the
+    # run's log too, one line each
     return DatasetResult(outputs=written, record={"counts": built.info.get("counts"), "skipped": skipped},
                          warnings=[f"{ctx.name}: take {s['session']}/{s['take']} left out: {s['reason']}"
-                                   for s in skipped])
+                                   for s in skipped] + [f"{ctx.name}: {w}" for w in built.info.get("warnings", [])])
 
 
 def _feeds(name: str):

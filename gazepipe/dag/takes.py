@@ -444,6 +444,10 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
     # missing in a take's frames: the first rest periods that give it, for that take to fall back on
     need = {seg.name: seg.markers for seg in ms.segments if calibrated is None or seg.name not in calibrated}
     poses += _first_givers(_other_rests(session, ms, clean_params, refs), need, frames_params.min_neutral_frames)
+    if ms.head_centre is None and ms.eye_offset_mm is None:   # once for the session, not on each of its takes
+        where = os.path.relpath(ms.path, session.root) if ms.path and session.root else ms.path
+        warnings.append(f"{where}: no head_centre marker and no eye_offset_mm: the eyes' centre is the head "
+                        "markers' centroid in every take of the session")
     qc = {"sources": [p.label for p in poses], "segments_without_neutral": sorted(need), "warnings": warnings}
     return UnitResult(tables={"neutral_poses": (stack_to_table(poses), MARKER_STACK)}, qc=qc, warnings=warnings)
 

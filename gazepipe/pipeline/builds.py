@@ -79,11 +79,14 @@ class DatasetContext:
 
 @dataclass
 class DatasetResult:
-    """What a build published: its files (under ``root / name``), extra fields for its run record, warnings."""
+    """What a build published: its files (under ``root / name``), extra fields for its run record, warnings;
+    ``skipped``: why the dataset was not built at all (its inputs are not in the session: no take has eye
+    tracking, …), which is not a failure."""
 
     outputs: list[Path]
     record: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    skipped: str = ""
 
 
 def _unpublish(layout: OutLayout, name: str) -> bool:
@@ -164,6 +167,8 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
             reason = "--force"
         elif not isinstance(rec, dict):
             reason = "never built"
+        elif rec.get("status") == "skipped" and rec.get("fingerprint") == fingerprint:
+            pass   # skipped on these same inputs: nothing to build
         elif rec.get("status") != "ok":
             if rec.get("fingerprint") == fingerprint and not rec.get("retry", True):
                 error = rec.get("error", "failed")
@@ -211,7 +216,14 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
             raise GazepipeError(None, f"no take can feed it ({reasons})")
         result = ds.run(ctx)
         root = ctx.root / plan.name
-        record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in result.outputs})
+        if result.skipped:
+            # what an earlier build published came from inputs the session no longer has
+            with contextlib.suppress(OSError):
+                _unpublish(layout, plan.name)
+            outcome.status, outcome.reason = "skipped", f"skipped: {result.skipped}"
+            record.update(status="skipped", reason=result.skipped, outputs={})
+        else:
+            record.update(status="ok", outputs={str(p.relative_to(root)): p.stat().st_size for p in result.outputs})
         record.update(result.record)
         outcome.warnings = list(result.warnings)
     except RunGone:

@@ -403,6 +403,11 @@ def _build_datasets(sessions: Sequence[SessionLike], layout: OutLayout, plans: l
                 log.emit("warning", "qc_warning", w, stage="build", dataset=d.name)
             if report is not None:
                 report.dataset_built(d.name)
+        elif o.status == "skipped":
+            log.emit("warning", "dataset", f"dataset {d.name}: {o.reason}", stage="build", dataset=d.name,
+                     status="skipped", reason=o.reason)
+            if report is not None:
+                report.dataset_built(d.name)
         else:
             log.emit("error", "dataset", o.error, stage="build", dataset=d.name, status="failed",
                      traceback=o.traceback or None)

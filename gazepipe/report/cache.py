@@ -23,7 +23,7 @@ from gazepipe.report.collect import PLOT_TABLES, DatasetData, TakeEntry
 from gazepipe.report.html import Figure
 
 #: the take tables the checks read (their sizes and modification times are part of a take's checks key)
-CHECK_TABLES = ("markers_raw", "eyes", "sync", "markers")
+CHECK_TABLES = ("markers_raw", "eyes", "sync", "markers", "joints")
 
 
 @functools.lru_cache(maxsize=1)

@@ -25,7 +25,11 @@ check                                   warning         fail         measured on
 ``fill_error``                          > 10 mm         –            per filled gap, the chosen method's error on
                                                                      the hidden samples next to the gap
 ``unfilled``                            > 5 %           > 30 %       per marker, unfilled share of the kept
-                                                                     (cropped) frames (worst marker)
+                                                                     (cropped) frames (worst marker): at most
+                                                                     a warning; the fail grades the share of
+                                                                     kept frames that lose their dataset rows
+                                                                     where a marker is unfilled (joints row
+                                                                     without rotations or target)
 ``spikes``                              > 1 %           –            per marker, share of samples removed as spikes
 ``swaps``                               a stretch not   –            label swaps per marker pair: repaired (their
                                         provable                     samples coded ``swap_repaired``), or made gaps
@@ -180,6 +184,33 @@ def grade(value: float, warn: float | None, fail: float | None, *, below: bool =
     return "pass"
 
 
+#: checks whose value is worse the lower it is (the others: the higher)
+_LOWER_IS_WORSE = frozenset({"clap_confidence"})
+
+
+def threshold_reach(c: dict[str, Any]) -> float:
+    """How far a check's value (a report.json check) has gone towards its warning threshold (its fail threshold
+    when it has no warning one): 0.5 halfway, 1 at it, 2 twice past it; 0 for a check without a number or a
+    threshold."""
+    value, thr = c.get("value"), c.get("threshold") or {}
+    limit = thr.get("warning") if thr.get("warning") is not None else thr.get("fail")
+    if isinstance(value, bool) or not isinstance(value, int | float) or not isinstance(limit, int | float) \
+            or not np.isfinite(value) or limit <= 0:
+        return 0.0
+    if c["id"] in _LOWER_IS_WORSE:
+        return float(limit) / value if value > 0 else float("inf")
+    return max(float(value), 0.0) / float(limit)
+
+
+def rank_key(severity: str, checks: Sequence[dict[str, Any]], name: str) -> tuple:
+    """Sort key of a take or dataset of the report, worst first: its severity (error, fail, warning, pass), then
+    its number of checks at fail or error, then of warnings, then the check nearest to (or furthest past) its
+    threshold (:func:`threshold_reach`), then its name. The plots and the summary table both rank by it."""
+    return (-RANK[severity], -sum(c["severity"] in ("fail", "error") for c in checks),
+            -sum(c["severity"] == "warning" for c in checks), -max(map(threshold_reach, checks), default=0.0),
+            name)
+
+
 def _thr(warn: float | None, fail: float | None = None) -> dict[str, Any]:
     return {"warning": warn, "fail": fail}
 
@@ -321,23 +352,64 @@ def fill_shares(fill: np.ndarray, labels: Sequence[str]) -> dict[str, dict[str, 
             for m, lab in enumerate(labels)}
 
 
-def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Thresholds) -> Check:
-    """Worst marker's unfilled share of the kept frames (``fill``: (T, M) codes of the ``markers`` table)."""
+def check_unfilled(fill: np.ndarray | None, labels: Sequence[str], th: Thresholds, *,
+                   kept_frames: np.ndarray | None = None, row_frames: np.ndarray | None = None,
+                   feeds: bool = True) -> Check:
+    """Unfilled markers of the kept frames, graded by what they cost the datasets.
+
+    A marker left unfilled costs a dataset row only on a frame whose joints row can then give none (no
+    character frame, a segment's rotation missing, no target direction): a frame whose rotations were still
+    computed, e.g. from the segment's other markers, loses nothing. The worst marker's unfilled share of the
+    kept frames is at most a warning (above ``unfilled_warn``); the share of the take's kept frames that are
+    unfilled somewhere and give no row is graded against ``unfilled_warn`` and ``unfilled_fail``. Without a
+    joints table (the frames stage did not run) every unfilled frame counts as lost; a take that feeds no
+    dataset (``feeds=False``: a neutral take) loses none.
+
+    Parameters
+    ----------
+    fill : (T, M) fill codes of the cleaned ``markers`` table (kept frames).
+    labels : the M marker names.
+    th : the thresholds.
+    kept_frames : (T,) frame numbers of the fill rows.
+    row_frames : frame numbers of the joints rows that can give dataset rows, or ``None`` without a joints table.
+    feeds : whether the take feeds a dataset.
+    """
+    thr = {"warning": th.unfilled_warn, "fail": th.unfilled_fail,
+           "rule": "a marker's unfilled share is at most a warning; the take fails on the share of its kept "
+                   "frames that lose their dataset rows where a marker is unfilled"}
     if fill is None:
         return skipped("unfilled", "no cleaned markers table")
     if fill.shape[0] == 0:
-        return Check("unfilled", "fail", "the cleaned take kept no frame", value=1.0,
-                     threshold=_thr(th.unfilled_warn, th.unfilled_fail))
-    share = np.count_nonzero(fill == UNFILLED, axis=0) / fill.shape[0]
+        return Check("unfilled", "fail", "the cleaned take kept no frame", value=1.0, threshold=thr)
+    unfilled = fill == UNFILLED
+    share = np.count_nonzero(unfilled, axis=0) / fill.shape[0]
     m = int(np.argmax(share))
     v = float(share[m])
     per = {lab: float(s) for lab, s in zip(labels, share, strict=True)}
     filled = float(np.count_nonzero((fill != MEASURED) & (fill != UNFILLED) & (fill != SWAP_REPAIRED)) / fill.size)
-    return Check("unfilled", grade(v, th.unfilled_warn, th.unfilled_fail),
-                 f"largest unfilled share of kept frames {_pct(v)} ({labels[m]}); {_pct(filled)} of kept samples "
-                 "filled", value=v, threshold=_thr(th.unfilled_warn, th.unfilled_fail),
-                 details={"per_marker": per, "filled_share": filled,
-                          "unfilled_share_all": float(np.count_nonzero(fill == UNFILLED) / fill.size)})
+    if not feeds:
+        lost = np.zeros(fill.shape[0], dtype=bool)
+        cost = "the take feeds no dataset: no row lost"
+    elif row_frames is None or kept_frames is None:
+        lost = unfilled.any(axis=1)
+        cost = "no joints table: every frame with an unfilled marker counted as lost"
+    else:
+        lost = unfilled.any(axis=1) & ~np.isin(np.asarray(kept_frames), row_frames)
+        cost = ""
+    lost_share = float(np.count_nonzero(lost)) / fill.shape[0]
+    lost_per = {lab: float(np.count_nonzero(unfilled[:, k] & lost)) / fill.shape[0]
+                for k, lab in enumerate(labels) if share[k]}
+    if not cost:
+        cost = (f"costs {_pct(lost_share)} of the take's dataset rows (kept frames with a marker unfilled and no complete joints row)"
+                if lost_share else "costs no dataset row (the frames' rotations were still computed)")
+    sev = worst([grade(v, th.unfilled_warn, None), grade(lost_share, th.unfilled_warn, th.unfilled_fail)]
+                if lost_share else [grade(v, th.unfilled_warn, None)])
+    msg = (f"largest unfilled share of kept frames {_pct(v)} ({labels[m]}), {cost}; {_pct(filled)} of kept "
+           "samples filled")
+    return Check("unfilled", sev, msg, value=v, threshold=thr,
+                 details={"per_marker": per, "filled_share": filled, "rows_lost_share": lost_share,
+                          "rows_lost_per_marker": lost_per,
+                          "unfilled_share_all": float(np.count_nonzero(unfilled) / fill.size)})
 
 
 def check_spikes(clean_qc: CleanQC | None, frames: int | None, th: Thresholds) -> Check:

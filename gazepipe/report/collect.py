@@ -183,6 +183,9 @@ class TakeTables:
     fill_labels: list[str] = field(default_factory=list)
     kept_frames: np.ndarray | None = None   # (N,) rows of the uncropped take
     rest_speed: np.ndarray | None = None    # (T,) mm/s, the speed the clean stage found the rests on
+    #: frame numbers of the joints rows that can give dataset rows (a character frame, every segment's rotation
+    #: and, for a gaze_follow take, the target direction); ``None`` without a joints table
+    row_frames: np.ndarray | None = None
     eyes: dict[str, np.ndarray] | None = None
     sync: dict[str, np.ndarray] | None = None
     errors: dict[str, str] = field(default_factory=dict)
@@ -230,6 +233,25 @@ def has_plot_tables(layout: OutLayout, e: TakeEntry) -> bool:
     return any(layout.table(e.session, e.take, name).exists() for name in PLOT_TABLES)
 
 
+def _row_frames(layout: OutLayout, e: TakeEntry, tables: TakeTables) -> np.ndarray | None:
+    """Frame numbers of the take's joints rows that can give dataset rows (``None``: no readable joints
+    table)."""
+    path = layout.table(e.session, e.take, "joints")
+    if not path.exists():
+        return None
+    try:
+        t = read_table(path, columns=["frame", "valid", "target_dir"])
+        ok = t.column("valid").to_numpy(zero_copy_only=False).astype(bool)
+        if e.kind == "gaze_follow":
+            ok &= np.isfinite(list_to_numpy(t.column("target_dir"), 3)).all(axis=1)
+        return t.column("frame").to_numpy().astype(np.int64)[ok]
+    except GazepipeError as exc:
+        tables.errors["joints"] = exc.one_line()
+    except Exception as exc:
+        tables.errors["joints"] = f"{path}: {type(exc).__name__}: {exc}"
+    return None
+
+
 def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
                      only: tuple[str, ...] | None = None) -> TakeTables:
     """Read the take's markers_raw, markers, eyes and sync tables (whichever exist; with ``only``, just those:
@@ -242,6 +264,7 @@ def load_take_tables(layout: OutLayout, e: TakeEntry, *, arrays: bool = True,
     if not arrays:
         for name in ("markers_raw", "eyes", "sync", "markers"):
             _probe(layout, e, name, out)
+        out.row_frames = _row_frames(layout, e, out)
         path = layout.table(e.session, e.take, "markers")
         if path.exists() and "markers" not in out.errors:
             try:  # the fill codes, with the rows' layout checked against the metadata; not the coordinates

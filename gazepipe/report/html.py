@@ -1,9 +1,11 @@
 """``qc/report.html``: one self-contained page (inline CSS and SVG, no script, no external URL) rendered from
 the ``report.json`` object and the plots.
 
-Layout: the gate's verdict; which takes have plots and how to plot the others; a summary table of takes and
-datasets, worst first, naming their failing checks; a table of every check at warning or worse; then one section
-per dataset and per take (checks worst first, plots, or why there are none).
+Layout: the gate's verdict and a table of contents; which takes have plots and how to plot the others; a
+summary table of takes and datasets, worst first (:func:`~gazepipe.report.checks.rank_key`, the rank the plots
+are chosen by), naming their failing checks; a table of every check at warning or worse; one section per take,
+worst first (checks worst first, plots, or why there are none); one section per dataset; the checks of the
+whole output; how checks are graded and the thresholds.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from dataclasses import dataclass
 from html import escape
 from typing import Any
 
-from gazepipe.report.checks import RANK
+from gazepipe.report.checks import RANK, rank_key
 
 
 @dataclass(frozen=True)
@@ -82,6 +84,7 @@ font-size:11px;color:#fff}
 figure.plot{margin:10px 0 18px} figure.plot figcaption{color:#555;margin:2px 0 4px}
 figure.plot svg{max-width:100%;height:auto}
 .muted{color:#777} td.num{text-align:right;font-variant-numeric:tabular-nums}
+nav#toc{margin:4px 0 10px} nav#toc ol{margin:2px 0;padding-left:22px}
 """
 
 
@@ -168,6 +171,37 @@ def _take_plots_note(sel: PlotSelection | None, key: str) -> str:
             f"{escape(key)}</code> draws them.</p>")
 
 
+#: how the severities are decided, for the page's last section
+GRADING = (
+    "<p>Every check is <b>pass</b>, <b>warning</b>, <b>fail</b>, <b>error</b> (it could not be evaluated) or "
+    "<b>skipped</b> (not applicable: no video, no eye tracking, a dataset whose inputs no take has). The gate "
+    "(<code>--fail-on fail</code>) fails on fail and error; <code>--fail-on warning</code> on warnings too.</p>"
+    "<p>A gap is graded by what it costs the datasets, not by the raw share of one marker: <b>unfilled</b> is at "
+    "most a warning for a marker left unfilled on more than <code>unfilled_warn</code> of the kept frames when "
+    "the frames still give their dataset rows (the segment rotations were computed, e.g. from the segment's "
+    "other markers); the rows lost (kept frames with a marker unfilled whose joints row has no character frame, "
+    "a segment rotation missing or, for gaze_follow, no target direction) are graded as a share of the take's "
+    "kept frames: warning above <code>unfilled_warn</code>, fail above <code>unfilled_fail</code>. A take that "
+    "feeds no dataset (neutral) loses no row; without a joints table every frame with an unfilled marker counts "
+    "as lost. <b>gap_share</b> (gaps at ingest, before filling) is a warning only.</p>")
+
+
+def _toc(takes: list[dict[str, Any]], datasets: list[dict[str, Any]]) -> str:
+    """The table of contents: each part of the page, the takes worst first."""
+    def link(target: str, text: str) -> str:
+        return f'<a href="#{target}">{escape(text)}</a>'
+    worst = [t for t in takes if RANK[t["severity"]] >= RANK["warning"]][:6]
+    first = ", ".join(link(anchor("take", f"{t['session']}/{t['take']}"), f"{t['session']}/{t['take']}")
+                      for t in worst)
+    items = [link("summary-heading", "Summary") + " (takes and datasets, worst first)",
+             link("problems", "Checks at warning or worse"),
+             link("takes", f"Takes, worst first ({len(takes)})") + (f": {first}" if first else ""),
+             link("datasets", f"Datasets ({len(datasets)})") + ": " + ", ".join(
+                 link(anchor("dataset", d["name"]), d["name"]) for d in datasets),
+             link("output", "Whole output"), link("grading", "How checks are graded, thresholds")]
+    return '<nav id="toc"><b>Contents</b><ol>' + "".join(f"<li>{i}</li>" for i in items) + "</ol></nav>"
+
+
 def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
                 dataset_figs: dict[str, list[Figure]], plot_notes: list[str] | None = None,
                 plots: PlotSelection | None = None) -> str:
@@ -185,15 +219,20 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
              f"(--fail-on {escape(gate['fail_on'])}) {escape(verdict)}</div>")
     counts = ", ".join(f"{n} {s}" for s, n in sorted(summ["checks"].items(), key=lambda kv: -RANK[kv[0]]) if n)
     p.append(f"<p>Checks: {escape(counts)}.</p>")
+    takes = sorted(report["takes"], key=lambda t: rank_key(t["severity"], t["checks"],
+                                                             f"{t['session']}/{t['take']}"))
+    p.append(_toc(takes, report["datasets"]))
     if plots is not None:
         p.append(_plots_paragraph(plots))
 
-    # summary: one row per take and dataset, worst first
+    # summary: one row per take and dataset, worst first by the rank the plots are chosen by
     entries = [("dataset", d["name"], "dataset", "", d["severity"], d["checks"]) for d in report["datasets"]]
     entries += [("take", f"{t['session']}/{t['take']}", t["kind"], t["pose"], t["severity"], t["checks"])
                 for t in report["takes"]]
-    entries.sort(key=lambda e: (-RANK[e[4]], e[0] != "dataset", e[1]))
+    entries.sort(key=lambda e: rank_key(e[4], e[5], e[1]))
     p.append('<h2 id="summary-heading">Summary</h2>')
+    p.append('<p class="muted">Worst first: the highest severity, then the most checks at fail or error, then the '
+             "most warnings, then the check nearest to (or furthest past) its threshold.</p>")
     p.append('<table id="summary"><tr><th>severity</th><th>take / dataset</th><th>kind</th><th>pose</th>'
              "<th>fail</th><th>warning</th><th>checks at warning or worse</th><th>plots</th></tr>")
     for scope, key, kind, pose, sev, checks in entries:
@@ -222,21 +261,9 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
     else:
         p.append("<p>None.</p>")
 
-    p.append('<h2 id="output">Whole output</h2>')
-    p.append(_checks_table(report["output_checks"]))
-    notes = list(report["notes"]) + list(plot_notes or [])
-    if notes:
-        p.append('<ul id="notes">' + "".join(f"<li>{escape(n)}</li>" for n in notes) + "</ul>")
-
-    for d in report["datasets"]:
-        p.append(f"<h2 id=\"{anchor('dataset', d['name'])}\">{_sev(d['severity'])} dataset {escape(d['name'])}</h2>")
-        c = d["counts"] or {}
-        p.append(f"<p>{_fmt(c.get('takes'))} take(s), {_fmt(c.get('rows'))} rows; schema hash "
-                 f"<code>{_fmt(d['schema_hash'])}</code></p>")
-        p.append(_checks_table(d["checks"]))
-        p.append(_figures(dataset_figs.get(d["name"], [])))
-
-    for t in report["takes"]:
+    p.append('<h2 id="takes">Takes, worst first</h2>')
+    p.append(f"<p>{_n(len(takes), 'take')}; the plotted ones first among them as the worst.</p>")
+    for t in takes:
         key = f"{t['session']}/{t['take']}"
         p.append(f"<h2 id=\"{anchor('take', key)}\">{_sev(t['severity'])} {escape(key)} "
                  f"<span class=\"muted\">{escape(t['kind'])}, {escape(t['pose'])}</span></h2>")
@@ -245,6 +272,28 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
         p.append(_checks_table(t["checks"]))
         figs = take_figs.get(key, [])
         p.append(_figures(figs) if figs else _take_plots_note(plots, key))
+
+    p.append('<h2 id="datasets">Datasets</h2>')
+    p.append(f"<p>{_n(len(report['datasets']), 'dataset')}.</p>")
+    for d in report["datasets"]:
+        p.append(f"<h2 id=\"{anchor('dataset', d['name'])}\">{_sev(d['severity'])} dataset {escape(d['name'])}</h2>")
+        c = d["counts"] or {}
+        if d["severity"] == "skipped":
+            p.append(f"<p>{escape(d['checks'][0]['message'] if d['checks'] else 'skipped')}</p>")
+        else:
+            p.append(f"<p>{_fmt(c.get('takes'))} take(s), {_fmt(c.get('rows'))} rows; schema hash "
+                     f"<code>{_fmt(d['schema_hash'])}</code></p>")
+        p.append(_checks_table(d["checks"]))
+        p.append(_figures(dataset_figs.get(d["name"], [])))
+
+    p.append('<h2 id="output">Whole output</h2>')
+    p.append(_checks_table(report["output_checks"]))
+    notes = list(report["notes"]) + list(plot_notes or [])
+    if notes:
+        p.append('<ul id="notes">' + "".join(f"<li>{escape(n)}</li>" for n in notes) + "</ul>")
+
+    p.append('<h2 id="grading">How checks are graded</h2>')
+    p.append(GRADING)
     p.append("<p class=\"muted\">Thresholds: " + escape(", ".join(f"{k} = {v}" for k, v in
                                                                   sorted(report["thresholds"].items()))) + "</p>")
     p.append("</body></html>")

@@ -21,6 +21,7 @@ import matplotlib
 import numpy as np
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
@@ -141,8 +142,12 @@ def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Seq
             ax.axvline(a, color="black", lw=0.8)
             ax.axvline(b, color="black", lw=0.8)
         ax.set_xlabel("time (s)")
-        ax.legend(handles=[Patch(color=FILL_COLOURS[n], label=n) for n in names], ncol=len(names),
-                  loc="lower left", bbox_to_anchor=(0.0, 1.0), frameon=False, borderaxespad=0.2)
+        handles: list[Any] = [Patch(color=FILL_COLOURS[n], label=n) for n in names]
+        if crop is not None:
+            handles += [Patch(color="black", alpha=0.15, lw=0, label="cropped out (before/after the rests)"),
+                        Line2D([], [], color="black", lw=0.8, label="crop bounds")]
+        ax.legend(handles=handles, ncol=len(handles), loc="lower left", bbox_to_anchor=(0.0, 1.0), frameon=False,
+                  borderaxespad=0.2, columnspacing=1.0, handlelength=1.5)
         _margins(fig, left=0.8, top=0.35)
         return _svg(fig)
 
@@ -170,9 +175,9 @@ def speed_plot(speed: np.ndarray, rate_hz: float, crop: Sequence[int] | None, re
         ax.set_xlim(0, max(t[-1] if t.size else 1.0, 1e-3))
         ax.set_xlabel("time (s)")
         ax.set_ylabel("mm/s")
-        ax.set_title("speed, rests (green) and crop")
-        ax.legend(loc="upper right", frameon=False)
-        _margins(fig)
+        ax.set_title("speed, rests (green) and crop", loc="left")
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), frameon=False, ncol=3, borderaxespad=0.2)
+        _margins(fig, top=0.4)
         return _svg(fig)
 
 
@@ -187,16 +192,18 @@ def clap_plot(distance: np.ndarray, rate_hz: float, mocap_s: Sequence[float], vi
             ax = fig.add_subplot(1, n, i + 1)
             sel = (t >= tm - half_window_s) & (t <= tm + half_window_s)
             ax.plot(t[sel] - tm, distance[sel], color="#333333", lw=0.9, marker=".", ms=2)
-            ax.axvline(0.0, color="#1f77b4", lw=1.0, label="mocap clap")
+            ax.axvline(0.0, color="#1f77b4", lw=1.0)
             if tv is not None:
-                ax.axvline(tv - tm, color="#ff7f0e", lw=1.0, ls="--",
-                           label=f"video clap ({1000 * (tv - tm):+.1f} ms)")
-            ax.set_title(f"clap {i + 1} at {tm:.2f} s")
+                ax.axvline(tv - tm, color="#ff7f0e", lw=1.0, ls="--")
+            ax.set_title(f"clap {i + 1} at {tm:.2f} s" + ("" if tv is None else f", video {1000 * (tv - tm):+.1f} ms"))
             ax.set_xlabel("time from mocap clap (s)")
             if i == 0:
                 ax.set_ylabel("clapper distance (mm)")
-            ax.legend(loc="upper right", frameon=False)
-        _margins(fig)
+        # one legend for every panel, above them (inside an axes it covers the trace)
+        fig.legend(handles=[Line2D([], [], color="#1f77b4", lw=1.0, label="mocap clap"),
+                            Line2D([], [], color="#ff7f0e", lw=1.0, ls="--", label="video clap on the mocap clock")],
+                   loc="upper right", ncol=2, frameon=False, borderaxespad=0.2)
+        _margins(fig, top=0.5)
         return _svg(fig)
 
 
@@ -221,19 +228,47 @@ def eye_plot(time_s: np.ndarray, confidence: np.ndarray, valid: np.ndarray, fill
             ax.axhline(gate, color="#ff7f0e", lw=0.9, ls="--", label=f"gate {gate:g}")
         ax.set_ylim(-0.02, 1.02)
         ax.set_xlabel("time (s)")
-        ax.set_title("eye confidence")
-        ax.legend(loc="lower right", frameon=False, ncol=4)
-        _margins(fig)
+        ax.set_title("eye confidence", loc="left")
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), frameon=False, ncol=4, borderaxespad=0.2)
+        _margins(fig, top=0.4)
         return _svg(fig)
 
 
-def feature_plot(values: np.ndarray, poses: np.ndarray, names: Sequence[str], title: str, salt: str) -> str:
-    """Per feature element, the median and the 5–95 % band of each pose's sampled training rows."""
+def element_groups(names: Sequence[str]) -> list[tuple[str, int, int]]:
+    """Runs of consecutive element names sharing the part before their first dot (``pelvis.fwd.x`` →
+    ``pelvis``): ``(group, first, stop)`` each."""
+    out: list[tuple[str, int, int]] = []
+    for i, n in enumerate(names):
+        g = str(n).split(".", 1)[0]
+        if out and out[-1][0] == g:
+            out[-1] = (g, out[-1][1], i + 1)
+        else:
+            out.append((g, i, i + 1))
+    return out
+
+
+def feature_plot(values: np.ndarray, poses: np.ndarray, names: Sequence[str], title: str, salt: str,
+                 unit: str = "") -> str:
+    """Per feature element, the median and the 5–95 % band of each pose's sampled training rows.
+
+    Every element is labelled with its name (``names``, the dataset's element names); elements of one group (a
+    segment, the target direction: the part of the name before its first dot) are drawn together under the
+    group's name, with the rest of the name on each tick. ``unit`` labels the value axis.
+    """
     pose_list = sorted(set(poses.tolist()))
     d = values.shape[1]
     x = np.arange(d)
+    labels = [str(n) for n in names] if len(names) == d else [str(i) for i in range(d)]
+    groups = element_groups(labels)
+    grouped = 1 < len(groups) < d or (len(groups) == 1 and "." in labels[0])
+    ticks = [lab.split(".", 1)[1] if grouped and "." in lab else lab for lab in labels]
+    longest = max((len(t) for t in ticks), default=1)
+    tick_size = 6 if d <= 24 else 5
+    label_in = 0.0085 * tick_size * longest + 0.06      # inches the rotated tick names reach below the axes
+    bottom = 0.3 + label_in + (0.2 if grouped else 0.0)
+    axes_in = 2.0
     with _style(salt):
-        fig = _fig(9.0, 2.6)
+        fig = _fig(9.0, axes_in + 0.4 + bottom)
         ax = fig.add_subplot(111)
         for i, p in enumerate(pose_list):
             v = values[poses == p]
@@ -242,18 +277,28 @@ def feature_plot(values: np.ndarray, poses: np.ndarray, names: Sequence[str], ti
             colour = _TAB10[i % 10]
             ax.plot(*_bars(x + off, lo, hi), color=colour, lw=2.0, alpha=0.5, solid_capstyle="butt")
             ax.plot(x + off, med, ls="none", marker="_", ms=6, color=colour, label=f"{p} ({v.shape[0]} rows)")
-        if d <= 24:
-            ax.set_xticks(x, [str(n) for n in names], rotation=60, ha="right", fontsize=6)
-        else:
-            ax.set_xlabel("feature element (order of _dataset.json)")
-        ax.set_title(title)
-        ax.legend(loc="upper right", frameon=False, ncol=min(len(pose_list), 4))
-        _margins(fig, bottom=0.9 if d <= 24 else 0.45)
+        ax.set_xticks(x, ticks, rotation=90, fontsize=tick_size)
+        ax.set_xlim(-0.6, d - 0.4)
+        if grouped:
+            below = ax.get_xaxis_transform()
+            for g, a, b in groups:
+                if a:
+                    ax.axvline(a - 0.5, color="#bbbbbb", lw=0.5)
+                ax.text((a + b - 1) / 2, -(label_in + 0.04) / axes_in, g, transform=below, ha="center", va="top",
+                        fontsize=6, fontweight="bold")
+        # the unit on the value axis (its first clause when long; the whole of it in the title)
+        ax.set_ylabel((unit if len(unit) <= 30 else unit.split(",")[0]) if unit else "value (no unit recorded)")
+        ax.set_title(f"{title} ({unit})" if unit else title, loc="left")
+        ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), frameon=False, ncol=min(len(pose_list), 4),
+                  borderaxespad=0.2)
+        _margins(fig, bottom=bottom, top=0.4)
         return _svg(fig)
 
 
-def scalar_features_plot(columns: dict[str, np.ndarray], poses: np.ndarray, salt: str) -> str:
-    """One small panel per scalar feature: per pose, the median and the 5–95 % band of the sampled rows."""
+def scalar_features_plot(columns: dict[str, np.ndarray], poses: np.ndarray, salt: str,
+                         units: dict[str, str] | None = None) -> str:
+    """One small panel per scalar feature: per pose, the median and the 5–95 % band of the sampled rows; each
+    panel titled with the feature's name and its unit (``units``)."""
     pose_list = sorted(set(poses.tolist()))
     names = list(columns)
     per_row = 6
@@ -272,6 +317,7 @@ def scalar_features_plot(columns: dict[str, np.ndarray], poses: np.ndarray, salt
             ax.set_xticks(range(len(pose_list)), pose_list, rotation=30, ha="right", fontsize=6)
             ax.set_xlim(-0.7, len(pose_list) - 0.3)
             ax.set_title(name, fontsize=8)
-        _margins(fig, left=0.5, bottom=0.5, top=0.3, wspace=0.6)
+            ax.set_ylabel((units or {}).get(name) or "value (no unit recorded)", fontsize=6)
+        _margins(fig, left=0.6, bottom=0.5, top=0.3, wspace=0.8)
         fig.subplots_adjust(hspace=0.7)
         return _svg(fig)

@@ -108,7 +108,9 @@ def _qc_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Che
     if "markers" in tables.errors:
         out.append(C.Check("unfilled", "error", "cleaned markers table unreadable"))
     else:
-        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th) if e.ran("clean")
+        out.append(C.check_unfilled(tables.fill, tables.fill_labels, th, kept_frames=tables.kept_frames,
+                                    row_frames=tables.row_frames, feeds=e.kind in ("gaze_follow", "gaze_shift"))
+                   if e.ran("clean")
                    else C.skipped("unfilled", "no clean record"))
     out.append(C.check_spikes(clean, n_frames, th))
     out.append(C.check_swaps(clean))
@@ -184,7 +186,9 @@ def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list
     salt = f"take:{e.key}:"
     if raw is not None and raw.n_frames:
         figs.append(Figure("Gap timeline", "Every marker's samples over the whole take, coloured by how they were "
-                           "filled; red samples stayed gaps.", plots.gap_timeline(
+                           "filled; red samples stayed gaps. Grey: the frames cropped out (before the first and "
+                           "after the last rest), not in any dataset; black lines: the crop bounds.",
+                           plots.gap_timeline(
                                raw.labels, raw.n_frames, raw.rate_hz, [] if clean is None else clean.gaps,
                                None if clean is None else clean.crop, raw.valid if clean is None else None,
                                salt + "gaps")))
@@ -231,6 +235,9 @@ def build_check(record: dict[str, Any] | None, built: bool) -> C.Check:
     """The engine's build of the dataset succeeded (its record) and left a dataset folder."""
     if record is None:
         return C.skipped("build", "no build record (built outside the engine)")
+    if record.get("status") == "skipped":
+        return C.Check("build", "skipped", f"dataset skipped: {record.get('reason', '?')}",
+                       details={"skipped": record.get("reason", "")})
     if record.get("status") != "ok":
         return C.Check("build", "fail", f"build failed: {record.get('error', '?')}")
     if not built:
@@ -269,19 +276,22 @@ def dataset_figures(d: DatasetData) -> list[Figure]:
     from gazepipe.report import plots
 
     names = d.info.get("features") or {}
+    units = {str(k): str(v) for k, v in (d.info.get("units") or {}).items()}
     how = f"over {smp.pose.size} sampled rows of every split (mirrored copies included), one colour per pose"
     scalars = [c for c, v in smp.columns.items() if v.shape[1] == 1]
     figs = []
     if scalars:
         figs.append(Figure(f"{d.name}: scalar features per pose", f"Median (tick) and 5–95 % range (bar) {how}.",
                            plots.scalar_features_plot({c: smp.columns[c][:, 0] for c in scalars}, smp.pose,
-                                                      f"dataset:{d.name}:scalars")))
+                                                      f"dataset:{d.name}:scalars", units)))
     for col, vals in smp.columns.items():
         if col in scalars:
             continue
         figs.append(Figure(f"{d.name}: {col} per pose", f"Median (tick) and 5–95 % range (bar) of every element of "
-                           f"{col} {how}.", plots.feature_plot(vals, smp.pose, names.get(col, []),
-                                                               f"{d.name} {col}", f"dataset:{d.name}:{col}")))
+                           f"{col} {how}; elements named as in _dataset.json, grouped by segment (or track) where "
+                           "the names say so.",
+                           plots.feature_plot(vals, smp.pose, names.get(col, []), f"{d.name} {col}",
+                                              f"dataset:{d.name}:{col}", units.get(col, ""))))
     return figs
 
 
@@ -335,31 +345,10 @@ def _sorted_checks(checks: list[C.Check]) -> list[C.Check]:
 
 #: takes plotted when nothing else is asked for: the worst ones (``gazepipe run`` plots as many)
 DEFAULT_PLOT_TAKES = 6
-#: checks whose value is worse the lower it is (the others: the higher)
-_LOWER_IS_WORSE = frozenset({"clap_confidence"})
-
-
-def _threshold_reach(c: dict[str, Any]) -> float:
-    """How far a check's value has gone towards its warning threshold (its fail threshold when it has no
-    warning one): 0.5 halfway, 1 at it, 2 twice past it; 0 for a check without a number or a threshold."""
-    value, thr = c.get("value"), c.get("threshold") or {}
-    limit = thr.get("warning") if thr.get("warning") is not None else thr.get("fail")
-    if isinstance(value, bool) or not isinstance(value, int | float) or not isinstance(limit, int | float) \
-            or not np.isfinite(value) or limit <= 0:
-        return 0.0
-    if c["id"] in _LOWER_IS_WORSE:
-        return float(limit) / value if value > 0 else float("inf")
-    return max(float(value), 0.0) / float(limit)
-
-
 def take_rank_key(take: dict[str, Any]) -> tuple:
-    """Sort key of a take (an entry of report.json's ``takes``), worst first: its severity (error, fail,
-    warning, pass), then its number of checks at fail or error, then of warnings, then the check nearest to (or
-    furthest past) its threshold (:func:`_threshold_reach`), then its name."""
-    checks = take["checks"]
-    return (-C.RANK[take["severity"]], -sum(c["severity"] in ("fail", "error") for c in checks),
-            -sum(c["severity"] == "warning" for c in checks), -max(map(_threshold_reach, checks), default=0.0),
-            f"{take['session']}/{take['take']}")
+    """Sort key of a take (an entry of report.json's ``takes``), worst first (:func:`~gazepipe.report.checks.
+    rank_key`)."""
+    return C.rank_key(take["severity"], take["checks"], f"{take['session']}/{take['take']}")
 
 
 def rank_takes(takes: list[dict[str, Any]]) -> list[str]:

@@ -800,8 +800,7 @@ def _head_centre(markers: Markers, markerset: MarkerSet, params: FramesParams, o
             marker[lost] = centre[lost] + np.einsum("tij,j->ti", rot[lost], off)
             qc["head_centre_carried_frames"] = int(lost.sum())
         return marker
-    if markerset.eye_offset_mm is None:
-        qc["warnings"].append("no head_centre marker and no eye_offset_mm: eyes' centre = head markers' centroid")
+    if markerset.eye_offset_mm is None:   # a fact of the session's markerset: the neutral_poses unit says it once
         return centre
     off = np.asarray(markerset.eye_offset_mm, dtype=np.float64)
     return centre + np.einsum("tij,j->ti", gmat[:, j], off)
