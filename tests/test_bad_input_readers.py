@@ -237,3 +237,16 @@ def test_a_utf16_export_gets_a_clear_error(tmp_path, encoding):
     with pytest.raises(InputError) as ei:
         read_markers(p)
     assert str(p) in str(ei.value) and "UTF-16" in str(ei.value)
+
+
+@pytest.mark.parametrize("kind", ["eyes", "face"])
+def test_utf16_track_files_get_a_clear_error(tmp_path, kind):
+    from gazepipe.io.livelinkface import read_livelinkface
+    from gazepipe.io.openface import read_openface
+
+    src = SAMPLE / ("eyes/follow_standing_03.csv" if kind == "eyes" else "face/face_04_tracked.csv")
+    p = tmp_path / "t16.csv"
+    p.write_bytes(src.read_text().encode("utf-16"))
+    with pytest.raises(InputError) as ei:
+        read_openface(p) if kind == "eyes" else read_livelinkface(p, rate_hz=30)
+    assert str(p) in str(ei.value) and "UTF-16" in str(ei.value)
