@@ -12,7 +12,12 @@ cases, byte for byte) and prints a summary table:
   header), OpenFace CSV, Live Link Face CSV (cut inside the header, no Timecode column, reversed timecodes, a
   huge line), session.toml and markerset.toml (5000 nested arrays, 300-character ids, unknown keys, wrong
   types, path escapes, huge strings, syntax errors) and the head-camera video (truncated, empty, a folder, a
-  FIFO, missing). A case runs ``python -m gazepipe run SESSION --out OUT --log-format json --executor serial``
+  FIFO, missing), and six named classes of bad input, each with a seeded generator and the exit status it
+  calls for: blank lines inside a Nexus CSV's data rows (read whole, with a warning), implausible rates in
+  the text exports and session.toml (refused), implausible C3D scales and text-export spans (refused within
+  1 mm of the origin, warned of beyond 100 m), byte-order marks (UTF-8 read, UTF-16 refused), link loops as
+  a take's file (that take fails, exit 1) and face files of one row or videos far shorter than their take
+  (the error names that file). A case runs ``python -m gazepipe run SESSION --out OUT --log-format json --executor serial``
   on a copy of a small session built from ``sample_data/session01`` with one file mutated, or
   ``python -m gazepipe inspect FILE`` for reader-only cases, with a timeout.
 - ``kills``: 20 runs (``--executor process -j 2``) killed with SIGKILL at seeded random moments, 10 killing the
@@ -44,6 +49,8 @@ Each case's outcome is classified as ``ok`` or as one or more problems:
 - ``unnamed``: an error line that does not name the mutated file (its name or path; for a few mutations
   another file the error may rightly name instead, e.g. a missing file's), or a flagged mutation accepted with
   a new warning that does not name the file (``run`` only: ``inspect`` prints the file it reads);
+- ``exit``: an exit status other than the one a named class's case calls for (a valid file refused, a take's
+  unreadable file refusing the whole run, an implausible rate accepted);
 - ``>1GB``: the case's peak resident memory over 1 GiB (``ru_maxrss`` of the command, forked from a small
   launcher so that the bench's own memory does not count: the process and the children it waited for; for
   the process executor, the whole process tree's resident memory sampled every 50 ms);
@@ -51,7 +58,7 @@ Each case's outcome is classified as ``ok`` or as one or more problems:
   from the reference's after the rerun (or files left by the kill that are not the reference's).
 
 Printed: one table row per family (the mutations split by reader), with the columns cases, ok, crash,
-internal, hang, silent, multiline, unnamed, >1GB, orphan, differs and a total; then every failing case (family,
+internal, hang, silent, multiline, unnamed, exit, >1GB, orphan, differs and a total; then every failing case (family,
 mutation, file, first line of its output) and ``ALL CLEAN`` when there is no problem at all. The run's results
 are also written to ``WORK/results.json``; each failing case's output is kept under ``WORK/cases/<id>/``.
 The exit status is 0 whatever the findings (a benchmark, not a test; ``tests/test_faults_fast.py`` runs a
@@ -90,7 +97,7 @@ if str(REPO) not in sys.path:
 SAMPLE = REPO / "sample_data" / "session01"
 CORPUS = REPO / "tests" / "data" / "corpus"
 FAMILIES = ("mutations", "kills", "disk", "bombs")
-PROBLEMS = ("crash", "internal", "hang", "silent", "multiline", "unnamed", "mem", "orphan", "differs")
+PROBLEMS = ("crash", "internal", "hang", "silent", "multiline", "unnamed", "exit", "mem", "orphan", "differs")
 COLUMN = {"mem": ">1GB"}
 MEM_LIMIT_KB = 1 << 20          # 1 GiB, in ru_maxrss units (KiB on Linux)
 RUN_TIMEOUT_S = 60.0
@@ -100,9 +107,12 @@ OK_EXITS = (0, 1, 2, 75)
 KILL_TRIALS = 20
 ORPHAN_GRACE_S = 2.0
 
-#: the mutation count each reader gets (sum: 545); ``--cases`` caps the total
+#: the mutation count each reader or named class gets (sum: 617); ``--cases`` caps the total
 QUOTA = {"c3d": 200, "vicon_csv": 55, "qtm_tsv": 45, "wide_csv": 40, "openface": 50, "livelinkface": 55,
-         "session_toml": 45, "markerset_toml": 35, "video": 20}
+         "session_toml": 45, "markerset_toml": 35, "video": 20,
+         "blank_lines": 12, "rates": 16, "scales": 14, "bom": 10, "link_loops": 10, "named_files": 10}
+#: the named classes of bad input (:func:`named_cases`), each with its own seeded generator
+NAMED = ("blank_lines", "rates", "scales", "bom", "link_loops", "named_files")
 #: the share of a reader's cases run through ``gazepipe run`` (the rest through ``gazepipe inspect``)
 RUN_SHARE = {"c3d": 0.45, "vicon_csv": 0.4, "qtm_tsv": 0.4, "wide_csv": 0.4, "openface": 0.25,
              "livelinkface": 0.35}
@@ -394,6 +404,7 @@ class Case:
     limit_s: float | None = None
     timeout_s: float | None = None
     names: tuple[str, ...] = ()   # other file names an error may rightly name instead (a missing file's)
+    expect: tuple[int, ...] | None = None   # the exit statuses the case calls for (None: any of OK_EXITS)
 
     @property
     def file_name(self) -> str:
@@ -1143,6 +1154,264 @@ def video_cases(seed: int, n: int) -> list[Case]:
             for k, i in enumerate(order[:n])]
 
 
+# ------------------------------------------------------------------------------------------------ named classes
+#
+# Classes of bad input with a known right answer, each case expecting an exit status (``Case.expect``): a blank
+# line inside a Nexus CSV's data rows (read whole, with a warning), implausible rates in text exports and
+# session.toml (refused), implausible C3D scales and text-export spans (refused within 1 mm of the origin,
+# warned of beyond 100 m), byte-order marks (UTF-8 read, UTF-16 refused), link loops and other unreadable
+# paths as a take's file (that take fails, exit 1), face files of too few rows and videos far shorter than
+# their take (the error names that file).
+
+
+def set_float_param(b: bytearray, group: str, name: str, value: float) -> bool:
+    """:func:`set_param` for a float parameter in the file's own float format, DEC included."""
+    if c3d_processor(bytes(b)) != "dec":
+        return set_param(b, group, name, value)
+    _, recs = c3d_records(bytes(b))
+    r = c3d_param(recs, group, name)
+    if r is None or r.ptype != 4 or r.data_at + 4 > len(b):
+        return False
+    ieee = struct.pack("<f", value * 4.0)
+    b[r.data_at: r.data_at + 4] = ieee[2:4] + ieee[0:2]   # DEC: exponent offset by 2, words swapped
+    return True
+
+
+def _vicon_blank_lines(sub: int) -> Callable[[bytes], bytes]:
+    """1-6 runs of 1-3 blank lines (empty, or a lone ``\r``) among a Nexus CSV's data rows, and sometimes a
+    Devices block after the Trajectories block (its blank separator must still end the data)."""
+    def mutate(d: bytes) -> bytes:
+        rng = np.random.default_rng(sub)
+        spec = text_specs()["vicon_csv"]
+        head, rows, eol = _split(d, spec)
+        lines = [spec.sep.join(r) for r in rows]
+        for i in sorted(rng.choice(np.arange(1, len(lines)), int(rng.integers(1, 7)), replace=False))[::-1]:
+            lines[int(i):int(i)] = [b"\r" if rng.random() < 0.2 else b""] * int(rng.integers(1, 4))
+        tail = b""
+        if rng.random() < 0.5:
+            tail = eol.join([b"", b"Devices", b"1000", b",,Force", b"Frame,Sub Frame,Fx", b",,N", b"1,0,5.0"]) + eol
+        return eol.join(head + lines) + eol + tail
+    return mutate
+
+
+#: implausible capture rates (Hz): beyond 10 kHz, below 1 Hz, zero, negative, not finite
+BAD_RATES = (1e9, 1e12, 20000.0, 1e30, 0.5, 1e-3, 0.0, -120.0, math.inf, math.nan)
+
+
+def _bad_rate(rng: np.random.Generator) -> float:
+    if rng.random() < 0.5:   # a seeded draw as well as the fixed extremes
+        return float(10 ** rng.uniform(4.05, 15)) if rng.random() < 0.5 else float(10 ** rng.uniform(-6, -0.05))
+    return float(_pick(rng, BAD_RATES))
+
+
+def _rate_text(reader: str, rate: float) -> Callable[[bytes], bytes]:
+    """A text export of ``reader`` whose rate (Nexus rate line, QTM FREQUENCY, wide CSV time steps) is ``rate``."""
+    def mutate(d: bytes) -> bytes:
+        if reader == "vicon_csv":
+            lines = d.split(b"\n")
+            lines[1] = repr(rate).encode()
+            return b"\n".join(lines)
+        if reader == "qtm_tsv":
+            return re.sub(rb"(?m)^FREQUENCY\t[^\t\r\n]*", b"FREQUENCY\t" + repr(rate).encode(), d, count=1)
+        spec = text_specs()["wide_csv"]
+        head, rows, eol = _split(d, spec)
+        step = 1.0 / rate if math.isfinite(rate) and rate > 0 else 1e-9
+        for i, r in enumerate(rows):
+            r[spec.time_col] = repr(i * step).encode()
+        return _join(head, rows, spec, eol)
+    return mutate
+
+
+def _scaled_text(factor: float, units: bytes | None = None) -> Callable[[bytes], bytes]:
+    """A Nexus CSV with every coordinate multiplied by ``factor`` (and its units row set to ``units``)."""
+    def mutate(d: bytes) -> bytes:
+        spec = text_specs()["vicon_csv"]
+        head, rows, eol = _split(d, spec)
+        for r in rows:
+            for c in spec.value_cols:
+                if c < len(r) and r[c].strip():
+                    r[c] = repr(float(r[c]) * factor).encode()
+        if units is not None:
+            head[4] = b",," + b",".join([units] * len(spec.value_cols))
+        return _join(head, rows, spec, eol)
+    return mutate
+
+
+def _loop(kind: str) -> Mutate:
+    """The file replaced by a link loop: to itself, through a second link, or at the end of a long chain."""
+    def apply(path: Path) -> None:
+        path.unlink(missing_ok=True)
+        if kind == "self":
+            path.symlink_to(path.name)
+        elif kind == "pair":
+            other = path.with_name(path.name + ".other")
+            other.unlink(missing_ok=True)
+            other.symlink_to(path.name)
+            path.symlink_to(other.name)
+        else:   # a chain of 50 links back to itself: more than the system follows (ELOOP)
+            names = [path.name] + [f"{path.name}.{k}" for k in range(1, 50)]
+            for a, b in zip(names, names[1:] + names[:1], strict=True):
+                link = path.with_name(a)
+                link.unlink(missing_ok=True)
+                link.symlink_to(b)
+    return apply
+
+
+def _face_rows(keep: int) -> Callable[[bytes], bytes]:
+    """A Live Link Face file cut to its header and ``keep`` data rows."""
+    def mutate(d: bytes) -> bytes:
+        lines = d.split(b"\n")
+        return b"\n".join(lines[: 1 + keep]) + b"\n"
+    return mutate
+
+
+def _short_video(frames: int, cut_eyes: bool) -> Mutate:
+    """The take's video re-encoded with only its first ``frames`` frames (and, with ``cut_eyes``, the eyes CSV
+    cut to the same span, as OpenFace would give for that video)."""
+    def apply(path: Path) -> None:
+        import cv2
+
+        src = SAMPLE / "video" / path.name
+        cap = cv2.VideoCapture(str(src))
+        fps = cap.get(cv2.CAP_PROP_FPS) or 60.0
+        size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        tmp = path.with_name("short_" + path.name)
+        out = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+        for _ in range(frames):
+            ok, frame = cap.read()
+            if not ok:
+                break
+            out.write(frame)
+        out.release()
+        cap.release()
+        path.unlink(missing_ok=True)
+        tmp.rename(path)
+        if cut_eyes:
+            eyes = path.parent.parent / "eyes" / (path.stem + ".csv")
+            _replace(eyes, b"".join(eyes.read_bytes().splitlines(keepends=True)[: frames + 1]))
+    return apply
+
+
+def named_cases(seed: int, quota: dict[str, int], bases: dict[str, Path] | None = None) -> list[Case]:
+    """The named classes' cases (``quota``: cases per class), seeded: the same seed gives the same cases."""
+    b = bases or {}
+
+    def src(name: str, rel: str) -> str:
+        return str(b.get(name, Path("<base>/" + name)) / rel)
+
+    vicon, qtm, wide = (RUN_TARGET[r][1] for r in ("vicon_csv", "qtm_tsv", "wide_csv"))
+    cases: list[Case] = []
+
+    def add(cls: str, k: int, mutation: str, mode: str, base: str, target: str, apply: Mutate, *,
+            flag: bool = False, expect: tuple[int, ...] | None = None, names: tuple[str, ...] = ()) -> None:
+        cases.append(Case(f"{cls}-{k:03d}", "mutations", cls, mutation, mode, base, target, apply, flag,
+                          expect=expect, names=names))
+
+    # 1. blank lines inside a Nexus CSV's data rows: read whole (exit 0) with a warning naming the file
+    rng = rng_for(seed, "blank_lines")
+    for k in range(quota["blank_lines"]):
+        sub = int(rng.integers(0, 2**31))
+        apply = bytes_mutation(_vicon_blank_lines(sub))
+        if rng.random() < 0.4:
+            add("blank_lines", k, f"vicon.blank_lines#{sub % 1000}", "run", "vicon_csv", vicon, apply, flag=True,
+                expect=(0,))
+        else:
+            add("blank_lines", k, f"vicon.blank_lines#{sub % 1000}", "inspect", src("vicon_csv", vicon),
+                Path(vicon).name, apply, flag=True, expect=(0,))
+
+    # 2. implausible rates: a text export's (its take fails, exit 1) or session.toml's (exit 2)
+    rng = rng_for(seed, "rates")
+    for k in range(quota["rates"]):
+        rate = _bad_rate(rng)
+        where = _pick(rng, ("vicon_csv", "qtm_tsv", "wide_csv", "session_toml"))
+        if where == "session_toml":
+            apply = bytes_mutation(_toml_edit("rate_hz = 30", f"rate_hz = {_toml_float(rate)}"))
+            add("rates", k, f"session_toml.rate_hz={rate:.6g}", "run", "face", "session.toml", apply, expect=(2,))
+            continue
+        base, target = RUN_TARGET[where]
+        apply = bytes_mutation(_rate_text(where, rate))
+        if rng.random() < 0.4:
+            add("rates", k, f"{where}.rate={rate:.6g}", "run", base, target, apply, expect=(1,))
+        else:
+            add("rates", k, f"{where}.rate={rate:.6g}", "inspect", src(base, target), Path(target).name, apply,
+                expect=(1,))
+
+    # 3. implausible scales: an integer C3D's POINT:SCALE (refused when tiny, warned of when huge), a Nexus
+    #    CSV's values (refused within 1 mm of the origin) or units (warned of over 100 m)
+    rng = rng_for(seed, "scales")
+    ints = [CORPUS / "c3d" / n for n in ("Eb015pi.c3d", "ART-Human_2persons_integer.c3d", "Eb015si.c3d",
+                                         "Eb015vi.c3d", "gait-raw.c3d")]
+    for k in range(quota["scales"]):
+        what = _pick(rng, ("c3d.tiny", "c3d.tiny", "c3d.huge", "vicon.tiny", "vicon.metres"))
+        if what.startswith("c3d"):
+            f = _pick(rng, ints)
+            scale = float(10 ** rng.uniform(-38, -6)) if what == "c3d.tiny" else float(10 ** rng.uniform(2.5, 4))
+
+            def edit(b: bytearray, rng: np.random.Generator, scale: float = scale) -> None:
+                set_float_param(b, "POINT", "SCALE", scale)
+            apply = bytes_mutation(lambda d, edit=edit: _edited(d, edit, 0))
+            add("scales", k, f"POINT:SCALE={scale:.3g}", "inspect", str(f), f.name, apply,
+                flag=what == "c3d.huge", expect=(1,) if what == "c3d.tiny" else None)
+        elif what == "vicon.tiny":
+            factor = float(10 ** rng.uniform(-30, -4))
+            mode = "run" if rng.random() < 0.4 else "inspect"
+            add("scales", k, f"vicon.values*{factor:.3g}", mode, "vicon_csv" if mode == "run" else
+                src("vicon_csv", vicon), vicon if mode == "run" else Path(vicon).name,
+                bytes_mutation(_scaled_text(factor)), expect=(1,))
+        else:   # millimetres labelled metres, scaled so that they stay within 1 km but span over 100 m
+            factor = float(10 ** rng.uniform(-0.85, -0.3))   # the base take spans 0.8 m, reaches 1.8 m
+            add("scales", k, f"vicon.values*{factor:.3g}.units=m", "inspect", src("vicon_csv", vicon),
+                Path(vicon).name, bytes_mutation(_scaled_text(factor, b"m")), flag=True)
+
+    # 4. byte-order marks: UTF-8 read (exit 0), UTF-16 refused with a line naming the file (exit 1)
+    rng = rng_for(seed, "bom")
+    for k in range(quota["bom"]):
+        reader = _pick(rng, ("vicon_csv", "vicon_csv", "qtm_tsv", "wide_csv"))
+        base, target = RUN_TARGET[reader]
+        enc = _pick(rng, ("utf-8-sig", "utf-8-sig", "utf-16", "utf-16-le", "utf-16-be"))
+        crlf = bool(rng.random() < 0.3)
+
+        def encode(d: bytes, enc: str = enc, crlf: bool = crlf) -> bytes:
+            text = d.decode("utf-8").replace("\n", "\r\n") if crlf else d.decode("utf-8")
+            return ("\ufeff" + text).encode(enc) if enc in ("utf-16-le", "utf-16-be") else text.encode(enc)
+        expect = (0,) if enc == "utf-8-sig" else (1,)
+        mutation = f"{reader}.bom={enc}{'.crlf' if crlf else ''}"
+        if rng.random() < 0.4:
+            add("bom", k, mutation, "run", base, target, bytes_mutation(encode), expect=expect)
+        else:
+            add("bom", k, mutation, "inspect", src(base, target), Path(target).name, bytes_mutation(encode),
+                expect=expect)
+
+    # 5. a take's file a link loop: that take fails (exit 1), the error naming the file
+    rng = rng_for(seed, "link_loops")
+    targets = [("c3d", RUN_TARGET["c3d"][1]), ("c3d", "mocap/neutral.c3d"), ("vicon_csv", vicon),
+               ("follow", f"eyes/{FOLLOW_TAKE}.csv"), ("follow", f"video/{FOLLOW_TAKE}.mp4"),
+               ("face", f"face/{FACE_TAKE}_tracked.csv"), ("face", f"face/{FACE_TAKE}_clean.csv")]
+    for k in range(quota["link_loops"]):
+        base, target = targets[k % len(targets)] if k < len(targets) else _pick(rng, targets)
+        kind = _pick(rng, ("self", "pair", "chain"))
+        add("link_loops", k, f"link_loop.{kind}", "run", base, target, _loop(kind), expect=(1,))
+
+    # 6. errors that must name their file: a face file of 0-2 rows, a video far shorter than its take
+    rng = rng_for(seed, "named_files")
+    for k in range(quota["named_files"]):
+        if rng.random() < 0.5:
+            target = f"face/{FACE_TAKE}_{_pick(rng, ('tracked', 'clean'))}.csv"
+            keep = int(rng.integers(0, 2))
+            add("named_files", k, f"face.rows={keep}", "run", "face", target, bytes_mutation(_face_rows(keep)),
+                expect=(1,))
+        else:
+            frames = int(rng.integers(60, 400))
+            cut = bool(rng.random() < 0.6)
+            add("named_files", k, f"video.frames={frames}{'+eyes' if cut else ''}", "run", "follow",
+                f"video/{FOLLOW_TAKE}.mp4", _short_video(frames, cut), flag=True)
+    return cases
+
+
+def _toml_float(v: float) -> str:
+    return "nan" if math.isnan(v) else ("inf" if v == math.inf else "-inf" if v == -math.inf else repr(v))
+
+
 #: the base session and file each reader's run cases mutate
 RUN_TARGET = {"c3d": ("c3d", f"mocap/{MOCAP_TAKE}.c3d"), "vicon_csv": ("vicon_csv", f"mocap/{MOCAP_TAKE}.csv"),
               "qtm_tsv": ("qtm_tsv", f"mocap/{MOCAP_TAKE}.tsv"),
@@ -1175,6 +1444,7 @@ def mutation_cases(seed: int, bases: dict[str, Path] | None = None, quota: dict[
     cases += session_toml_cases(seed, q["session_toml"])
     cases += markerset_toml_cases(seed, q["markerset_toml"])
     cases += video_cases(seed, q["video"])
+    cases += named_cases(seed, q, bases)
     return cases
 
 
@@ -1529,6 +1799,8 @@ def classify(case: Case, res: dict, target: Path, folder: Path, baseline: set[st
         problems.append(("hang", f"no exit in {res['seconds']:.0f} s"))
     elif rc not in OK_EXITS:
         problems.append(("crash", f"exit {rc}" + (f" (signal {-rc})" if rc < 0 else "")))
+    if case.expect is not None and not res["timed_out"] and rc not in case.expect:
+        problems.append(("exit", f"exit {rc}, the case calls for {' or '.join(str(c) for c in case.expect)}"))
     if case.limit_s is not None and not res["timed_out"] and res["seconds"] > case.limit_s:
         problems.append(("hang", f"took {res['seconds']:.1f} s (limit {case.limit_s:g} s)"))
     if re.search(r"internal error", text, re.I):

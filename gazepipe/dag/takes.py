@@ -573,7 +573,7 @@ def run_face(ctx: TakeContext) -> UnitResult:
     tracked_path, clean_path = _given(take.tracked, "tracked"), _given(take.clean, "clean")
     tracked = read_livelinkface(tracked_path, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
     clean = read_livelinkface(clean_path, rate_hz=take.rate_hz, timecode_fps=take.timecode_fps)
-    aligned = align_face(tracked, clean, k=int(ctx.params["k"]))
+    aligned = align_face(tracked, clean, k=int(ctx.params["k"]), paths=(tracked_path, clean_path))
     qc = dict(aligned.qc)
     warnings = _file_notes(ctx, tracked_path, tracked.warnings) + _file_notes(ctx, clean_path, clean.warnings)
     qc["warnings"] = warnings
@@ -598,6 +598,18 @@ register(Stage(
 def _sync_take(session: Session, take: Take) -> bool:
     ms = session.markerset
     return _subject_take(session, take) and take.video is not None and ms is not None and len(ms.clapper) == 2
+
+
+def _short_video_note(ts: np.ndarray, take_s: float) -> list[str]:
+    """A note when a video (frame times ``ts``, s) lasts less than half its take (``take_s``): it cannot
+    cover the take's eye data (the eyes stage names the video when that makes it fail)."""
+    from gazepipe.stages.eyes.stage import SHORT_VIDEO_SHARE
+
+    video_s = float(ts[-1] - ts[0]) if ts.size >= 2 else 0.0
+    if video_s < SHORT_VIDEO_SHARE * take_s:
+        return [f"the video lasts {video_s:.1f} s but the take {take_s:.1f} s: frames after the video's end have "
+                "no eye data"]
+    return []
 
 
 def run_sync(ctx: TakeContext) -> UnitResult:
@@ -632,7 +644,9 @@ def run_sync(ctx: TakeContext) -> UnitResult:
     table = attach_meta(pa.Table.from_pydict(rows, schema=SYNC), {"video_frames": int(ts.size),
                                                                   "video_nominal_fps": probe.nominal_fps})
     qc = dict(res.qc)
-    qc["warnings"] = list(qc.get("warnings", [])) + _file_notes(ctx, video, probe.warnings + ([damage] if damage else []))
+    short = _short_video_note(ts, raw.n_frames / raw.rate_hz)
+    qc["warnings"] = list(qc.get("warnings", [])) + _file_notes(ctx, video, probe.warnings + ([damage] if damage else [])
+                                                                + short)
     return UnitResult(tables={"sync": (table, SYNC)}, qc=qc, warnings=qc["warnings"])
 
 
@@ -652,6 +666,14 @@ def _eyes_take(session: Session, take: Take) -> bool:
     return _frames_take(session, take) and take.eyes is not None
 
 
+def _video_seconds(meta: dict) -> float:
+    """How long a take's video lasts (s), from the sync table's metadata (NaN when it does not say)."""
+    try:
+        return float(meta["video_frames"]) / float(meta["video_nominal_fps"])
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return float("nan")
+
+
 def run_eyes(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.openface import read_openface
     from gazepipe.stages.eyes.stage import HeadMotion, eyes_take
@@ -664,13 +686,16 @@ def run_eyes(ctx: TakeContext) -> UnitResult:
     joints = HeadMotion(segments=tuple(ja["segments"]), quat=ja["quat"], rate_hz=float(ja["meta"]["rate_hz"]),
                         target_dir=ja["target_dir"], char_rot=ja["char_rot"])
     clock = ClockMap(offset_s=0.0, ratio=1.0, n_claps=0)
+    video = None
     if take.video is not None:
         sync = ctx.load("sync")
         clock = ClockMap(offset_s=float(sync.column("offset_s")[0].as_py()),
                          ratio=float(sync.column("ratio")[0].as_py()), n_claps=sync.num_rows)
+        video = (take.video, _video_seconds(read_meta(sync)) * clock.ratio)
     camera = None if ms.camera_rotation is None else np.asarray(ms.camera_rotation, dtype=np.float64)
     res = eyes_take(eye, joints, ja["time_s"], clock if take.video is not None else None,
-                    camera_rotation=camera, params=_build(EyesParams, ctx.params), path=take.eyes, take=take.id)
+                    camera_rotation=camera, params=_build(EyesParams, ctx.params), path=take.eyes, take=take.id,
+                    video=video)
     frames = ja["frame"].astype(np.int64)
     # a valid frame is "filled" when either video sample around it was bridged by slerp
     g = res.gated

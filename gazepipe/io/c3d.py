@@ -38,7 +38,7 @@ import numpy as np
 
 from gazepipe.errors import InputError, printable
 from gazepipe.io.c3d_meta import HEAD_BYTES, C3DMeta, Layout, MetaError, parse_c3d_meta
-from gazepipe.io.limits import MAX_ABS_MM
+from gazepipe.io.limits import MAX_ABS_MM, coordinate_span, span_problem
 from gazepipe.model import Markers, filled_samples
 from gazepipe.timebase import snap_rate, unit_scale_to_mm
 
@@ -407,6 +407,7 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
         valid &= ~beyond
         out[beyond] = np.nan
     del far, beyond
+    _check_span(p, lay, units, default_units, *coordinate_span(out, valid), notes)
     at_origin = valid.any(axis=0) & ~(valid & _any3(out != 0)).any(axis=0)
     if at_origin.any():
         notes.append(_list_note("markers at exactly (0, 0, 0) in every valid sample (never seen?)",
@@ -426,6 +427,25 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
     info = {"reader": reader, "processor": lay.processor, "storage": "float" if lay.is_float else "int",
             "units": units, "n_points": lay.n_points, "analog_channels": lay.analog_channels}
     return markers, info
+
+
+def _check_span(p: Path, lay: Layout, units: str | None, default_units: str, lo: np.ndarray, hi: np.ndarray,
+                notes: list[str]) -> None:
+    """Refuse a capture whose markers all sit within a millimetre of the origin, note one that spans more
+    than any capture volume (:func:`gazepipe.io.limits.span_problem`), naming what scaled it: POINT:SCALE
+    for integer storage, POINT:UNITS for float storage."""
+    found = span_problem(lo, hi)
+    if found is None:
+        return
+    refuse, why = found
+    shown = units if units is not None else f"none, {default_units} assumed"
+    if lay.is_float:
+        key, what = "POINT:UNITS", f"units {shown!r} (float storage)"
+    else:
+        key, what = "POINT:SCALE", f"a scale of {abs(lay.scale):.3g} (integer storage, units {shown!r})"
+    if refuse:
+        raise InputError(p, f"{why}; {what} is implausible", key=key)
+    notes.append(f"{key}: {why}; check {what}")
 
 
 def _agrees_with_file(p: Path, fh, lay: Layout, lib: np.ndarray, gap: np.ndarray) -> bool:

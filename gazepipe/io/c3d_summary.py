@@ -20,7 +20,7 @@ import numpy as np
 
 from gazepipe.errors import printable
 from gazepipe.io import c3d as _c3d
-from gazepipe.io.limits import MAX_ABS_MM
+from gazepipe.io.limits import MAX_ABS_MM, coordinate_span
 from gazepipe.timebase import snap_rate
 
 __all__ = ["STREAM_OVER_BYTES", "c3d_storage", "summarise_c3d"]
@@ -62,6 +62,7 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
     nonzero = np.zeros(n_m, dtype=bool)
     seen = np.zeros(n_m, dtype=bool)
     infinite, first_inf, first_far = 0, None, None
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)     # the valid samples' span (see coordinate_span)
     digests = [hashlib.blake2b(digest_size=16) for _ in range(n_m)]
     for a, n, buf in _c3d._frame_chunks(p, fh, lay):
         xyz, word4 = _c3d._decode_frames(buf, lay, n)
@@ -82,6 +83,8 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
         n_far += far.sum(axis=0)
         nonzero |= (~g & ~z).any(axis=0)
         seen |= (~g & ~z & ~far).any(axis=0)
+        c_lo, c_hi = coordinate_span(chunk, ~g & ~far)
+        lo, hi = np.fmin(lo, c_lo), np.fmax(hi, c_hi)
         # what the full read compares for copies, in a form that needs no other chunk: coordinates (0 at
         # gaps) and the two gap masks
         coords = np.where(g[..., None], 0.0, chunk)
@@ -105,6 +108,7 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
                      f"values) made gaps (first at frame {lay.first_frame + first_far[0]}, marker "
                      f"{printable(labels[first_far[1]])}), in "
                      + _c3d._list_note("markers", [printable(labels[i]) for i in cols]))
+    _c3d._check_span(p, lay, units, default_units, lo, hi, notes)
     at_origin = (n_valid > 0) & ~seen
     if at_origin.any():
         notes.append(_c3d._list_note("markers at exactly (0, 0, 0) in every valid sample (never seen?)",

@@ -18,6 +18,14 @@ is refused in bounded memory and time instead of exhausting the machine:
   inertial capture volumes span tens of metres; beyond 1e6 mm a float32 coordinate (the C3D storage) no longer
   resolves a tenth of a millimetre (its step there is 0.06 mm, 0.125 mm past 2^20 mm), so such a value is a
   corrupted sample, not a measurement. It becomes a gap, with a warning naming the markers.
+* :data:`MIN_REACH_MM`, :data:`MAX_EXTENT_MM`: a capture whose valid samples all lie within 1 mm of the origin,
+  or span more than 100 m. A person in a capture volume moves over metres, some markers a metre or more from
+  the lab origin; markers that never leave a 1 mm ball around it are a scale or unit that shrank the capture
+  (a ``POINT:SCALE`` of 1e-30, a file in km), and are refused. The largest optical or inertial volumes span
+  tens of metres: a span beyond 100 m is a scale or unit that blew it up (a coordinate in micrometres read
+  as mm), and is warned of (the samples themselves are still within :data:`MAX_ABS_MM`).
+* :data:`MIN_RATE_HZ`, :data:`MAX_RATE_HZ` hold for every rate a file or a session gives, not only C3D's
+  (:func:`rate_problem`).
 """
 
 from __future__ import annotations
@@ -37,10 +45,58 @@ MAX_ID_CHARS = 100
 MIN_RATE_HZ = 1.0
 MAX_RATE_HZ = 10_000.0
 MAX_ABS_MM = 1e6
+MIN_REACH_MM = 1.0
+MAX_EXTENT_MM = 1e5
 #: the largest frame number a text export or an OpenFace CSV may carry (exporters count frames in 32 bits)
 MAX_FRAME = 2**31 - 1
 
 _CHUNK = 4 << 20   # bytes read at a time by check_line_lengths
+_SPAN_SAMPLES = 1 << 16   # samples (frames x markers) looked at a time by coordinate_span
+
+
+def rate_problem(rate: float) -> str | None:
+    """Why a capture rate (Hz) is implausible (outside :data:`MIN_RATE_HZ` - :data:`MAX_RATE_HZ`, or not a
+    finite number), or None when it is within them."""
+    if MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        return None
+    return (f"{rate:.6g} Hz is outside {MIN_RATE_HZ:g} Hz - {MAX_RATE_HZ / 1000:g} kHz, the range of a motion "
+            "capture")
+
+
+def coordinate_span(xyz: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis least and greatest coordinate (two (3,) arrays, mm) of the valid samples of ``xyz`` (T, M, 3)
+    that are not exactly (0, 0, 0) (``valid`` (T, M)); +inf and -inf where there is none.
+
+    Looked at about :data:`_SPAN_SAMPLES` samples at a time (a few MB), so a long capture is not copied whole.
+    Spans of parts of a capture combine with ``numpy.fmin`` / ``numpy.fmax``.
+    """
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    step = max(1, _SPAN_SAMPLES // max(1, xyz.shape[1]))
+    for a in range(0, xyz.shape[0], step):
+        sub = xyz[a: a + step]
+        use = valid[a: a + step] & (sub != 0).any(axis=2)
+        if use.any():
+            pts = sub[use]
+            lo = np.fmin(lo, pts.min(axis=0))
+            hi = np.fmax(hi, pts.max(axis=0))
+    return lo, hi
+
+
+def span_problem(lo: np.ndarray, hi: np.ndarray) -> tuple[bool, str] | None:
+    """What is implausible about a capture's span (:func:`coordinate_span`): ``(True, why)`` when every
+    sample lies within :data:`MIN_REACH_MM` of the origin (a refusal), ``(False, why)`` when the samples span
+    more than :data:`MAX_EXTENT_MM` (a warning); None when the span is that of a capture, or empty."""
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return None
+    reach = float(np.max(np.maximum(np.abs(lo), np.abs(hi))))
+    if reach < MIN_REACH_MM:
+        return True, (f"every marker sample lies within {reach:.3g} mm of the origin (less than "
+                      f"{MIN_REACH_MM:g} mm: no capture of a person)")
+    extent = float(np.max(hi - lo))
+    if extent > MAX_EXTENT_MM:
+        return False, (f"the marker samples span {extent / 1000:,.0f} m (more than {MAX_EXTENT_MM / 1000:,.0f} "
+                       "m: no capture volume is that large)")
+    return None
 
 
 @functools.cache

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import re
 import warnings
 from dataclasses import dataclass
@@ -54,7 +53,15 @@ import pyarrow.csv as pa_csv
 
 from gazepipe.errors import InputError, printable
 from gazepipe.io.c3d import make_unique
-from gazepipe.io.limits import MAX_ABS_MM, MAX_FRAME, check_line_lengths, exact_floats
+from gazepipe.io.limits import (
+    MAX_ABS_MM,
+    MAX_FRAME,
+    check_line_lengths,
+    coordinate_span,
+    exact_floats,
+    rate_problem,
+    span_problem,
+)
 from gazepipe.model import Markers
 from gazepipe.timebase import snap_rate, unit_scale_to_mm
 
@@ -94,6 +101,8 @@ def _read_raw(path: Path) -> bytes:
         raise InputError(path, "file not found") from None
     except OSError as e:
         raise InputError(path, f"cannot read file ({e.strerror or e})") from None
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise InputError(path, "UTF-16 text (a byte-order mark FF FE or FE FF); save the export as UTF-8 CSV")
     if b"\x00" in raw:
         raise InputError(path, "binary data in a text export (NUL bytes)")
     return raw
@@ -367,11 +376,21 @@ def _with_gap_rows(xyz: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     return full
 
 
-def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str]) -> float:
-    if file_rate is not None and not (math.isfinite(file_rate) and file_rate > 0):
-        file_rate = None
-    if rate_hz is not None and not (math.isfinite(float(rate_hz)) and float(rate_hz) > 0):
-        raise _Bad(f"rate_hz must be a positive number, got {rate_hz!r}")
+def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str],
+                  what: str = "the file's rate") -> float:
+    """The capture rate: the file's (``what`` names where it was found), else ``rate_hz``; either refused
+    outside :data:`~gazepipe.io.limits.MIN_RATE_HZ` - :data:`~gazepipe.io.limits.MAX_RATE_HZ`."""
+    if file_rate is not None:
+        problem = rate_problem(file_rate)
+        if problem is not None:
+            raise _Bad(f"{what}: {problem}")
+    if rate_hz is not None:
+        try:
+            problem = rate_problem(float(rate_hz))
+        except (TypeError, ValueError):
+            problem = "not a number"
+        if problem is not None:
+            raise _Bad(f"the given rate_hz {rate_hz!r}: {problem}")
     if file_rate is None:
         if rate_hz is None:
             raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
@@ -430,6 +449,12 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
                      f"values) made gaps{_first_at(far, labels, first_frame)}, in {cols.size} markers: {shown}")
         valid &= ~far
         xyz[far] = np.nan
+    found = span_problem(*coordinate_span(xyz, valid))
+    if found is not None:
+        shown = f"the file's units {units!r}" if units is not None else f"units {default_units!r} (assumed)"
+        if found[0]:
+            raise _Bad(f"{found[1]}; {shown} or the values are implausible")
+        notes.append(f"{found[1]}; check {shown}")
     if valid.size and not valid.any():
         notes.append("every marker sample is invalid (100 % gaps)")
     return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=rate, first_frame=int(first_frame),
@@ -470,8 +495,51 @@ def strip_subject_prefix(labels: list[str], wanted: list[str] | tuple[str, ...] 
     return [new if counts[new] == 1 else old for old, new in zip(labels, out, strict=True)]
 
 
-_TRAJ_LINE = re.compile(rb"(?m)^[ \t]*Trajectories[ \t]*(?:,[^\r\n]*)?\r?$")
+# the block title, at the start of a line (or after the UTF-8 byte-order mark Excel writes)
+_TRAJ_LINE = re.compile(rb"(?m)^(?:\xef\xbb\xbf)?[ \t]*Trajectories[ \t]*(?:,[^\r\n]*)?\r?$")
 _BLANK_LINE = re.compile(rb"(?m)^[ \t,\r]*$")
+_CONTENT = re.compile(rb"[^ \t,\r\n]")
+
+
+def _block_end(path: Path, raw: bytes, start: int, first_line: int, notes: list[str]) -> int:
+    """Where the data rows of the 'Trajectories' block that start at ``raw[start]`` (line ``first_line``,
+    1-based) end.
+
+    Nexus separates blocks with a blank line, the next block starting with its title (``Devices``, ``Model
+    Outputs`` …), never with a number. A blank line followed by a row whose first cell is a number is
+    inside the data (a hand-edited or re-saved file): it is skipped, with a note naming the file and the
+    line, so that no data row is dropped. Such a line must be empty: one of spaces or separators only is
+    refused (the rows' reader would read it as a row without a frame number).
+    """
+    pos, stop = start, len(raw)
+    skipped: list[tuple[int, int]] = []               # (first, last) line of each run of blank lines
+    line, counted = first_line, start                   # line number at byte offset ``counted``
+    while (blank := _BLANK_LINE.search(raw, pos)) is not None:
+        content = _CONTENT.search(raw, blank.end())
+        if content is None:                             # blank lines to the end of the file
+            stop = blank.start()
+            break
+        nxt = raw.rfind(b"\n", 0, content.start()) + 1
+        end = raw.find(b"\n", nxt)
+        cell = _text(raw[nxt: end if end >= 0 else len(raw)]).split(",", 1)[0].strip()
+        try:
+            float(cell)
+        except ValueError:                              # the next block's title
+            stop = blank.start()
+            break
+        line += raw.count(b"\n", counted, blank.start())
+        counted = blank.start()
+        if raw[blank.start(): nxt].strip():
+            raise _Bad(f"line {line}: a row of empty cells inside the 'Trajectories' data rows (data rows "
+                       "follow it)")
+        skipped.append((line, line + raw.count(b"\n", blank.start(), nxt) - 1))
+        pos = nxt
+    if skipped:
+        shown = ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in skipped[:5])
+        more = f" and {len(skipped) - 5} more" if len(skipped) > 5 else ""
+        notes.append(f"{printable(path.name)}: {sum(b - a + 1 for a, b in skipped)} blank line(s) inside the "
+                     f"'Trajectories' data rows skipped (lines {shown}{more})")
+    return stop
 
 
 def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bool | list[str],
@@ -508,22 +576,21 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
         raise _Bad(f"mixed units {sorted(found_units)}")
     units = found_units.pop() if found_units else None
 
-    # data rows run to the first blank line (the next block) or the end of the file
+    # data rows run to the first blank line followed by the next block's title (or nothing), or to the end
     data_start = lines.offset(5)
-    blank = _BLANK_LINE.search(raw, data_start)
-    stop = blank.start() if blank is not None else len(raw)
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
     first_line = raw.count(b"\n", 0, found.start()) + 6
+    notes: list[str] = []
+    stop = _block_end(path, raw, data_start, first_line, notes)
     _check_fields(raw, data_start, stop, ",", first_line, n_cols, required=_last_named(comps))
     arr = _numbers(raw, data_start, stop, ",", n_cols)
     xyz = _coordinate_columns(arr, np.asarray(cols)) if arr.shape[0] else np.zeros((0, len(labels), 3))
     if xyz.shape[0] == 0:
         raise _Bad("no data rows in the 'Trajectories' block")
-    notes: list[str] = []
     first, rows = _frame_rows(arr[:, 0], _Rows(raw, data_start, stop, first_line), path.name, notes)
     del arr
     xyz = _with_gap_rows(xyz, rows)
-    rate = _resolve_rate(file_rate, rate_hz, notes)
+    rate = _resolve_rate(file_rate, rate_hz, notes, f"line {first_line - 4}, the rate line")
     if strip_prefix is True:
         labels = strip_subject_prefix(labels)
     elif isinstance(strip_prefix, list | tuple):
@@ -635,7 +702,7 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
         _check_times(arr[:, 0], where)
     del arr
     xyz = _with_gap_rows(xyz, rows)
-    rate = _resolve_rate(file_rate, rate_hz, notes)
+    rate = _resolve_rate(file_rate, rate_hz, notes, "FREQUENCY")
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="qtm_tsv", notes=notes, zero_gaps=True)
     cols = n_lead + np.arange(3 * m, dtype=np.int64).reshape(m, 3)
@@ -771,7 +838,7 @@ def _parse_wide(path: Path, raw: bytes, rate_hz: float | None, default_units: st
                 notes.append("uneven steps in the time column")
     del arr
     xyz = _with_gap_rows(xyz, rows)
-    rate = _resolve_rate(file_rate, rate_hz, notes)
+    rate = _resolve_rate(file_rate, rate_hz, notes, "the rate of the time column")
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=None, default_units=default_units,
                       fmt="wide_csv", notes=notes)
     return markers, TextLayout(",", lines.offset(1), len(raw), idx.astype(np.int64), None, rows)

@@ -125,8 +125,8 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
     col.unknown_keys(defaults, _DEFAULT_KEYS, "defaults.")
     d_pose = col.word(defaults, "pose", "defaults.pose", "pose")
     d_split = _split(defaults, "defaults.split", col)
-    d_rate = col.number(defaults, "rate_hz", "defaults.rate_hz", positive=True)
-    d_tc = col.number(defaults, "timecode_fps", "defaults.timecode_fps", positive=True)
+    d_rate = col.rate(defaults, "rate_hz", "defaults.rate_hz")
+    d_tc = col.rate(defaults, "timecode_fps", "defaults.timecode_fps")
 
     takes: list[Take] = []
     raw_takes = doc.get("takes")
@@ -239,8 +239,8 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
         col.add(f"{key}.mocap", f"unsupported mocap file type {show(Path(mocap).suffix)} "
                 f"(expected {', '.join(MOCAP_SUFFIXES)})", tid)
 
-    rate = col.number(t, "rate_hz", f"{key}.rate_hz", positive=True) if "rate_hz" in t else d_rate
-    tc = col.number(t, "timecode_fps", f"{key}.timecode_fps", positive=True) if "timecode_fps" in t else d_tc
+    rate = col.rate(t, "rate_hz", f"{key}.rate_hz") if "rate_hz" in t else d_rate
+    tc = col.rate(t, "timecode_fps", f"{key}.timecode_fps") if "timecode_fps" in t else d_tc
 
     yaw = pitch = None
     if "target" in t and kind == "gaze_shift" and (tgt := col.table(t["target"], f"{key}.target")) is not None:

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from gazepipe.errors import ConfigError
-from gazepipe.io.limits import MAX_ID_CHARS, MAX_TOML_BYTES, MAX_TOML_DEPTH
+from gazepipe.io.limits import MAX_ID_CHARS, MAX_TOML_BYTES, MAX_TOML_DEPTH, rate_problem
 
 WORD = re.compile(r"[A-Za-z0-9_-]+")
 CTRL = re.compile(r"[\x00-\x1f\x7f]")
@@ -107,6 +107,15 @@ class Collector:
             self.add(key, f"must be > 0, got {show(value)}")
             return None
         return float(value)
+
+    def rate(self, table: dict, name: str, key: str) -> float | None:
+        """A rate in Hz: a number within :data:`~gazepipe.io.limits.MIN_RATE_HZ` -
+        :data:`~gazepipe.io.limits.MAX_RATE_HZ` (the bounds every capture file's rate is held to)."""
+        value = self.number(table, name, key, positive=True)
+        if value is not None and (problem := rate_problem(value)) is not None:
+            self.add(key, problem)
+            return None
+        return value
 
     def marker_name(self, value: Any, key: str) -> str | None:
         if not isinstance(value, str):
@@ -215,6 +224,11 @@ def resolve_inside(root: Path, value: str, key: str, col: Collector, take: str |
             col.add(key, f"{'not a file' if p.exists() else 'file not found'}: {p}", take)
             return None
     except (OSError, RuntimeError, ValueError) as exc:
+        listed = os.path.normpath(root / value)
+        if not must_exist and not isinstance(exc, ValueError) and Path(listed).is_relative_to(root):
+            # a link loop, a name too long, a folder that cannot be searched: the file cannot be read, which
+            # its reader says (failing its take), as for a missing file; nothing outside the folder is read
+            return listed
         col.add(key, f"bad path {show(value)}: {exc}", take)
         return None
     return str(p) if must_exist else os.path.normpath(root / value)

@@ -23,6 +23,18 @@ from gazepipe.model import EyeTrack, FaceTrack, VideoProbe
 __all__ = ["EyeTrack", "FaceTrack", "VideoProbe", "read_columns", "read_header"]
 
 
+def _not_text(path: Path) -> str:
+    """Why a CSV file did not decode: UTF-16 text (a byte-order mark FF FE or FE FF), or not text."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(2)
+    except OSError:
+        head = b""
+    if head in (b"\xff\xfe", b"\xfe\xff"):
+        return "UTF-16 text (a byte-order mark FF FE or FE FF); save the file as UTF-8 CSV"
+    return "not a text CSV file"
+
+
 def read_header(path: Path) -> list[str]:
     """Column names of a CSV file's first line, stripped of spaces (InputError when unreadable or empty, or when
     the line is longer than :data:`~gazepipe.io.limits.MAX_LINE_BYTES`: only that much is read)."""
@@ -34,7 +46,7 @@ def read_header(path: Path) -> list[str]:
     except IsADirectoryError:
         raise InputError(path, "is a folder, not a file") from None
     except UnicodeDecodeError:
-        raise InputError(path, "not a text CSV file") from None
+        raise InputError(path, _not_text(path)) from None
     except OSError as e:
         raise InputError(path, f"cannot read: {e.strerror or e}") from None
     if len(first) > MAX_LINE_BYTES:

@@ -141,9 +141,23 @@ class HeadMotion:
     char_rot: np.ndarray | None = None
 
 
+#: a head-camera video shorter than this share of its take is too short to be the take's (see eyes_take)
+SHORT_VIDEO_SHARE = 0.5
+
+
+def _short_video(video: tuple[Any, float] | None, take_s: float, take: str | None) -> None:
+    """Raise the error that names the video when it lasts less than :data:`SHORT_VIDEO_SHARE` of the take."""
+    if video is None or video[0] is None or not video[1] < SHORT_VIDEO_SHARE * take_s:
+        return
+    raise StageError(video[0], f"eyes: cannot estimate the camera rotation: the video lasts {video[1]:.1f} s, "
+                               f"the take's frames {take_s:.1f} s (a video far shorter than its take: the wrong "
+                               "or a cut file?)", take=take)
+
+
 def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, clock: Any = None, *,
               camera_rotation: np.ndarray | None = None, params: EyesParams | None = None,
-              path: Any = None, take: str | None = None) -> EyesResult:
+              path: Any = None, take: str | None = None,
+              video: tuple[Any, float] | None = None) -> EyesResult:
     """Eye direction per mocap frame of one take (SPEC §3.5).
 
     Parameters
@@ -160,6 +174,9 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
         eyes' lag behind the target (:func:`estimate_camera_rotation_lagged`).
     params : :class:`EyesParams`.
     path, take : for error messages.
+    video : the take's head-camera video and its duration (s), for error messages: a camera rotation that
+        cannot be estimated while the video lasts less than :data:`SHORT_VIDEO_SHARE` of the take is the
+        video's fault (the error names it), not the eyes file's.
 
     Returns
     -------
@@ -201,6 +218,7 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
     residual: float | None = None
     if camera_rotation is None:
         if not eye_valid.any():
+            _short_video(video, n / rate, take)
             raise StageError(path, f"eyes: cannot estimate the camera rotation: no frame has valid eye data "
                              f"({int(np.count_nonzero(covered))} of {n} frames covered by the video, "
                              f"{g.qc['gated_share']:.0%} of the video's samples gated out)", take=take)
@@ -208,6 +226,7 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
             est, lag = estimate_camera_rotation_lagged(gaze_cam, head_q, tdir_char, rate, eye_valid,
                                                        char_rot=char_rot, params=p)
         except ValueError as e:
+            _short_video(video, n / rate, take)
             raise StageError(path, f"eyes: cannot estimate the camera rotation: {e}", take=take) from None
         r_cam, source, residual, n_used = est.quat, "estimated", est.residual_deg, est.n_used
     else:

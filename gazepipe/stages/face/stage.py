@@ -12,6 +12,7 @@ are left out (K = 1: the last frame), counted in QC, as are tracked rows without
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -103,7 +104,8 @@ def _match(t_trk: np.ndarray, t_cln: np.ndarray, tol: float) -> tuple[np.ndarray
     return rows, c[rows], err[rows]
 
 
-def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1) -> FaceAligned:
+def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
+               paths: tuple[str | Path, str | Path] | None = None) -> FaceAligned:
     """Align a take's tracked and clean blendshapes on timecode and add forward derivatives (SPEC §3.6).
 
     A tracked row is kept when the clean file has a row within half a capture frame (1 / (2·rate_hz)) of its
@@ -116,6 +118,7 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1) -> FaceAlign
     tracked : raw tracking of the take.
     clean : the hand-cleaned animation of the same take.
     k : highest derivative order (default 1).
+    paths : the tracked and the clean file, named by the errors (None: errors name no file).
 
     Returns
     -------
@@ -127,14 +130,20 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1) -> FaceAlign
     """
     if k < 1:
         raise ValueError(f"derivative order k must be >= 1, got {k}")
+    trk_path, cln_path = paths if paths is not None else (None, None)
+    other = f" of {cln_path}" if cln_path is not None else ""
+    for track, path, what in ((tracked, trk_path, "tracked"), (clean, cln_path, "clean")):
+        if track.n_frames <= k:
+            raise StageError(path, f"{track.n_frames} data row(s) in the {what} file: aligning a face take "
+                                   f"needs more than {k}")
     if tuple(tracked.names) != tuple(clean.names):
-        raise StageError(None, "tracked and clean blendshape channels differ")
+        raise StageError(trk_path, f"the tracked blendshape channels differ from the clean ones{other}")
     names = tuple(normalise_name(n) or n for n in tracked.names)
     tol = 0.5 / float(tracked.rate_hz)
     rows, crow, err = _match(tracked.timecode_s, clean.timecode_s, tol)
     if rows.size <= k:
-        raise StageError(None, f"only {rows.size} tracked row(s) have a clean counterpart within half a frame "
-                               f"(need more than {k}); do the two files share a timecode?")
+        raise StageError(trk_path, f"only {rows.size} tracked row(s) have a clean counterpart{other} within half "
+                                   f"a frame (need more than {k}); do the two files share a timecode?")
     t = tracked.time_s[rows]
     dt = np.diff(t)
     d_trk = forward_derivatives(tracked.values[rows], dt, k)
