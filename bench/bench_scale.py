@@ -351,17 +351,21 @@ def main(argv: list[str] | None = None) -> int:
         tl = timeline(Path(r["log"])) if name not in ("noop", "profiled") else None
         if tl:
             r["timeline"] = tl
-        tail = (f"{100 * max(r['wall_s'] - tl['takes_done_s'], 0.0) / r['wall_s']:10.0f} %" if tl else "")
         at = after_takes(r, Path(r["out"])) if name not in ("noop", "profiled") else None
         if at:
             r["after_takes"] = at
+        # the share from the unit records' times: the log's times count from its first event, which comes
+        # after the interpreter's start, the planning and the session units, so they cannot be set against the
+        # wall time
+        tail = f"{100 * at['tail_s'] / r['wall_s']:10.1f} %" if at else ""
         cpu = (f"{at['tail_s']:8.2f}{at['cpu_s']:8.1f}{at['cpu_after_s']:6.1f} s ({100 * at['cpu_after_s'] / at['cpu_s']:.0f} %)"
                if at else "")
         print(f"{label:<24}{r['wall_s']:9.2f}{r['wall_s'] / phys['total_s']:8.2f}{r['wall_s'] / floor['total_s']:9.2f}"
               f"{speed:>10}{tail:>12}{r['peak_tree_mb']:14.0f}{r['peak_process_mb']:14.0f}  {r['rc']}   {cpu}")
-    print("\ntimeline from the run's start (s, 1 s resolution): last take unit, last dataset, QC report; "
-          "'after takes' above is the share of the wall time after the last take unit; 'tail s' the same from the "
-          "unit records' times, 'CPU after' the CPU seconds of the run's processes after it (of 'CPU s')")
+    print("\n'after takes' above is the share of the wall time after the last take unit ('tail s': seconds from "
+          "the last unit record's time to the run's end), 'CPU after' the CPU seconds of the run's processes after "
+          "it (of 'CPU s'); timeline from the run log's first event (s, 1 s resolution): last take unit, last "
+          "dataset, QC report")
     for name, r in runs.items():
         tl = r.get("timeline")
         if tl:

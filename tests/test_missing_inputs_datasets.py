@@ -39,6 +39,7 @@ def test_run_skips_the_dataset_with_one_line(mocap_only):
     assert (out / "datasets" / "gaze_rnn_lod").is_dir()           # the mocap-only dataset is built
     end = next(e for e in events if e["event"] == "run_end")
     assert end["failed"] == 0 and end["datasets_failed"] == 0
+    assert end["datasets_skipped"] == 1 and "1 skipped (inputs missing)" in end["message"]
 
 
 def test_report_lists_it_as_skipped_and_the_gate_ignores_it(mocap_only):

@@ -495,3 +495,20 @@ def test_occlusion_bursts_hide_one_side_of_the_body_at_once() -> None:
         # one side: a plane separates the hidden markers from the seen ones
         side = lstsq(np.c_[offsets, np.ones(len(labels))], np.where(hidden, 1.0, -1.0), rcond=None)[0]
         assert ((np.c_[offsets, np.ones(len(labels))] @ side > 0) == hidden).mean() > 0.9
+
+
+def test_module_entry_options_make_a_harder_session(tmp_path: Path) -> None:
+    """``--skeleton four --label-swaps 1 --no-eyes`` writes the four-segment markerset in y-up axes, swaps in the
+    truth and no eye tracking; a share outside 0-1 is refused by the command line."""
+    from gazepipe.synth.__main__ import main
+
+    assert main([str(tmp_path / "s"), "--seed", "2", "--skeleton", "four", "--label-swaps", "1", "--no-eyes"]) == 0
+    ms = tomllib.loads((tmp_path / "s" / "markerset.toml").read_text())
+    assert ms["up_axis"] == "y" and list(ms["segments"]) == ["pelvis", "chest", "neck2", "head"]
+    doc = tomllib.loads((tmp_path / "s" / "session.toml").read_text())
+    assert not any("eyes" in t or "video" in t for t in doc["takes"])
+    truth = json.loads((tmp_path / "s" / "truth" / "truth.json").read_text())
+    assert any(t.get("swap_samples") for t in truth["takes"].values())
+    with pytest.raises(SystemExit) as exc:
+        main([str(tmp_path / "t"), "--clap-hazards", "1.5"])
+    assert exc.value.code == 2

@@ -58,12 +58,13 @@ class RunSummary:
     def end_message(self) -> tuple[str, dict[str, int]]:
         """The line that ends a run and its counts. Take units (a stage on a take, what ``run_start`` counts)
         and datasets are counted apart: ``ran``, ``up_to_date``, ``failed``, ``blocked`` (not run after an
-        upstream failure) are take units; ``datasets_built``, ``datasets_up_to_date``, ``datasets_failed``
-        datasets."""
+        upstream failure) are take units; ``datasets_built``, ``datasets_up_to_date``, ``datasets_skipped`` (the
+        sessions lack their inputs), ``datasets_failed`` datasets."""
         n = {"ran": self.count("ok", datasets=False), "up_to_date": self.count("skipped", datasets=False),
              "failed": self.count("failed", datasets=False), "blocked": self.count("blocked", datasets=False),
              "datasets_built": self.count("ok", datasets=True),
-             "datasets_up_to_date": self.count("skipped", datasets=True),
+             "datasets_up_to_date": self.count("skipped", datasets=True) - self.datasets_not_needed(),
+             "datasets_skipped": self.datasets_not_needed(),
              "datasets_failed": self.count("failed", datasets=True)}
         msg = f"done: {n['ran']} take units ran, {n['up_to_date']} up to date, {n['failed']} failed"
         n_session = sum(o.status == "failed" for o in self.outcomes if is_session(o))
@@ -72,13 +73,18 @@ class RunSummary:
             msg += f", {n_session} session unit{'s' if n_session > 1 else ''} failed"
         if n["blocked"]:
             msg += f", {n['blocked']} not run after a failure"
-        if any(n[k] for k in ("datasets_built", "datasets_up_to_date", "datasets_failed")):
-            msg += (f"; datasets: {n['datasets_built']} built, {n['datasets_up_to_date']} up to date, "
+        if any(n[k] for k in ("datasets_built", "datasets_up_to_date", "datasets_skipped", "datasets_failed")):
+            skipped = f", {n['datasets_skipped']} skipped (inputs missing)" if n["datasets_skipped"] else ""
+            msg += (f"; datasets: {n['datasets_built']} built, {n['datasets_up_to_date']} up to date{skipped}, "
                     f"{n['datasets_failed']} failed")
         if self.io_errors:
             n["io_errors"] = len(self.io_errors)
             msg += f"; {len(self.io_errors)} of the run's own files could not be written"
         return msg, n
+
+    def datasets_not_needed(self) -> int:
+        """Datasets not built because the sessions lack their inputs (a build that skipped itself, saying why)."""
+        return sum(o.status == "skipped" and o.reason.startswith("skipped:") for o in self.outcomes if is_dataset(o))
 
     @property
     def failed(self) -> list[UnitOutcome]:
