@@ -185,3 +185,13 @@ def test_each_stage_command_says_what_it_does_and_writes(name, writes, not_writt
     assert "Writes OUT/" in own and writes in own
     if not_written:
         assert not_written in own and own != summary("run")
+
+
+def test_fill_says_a_png_is_not_a_capture_in_one_line(tmp_path):
+    """A PNG begins with bytes a loose C3D test takes for one; ``fill`` names what it is instead."""
+    src = tmp_path / "shot.png"
+    src.write_bytes(PNG)
+    res = invoke("fill", str(src), str(tmp_path / "filled.png"))
+    assert res.exit_code != 0 and not (tmp_path / "filled.png").exists()
+    assert res.stderr.count("\n") == 1
+    assert res.stderr.startswith(f"error: {src}: not a capture file (a PNG image;")

@@ -11,6 +11,7 @@ from gazepipe.errors import InputError
 from gazepipe.io.c3d import duplicate_trajectories, read_c3d_info
 from gazepipe.io.c3d_meta import HEAD_BYTES
 from gazepipe.io.marker_csv import VICON_BLOCKS, read_qtm_tsv, read_vicon_csv, read_wide_csv
+from gazepipe.io.signatures import not_a_capture
 from gazepipe.model import Markers
 
 FORMATS = ("c3d", "vicon_csv", "qtm_tsv", "wide_csv")
@@ -52,6 +53,9 @@ def sniff_format(path: str | Path) -> str:
     except OSError as e:
         raise InputError(p, f"cannot read file ({e.strerror or e})") from None
     ext = p.suffix.lower()
+    other = not_a_capture(p)
+    if other is not None:
+        raise InputError(p, f"not a capture file ({other}; marker captures are C3D, Vicon CSV, QTM TSV or wide CSV)")
     if ext == ".c3d" or (len(head) >= 2 and head[1] == 0x50 and b"\x00" in head):
         return "c3d"
     text = head.decode("latin-1").lstrip("\ufeff\xef\xbb\xbf")
