@@ -42,8 +42,8 @@ def not_a_capture(path: str | Path) -> str | None:
                     return what
             if head[:4] == b"\x00\x00\x00" + head[3:4] and head[4:8] == b"ftyp":
                 return "an MP4/MOV video"
-            if _looks_c3d(head, fh):
-                return None
+            if _looks_c3d(head, fh) or head.startswith((b"\xff\xfe", b"\xfe\xff")):
+                return None   # a C3D, or text saved as UTF-16, which the text readers name as such
     except OSError:
         return None   # the reader says why it cannot be read
     if Path(path).suffix.lower() == ".c3d":
