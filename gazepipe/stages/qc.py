@@ -219,14 +219,7 @@ def _tuple(tp: Any) -> Converter:
         def convert_all(v: Any) -> tuple[Any, ...]:
             if not isinstance(v, list | tuple):
                 raise _Bad(f"is {_kind(v)}, not a list")
-            out = []
-            for i, x in enumerate(v):
-                try:
-                    out.append(item(x))
-                except _Bad as bad:
-                    bad.where.append(f"[{i}]")
-                    raise
-            return tuple(out)
+            return _each([item] * len(v), v)
         return convert_all
     items = [_converter(a) for a in args]
 
@@ -235,15 +228,20 @@ def _tuple(tp: Any) -> Converter:
             raise _Bad(f"is {_kind(v)}, not a list")
         if len(v) != len(items):
             raise _Bad(f"has {len(v)} item(s), not {len(items)}")
-        out = []
-        for i, (conv, x) in enumerate(zip(items, v, strict=True)):
-            try:
-                out.append(conv(x))
-            except _Bad as bad:
-                bad.where.append(f"[{i}]")
-                raise
-        return tuple(out)
+        return _each(items, v)
     return convert_fixed
+
+
+def _each(convs: list[Converter], values: Any) -> tuple[Any, ...]:
+    """``values`` converted item by item (a failure names the item's index)."""
+    out = []
+    for i, (conv, x) in enumerate(zip(convs, values, strict=True)):
+        try:
+            out.append(conv(x))
+        except _Bad as bad:
+            bad.where.append(f"[{i}]")
+            raise
+    return tuple(out)
 
 
 def _mapping(tp: Any) -> Converter:
