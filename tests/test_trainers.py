@@ -244,16 +244,39 @@ def test_gaze_rnn_beats_repeating_the_previous_pose(datasets, tmp_path):
     my, sy = (np.array(ds.stats["overall"]["y"][k]) for k in ("mean", "std"))
     held = np.repeat(x[:, :1, 3:], x.shape[1], axis=1)
     baseline = np.mean(((held - y) / sy) ** 2)
-    assert v["baseline_closed_loop_mse"] == pytest.approx(baseline, rel=1e-4)
-    assert v["closed_loop_mse"] < 0.75 * baseline, v
-    assert m["summary"][0].startswith("closed loop") and "% better" in m["summary"][0]
-    assert m["val_loss"][-1] == pytest.approx(v["closed_loop_mse"], rel=1e-5)   # the epoch's validation loss
+    assert v["mse"]["baseline_closed_loop"] == pytest.approx(baseline, rel=1e-4)
+    assert v["mse"]["closed_loop"] < 0.75 * baseline, v
+    # the verdicts' degrees: the held baseline's angle errors recomputed with scipy's rotations
+    n_seg = (y.shape[2] - 3) // 6
+
+    def rotations(six):
+        f, u = six[..., :3], six[..., 3:]
+        f = f / np.linalg.norm(f, axis=-1, keepdims=True)
+        u = u - np.sum(u * f, axis=-1, keepdims=True) * f
+        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+        return Rotation.from_matrix(np.stack([np.cross(u, f), u, f], axis=-1).reshape(-1, 3, 3))
+
+    held_r = rotations(held[..., :6 * n_seg].reshape(*held.shape[:2], n_seg, 6))
+    true_r = rotations(y[..., :6 * n_seg].reshape(*y.shape[:2], n_seg, 6))
+    seg_deg = np.rad2deg((held_r.inv() * true_r).magnitude()).reshape(*y.shape[:2], n_seg)
+    eh, ey = held[..., -3:], y[..., -3:]
+    eye_deg = np.rad2deg(np.arccos(np.clip(np.sum(eh * ey, -1) / np.linalg.norm(eh, axis=-1)
+                                           / np.linalg.norm(ey, axis=-1), -1, 1)))
+    assert v["baseline_closed_loop_deg_segments"] == pytest.approx(seg_deg.mean(), rel=1e-4)
+    assert v["baseline_closed_loop_deg_eyes"] == pytest.approx(eye_deg.mean(), rel=1e-3)
+    deg = np.concatenate([seg_deg, eye_deg[..., None]], axis=-1).mean()
+    assert v["baseline_closed_loop_deg"] == pytest.approx(deg, rel=1e-4)
+    # the verdict line says what the printed figures say
+    better = v["closed_loop_deg"] < v["baseline_closed_loop_deg"]
+    assert m["summary"][0].startswith("closed loop") and ("% better" if better else "% worse") in m["summary"][0]
+    assert f"{v['closed_loop_deg']:.3g} vs {v['baseline_closed_loop_deg']:.3g}" in m["summary"][0]
+    assert m["val_loss"][-1] == pytest.approx(v["mse"]["closed_loop"], rel=1e-5)   # the epoch's validation loss
     # the obvious call works: the saved module carries its statistics and runs on normalised windows
     model, meta = load_model(tmp_path / "m")
     assert meta["config"]["hidden"] == 48 and meta["config"]["closed_loop"] is True
     with torch.no_grad():
         pred = model(torch.from_numpy(ds.windows("val").x)).numpy()
-    assert np.mean((pred - ds.windows("val").y) ** 2) == pytest.approx(v["closed_loop_mse"], rel=1e-5)
+    assert np.mean((pred - ds.windows("val").y) ** 2) == pytest.approx(v["mse"]["closed_loop"], rel=1e-5)
     assert v["windows"] == len(w) > 20
 
 

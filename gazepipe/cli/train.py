@@ -80,18 +80,15 @@ def dataset_header(data_dir: Path) -> tuple[dict[str, Any], list[str]]:
     return info, columns
 
 
-def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
-    lines = []
-    for k, v in metrics.items():
-        if k == "summary":
-            continue
-        if isinstance(v, dict):
-            lines.extend(_summary(v, f"{prefix}{k}."))
-        elif isinstance(v, float):
-            lines.append(f"  {prefix}{k} = {v:.6g}")
-        elif isinstance(v, int | str | bool) or v is None:
-            lines.append(f"  {prefix}{k} = {v}")
-    return lines
+def _facts(metrics: dict[str, Any]) -> list[str]:
+    """Where and how long training ran, in one line (the trainer's summary says how well)."""
+    if not metrics.get("epochs_run"):
+        return []
+    seconds = sorted(metrics.get("epoch_seconds") or [0.0])
+    step = (metrics.get("execution") or {}).get("training_step", "eager")
+    how = {"cuda_graph": "each step replayed as a CUDA graph", "eager": "eager steps"}.get(step, step)
+    return [f"{metrics['epochs_run']} epoch(s) on {metrics.get('device', '?')}, {how}, "
+            f"{seconds[len(seconds) // 2]:.2f} s per epoch (median)"]
 
 
 @click.command("train", cls=_TrainCommand, epilog=EPILOG)
@@ -108,8 +105,9 @@ def _summary(metrics: dict[str, Any], prefix: str = "") -> list[str]:
               help="Random seed (same seed, same model: byte for byte on the CPU).")
 @click.option("--device", default=None, metavar="auto|cpu|cuda|cuda:N",
               help="Where a torch trainer trains (default auto: the GPU when PyTorch sees one).")
-@click.option("--patience", type=click.IntRange(min=1), default=None, metavar="N",
-              help="Stop after N epochs without a lower validation loss; keep the best weights.")
+@click.option("--patience", type=click.IntRange(min=0), default=None, metavar="N",
+              help="Stop after N epochs without a lower validation loss (default 10; 0: run every epoch). "
+              "The best validation epoch's weights are kept either way (--option keep=last for the last).")
 @click.option("--option", "opts", multiple=True, metavar="KEY=VALUE",
               help="A trainer-specific option, typed and range-checked (listed below); repeatable.")
 @click.option("--force", is_flag=True, help="Train into an --out folder that is not empty, overwriting the model "
@@ -159,10 +157,9 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
         click.echo(json.dumps(metrics, indent=1, sort_keys=True))
         return
     click.echo(f"trained {trainer.name} on {data_path} -> {out}")
-    for line in metrics.get("summary") or []:
+    for line in [*(metrics.get("summary") or []), *_facts(metrics)]:
         click.echo(f"  {line}")
-    for line in _summary(metrics):
-        click.echo(line)
+    click.echo(f"  every figure: {out / 'model.json'} (or --json)")
 
 
 def _check_out(out: Path, force: bool) -> None:

@@ -52,8 +52,9 @@ class TrainOptions:
     ----------
     epochs, hidden, lr, seed : the common knobs.
     device : ``auto`` (``None``), ``cpu``, ``cuda`` or ``cuda:N``: where a torch trainer trains.
-    patience : stop after this many epochs without a lower validation loss, keeping the best weights
-        (``None``: every epoch, the last weights).
+    patience : stop after this many epochs without a lower validation loss (``None``: the trainer's default,
+        10 epochs; 0: run every epoch). The best validation epoch's weights are kept unless ``--option
+        keep=last``.
     extra : every ``--option key=value``, typed by :func:`check_options` from the trainer's declarations.
     progress : called with a dict after every minibatch and every epoch (see :mod:`gazepipe.trainers.loop`);
         ``None``: silent.
@@ -327,6 +328,10 @@ def loop_options(unit: str, window_default: str, stride_default: str) -> tuple[O
         Option("schedule", str, "cosine", "learning rate: cosine (decayed to 0 over the epochs) or constant",
                choices=("cosine", "constant")),
         Option("clip", float, 1.0, "largest gradient norm (0: no clipping)", min=0),
+        Option("keep", str, "best", "which epoch's weights to save: best (lowest validation loss) or last",
+               choices=("best", "last"), default_text="best; last when there is no validation split"),
+        Option("cuda_graph", bool, True, "on a CUDA GPU, replay each training step as one captured CUDA graph "
+               "(false: run it operation by operation)"),
         Option("max_seconds", float, None, "stop after the epoch that passes this much training time, in s",
                min=0, min_open=True, default_text="no limit"),
     )

@@ -34,7 +34,7 @@ from gazepipe.trainers.base import (
     options_table,
     read_model_json,
 )
-from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
+from gazepipe.trainers.loop import fit, fit_config, history_metrics, make_adam, validation_lines, verdict
 from gazepipe.trainers.torch_utils import (
     DeviceArrays,
     deterministic,
@@ -125,7 +125,6 @@ class FaceCleanTrainer:
         check_options(self, options)
         device = resolve_device(options.device)
         hidden = int(options.get("hidden", 128))
-        fc = fit_config(options)
         dropout = float(options.get("dropout", 0.3))
         w_der = float(options.get("w_der", 0.01))
         window, stride = options.get("window", None), options.get("stride", None)
@@ -140,17 +139,16 @@ class FaceCleanTrainer:
         stride = int(stride or data.stride or 50)
         split = pick_split(data)
         val_arrays = _chunks(data, split, w.window, stride)[0] if split else {}
-        if fc.patience is not None and not len(val_arrays.get("tracked", ())):
-            raise ConfigError(data.path, "--patience needs validation chunks; this dataset has none")
+        fc = fit_config(options, validation=len(val_arrays.get("tracked", ())) > 0, data_path=data.path)
         n = int(arrays["tracked"].shape[2])
         config = {"n_channels": n, "hidden": hidden, "dropout": dropout, "lr": fc.lr, "w_der": w_der,
                   "epochs": fc.epochs, "batch": fc.batch, "window": w.window, "stride": stride,
                   "seed": options.seed, "train_chunks": int(len(pick)), "k": 1,
                   "channels": list(data.features.get("clean", [])), "schedule": fc.schedule, "clip": fc.clip,
-                  "patience": fc.patience}
+                  "patience": fc.patience, "keep": fc.keep}
         with deterministic(options.seed, options.get("threads", None), device) as (torch, det):
             model = build_model(n, hidden, dropout, _scales(data)).to(device)
-            opt = torch.optim.Adam(model.parameters(), lr=fc.lr)
+            opt = make_adam(model, fc, device)
             train = DeviceArrays(arrays, device)
             val = DeviceArrays(val_arrays, device) if len(val_arrays.get("tracked", ())) else None
 
@@ -173,7 +171,7 @@ class FaceCleanTrainer:
             metrics: dict[str, Any] = {"device": device_name(device), **history_metrics(hist),
                                        "train_chunks": int(len(pick)), "dropped_rows": w.dropped_rows}
             metrics["validation"] = evaluate(model, data, split, w.window, stride) if split else None
-            metrics["summary"] = summary(metrics["validation"])
+            metrics["summary"] = summary(metrics["validation"]) + validation_lines(hist, fc)
         # what torch warned about is known on leaving the block
         save_trained(out_dir, self.name, config, model, metrics, data, WEIGHTS, det.nondeterministic)
         return metrics

@@ -242,28 +242,114 @@ def pose_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.rad2deg(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
 
 
+#: the baselines the map is compared with (:func:`evaluate`), as the verdicts name them
+BASELINES = {"mean_shift": "the mean shift", "fixed_shares": "fixed shares of the requested rotation"}
+
+
+def mean_shift(gmap: GazeMap, use: np.ndarray) -> np.ndarray:
+    """Baseline: every joint's P+ (J, 4) is the mean of the examples ``use`` (E,) bool that know it, whatever
+    the request (NaN for a joint none of them knows)."""
+    out = np.full((len(gmap.segments) + 1, 4), np.nan)
+    for j in range(len(out)):
+        rows = np.flatnonzero(use & gmap.known[:, j])
+        if len(rows):
+            out[j] = blend_quaternions(gmap.p_plus[rows, j:j + 1], np.full(len(rows), 1.0 / len(rows)))[0]
+    return out
+
+
+def fit_shares(gmap: GazeMap, use: np.ndarray) -> np.ndarray:
+    """Baseline: the requested rotation split among the joints by fixed shares: each joint's rotation vector
+    (radians) a fixed linear function of the requested yaw and pitch (radians), A_j (3, 2), fitted by least
+    squares on the examples ``use`` that know the joint → (J, 3, 2), NaN for a joint with fewer than two."""
+    yp = np.deg2rad(np.stack([gmap.yaw, gmap.pitch], axis=1))
+    shares = np.full((len(gmap.segments) + 1, 3, 2), np.nan)
+    for j in range(len(shares)):
+        rows = np.flatnonzero(use & gmap.known[:, j])
+        if len(rows) >= 2:
+            rv = Rotation.from_quat(gmap.p_plus[rows, j][:, [1, 2, 3, 0]]).as_rotvec()
+            shares[j] = np.linalg.lstsq(yp[rows], rv, rcond=None)[0].T
+    return shares
+
+
+def shares_pose(shares: np.ndarray, yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """The fixed-shares baseline's P+ (J, 4) w, x, y, z for a request (degrees)."""
+    rv = shares @ np.deg2rad([yaw_deg, pitch_deg])
+    out = np.full((len(shares), 4), np.nan)
+    ok = np.isfinite(rv).all(axis=1)
+    out[ok] = Rotation.from_rotvec(rv[ok]).as_quat()[:, [3, 0, 1, 2]]
+    return out
+
+
 def evaluate(gmap: GazeMap, held: GazeMap | None = None) -> dict[str, Any]:
     """Final-pose errors (degrees, per joint then the worst joint) of the map's motions against examples:
-    ``held`` (examples not in the map) or, when ``None``, each of the map's own left out in turn. Only the
-    joints an example knows, and the map can give, are compared (``compared`` counts them); an example with
-    none counts for the duration only."""
+    ``held`` (examples not in the map) or, when ``None``, each of the map's own left out in turn; and the same
+    for the :data:`BASELINES` (built from the same examples the map uses for each request). Only the joints
+    an example knows, and the map and both baselines can give, are compared (``compared`` counts them), so
+    the three figures are over the same joints; an example with none counts for the duration only."""
     ref = held if held is not None else gmap
     n_joints = len(ref.segments) + 1
-    errs = np.full((len(ref), n_joints), np.nan)
+    names = ["map", *BASELINES]
+    errs = {k: np.full((len(ref), n_joints), np.nan) for k in names}
     dur = []
+    everyone = np.ones(len(gmap), bool)
+    fixed = None if held is None else (mean_shift(gmap, everyone), fit_shares(gmap, everyone))
     for i in range(len(ref)):
         m = gmap.motion(ref.yaw[i], ref.pitch[i], exclude=None if held is not None else i)
-        ok = ref.known[i, :n_joints] & np.isfinite(m.p_plus).all(axis=1)
-        errs[i, ok] = pose_error_deg(m.p_plus[ok], ref.p_plus[i, ok])
+        if fixed is None:
+            use = everyone.copy()
+            use[i] = False
+            mean_i, shares_i = mean_shift(gmap, use), fit_shares(gmap, use)
+        else:
+            mean_i, shares_i = fixed
+        poses = {"map": m.p_plus, "mean_shift": mean_i, "fixed_shares": shares_pose(shares_i, ref.yaw[i],
+                                                                                    ref.pitch[i])}
+        ok = ref.known[i, :n_joints].copy()
+        for pose in poses.values():
+            ok &= np.isfinite(pose).all(axis=1)
+        for k, pose in poses.items():
+            errs[k][i, ok] = pose_error_deg(pose[ok], ref.p_plus[i, ok])
         dur.append(abs(m.duration_s - ref.duration[i]))
-    seen = np.isfinite(errs)
-    worst = np.array([errs[i, seen[i]].max() for i in range(len(ref)) if seen[i].any()])
-    per_joint = [float(errs[seen[:, j], j].mean()) if seen[:, j].any() else None for j in range(n_joints)]
-    return {"examples": len(ref), "compared": int(seen.sum()), "not_compared": int((~seen).sum()),
-            "final_pose_error_deg_mean": float(worst.mean()) if worst.size else None,
-            "final_pose_error_deg_max": float(worst.max()) if worst.size else None,
-            "final_pose_error_deg_per_joint_mean": dict(zip(ref.segments + ["eyes"], per_joint, strict=True)),
-            "duration_error_s_mean": float(np.mean(dur))}
+    seen = np.isfinite(errs["map"])
+    per_joint = [float(errs["map"][seen[:, j], j].mean()) if seen[:, j].any() else None for j in range(n_joints)]
+    worst = {k: np.array([e[i, seen[i]].max() for i in range(len(ref)) if seen[i].any()]) for k, e in errs.items()}
+    out: dict[str, Any] = {
+        "examples": len(ref), "compared": int(seen.sum()), "not_compared": int((~seen).sum()),
+        "final_pose_error_deg_mean": float(worst["map"].mean()) if worst["map"].size else None,
+        "final_pose_error_deg_max": float(worst["map"].max()) if worst["map"].size else None,
+        "final_pose_error_deg_per_joint_mean": dict(zip(ref.segments + ["eyes"], per_joint, strict=True)),
+        "duration_error_s_mean": float(np.mean(dur))}
+    for k in BASELINES:
+        out[f"{k}_final_pose_error_deg_mean"] = float(worst[k].mean()) if worst[k].size else None
+    return out
+
+
+def summary(metrics: dict[str, Any]) -> list[str]:
+    """One line per evaluation (leave-one-out, each held-out split): the map's final-pose error against each
+    baseline's, degrees."""
+    lines = []
+    for key, what in (("leave_one_out", "leave-one-out"), ("val", "val split"), ("test", "test split")):
+        ev = metrics.get(key)
+        if not ev:
+            continue
+        mine = ev["final_pose_error_deg_mean"]
+        head = (f"{what} ({ev['examples']} examples): final-pose error (worst joint per example, mean), "
+                "degrees: ")
+        if mine is None:
+            lines.append(head + "no joint could be compared")
+            continue
+        parts = [_against(mine, ev[f"{k}_final_pose_error_deg_mean"], name) for k, name in BASELINES.items()]
+        lines.append(head + f"{mine:.3g} for the map; " + "; ".join(parts))
+    return lines or ["no example to evaluate against (one training example and no val or test rows)"]
+
+
+def _against(mine: float, theirs: float | None, name: str) -> str:
+    if theirs is None:
+        return f"{name}: none"
+    if theirs <= 0 or abs(theirs - mine) / theirs < 0.005:
+        return f"{theirs:.3g} for {name} (the same, within 0.5 %)"
+    change = (theirs - mine) / theirs * 100.0
+    word = f"{change:.0f} % better" if change > 0 else f"{-change:.0f} % worse"
+    return f"{theirs:.3g} for {name} ({word})"
 
 
 class GazeMapTrainer:
@@ -293,6 +379,7 @@ class GazeMapTrainer:
             rows = data.table(split=s)
             if rows.num_rows:
                 metrics[s] = evaluate(gmap, GazeMap.from_table(rows, segments, k))
+        metrics["summary"] = summary(metrics)
         out = Path(out_dir)
         write_atomic(out / WEIGHTS, npz_bytes(gmap.arrays()))
         save_model_json(out, self.name, {"k": k, "train_split": split, "segments": segments}, metrics, data,

@@ -38,7 +38,7 @@ from gazepipe.trainers.base import (
     options_table,
     read_model_json,
 )
-from gazepipe.trainers.loop import fit, fit_config, history_metrics, verdict
+from gazepipe.trainers.loop import fit, fit_config, history_metrics, make_adam, validation_lines, verdict
 from gazepipe.trainers.torch_utils import (
     DeviceArrays,
     deterministic,
@@ -160,7 +160,6 @@ class GazeRnnTrainer:
         l2 = float(options.get("l2", d["l2"]))
         window, stride = options.get("window", None), options.get("stride", None)
         max_windows = options.get("max_windows", None)
-        fc = fit_config(options)
         residual = bool(options.get("residual", True))
         rng = np.random.default_rng(options.seed)
         train_w = data.windows("train", window=window, stride=stride)
@@ -173,16 +172,15 @@ class GazeRnnTrainer:
         split = pick_split(data)
         val_w = data.windows(split, window=train_w.window, stride=stride) if split else None
         val_x, val_y = (val_w.x, val_w.y) if val_w is not None else (np.zeros((0,)), np.zeros((0,)))
-        if fc.patience is not None and len(val_x) == 0:
-            raise ConfigError(data.path, "--patience needs validation windows; this dataset has none")
+        fc = fit_config(options, validation=len(val_x) > 0, data_path=data.path)
         config = {"dataset": data.name, "n_in": int(xs.shape[2]), "n_out": int(ys.shape[2]), "hidden": hidden,
                   "lr": fc.lr, "l2": l2, "epochs": fc.epochs, "batch": fc.batch, "window": train_w.window,
                   "stride": stride, "seed": options.seed, "train_windows": int(len(pick)), "closed_loop": True,
                   "target_dims": TARGET_DIMS, "residual": residual, "schedule": fc.schedule, "clip": fc.clip,
-                  "patience": fc.patience}
+                  "patience": fc.patience, "keep": fc.keep}
         with deterministic(options.seed, options.get("threads", None), device) as (torch, det):
             model = build_model(config["n_in"], config["n_out"], hidden, residual, _stats(data)).to(device)
-            opt = torch.optim.Adam(model.parameters(), lr=fc.lr, betas=(0.9, 0.999))
+            opt = make_adam(model, fc, device)
             train = DeviceArrays({"x": xs, "y": ys}, device)
             val = DeviceArrays({"x": val_x, "y": val_y}, device) if len(val_x) else None
 
@@ -202,16 +200,23 @@ class GazeRnnTrainer:
             metrics: dict[str, Any] = {"device": device_name(device), **history_metrics(hist),
                                        "train_windows": int(len(xs)), "dropped_rows": train_w.dropped_rows}
             metrics["validation"] = evaluate(model, data, split, train_w.window, stride) if split else None
-            metrics["summary"] = summary(metrics["validation"])
+            metrics["summary"] = summary(metrics["validation"]) + validation_lines(hist, fc)
         # what torch warned about is known on leaving the block
         save_trained(out_dir, self.name, config, model, metrics, data, WEIGHTS, det.nondeterministic)
         return metrics
 
 
 def evaluate(model, data, split: str, window: int, stride: int) -> dict[str, Any]:
-    """MSE on ``split``'s windows of the model and of the repeat-the-previous-pose baseline, each closed loop
-    and one step (see the module notes), in normalised units and in the stored units (``_raw``: unit-vector
-    components)."""
+    """Errors on ``split``'s windows of the model and of the repeat-the-previous-pose baseline, each closed loop
+    and one step (see the module notes).
+
+    The figures the verdicts use are angles in degrees (``*_deg``): per frame, each segment's rotation error
+    (the angle of the rotation between the predicted and the captured one, both made orthonormal from their 6
+    numbers) and the eye direction's, averaged over the segments and the eyes, then over frames and windows;
+    ``*_deg_segments`` and ``*_deg_eyes`` are the two parts. ``mse`` holds the training loss's figures (MSE,
+    normalised and in the stored units), which weigh the numbers otherwise and may rank the model and a
+    baseline differently; the verdicts do not use them.
+    """
     w = data.windows(split, window=window, stride=stride)
     if len(w) == 0:
         return {"split": split, "windows": 0}
@@ -223,26 +228,52 @@ def evaluate(model, data, split: str, window: int, stride: int) -> dict[str, Any
     y_raw = y * sy + my
     pose_raw = x[:, :, TARGET_DIMS:] * sx[TARGET_DIMS:] + mx[TARGET_DIMS:]   # the previous pose, as captured
     held = np.repeat(pose_raw[:, :1], pose_raw.shape[1], axis=1)
-
-    def mse(pred_raw: np.ndarray) -> tuple[float, float]:
-        return (float(np.mean(((pred_raw - my) / sy - y) ** 2)), float(np.mean((pred_raw - y_raw) ** 2)))
-
-    out: dict[str, Any] = {"split": split, "windows": len(w)}
+    n_seg, has_eyes = len(my) // 6, len(my) % 6 == 3
+    out: dict[str, Any] = {"split": split, "windows": len(w), "frames": int(y.shape[0] * y.shape[1]),
+                           "mse": {}}
     for key, pred in (("closed_loop", closed * sy + my), ("one_step", one * sy + my),
                       ("baseline_closed_loop", held), ("baseline_one_step", pose_raw)):
-        out[f"{key}_mse"], out[f"{key}_mse_raw"] = mse(pred)
+        seg, eyes = angle_errors_deg(pred, y_raw, n_seg, has_eyes)
+        both = np.concatenate([seg, eyes[..., None]], axis=-1) if eyes is not None else seg
+        out[f"{key}_deg"] = float(np.mean(both))
+        out[f"{key}_deg_segments"] = float(np.mean(seg))
+        out[f"{key}_deg_eyes"] = None if eyes is None else float(np.mean(eyes))
+        out["mse"][key] = float(np.mean(((pred - my) / sy - y) ** 2))
+        out["mse"][f"{key}_raw"] = float(np.mean((pred - y_raw) ** 2))
     return out
 
 
+def angle_errors_deg(pred: np.ndarray, truth: np.ndarray, n_seg: int,
+                     has_eyes: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Angles in degrees between predicted and captured poses in y's layout (..., 6·S [+ 3]): each segment's
+    rotation error (..., S) and the eye direction's (...) (``None`` without eyes).
+
+    A segment's error is the angle of R_pred⁻¹ R_true, from the matrices' Frobenius distance
+    (‖R₁ − R₂‖ = 2√2 sin(θ/2), exact to round-off at small angles, where arccos of the trace is not)."""
+    shape = pred.shape[:-1]
+    r_pred = six_to_matrix(pred[..., :6 * n_seg].reshape(*shape, n_seg, 6).astype(np.float64))
+    r_true = six_to_matrix(truth[..., :6 * n_seg].reshape(*shape, n_seg, 6).astype(np.float64))
+    dist = np.linalg.norm(r_pred - r_true, axis=(-2, -1))
+    seg = np.rad2deg(2.0 * np.arcsin(np.clip(dist / (2.0 * np.sqrt(2.0)), 0.0, 1.0)))
+    if not has_eyes:
+        return seg, None
+    a = pred[..., 6 * n_seg:].astype(np.float64)
+    b = truth[..., 6 * n_seg:].astype(np.float64)
+    eyes = np.rad2deg(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+    return seg, eyes
+
+
 def summary(v: dict[str, Any] | None) -> list[str]:
-    """The validation metrics in words: the model against each baseline."""
+    """The validation metrics in words: the model against each baseline, in degrees."""
     if not v or not v.get("windows"):
         return ["no validation windows: nothing to compare with a baseline"]
     n = f"{v['windows']} {v['split']} windows"
-    return [verdict(f"closed loop (fed its own output, {n}), MSE", v["closed_loop_mse"],
-                    v["baseline_closed_loop_mse"], "holding each window's first pose"),
-            verdict("one step (fed the captured previous pose), MSE", v["one_step_mse"],
-                    v["baseline_one_step_mse"], "repeating the previous pose")]
+    parts = "the segments' rotations and the eye direction" if v.get("closed_loop_deg_eyes") is not None \
+        else "the segments' rotations"
+    return [verdict(f"closed loop (fed its own output, {n}): mean angle error over {parts}, degrees",
+                    v["closed_loop_deg"], v["baseline_closed_loop_deg"], "holding each window's first pose"),
+            verdict("one step (fed the captured previous pose): mean angle error, degrees", v["one_step_deg"],
+                    v["baseline_one_step_deg"], "repeating the previous pose")]
 
 
 # ------------------------------------------------------------------------------------------------ inference
