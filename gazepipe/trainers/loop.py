@@ -240,7 +240,11 @@ class GraphStep(EagerStep):
         if len(idx) != self.batch:
             return EagerStep.step(self, idx, lr)
         self.set_lr(lr)
-        self.index.copy_(torch.from_numpy(np.ascontiguousarray(idx, np.int64)), non_blocking=False)
+        host = torch.from_numpy(np.ascontiguousarray(idx, np.int64))
+        if self.index.is_cuda:   # from pinned memory the copy is queued, so the host never waits on the GPU
+            self.index.copy_(host.pin_memory(), non_blocking=True)
+        else:
+            self.index.copy_(host)
         self.replay()
         assert self.shown is not None
         return self.shown.clone()   # the next replay overwrites it
