@@ -226,6 +226,50 @@ def test_gaze_map_reproduces_held_out_examples(datasets, tmp_path):
         assert a == b, f
 
 
+def _linear_map(rng, shares: np.ndarray, yaws: np.ndarray, pitches: np.ndarray) -> GazeMap:
+    """A map of 3 segments whose every joint's rotation vector is ``shares[j] @ (yaw, pitch)`` (radians)."""
+    yp = np.deg2rad(np.stack([yaws, pitches], axis=1))
+    rv = np.einsum("jab,eb->eja", shares, yp)
+    quats = Rotation.from_rotvec(rv.reshape(-1, 3)).as_quat()[:, [3, 0, 1, 2]].reshape(len(yaws), -1)
+    n = len(yaws)
+    return GazeMap(["a", "b", "c"], yaws, pitches, quats, np.full(n, 0.5), rng.uniform(0, 0.3, (n, 3)),
+                   np.full(n, 0.6), np.full(n, 0.05))
+
+
+def test_gaze_map_verdict_against_its_baselines():
+    """A map whose joints turn by fixed shares of the request: the fixed-shares baseline is exact (0°), the mean
+    shift's error is the one recomputed here from scipy's rotations, and the verdict lines print those
+    figures with better and worse the right way round."""
+    from gazepipe.trainers.gaze_map import evaluate, summary
+
+    rng = np.random.default_rng(4)
+    shares = rng.uniform(-0.4, 0.4, (4, 3, 2))
+    yaws, pitches = np.repeat([-40.0, -20.0, 0.0, 20.0, 40.0], 3), np.tile([-15.0, 0.0, 15.0], 5)
+    gmap = _linear_map(rng, shares, yaws, pitches)
+    held = _linear_map(rng, shares, np.array([-30.0, 10.0, 30.0]), np.array([5.0, -10.0, 10.0]))
+    ev = evaluate(gmap, held)
+    assert ev["fixed_shares_final_pose_error_deg_mean"] == pytest.approx(0.0, abs=1e-6)
+    mean_rot = [Rotation.from_quat(gmap.p_plus[:, j][:, [1, 2, 3, 0]]) for j in range(4)]
+    worst = []
+    for i in range(len(held)):
+        errs = [np.rad2deg((mean_rot[j].mean().inv() * Rotation.from_quat(held.p_plus[i, j, [1, 2, 3, 0]]))
+                           .magnitude()) for j in range(4)]
+        worst.append(max(errs))
+    # scipy's mean is the chordal L2 mean; the baseline's normalised sum differs from it by far under 0.5°
+    assert ev["mean_shift_final_pose_error_deg_mean"] == pytest.approx(np.mean(worst), abs=0.5)
+    assert ev["final_pose_error_deg_mean"] > 1e-3   # the map blends neighbours, so it is not exact here
+    line = summary({"val": ev})[0]
+    assert line.startswith(f"val split (3 examples): final-pose error (worst joint per example, mean), degrees: "
+                           f"{ev['final_pose_error_deg_mean']:.3g} for the map;")
+    mine, mean = ev["final_pose_error_deg_mean"], ev["mean_shift_final_pose_error_deg_mean"]
+    assert f"{mean:.3g} for the mean shift (" in line.split(";")[1]
+    assert ("% better" if mine < mean else "% worse") in line.split(";")[1]
+    assert "worse: the baseline is exact" in line.split(";")[2]
+    loo = evaluate(gmap)
+    assert loo["fixed_shares_final_pose_error_deg_mean"] == pytest.approx(0.0, abs=1e-6)
+    assert loo["examples"] == len(gmap) and loo["compared"] == len(gmap) * 4
+
+
 # ------------------------------------------------------------------------------------------ torch trainers
 
 def test_gaze_rnn_beats_repeating_the_previous_pose(datasets, tmp_path):

@@ -345,7 +345,9 @@ def summary(metrics: dict[str, Any]) -> list[str]:
 def _against(mine: float, theirs: float | None, name: str) -> str:
     if theirs is None:
         return f"{name}: none"
-    if theirs <= 0 or abs(theirs - mine) / theirs < 0.005:
+    if theirs <= 0:
+        return f"{theirs:.3g} for {name} ({'the same' if mine <= 0 else 'worse: the baseline is exact'})"
+    if abs(theirs - mine) / theirs < 0.005:
         return f"{theirs:.3g} for {name} (the same, within 0.5 %)"
     change = (theirs - mine) / theirs * 100.0
     word = f"{change:.0f} % better" if change > 0 else f"{-change:.0f} % worse"

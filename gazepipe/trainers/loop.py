@@ -352,18 +352,23 @@ def validation_lines(hist: dict[str, Any], cfg: FitConfig) -> list[str]:
     last = float(losses[-1])
     text = f"validation loss: best {best:.4g} at epoch {best_epoch} of {run}"
     if run > best_epoch and best > 0 and last > best:
-        text += f", rose {(last - best) / best * 100:.0f} % to {last:.4g} by epoch {run}"
+        text += f", rose {_percent((last - best) / best)} to {last:.4g} by epoch {run}"
     elif run > best_epoch:
         text += f", {last:.4g} at epoch {run}"
     kept = kept_epoch(hist)
     text += f"; kept epoch {kept}"
     if hist["kept"] == "last" and run > best_epoch and last > best:
-        text += f" (asked for the last; the best epoch's loss was {(last - best) / best * 100:.0f} % lower)"
+        text += f" (asked for the last; the best epoch's loss was {_percent((last - best) / last)} lower)"
     if hist["stopped"] == "patience":
         text += f"; stopped early, no lower loss in {cfg.patience} epochs"
     elif hist["stopped"] == "time":
         text += "; stopped at the time limit"
     return [text]
+
+
+def _percent(share: float) -> str:
+    """``0.25`` → ``25 %``; under 1 % with one decimal (``0.3 %``), so a small rise does not read as none."""
+    return f"{share * 100:.0f} %" if share >= 0.01 else f"{share * 100:.1f} %"
 
 
 def verdict(what: str, model: float, baseline: float, baseline_is: str, digits: int = 3) -> str:
