@@ -114,7 +114,7 @@ class _RunReport:
     already describes exactly these outputs."""
 
     #: what the report's jobs run on the workers (matplotlib is most of it): imported once with the stages
-    WORKER_MODULES = ("gazepipe.report.run_report", "gazepipe.report.plots")
+    WORKER_MODULES = ("gazepipe.report.run_report", "gazepipe.report.plots", "gazepipe.report.replay_page")
 
     def __init__(self, out: Path, log) -> None:
         self.out = out
