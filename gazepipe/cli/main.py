@@ -465,8 +465,10 @@ def params_cmd() -> None:
 def _register_commands() -> None:
     from gazepipe.cli.train import train
     from gazepipe.cli.validate import validate
+    from gazepipe.cli.view import view
 
     cli.add_command(validate)
+    cli.add_command(view)
     cli.add_command(train)
     add_debug_option(cli)
     for command in cli.commands.values():
