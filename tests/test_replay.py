@@ -459,3 +459,33 @@ def test_view_help_teaches() -> None:
     text = CliRunner().invoke(cli, ["view", "--help"]).output
     assert "gazepipe view out/ session01/follow_standing_01 --open" in text
     assert "--to" in text and "--open" in text and "OUT/qc/view/SESSION/TAKE.html" in text
+
+
+# ------------------------------------------------------------------------------------------- the report
+
+def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_process_run: dict,
+                                                                      tmp_path: Path) -> None:
+    """`gazepipe run` (process executor) writes a replay page per drawn take and qc/plotly.min.js once; the
+    page links each; `gazepipe validate` writes the same bytes; --no-plots leaves the replays out."""
+    out = sample_process_run["out"]
+    qc = out / "qc"
+    report = json.loads((qc / "report.json").read_text())
+    html = (qc / "report.html").read_text()
+    pages = sorted(p.relative_to(qc).as_posix() for p in (qc / "replay").rglob("*.html"))
+    assert 1 <= len(pages) <= 6
+    assert (qc / PLOTLY_JS).read_bytes() == plotly_js()
+    for rel in pages:
+        assert f'href="{rel}"' in html and f'<iframe src="{rel}" loading="lazy"' in html
+        assert len((qc / rel).read_bytes()) <= REPLAY_MAX_BYTES
+    keys = {f"{t['session']}/{t['take']}" for t in report["takes"]}
+    assert {p[len("replay/"):-len(".html")] for p in pages} <= keys
+    assert "<script" not in html and "http" not in html
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("datasets"))
+    res = CliRunner().invoke(cli, ["validate", str(copy)])
+    assert res.exit_code == 0, res.output
+    for rel in pages:
+        assert (copy / "qc" / rel).read_bytes() == (qc / rel).read_bytes(), rel
+    res = CliRunner().invoke(cli, ["validate", str(copy), "--no-plots"])
+    assert res.exit_code == 0, res.output
+    assert not (copy / "qc" / "replay").exists() and "3D replay" not in (copy / "qc" / "report.html").read_text()
