@@ -470,9 +470,11 @@ def segment_normals(markerset: MarkerSet, labels: list[str], xyz: np.ndarray) ->
     if not tri:
         return np.zeros((T, 0, 3))
     p = xyz[:, np.array(tri)]                                     # (T, S, 3 markers, 3)
-    n = np.cross(p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0])
+    u, v = p[:, :, 1] - p[:, :, 0], p[:, :, 2] - p[:, :, 0]
+    n = np.stack([u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1], u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+                  u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]], axis=-1)
     with np.errstate(all="ignore"):
-        n = n / np.linalg.norm(n, axis=-1, keepdims=True) * NORMAL_MM
+        n = n / np.sqrt((n * n).sum(axis=-1, keepdims=True)) * NORMAL_MM
     c = p.mean(axis=2)
     out = np.stack([c, c + n, np.full_like(c, np.nan)], axis=2)   # (T, S, 3, 3)
     return out.reshape(T, -1, 3)

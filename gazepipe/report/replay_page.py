@@ -128,53 +128,71 @@ class _Frames:
         return raw_in_clean_axes(self.inp, frames, self.transform)
 
     def _sticks(self, xyz: np.ndarray, labels: list[str], path: np.ndarray) -> np.ndarray:
-        """(3, V) the sticks of one frame (``path`` over the markers, ``-1`` lifting the pen), then each
-        segment's normal."""
-        pts = xyz[np.maximum(path, 0)]
-        pts[path < 0] = np.nan
-        normals = segment_normals(self.inp.markerset, labels, xyz[None])[0]
-        gap = np.full((1, 3), np.nan)
-        return _f4(np.concatenate([pts, gap, normals]) if normals.size else pts)
+        """(3, F, V) the sticks of frames ``xyz`` (F, M, 3) (``path`` over the markers, ``-1`` lifting the pen),
+        then each segment's normal."""
+        pts = xyz[:, np.maximum(path, 0)]
+        pts[:, path < 0] = np.nan
+        normals = segment_normals(self.inp.markerset, labels, xyz)
+        if normals.shape[1]:
+            pts = np.concatenate([pts, np.full((len(xyz), 1, 3), np.nan), normals], axis=1)
+        return _f4(pts)
 
-    def data(self, f: int) -> list[dict[str, Any]]:
-        """The dynamic traces' data at take frame ``f`` (in the order of :func:`_traces`)."""
-        k = int(self.row_of[f])
-        clean = self.inp.clean
+    def data(self, frames: np.ndarray) -> list[list[dict[str, Any]]]:
+        """The dynamic traces' data at each of the take's ``frames`` (in the order of :func:`_traces`),
+        computed for them all at once."""
+        frames = np.asarray(frames, dtype=np.int64)
+        clean, raw = self.inp.clean, self.inp.raw
+        rows = self.row_of[frames]
+        kept = rows >= 0
+        k_rows = np.where(kept, rows, 0)
+        empty_pts = np.zeros((len(frames), 0, 3))
+        cxyz = clean.xyz[k_rows] if clean.n_frames else empty_pts
+        csticks = self._sticks(cxyz, clean.labels, self.cpath) if clean.n_frames else None
+        cpts = _f4(cxyz)
+        cats = self.cat[k_rows] if clean.n_frames else None
+        held_rows = self.held_row[k_rows] if clean.n_frames else None
+        gaze = _f4(np.stack([self.head[k_rows], self.target[k_rows]], axis=1)) if clean.n_frames else None
+        rxyz = self.raw_at(frames)
+        rsticks = self._sticks(rxyz.copy(), raw.labels, self.rpath)
+        rpts = _f4(rxyz)
+        r_ok = raw.valid[frames] & np.isfinite(rxyz).all(axis=2)
         empty: dict[str, Any] = {"x": [], "y": [], "z": []}
-        out: list[dict[str, Any]] = []
-        if k >= 0:
-            xyz = clean.xyz[k]
-            out.append(_xyz(self._sticks(xyz, clean.labels, self.cpath)))
-            pts = _f4(xyz)
-            cat = self.cat[k]
-            for c in _POINT_CATS:
-                sel = np.flatnonzero(cat == c)
-                out.append({**_xyz(pts[:, sel]), "text": self.clabels[sel].tolist()})
-            rows = self.held_row[k]
-            sel = np.flatnonzero((cat == UNFILLED) & (rows >= 0))
-            out.append({**_xyz(_f4(clean.xyz[rows[sel], sel])), "text": self.clabels[sel].tolist()})
-            gaze = np.stack([self.head[k], self.target[k]])
-            out.append(_xyz(_f4(gaze)) if np.isfinite(gaze).all() else dict(empty))
-        else:
-            out += [dict(empty)] + [{**empty, "text": []} for _ in range(len(_POINT_CATS) + 1)] + [dict(empty)]
-        raw = self.raw_at(np.array([f]))[0]
-        out.append(_xyz(self._sticks(raw, self.inp.raw.labels, self.rpath)))
-        ok = self.inp.raw.valid[f] & np.isfinite(raw).all(axis=1)
-        pts = _f4(raw)
-        sel = np.flatnonzero(ok)
-        out.append({**_xyz(pts[:, sel]), "text": self.rlabels[sel].tolist()})
-        swapped = sorted({m for a, b, s0, s1 in self.swaps if s0 <= f < s1 for m in (a, b) if ok[m]})
-        out.append({**_xyz(pts[:, swapped]), "text": self.rlabels[swapped].tolist()})
-        t = round(f / self.rate, 3)
-        out.append({"x": [t, t], "y": [0, 1]})
+        out: list[list[dict[str, Any]]] = []
+        for i, f in enumerate(frames.tolist()):
+            d: list[dict[str, Any]] = []
+            if kept[i] and cats is not None and csticks is not None and held_rows is not None \
+                    and gaze is not None:
+                d.append(_xyz(csticks[:, i]))
+                cat = cats[i]
+                for c in _POINT_CATS:
+                    sel = np.flatnonzero(cat == c)
+                    d.append({**_xyz(cpts[:, i, sel]), "text": self.clabels[sel].tolist()})
+                hr = held_rows[i]
+                sel = np.flatnonzero((cat == UNFILLED) & (hr >= 0))
+                d.append({**_xyz(_f4(clean.xyz[hr[sel], sel])), "text": self.clabels[sel].tolist()})
+                g = gaze[:, i]
+                d.append(_xyz(g) if np.isfinite(g).all() else dict(empty))
+            else:
+                d += [dict(empty)] + [{**empty, "text": []} for _ in range(len(_POINT_CATS) + 1)] + [dict(empty)]
+            d.append(_xyz(rsticks[:, i]))
+            sel = np.flatnonzero(r_ok[i])
+            d.append({**_xyz(rpts[:, i, sel]), "text": self.rlabels[sel].tolist()})
+            swapped = sorted({m for a, b, s0, s1 in self.swaps if s0 <= f < s1 for m in (a, b) if r_ok[i, m]})
+            d.append({**_xyz(rpts[:, i, swapped]), "text": self.rlabels[swapped].tolist()})
+            t = round(f / self.rate, 3)
+            d.append({"x": [t, t], "y": [0, 1]})
+            out.append(d)
         return out
 
-    def frame(self, f: int, crop: tuple[int, int]) -> tuple[dict[str, Any], dict[str, Any]]:
-        """The animation frame and the slider step of take frame ``f``."""
-        where = "" if crop[0] <= f < crop[1] else " \u00b7 cropped out"
-        step = {"method": "animate", "label": f"frame {f} \u00b7 {f / self.rate:.2f} s{where}",
-                "args": [[str(f)], ANIM]}
-        return {"name": str(f), "data": self.data(f), "traces": list(range(N_DYNAMIC))}, step
+    def frames(self, frames: np.ndarray, crop: tuple[int, int]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+        """The animation frame and the slider step of each of the take's ``frames``."""
+        out = []
+        for f, data in zip(np.asarray(frames).tolist(), self.data(frames), strict=True):
+            where = "" if crop[0] <= f < crop[1] else " \u00b7 cropped out"
+            step = {"method": "animate", "label": f"frame {f} \u00b7 {f / self.rate:.2f} s{where}",
+                    "args": [[str(f)], ANIM]}
+            out.append(({"name": str(f), "data": data, "traces": list(range(N_DYNAMIC))}, step))
+        return out
 
 
 def _traces() -> list[dict[str, Any]]:
@@ -228,7 +246,7 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
     fr = _Frames(inp)
     if budget is None:
         probe = np.unique(np.linspace(0, max(T - 1, 0), num=min(T, 24)).astype(np.int64))
-        per = max(_json_len(fr.frame(int(f), inp.crop)) + 2 for f in probe) if T else 1
+        per = max((_json_len(x) + 2 for x in fr.frames(probe, inp.crop)), default=1)
         budget = int(min(MAX_FRAMES, (0.92 * max_bytes - 60_000) // per))
     budget = max(budget, 20)
     frames, stride, half = choose_frames(T, [m.frame for m in moments], rate, budget)
@@ -242,9 +260,9 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
                                   "color": [MOMENT_COLOURS[m.kind] for m in moments],
                                   "line": {"width": 1, "color": "#000000"}},
                        "text": [m.label for m in moments], "hovertemplate": "%{text}<extra></extra>"})
-    for tr, d in zip(traces, fr.data(start), strict=False):
+    for tr, d in zip(traces, fr.data(np.array([start]))[0], strict=False):
         tr.update(d)
-    built = [fr.frame(int(f), inp.crop) for f in frames]
+    built = fr.frames(frames, inp.crop)
     figure_frames = [b[0] for b in built]
     steps = [b[1] for b in built]
 
