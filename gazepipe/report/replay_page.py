@@ -207,7 +207,7 @@ def _traces() -> list[dict[str, Any]]:
                                   "line": {"width": 0}},
                        "hovertemplate": "%{text}<extra>" + escape(LEGEND[name]) + "</extra>"})
     traces.append({"type": "scatter3d", "mode": "markers", "name": LEGEND["unfilled"], "legendgroup": "unfilled",
-                   "marker": {"size": 6, "color": COLOURS["unfilled"], "symbol": "x"},
+                   "marker": {"size": 5, "color": COLOURS["unfilled"], "symbol": "diamond"},
                    "hovertemplate": "%{text}: unfilled, shown where last seen<extra></extra>"})
     traces.append({"type": "scatter3d", "mode": "lines", "name": "eyes to gaze target", "legendgroup": "gaze",
                    "line": {"color": "#000000", "width": 3, "dash": "dash"}, "hoverinfo": "skip"})
@@ -280,7 +280,7 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
     from gazepipe.stages.geometry import up_vector
 
     up = up_vector(ms.up_axis)
-    eye = np.array([1.25, -1.25, 0.55]) if abs(up[2]) > 0.5 else np.array([1.25, 0.55, 1.25])
+    eye = np.array([0.9, -0.9, 0.3]) if abs(up[2]) > 0.5 else np.array([0.9, 0.3, 0.9])
     eye = eye * np.where(up < 0, -1, 1)
 
     def view(r: np.ndarray) -> dict[str, Any]:
@@ -291,7 +291,7 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
             out[f"{a}axis.range"] = [round(float(r[i, 0]), 1), round(float(r[i, 1]), 1)]
         return out
 
-    scene: dict[str, Any] = {"domain": {"x": [0.25, 1.0], "y": [0.2, 1.0]}, "aspectmode": "manual",
+    scene: dict[str, Any] = {"domain": {"x": [0.25, 1.0], "y": [0.25, 1.0]}, "aspectmode": "manual",
                              "aspectratio": view(body)["aspectratio"],
                              "camera": {"up": {a: float(v) for a, v in zip("xyz", up, strict=True)},
                                         "eye": {a: float(v) for a, v in zip("xyz", eye, strict=True)}},
@@ -322,7 +322,7 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
     both = CLEANED_TRACES + RAW_TRACES
     nc, nr = len(CLEANED_TRACES), len(RAW_TRACES)
     menus: list[dict[str, Any]] = [
-        {"type": "buttons", "direction": "left", "x": 0.25, "xanchor": "right", "y": 0.02, "yanchor": "top",
+        {"type": "buttons", "direction": "left", "x": 0.25, "xanchor": "right", "y": 0.11, "yanchor": "top",
          "pad": {"r": 8, "t": 38}, "showactive": False, "buttons": [
              {"method": "animate", "label": "\u25b6 play",
               "args": [None, {"mode": "immediate", "fromcurrent": True, "frame": {"duration": play_ms, "redraw": True},
@@ -330,12 +330,12 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
              {"method": "animate", "label": "\u275a\u275a pause",
               "args": [[None], {"mode": "immediate", "frame": {"duration": 0, "redraw": False},
                                 "transition": {"duration": 0}}]}]},
-        {"type": "buttons", "direction": "right", "x": 0.25, "xanchor": "left", "y": 1.0, "yanchor": "bottom",
+        {"type": "buttons", "direction": "right", "x": 0.31, "xanchor": "left", "y": 1.0, "yanchor": "bottom",
          "showactive": True, "active": 0, "buttons": [
              {"method": "restyle", "label": "cleaned and raw", "args": [{"visible": [True] * (nc + nr)}, both]},
              {"method": "restyle", "label": "cleaned only", "args": [{"visible": [True] * nc + [False] * nr}, both]},
              {"method": "restyle", "label": "raw only", "args": [{"visible": [False] * nc + [True] * nr}, both]}]},
-        {"type": "buttons", "direction": "right", "x": 0.56, "xanchor": "left", "y": 1.0, "yanchor": "bottom",
+        {"type": "buttons", "direction": "right", "x": 0.63, "xanchor": "left", "y": 1.0, "yanchor": "bottom",
          "showactive": True, "active": 0, "buttons": [
              {"method": "relayout", "label": "view: subject",
               "args": [{f"scene.{k}": v for k, v in view(body).items()}]},
@@ -358,10 +358,10 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
                    "groupclick": "togglegroup", "font": {"size": 11}},
         "xaxis": {"domain": [0.25, 1.0], "anchor": "y", "range": [0, round(T / rate, 3)], "fixedrange": True,
                   "title": {"text": "s", "standoff": 2}, "ticks": "outside"},
-        "yaxis": {"domain": [0.11, 0.17], "anchor": "x", "range": [0, 1], "fixedrange": True, "visible": False},
+        "yaxis": {"domain": [0.15, 0.21], "anchor": "x", "range": [0, 1], "fixedrange": True, "visible": False},
         "shapes": shapes, "annotations": annotations,
         "sliders": [{"active": int(np.searchsorted(frames, start)), "steps": steps, "x": 0.25, "len": 0.75,
-                     "y": 0.02, "yanchor": "top", "pad": {"t": 36, "b": 6}, "transition": {"duration": 0},
+                     "y": 0.11, "yanchor": "top", "pad": {"t": 36, "b": 6}, "transition": {"duration": 0},
                      "currentvalue": {"visible": True, "prefix": "", "xanchor": "left", "font": {"size": 13}}}],
         "updatemenus": menus, "margin": {"l": 10, "r": 10, "t": 36, "b": 10},
         "paper_bgcolor": "#ffffff", "hovermode": "closest", "font": {"family": "DejaVu Sans, Arial, sans-serif"},
@@ -394,7 +394,7 @@ Plotly.newPlot(gd,fig.data,fig.layout,fig.config).then(function(){return Plotly.
 })();"""
 
 CSS = """body{font-family:'DejaVu Sans',Arial,sans-serif;font-size:13px;margin:10px 18px;color:#222}
-h1{font-size:17px;margin:4px 0} #replay{width:100%;height:calc(100vh - 60px);min-height:620px}
+h1{font-size:17px;margin:4px 0} #replay{width:100%;height:calc(100vh - 40px);min-height:620px}
 .muted{color:#666} ul.moments{margin:4px 0;padding-left:20px} p{max-width:1100px;margin:6px 0}"""
 
 
