@@ -475,7 +475,7 @@ def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_pro
     assert 1 <= len(pages) <= 6
     assert (qc / PLOTLY_JS).read_bytes() == plotly_js()
     for rel in pages:
-        assert f'href="{rel}"' in html and f'<iframe src="{rel}" loading="lazy"' in html
+        assert f'href="{rel}"' in html and "<iframe" not in html       # a link: the report loads no replay
         assert len((qc / rel).read_bytes()) <= REPLAY_MAX_BYTES
     keys = {f"{t['session']}/{t['take']}" for t in report["takes"]}
     assert {p[len("replay/"):-len(".html")] for p in pages} <= keys

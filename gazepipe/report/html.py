@@ -1,6 +1,6 @@
 """``qc/report.html``: one page (inline CSS and SVG, no script, no external URL) rendered from the ``report.json``
 object and the plots; each take drawn links to its 3D replay, a page of its own beside it under ``qc/replay/``
-(:mod:`gazepipe.report.replay_page`), shown in a frame when asked.
+(:mod:`gazepipe.report.replay_page`).
 
 Layout: the gate's verdict and a table of contents; which takes have plots and how to plot the others; a
 summary table of takes and datasets, worst first (:func:`~gazepipe.report.checks.rank_key`, the rank the plots
@@ -87,7 +87,7 @@ figure.plot{margin:10px 0 18px} figure.plot figcaption{color:#555;margin:2px 0 4
 figure.plot svg{max-width:100%;height:auto}
 .muted{color:#777} td.num{text-align:right;font-variant-numeric:tabular-nums}
 nav#toc{margin:4px 0 10px} nav#toc ol{margin:2px 0;padding-left:22px}
-div.replay{margin:8px 0 12px} div.replay iframe{width:100%;height:760px;border:1px solid #ddd;margin-top:4px}
+p.replay{margin:8px 0 12px}
 """
 
 
@@ -210,13 +210,11 @@ def _toc(takes: list[dict[str, Any]], datasets: list[dict[str, Any]]) -> str:
 
 
 def _replay(href: str, key: str) -> str:
-    """A take's link to its 3D replay page, and the page itself in a frame that loads when opened."""
+    """A take's link to its 3D replay page (a link, not a frame: the report opens without loading any)."""
     url = escape(quote(href), quote=True)
-    return (f'<div class="replay"><p><b><a href="{url}">3D replay of {escape(key)}</a></b> (its own page: the '
-            "markers and sticks in 3D, cleaned over raw, coloured by how each sample was made, with a time slider "
-            "and buttons that jump to the worst moments)</p>"
-            f'<details><summary>Show the 3D replay here</summary><iframe src="{url}" loading="lazy" '
-            f'title="3D replay of {escape(key)}"></iframe></details></div>')
+    return (f'<p class="replay"><b><a href="{url}">3D replay of {escape(key)}</a></b> (its own page: the markers '
+            "and sticks in 3D, cleaned over raw, coloured by how each sample was made, with a time slider and "
+            "buttons that jump to the worst moments)</p>")
 
 
 def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],

@@ -389,7 +389,7 @@ function fromHash(){
 Plotly.newPlot(gd,fig.data,fig.layout,fig.config).then(function(){return Plotly.addFrames(gd,fig.frames);}).then(function(){
  gd.on('plotly_animatingframe',function(e){show(e.name);});
  window.addEventListener('hashchange',function(){var a=fromHash();if(a)go(a);});
- var a=fromHash();return (a?go(a):go([[info.start],info.anim]));
+ var a=fromHash();if(a)return go(a);show(info.start);
 }).then(function(){gd.setAttribute('data-load-ms',String(Math.round(performance.now())));gd.setAttribute('data-ready','1');});
 })();"""
 
