@@ -434,7 +434,8 @@ def _page(inp: ReplayInputs, rep: Replay, plotly_src: str) -> str:
                       for i, m in enumerate(rep.moments))
     windows = "" if not rep.moments else (f" Around each worst moment every frame is kept (&plusmn;{rep.window} "
                                           "frames), so those stretches play in slow motion.")
-    stride = "every frame" if rep.stride == 1 else f"every {rep.stride}th frame"
+    nth = {1: "st", 2: "nd", 3: "rd"}.get(rep.stride % 10 if rep.stride % 100 not in (11, 12, 13) else 0, "th")
+    stride = "every frame" if rep.stride == 1 else f"every {rep.stride}{nth} frame"
     parts = [
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{escape(inp.key)}: 3D replay</title>", f"<style>{CSS}</style>", loader, "</head><body>",
