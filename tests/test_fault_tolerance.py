@@ -70,6 +70,10 @@ def _check_complete(p: Path) -> None:
         assert p.read_text().rstrip().splitlines()[-1].startswith("Built by gazepipe"), f"{p} is cut short"
     elif p.suffix == ".html":
         assert p.read_text().rstrip().endswith("</html>"), f"{p} is cut short"
+    elif p.name == "plotly.min.js":     # the replays' copy of Plotly's script, byte for byte
+        from gazepipe.report.replay_page import plotly_js
+
+        assert p.read_bytes() == plotly_js(), f"{p} is not Plotly's script whole"
     else:
         raise AssertionError(f"unexpected file under OUT: {p}")
 

@@ -114,7 +114,7 @@ class _RunReport:
     already describes exactly these outputs."""
 
     #: what the report's jobs run on the workers (matplotlib is most of it): imported once with the stages
-    WORKER_MODULES = ("gazepipe.report.run_report", "gazepipe.report.plots")
+    WORKER_MODULES = ("gazepipe.report.run_report", "gazepipe.report.plots", "gazepipe.report.replay_page")
 
     def __init__(self, out: Path, log) -> None:
         self.out = out
@@ -465,8 +465,10 @@ def params_cmd() -> None:
 def _register_commands() -> None:
     from gazepipe.cli.train import train
     from gazepipe.cli.validate import validate
+    from gazepipe.cli.view import view
 
     cli.add_command(validate)
+    cli.add_command(view)
     cli.add_command(train)
     add_debug_option(cli)
     for command in cli.commands.values():

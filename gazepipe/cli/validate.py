@@ -85,14 +85,14 @@ def _thresholds(pairs: tuple[str, ...]):
 @click.option("--plot-take", "plot_named", multiple=True, metavar="SESSION/TAKE",
               help="Also draw this take's plots: SESSION/TAKE, a take id (in any session) or a pattern such as "
               "'shift_*' (repeatable; --plot-takes 0 --plot-take X draws only X).")
-@click.option("--no-plots", is_flag=True, help="No plots at all, datasets' included (the fastest page; "
+@click.option("--no-plots", is_flag=True, help="No plots or replays at all, datasets' included (the fastest page; "
               "report.json and takes.parquet are the same with or without plots).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
 @handle_errors
 def validate(out: str, fail_on: str, thresholds: tuple[str, ...], plot_takes: int | None,
              plot_named: tuple[str, ...], no_plots: bool, as_json: bool) -> None:
-    """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and a
-    self-contained OUT/qc/report.html.
+    """Check every take and dataset in OUT and write OUT/qc/report.json, OUT/qc/takes.parquet and
+    OUT/qc/report.html (no network needed), with a 3D replay page per take drawn (OUT/qc/replay/).
 
     \b
     Checks per take: failed or out-of-date stages, gap and fill shares, longest gap, fill
@@ -103,8 +103,9 @@ def validate(out: str, fail_on: str, thresholds: tuple[str, ...], plot_takes: in
     could not be evaluated), skipped (not applicable). Thresholds: see report.json.
 
     \b
-    Plots: every dataset's, and those of the 6 worst takes (--plot-takes N|all and
-    --plot-take SESSION/TAKE ask for others; the page says which takes it plotted).
+    Plots: every dataset's, and those of the 6 worst takes with their 3D replays
+    (--plot-takes N|all and --plot-take SESSION/TAKE ask for others; the page says which
+    takes it plotted; `gazepipe view OUT SESSION/TAKE` makes the replay of any take).
 
     \b
       gazepipe validate out/

@@ -231,3 +231,78 @@ class FigureCache(_KeyedFiles):
     def put(self, key: str | None, figs: list[Figure], notes: list[str]) -> None:
         self._store(key, {"figures": [{"title": f.title, "caption": f.caption, "svg": f.svg} for f in figs],
                           "notes": notes})
+
+
+class ReplayCache:
+    """Each take's 3D replay page (:mod:`gazepipe.report.replay_page`) as made before, under
+    ``OUT/.gazepipe/report_replays/<key>.html``, the key a hash of the bytes of the tables it is made from
+    (:data:`gazepipe.report.replay.REPLAY_TABLES`), the unit records and markerset it uses, the source of
+    gazepipe and the versions of plotly and the libraries. A run's workers make the pages of the takes its
+    report shows; the report copies them into ``qc/replay/``. A take with nothing to replay is kept as a
+    ``<key>.txt`` saying why. Written whole then renamed, never once the run ``parent_pid`` is gone."""
+
+    DIRNAME = "report_replays"
+
+    def __init__(self, layout: OutLayout, parent_pid: int | None = None) -> None:
+        self.layout = layout
+        self.dir = layout.state / self.DIRNAME
+        self.used: set[str] = set()
+        self.parent_pid = parent_pid
+
+    def key(self, e: TakeEntry, markerset: Any) -> str | None:
+        from importlib.metadata import PackageNotFoundError, version
+
+        from gazepipe.report.replay import REPLAY_TABLES
+
+        h = hashlib.sha256(code_version() + b"replay\0")
+        try:
+            h.update(f"plotly {version('plotly')}\0".encode())
+        except PackageNotFoundError:
+            h.update(b"plotly -\0")
+        feed(h, e.key)
+        feed(h, [e.kind, e.pose])
+        for name in REPLAY_TABLES:
+            path = self.layout.table(e.session, e.take, name)
+            feed(h, name)
+            try:
+                feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
+            except OSError:
+                return None
+        feed_json(h, {stage: {k: r.get(k) for k in ("status", "qc", "components", "error")}
+                      for stage, r in e.records.items()})
+        feed(h, repr(markerset))
+        return h.hexdigest()[:40]
+
+    def get(self, key: str | None) -> tuple[bytes | None, str | None] | None:
+        """``(page, None)``, ``(None, why there is none)``, or ``None`` when not made before."""
+        if key is None:
+            return None
+        self.used.add(key)
+        try:
+            return (self.dir / f"{key}.html").read_bytes(), None
+        except OSError:
+            pass
+        try:
+            return None, (self.dir / f"{key}.txt").read_text(encoding="utf-8")
+        except OSError:
+            return None
+
+    def put(self, key: str | None, page: bytes | None, why: str | None = None) -> None:
+        if key is None or (self.parent_pid is not None and not pid_alive(self.parent_pid)):
+            return
+        self.used.add(key)
+        name, data = (f"{key}.html", page) if page is not None else (f"{key}.txt", (why or "").encode())
+        tmp = self.layout.tmp / f".{name}.{os.getpid()}.part"
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self.layout.tmp.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(data)
+            os.replace(tmp, self.dir / name)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+
+    def prune(self) -> None:
+        """Delete the pages the report written last does not use."""
+        for path in sorted(self.dir.glob("*.*")) if self.dir.is_dir() else []:
+            if path.stem not in self.used:
+                path.unlink(missing_ok=True)

@@ -1,5 +1,6 @@
-"""``qc/report.html``: one self-contained page (inline CSS and SVG, no script, no external URL) rendered from
-the ``report.json`` object and the plots.
+"""``qc/report.html``: one page (inline CSS and SVG, no script, no external URL) rendered from the ``report.json``
+object and the plots; each take drawn links to its 3D replay, a page of its own beside it under ``qc/replay/``
+(:mod:`gazepipe.report.replay_page`).
 
 Layout: the gate's verdict and a table of contents; which takes have plots and how to plot the others; a
 summary table of takes and datasets, worst first (:func:`~gazepipe.report.checks.rank_key`, the rank the plots
@@ -15,6 +16,7 @@ import re
 from dataclasses import dataclass
 from html import escape
 from typing import Any
+from urllib.parse import quote
 
 from gazepipe.report.checks import RANK, rank_key
 
@@ -85,6 +87,7 @@ figure.plot{margin:10px 0 18px} figure.plot figcaption{color:#555;margin:2px 0 4
 figure.plot svg{max-width:100%;height:auto}
 .muted{color:#777} td.num{text-align:right;font-variant-numeric:tabular-nums}
 nav#toc{margin:4px 0 10px} nav#toc ol{margin:2px 0;padding-left:22px}
+p.replay{margin:8px 0 12px}
 """
 
 
@@ -146,6 +149,10 @@ def _plots_paragraph(sel: PlotSelection) -> str:
         if rest:
             items.append(f"Not drawn for {_n(len(rest), 'other take')} (&lsquo;not drawn&rsquo; in the summary; every "
                          f"check of theirs is in the page). To plot them: {HOW_TO_PLOT}.")
+        if sel.plotted:
+            items.append("Each take drawn also has a 3D replay (its own page under <code>qc/replay/</code>, "
+                         "linked from its section); <code>gazepipe view OUT SESSION/TAKE --open</code> makes one "
+                         "for any take.")
         if sel.failed:
             items.append(f"Nothing could be drawn for {_n(len(sel.failed), 'take')} asked for: see the notes below.")
     if sel.nothing_to_draw:
@@ -202,12 +209,22 @@ def _toc(takes: list[dict[str, Any]], datasets: list[dict[str, Any]]) -> str:
     return '<nav id="toc"><b>Contents</b><ol>' + "".join(f"<li>{i}</li>" for i in items) + "</ol></nav>"
 
 
+def _replay(href: str, key: str) -> str:
+    """A take's link to its 3D replay page (a link, not a frame: the report opens without loading any)."""
+    url = escape(quote(href), quote=True)
+    return (f'<p class="replay"><b><a href="{url}">3D replay of {escape(key)}</a></b> (its own page: the markers '
+            "and sticks in 3D, cleaned over raw, coloured by how each sample was made, with a time slider and "
+            "buttons that jump to the worst moments)</p>")
+
+
 def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
                 dataset_figs: dict[str, list[Figure]], plot_notes: list[str] | None = None,
-                plots: PlotSelection | None = None) -> str:
+                plots: PlotSelection | None = None, replays: dict[str, str] | None = None) -> str:
     """The page for ``report`` (the report.json object) with the plots of each take (key ``session/take``) and
-    dataset (key: its name), notes on plots that could not be drawn, and (``plots``) which takes were plotted and
-    why the others were not."""
+    dataset (key: its name), notes on plots that could not be drawn, (``plots``) which takes were plotted and
+    why the others were not, and (``replays``) the 3D replay page of each take that has one (its path relative
+    to the report)."""
+    replays = replays or {}
     gate = report["gate"]
     summ = report["summary"]
     p: list[str] = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -271,6 +288,8 @@ def render_html(report: dict[str, Any], take_figs: dict[str, list[Figure]],
         p.append(f"<p>Stages: {escape(stages)}</p>")
         p.append(_checks_table(t["checks"]))
         figs = take_figs.get(key, [])
+        if key in replays:
+            p.append(_replay(replays[key], key))
         p.append(_figures(figs) if figs else _take_plots_note(plots, key))
 
     p.append('<h2 id="datasets">Datasets</h2>')

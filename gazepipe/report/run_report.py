@@ -16,7 +16,7 @@ from typing import Any
 
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.report import checks as C
-from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache
+from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache, ReplayCache
 from gazepipe.report.collect import TakeEntry, has_plot_tables, open_output, take_entry
 from gazepipe.report.validate import (
     DEFAULT_PLOT_TAKES,
@@ -32,6 +32,7 @@ from gazepipe.report.validate import (
     take_figures_cached,
     take_pass,
     take_rank_key,
+    take_replay_cached,
 )
 
 # ------------------------------------------------------------------------------------ jobs for the workers
@@ -45,9 +46,11 @@ def take_part(root: str, session: str, take: Any, parent_pid: int | None = None)
 
 
 def draw_take_plots(root: str, entry: TakeEntry, markerset: Any, parent_pid: int | None = None) -> None:
-    """One take's plots into the figure cache."""
+    """One take's plots into the figure cache, and its 3D replay page into the replay cache."""
     layout = OutLayout(Path(root))
     take_figures_cached(layout, entry, markerset, FigureCache(layout, parent_pid))
+    if entry.kind != "face":
+        take_replay_cached(layout, entry, markerset, ReplayCache(layout, parent_pid))
 
 
 def dataset_part_job(root: str, name: str, thresholds: C.Thresholds, parent_pid: int | None = None) -> None:

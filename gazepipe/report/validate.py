@@ -31,7 +31,7 @@ from gazepipe.pipeline.lock import OutputLock
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.report import checks as C
 from gazepipe.report import checks_datasets as D
-from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache, stored_checks
+from gazepipe.report.cache import CheckCache, DatasetCache, FigureCache, ReplayCache, stored_checks
 from gazepipe.report.collect import (
     PLOT_TABLES,
     QC_TYPES,
@@ -74,6 +74,8 @@ class ValidateResult:
     notes: list[str] = field(default_factory=list)
     #: the takes whose plots the page has (``session/take``), worst first
     plotted: list[str] = field(default_factory=list)
+    #: the 3D replay pages written (``qc/replay/<session>/<take>.html``)
+    replays: list[Path] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------------------------- takes
@@ -527,29 +529,67 @@ def take_figures_cached(layout: OutLayout, e: TakeEntry, markerset: Any,
     return figs, fig_notes
 
 
-def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest,
-                cache: FigureCache) -> tuple[dict[str, list[Figure]], list[str], PlotSelection]:
-    """The plots of the takes ``plots`` asks for (their tables read again, one take at a time, unless drawn
-    before), notes on plots that could not be drawn, and what the page says about the takes plotted and the
-    others."""
+def take_replay_cached(layout: OutLayout, e: TakeEntry, markerset: Any,
+                       cache: ReplayCache) -> tuple[bytes | None, str | None]:
+    """The take's 3D replay page (:mod:`gazepipe.report.replay_page`, loading ``qc/plotly.min.js`` from
+    ``qc/replay/<session>/``), or why there is none; read back from ``cache`` when made before (by a worker of
+    the run, :func:`gazepipe.report.run_report.draw_take_plots`), else made and cached. Never raises: a replay
+    that cannot be made costs its link, not the report."""
+    key = cache.key(e, markerset)
+    got = cache.get(key)
+    if got is not None:
+        return got
+    from gazepipe.report.replay import ReplayUnavailable, load_replay_inputs
+    from gazepipe.report.replay_page import RELATIVE_PLOTLY, replay_html
+
+    page: bytes | None = None
+    why: str | None = None
+    samples = count_rows(layout.table(e.session, e.take, "markers_raw")) or 0
+    if samples > PLOT_MAX_SAMPLES:
+        why = f"no 3D replay: {samples:,} marker samples, more than the {PLOT_MAX_SAMPLES:,} a take's plots read"
+    else:
+        try:
+            page = replay_html(load_replay_inputs(layout, e, markerset), RELATIVE_PLOTLY)[0].encode("utf-8")
+        except ReplayUnavailable as exc:
+            why = f"no 3D replay: {exc}"
+        except Exception as exc:  # a replay is a view: its failure is a note, never the report's
+            why = f"no 3D replay (it could not be made: {type(exc).__name__}: {exc})"
+    cache.put(key, page, why)
+    return page, why
+
+
+def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, cache: FigureCache,
+                replays: ReplayCache) -> tuple[dict[str, list[Figure]], list[str], PlotSelection,
+                                               dict[tuple[str, str], bytes]]:
+    """The plots and 3D replays of the takes ``plots`` asks for (their tables read again, one take at a time,
+    unless made before), notes on plots that could not be drawn, and what the page says about the takes
+    plotted and the others."""
     ranked, named, chosen, drawable = plot_choice(layout, tp, plots)
     if not plots.on:
         return {}, [], PlotSelection(False, plots.limit, tuple(ranked), named=tuple(named),
-                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable))
+                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable)), {}
     by_key = {e.key: e for e in tp.entries}
     take_figs: dict[str, list[Figure]] = {}
+    pages: dict[tuple[str, str], bytes] = {}
     plot_notes: list[str] = []
     for key in chosen:
         e = by_key[key]
         s = tp.sessions.get(e.session)
-        figs, fig_notes = take_figures_cached(layout, e, s.markerset if s is not None else None, cache)
+        markerset = s.markerset if s is not None else None
+        figs, fig_notes = take_figures_cached(layout, e, markerset, cache)
         if figs:
             take_figs[key] = figs
         plot_notes.extend(f"{key}: {n}" for n in fig_notes)
+        if e.kind != "face":
+            page, why = take_replay_cached(layout, e, markerset, replays)
+            if page is not None:
+                pages[(e.session, e.take)] = page
+            elif why:
+                plot_notes.append(f"{key}: {why}")
     return take_figs, plot_notes, PlotSelection(
         True, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
         nothing_to_draw=tuple(k for k in ranked if k not in drawable),
-        failed=tuple(k for k in chosen if k not in take_figs))
+        failed=tuple(k for k in chosen if k not in take_figs)), pages
 
 
 def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest,
@@ -557,7 +597,8 @@ def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: Plot
     """Add the plots and the datasets to the checks of every take, and write ``qc/``."""
     session_problems, takes_out, rows, refs = tp.session_problems, tp.takes_out, tp.rows, list(tp.refs)
     cache = FigureCache(layout)
-    take_figs, plot_notes, selection = _take_plots(layout, tp, plots, cache)
+    replay_cache = ReplayCache(layout)
+    take_figs, plot_notes, selection, pages = _take_plots(layout, tp, plots, cache, replay_cache)
     datasets_out: list[dict[str, Any]] = []
     ds_figs: dict[str, list[Figure]] = {}
     splits: dict[str, dict[str, str]] = {}
@@ -595,10 +636,14 @@ def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: Plot
         "notes": list(session_problems),
     }
     table = pa.Table.from_pylist(rows, schema=TAKES_SCHEMA) if rows else TAKES_SCHEMA.empty_table()
-    html = render_html(report, take_figs, ds_figs, plot_notes, plots=selection)
+    from gazepipe.report.replay_page import REPLAY_DIR, write_report_replays
+
+    links = {f"{s}/{t}": f"{REPLAY_DIR}/{s}/{t}.html" for s, t in pages}
+    html = render_html(report, take_figs, ds_figs, plot_notes, plots=selection, replays=links)
     qc = layout.root / "qc"
     qc.mkdir(exist_ok=True)
     layout.tmp.mkdir(parents=True, exist_ok=True)
+    replay_paths = write_report_replays(qc, layout.tmp, pages)
     paths = [qc / "report.json", qc / "takes.parquet", qc / "report.html"]
     layout.write_bytes(paths[0], (json.dumps(report, indent=1, sort_keys=True, allow_nan=False,
                                              ensure_ascii=False) + "\n").encode())
@@ -607,9 +652,10 @@ def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: Plot
     layout.write_bytes(paths[2], html.encode())
     if plots.on:
         cache.prune()
+        replay_cache.prune()
     n_figs = sum(len(v) for v in take_figs.values()) + sum(len(v) for v in ds_figs.values())
     return ValidateResult(report=report, paths=paths, passed=not hit, takes=table, html=html, figures=n_figs,
-                          notes=plot_notes, plotted=list(selection.plotted))
+                          notes=plot_notes, plotted=list(selection.plotted), replays=replay_paths)
 
 
 __all__ = ["DEFAULT_PLOT_TAKES", "FAIL_ON", "ValidateResult", "dataset_checks", "match_takes",
