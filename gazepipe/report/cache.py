@@ -73,6 +73,18 @@ def feed_json(h: Any, v: Any) -> None:
     h.update(b"json\0" + json.dumps(v, sort_keys=True, separators=(",", ":"), default=repr).encode() + b"\0")
 
 
+def feed_tables(h: Any, layout: OutLayout, e: TakeEntry, names: Any) -> bool:
+    """Hash the bytes of a take's tables ``names`` (a missing one as none); False when one cannot be read."""
+    for name in names:
+        path = layout.table(e.session, e.take, name)
+        feed(h, name)
+        try:
+            feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
+        except OSError:
+            return False
+    return True
+
+
 class _KeyedFiles:
     """JSON files under ``OUT/.gazepipe/<dirname>/`` named by key: written whole then renamed (a reader never
     sees half a file), not synced (losing one only costs time), never written once the run ``parent_pid`` is
@@ -97,21 +109,29 @@ class _KeyedFiles:
             return None
 
     def _store(self, key: str | None, entry: Any) -> None:
+        try:
+            data = json.dumps(entry, ensure_ascii=False, allow_nan=False).encode()
+        except ValueError:
+            return
+        self._write(key, f"{key}.json", data)
+
+    def _write(self, key: str | None, name: str, data: bytes) -> None:
+        """``data`` into the file ``name`` of ``key``, whole then renamed; nothing once the run is gone."""
         if key is None or (self.parent_pid is not None and not pid_alive(self.parent_pid)):
             return
         self.used.add(key)
-        tmp = self.layout.tmp / f".{key}.{os.getpid()}.part"
+        tmp = self.layout.tmp / f".{name}.{os.getpid()}.part"
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
             self.layout.tmp.mkdir(parents=True, exist_ok=True)
-            tmp.write_bytes(json.dumps(entry, ensure_ascii=False, allow_nan=False).encode())
-            os.replace(tmp, self.dir / f"{key}.json")
-        except (OSError, ValueError):
+            tmp.write_bytes(data)
+            os.replace(tmp, self.dir / name)
+        except OSError:
             tmp.unlink(missing_ok=True)
 
     def prune(self) -> None:
         """Delete the files the report written last does not use."""
-        for path in sorted(self.dir.glob("*.json")) if self.dir.is_dir() else []:
+        for path in sorted(self.dir.glob("*.*")) if self.dir.is_dir() else []:
             if path.stem not in self.used:
                 path.unlink(missing_ok=True)
 
@@ -199,13 +219,8 @@ class FigureCache(_KeyedFiles):
         """The key of a take's plots (``None``: a table cannot be read, so nothing is cached)."""
         h = hashlib.sha256(code_version() + b"take\0")
         feed(h, e.key)
-        for name in PLOT_TABLES:
-            path = self.layout.table(e.session, e.take, name)
-            feed(h, name)
-            try:
-                feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
-            except OSError:
-                return None
+        if not feed_tables(h, self.layout, e, PLOT_TABLES):
+            return None
         feed_json(h, {stage: {k: r.get(k) for k in ("status", "qc", "components")} for stage, r in e.records.items()})
         feed(h, repr(markerset))
         return h.hexdigest()[:40]
@@ -233,7 +248,7 @@ class FigureCache(_KeyedFiles):
                           "notes": notes})
 
 
-class ReplayCache:
+class ReplayCache(_KeyedFiles):
     """Each take's 3D replay page (:mod:`gazepipe.report.replay_page`) as made before, under
     ``OUT/.gazepipe/report_replays/<key>.html``, the key a hash of the bytes of the tables it is made from
     (:data:`gazepipe.report.replay.REPLAY_TABLES`), the unit records and markerset it uses, the source of
@@ -242,12 +257,6 @@ class ReplayCache:
     ``<key>.txt`` saying why. Written whole then renamed, never once the run ``parent_pid`` is gone."""
 
     DIRNAME = "report_replays"
-
-    def __init__(self, layout: OutLayout, parent_pid: int | None = None) -> None:
-        self.layout = layout
-        self.dir = layout.state / self.DIRNAME
-        self.used: set[str] = set()
-        self.parent_pid = parent_pid
 
     def key(self, e: TakeEntry, markerset: Any) -> str | None:
         from importlib.metadata import PackageNotFoundError, version
@@ -261,13 +270,8 @@ class ReplayCache:
             h.update(b"plotly -\0")
         feed(h, e.key)
         feed(h, [e.kind, e.pose])
-        for name in REPLAY_TABLES:
-            path = self.layout.table(e.session, e.take, name)
-            feed(h, name)
-            try:
-                feed(h, hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else None)
-            except OSError:
-                return None
+        if not feed_tables(h, self.layout, e, REPLAY_TABLES):
+            return None
         feed_json(h, {stage: {k: r.get(k) for k in ("status", "qc", "components", "error")}
                       for stage, r in e.records.items()})
         feed(h, repr(markerset))
@@ -288,21 +292,8 @@ class ReplayCache:
             return None
 
     def put(self, key: str | None, page: bytes | None, why: str | None = None) -> None:
-        if key is None or (self.parent_pid is not None and not pid_alive(self.parent_pid)):
-            return
-        self.used.add(key)
-        name, data = (f"{key}.html", page) if page is not None else (f"{key}.txt", (why or "").encode())
-        tmp = self.layout.tmp / f".{name}.{os.getpid()}.part"
-        try:
-            self.dir.mkdir(parents=True, exist_ok=True)
-            self.layout.tmp.mkdir(parents=True, exist_ok=True)
-            tmp.write_bytes(data)
-            os.replace(tmp, self.dir / name)
-        except OSError:
-            tmp.unlink(missing_ok=True)
-
-    def prune(self) -> None:
-        """Delete the pages the report written last does not use."""
-        for path in sorted(self.dir.glob("*.*")) if self.dir.is_dir() else []:
-            if path.stem not in self.used:
-                path.unlink(missing_ok=True)
+        """Keep ``page`` (or, when there is none, ``why``) under ``key``."""
+        if page is not None:
+            self._write(key, f"{key}.html", page)
+        else:
+            self._write(key, f"{key}.txt", (why or "").encode())

@@ -477,17 +477,22 @@ def plotly_js() -> bytes:
 
 def write_plotly_js(qc: Path, tmp: Path) -> Path:
     """``qc/plotly.min.js``, written (atomically) unless it already holds these bytes."""
+    path = qc / PLOTLY_JS
+    write_if_changed(path, plotly_js(), tmp)
+    return path
+
+
+def write_if_changed(path: Path, data: bytes, tmp: Path) -> None:
+    """Write ``data`` to ``path`` atomically unless the file already holds these bytes (an unchanged page keeps
+    its modification time, and a report rewritten over a copied folder rewrites nothing)."""
     from gazepipe.pipeline.atomic import atomic_write_bytes
 
-    path = qc / PLOTLY_JS
-    data = plotly_js()
     try:
         same = path.stat().st_size == len(data) and path.read_bytes() == data
     except OSError:
         same = False
     if not same:
         atomic_write_bytes(path, data, tmp)
-    return path
 
 
 def page_path(qc: Path, folder: str, session: str, take: str) -> Path:
@@ -507,19 +512,12 @@ def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes
     """Write the report's replay pages (``(session, take)`` → page) under ``qc/replay/`` (atomically, each
     unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and delete the other
     files there (pages of takes the report no longer shows). Returns the pages' paths."""
-    from gazepipe.pipeline.atomic import atomic_write_bytes
-
     if pages:
         write_plotly_js(qc, tmp)
     paths: list[Path] = []
     for (session, take), data in sorted(pages.items()):
         path = page_path(qc, REPLAY_DIR, session, take)
-        try:
-            same = path.stat().st_size == len(data) and path.read_bytes() == data
-        except OSError:
-            same = False
-        if not same:
-            atomic_write_bytes(path, data, tmp)
+        write_if_changed(path, data, tmp)
         paths.append(path)
     base = qc / REPLAY_DIR
     if base.is_dir():
