@@ -278,23 +278,42 @@ def worst_moments(inp: ReplayInputs, max_per_kind: dict[str, int] | None = None)
     why), label swaps (three), the largest estimated fill errors (two gaps), filled segment rotations (the two
     least sure) and the largest removed spike. Each label names the frame the page jumps to."""
     lim = {"no_row": 2, "swap": 3, "fill_error": 2, "rotation": 2, "spike": 1, **(max_per_kind or {})}
-    clean, frames = inp.clean, np.asarray(inp.clean_frames, dtype=np.int64)
-    out: list[Moment] = []
+    frames = np.asarray(inp.clean_frames, dtype=np.int64)
+    near = window_half(float(inp.raw.rate_hz))
+    out = _no_row_moments(inp, frames, lim["no_row"]) + _swap_moments(inp, lim["swap"])
+    out += _fill_error_moments(inp, frames, lim["fill_error"], near)
+    out += _rotation_moments(inp, lim["rotation"], near)
+    if lim["spike"]:
+        out += _spike_moment(inp, frames)
+    return out
 
+
+def _no_row_moments(inp: ReplayInputs, frames: np.ndarray, limit: int) -> list[Moment]:
+    """The longest stretches of kept frames without a dataset row, at their middles, with why."""
     bad, why = dropped_frames(inp)
-    stretches = sorted(runs(bad), key=lambda r: (-(r[1] - r[0]), r[0]))[:lim["no_row"]]
-    for a, b in sorted(stretches):
+    out = []
+    for a, b in sorted(sorted(runs(bad), key=lambda r: (-(r[1] - r[0]), r[0]))[:limit]):
         f = int(frames[(a + b - 1) // 2])
         out.append(Moment("no_row", f, f"no dataset row: {why[(a + b - 1) // 2]} · frame {f}",
                           f"frames {frames[a]}-{frames[b - 1]} ({b - a} frames) give no dataset row"))
+    return out
 
-    swaps = sorted(inp.swaps, key=lambda s: (-(s[3] - s[2]), s[2]))[:lim["swap"]]
+
+def _swap_moments(inp: ReplayInputs, limit: int) -> list[Moment]:
+    """The longest label swaps, at their first frames, in time order."""
+    out = []
+    swaps = sorted(inp.swaps, key=lambda s: (-(s[3] - s[2]), s[2]))[:limit]
     for a_lab, b_lab, start, stop, repaired in sorted(swaps, key=lambda s: s[2]):
         f = int(min(max(start, 0), inp.raw.n_frames - 1))
         how = "repaired" if repaired else "made gaps"
         out.append(Moment("swap", f, f"label swap {a_lab}/{b_lab} ({how}) · frame {f}",
                           f"{a_lab} and {b_lab} carried each other's names over frames {start}-{stop - 1}"))
+    return out
 
+
+def _fill_error_moments(inp: ReplayInputs, frames: np.ndarray, limit: int, near: int) -> list[Moment]:
+    """The filled runs with the largest estimated error, at each run's worst sample, at least ``near`` frames
+    apart."""
     err = np.asarray(inp.fill_error_mm, dtype=np.float64)
     found: list[tuple[float, int, int]] = []        # (error, row, marker) of each filled run's worst sample
     if err.size:
@@ -303,62 +322,74 @@ def worst_moments(inp: ReplayInputs, max_per_kind: dict[str, int] | None = None)
             for a, b in runs(fin[:, mk]):
                 pk = a + int(np.argmax(err[a:b, mk]))
                 found.append((float(err[pk, mk]), pk, mk))
-    near = window_half(float(inp.raw.rate_hz))
     chosen: list[int] = []
+    out = []
     for e, k, m in sorted(found, key=lambda x: (-x[0], x[1], x[2])):
         f = int(frames[k])
-        if len(chosen) == lim["fill_error"] or not _apart(chosen, f, near):
+        if len(chosen) == limit or not _apart(chosen, f, near):
             continue
         chosen.append(f)
         method = CATEGORIES[int(inp.fill[k, m])]
-        out.append(Moment("fill_error", f, f"fill error {e:.1f} mm: {clean.labels[m]} ({method}) · frame {f}",
-                          f"{clean.labels[m]} filled by {method}, estimated error {e:.1f} mm"))
-
-    j = inp.joints
-    if j is not None and "rot_filled" in j and len(j["frame"]):
-        names = [s.name for s in inp.markerset.segments]
-        cands: list[tuple[float, int, int, int, str]] = []
-        for s in range(j["rot_filled"].shape[1]):
-            for a, b in runs(j["rot_filled"][:, s]):
-                fa, fb = int(j["frame"][a]), int(j["frame"][b - 1])
-                rot_e: float | None = None
-                rot_method: str | None = None
-                for seg, lo, hi, meth, err_deg in inp.rotation_errors:
-                    if seg == s and lo <= fa and fb < hi:
-                        rot_e, rot_method = err_deg, meth
-                cands.append((-(rot_e if rot_e is not None else 0.0), -(b - a), s, (fa + fb) // 2,
-                              rot_method or "filled"))
-        chosen = []
-        for neg_e, neg_len, seg_i, mid, how in sorted(cands):
-            if len(chosen) == lim["rotation"] or not _apart(chosen, mid, near):
-                continue
-            chosen.append(mid)
-            name = names[seg_i] if seg_i < len(names) else f"segment {seg_i}"
-            e_txt = f", {-neg_e:.1f}° estimated" if neg_e else ""
-            out.append(Moment("rotation", int(mid), f"rotation filled: {name} ({how}{e_txt}) · frame {mid}",
-                              f"{name}'s rotation filled across {-neg_len} frames"))
-
-    if lim["spike"] and np.asarray(inp.spike).any():
-        rows, cols = np.nonzero(inp.spike)
-        at = np.unique(frames[rows])
-        at = at[(at >= 0) & (at < inp.raw.n_frames)]
-        raw_at = raw_in_clean_axes(inp, at)
-        ri = {lab: i for i, lab in enumerate(inp.raw.labels)}
-        best: tuple[float, int, int] | None = None
-        for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
-            r = ri.get(clean.labels[col])
-            fr = int(frames[row])
-            if r is None or not (0 <= fr < inp.raw.n_frames):
-                continue
-            dist = float(np.linalg.norm(raw_at[np.searchsorted(at, fr), r] - clean.xyz[row, col]))
-            if np.isfinite(dist) and (best is None or dist > best[0]):
-                best = (dist, row, col)
-        if best is not None:
-            dist, row, col = best
-            fr = int(frames[row])
-            out.append(Moment("spike", fr, f"removed spike: {clean.labels[col]} {dist:.0f} mm off · frame {fr}",
-                              f"{clean.labels[col]}'s sample was {dist:.0f} mm from its refilled position"))
+        label = inp.clean.labels[m]
+        out.append(Moment("fill_error", f, f"fill error {e:.1f} mm: {label} ({method}) · frame {f}",
+                          f"{label} filled by {method}, estimated error {e:.1f} mm"))
     return out
+
+
+def _rotation_moments(inp: ReplayInputs, limit: int, near: int) -> list[Moment]:
+    """Segment rotations filled across gaps, the least sure (largest estimated error, then longest) first, at
+    each run's middle, at least ``near`` frames apart."""
+    j = inp.joints
+    if j is None or "rot_filled" not in j or not len(j["frame"]):
+        return []
+    names = [s.name for s in inp.markerset.segments]
+    cands: list[tuple[float, int, int, int, str]] = []
+    for s in range(j["rot_filled"].shape[1]):
+        for a, b in runs(j["rot_filled"][:, s]):
+            fa, fb = int(j["frame"][a]), int(j["frame"][b - 1])
+            known = [(err_deg, meth) for seg, lo, hi, meth, err_deg in inp.rotation_errors
+                     if seg == s and lo <= fa and fb < hi]
+            rot_e, rot_method = known[-1] if known else (None, None)
+            cands.append((-(rot_e if rot_e is not None else 0.0), -(b - a), s, (fa + fb) // 2,
+                          rot_method or "filled"))
+    chosen: list[int] = []
+    out = []
+    for neg_e, neg_len, seg_i, mid, how in sorted(cands):
+        if len(chosen) == limit or not _apart(chosen, mid, near):
+            continue
+        chosen.append(mid)
+        name = names[seg_i] if seg_i < len(names) else f"segment {seg_i}"
+        e_txt = f", {-neg_e:.1f}° estimated" if neg_e else ""
+        out.append(Moment("rotation", int(mid), f"rotation filled: {name} ({how}{e_txt}) · frame {mid}",
+                          f"{name}'s rotation filled across {-neg_len} frames"))
+    return out
+
+
+def _spike_moment(inp: ReplayInputs, frames: np.ndarray) -> list[Moment]:
+    """The removed spike farthest from its refilled position (raw sample against cleaned), if any."""
+    if not np.asarray(inp.spike).any():
+        return []
+    clean = inp.clean
+    rows, cols = np.nonzero(inp.spike)
+    at = np.unique(frames[rows])
+    at = at[(at >= 0) & (at < inp.raw.n_frames)]
+    raw_at = raw_in_clean_axes(inp, at)
+    ri = {lab: i for i, lab in enumerate(inp.raw.labels)}
+    best: tuple[float, int, int] | None = None
+    for row, col in zip(rows.tolist(), cols.tolist(), strict=True):
+        r = ri.get(clean.labels[col])
+        fr = int(frames[row])
+        if r is None or not (0 <= fr < inp.raw.n_frames):
+            continue
+        dist = float(np.linalg.norm(raw_at[np.searchsorted(at, fr), r] - clean.xyz[row, col]))
+        if np.isfinite(dist) and (best is None or dist > best[0]):
+            best = (dist, row, col)
+    if best is None:
+        return []
+    dist, row, col = best
+    fr = int(frames[row])
+    return [Moment("spike", fr, f"removed spike: {clean.labels[col]} {dist:.0f} mm off · frame {fr}",
+                   f"{clean.labels[col]}'s sample was {dist:.0f} mm from its refilled position")]
 
 
 # -------------------------------------------------------------------------------------------- the frames

@@ -157,6 +157,7 @@ class EagerStep:
         self.execution: dict[str, Any] = {"training_step": "eager"}
 
     def set_lr(self, lr: float) -> None:
+        """Set every parameter group's learning rate (in place when it is a device tensor)."""
         for g in self.optimizer.param_groups:
             if hasattr(g["lr"], "fill_"):   # a tensor learning rate (capturable optimisers)
                 g["lr"].fill_(lr)
@@ -236,6 +237,7 @@ class GraphStep(EagerStep):
         self.shown = shown.detach()
 
     def step(self, idx: np.ndarray, lr: float):
+        """Train on the rows ``idx`` at ``lr``: a replay of the graph for a full minibatch, else eagerly."""
         torch = require_torch()
         if len(idx) != self.batch:
             return EagerStep.step(self, idx, lr)
