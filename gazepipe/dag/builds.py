@@ -64,7 +64,7 @@ NEEDS: dict[str, tuple[str, ...]] = {
 }
 OPTIONAL = {"gaze_rnn": ("eyes",)}
 #: a dataset whose take-level optional input no contributing take has is skipped (not failed), with the reason
-NEEDS_ANY: dict[str, tuple[str, str]] = {"gaze_rnn": ("eyes", "no take has eye tracking")}
+NEEDS_ANY: dict[str, tuple[tuple[str, str], ...]] = {"gaze_rnn": (("eyes", "no take has eye tracking"),)}
 #: each dataset's per-take stage, and the name of the table it writes
 ROWS: dict[str, str] = {name: f"rows_{name}" for name in DATASETS}
 #: each dataset's per-take table of the take's part (:class:`TakePart` as JSON, in one row): apart from the unit
@@ -144,10 +144,6 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
     twice = sorted(k for k, c in Counter((s.id, t.id) for s, t, _ in takes).items() if c > 1)
     if twice:
         raise StageError(f"datasets/{ctx.name}", f"take {twice[0][1]!r} of session {twice[0][0]!r} is given twice")
-    if ctx.name in NEEDS_ANY:
-        stage, why = NEEDS_ANY[ctx.name]
-        if not any(stage in units for _, _, units in takes):
-            return DatasetResult(outputs=[], skipped=why)
     writer = StagedDatasetWriter(ctx.root, ctx.name, ctx.tmp, ctx.write_bytes)
     try:
         merge = DatasetMerge(ctx.name, params)
@@ -194,5 +190,5 @@ for _name in DATASETS:
     ))
 for _name in DATASETS:
     register_dataset(Dataset(name=_name, version=BUILD_VERSION, needs=(*NEEDS[_name], ROWS[_name]),
-                             optional=OPTIONAL.get(_name, ()), applies=_feeds(_name), run=run_build,
-                             params="build"))
+                             optional=OPTIONAL.get(_name, ()), needs_any=NEEDS_ANY.get(_name, ()),
+                             applies=_feeds(_name), run=run_build, params="build"))

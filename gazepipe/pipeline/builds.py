@@ -214,7 +214,9 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
         if not plan.takes:
             reasons = "; ".join(f"{s}/{t}: {why}" for s, t, why in plan.left_out[:3]) or "no take applies"
             raise GazepipeError(None, f"no take can feed it ({reasons})")
-        result = ds.run(ctx)
+        missing = next((why for stage, why in ds.needs_any
+                        if not any(stage in units for _, _, units in plan.takes)), "")
+        result = DatasetResult(outputs=[], skipped=missing) if missing else ds.run(ctx)
         root = ctx.root / plan.name
         if result.skipped:
             # what an earlier build published came from inputs the session no longer has

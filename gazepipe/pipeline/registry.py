@@ -217,6 +217,9 @@ class Dataset:
     run : the build: a :class:`~gazepipe.pipeline.builds.DatasetContext` in, a
         :class:`~gazepipe.pipeline.builds.DatasetResult` out.
     params : the parameter group (:func:`register_params`) whose values it uses; part of its fingerprint.
+    needs_any : ``(stage, why)`` pairs: an ``optional`` stage that at least one contributing take must have;
+        when none has it the dataset is skipped (not built, not failed), the run saying ``why`` (e.g. ``no take
+        has eye tracking``).
     """
 
     name: str
@@ -227,6 +230,7 @@ class Dataset:
     params: str = ""
     optional: tuple[str, ...] = ()
     help: str = ""
+    needs_any: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass(frozen=True)
