@@ -253,8 +253,8 @@ class GraphStep(EagerStep):
 
 
 def capture_cuda_graph(body: Callable[[], Any]) -> Callable[[], None]:
-    """``body`` captured as a CUDA graph (its gradients set to none first, so backward allocates them in the
-    graph's memory pool); returns the graph's replay."""
+    """``body`` captured as a CUDA graph; returns the graph's replay. The caller sets the gradients to none
+    before, so that backward in the graph allocates them in the graph's memory pool and writes them afresh."""
     torch = require_torch()
     graph = torch.cuda.CUDAGraph()
     with torch.cuda.graph(graph):
