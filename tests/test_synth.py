@@ -390,6 +390,41 @@ def decoded_video(path: Path) -> tuple[int, str]:
     return n, digest.hexdigest()
 
 
+def decoded_c3d(path: Path) -> tuple[str, str]:
+    """A C3D as a reader sees it, less the writer's version stamp (group EZC3D): (its header and parameters,
+    SHA-256 of its point and analog data)."""
+    import hashlib
+
+    import ezc3d
+
+    c3d = ezc3d.c3d(str(path))
+    params = {(group, name): repr(entry["value"]) for group, entries in c3d["parameters"].items()
+              if group != "EZC3D" and isinstance(entries, dict)
+              for name, entry in entries.items() if isinstance(entry, dict) and "value" in entry}
+    digest = hashlib.sha256()
+    for key in ("points", "analogs"):
+        digest.update(np.ascontiguousarray(c3d["data"][key]).tobytes())
+    digest.update(np.ascontiguousarray(c3d["data"]["meta_points"]["residuals"]).tobytes())
+    assert params, path
+    return repr((sorted(c3d["header"]["points"].items()), sorted(params.items()))), digest.hexdigest()
+
+
+def assert_close_json(ours: object, theirs: object, where: str) -> None:
+    """Equal JSON documents, but for floats within round-off of each other."""
+    if isinstance(ours, dict) and isinstance(theirs, dict):
+        assert ours.keys() == theirs.keys(), where
+        for key in ours:
+            assert_close_json(ours[key], theirs[key], f"{where}:{key}")
+    elif isinstance(ours, list) and isinstance(theirs, list):
+        assert len(ours) == len(theirs), where
+        for i, (a, b) in enumerate(zip(ours, theirs, strict=True)):
+            assert_close_json(a, b, f"{where}[{i}]")
+    elif isinstance(ours, float) and isinstance(theirs, float):
+        np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-9, err_msg=where)
+    else:
+        assert ours == theirs, where
+
+
 def test_module_entry_writes_the_bundled_sample(tmp_path: Path) -> None:
     """``python -m gazepipe.synth OUT`` writes the bundled sample byte for byte (so it can be regenerated), with
     five gaze_follow and five face takes (every split of every dataset gets one)."""
@@ -410,14 +445,20 @@ def test_module_entry_writes_the_bundled_sample(tmp_path: Path) -> None:
     assert ours == theirs
     _, mismatch, errors = filecmp.cmpfiles(tmp_path / "s", sample, [str(p) for p in ours], shallow=False)
     assert not errors
-    # the inputs a run reads are the same bytes; the ground truth is float64 arithmetic whose last bits may
-    # differ between numpy releases (seen: 2e-13 mm), so its arrays are compared to round-off
     # videos are compared as what a reader decodes (every frame's pixels and timestamp): the container's bytes
     # depend on the FFmpeg that OpenCV ships (OpenCV 5.1 writes another mux tag), not on the generator
     for name in (m for m in mismatch if m.endswith(".mp4")):
         ours_video = decoded_video(tmp_path / "s" / name)
         assert ours_video[0] > 100 and ours_video == decoded_video(sample / name), name
-    assert not [m for m in mismatch if not m.endswith((".npz", ".mp4"))], mismatch[:5]
+    # C3D files likewise as what a reader decodes: ezc3d stamps its own version into the files it writes
+    for name in (m for m in mismatch if m.endswith(".c3d")):
+        assert decoded_c3d(tmp_path / "s" / name) == decoded_c3d(sample / name), name
+    # the ground truth is float64 arithmetic whose last bits may differ between numpy and scipy releases (seen:
+    # 2e-13 mm), so its numbers are compared to round-off
+    for name in (m for m in mismatch if m.endswith(".json")):
+        assert_close_json(json.loads((tmp_path / "s" / name).read_text()), json.loads((sample / name).read_text()),
+                          name)
+    assert not [m for m in mismatch if not m.endswith((".npz", ".mp4", ".c3d", ".json"))], mismatch[:5]
     for name in (m for m in mismatch if m.endswith(".npz")):
         with np.load(tmp_path / "s" / name) as ours_npz, np.load(sample / name) as theirs_npz:
             assert ours_npz.files == theirs_npz.files
