@@ -21,7 +21,7 @@ import numpy as np
 from gazepipe.errors import printable
 from gazepipe.io import c3d as _c3d
 from gazepipe.io.limits import MAX_ABS_MM, coordinate_span
-from gazepipe.timebase import snap_rate
+from gazepipe.timebase import implausible_rate
 
 __all__ = ["STREAM_OVER_BYTES", "c3d_storage", "summarise_c3d"]
 
@@ -117,6 +117,9 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
         notes.append("every marker sample is invalid (100 % gaps)")
     elif t * n_m and (n_valid == t).all():
         notes.append("no marker sample is invalid (0 % gaps): check how this system writes gaps")
+    odd = implausible_rate(lay.stated_rate_hz, "mocap")
+    if odd is not None:
+        notes.append(f"POINT:RATE: {odd}; check the file's rate")
     buckets: dict[bytes, list[int]] = {}
     for k in np.flatnonzero(n_valid > 0).tolist():
         buckets.setdefault(digests[k].digest(), []).append(k)
@@ -124,7 +127,7 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
     if groups:
         notes.append(_c3d._list_note("groups of bit-identical trajectories",
                                      ["=".join(printable(labels[i]) for i in g) for g in groups], limit=6))
-    rate = snap_rate(lay.rate_hz)
+    rate = lay.stated_rate_hz
     gaps = 1.0 - n_valid / t
     return {
         "path": str(p), "format": "c3d", "reader": "numpy", "rate_hz": rate, "frames": t,

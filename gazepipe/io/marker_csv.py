@@ -63,7 +63,7 @@ from gazepipe.io.limits import (
     span_problem,
 )
 from gazepipe.model import Markers
-from gazepipe.timebase import snap_rate, unit_scale_to_mm
+from gazepipe.timebase import implausible_rate, snap_rate, stated_rate, unit_scale_to_mm
 
 VICON_BLOCKS = ("Trajectories", "Devices", "Model Outputs", "Joints", "Segments", "Global Angle")
 
@@ -376,10 +376,27 @@ def _with_gap_rows(xyz: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     return full
 
 
-def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str],
+def _written_rate(cell: str, what: str) -> str | None:
+    """A rate cell's text (None when empty); :class:`_Bad` naming ``what`` when it is not a number."""
+    text = cell.strip()
+    if not text:
+        return None
+    try:
+        float(text)
+    except ValueError:
+        raise _Bad(f"{what} reads {text[:20]!r}, not a number") from None
+    return text
+
+
+def _resolve_rate(file_rate: str | float | None, rate_hz: float | None, notes: list[str],
                   what: str = "the file's rate") -> float:
-    """The capture rate: the file's (``what`` names where it was found), else ``rate_hz``; either refused
-    outside :data:`~gazepipe.io.limits.MIN_RATE_HZ` - :data:`~gazepipe.io.limits.MAX_RATE_HZ`."""
+    """The capture rate: the file's (``what`` names where it was found; text as written, or a rate measured from
+    a time column), else ``rate_hz``; either refused outside :data:`~gazepipe.io.limits.MIN_RATE_HZ` -
+    :data:`~gazepipe.io.limits.MAX_RATE_HZ`. A written rate is taken as written (:func:`stated_rate`: only an NTSC
+    rate written rounded, such as 29.97, becomes exactly N·1000/1001); a rate implausible for a marker capture is
+    noted."""
+    if isinstance(file_rate, str):
+        file_rate = stated_rate(file_rate)
     if file_rate is not None:
         problem = rate_problem(file_rate)
         if problem is not None:
@@ -394,10 +411,14 @@ def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[st
     if file_rate is None:
         if rate_hz is None:
             raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
-        return snap_rate(float(rate_hz))
-    rate = snap_rate(file_rate)
-    if rate_hz is not None and abs(snap_rate(float(rate_hz)) - rate) > 5e-4 * rate:
-        notes.append(f"file rate {rate:g} Hz used, not the given {float(rate_hz):g} Hz")
+        rate = stated_rate(float(rate_hz))
+    else:
+        rate = file_rate
+        if rate_hz is not None and abs(stated_rate(float(rate_hz)) - rate) > 5e-4 * rate:
+            notes.append(f"file rate {rate:g} Hz used, not the given {float(rate_hz):g} Hz")
+    odd = implausible_rate(rate, "mocap")
+    if odd is not None:
+        notes.append(f"{what}: {odd}; check the file's rate")
     return rate
 
 
@@ -550,11 +571,7 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     lines = _Lines(raw, found.start())
     if lines[4] is None:
         raise _Bad("'Trajectories' block truncated before its data")
-    rate_cell = lines.before(1).split(",", 1)[0].strip()
-    try:
-        file_rate = float(rate_cell) if rate_cell else None
-    except ValueError:
-        raise _Bad(f"rate line reads {rate_cell[:20]!r}, not a number") from None
+    file_rate = _written_rate(lines.before(1).split(",", 1)[0], "rate line")
     names = [c.strip() for c in next(csv.reader([lines.before(2)]), [])]
     comps = [c.strip() for c in next(csv.reader([lines.before(3)]), [])]
     units_row = [c.strip() for c in next(csv.reader([lines[4]]), [])]
@@ -651,11 +668,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     declared = header.get("NO_OF_MARKERS", [""])[0]
     if declared and int(declared) != m:
         raise _Bad(f"NO_OF_MARKERS says {declared} but MARKER_NAMES lists {m}")
-    freq = header.get("FREQUENCY", [""])[0]
-    try:
-        file_rate = float(freq) if freq else None
-    except ValueError:
-        raise _Bad(f"FREQUENCY reads {freq[:20]!r}, not a number") from None
+    freq = _written_rate(header.get("FREQUENCY", [""])[0], "FREQUENCY")
+    file_rate = None if freq is None else stated_rate(freq)
 
     while (line := lines[i]) is not None and not line.strip():
         i += 1

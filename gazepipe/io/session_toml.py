@@ -20,7 +20,8 @@ Choices where SPEC §1 is silent:
   take; a two-marker ``clapper`` is required when a take has ``video``.
 - In markerset.toml, segments are listed from the root to the head: a segment's parent must come before it, so
   the first segment is the root and is the only one without a parent.
-- ``rate_hz`` and ``timecode_fps`` are snapped with :func:`gazepipe.timebase.snap_rate`.
+- ``rate_hz`` and ``timecode_fps`` are taken as written (:func:`gazepipe.timebase.stated_rate`: an NTSC rate written
+  rounded, such as 29.97, is exactly N·1000/1001 Hz; 69.9 stays 69.9 Hz).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from gazepipe.io.toml_common import (
     type_name,
 )
 from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Session, Take
-from gazepipe.timebase import snap_rate
+from gazepipe.timebase import stated_rate
 
 __all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels"]
 
@@ -261,8 +262,8 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
     return Take(id=tid, kind=kind, pose=pose or UNSPECIFIED_POSE, mocap=mocap, video=files.get("video"),
                 eyes=files.get("eyes"), tracked=files.get("tracked"), clean=files.get("clean"), split=split,
                 target_yaw_deg=yaw, target_pitch_deg=pitch,
-                rate_hz=None if rate is None else snap_rate(rate),
-                timecode_fps=60.0 if tc is None else snap_rate(tc))
+                rate_hz=None if rate is None else stated_rate(rate),
+                timecode_fps=60.0 if tc is None else stated_rate(tc))
 
 
 # -------------------------------------------------------------------------------------------------- capture labels
