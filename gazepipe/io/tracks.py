@@ -100,10 +100,8 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     dtypes = {pos[c]: (str if c in text else np.float64) for c in order}
     kw: dict[str, Any] = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
                               keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
-    if lost_when_zero is not None:   # a row without data may come first: the header sizes the table
-        kw["names"] = range(len(header))
     try:
-        df = pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
+        df = _read_table(path, dtypes, kw, len(header) if lost_when_zero is not None else None)
     except pd.errors.EmptyDataError:
         raise InputError(path, f"{what}: no data rows") from None
     except UnicodeDecodeError:  # a ValueError too: caught first
@@ -146,6 +144,21 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         if c in cols:
             cols[c] = np.asarray([s.strip() for s in cols[c]], dtype=str)
     return cols, warnings
+
+
+def _read_table(path: Path, dtypes: dict, kw: dict[str, Any], n_header: int | None) -> pd.DataFrame:
+    """The columns ``kw`` asks for, as pandas parses them. pandas sizes the table by the first data row; when it
+    is shorter than the columns asked for and ``n_header`` is given (rows without data may come first: see
+    ``lost_when_zero``), the table is sized by the header instead."""
+    try:
+        return pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
+    except ValueError as e:
+        if n_header is None or isinstance(e, pd.errors.ParserError | UnicodeDecodeError):
+            raise
+        try:
+            return pd.read_csv(path, dtype=dtypes, names=range(n_header), **kw, **exact_floats())
+        except (ValueError, pd.errors.ParserError):
+            raise e from None
 
 
 def lost_rows(cols: dict[str, np.ndarray], flag: str, text: Sequence[str] = ()) -> np.ndarray:
