@@ -47,7 +47,8 @@ from gazepipe.io.toml_common import (
 from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Session, Take
 from gazepipe.timebase import stated_rate
 
-__all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels"]
+__all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels",
+           "session_labels"]
 
 UNSPECIFIED_POSE = "unspecified"
 MOCAP_SUFFIXES = (".c3d", ".csv", ".tsv")
@@ -306,3 +307,41 @@ def check_capture_labels(markerset: MarkerSet, labels: Sequence[str], path: str 
         shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
         raise InputError(path, f"markers of the markerset missing from the capture: {shown}", take=take_id)
     return mapping
+
+
+def session_labels(markerset: MarkerSet, labels: Sequence[str], path: str | Path, take_id: str | None,
+                   required: Iterable[str] | None = None) -> tuple[list[str], list[str]]:
+    """A capture's labels as the session names its markers: one name per marker across the session's takes,
+    whatever program exported each take.
+
+    When the markerset's names carry no ``Subject:`` prefix, the prefix is stripped from every label, listed in
+    the markerset or not (Nexus writes ``p19:LSHO`` in a CSV export and may write ``LSHO`` in the same session's
+    C3D files: both are ``LSHO``). Labels that would share a name after stripping (two subjects' markers, or
+    ``p19:LSHO`` beside ``LSHO``) keep their names and are reported, never merged; a markerset marker among them
+    is then the label equal to its name, or an error when only prefixed ones exist (:func:`check_capture_labels`).
+    When the markerset's names have prefixes, labels are matched to them as :func:`check_capture_labels` does.
+
+    Returns the new labels (in column order) and notes naming the collisions. Raises :class:`InputError` as
+    :func:`check_capture_labels` does (missing or ambiguous markerset markers).
+    """
+    mapping = check_capture_labels(markerset, labels, path, take_id, required=required)
+    new = list(labels)
+    notes: list[str] = []
+    if any(":" in name for name in markerset.all_markers):
+        for name, j in mapping.items():
+            new[j] = name
+        return (new if len(set(new)) == len(new) else list(labels)), notes
+    short = [lab.rsplit(":", 1)[-1] if ":" in lab else lab for lab in labels]
+    groups: dict[str, list[int]] = {}
+    for j, name in enumerate(short):
+        groups.setdefault(name, []).append(j)
+    for name, cols in groups.items():
+        if len(cols) == 1:
+            new[cols[0]] = name
+        elif any(":" in labels[j] for j in cols):
+            shown = ", ".join(repr(labels[j]) for j in cols[:4]) + (" …" if len(cols) > 4 else "")
+            notes.append(f"labels {shown} would all be {name!r} without their subject prefix: kept as they are "
+                         "(two subjects, or one marker under two names?)")
+    for name, j in mapping.items():       # a markerset marker among colliding labels: the one equal to its name
+        new[j] = name
+    return (new if len(set(new)) == len(new) else list(labels)), notes
