@@ -126,3 +126,39 @@ def test_a_file_without_gaps_spells_new_gaps_as_empty_cells(tmp_path):
     filled = dataclasses.replace(orig, valid=orig.valid & ~removed)
     write_filled_text(p, tmp_path / "o.tsv", filled, "qtm_tsv", removed=removed, original=(orig, layout, raw))
     assert [new for *_, new in _changed_cells(raw, (tmp_path / "o.tsv").read_bytes(), b"\t")] == [b""] * 3
+
+
+def _mirror_head_swapped(n: int = 660, rate: float = 30.0) -> tuple[np.ndarray, list[str]]:
+    """(n, 6, 3) mm at ``rate``: a rigid head of two mirror pairs, a top and a chin marker, turning slowly, with its
+    back pair (2, 3) under each other's names over frames 200-260 (22 s: long enough for swaps to be looked for)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    body = np.array([[75, 60, 130], [-75, 60, 130], [75, -80, 130], [-75, -80, 130], [0, -10, 195], [0, 95, 50.0]])
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (n, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,mj->tmi", turns, body) + rng.normal(0, 0.5, (n, 6, 3)) + [0.0, 0.0, 1600.0]
+    xyz[200:260, [2, 3]] = xyz[200:260, [3, 2]]
+    xyz[400:410, 0] = np.nan                                   # a gap to fill as well
+    return xyz, ["HFL", "HFR", "HBL", "HBR", "HTOP", "CHIN"]
+
+
+@pytest.mark.parametrize("spikes", [False, True])
+def test_fill_json_counts_agree(tmp_path, spikes):
+    """``fill --json``: every sample counted once under one fill code, the samples put back under their own
+    names counted as ``swap_repaired`` there and as ``samples_repaired`` under ``swaps`` (less any then taken out
+    as spikes), per marker as in total."""
+    from tests.helpers import write_wide_csv
+
+    xyz, labels = _mirror_head_swapped()
+    write_wide_csv(tmp_path / "head.csv", labels, xyz, 30.0)
+    args = ["fill", str(tmp_path / "head.csv"), str(tmp_path / "out.csv"), "--repair-swaps", "--json"]
+    res = CliRunner().invoke(cli, args + (["--remove-spikes"] if spikes else []))
+    assert res.exit_code == 0, res.output
+    s = json.loads(res.stdout)
+    sw = s["swaps"]
+    assert sw["looked_for"] and sw["samples_repaired"] == 120 and sw["stretches"][0]["markers"] == ["HBL", "HBR"]
+    assert s["samples"]["swap_repaired"] == sw["samples_repaired"] - sw["samples_removed_as_spikes"] > 0
+    assert sum(s["samples"].values()) == s["frames"] * s["markers"]
+    for name in s["samples"]:
+        assert sum(m.get(name, 0) for m in s["per_marker"].values()) == s["samples"][name]
+    assert s["gaps"]["filled"] + s["gaps"]["unfilled"] == s["gaps"]["total"] >= 1
