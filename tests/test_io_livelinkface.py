@@ -274,3 +274,28 @@ def test_face_alignment_leaves_out_lost_rows(tmp_path):
     assert out.qc["unmatched_tracked"] == len(LOST) and out.qc["rows_matched"] == kept.size
     both = align_face(clean, lost)                               # lost rows in the clean track too
     np.testing.assert_array_equal(both.frame_index, kept[:-1])
+
+
+def test_generated_tracking_loss_is_read_as_the_truth_has_it(tmp_path):
+    """A generated face take whose tracked file has tracking-loss stretches (``SynthConfig.face_tracking_loss``):
+    the reader's invalid rows are the truth's lost frames, its valid rows the tracker's values, and the take's
+    alignment with its clean file leaves the lost rows out."""
+    from gazepipe.stages.face.stage import align_face
+    from gazepipe.synth import SynthConfig, generate_session, load_truth
+
+    cfg = SynthConfig(follow_poses=(), shift_targets=(), neutral_s=0.0, head_camera=False,
+                      face_takes=((60.0, 10.0),), face_tracking_loss=3)
+    root = generate_session(tmp_path / "s", seed=5, config=cfg)
+    truth = load_truth(root, "face_01")
+    written = ~truth["face_tracked_dropped"]
+    lost = truth["face_tracked_lost"][written]
+    assert lost.sum() == truth["scalars"]["lost_tracked"] > 0
+    ft = read_livelinkface(root / "face" / "face_01_tracked.csv", rate_hz=60)
+    np.testing.assert_array_equal(ft.valid, ~lost)
+    # both float32 roundings of the same number (the truth of the float64 value, the reader of its 10 decimals)
+    np.testing.assert_allclose(ft.values[~lost], truth["face_tracked"][written][~lost], rtol=0, atol=1.2e-7)
+    assert ft.dropped_frames == int(truth["face_tracked_dropped"].sum())
+    clean = read_livelinkface(root / "face" / "face_01_clean.csv", rate_hz=60)
+    out = align_face(ft, clean)
+    assert np.isfinite(out.d_tracked).all() and not np.isin(out.frame_index, ft.frame_index[lost]).any()
+    assert out.qc["unmatched_tracked"] >= int(lost.sum())

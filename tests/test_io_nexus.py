@@ -197,3 +197,21 @@ def test_trajectories_block_with_only_non_markers_says_so(tmp_path):
     p.write_text(text)
     with pytest.raises(Exception, match="none of them a marker"):
         read_vicon_csv(p)
+
+
+def test_generated_nexus_export_reads_as_its_c3d(tmp_path):
+    """The generator's Nexus CSV export of a take (``SynthConfig.nexus_csv``) against the same take written as
+    C3D: labels with the subject's prefix, the same frames, rate and gaps, values to 6 significant digits."""
+    from gazepipe.synth import SynthConfig, generate_session
+
+    base = dict(follow_poses=(), shift_targets=((36.0, 12.0),), neutral_s=0.0, head_camera=False, face_takes=())
+    as_c3d = generate_session(tmp_path / "c", seed=3, config=SynthConfig(**base))
+    as_csv = generate_session(tmp_path / "v", seed=3, config=SynthConfig(**base, nexus_csv=1.0))
+    c3d, csv = read_markers(as_c3d / "mocap" / "shift_y036_p12.c3d"), read_markers(as_csv / "mocap" /
+                                                                                  "shift_y036_p12.csv")
+    assert csv.labels == [f"p01:{lab}" for lab in c3d.labels] and csv.source_format == "vicon_csv"
+    assert (csv.n_frames, csv.first_frame, csv.rate_hz) == (c3d.n_frames, c3d.first_frame, 30000 / 1001)
+    np.testing.assert_array_equal(csv.valid, c3d.valid)
+    v = c3d.xyz[c3d.valid]
+    digit = 10.0 ** (np.floor(np.log10(np.abs(v))) - 5)
+    assert (np.abs(csv.xyz[csv.valid] - v) <= 0.5 * digit * (1 + 1e-6) + 1.2e-7 * np.abs(v)).all()
