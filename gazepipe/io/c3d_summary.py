@@ -21,7 +21,6 @@ import numpy as np
 from gazepipe.errors import printable
 from gazepipe.io import c3d as _c3d
 from gazepipe.io.limits import MAX_ABS_MM, coordinate_span
-from gazepipe.timebase import implausible_rate
 
 __all__ = ["STREAM_OVER_BYTES", "c3d_storage", "summarise_c3d"]
 
@@ -117,9 +116,6 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
         notes.append("every marker sample is invalid (100 % gaps)")
     elif t * n_m and (n_valid == t).all():
         notes.append("no marker sample is invalid (0 % gaps): check how this system writes gaps")
-    odd = implausible_rate(lay.stated_rate_hz, "mocap")
-    if odd is not None:
-        notes.append(f"POINT:RATE: {odd}; check the file's rate")
     buckets: dict[bytes, list[int]] = {}
     for k in np.flatnonzero(n_valid > 0).tolist():
         buckets.setdefault(digests[k].digest(), []).append(k)

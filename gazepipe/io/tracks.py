@@ -121,12 +121,7 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         raise InputError(path, f"{what}: no data rows")
     cols = {c: df[pos[c]].to_numpy() for c in order}
     warnings: list[str] = []
-    bad = np.zeros(len(df), dtype=bool)
-    for c in order:
-        v = cols[c]
-        bad |= pd.isna(v) if c in text else np.isnan(v)
-    if lost_when_zero is not None and lost_when_zero in cols:
-        bad &= ~lost_rows(cols, lost_when_zero, text)
+    bad = _empty_cells(cols, text, lost_when_zero)
     if bad.any():
         rows = np.flatnonzero(bad)
         if rows.size == 1 and rows[0] == len(df) - 1 and len(df) > 1:
@@ -144,6 +139,17 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         if c in cols:
             cols[c] = np.asarray([s.strip() for s in cols[c]], dtype=str)
     return cols, warnings
+
+
+def _empty_cells(cols: dict[str, np.ndarray], text: Sequence[str], lost_when_zero: str | None) -> np.ndarray:
+    """(N,) bool: rows with an empty or NaN cell, other than the rows a tracker wrote without data
+    (:func:`lost_rows` of ``lost_when_zero``)."""
+    bad = np.zeros(len(next(iter(cols.values()))), dtype=bool)
+    for c, v in cols.items():
+        bad |= pd.isna(v) if c in text else np.isnan(v)
+    if lost_when_zero is not None and lost_when_zero in cols:
+        bad &= ~lost_rows(cols, lost_when_zero, text)
+    return bad
 
 
 def _read_table(path: Path, dtypes: dict, kw: dict[str, Any], n_header: int | None) -> pd.DataFrame:
