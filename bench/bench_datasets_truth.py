@@ -143,7 +143,7 @@ def ingest_figures(folder: Path, out: Path, session_id: str) -> tuple[list[float
         path = out / "takes" / session_id / take / "markers_raw.parquet"
         if t["kind"] == "face" or not path.is_file():
             continue
-        m = table_to_markers(pq.read_table(path))
+        m = table_to_markers(pq.read_table(path))[0]
         d_rate.append(m.rate_hz - t["rate_hz"])
         d_time.append(1000.0 * (m.n_frames - 1) * (1.0 / m.rate_hz - 1.0 / t["rate_hz"]))
         if sorted(m.labels) != sorted(np.load(folder / "truth" / f"{take}.npz")["labels"].tolist()):
