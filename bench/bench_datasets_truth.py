@@ -152,9 +152,10 @@ def ingest_figures(folder: Path, out: Path, session_id: str) -> tuple[list[float
 
 
 def face_rows(folder: Path, out: Path) -> tuple[int, int]:
-    """(rows of ``face_clean``, the truth's tracked frames that have tracking and a row in both files)."""
-    rows = sum(pq.read_table(f, columns=["take"]).num_rows for f in (out / "datasets" / "face_clean").rglob(
-        "*.parquet")) if (out / "datasets" / "face_clean").is_dir() else 0
+    """(unmirrored rows of ``face_clean``, the truth's tracked frames that have tracking and a row in both files)."""
+    rows = sum(int((~pq.read_table(f, columns=["mirrored"]).column("mirrored").to_numpy(zero_copy_only=False)).sum())
+               for f in (out / "datasets" / "face_clean").rglob("*.parquet")) \
+        if (out / "datasets" / "face_clean").is_dir() else 0
     want = 0
     for take, t in json.loads((folder / "truth" / "truth.json").read_text())["takes"].items():
         if t["kind"] == "face":
@@ -243,7 +244,7 @@ def main() -> None:
                   f"take's last frame: max |{max(abs(x) for x in d_time):.3g}| ms; takes naming their markers "
                   f"otherwise than the truth: {len(misnamed)} {misnamed[:4]}")
         if args.face_loss:
-            print(f"  face_clean: {faces[0]} rows of the {faces[1]} frames with tracking in both files")
+            print(f"  face_clean: {faces[0]} unmirrored rows for the {faces[1]} frames with tracking in both files")
         for name in errs:
             e = np.concatenate([x for x in errs[name] if x.size]) if any(x.size for x in errs[name]) else None
             h, n, hid = cover[name]
