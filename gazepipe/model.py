@@ -267,8 +267,10 @@ class FaceTrack:
     eyes : (N, 6) float64 left eye yaw, pitch, roll, right eye yaw, pitch, roll, radians (face's own
         left/right); NaN when absent.
     dropped_frames : capture frames missing between rows.
-    blendshape_count : the file's ``BlendShapeCount`` when constant, else ``None``.
+    blendshape_count : the file's ``BlendShapeCount`` when constant over the valid rows, else ``None``.
     warnings : one-line notes about the file.
+    valid : (N,) bool, False on rows written while tracking was lost (their values, head and eyes are NaN);
+        ``None``: every row is valid.
     """
 
     timecode: np.ndarray
@@ -287,10 +289,16 @@ class FaceTrack:
     names: tuple[str, ...] = ARKIT_NAMES
     head_names: tuple[str, ...] = HEAD_NAMES
     eye_names: tuple[str, ...] = EYE_NAMES
+    valid: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
         return int(self.time_s.shape[0])
+
+    @property
+    def valid_rows(self) -> np.ndarray:
+        """(N,) bool: the rows that hold tracking (all of them when ``valid`` is None)."""
+        return np.ones(self.n_frames, dtype=bool) if self.valid is None else np.asarray(self.valid, dtype=bool)
 
     @property
     def timecode_s(self) -> np.ndarray:

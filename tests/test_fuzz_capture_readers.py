@@ -120,7 +120,19 @@ QTM = (
 )
 WIDE = "frame,time,A_x,A_y,A_z,B_x,B_y,B_z\n" + "".join(
     f"{k + 10},{k / 60!r},{k}.25,{-k},{k * 2},{'' if k % 4 == 0 else k},{k},{k}\n" for k in range(30))
-TEXTS = [("vicon.csv", VICON), ("qtm.tsv", QTM), ("wide.csv", WIDE)]
+# Nexus 1.x: Title header, TRAJECTORIES, "100,Hz", Field #, no units row, a model angle and an unlabeled trajectory
+VICON1X = (
+    'Title\nDate:\nTime:\nType:\nDescription:,""\nNotes:,""\n\nTRAJECTORIES\n100,Hz\n'
+    ",LFHD,,,*12,,,LHipAngles,,\nField #,X,Y,Z,X,Y,Z,X,Y,Z\n"
+    + "".join(f"{k + 1},{k * 1.5},{-k},{1000 + k},{k},{2 * k},{3 * k},1.5,-2.25E-14,{k}\n" for k in range(30))
+)
+# Nexus 2 with trajectory magnitudes and a Trajectory Count column
+VICON_MAG = (
+    "Trajectories\n100\n,,Trajectory Count,S:A,,,| S:A |\nFrame,Sub Frame,Count,X,Y,Z,Magnitude( X )\n"
+    ",,,mm,mm,mm,mm\n" + "".join(f"{k + 1},0,1,{k}.5,{-k},{1000 + k},{1000.5 + k}\n" for k in range(30))
+)
+TEXTS = [("vicon.csv", VICON), ("qtm.tsv", QTM), ("wide.csv", WIDE), ("vicon1x.csv", VICON1X),
+         ("viconmag.csv", VICON_MAG)]
 
 
 class _Timeout(Exception):

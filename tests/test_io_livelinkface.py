@@ -200,3 +200,102 @@ def test_bad_files(tmp_path):
         assert "\n" not in msg and str(path) in msg, msg
         if col:
             assert col in msg, msg
+
+
+# ---------------------------------------------------------------- tracking lost
+
+LOST = [0, 1, 2, *range(100, 130), 299]      # data rows written while the face was lost: the first, a stretch, the last
+
+
+def _lost_take(tmp_path: Path) -> Path:
+    """The corpus take with some rows as the app writes them while ARKit has lost the face: the timecode, a
+    BlendShapeCount of 0 and nothing after it (``12:22:06:30.534,0``)."""
+    lines = _lines()
+    for r in LOST:
+        lines[r + 1] = lines[r + 1].split(",", 1)[0] + ",0"
+    p = tmp_path / "lost.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def test_rows_written_while_tracking_was_lost_are_kept_invalid(tmp_path):
+    """Tracking-loss rows do not refuse the take: they are kept as invalid rows (NaN values), counted and
+    flagged, and every other row reads as an independent parse gives it, on the same frames and times."""
+    ft = read_livelinkface(_lost_take(tmp_path), rate_hz=30)
+    whole = read_livelinkface(CORPUS, rate_hz=30)
+    assert ft.n_frames == 300 and ft.valid is not None
+    np.testing.assert_array_equal(np.flatnonzero(~ft.valid), LOST)
+    assert np.isnan(ft.values[LOST]).all() and np.isnan(ft.eyes[LOST]).all() and np.isnan(ft.head).all()
+    keep = np.setdiff1d(np.arange(300), LOST)
+    raw = pd.read_csv(CORPUS)
+    for j, n in enumerate(ARKIT_NAMES):
+        np.testing.assert_array_equal(ft.values[keep, j], raw[n[0].upper() + n[1:]].to_numpy(np.float32)[keep])
+    np.testing.assert_array_equal(ft.time_s, whole.time_s)
+    np.testing.assert_array_equal(ft.frame_index, whole.frame_index)
+    assert ft.blendshape_count == 61 and ft.dropped_frames == 0
+    note = [w for w in ft.warnings if "tracking was lost" in w]
+    assert len(note) == 1 and "34 of 300 rows in 3 stretch(es)" in note[0] and "data row 1" in note[0]
+
+
+def test_inspect_counts_lost_rows_as_invalid(tmp_path):
+    from gazepipe.io.inspect_tracks import inspect_file
+
+    info = inspect_file(_lost_take(tmp_path), rate_hz=30)
+    assert info["lost_rows"] == len(LOST) and info["blendshape_count"] == 61
+    assert info["valid_share"] == pytest.approx((300 - len(LOST)) / 300)
+    assert info["rows"] == 300 and info["dropped_frames"] == 0
+
+
+def test_short_rows_that_are_not_tracking_loss_are_still_refused(tmp_path):
+    lines = _lines()
+    lines[6] = lines[6].split(",", 1)[0] + ",61"                 # a count of 61 and no values: a broken row
+    (tmp_path / "short.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="data row 6"):
+        read_livelinkface(tmp_path / "short.csv", rate_hz=30)
+    lines = _lines()
+    cells = lines[6].split(",")
+    lines[6] = ",".join([cells[0], "0", *cells[2:12]])           # a count of 0 but some values: not a lost row
+    (tmp_path / "part.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="data row 6"):
+        read_livelinkface(tmp_path / "part.csv", rate_hz=30)
+
+
+def test_face_alignment_leaves_out_lost_rows(tmp_path):
+    """A lost row pairs with nothing: the aligned rows are the valid ones, and no NaN reaches the values or their
+    derivatives."""
+    from gazepipe.stages.face.stage import align_face
+
+    lost = read_livelinkface(_lost_take(tmp_path), rate_hz=30)
+    clean = read_livelinkface(CORPUS, rate_hz=30)
+    out = align_face(lost, clean)
+    assert np.isfinite(out.tracked).all() and np.isfinite(out.d_tracked).all() and np.isfinite(out.clean).all()
+    kept = np.setdiff1d(np.arange(300), LOST)
+    np.testing.assert_array_equal(out.frame_index, kept[:-1])
+    assert out.qc["unmatched_tracked"] == len(LOST) and out.qc["rows_matched"] == kept.size
+    both = align_face(clean, lost)                               # lost rows in the clean track too
+    np.testing.assert_array_equal(both.frame_index, kept[:-1])
+
+
+def test_generated_tracking_loss_is_read_as_the_truth_has_it(tmp_path):
+    """A generated face take whose tracked file has tracking-loss stretches (``SynthConfig.face_tracking_loss``):
+    the reader's invalid rows are the truth's lost frames, its valid rows the tracker's values, and the take's
+    alignment with its clean file leaves the lost rows out."""
+    from gazepipe.stages.face.stage import align_face
+    from gazepipe.synth import SynthConfig, generate_session, load_truth
+
+    cfg = SynthConfig(follow_poses=(), shift_targets=(), neutral_s=0.0, head_camera=False,
+                      face_takes=((60.0, 10.0),), face_tracking_loss=3)
+    root = generate_session(tmp_path / "s", seed=5, config=cfg)
+    truth = load_truth(root, "face_01")
+    written = ~truth["face_tracked_dropped"]
+    lost = truth["face_tracked_lost"][written]
+    assert lost.sum() == truth["scalars"]["lost_tracked"] > 0
+    ft = read_livelinkface(root / "face" / "face_01_tracked.csv", rate_hz=60)
+    np.testing.assert_array_equal(ft.valid, ~lost)
+    # both float32 roundings of the same number (the truth of the float64 value, the reader of its 10 decimals)
+    np.testing.assert_allclose(ft.values[~lost], truth["face_tracked"][written][~lost], rtol=0, atol=1.2e-7)
+    assert ft.dropped_frames == int(truth["face_tracked_dropped"].sum())
+    clean = read_livelinkface(root / "face" / "face_01_clean.csv", rate_hz=60)
+    out = align_face(ft, clean)
+    assert np.isfinite(out.d_tracked).all() and not np.isin(out.frame_index, ft.frame_index[lost]).any()
+    assert out.qc["unmatched_tracked"] >= int(lost.sum())

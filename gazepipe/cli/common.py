@@ -45,13 +45,30 @@ def debug_enabled() -> bool:
     return bool(ctx is not None and ctx.meta.get(_DEBUG_KEY))
 
 
-def fail(message: str, code: int) -> None:
-    click.echo(f"error: {printable(message)}", err=True)
+def json_errors() -> bool:
+    """Whether the running command was given ``--json``: its errors are then a JSON line
+    (:func:`gazepipe.cli.jsonout.error_line`)."""
+    ctx = click.get_current_context(silent=True)
+    return bool(ctx is not None and ctx.params.get("as_json"))
+
+
+def fail(message: str, code: int, *, kind: str = "Error", error: GazepipeError | None = None) -> None:
+    """Print ``message`` as the one error line (a JSON object under ``--json``) and exit with ``code``."""
+    if json_errors():
+        from gazepipe.cli.jsonout import error_line
+
+        others = tuple(e.one_line() for e in getattr(error, "earlier", ()))
+        click.echo(error_line(message, code, kind=kind, file=getattr(error, "path", None),
+                              key=getattr(error, "key", None), take=getattr(error, "take", None),
+                              others=others), err=True)
+    else:
+        click.echo(f"error: {printable(message)}", err=True)
     sys.exit(code)
 
 
 def handle_errors(fn: Callable) -> Callable:
-    """Turn every failure into one line on stderr and an exit code; the traceback only with ``--debug``."""
+    """Turn every failure into one line on stderr (a JSON object under ``--json``) and an exit code; the
+    traceback only with ``--debug``."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -61,9 +78,9 @@ def handle_errors(fn: Callable) -> Callable:
         except GazepipeError as exc:
             if debug:
                 traceback.print_exc()
-            fail(exc.one_line(), exc.exit_code)
+            fail(exc.one_line(), exc.exit_code, kind=type(exc).__name__, error=exc)
         except KeyboardInterrupt:
-            fail("interrupted (what finished is kept; the same command resumes)", 130)
+            fail("interrupted (what finished is kept; the same command resumes)", 130, kind="Interrupted")
         except BrokenPipeError:  # output piped into `head` and the like
             sys.stderr.close()
             sys.exit(0)
@@ -73,19 +90,24 @@ def handle_errors(fn: Callable) -> Callable:
             if debug:
                 traceback.print_exc()
             where = f"{exc.filename}: " if exc.filename else ""
-            fail(f"{where}{exc.strerror or type(exc).__name__}", 1)
+            fail(f"{where}{exc.strerror or type(exc).__name__}", 1, kind="OSError")
         except Exception as exc:
             if debug:
                 traceback.print_exc()
             hint = "" if debug else " (run with --debug for the traceback)"
-            fail(f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())}{hint}", 1)
+            fail(f"internal error: {type(exc).__name__}: {' '.join(str(exc).split())}{hint}", 1,
+                 kind="InternalError")
 
     return wrapper
 
 
 def raise_all(problems: Sequence[GazepipeError]) -> None:
-    """Print every problem but the last as an ``error:`` line, then raise the last (nothing when none)."""
+    """Print every problem but the last as an ``error:`` line, then raise the last (nothing when none); under
+    ``--json`` the last carries the others (``earlier``), for the one JSON line to list them all."""
     if problems:
+        if json_errors():
+            problems[-1].earlier = tuple(problems[:-1])  # type: ignore[attr-defined]
+            raise problems[-1]
         for e in problems[:-1]:
             click.echo(f"error: {printable(e.one_line())}", err=True)
         raise problems[-1]

@@ -16,6 +16,18 @@ anything else               (counts are integers already)        6 significant d
 A float under a key without a known suffix (in a list, or an object such as ``{"yaw": …}``) takes the rule
 of the nearest key above it that has one. Only what is printed is
 rounded; the pipeline's files keep their full precision.
+
+Errors under ``--json`` (:func:`error_line`): one line on stderr holding one JSON object, so that stdout holds
+the command's result and nothing else (empty when it fails: read the exit code, then stderr's last line); the
+exit codes are those of the text errors::
+
+    {"error": {"message": "take t1: a.c3d: truncated …", "kind": "InputError", "exit_code": 1,
+               "file": "a.c3d", "key": null, "take": "t1"}}
+
+``kind`` is the error's class (``InputError``, ``ConfigError``, ``UsageError`` …, ``InternalError`` for a bug,
+``OSError`` for a refusal of the file system, ``Interrupted``); ``file``, ``key`` and ``take`` are null when
+the error names none. When a command found several problems (a session.toml's), ``errors`` lists the others'
+messages, in order, before the one in ``error``.
 """
 
 from __future__ import annotations
@@ -71,3 +83,13 @@ def rounded(obj: Any, rule: tuple[str, int] = DEFAULT) -> Any:
 def dumps(obj: Any) -> str:
     """``obj`` as indented JSON, floats rounded (:func:`rounded`); other objects as their ``str``."""
     return json.dumps(rounded(obj), indent=1, default=str)
+
+
+def error_line(message: str, exit_code: int, *, kind: str, file: str | None = None, key: str | None = None,
+               take: str | None = None, others: tuple[str, ...] | list[str] = ()) -> str:
+    """The one-line JSON object that ``--json`` prints for an error (see the module's docstring)."""
+    obj: dict[str, Any] = {"error": {"message": message, "kind": kind, "exit_code": int(exit_code), "file": file,
+                                     "key": key, "take": take}}
+    if others:
+        obj["errors"] = list(others)
+    return json.dumps(obj, ensure_ascii=False, default=str)

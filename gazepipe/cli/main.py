@@ -478,13 +478,34 @@ def _register_commands() -> None:
 _register_commands()
 
 
+def _main_json() -> None:
+    """The command line when ``--json`` was given: a usage error (a bad option or value, which click reports
+    before the command runs) is a JSON line on stderr too (:func:`gazepipe.cli.jsonout.error_line`), with the
+    same exit code."""
+    from gazepipe.cli.jsonout import error_line
+
+    try:
+        code = cli.main(prog_name="gazepipe", standalone_mode=False)
+    except click.ClickException as e:
+        click.echo(error_line(" ".join(e.format_message().split()), e.exit_code, kind=type(e).__name__), err=True)
+        sys.exit(e.exit_code)
+    except click.exceptions.Abort:
+        click.echo(error_line("aborted", 1, kind="Interrupted"), err=True)
+        sys.exit(1)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
 def main() -> None:
-    """The ``gazepipe`` command: the BLAS threads capped, then the command line."""
+    """The ``gazepipe`` command: the BLAS threads capped, then the command line (:func:`_main_json` under
+    ``--json``)."""
     from gazepipe.cli.threads import cap_blas_threads
 
     cap_blas_threads()
     try:
-        cli(prog_name="gazepipe")
+        if "--json" in sys.argv[1:]:
+            _main_json()
+        else:
+            cli(prog_name="gazepipe")
     finally:
         # the process ends here: what it holds goes back to the system whole, instead of the collector walking
         # every object of the libraries it loaded on the way out (a tenth to half a second after a run)

@@ -20,7 +20,7 @@ import pyarrow as pa
 
 from gazepipe.errors import GazepipeError, ResourceError, SchemaError, StageError, printable
 from gazepipe.io.parquet import count_rows, read_table, write_table
-from gazepipe.io.session_toml import check_capture_labels
+from gazepipe.io.session_toml import session_labels
 from gazepipe.model import FILL_CODES, Markers, MarkerSet, Session, Take
 from gazepipe.pipeline.registry import (
     SessionContext,
@@ -136,14 +136,6 @@ def _required_markers(ms, take: Take) -> list[str]:
     return names
 
 
-def _renamed(labels: list[str], mapping: dict[str, int]) -> list[str]:
-    """Capture labels with the markerset's names where they differ only by a Vicon ``Subject:`` prefix."""
-    new = list(labels)
-    for name, i in mapping.items():
-        new[i] = name
-    return new if len(set(new)) == len(new) else list(labels)
-
-
 def _file_notes(ctx: TakeContext, path: str, notes: list[str]) -> list[str]:
     """A reader's notes on ``path``, each starting with the file's path in the session folder."""
     rel = os.path.relpath(path, ctx.session.root)
@@ -158,8 +150,8 @@ def run_ingest(ctx: TakeContext) -> UnitResult:
     markers = read_markers(mocap, rate_hz=take.rate_hz, default_units=ms.units if ms else "mm")
     meta: dict = {}
     if ms is not None:
-        mapping = check_capture_labels(ms, markers.labels, mocap, take.id, required=_required_markers(ms, take))
-        labels = _renamed(markers.labels, mapping)
+        labels, notes = session_labels(ms, markers.labels, mocap, take.id, required=_required_markers(ms, take))
+        markers.warnings.extend(notes)
         if labels != markers.labels:
             meta["renamed_labels"] = {a: b for a, b in zip(markers.labels, labels, strict=True) if a != b}
             markers.labels = labels
@@ -239,8 +231,7 @@ def _read_capture(take: Take, ms: MarkerSet) -> Markers:
 
     assert take.mocap is not None
     raw = read_markers(take.mocap, rate_hz=take.rate_hz, default_units=ms.units)
-    raw.labels = _renamed(raw.labels, check_capture_labels(ms, raw.labels, take.mocap, take.id,
-                                                            required=_required_markers(ms, take)))
+    raw.labels = session_labels(ms, raw.labels, take.mocap, take.id, required=_required_markers(ms, take))[0]
     return raw
 
 

@@ -40,7 +40,7 @@ from gazepipe.errors import InputError, printable
 from gazepipe.io.c3d_meta import HEAD_BYTES, C3DMeta, Layout, MetaError, parse_c3d_meta
 from gazepipe.io.limits import MAX_ABS_MM, coordinate_span, span_problem
 from gazepipe.model import Markers, filled_samples
-from gazepipe.timebase import snap_rate, unit_scale_to_mm
+from gazepipe.timebase import unit_scale_to_mm
 
 #: POINT parameters listing model outputs (angles, forces, …): those points are not markers.
 #: ``MODELED_MARKERS`` is deliberately absent: modelled markers (joint centres) are positions in mm.
@@ -417,7 +417,7 @@ def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tu
     elif valid.size and valid.all():
         notes.append("no marker sample is invalid (0 % gaps): check how this system writes gaps")
 
-    markers = Markers(labels=labels, xyz=out, valid=valid, rate_hz=snap_rate(lay.rate_hz),
+    markers = Markers(labels=labels, xyz=out, valid=valid, rate_hz=lay.stated_rate_hz,
                       first_frame=lay.first_frame, units=units, source_format="c3d",
                       model_outputs=model_outputs, warnings=notes)
     dups = _duplicates(markers.xyz, markers.valid)

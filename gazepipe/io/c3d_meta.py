@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gazepipe.io.limits import MAX_RATE_HZ, MIN_RATE_HZ
+from gazepipe.timebase import implausible_rate, stated_rate
 
 #: bytes that hold the header and the whole parameter section of any C3D file: the section starts at the
 #: block the header's first byte names (at most 255) and has at most 255 blocks
@@ -51,12 +52,18 @@ class Layout:
     n_points: int
     n_frames: int
     first_frame: int        # header first frame (1-based in most files)
-    rate_hz: float          # point rate, not snapped
+    rate_hz: float          # point rate as stored (a 4-byte real), not snapped: see stated_rate_hz
     analog_words: int       # analog words per point frame (header word 3)
     analog_channels: int
     data_offset: int        # byte offset of the first frame
     ezc3d_safe: bool        # parameters agree with the header the way ezc3d needs
     notes: tuple[str, ...] = ()  # layout findings worth a warning
+
+    @property
+    def stated_rate_hz(self) -> float:
+        """The point rate the file states (:func:`gazepipe.timebase.stated_rate` of the 4-byte real: 69.9 is
+        69.9 Hz, 29.97 is 30000/1001 Hz)."""
+        return stated_rate(self.rate_hz, float32=True)
 
     @property
     def word_bytes(self) -> int:
@@ -65,6 +72,12 @@ class Layout:
     @property
     def frame_words(self) -> int:
         return 4 * self.n_points + self.analog_words
+
+
+def _rate_notes(rate: float) -> list[str]:
+    """The note on a point rate implausible for a marker capture (none when it is plausible)."""
+    odd = implausible_rate(stated_rate(rate, float32=True), "mocap")
+    return [] if odd is None else [f"POINT:RATE: {odd}; check the file's rate"]
 
 
 @dataclass
@@ -228,6 +241,7 @@ class C3DMeta:
         if param_rate is None or not math.isclose(param_rate, h["rate"], rel_tol=1e-6):
             ezc3d_safe = False
         ezc3d_safe = ezc3d_safe and self._ezc3d_params_ok(n_points, a_used)
+        notes.extend(_rate_notes(rate))
         return Layout(processor=self.processor, is_float=is_float, scale=float(scale), n_points=n_points,
                       n_frames=n_frames, first_frame=first, rate_hz=float(rate), analog_words=analog_words,
                       analog_channels=a_used, data_offset=data_offset, ezc3d_safe=ezc3d_safe,

@@ -21,7 +21,6 @@ import numpy as np
 from gazepipe.errors import printable
 from gazepipe.io import c3d as _c3d
 from gazepipe.io.limits import MAX_ABS_MM, coordinate_span
-from gazepipe.timebase import snap_rate
 
 __all__ = ["STREAM_OVER_BYTES", "c3d_storage", "summarise_c3d"]
 
@@ -124,7 +123,7 @@ def _summarise(p: Path, fh, meta, lay, default_units: str) -> dict[str, Any]:
     if groups:
         notes.append(_c3d._list_note("groups of bit-identical trajectories",
                                      ["=".join(printable(labels[i]) for i in g) for g in groups], limit=6))
-    rate = snap_rate(lay.rate_hz)
+    rate = lay.stated_rate_hz
     gaps = 1.0 - n_valid / t
     return {
         "path": str(p), "format": "c3d", "reader": "numpy", "rate_hz": rate, "frames": t,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -10,11 +11,20 @@ from typing import Any
 from gazepipe.errors import InputError
 from gazepipe.io.c3d import duplicate_trajectories, read_c3d_info
 from gazepipe.io.c3d_meta import HEAD_BYTES
-from gazepipe.io.marker_csv import VICON_BLOCKS, read_qtm_tsv, read_vicon_csv, read_wide_csv
+from gazepipe.io.marker_csv import (
+    VICON_FIRST_CELLS,
+    has_trajectories_block,
+    read_qtm_tsv,
+    read_vicon_csv,
+    read_wide_csv,
+)
 from gazepipe.io.signatures import not_a_capture
 from gazepipe.model import Markers
 
 FORMATS = ("c3d", "vicon_csv", "qtm_tsv", "wide_csv")
+
+_QTM_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
+_WIDE_COLUMN = re.compile(r"^.+_[xyzXYZ]$")
 
 
 def track_format(header: Iterable[str]) -> str | None:
@@ -66,16 +76,37 @@ def sniff_format(path: str | Path) -> str:
     if track == "livelinkface":
         raise InputError(p, "a Live Link Face blendshape CSV, not a marker capture (give it to a `face` "
                             "take as `tracked` or `clean`; fill reads C3D, Vicon CSV, QTM TSV and wide CSV)")
-    first_cells = [ln.split(",", 1)[0].split("\t", 1)[0].strip() for ln in text.splitlines()[:20]]
-    if any(c in VICON_BLOCKS for c in first_cells[:1]) or "Trajectories" in first_cells:
+    lines = text.splitlines()
+    first = next((ln for ln in lines if ln.strip(" \t,\r")), "")
+    if first.split(",", 1)[0].strip().strip('"').lower() in VICON_FIRST_CELLS:
         return "vicon_csv"
-    if any(c in ("NO_OF_FRAMES", "MARKER_NAMES", "FREQUENCY") for c in first_cells):
+    if _qtm_header(lines):
         return "qtm_tsv"
+    if ext in (".csv", ".txt") and _wide_header(first):
+        return "wide_csv"
+    if has_trajectories_block(p):      # a Nexus export whose first lines are something else
+        return "vicon_csv"
     if ext in (".csv", ".txt"):
         return "wide_csv"
     if ext == ".tsv":
         return "qtm_tsv"
     raise InputError(p, f"unknown capture format (extension {ext or 'none'!r}; expected .c3d, .csv or .tsv)")
+
+
+def _qtm_header(lines: list[str]) -> bool:
+    """Whether the leading ``KEY<TAB>value`` lines of a text (QTM's header, however long) name QTM's keys."""
+    for ln in lines:
+        key = ln.split("\t", 1)[0].strip()
+        if key in ("NO_OF_FRAMES", "MARKER_NAMES", "FREQUENCY"):
+            return True
+        if not _QTM_KEY.match(key):
+            return False
+    return False
+
+
+def _wide_header(line: str) -> bool:
+    """Whether a CSV's first line names ``<marker>_x``-style columns (a wide CSV's header)."""
+    return any(_WIDE_COLUMN.match(c.strip()) for c in line.split(","))
 
 
 def _read(path: Path, rate_hz: float | None, default_units: str) -> tuple[Markers, dict[str, Any]]:

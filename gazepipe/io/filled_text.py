@@ -4,12 +4,18 @@
 A Vicon Nexus CSV, QTM TSV or wide CSV is copied byte for byte except the coordinate cells of the samples that
 were filled (or taken out as spikes): header lines, other blocks (Devices, Model Outputs), extra columns, line
 endings, separators and every measured value stay as they were, so the file goes back into the program that
-wrote it. Filled values are written in the file's units with as many decimals as the file's own numbers use.
+wrote it. New cells are written in the file's own style (:class:`CellStyle`, read from its coordinate cells):
+in its units; with a fixed number of decimals where the file writes one (QTM's ``%.3f``), else with as many
+significant digits as its numbers carry (Nexus writes 6: ``-276.862``, ``44.1628``; its 1.x exports up to 10,
+tiny values as ``6.22E-14``); and a sample made a gap is spelled as the file spells its gaps (empty cells,
+``nan``, QTM's old ``0.000``).
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,9 +27,36 @@ from gazepipe.timebase import unit_scale_to_mm
 
 #: decimals written when the file's numbers show none (whole millimetres: 3 keeps micrometres)
 _DEFAULT_DECIMALS = 3
-#: the file's decimals are read from this many data rows
+#: the file's number style is read from this many data rows
 _SAMPLE_ROWS = 200
-_DECIMALS = re.compile(rb"\.(\d+)")
+#: a decimal number as text: sign, integer digits, fraction digits, exponent (letter and value)
+_NUMBER = re.compile(rb"^\s*[-+]?(\d*)(?:\.(\d*))?(?:([eE])[-+]?\d+)?\s*$")
+#: cells that are gaps, as spelled by the formats' writers (NaN in any case, ``-nan``)
+_NAN_CELLS = frozenset({b"nan", b"NaN", b"NAN", b"-nan", b"-NaN"})
+
+
+@dataclass(frozen=True)
+class CellStyle:
+    """How a text export writes its coordinates.
+
+    ``decimals``: a fixed number of decimals (``%.{decimals}f``), or None; ``digits``: otherwise, the significant
+    digits of the general format (``%.{digits}g``, trailing zeros dropped, exponent form for tiny values with
+    ``exponent`` as its letter); ``gap``: the text of a gap cell.
+    """
+
+    decimals: int | None
+    digits: int
+    exponent: str
+    gap: bytes
+
+    def cell(self, v: float) -> bytes:
+        """``v`` (a finite number in the file's units) as the file would write it."""
+        v = v + 0.0                                             # no "-0"
+        if self.decimals is not None:
+            text = f"{round(v, self.decimals) + 0.0:.{self.decimals}f}"
+        else:
+            text = f"{v:.{self.digits}{'G' if self.exponent == 'E' else 'g'}}"
+        return text.encode("ascii")
 
 
 def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: str, *,
@@ -35,8 +68,9 @@ def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: 
 
     ``markers`` must be what :func:`gazepipe.io.capture.read_markers` returns for ``src`` (same markers, same
     order, mm) with gaps filled. A sample that is a gap in ``src`` and valid in ``markers``, or marked in
-    ``removed`` and valid in ``markers``, gets its three cells rewritten in the file's units; a sample marked in
-    ``removed`` and invalid in ``markers`` gets empty cells (a gap in every one of these formats).
+    ``removed`` and valid in ``markers``, gets its three cells rewritten in the file's units and style
+    (:func:`cell_style`); a sample marked in ``removed`` and invalid in ``markers`` is written as the file writes
+    its gaps (empty cells when it has none).
 
     ``original``: what :func:`gazepipe.io.marker_csv.read_text_export` returned for ``src`` (read again when
     not given).
@@ -68,44 +102,83 @@ def write_filled_text(src: str | Path, dest: str | Path, markers: Markers, fmt: 
     if len(rows) != in_file.size:
         raise InputError(p, f"{len(rows)} data rows found where the reader saw {in_file.size}")
     line_of[in_file] = rows
-    text = _cell_text(markers.xyz / to_mm, write & valid, _decimals(lines, rows, layout))
+    style = cell_style(lines, rows, layout, _first_gaps(orig.valid, has_line, line_of))
+    text = _cell_text(markers.xyz / to_mm, write & valid, style)
+    gap = [style.gap] * 3
     for t in np.flatnonzero(write.any(axis=1)):
         i = int(line_of[t])
-        lines[i] = _rewrite_row(lines[i], layout, np.flatnonzero(write[t]), text, t)
+        lines[i] = _rewrite_row(lines[i], layout, np.flatnonzero(write[t]), text, t, gap)
     Path(dest).write_bytes(raw[:layout.start] + b"\n".join(lines) + raw[layout.stop:])
     return int(write.sum())
 
 
-def _decimals(lines: list[bytes], rows: list[int], layout: TextLayout) -> int:
-    """Most decimals of the coordinate cells in the first ``_SAMPLE_ROWS`` data rows (``_DEFAULT_DECIMALS``
-    when none has any; a Frame or Time column does not count)."""
+def _first_gaps(valid: np.ndarray, has_line: np.ndarray, line_of: np.ndarray, n: int = 64) -> list[tuple[int, int]]:
+    """(line, marker) of the first ``n`` gap samples of the file that have a line (where its gaps are spelled)."""
+    t_idx, m_idx = np.nonzero(~valid & has_line[:, None])
+    return [(int(line_of[t]), int(m)) for t, m in zip(t_idx[:n], m_idx[:n], strict=True)]
+
+
+def cell_style(lines: list[bytes], rows: list[int], layout: TextLayout,
+               gaps: Sequence[tuple[int, int]] = ()) -> CellStyle:
+    """The style of a text export's coordinate cells, from those of its first ``_SAMPLE_ROWS`` data rows
+    (``lines``: the data block split at ``\\n``; ``rows``: the indices of its data rows) and of the gap samples
+    ``gaps`` ((line, marker) pairs: the file's gaps, the first whose three cells read alike gives the spelling).
+
+    Fixed decimals when every number there has the same (at least one) and none has an exponent;
+    ``_DEFAULT_DECIMALS`` when none has decimals; otherwise the most significant digits any has.
+    """
     sep = layout.sep.encode()
     cols = layout.cols.reshape(-1)
-    found = [0]
+    decimals: set[int] = set()
+    digits, exponent = 1, ""
     for i in rows[:_SAMPLE_ROWS]:
         fields = lines[i].rstrip(b"\r").split(sep)
-        found += [len(m.group(1)) for c in cols[cols < len(fields)].tolist()
-                  if (m := _DECIMALS.search(fields[c])) is not None]
-    return min(max(found), 9) if max(found) else _DEFAULT_DECIMALS
+        for c in cols[cols < len(fields)].tolist():
+            m = _NUMBER.match(fields[c])
+            if m is None or not (m.group(1) or m.group(2)):
+                continue
+            whole, frac = m.group(1), m.group(2) or b""
+            if m.group(3):
+                exponent = m.group(3).decode()
+            decimals.add(len(frac))
+            digits = max(digits, len((whole + frac).lstrip(b"0")))
+    gap = _gap_text(lines, layout, gaps)
+    if not exponent and max(decimals, default=0) == 0:
+        return CellStyle(decimals=_DEFAULT_DECIMALS, digits=digits, exponent=exponent, gap=gap)
+    if not exponent and len(decimals) == 1:
+        return CellStyle(decimals=min(decimals.pop(), 9), digits=digits, exponent=exponent, gap=gap)
+    return CellStyle(decimals=None, digits=min(digits, 17), exponent=exponent, gap=gap)
 
 
-def _cell_text(values: np.ndarray, filled: np.ndarray, decimals: int) -> dict[tuple[int, int], list[bytes]]:
+def _gap_text(lines: list[bytes], layout: TextLayout, gaps: Sequence[tuple[int, int]]) -> bytes:
+    """How the file spells a gap: the text of the first gap sample whose three cells read alike and are empty, a
+    NaN or a number (QTM's zeros), else an empty cell."""
+    sep = layout.sep.encode()
+    for i, m in gaps:
+        fields = lines[i].rstrip(b"\r").split(sep)
+        cells = [fields[c].strip() if c < len(fields) else b"" for c in layout.cols[m].tolist()]
+        if cells[0] == cells[1] == cells[2] and (not cells[0] or cells[0] in _NAN_CELLS or _NUMBER.match(cells[0])):
+            return cells[0]
+    return b""
+
+
+def _cell_text(values: np.ndarray, filled: np.ndarray, style: CellStyle) -> dict[tuple[int, int], list[bytes]]:
     """The three cells of every filled sample (values (T, M, 3) in the file's units), keyed (frame, marker)."""
     t_idx, m_idx = np.nonzero(filled)
-    flat = np.round(values[t_idx, m_idx], decimals).reshape(-1)
-    cells = [f"{v:.{decimals}f}".encode("ascii") for v in (flat + 0.0)]   # + 0.0: no "-0.000"
+    cells = [style.cell(float(v)) for v in values[t_idx, m_idx].reshape(-1)]
     return {(int(t), int(m)): cells[3 * k:3 * k + 3] for k, (t, m) in enumerate(zip(t_idx, m_idx, strict=True))}
 
 
-def _rewrite_row(line: bytes, layout: TextLayout, markers: np.ndarray, text: dict, t: int | np.integer) -> bytes:
-    """One data row with the cells of ``markers`` replaced: their filled values, or empty for a gap."""
+def _rewrite_row(line: bytes, layout: TextLayout, markers: np.ndarray, text: dict, t: int | np.integer,
+                 gap: list[bytes]) -> bytes:
+    """One data row with the cells of ``markers`` replaced: their filled values, or ``gap`` for a gap."""
     end = b"\r" if line.endswith(b"\r") else b""
     fields = line[:len(line) - len(end)].split(layout.sep.encode())
     need = int(layout.cols[markers].max()) + 1
     if len(fields) < need:   # rows may omit trailing empty fields
         fields += [b""] * (need - len(fields))
     for m in markers.tolist():
-        cells = text.get((t, m), [b"", b"", b""])
+        cells = text.get((t, m), gap)
         for c, cell in zip(layout.cols[m].tolist(), cells, strict=True):
             fields[c] = cell
     return layout.sep.encode().join(fields) + end

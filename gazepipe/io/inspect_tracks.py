@@ -103,8 +103,9 @@ def inspect_livelinkface(path: str | Path, *, rate_hz: float | None = None,
 
     Keys: path, format (``livelinkface``), rows, rate_hz (given, else estimated from the timecode: a warning
     says so), frame_period_s, duration_s (capture frames spanned over the rate), timecode_fps, first_timecode,
-    dropped_frames, blendshape_count, valid_share and valid_rule (the file has no validity flag: a row is
-    counted valid when some blendshape is not zero; ARKit writes all zeros when it loses the face),
+    dropped_frames, blendshape_count, lost_rows (rows written while tracking was lost: ``BlendShapeCount`` 0 and no
+    values), valid_share and valid_rule (the file has no validity flag: a row is counted valid when it holds
+    values and some blendshape is not zero; ARKit writes all zeros when it loses the face),
     blink_share (either eye), blink_left_share, blink_right_share and blink_rule (``eyeBlinkLeft`` /
     ``eyeBlinkRight`` above :data:`LLF_BLINK_ABOVE`), head_columns (the head yaw, pitch and roll columns are
     there), head_tracking (they are there and vary), head_range_deg (yaw, pitch, roll: max − min in degrees,
@@ -115,8 +116,9 @@ def inspect_livelinkface(path: str | Path, *, rate_hz: float | None = None,
     n = face.n_frames
     spanned = int(face.frame_index[-1]) + 1 if n else 0
     values = np.asarray(face.values, dtype=np.float64)
-    left = values[:, ARKIT_NAMES.index("eyeBlinkLeft")] > LLF_BLINK_ABOVE
-    right = values[:, ARKIT_NAMES.index("eyeBlinkRight")] > LLF_BLINK_ABOVE
+    tracked = face.valid_rows
+    left = tracked & (values[:, ARKIT_NAMES.index("eyeBlinkLeft")] > LLF_BLINK_ABOVE)
+    right = tracked & (values[:, ARKIT_NAMES.index("eyeBlinkRight")] > LLF_BLINK_ABOVE)
     head_columns = set(HEAD_NAMES) <= {normalise_name(c) for c in read_header(p)}
     head = np.asarray(face.head, dtype=np.float64)
     known = head[np.isfinite(head).all(axis=1)]
@@ -133,8 +135,9 @@ def inspect_livelinkface(path: str | Path, *, rate_hz: float | None = None,
         "first_timecode": str(face.timecode[0]) if n else None,
         "dropped_frames": int(face.dropped_frames),
         "blendshape_count": face.blendshape_count,
-        "valid_share": _share(np.any(values != 0, axis=1)),
-        "valid_rule": "some blendshape is not zero",
+        "lost_rows": int(np.count_nonzero(~tracked)),
+        "valid_share": _share(tracked & np.any(values != 0, axis=1)),
+        "valid_rule": "tracking not lost and some blendshape is not zero",
         "blink_share": _share(left | right),
         "blink_left_share": _share(left),
         "blink_right_share": _share(right),

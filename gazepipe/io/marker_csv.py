@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import re
 import warnings
 from dataclasses import dataclass
@@ -63,9 +64,12 @@ from gazepipe.io.limits import (
     span_problem,
 )
 from gazepipe.model import Markers
-from gazepipe.timebase import snap_rate, unit_scale_to_mm
+from gazepipe.timebase import implausible_rate, snap_rate, stated_rate, unit_scale_to_mm
 
 VICON_BLOCKS = ("Trajectories", "Devices", "Model Outputs", "Joints", "Segments", "Global Angle")
+#: what the first line of a Vicon Nexus export starts with: a block's title (any case: Nexus 1.x writes
+#: ``TRAJECTORIES``, ``ANALOG``) or Nexus 1.x's ``Title`` header line
+VICON_FIRST_CELLS = frozenset(b.lower() for b in VICON_BLOCKS) | {"analog", "title"}
 
 _PARSE_ERRORS = (ValueError, KeyError, IndexError, TypeError, OverflowError, UnicodeDecodeError,
                  csv.Error, pd.errors.ParserError, pd.errors.EmptyDataError)
@@ -376,10 +380,27 @@ def _with_gap_rows(xyz: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     return full
 
 
-def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[str],
+def _written_rate(cell: str, what: str) -> str | None:
+    """A rate cell's text (None when empty); :class:`_Bad` naming ``what`` when it is not a number."""
+    text = cell.strip()
+    if not text:
+        return None
+    try:
+        float(text)
+    except ValueError:
+        raise _Bad(f"{what} reads {text[:20]!r}, not a number") from None
+    return text
+
+
+def _resolve_rate(file_rate: str | float | None, rate_hz: float | None, notes: list[str],
                   what: str = "the file's rate") -> float:
-    """The capture rate: the file's (``what`` names where it was found), else ``rate_hz``; either refused
-    outside :data:`~gazepipe.io.limits.MIN_RATE_HZ` - :data:`~gazepipe.io.limits.MAX_RATE_HZ`."""
+    """The capture rate: the file's (``what`` names where it was found; text as written, or a rate measured from
+    a time column), else ``rate_hz``; either refused outside :data:`~gazepipe.io.limits.MIN_RATE_HZ` -
+    :data:`~gazepipe.io.limits.MAX_RATE_HZ`. A written rate is taken as written (:func:`stated_rate`: only an NTSC
+    rate written rounded, such as 29.97, becomes exactly N·1000/1001); a rate implausible for a marker capture is
+    noted."""
+    if isinstance(file_rate, str):
+        file_rate = stated_rate(file_rate)
     if file_rate is not None:
         problem = rate_problem(file_rate)
         if problem is not None:
@@ -394,10 +415,14 @@ def _resolve_rate(file_rate: float | None, rate_hz: float | None, notes: list[st
     if file_rate is None:
         if rate_hz is None:
             raise _Bad("no frame rate in the file and none given (a take's rate_hz in session.toml, or --rate-hz)")
-        return snap_rate(float(rate_hz))
-    rate = snap_rate(file_rate)
-    if rate_hz is not None and abs(snap_rate(float(rate_hz)) - rate) > 5e-4 * rate:
-        notes.append(f"file rate {rate:g} Hz used, not the given {float(rate_hz):g} Hz")
+        rate = stated_rate(float(rate_hz))
+    else:
+        rate = file_rate
+        if rate_hz is not None and abs(stated_rate(float(rate_hz)) - rate) > 5e-4 * rate:
+            notes.append(f"file rate {rate:g} Hz used, not the given {float(rate_hz):g} Hz")
+    odd = implausible_rate(rate, "mocap")
+    if odd is not None:
+        notes.append(f"{what}: {odd}; check the file's rate")
     return rate
 
 
@@ -408,7 +433,8 @@ def _first_at(mask: np.ndarray, labels: list[str], first_frame: int) -> str:
 
 
 def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int, units: str | None,
-            default_units: str, fmt: str, notes: list[str], zero_gaps: bool = False) -> Markers:
+            default_units: str, fmt: str, notes: list[str], zero_gaps: bool = False,
+            model_outputs: list[str] | None = None) -> Markers:
     """Unique labels, gap mask (any non-finite coordinate), conversion to mm (``xyz`` is changed in place)."""
     labels, renamed = make_unique(labels)
     if renamed:
@@ -458,7 +484,7 @@ def _finish(labels: list[str], xyz: np.ndarray, *, rate: float, first_frame: int
     if valid.size and not valid.any():
         notes.append("every marker sample is invalid (100 % gaps)")
     return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=rate, first_frame=int(first_frame),
-                   units=units, source_format=fmt, warnings=notes)
+                   units=units, source_format=fmt, model_outputs=list(model_outputs or []), warnings=notes)
 
 
 def _guard(path: Path, fn, *args, **kwargs):
@@ -495,10 +521,112 @@ def strip_subject_prefix(labels: list[str], wanted: list[str] | tuple[str, ...] 
     return [new if counts[new] == 1 else old for old, new in zip(labels, out, strict=True)]
 
 
-# the block title, at the start of a line (or after the UTF-8 byte-order mark Excel writes)
-_TRAJ_LINE = re.compile(rb"(?m)^(?:\xef\xbb\xbf)?[ \t]*Trajectories[ \t]*(?:,[^\r\n]*)?\r?$")
+# the block title, at the start of a line (or after the UTF-8 byte-order mark Excel writes): ``Trajectories``
+# (Nexus 2) or ``TRAJECTORIES`` (Nexus 1.x)
+_TRAJ_LINE = re.compile(rb"(?m)^(?:\xef\xbb\xbf)?[ \t]*(?:Trajectories|TRAJECTORIES)[ \t]*(?:,[^\r\n]*)?\r?$")
 _BLANK_LINE = re.compile(rb"(?m)^[ \t,\r]*$")
 _CONTENT = re.compile(rb"[^ \t,\r\n]")
+#: the frame column's name: ``Frame`` (Nexus 2), ``Field #`` (Nexus 1.x)
+_FRAME_COLUMNS = ("frame", "field #")
+#: model outputs by name, for a block without a units row (Nexus 1.x writes Plug-in Gait's angles, forces,
+#: moments and powers among the trajectories): the names C3D files list in POINT:ANGLES, FORCES, MOMENTS and
+#: POWERS end so (``LHipAngles``, ``LAbsAnkleAngle``, ``LGroundReactionForce``, ``LNormalisedGRF``,
+#: ``LKneeMoment``, ``LAnklePower``, optionally with a model suffix such as ``_CGM_2.4``)
+_MODEL_OUTPUT_NAME = re.compile(r"(?:Angles?|Force|Moment|Power|GRF)(?:_[\w.]+)?$")
+
+
+@dataclass(frozen=True)
+class _ViconColumns:
+    """What a 'Trajectories' block's header rows say: each marker's X, Y, Z columns, its units, and what is no
+    marker."""
+
+    labels: list[str]
+    cols: list[list[int]]
+    units: str | None
+    model_outputs: list[str]       # X/Y/Z groups that are model outputs (angles, forces …), left out
+    skipped: list[tuple[str, str]]  # named column groups without X/Y/Z (magnitudes, counts …), left out: (name,
+                                    # its components)
+
+
+def _is_length(unit: str) -> bool:
+    try:
+        unit_scale_to_mm(unit)
+    except KeyError:
+        return False
+    return True
+
+
+def _vicon_columns(names: list[str], comps: list[str], units_row: list[str] | None) -> _ViconColumns:
+    """Sort a 'Trajectories' block's named column groups into markers, model outputs and other columns.
+
+    A group is the columns from a name in the names row to the next name. A group with X, Y and Z columns is a
+    marker, unless its units (when the block has a units row) are not lengths, or (without one) its name is a
+    model output's (:data:`_MODEL_OUTPUT_NAME`). A group without them (Nexus's trajectory magnitudes, ``| S:LASI |``
+    over ``Magnitude( X )``, or its ``Trajectory Count``) is no marker. Columns other than X/Y/Z in a marker's
+    group (velocities ``X'`` …) are ignored. Raises :class:`_Bad` for markers in different length units.
+    """
+    starts = [i for i, n in enumerate(names) if n and i >= 1]
+    labels: list[str] = []
+    cols: list[list[int]] = []
+    model_outputs: list[str] = []
+    skipped: list[tuple[str, str]] = []
+    for k, c0 in enumerate(starts):
+        c1 = starts[k + 1] if k + 1 < len(starts) else max(len(comps), len(names))
+        span: dict[str, int] = {}
+        for c in range(c0, min(c1, len(comps))):
+            span.setdefault(comps[c], c)
+        if not all(a in span for a in ("X", "Y", "Z")):
+            shown = ", ".join(comps[c] for c in range(c0, min(c1, len(comps))) if comps[c])
+            skipped.append((names[c0], shown or "no component"))
+            continue
+        xyz = [span["X"], span["Y"], span["Z"]]
+        found = {units_row[c] for c in xyz if c < len(units_row) and units_row[c]} if units_row is not None else set()
+        short = names[c0].rsplit(":", 1)[-1]
+        if (found and not all(_is_length(u) for u in found)) or (units_row is None and _MODEL_OUTPUT_NAME.search(short)):
+            model_outputs.append(names[c0])
+            continue
+        labels.append(names[c0])
+        cols.append(xyz)
+    in_units = {units_row[c] for cc in cols for c in cc if c < len(units_row) and units_row[c]} \
+        if units_row is not None else set()
+    if len(in_units) > 1:
+        raise _Bad(f"mixed units {sorted(in_units)}")
+    return _ViconColumns(labels, cols, in_units.pop() if in_units else None, model_outputs, skipped)
+
+
+def _left_out_notes(found: _ViconColumns, notes: list[str]) -> None:
+    """Notes naming the column groups of a 'Trajectories' block that are not read as markers."""
+    def shown(items: list[str]) -> str:
+        return ", ".join(printable(x) for x in items[:6]) + (f" and {len(items) - 6} more" if len(items) > 6 else "")
+
+    if found.skipped:
+        magnitudes = [name for name, _ in found.skipped if name.startswith("|") and name.endswith("|")]
+        others = [f"{name!r} ({what})" for name, what in found.skipped if name not in set(magnitudes)]
+        parts = ([f"{len(magnitudes)} trajectory magnitude(s) ({shown(magnitudes[:1])} …)"] if magnitudes else [])
+        parts += [shown(others)] if others else []
+        notes.append(f"{len(found.skipped)} column group(s) of the 'Trajectories' block without X/Y/Z columns "
+                     f"skipped: {', '.join(parts)}")
+    if found.model_outputs:
+        notes.append(f"{len(found.model_outputs)} model output(s) in the 'Trajectories' block (angles, forces, "
+                     f"moments, powers) left out of the markers: {shown(found.model_outputs)}")
+    unlabeled = [lab for lab in found.labels if re.fullmatch(r"\*\d+", lab.rsplit(":", 1)[-1])]
+    if unlabeled:
+        notes.append(f"{len(unlabeled)} unlabeled trajectories (*N) read as markers: {shown(unlabeled)}")
+
+
+def has_trajectories_block(path: Path) -> bool:
+    """Whether a text file has a Vicon 'Trajectories' block title line anywhere (searched without reading the file
+    into memory: a Nexus export may carry megabytes of Devices data before it)."""
+    import mmap
+
+    try:
+        with open(path, "rb") as fh:
+            if os.fstat(fh.fileno()).st_size == 0:
+                return False
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                return _TRAJ_LINE.search(mm) is not None
+    except (OSError, ValueError):
+        return False
 
 
 def _block_end(path: Path, raw: bytes, start: int, first_line: int, notes: list[str]) -> int:
@@ -542,6 +670,10 @@ def _block_end(path: Path, raw: bytes, start: int, first_line: int, notes: list[
     return stop
 
 
+def _cells(line: str | None) -> list[str]:
+    return [c.strip() for c in next(csv.reader([line]), [])] if line is not None else []
+
+
 def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bool | list[str],
                  default_units: str) -> tuple[Markers, TextLayout]:
     found = _TRAJ_LINE.search(raw)
@@ -550,36 +682,30 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     lines = _Lines(raw, found.start())
     if lines[4] is None:
         raise _Bad("'Trajectories' block truncated before its data")
-    rate_cell = lines.before(1).split(",", 1)[0].strip()
+    file_rate = _written_rate(lines.before(1).split(",", 1)[0], "rate line")
+    names, comps = _cells(lines.before(2)), _cells(lines.before(3))
+    if len(comps) < 2 or comps[0].lower() not in _FRAME_COLUMNS:
+        raise _Bad("the row after the marker names does not start with 'Frame' (or Nexus 1.x's 'Field #')")
+    # Nexus 2 writes a units row (``,,mm,mm,mm``) before the data; Nexus 1.x does not (its data start at once)
+    units_row: list[str] | None = _cells(lines[4])
     try:
-        file_rate = float(rate_cell) if rate_cell else None
+        float((units_row or [""])[0])
+        units_row = None                                # a frame number: the first data row
     except ValueError:
-        raise _Bad(f"rate line reads {rate_cell[:20]!r}, not a number") from None
-    names = [c.strip() for c in next(csv.reader([lines.before(2)]), [])]
-    comps = [c.strip() for c in next(csv.reader([lines.before(3)]), [])]
-    units_row = [c.strip() for c in next(csv.reader([lines[4]]), [])]
-    if len(comps) < 2 or comps[0].lower() != "frame":
-        raise _Bad("the row after the marker names does not start with 'Frame'")
-    starts = [i for i, n in enumerate(names) if n and i >= 1]
-    labels, cols = [], []
-    for k, c0 in enumerate(starts):
-        c1 = starts[k + 1] if k + 1 < len(starts) else max(len(comps), len(names))
-        span = {comps[c]: c for c in range(c0, min(c1, len(comps)))}
-        if not all(a in span for a in ("X", "Y", "Z")):
-            raise _Bad(f"marker {names[c0]!r} lacks X/Y/Z columns")
-        labels.append(names[c0])
-        cols.append([span["X"], span["Y"], span["Z"]])
+        pass
+    columns = _vicon_columns(names, comps, units_row)
+    labels, cols, units = columns.labels, columns.cols, columns.units
     if not labels:
-        raise _Bad("no marker names in the 'Trajectories' block")
-    found_units = {units_row[c] for cc in cols for c in cc if c < len(units_row) and units_row[c]}
-    if len(found_units) > 1:
-        raise _Bad(f"mixed units {sorted(found_units)}")
-    units = found_units.pop() if found_units else None
+        raise _Bad("no marker names in the 'Trajectories' block"
+                   + (f" ({len(columns.model_outputs) + len(columns.skipped)} column group(s), none of them a "
+                      "marker's X/Y/Z)" if columns.model_outputs or columns.skipped else ""))
 
     # data rows run to the first blank line followed by the next block's title (or nothing), or to the end
-    data_start = lines.offset(5)
+    n_head = 4 if units_row is None else 5
+    data_start = lines.offset(n_head)
     n_cols = max(len(comps), 1 + max(c for cc in cols for c in cc))
-    first_line = raw.count(b"\n", 0, found.start()) + 6
+    title_line = raw.count(b"\n", 0, found.start()) + 1
+    first_line = title_line + n_head
     notes: list[str] = []
     stop = _block_end(path, raw, data_start, first_line, notes)
     _check_fields(raw, data_start, stop, ",", first_line, n_cols, required=_last_named(comps))
@@ -590,13 +716,15 @@ def _parse_vicon(path: Path, raw: bytes, rate_hz: float | None, strip_prefix: bo
     first, rows = _frame_rows(arr[:, 0], _Rows(raw, data_start, stop, first_line), path.name, notes)
     del arr
     xyz = _with_gap_rows(xyz, rows)
-    rate = _resolve_rate(file_rate, rate_hz, notes, f"line {first_line - 4}, the rate line")
+    rate = _resolve_rate(file_rate, rate_hz, notes, f"line {title_line + 1}, the rate line")
+    _left_out_notes(columns, notes)
     if strip_prefix is True:
         labels = strip_subject_prefix(labels)
     elif isinstance(strip_prefix, list | tuple):
         labels = strip_subject_prefix(labels, strip_prefix)
     markers = _finish(labels, xyz, rate=rate, first_frame=first, units=units,
-                      default_units=default_units, fmt="vicon_csv", notes=notes)
+                      default_units=default_units, fmt="vicon_csv", notes=notes,
+                      model_outputs=columns.model_outputs)
     return markers, TextLayout(",", data_start, stop, np.asarray(cols, dtype=np.int64), units, rows)
 
 
@@ -651,11 +779,8 @@ def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str
     declared = header.get("NO_OF_MARKERS", [""])[0]
     if declared and int(declared) != m:
         raise _Bad(f"NO_OF_MARKERS says {declared} but MARKER_NAMES lists {m}")
-    freq = header.get("FREQUENCY", [""])[0]
-    try:
-        file_rate = float(freq) if freq else None
-    except ValueError:
-        raise _Bad(f"FREQUENCY reads {freq[:20]!r}, not a number") from None
+    freq = _written_rate(header.get("FREQUENCY", [""])[0], "FREQUENCY")
+    file_rate = None if freq is None else stated_rate(freq)
 
     while (line := lines[i]) is not None and not line.strip():
         i += 1

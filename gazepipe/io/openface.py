@@ -15,6 +15,7 @@ from gazepipe.errors import InputError
 from gazepipe.io.limits import MAX_FRAME
 from gazepipe.io.tracks import read_columns
 from gazepipe.model import EyeTrack
+from gazepipe.timebase import implausible_rate, video_frames
 
 __all__ = ["EyeTrack", "read_openface"]
 
@@ -33,6 +34,21 @@ def _unit(v: np.ndarray) -> np.ndarray:
         return np.where(n > 0, v / n, np.nan)
 
 
+def _clock_problem(time_s: np.ndarray, frame: np.ndarray) -> str | None:
+    """Why the video rate the timestamps give (as the eyes stage measures it, :func:`video_frames`) cannot be a
+    face camera's, with what to do; None when it can."""
+    if time_s.size < 2:
+        return None
+    _, period = video_frames(time_s, frame)
+    odd = implausible_rate(1.0 / period, "video") if np.isfinite(period) and period > 0 else None
+    if odd is None:
+        return None
+    step = float(np.median(np.diff(time_s)))
+    return (f"timestamps step {step * 1000:.4g} ms ({odd}): not the video's clock, yet they place the eyes on "
+            "the mocap frames; run FeatureExtraction on the video file itself (-f), or give an image sequence "
+            "its frame rate")
+
+
 def read_openface(path: str | Path) -> EyeTrack:
     """Read an OpenFace FeatureExtraction CSV.
 
@@ -45,7 +61,9 @@ def read_openface(path: str | Path) -> EyeTrack:
     EyeTrack with both eyes mapped to the subject's own left/right, unit gaze vectors in camera axes, times in
     seconds on the video clock, and blinks from ``AU45_c == 1`` (or ``AU45_r >= 1`` when ``AU45_c`` is absent).
     Rows with ``success == 0`` are kept and flagged. When several faces are tracked (``face_id``), face 0 is kept
-    (else the most frequent one) and a warning says so.
+    (else the most frequent one) and a warning says so. Timestamps whose rate no face camera has
+    (:data:`~gazepipe.timebase.PLAUSIBLE_HZ`, e.g. 1 ms steps: 1000 Hz) are kept, with a warning saying what to
+    do.
 
     Raises
     ------
@@ -98,6 +116,9 @@ def read_openface(path: str | Path) -> EyeTrack:
     flat = int(np.count_nonzero(np.diff(time_s) == 0))
     if flat:
         warnings.append(f"{flat} timestamp step(s) of zero (image sequence or broken video clock?)")
+    odd = _clock_problem(time_s, frame)
+    if odd is not None:
+        warnings.append(odd)
 
     success = cols["success"] >= 0.5
     n_fail = int((~success).sum())

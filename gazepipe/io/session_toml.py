@@ -20,7 +20,8 @@ Choices where SPEC §1 is silent:
   take; a two-marker ``clapper`` is required when a take has ``video``.
 - In markerset.toml, segments are listed from the root to the head: a segment's parent must come before it, so
   the first segment is the root and is the only one without a parent.
-- ``rate_hz`` and ``timecode_fps`` are snapped with :func:`gazepipe.timebase.snap_rate`.
+- ``rate_hz`` and ``timecode_fps`` are taken as written (:func:`gazepipe.timebase.stated_rate`: an NTSC rate written
+  rounded, such as 29.97, is exactly N·1000/1001 Hz; 69.9 stays 69.9 Hz).
 """
 
 from __future__ import annotations
@@ -44,9 +45,10 @@ from gazepipe.io.toml_common import (
     type_name,
 )
 from gazepipe.model import SPLITS, TAKE_KINDS, MarkerSet, Session, Take
-from gazepipe.timebase import snap_rate
+from gazepipe.timebase import stated_rate
 
-__all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels"]
+__all__ = ["load_session", "validate_session", "load_markerset", "validate_markerset", "check_capture_labels",
+           "session_labels"]
 
 UNSPECIFIED_POSE = "unspecified"
 MOCAP_SUFFIXES = (".c3d", ".csv", ".tsv")
@@ -261,8 +263,8 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
     return Take(id=tid, kind=kind, pose=pose or UNSPECIFIED_POSE, mocap=mocap, video=files.get("video"),
                 eyes=files.get("eyes"), tracked=files.get("tracked"), clean=files.get("clean"), split=split,
                 target_yaw_deg=yaw, target_pitch_deg=pitch,
-                rate_hz=None if rate is None else snap_rate(rate),
-                timecode_fps=60.0 if tc is None else snap_rate(tc))
+                rate_hz=None if rate is None else stated_rate(rate),
+                timecode_fps=60.0 if tc is None else stated_rate(tc))
 
 
 # -------------------------------------------------------------------------------------------------- capture labels
@@ -305,3 +307,41 @@ def check_capture_labels(markerset: MarkerSet, labels: Sequence[str], path: str 
         shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
         raise InputError(path, f"markers of the markerset missing from the capture: {shown}", take=take_id)
     return mapping
+
+
+def session_labels(markerset: MarkerSet, labels: Sequence[str], path: str | Path, take_id: str | None,
+                   required: Iterable[str] | None = None) -> tuple[list[str], list[str]]:
+    """A capture's labels as the session names its markers: one name per marker across the session's takes,
+    whatever program exported each take.
+
+    When the markerset's names carry no ``Subject:`` prefix, the prefix is stripped from every label, listed in
+    the markerset or not (Nexus writes ``p19:LSHO`` in a CSV export and may write ``LSHO`` in the same session's
+    C3D files: both are ``LSHO``). Labels that would share a name after stripping (two subjects' markers, or
+    ``p19:LSHO`` beside ``LSHO``) keep their names and are reported, never merged; a markerset marker among them
+    is then the label equal to its name, or an error when only prefixed ones exist (:func:`check_capture_labels`).
+    When the markerset's names have prefixes, labels are matched to them as :func:`check_capture_labels` does.
+
+    Returns the new labels (in column order) and notes naming the collisions. Raises :class:`InputError` as
+    :func:`check_capture_labels` does (missing or ambiguous markerset markers).
+    """
+    mapping = check_capture_labels(markerset, labels, path, take_id, required=required)
+    new = list(labels)
+    notes: list[str] = []
+    if any(":" in name for name in markerset.all_markers):
+        for name, j in mapping.items():
+            new[j] = name
+        return (new if len(set(new)) == len(new) else list(labels)), notes
+    short = [lab.rsplit(":", 1)[-1] if ":" in lab else lab for lab in labels]
+    groups: dict[str, list[int]] = {}
+    for j, name in enumerate(short):
+        groups.setdefault(name, []).append(j)
+    for name, cols in groups.items():
+        if len(cols) == 1:
+            new[cols[0]] = name
+        elif any(":" in labels[j] for j in cols):
+            shown = ", ".join(repr(labels[j]) for j in cols[:4]) + (" …" if len(cols) > 4 else "")
+            notes.append(f"labels {shown} would all be {name!r} without their subject prefix: kept as they are "
+                         "(two subjects, or one marker under two names?)")
+    for name, j in mapping.items():       # a markerset marker among colliding labels: the one equal to its name
+        new[j] = name
+    return (new if len(set(new)) == len(new) else list(labels)), notes

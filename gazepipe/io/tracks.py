@@ -20,7 +20,7 @@ from gazepipe.errors import InputError
 from gazepipe.io.limits import MAX_LINE_BYTES, check_line_lengths, exact_floats
 from gazepipe.model import EyeTrack, FaceTrack, VideoProbe
 
-__all__ = ["EyeTrack", "FaceTrack", "VideoProbe", "read_columns", "read_header"]
+__all__ = ["EyeTrack", "FaceTrack", "VideoProbe", "lost_rows", "read_columns", "read_header"]
 
 
 def _not_text(path: Path) -> str:
@@ -58,7 +58,8 @@ def read_header(path: Path) -> list[str]:
 
 
 def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[str] = (), *,
-                 text: tuple[str, ...] = (), what: str = "CSV") -> tuple[dict[str, np.ndarray], list[str]]:
+                 text: tuple[str, ...] = (), what: str = "CSV",
+                 lost_when_zero: str | None = None) -> tuple[dict[str, np.ndarray], list[str]]:
     """Read named columns of a numeric CSV whose names and values may be padded with spaces.
 
     Columns are found by name after stripping spaces, never by position. Numeric columns come back as float64,
@@ -73,6 +74,9 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     optional : column names read when present.
     text : names (among ``required``/``optional``) read as strings.
     what : the kind of file, for messages.
+    lost_when_zero : a numeric column whose 0, with every other numeric cell of the row empty, marks a row the
+        tracker wrote while it had lost the face (Live Link Face's ``BlendShapeCount``: ``12:22:06:30.534,0``).
+        Such rows are kept with NaN in those cells, for the caller to flag (:func:`lost_rows`).
 
     Returns
     -------
@@ -97,7 +101,7 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
     kw: dict[str, Any] = dict(usecols=[pos[c] for c in order], header=None, skiprows=1, skipinitialspace=True,
                               keep_default_na=False, na_values=[""], encoding="utf-8-sig", engine="c")
     try:
-        df = pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
+        df = _read_table(path, dtypes, kw, len(header) if lost_when_zero is not None else None)
     except pd.errors.EmptyDataError:
         raise InputError(path, f"{what}: no data rows") from None
     except UnicodeDecodeError:  # a ValueError too: caught first
@@ -117,10 +121,7 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         raise InputError(path, f"{what}: no data rows")
     cols = {c: df[pos[c]].to_numpy() for c in order}
     warnings: list[str] = []
-    bad = np.zeros(len(df), dtype=bool)
-    for c in order:
-        v = cols[c]
-        bad |= pd.isna(v) if c in text else np.isnan(v)
+    bad = _empty_cells(cols, text, lost_when_zero)
     if bad.any():
         rows = np.flatnonzero(bad)
         if rows.size == 1 and rows[0] == len(df) - 1 and len(df) > 1:
@@ -138,6 +139,42 @@ def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[s
         if c in cols:
             cols[c] = np.asarray([s.strip() for s in cols[c]], dtype=str)
     return cols, warnings
+
+
+def _empty_cells(cols: dict[str, np.ndarray], text: Sequence[str], lost_when_zero: str | None) -> np.ndarray:
+    """(N,) bool: rows with an empty or NaN cell, other than the rows a tracker wrote without data
+    (:func:`lost_rows` of ``lost_when_zero``)."""
+    bad = np.zeros(len(next(iter(cols.values()))), dtype=bool)
+    for c, v in cols.items():
+        bad |= pd.isna(v) if c in text else np.isnan(v)
+    if lost_when_zero is not None and lost_when_zero in cols:
+        bad &= ~lost_rows(cols, lost_when_zero, text)
+    return bad
+
+
+def _read_table(path: Path, dtypes: dict, kw: dict[str, Any], n_header: int | None) -> pd.DataFrame:
+    """The columns ``kw`` asks for, as pandas parses them. pandas sizes the table by the first data row; when it
+    is shorter than the columns asked for and ``n_header`` is given (rows without data may come first: see
+    ``lost_when_zero``), the table is sized by the header instead."""
+    try:
+        return pd.read_csv(path, dtype=dtypes, **kw, **exact_floats())
+    except ValueError as e:
+        if n_header is None or isinstance(e, pd.errors.ParserError | UnicodeDecodeError):
+            raise
+        try:
+            return pd.read_csv(path, dtype=dtypes, names=range(n_header), **kw, **exact_floats())
+        except (ValueError, pd.errors.ParserError):
+            raise e from None
+
+
+def lost_rows(cols: dict[str, np.ndarray], flag: str, text: Sequence[str] = ()) -> np.ndarray:
+    """(N,) bool: the rows of :func:`read_columns`' ``cols`` whose ``flag`` column is 0 and whose other numeric
+    columns are all empty (NaN): rows a tracker wrote without data (see ``lost_when_zero``)."""
+    lost = cols[flag] == 0
+    for c, v in cols.items():
+        if c != flag and c not in text:
+            lost &= np.isnan(v)
+    return lost
 
 
 def _short_first_row(path: Path, what: str, n_header: int, need: int) -> InputError | None:

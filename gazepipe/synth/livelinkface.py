@@ -200,6 +200,18 @@ def _drops(rng: np.random.Generator, n: int, rate: float, avoid: np.ndarray | No
     return drop
 
 
+def _tracking_loss(rng: np.random.Generator, n: int, rate: float, stretches: int) -> np.ndarray:
+    """(n,) bool: ``stretches`` spans of 0.2–1.5 s in which ARKit lost the face (never the first or last second)."""
+    lost = np.zeros(n, dtype=bool)
+    for _ in range(stretches):
+        length = int(round(rng.uniform(0.2, 1.5) * rate))
+        lo, hi = int(rate), n - int(rate) - length
+        if hi > lo:
+            a = int(rng.integers(lo, hi))
+            lost[a:a + length] = True
+    return lost
+
+
 def timecodes(start_tc_frames: float, t: np.ndarray) -> np.ndarray:
     """``HH:MM:SS:FF.fff`` strings at 60 fps for capture instants ``t`` seconds after ``start_tc_frames``."""
     milli = np.rint((start_tc_frames + t * TIMECODE_FPS) * 1000.0).astype(np.int64)
@@ -211,13 +223,18 @@ def timecodes(start_tc_frames: float, t: np.ndarray) -> np.ndarray:
                      for a, b, c, d, e in zip(hh % 24, mm, ss, ff, frac, strict=True)])
 
 
-def write_llf_csv(path: Path, tc: np.ndarray, values: np.ndarray, angles: np.ndarray) -> None:
-    """Write rows (timecodes, (n, 52) ARKit-order values, (n, 9) angles) in Live Link Face's layout."""
+def write_llf_csv(path: Path, tc: np.ndarray, values: np.ndarray, angles: np.ndarray,
+                  lost: np.ndarray | None = None) -> None:
+    """Write rows (timecodes, (n, 52) ARKit-order values, (n, 9) angles) in Live Link Face's layout; rows where
+    ``lost`` (n,) is True as the app writes them while ARKit has lost the face: the timecode and a count of 0."""
     body = np.column_stack([values[:, _FILE_ORDER], angles])
     cells = np.char.mod("%.10f", body)
     lines = [",".join(LLF_HEADER)]
     count = str(len(LLF_BLENDSHAPES) + len(LLF_ANGLES))
     lines += [f"{a},{count}," + ",".join(r) for a, r in zip(tc, cells, strict=True)]
+    if lost is not None:
+        for i in np.flatnonzero(lost):
+            lines[i + 1] = f"{tc[i]},0"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
 
@@ -243,10 +260,17 @@ def face_writer(session_dir: Path, take: TakeRecord) -> dict[str, Any]:
     drop_tracked = _drops(rng, n, rate, drop_clean)
     start = float((rng.integers(9, 18) * 3600 + rng.integers(0, 3600)) * TIMECODE_FPS + rng.uniform(0, 59.999))
     tc = timecodes(start, t)
+    # drawn last, and only when asked for: the rest of the take stays as it is without them
+    n_loss = int(take.truth_scalars.get("tracking_loss_stretches", 0))
+    lost = _tracking_loss(rng, n, rate, n_loss) if n_loss else None
     clean_rel = f"face/{take.id}_clean.csv"
     tracked_rel = f"face/{take.id}_tracked.csv"
     write_llf_csv(session_dir / clean_rel, tc[~drop_clean], clean[~drop_clean], ang_c[~drop_clean])
-    write_llf_csv(session_dir / tracked_rel, tc[~drop_tracked], tracked[~drop_tracked], ang_t[~drop_tracked])
+    write_llf_csv(session_dir / tracked_rel, tc[~drop_tracked], tracked[~drop_tracked], ang_t[~drop_tracked],
+                  None if lost is None else lost[~drop_tracked])
+    if lost is not None:
+        take.truth_arrays["face_tracked_lost"] = lost & ~drop_tracked
+        take.truth_scalars["lost_tracked"] = int((lost & ~drop_tracked).sum())
     f4 = np.float32
     take.truth_arrays.update({
         "face_names": np.array(ARKIT_NAMES),

@@ -77,7 +77,12 @@ class SynthConfig:
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
     vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
     share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
-    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which);
+    ``nexus_csv``: share of mocap takes exported as Vicon Nexus CSV files instead of C3D (:func:`write_nexus_csv`:
+    a Trajectories block, labels ``<subject>:<marker>``, 6 significant digits, CRLF line ends; the take's
+    ``mocap`` in the truth says which file); ``face_tracking_loss``: stretches of 0.2–1.5 s per face take in which
+    the tracked file's rows are written as Live Link Face writes them while ARKit has lost the face (the timecode,
+    a ``BlendShapeCount`` of 0 and nothing else; the truth marks them in ``face_tracked_lost``).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -107,6 +112,8 @@ class SynthConfig:
     label_swaps: int = 0
     occlusion_bursts: int = 0
     clap_hazards: float = 0.0
+    nexus_csv: float = 0.0
+    face_tracking_loss: int = 0
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -191,6 +198,20 @@ def write_c3d(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float) ->
         c.add_parameter("TRIAL", "ACTUAL_START_FIELD", [1, 0])
         c.add_parameter("TRIAL", "ACTUAL_END_FIELD", [n_frames % 65536, n_frames // 65536])
     c.write(str(path))
+
+
+def write_nexus_csv(path: Path, labels: list[str], xyz: np.ndarray, rate_hz: float, subject: str) -> None:
+    """A Vicon Nexus 2 CSV export of the markers: the ``Trajectories`` block (title, the rate as Nexus prints it
+    with 6 significant digits, names ``<subject>:<marker>``, ``Frame,Sub Frame,X,Y,Z…``, a units row in mm), first
+    frame 1, coordinates with 6 significant digits, NaN samples as empty cells, CRLF line ends."""
+    t, m = xyz.shape[:2]
+    names = ",".join(f"{subject}:{lab},," for lab in labels)
+    head = ["Trajectories", f"{rate_hz:.6g}", f",,{names}", "Frame,Sub Frame," + ",".join(["X,Y,Z"] * m),
+            ",," + ",".join(["mm,mm,mm"] * m)]
+    cells = np.char.mod("%.6g", xyz.reshape(t, 3 * m))
+    cells[np.isnan(xyz.reshape(t, 3 * m))] = ""
+    rows = [f"{i + 1},0," + ",".join(r) for i, r in enumerate(cells.tolist())]
+    path.write_bytes(("\r\n".join(head + rows) + "\r\n").encode("ascii"))
 
 
 #: lab axes of a y-up capture from the generator's z-up ones: a right-handed turn of −90° about x
@@ -324,8 +345,11 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
         if kind == "face":
             assert target is not None
-            rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
-                             "duration_s": target[1]}, r_writer, cam, {"id": take_id, "kind": kind})
+            face_scalars: dict[str, Any] = {"kind": kind, "rate_hz": target[0], "duration_s": target[1]}
+            if cfg.face_tracking_loss:
+                face_scalars["tracking_loss_stretches"] = int(cfg.face_tracking_loss)
+            rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, face_scalars, r_writer, cam,
+                             {"id": take_id, "kind": kind})
             for w in all_writers:
                 rec.entries.update(w(out, rec))
             write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
@@ -384,10 +408,16 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         for a, b, s, e in swaps:                 # a ghost on a swapped marker shows under the other name
             spiked[s:e, [a, b]] = spiked[s:e, [b, a]]
         noisy[mask] = np.nan
-        mocap_rel = f"mocap/{take_id}.c3d"
+        # the export's format: a stream of its own, drawn only when asked for (the other streams stay as they were)
+        nexus = cfg.nexus_csv > 0 and np.random.default_rng(
+            np.random.SeedSequence([seed, index]).spawn(11)[10]).random() < cfg.nexus_csv
+        mocap_rel = f"mocap/{take_id}.csv" if nexus else f"mocap/{take_id}.c3d"
         if cfg.up_axis != "z":
             noisy = noisy @ _lab_axes(cfg.up_axis).T
-        write_c3d(out / mocap_rel, kin.labels, noisy, rate)
+        if nexus:
+            write_nexus_csv(out / mocap_rel, kin.labels, noisy, rate, cfg.subject)
+        else:
+            write_c3d(out / mocap_rel, kin.labels, noisy, rate)
         arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
         if cfg.up_axis != "z":
             _relabel_lab(arrays, _lab_axes(cfg.up_axis))

@@ -33,18 +33,21 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
     data) are always counted; with ``spikes`` they become gaps before filling (else the measured samples are
     kept as they are).
 
-    Summary: ``samples`` per fill code over all markers, ``gaps`` (total, filled, unfilled, and filled gaps at
+    Summary: ``samples`` per fill code over all markers (every sample once: they add up to frames × markers;
+    ``swap_repaired`` counts the samples put back under their own names that stay measured, i.e. ``swaps``'s
+    ``samples_repaired`` less its ``samples_removed_as_spikes``), ``gaps`` (total, filled, unfilled, and filled gaps at
     the start or end: filled from other markers only), ``unfilled_reasons`` (gaps per reason), ``clusters``
     (the rigid clusters found, by label), per marker the samples filled by each method and those left unfilled,
     and ``gap_list``: every gap with its file frame numbers, method, weights and validation errors.
     """
     changed = np.zeros(markers.valid.shape, dtype=bool)
+    repaired = np.zeros(markers.valid.shape, dtype=bool)
     swap_summary: dict[str, Any] = {"looked_for": False, "stretches": []}
     if swaps and markers.n_frames >= OWN_REFERENCES_MIN_S * markers.rate_hz:
         fixed = repair_swaps(markers.xyz, markers.valid)
-        changed = fixed.repaired | fixed.removed
+        changed, repaired = fixed.repaired | fixed.removed, fixed.repaired
         swap_summary = {"looked_for": True, "samples_repaired": int(fixed.repaired.sum()),
-                        "samples_removed": int(fixed.removed.sum()),
+                        "samples_removed": int(fixed.removed.sum()), "samples_removed_as_spikes": 0,
                         "stretches": [{"markers": [markers.labels[r.first], markers.labels[r.second]],
                                        "first_frame": markers.first_frame + r.start,
                                        "last_frame": markers.first_frame + r.stop - 1, "repaired": r.repaired}
@@ -58,7 +61,13 @@ def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str
         clusters = find_rigid_clusters(markers.xyz, valid)
     res = fill_gaps(markers.xyz, valid, markers.rate_hz, clusters=clusters, max_gap_s=max_gap_s,
                     methods=methods)
-    code = np.asarray(res.fill_code)
+    code = np.array(res.fill_code)
+    if swap_summary["looked_for"]:
+        # a sample put back under its own name is measured, coded as the clean stage codes it; one that is then a
+        # spike taken out is counted apart, so that the two counts agree
+        kept = repaired & (code == FILL_CODES["measured"])
+        code[kept] = FILL_CODES["swap_repaired"]
+        swap_summary["samples_removed_as_spikes"] = int((repaired & ~kept).sum())
     unfilled = code == FILL_CODES["unfilled"]
     filled = dataclasses.replace(markers, xyz=np.where(unfilled[..., None], np.nan, res.xyz), valid=~unfilled,
                                  warnings=list(markers.warnings))

@@ -109,7 +109,8 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
     """Align a take's tracked and clean blendshapes on timecode and add forward derivatives (SPEC §3.6).
 
     A tracked row is kept when the clean file has a row within half a capture frame (1 / (2·rate_hz)) of its
-    timecode; each clean row pairs with at most one tracked row. dt and the derivatives run over the aligned
+    timecode; each clean row pairs with at most one tracked row; rows written while tracking was lost
+    (``FaceTrack.valid`` False) pair with none (counted as unmatched). dt and the derivatives run over the aligned
     rows, so a dropped or unmatched frame simply makes that step longer (Berson's formulation needs no fixed
     rate). The last ``k`` aligned rows lack a forward derivative of order ``k`` and are left out.
 
@@ -140,7 +141,11 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
         raise StageError(trk_path, f"the tracked blendshape channels differ from the clean ones{other}")
     names = tuple(normalise_name(n) or n for n in tracked.names)
     tol = 0.5 / float(tracked.rate_hz)
-    rows, crow, err = _match(tracked.timecode_s, clean.timecode_s, tol)
+    # rows written while tracking was lost hold no values: they match nothing (a longer step, as a dropped frame)
+    t_ok, c_ok = np.flatnonzero(tracked.valid_rows), np.flatnonzero(clean.valid_rows)
+    rows, crow, err = (_match(tracked.timecode_s[t_ok], clean.timecode_s[c_ok], tol) if t_ok.size and c_ok.size
+                       else (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)))
+    rows, crow = t_ok[rows], c_ok[crow]
     if rows.size <= k:
         raise StageError(trk_path, f"only {rows.size} tracked row(s) have a clean counterpart{other} within half "
                                    f"a frame (need more than {k}); do the two files share a timecode?")
