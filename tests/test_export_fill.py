@@ -611,3 +611,77 @@ def test_fill_counts_apart_what_it_fills_in_dropped_frames(tmp_path):
     assert out.read_bytes() == kept                  # nothing else to fill: the copy is the input
     plain = invoke("fill", str(inp), str(tmp_path / "again.csv"))
     assert "not written" in plain.stdout
+
+
+def _listed(side: dict, labels: list[str], first_frame: int, shape: tuple[int, int], key: str = "filled"):
+    """(T, M) mask of the samples a sidecar lists under ``key``, and their methods {(row, col): method}."""
+    mask, methods = np.zeros(shape, bool), {}
+    for label, runs in side[key].items():
+        for run in runs:
+            rows = np.arange(run[0], run[1] + 1) - first_frame
+            mask[rows, labels.index(label)] = True
+            methods.update({(int(r), labels.index(label)): (run[2] if len(run) > 2 else None) for r in rows})
+    return mask, methods
+
+
+def test_fill_lists_its_filled_samples_where_the_files_residuals_cannot_mark_them(tmp_path):
+    """The sample's C3D writes residual 0 for every measured sample, as for a filled one: `fill` says so in one
+    warning line and lists every filled sample, with its gap's method, in OUT.gazepipe.json."""
+    src, out = SAMPLE / "mocap" / "follow_standing_03.c3d", tmp_path / "f.c3d"
+    res = invoke("fill", str(src), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    side_path = tmp_path / "f.c3d.gazepipe.json"
+    assert summary["sidecar"] == str(side_path)
+    assert [w for w in summary["warnings"] if "listed in" in w] == [w for w in summary["warnings"] if "residual" in w]
+    m0, m1 = read_c3d(src), read_c3d(out)
+    side = json.loads(side_path.read_text())
+    listed, methods = _listed(side, m0.labels, m0.first_frame, m0.valid.shape)
+    np.testing.assert_array_equal(listed, m1.valid & ~m0.valid)
+    for g in summary["gap_list"]:
+        if g["method"] != "unfilled":
+            assert methods[(g["first_frame"] - m0.first_frame, m0.labels.index(g["marker"]))] == g["method"]
+    text = invoke("fill", str(src), str(tmp_path / "g.c3d")).stdout
+    assert sum("listed in" in line for line in text.splitlines()) == 1
+
+
+def test_fill_needs_no_sidecar_where_residuals_mark_the_measured_samples(tmp_path):
+    """A C3D whose measured samples carry residuals and cameras (as Vicon and QTM write them): the filled samples'
+    fourth word 0 is the mark both byte orders read (the `c3d` package and ezc3d), so no sidecar and no warning;
+    a sidecar an earlier OUT left is removed, since it would describe another file."""
+    from gazepipe.io.c3d_write import write_c3d_points
+
+    src, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=5)
+    words = np.where(valid, float(0x7F03), -1.0)            # seven cameras, residual 3 steps
+    inp, out = tmp_path / "in.c3d", tmp_path / "out.c3d"
+    write_c3d_points(inp, labels, truth, words, rate_hz=src.rate_hz, first_frame=1, scale=-0.1)
+    stale = tmp_path / "out.c3d.gazepipe.json"
+    stale.write_text("{}")
+    res = invoke("fill", str(inp), str(out), "--json", "--force")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["sidecar"] is None and not stale.exists()
+    assert not any("listed in" in w for w in summary["warnings"])
+    back = _read_with_py_c3d(out)
+    new = ~valid & np.isfinite(back.xyz).all(axis=2)
+    assert new.sum() == (~valid).sum()
+    np.testing.assert_array_equal(back.residual[new], 0.0)
+    np.testing.assert_allclose(back.residual[valid], 0.3, atol=1e-6)
+    ez = _ezc3d(out)["residual"]
+    assert (ez[new] == 0).all() and (ez[valid] > 0).all()
+
+
+def test_fill_of_a_text_export_lists_its_filled_samples(tmp_path):
+    _, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=4)
+    name, data = _text_export("qtm", truth, valid, labels)
+    inp, out = tmp_path / name, tmp_path / f"filled_{name}"
+    inp.write_bytes(data)
+    res = invoke("fill", str(inp), str(out))
+    assert res.exit_code == 0, res.stderr
+    assert "text export has no residuals" in res.stdout
+    side = json.loads((tmp_path / f"filled_{name}.gazepipe.json").read_text())
+    m0 = read_markers(inp)
+    listed, _ = _listed(side, m0.labels, m0.first_frame, m0.valid.shape)
+    np.testing.assert_array_equal(listed, ~valid)
