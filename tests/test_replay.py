@@ -466,7 +466,7 @@ def test_view_help_teaches() -> None:
 def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_process_run: dict,
                                                                       tmp_path: Path) -> None:
     """`gazepipe run` (process executor) writes a replay page per drawn take and qc/plotly.min.js once; the
-    page links each; `gazepipe validate` writes the same bytes; --no-plots leaves the replays out."""
+    page links each; `gazepipe validate` writes the same bytes; --no-plots draws none and deletes none."""
     out = sample_process_run["out"]
     qc = out / "qc"
     report = json.loads((qc / "report.json").read_text())
@@ -486,6 +486,14 @@ def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_pro
     assert res.exit_code == 0, res.output
     for rel in pages:
         assert (copy / "qc" / rel).read_bytes() == (qc / rel).read_bytes(), rel
+    drawn, drawn_json = (copy / "qc" / "report.html").read_text(), (copy / "qc" / "report.json").read_bytes()
     res = CliRunner().invoke(cli, ["validate", str(copy), "--no-plots"])
     assert res.exit_code == 0, res.output
-    assert not (copy / "qc" / "replay").exists() and "3D replay" not in (copy / "qc" / "report.html").read_text()
+    # --no-plots draws none and deletes none: the pages stay, linked, and the page keeps the plots drawn before
+    kept = (copy / "qc" / "report.html").read_text()
+    for rel in pages:
+        assert (copy / "qc" / rel).read_bytes() == (qc / rel).read_bytes(), rel
+        assert f'href="{rel}"' in kept
+    assert kept.count('<figure class="plot">') == drawn.count('<figure class="plot">') > 0
+    assert "none drawn (--no-plots)" in kept and "Kept from the report drawn before" in kept
+    assert (copy / "qc" / "report.json").read_bytes() == drawn_json

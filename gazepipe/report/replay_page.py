@@ -508,10 +508,11 @@ REPLAY_DIR = "replay"
 VIEW_DIR = "view"
 
 
-def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes]) -> list[Path]:
+def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes], prune: bool = True) -> list[Path]:
     """Write the report's replay pages (``(session, take)`` → page) under ``qc/replay/`` (atomically, each
-    unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and delete the other
-    files there (pages of takes the report no longer shows). Returns the pages' paths."""
+    unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and, with ``prune``, delete
+    the other files there (pages of takes the report no longer shows; ``validate --no-plots`` deletes
+    nothing). Returns the pages' paths."""
     if pages:
         write_plotly_js(qc, tmp)
     paths: list[Path] = []
@@ -520,7 +521,7 @@ def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes
         write_if_changed(path, data, tmp)
         paths.append(path)
     base = qc / REPLAY_DIR
-    if base.is_dir():
+    if prune and base.is_dir():
         keep = set(paths)
         for p in sorted(base.rglob("*"), reverse=True):
             try:
