@@ -41,6 +41,7 @@ from gazepipe.report.replay_page import (
     plotly_js,
     replay_html,
 )
+from tests.helpers import HOSTILE_LABELS, check_page_escapes
 
 CHROMIUM = Path("/usr/bin/chromium")
 TAKE = "session01/follow_standing_03"     # the sample take with a stretch that gives no dataset row
@@ -294,6 +295,25 @@ def test_the_same_inputs_give_the_same_bytes() -> None:
     assert a == b
     assert f'src="{RELATIVE_PLOTLY}"' in a and "http" not in a.replace("https://plot.ly", "")
     assert 'id="replay"' in a and not re.search(r"[0-9a-f]{8}-[0-9a-f]{4}-", a)   # no random div ids
+
+
+def test_hostile_marker_labels_are_escaped_in_the_page() -> None:
+    """Marker labels are data: `<!--<script>` and the others of :data:`HOSTILE_LABELS` come back whole from the
+    page's JSON and leave its script element whole; a label named like a placeholder of the script is not
+    replaced by its value."""
+    inp = synthetic_take()
+    names = dict(zip([inp.raw.labels[1], inp.raw.labels[2], inp.raw.labels[4], inp.raw.labels[5]], HOSTILE_LABELS,
+                     strict=True))
+    for m in (inp.raw, inp.clean):
+        m.labels = [names.get(lab, lab) for lab in m.labels]
+    inp.markerset = MarkerSet(path="markerset.toml", up_axis="z", units="mm", root="ROOT", target="POLE",
+                              clapper=(), head_centre=None, segments=tuple(
+                                  Segment(s.name, tuple(names.get(n, n) for n in s.markers), s.parent)
+                                  for s in inp.markerset.segments))
+    page = replay_html(inp, RELATIVE_PLOTLY)[0]
+    check_page_escapes(page, HOSTILE_LABELS)
+    alone = replay_html(inp, "inline:" + "/* plotly */")[0]
+    check_page_escapes(alone, HOSTILE_LABELS)
 
 
 @pytest.mark.parametrize("skeleton, up", [(TEN, "z"), (FOUR, "y")])
