@@ -214,3 +214,45 @@ def test_the_generator_leaves_no_partial_session_where_it_cannot_write(tmp_path,
     assert code == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]
     assert [p.name for p in (tmp_path / "old").iterdir()] == ["notes.txt"]
+
+
+# ------------------------------------------------------------------------------------------------ a video's tag
+
+def _retag(src: Path, dest: Path, fps: float) -> None:
+    """``src`` re-encoded frame for frame with another frame rate tag."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(src))
+    size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+    writer = cv2.VideoWriter(str(dest), cv2.VideoWriter.fourcc(*"mp4v"), fps, size)
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        writer.write(frame)
+    writer.release()
+    cap.release()
+
+
+def test_a_video_tagged_at_another_rate_than_its_eye_tracking_is_named(tmp_path) -> None:
+    """The sample's 60 fps head camera re-tagged 30 fps (its OpenFace CSV timed at 60): the eyes stage names the
+    video and both rates (a warning when the camera rotation is still found), and when the rotation cannot be
+    estimated the error names the video, not the eyes CSV."""
+    from gazepipe.errors import StageError
+    from gazepipe.io.openface import read_openface
+    from gazepipe.stages.eyes.stage import _video_at_fault, tag_mismatch
+
+    session = session_copy(tmp_path / "s", {"neutral": None, "follow_standing_03": None})
+    video = session / "video" / "follow_standing_03.mp4"
+    _retag(SAMPLE / "video" / "follow_standing_03.mp4", video, 30.0)
+    out = tmp_path / "out"
+    run_session(session, out)
+    rec = json.loads((out / ".gazepipe" / "units" / "session01" / "follow_standing_03" / "eyes.json").read_text())
+    named = [w for w in rec.get("warnings", []) if w.startswith("video/follow_standing_03.mp4:")]
+    assert rec["status"] == "ok" and len(named) == 1 and "tagged 30 fps" in named[0] and "60 fps" in named[0], rec
+    eye = read_openface(session / "eyes" / "follow_standing_03.csv")
+    with pytest.raises(StageError) as ei:
+        _video_at_fault((str(video), 58.8, 1764, 30.0), 29.4, eye, "follow_standing_03")
+    assert ei.value.path == str(video) and "tagged 30 fps" in str(ei.value)
+    assert tag_mismatch((str(video), 29.4, 1764, 60.0), eye) is None      # the tag it was timed at: no fault
+    _video_at_fault((str(video), 29.4, 1764, 60.0), 29.4, eye, "follow_standing_03")
