@@ -685,3 +685,32 @@ def test_fill_of_a_text_export_lists_its_filled_samples(tmp_path):
     m0 = read_markers(inp)
     listed, _ = _listed(side, m0.labels, m0.first_frame, m0.valid.shape)
     np.testing.assert_array_equal(listed, ~valid)
+
+
+def test_export_keeps_the_captures_own_residuals_and_cameras(tmp_path):
+    """A capture whose fourth words hold residuals and camera masks (as Vicon and QTM write them): the export
+    writes each measured sample's word as the capture has it, under the capture's POINT:SCALE (so the residual
+    keeps its meaning), a stand-in of one residual step only where the capture's residual byte is 0, and 0 for
+    every filled sample."""
+    from gazepipe.io.c3d_write import read_point_words, write_c3d_points
+    from tests.helpers import run_session, session_copy
+
+    session = session_copy(tmp_path / "s", {"neutral": None, "shift_y036_p12": None})
+    path = session / "mocap" / "shift_y036_p12.c3d"
+    m = read_c3d(path)
+    t, k = np.indices(m.valid.shape)
+    words = np.where(m.valid, 0x7F00 + (t + 3 * k) % 60, -1.0).astype(np.float64)   # some residual bytes 0
+    write_c3d_points(path, m.labels, m.xyz, words, rate_hz=m.rate_hz, first_frame=m.first_frame, scale=-0.05)
+    run_session(session, tmp_path / "out")
+    side = _exported(tmp_path / "out", "shift_y036_p12", tmp_path / "e.c3d")
+    got, scale = read_point_words(tmp_path / "e.c3d")
+    assert scale == pytest.approx(0.05) and side["residuals"]["source"] == "capture file"
+    back = read_c3d(tmp_path / "e.c3d")
+    filled = back.valid & ~m.valid
+    measured = back.valid & m.valid
+    assert filled.any() and (got[filled] == 0).all()
+    has = measured & (words % 256 > 0)
+    np.testing.assert_array_equal(got[has], words[has])
+    zero = measured & (words % 256 == 0)
+    assert zero.any() and (got[zero] == 0x7F01).all()
+    assert side["residuals"]["stand_ins"] == int(zero.sum())

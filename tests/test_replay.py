@@ -517,3 +517,36 @@ def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_pro
     assert kept.count('<figure class="plot">') == drawn.count('<figure class="plot">') > 0
     assert "none drawn (--no-plots)" in kept and "Kept from the report drawn before" in kept
     assert (copy / "qc" / "report.json").read_bytes() == drawn_json
+
+
+def test_validate_keeps_the_replays_of_unchanged_takes_it_does_not_draw(out_copy: Path, tmp_path: Path) -> None:
+    """`validate` deletes no view of the current outputs: the replay pages of takes it does not draw this time
+    stay while they are their take's page; a take gone loses its page; --no-plots draws and deletes none."""
+    out = tmp_path / "out"
+    shutil.copytree(out_copy, out)
+    shutil.rmtree(out / "qc" / "replay")        # the run's pages (still current: they would be kept too)
+
+    def validate(*args: str) -> str:
+        res = CliRunner().invoke(cli, ["validate", str(out), "--plot-takes", "0", *args])
+        assert res.exit_code in (0, 3), res.output
+        return (out / "qc" / "report.html").read_text()
+
+    validate("--plot-take", "shift_y0[03]*")
+    replay = out / "qc" / "replay" / "session01"
+    shifts = sorted(p.name for p in replay.glob("*.html"))
+    assert shifts == ["shift_y000_p12.html", "shift_y036_p12.html", "shift_y036_pm12.html"]
+    before = {n: (replay / n).read_bytes() for n in shifts}
+    html = validate("--plot-take", "neutral")
+    assert sorted(p.name for p in replay.glob("*.html")) == sorted(shifts + ["neutral.html"])
+    assert all((replay / n).read_bytes() == data for n, data in before.items())
+    assert 'href="replay/session01/neutral.html"' in html and "shift_y000_p12.html" not in html
+    html = validate("--no-plots")
+    assert sorted(p.name for p in replay.glob("*.html")) == sorted(shifts + ["neutral.html"])
+    assert all(f'href="replay/session01/{n}"' in html for n in shifts + ["neutral.html"])
+    # a take whose outputs are gone (or changed): its page, a view of what is no longer there, goes
+    layout = open_output(out)
+    shutil.rmtree(layout.take_dir("session01", "shift_y036_pm12"))
+    shutil.rmtree(layout.record("session01", "shift_y036_pm12", "x").parent)
+    validate("--plot-take", "neutral")
+    assert sorted(p.name for p in replay.glob("*.html")) == ["neutral.html", "shift_y000_p12.html",
+                                                             "shift_y036_p12.html"]

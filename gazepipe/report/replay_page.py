@@ -17,6 +17,7 @@ from __future__ import annotations
 import base64
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from html import escape
 from pathlib import Path
@@ -525,11 +526,12 @@ REPLAY_DIR = "replay"
 VIEW_DIR = "view"
 
 
-def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes], prune: bool = True) -> list[Path]:
+def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes], prune: bool = True,
+                         keep: Sequence[Path] = ()) -> list[Path]:
     """Write the report's replay pages (``(session, take)`` → page) under ``qc/replay/`` (atomically, each
     unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and, with ``prune``, delete
-    the other files there (pages of takes the report no longer shows; ``validate --no-plots`` deletes
-    nothing). Returns the pages' paths."""
+    the other files there but ``keep`` (pages of takes gone, or of outputs since changed; ``validate
+    --no-plots`` deletes nothing). Returns the pages' paths."""
     if pages:
         write_plotly_js(qc, tmp)
     paths: list[Path] = []
@@ -539,13 +541,13 @@ def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes
         paths.append(path)
     base = qc / REPLAY_DIR
     if prune and base.is_dir():
-        keep = set(paths)
+        kept = set(paths) | set(keep)
         for p in sorted(base.rglob("*"), reverse=True):
             try:
                 if p.is_dir():
                     if not any(p.iterdir()):
                         p.rmdir()
-                elif p not in keep:
+                elif p not in kept:
                     p.unlink()
             except OSError:
                 pass

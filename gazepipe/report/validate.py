@@ -593,33 +593,45 @@ def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, cache: Figu
         failed=tuple(k for k in chosen if k not in take_figs)), pages
 
 
+def pages_on_disk(layout: OutLayout, tp: TakePass, replays: ReplayCache,
+                  skip: Sequence[tuple[str, str]] = ()) -> dict[tuple[str, str], bytes]:
+    """The replay pages ``qc/replay/`` holds (takes in ``skip`` apart) that are still their take's page: the
+    replay cache has, for the take's outputs as they are now, a page of the same bytes. A page of a take gone,
+    or of outputs since changed, is not among them."""
+    from gazepipe.report.replay_page import REPLAY_DIR
+
+    base = layout.root / "qc" / REPLAY_DIR
+    by_key = {e.key: e for e in tp.entries}
+    found: dict[tuple[str, str], bytes] = {}
+    for path in sorted(base.glob("*/*.html")) if base.is_dir() else []:
+        e = by_key.get(f"{path.parent.name}/{path.stem}")
+        if e is None or (e.session, e.take) in skip:
+            continue
+        s = tp.sessions.get(e.session)
+        got = replays.get(replays.key(e, s.markerset if s is not None else None))
+        try:
+            if got is not None and got[0] is not None and got[0] == path.read_bytes():
+                found[(e.session, e.take)] = got[0]
+        except OSError:
+            continue
+    return found
+
+
 def _kept_take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, ranked: list[str], named: list[str],
                      drawable: set[str], cache: FigureCache, replays: ReplayCache
                      ) -> tuple[dict[str, list[Figure]], list[str], PlotSelection, dict[tuple[str, str], bytes]]:
-    """``--no-plots``: nothing drawn, nothing deleted. The takes whose replay page the report folder holds (the
-    ones the report written before drew) keep their plots and their page, where these were made from the
-    outputs as they are now (read back from the caches, never drawn)."""
-    from gazepipe.io.toml_common import WORD
-    from gazepipe.report.replay_page import REPLAY_DIR
-
+    """``--no-plots``: nothing drawn, nothing deleted. The takes whose replay page the report folder holds, made
+    from their outputs as they are now (:func:`pages_on_disk`: the ones the report written before drew), keep
+    that page and their plots (read back from the caches, never drawn)."""
     by_key = {e.key: e for e in tp.entries}
-    base = layout.root / "qc" / REPLAY_DIR
-    on_disk = {f"{p.parent.name}/{p.stem}" for p in base.glob("*/*.html")
-               if WORD.fullmatch(p.parent.name) and WORD.fullmatch(p.stem)} if base.is_dir() else set()
+    pages = pages_on_disk(layout, tp, replays)
     take_figs: dict[str, list[Figure]] = {}
-    pages: dict[tuple[str, str], bytes] = {}
-    for key in ranked:
-        e = by_key.get(key)
-        if e is None or key not in on_disk or key not in drawable:
-            continue
+    for session, take in pages:
+        e = by_key[f"{session}/{take}"]
         s = tp.sessions.get(e.session)
-        markerset = s.markerset if s is not None else None
-        figs = cache.get(cache.take_key(e, markerset))
+        figs = cache.get(cache.take_key(e, s.markerset if s is not None else None))
         if figs is not None and figs[0]:
-            take_figs[key] = figs[0]
-        page = replays.get(replays.key(e, markerset))
-        if page is not None and page[0] is not None:
-            pages[(e.session, e.take)] = page[0]
+            take_figs[e.key] = figs[0]
     return take_figs, [], PlotSelection(
         False, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
         nothing_to_draw=tuple(k for k in ranked if k not in drawable)), pages
@@ -669,14 +681,18 @@ def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: Plot
         "notes": list(session_problems),
     }
     table = pa.Table.from_pylist(rows, schema=TAKES_SCHEMA) if rows else TAKES_SCHEMA.empty_table()
-    from gazepipe.report.replay_page import REPLAY_DIR, write_report_replays
+    from gazepipe.report.replay_page import REPLAY_DIR, page_path, write_report_replays
 
     links = {f"{s}/{t}": f"{REPLAY_DIR}/{s}/{t}.html" for s, t in pages}
     html = render_html(report, take_figs, ds_figs, plot_notes, plots=selection, replays=links)
     qc = layout.root / "qc"
     qc.mkdir(exist_ok=True)
     layout.tmp.mkdir(parents=True, exist_ok=True)
-    replay_paths = write_report_replays(qc, layout.tmp, pages, prune=plots.on)
+    # the pages of takes not drawn this time stay while they are their take's page (validate deletes no view of
+    # the current outputs); stale ones go, and with --no-plots nothing goes
+    kept = pages_on_disk(layout, tp, replay_cache, skip=list(pages)) if plots.on else {}
+    replay_paths = write_report_replays(qc, layout.tmp, pages, prune=plots.on,
+                                        keep=[page_path(qc, REPLAY_DIR, s, t) for s, t in kept])
     paths = [qc / "report.json", qc / "takes.parquet", qc / "report.html"]
     layout.write_bytes(paths[0], (json.dumps(report, indent=1, sort_keys=True, allow_nan=False,
                                              ensure_ascii=False) + "\n").encode())
