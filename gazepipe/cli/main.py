@@ -283,9 +283,9 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                 markers.warnings.append(f"{res.wide} filled samples lie beyond the file's 16-bit integer range "
                                         "and are written as gaps (counted as filled below)")
             summary["samples_written_as_gaps"] = res.wide
-            unmarked = (f"{res.unmarked_measured} measured samples of the input have a residual or camera byte of "
-                        "0, as a filled sample's has, so readers cannot tell them apart") if res.unmarked_measured \
-                else None
+            unmarked = (f"{res.unmarked_measured} samples the input holds already have a residual or camera byte "
+                        "of 0 (the mark of a filled sample), so readers cannot tell the new fills from them") \
+                if res.unmarked_measured else None
         else:
             assert text is not None   # read above for every format but C3D
             write_filled_text(src_p, tmp, filled, fmt, removed=removed, original=text)
