@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
@@ -15,9 +15,10 @@ from gazepipe.cli.main import cli
 from gazepipe.io.c3d import read_c3d
 from gazepipe.io.capture import read_markers
 from gazepipe.io.export import write_markers
+from gazepipe.io.session_toml import load_session
 from gazepipe.model import FILL_CODES
 from gazepipe.schemas.markers import table_to_markers
-from tests.helpers import CORPUS
+from tests.helpers import CORPUS, SAMPLE
 
 
 def invoke(*args: str):
@@ -31,51 +32,219 @@ def cleaned(sample_run) -> Path:
     return sample_run
 
 
-def test_exported_c3d_reingests_with_same_coordinates_and_gap_mask(cleaned, tmp_path):
-    take = "follow_sitting_01"
-    table = pq.read_table(cleaned / "takes" / "session01" / take / "markers.parquet")
-    markers, frames, fill, _ = table_to_markers(table)
-    assert (fill == FILL_CODES["unfilled"]).any()  # a target gap the filler refused: the mask matters
-    dest = tmp_path / "t.c3d"
-    res = invoke("export", str(cleaned), take, "--to", str(dest))
+def _exported(out: Path, take: str, dest: Path, *args: str) -> dict:
+    """``gazepipe export OUT session01/TAKE --to DEST ARGS``: exit 0; its sidecar."""
+    res = invoke("export", str(out), f"session01/{take}", "--to", str(dest), *args)
     assert res.exit_code == 0, res.stderr
-    for reader in ("ezc3d", "c3d"):
-        back = read_c3d(dest) if reader == "ezc3d" else _read_with_py_c3d(dest)
-        assert back.labels == markers.labels
-        np.testing.assert_array_equal(back.valid, markers.valid)
-        # C3D float storage is float32: compare at its precision (values are up to ~3000 mm)
-        np.testing.assert_allclose(back.xyz[back.valid], markers.xyz[markers.valid], atol=5e-4)
-        assert back.first_frame == markers.first_frame + frames[0]
+    assert f"wrote {dest}" in res.stdout
+    return json.loads(Path(f"{dest}.gazepipe.json").read_text())
 
 
-def _read_with_py_c3d(path: Path):
-    """Decode with the pure-Python `c3d` reader, independently of gazepipe's reader."""
-    import c3d as pyc3d
-
-    with open(path, "rb") as fh:
-        reader = pyc3d.Reader(fh)
-        labels = [s.strip() for s in reader.point_labels]
-        pts = np.stack([p for _, p, _ in reader.read_frames()])
-        first = reader.first_frame
-    from gazepipe.model import Markers
-    valid = pts[:, :, 3] >= 0
-    xyz = np.where(valid[..., None], pts[:, :, :3], np.nan)
-    return Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=1.0, first_frame=first)
+def _cleaned_take(out: Path, take: str):
+    """The cleaned markers table of a take: (markers, the capture rows they keep, fill codes)."""
+    markers, frames, fill, _ = table_to_markers(pq.read_table(out / "takes" / "session01" / take / "markers.parquet"))
+    return markers, frames, fill
 
 
-def test_export_csv_round_trip(cleaned, tmp_path):
-    dest = tmp_path / "t.csv"
-    assert invoke("export", str(cleaned), "shift_y036_p12", "--to", str(dest)).exit_code == 0
-    back = read_markers(dest)
-    table = pq.read_table(cleaned / "takes" / "session01" / "shift_y036_p12" / "markers.parquet")
-    markers, _, _, _ = table_to_markers(table)
-    np.testing.assert_array_equal(back.valid, markers.valid)
-    np.testing.assert_allclose(back.xyz[back.valid], markers.xyz[markers.valid], rtol=0, atol=1e-9)
-    # frame and time columns say what the take's tables say: source frame, seconds since the capture's start
-    csv = np.genfromtxt(dest, delimiter=",", names=True, usecols=(0, 1))
-    rows = table.filter(pc.equal(table["marker"], table["marker"][0])).sort_by("frame")
-    np.testing.assert_array_equal(csv["time"], rows["time_s"].to_numpy())
-    np.testing.assert_array_equal(csv["frame"], rows["source_frame"].to_numpy())
+def _ezc3d(path: Path) -> dict:
+    """What ezc3d reads of a C3D: labels, (T, M, 3) points, (T, M) residuals, first frame, rate, parameters."""
+    import ezc3d
+
+    c = ezc3d.c3d(str(path))
+    return {"labels": [s.strip() for s in c["parameters"]["POINT"]["LABELS"]["value"]],
+            "xyz": c["data"]["points"][:3].transpose(2, 1, 0),
+            "residual": c["data"]["meta_points"]["residuals"][0].T,
+            "first_frame": c["header"]["points"]["first_frame"] + 1,
+            "rate": float(c["parameters"]["POINT"]["RATE"]["value"][0]), "params": c["parameters"]}
+
+
+def _check_back_to_the_capture(out: Path, session: Path, take: str, dest: Path) -> None:
+    """The acceptance of `gazepipe export` (issue 46): the exported C3D, read by ezc3d and by the `c3d` package,
+    holds every measured sample of the raw capture to 1e-6 mm (ezc3d's reading of the capture file itself),
+    every filled sample marked (residual 0 in both readers, listed in the sidecar, and nothing else at 0), the
+    crop in its events and parameters, and the filled samples in the lab frame (the cleaned table's positions
+    moved by the capture's own root marker)."""
+    side = _exported(out, take, dest)
+    got, src = _ezc3d(dest), _ezc3d(session / "mocap" / f"{take}.c3d")
+    raw = read_c3d(session / "mocap" / f"{take}.c3d")        # which samples the capture measured
+    clean, frames, fill = _cleaned_take(out, take)
+    assert got["labels"] == src["labels"] == raw.labels
+    assert got["first_frame"] == src["first_frame"] == raw.first_frame
+    assert abs(got["rate"] - raw.rate_hz) < 1e-4 and got["xyz"].shape == src["xyz"].shape   # the whole take
+    # measured: every sample the capture measured and the cleaning kept as measured, as the capture has it
+    code = np.full(raw.valid.shape, FILL_CODES["measured"], np.int8)
+    code[frames] = fill
+    measured = raw.valid & (code == FILL_CODES["measured"])
+    assert np.abs(got["xyz"][measured] - src["xyz"][measured]).max() <= 1e-6
+    # filled: the fill codes of the cleaned table, residual 0 in both readers and listed; measured ones > 0
+    filled = np.isin(code, [FILL_CODES[k] for k in ("linear", "pchip", "rigid", "pca")]) & (code != 0)
+    filled[np.setdiff1d(np.arange(raw.n_frames), frames)] = False
+    assert filled.any() and (got["residual"][filled] == 0).all()
+    written = np.isfinite(got["residual"]) & (got["residual"] >= 0)
+    assert (got["residual"][written & ~filled] > 0).all()
+    listed = np.zeros_like(filled)
+    for label, runs in side["filled"].items():
+        for first, last, method in runs:
+            rows = np.arange(first, last + 1) - raw.first_frame
+            listed[rows, raw.labels.index(label)] = True
+            assert (code[rows, raw.labels.index(label)] == FILL_CODES[method]).all()
+    np.testing.assert_array_equal(listed, filled)
+    py = _read_with_py_c3d(dest)
+    assert py.labels == raw.labels and py.first_frame == raw.first_frame
+    np.testing.assert_array_equal(py.residual[filled], 0.0)
+    assert (py.residual[written & ~filled] > 0).all()
+    np.testing.assert_allclose(py.xyz[measured], src["xyz"][measured], rtol=0, atol=1e-6)
+    # the crop: the events, GAZEPIPE:CROP and the sidecar name the first and last kept frame
+    first, last = raw.first_frame + frames[0], raw.first_frame + frames[-1]
+    ev = got["params"]["EVENT"]
+    times = dict(zip(ev["LABELS"]["value"], ev["TIMES"]["value"][0] * 60 + ev["TIMES"]["value"][1], strict=True))
+    assert round(times["gazepipe crop start"] * raw.rate_hz) + 1 == first
+    assert round(times["gazepipe crop end"] * raw.rate_hz) + 1 == last
+    assert list(got["params"]["GAZEPIPE"]["CROP"]["value"]) == [first, last]
+    assert (side["crop"]["first"], side["crop"]["last"]) == (first, last)
+    # the lab frame: a filled sample is the cleaned one moved as the frame's measured markers moved (by the root
+    # marker's position, where it was measured)
+    rows, cols = np.nonzero(filled)
+    k = np.searchsorted(frames, rows)
+    both = raw.valid[frames] & (fill == FILL_CODES["measured"])
+    assert both[k].any(axis=1).all()
+    ref = np.argmax(both[k], axis=1)                          # a marker measured in both, in each filled frame
+    moved = clean.xyz[k, cols] + raw.xyz[rows, ref] - clean.xyz[k, ref]
+    np.testing.assert_allclose(got["xyz"][rows, cols], moved, rtol=0, atol=2e-3)
+    root = raw.labels.index(load_session(session / "session.toml").markerset.root)
+    at_root = raw.valid[rows, root] & (fill[k, root] == FILL_CODES["measured"])   # not a ghost the cleaning filled
+    assert at_root.sum() >= 50
+    np.testing.assert_allclose(got["xyz"][rows, cols][at_root], clean.xyz[k, cols][at_root]
+                               + raw.xyz[rows, root][at_root], rtol=0, atol=2e-3)
+    truth = np.load(session / "truth" / f"{take}.npz")["markers_true"]
+    err = np.linalg.norm(got["xyz"][filled] - truth[filled], axis=-1)
+    assert err.mean() < 3.0, err.mean()    # the fills' own error (estimated within 5 mm), not a frame's offset
+
+
+def test_export_brings_a_cleaned_take_back_to_the_capture(cleaned, tmp_path):
+    _check_back_to_the_capture(cleaned, SAMPLE, "follow_sitting_01", tmp_path / "t.c3d")
+
+
+@pytest.fixture(scope="module")
+def four_segment_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A y-up session on the four-segment markerset with label swaps, occlusion bursts and ghost spikes, cleaned
+    (`gazepipe clean`): (session folder, output folder)."""
+    from gazepipe.synth import SynthConfig, generate_session
+    from gazepipe.synth.skeleton import FOUR_SEGMENTS
+
+    root = tmp_path_factory.mktemp("export4")
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=25.0, head_camera=False, face_takes=(),
+                      shift_targets=((36.0, 12.0),), segments=FOUR_SEGMENTS, up_axis="y", label_swaps=2,
+                      occlusion_bursts=2, spikes_per_marker_min=2.0)
+    session = generate_session(root / "s", seed=3, config=cfg)
+    res = invoke("clean", str(session), "--out", str(root / "out"), "--executor", "serial", "--log-format", "json")
+    assert res.exit_code == 0, res.output[-2000:]
+    return session, root / "out"
+
+
+def test_export_brings_a_y_up_four_segment_take_back_with_its_repaired_swaps(four_segment_run, tmp_path):
+    """The same on the y-up four-segment layout; a sample put back under its own name is the capture's sample of
+    the marker that carried it (its position there to float precision, against the truth within the noise)."""
+    session, out = four_segment_run
+    take = "follow_standing_01"
+    dest = tmp_path / "t.c3d"
+    _check_back_to_the_capture(out, session, take, dest)
+    raw, got = read_c3d(session / "mocap" / f"{take}.c3d"), read_c3d(dest)
+    _, frames, fill = _cleaned_take(out, take)
+    swapped = np.zeros(raw.valid.shape, bool)
+    swapped[frames] = fill == FILL_CODES["swap_repaired"]
+    assert swapped.sum() >= 20
+    rows, cols = np.nonzero(swapped)
+    d = np.linalg.norm(raw.xyz[rows] - got.xyz[rows, cols][:, None, :], axis=-1)      # (n, M)
+    assert (np.nanmin(d, axis=1) == 0).all()
+    truth = np.load(session / "truth" / f"{take}.npz")["markers_true"]
+    assert np.linalg.norm(got.xyz[swapped] - truth[swapped], axis=-1).max() < 5.0   # noise 0.5 mm a coordinate
+
+
+def test_export_stabilised_is_the_cleaned_table_inside_the_crop(four_segment_run, tmp_path):
+    session, out = four_segment_run
+    take = "follow_standing_01"
+    side = _exported(out, take, tmp_path / "s.c3d", "--frame", "stabilised")
+    assert side["frame"] == "stabilised"
+    clean, frames, _ = _cleaned_take(out, take)
+    got = read_c3d(tmp_path / "s.c3d")
+    np.testing.assert_array_equal(got.valid[frames], clean.valid)
+    np.testing.assert_array_equal(got.xyz[frames][clean.valid], clean.xyz[clean.valid])   # float32 both ways
+    raw = read_c3d(session / "mocap" / f"{take}.c3d")
+    root = raw.labels.index(load_session(session / "session.toml").markerset.root)
+    before = np.arange(frames[0])
+    ok = raw.valid[before] & raw.valid[before, root][:, None]
+    moved = raw.xyz[before] - raw.xyz[before, root][:, None, :]
+    np.testing.assert_allclose(got.xyz[before][ok], moved[ok], rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("fmt, name", [("nexus", "t.csv"), ("qtm", "t.tsv"), ("wide", "w.csv")])
+def test_export_text_formats_read_back_by_gazepipe_and_pandas(cleaned, tmp_path, fmt, name):
+    """Nexus CSV, QTM TSV and wide CSV of the same take: gazepipe reads each back as the C3D export (the C3D's
+    float32 apart), pandas reads the rows with the column layout the README gives, and the QTM TSV carries the
+    crop as EVENT lines."""
+    import pandas as pd
+
+    from gazepipe.io.export_text import qtm_header_lines
+
+    take = "follow_standing_03"
+    side_c3d = _exported(cleaned, take, tmp_path / "t.c3d")
+    side = _exported(cleaned, take, tmp_path / name, "--format", fmt)
+    assert side["filled"] == side_c3d["filled"] and side["crop"] == side_c3d["crop"] and side["format"] == fmt
+    ref, back = read_c3d(tmp_path / "t.c3d"), read_markers(tmp_path / name)
+    assert back.labels == ref.labels and back.first_frame == ref.first_frame
+    assert abs(back.rate_hz - ref.rate_hz) < 1e-9
+    np.testing.assert_array_equal(back.valid, ref.valid)
+    np.testing.assert_allclose(back.xyz[back.valid], ref.xyz[ref.valid], rtol=1e-7, atol=0)
+    measured = _ezc3d(tmp_path / "t.c3d")["residual"] > 0
+    assert np.array_equal(back.xyz[measured], read_c3d(SAMPLE / "mocap" / f"{take}.c3d").xyz[measured])
+    if fmt == "nexus":
+        df = pd.read_csv(tmp_path / name, skiprows=[0, 1, 2, 4])
+        x = df[["X", "Y", "Z"]].to_numpy()
+    elif fmt == "qtm":
+        df = pd.read_csv(tmp_path / name, sep="\t", skiprows=qtm_header_lines(tmp_path / name))
+        x = df[[f"{ref.labels[0]} {a}" for a in "XYZ"]].to_numpy()
+        events = [ln.split("\t") for ln in (tmp_path / name).read_text().splitlines() if ln.startswith("EVENT\t")]
+        assert [int(e[2]) for e in events] == [side["crop"]["first"], side["crop"]["last"]]
+    else:
+        df = pd.read_csv(tmp_path / name)
+        x = df[[f"{ref.labels[0]}_{a}" for a in "xyz"]].to_numpy()
+    assert len(df) == ref.n_frames
+    np.testing.assert_array_equal(np.isfinite(x).all(axis=1), back.valid[:, 0])
+    np.testing.assert_array_equal(x[back.valid[:, 0]], back.xyz[back.valid[:, 0], 0])
+
+
+def test_export_without_the_capture_file_falls_back_to_the_table(cleaned, tmp_path):
+    """An output folder copied away from its session (no capture file to read again): measured samples are the
+    markers_raw table's (float32: exact for this float C3D), residuals stand-ins, and the command says so."""
+    import shutil
+
+    out = tmp_path / "out"
+    shutil.copytree(cleaned / "takes" / "session01" / "neutral", out / "takes" / "session01" / "neutral")
+    res = invoke("export", str(out), "neutral", "--to", str(tmp_path / "n.c3d"))
+    assert res.exit_code == 0, res.stderr
+    assert "capture file not read again" in res.stdout
+    side = json.loads((tmp_path / "n.c3d.gazepipe.json").read_text())
+    assert side["measured_values"].startswith("markers_raw") and side["residuals"]["stand_in_mm"] == 0.01
+    raw, got = read_c3d(SAMPLE / "mocap" / "neutral.c3d"), _ezc3d(tmp_path / "n.c3d")
+    both = raw.valid & (got["residual"] > 0)
+    assert both.sum() >= 0.9 * raw.valid.sum()
+    np.testing.assert_array_equal(got["xyz"][both], raw.xyz[both])
+
+
+def test_export_accepts_session_slash_take_and_refuses_a_path(cleaned, tmp_path):
+    """`export` takes SESSION/TAKE as `view` and `status` name takes; an id that is not one (a path climbing
+    out of OUT) is refused before any path is made from it."""
+    res = invoke("export", str(cleaned), "session01/shift_y036_p12", "--to", str(tmp_path / "a.c3d"))
+    assert res.exit_code == 0, res.stderr
+    res = invoke("export", str(cleaned), "shift_y036_p12", "--session", "session01", "--to", str(tmp_path / "b.c3d"))
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / "a.c3d").read_bytes() == (tmp_path / "b.c3d").read_bytes()
+    for bad in ("session01/../../x", "../session01/neutral", "session01/neutral/x"):
+        res = invoke("export", str(cleaned), bad, "--to", str(tmp_path / "c.c3d"))
+        assert res.exit_code == 2 and "not a" in res.stderr and "Traceback" not in res.stderr, bad
+        assert len(res.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "c.c3d").exists()
 
 
 def test_export_unknown_take_is_one_line(cleaned, tmp_path):
@@ -95,6 +264,24 @@ def test_export_to_a_missing_folder_is_a_usage_error(cleaned, tmp_path):
     res = invoke("export", str(cleaned), "neutral", "--to", str(tmp_path / "nodir" / "x.csv"))
     assert res.exit_code == 2 and "does not exist" in res.stderr
     assert not (tmp_path / "nodir").exists()
+
+
+def _read_with_py_c3d(path: Path) -> SimpleNamespace:
+    """Decode with the pure-Python `c3d` reader, independently of gazepipe's reader: labels, first frame,
+    (T, M, 3) positions (NaN at gaps), (T, M) residuals (the package's: the low byte times |POINT:SCALE|)."""
+    import warnings
+
+    import c3d as pyc3d
+
+    with open(path, "rb") as fh, warnings.catch_warnings():
+        warnings.simplefilter("ignore")       # "no analog data"
+        reader = pyc3d.Reader(fh)
+        labels = [s.strip() for s in reader.point_labels]
+        pts = np.stack([p for _, p, _ in reader.read_frames()])
+        first = reader.first_frame
+    valid = pts[:, :, 3] >= 0
+    return SimpleNamespace(labels=labels, first_frame=first, residual=pts[:, :, 3],
+                           xyz=np.where(valid[..., None], pts[:, :, :3], np.nan))
 
 
 def _walking_truth():
@@ -424,3 +611,106 @@ def test_fill_counts_apart_what_it_fills_in_dropped_frames(tmp_path):
     assert out.read_bytes() == kept                  # nothing else to fill: the copy is the input
     plain = invoke("fill", str(inp), str(tmp_path / "again.csv"))
     assert "not written" in plain.stdout
+
+
+def _listed(side: dict, labels: list[str], first_frame: int, shape: tuple[int, int], key: str = "filled"):
+    """(T, M) mask of the samples a sidecar lists under ``key``, and their methods {(row, col): method}."""
+    mask, methods = np.zeros(shape, bool), {}
+    for label, runs in side[key].items():
+        for run in runs:
+            rows = np.arange(run[0], run[1] + 1) - first_frame
+            mask[rows, labels.index(label)] = True
+            methods.update({(int(r), labels.index(label)): (run[2] if len(run) > 2 else None) for r in rows})
+    return mask, methods
+
+
+def test_fill_lists_its_filled_samples_where_the_files_residuals_cannot_mark_them(tmp_path):
+    """The sample's C3D writes residual 0 for every measured sample, as for a filled one: `fill` says so in one
+    warning line and lists every filled sample, with its gap's method, in OUT.gazepipe.json."""
+    src, out = SAMPLE / "mocap" / "follow_standing_03.c3d", tmp_path / "f.c3d"
+    res = invoke("fill", str(src), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    side_path = tmp_path / "f.c3d.gazepipe.json"
+    assert summary["sidecar"] == str(side_path)
+    assert [w for w in summary["warnings"] if "listed in" in w] == [w for w in summary["warnings"] if "residual" in w]
+    m0, m1 = read_c3d(src), read_c3d(out)
+    side = json.loads(side_path.read_text())
+    listed, methods = _listed(side, m0.labels, m0.first_frame, m0.valid.shape)
+    np.testing.assert_array_equal(listed, m1.valid & ~m0.valid)
+    for g in summary["gap_list"]:
+        if g["method"] != "unfilled":
+            assert methods[(g["first_frame"] - m0.first_frame, m0.labels.index(g["marker"]))] == g["method"]
+    text = invoke("fill", str(src), str(tmp_path / "g.c3d")).stdout
+    assert sum("listed in" in line for line in text.splitlines()) == 1
+
+
+def test_fill_needs_no_sidecar_where_residuals_mark_the_measured_samples(tmp_path):
+    """A C3D whose measured samples carry residuals and cameras (as Vicon and QTM write them): the filled samples'
+    fourth word 0 is the mark both byte orders read (the `c3d` package and ezc3d), so no sidecar and no warning;
+    a sidecar an earlier OUT left is removed, since it would describe another file."""
+    from gazepipe.io.c3d_write import write_c3d_points
+
+    src, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=5)
+    words = np.where(valid, float(0x7F03), -1.0)            # seven cameras, residual 3 steps
+    inp, out = tmp_path / "in.c3d", tmp_path / "out.c3d"
+    write_c3d_points(inp, labels, truth, words, rate_hz=src.rate_hz, first_frame=1, scale=-0.1)
+    stale = tmp_path / "out.c3d.gazepipe.json"
+    stale.write_text("{}")
+    res = invoke("fill", str(inp), str(out), "--json", "--force")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["sidecar"] is None and not stale.exists()
+    assert not any("listed in" in w for w in summary["warnings"])
+    back = _read_with_py_c3d(out)
+    new = ~valid & np.isfinite(back.xyz).all(axis=2)
+    assert new.sum() == (~valid).sum()
+    np.testing.assert_array_equal(back.residual[new], 0.0)
+    np.testing.assert_allclose(back.residual[valid], 0.3, atol=1e-6)
+    ez = _ezc3d(out)["residual"]
+    assert (ez[new] == 0).all() and (ez[valid] > 0).all()
+
+
+def test_fill_of_a_text_export_lists_its_filled_samples(tmp_path):
+    _, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=4)
+    name, data = _text_export("qtm", truth, valid, labels)
+    inp, out = tmp_path / name, tmp_path / f"filled_{name}"
+    inp.write_bytes(data)
+    res = invoke("fill", str(inp), str(out))
+    assert res.exit_code == 0, res.stderr
+    assert "text export has no residuals" in res.stdout
+    side = json.loads((tmp_path / f"filled_{name}.gazepipe.json").read_text())
+    m0 = read_markers(inp)
+    listed, _ = _listed(side, m0.labels, m0.first_frame, m0.valid.shape)
+    np.testing.assert_array_equal(listed, ~valid)
+
+
+def test_export_keeps_the_captures_own_residuals_and_cameras(tmp_path):
+    """A capture whose fourth words hold residuals and camera masks (as Vicon and QTM write them): the export
+    writes each measured sample's word as the capture has it, under the capture's POINT:SCALE (so the residual
+    keeps its meaning), a stand-in of one residual step only where the capture's residual byte is 0, and 0 for
+    every filled sample."""
+    from gazepipe.io.c3d_write import read_point_words, write_c3d_points
+    from tests.helpers import run_session, session_copy
+
+    session = session_copy(tmp_path / "s", {"neutral": None, "shift_y036_p12": None})
+    path = session / "mocap" / "shift_y036_p12.c3d"
+    m = read_c3d(path)
+    t, k = np.indices(m.valid.shape)
+    words = np.where(m.valid, 0x7F00 + (t + 3 * k) % 60, -1.0).astype(np.float64)   # some residual bytes 0
+    write_c3d_points(path, m.labels, m.xyz, words, rate_hz=m.rate_hz, first_frame=m.first_frame, scale=-0.05)
+    run_session(session, tmp_path / "out")
+    side = _exported(tmp_path / "out", "shift_y036_p12", tmp_path / "e.c3d")
+    got, scale = read_point_words(tmp_path / "e.c3d")
+    assert scale == pytest.approx(0.05) and side["residuals"]["source"] == "capture file"
+    back = read_c3d(tmp_path / "e.c3d")
+    filled = back.valid & ~m.valid
+    measured = back.valid & m.valid
+    assert filled.any() and (got[filled] == 0).all()
+    has = measured & (words % 256 > 0)
+    np.testing.assert_array_equal(got[has], words[has])
+    zero = measured & (words % 256 == 0)
+    assert zero.any() and (got[zero] == 0x7F01).all()
+    assert side["residuals"]["stand_ins"] == int(zero.sum())

@@ -41,6 +41,7 @@ from gazepipe.report.replay_page import (
     plotly_js,
     replay_html,
 )
+from tests.helpers import HOSTILE_LABELS, check_page_escapes
 
 CHROMIUM = Path("/usr/bin/chromium")
 TAKE = "session01/follow_standing_03"     # the sample take with a stretch that gives no dataset row
@@ -296,6 +297,25 @@ def test_the_same_inputs_give_the_same_bytes() -> None:
     assert 'id="replay"' in a and not re.search(r"[0-9a-f]{8}-[0-9a-f]{4}-", a)   # no random div ids
 
 
+def test_hostile_marker_labels_are_escaped_in_the_page() -> None:
+    """Marker labels are data: `<!--<script>` and the others of :data:`HOSTILE_LABELS` come back whole from the
+    page's JSON and leave its script element whole; a label named like a placeholder of the script is not
+    replaced by its value."""
+    inp = synthetic_take()
+    names = dict(zip([inp.raw.labels[1], inp.raw.labels[2], inp.raw.labels[4], inp.raw.labels[5]], HOSTILE_LABELS,
+                     strict=True))
+    for m in (inp.raw, inp.clean):
+        m.labels = [names.get(lab, lab) for lab in m.labels]
+    inp.markerset = MarkerSet(path="markerset.toml", up_axis="z", units="mm", root="ROOT", target="POLE",
+                              clapper=(), head_centre=None, segments=tuple(
+                                  Segment(s.name, tuple(names.get(n, n) for n in s.markers), s.parent)
+                                  for s in inp.markerset.segments))
+    page = replay_html(inp, RELATIVE_PLOTLY)[0]
+    check_page_escapes(page, HOSTILE_LABELS)
+    alone = replay_html(inp, "inline:" + "/* plotly */")[0]
+    check_page_escapes(alone, HOSTILE_LABELS)
+
+
 @pytest.mark.parametrize("skeleton, up", [(TEN, "z"), (FOUR, "y")])
 def test_both_skeletons_stand_up_in_equal_millimetres(skeleton, up) -> None:
     inp = synthetic_take(skeleton, up)
@@ -466,7 +486,7 @@ def test_view_help_teaches() -> None:
 def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_process_run: dict,
                                                                       tmp_path: Path) -> None:
     """`gazepipe run` (process executor) writes a replay page per drawn take and qc/plotly.min.js once; the
-    page links each; `gazepipe validate` writes the same bytes; --no-plots leaves the replays out."""
+    page links each; `gazepipe validate` writes the same bytes; --no-plots draws none and deletes none."""
     out = sample_process_run["out"]
     qc = out / "qc"
     report = json.loads((qc / "report.json").read_text())
@@ -486,6 +506,47 @@ def test_the_report_links_a_replay_per_drawn_take_made_on_the_workers(sample_pro
     assert res.exit_code == 0, res.output
     for rel in pages:
         assert (copy / "qc" / rel).read_bytes() == (qc / rel).read_bytes(), rel
+    drawn, drawn_json = (copy / "qc" / "report.html").read_text(), (copy / "qc" / "report.json").read_bytes()
     res = CliRunner().invoke(cli, ["validate", str(copy), "--no-plots"])
     assert res.exit_code == 0, res.output
-    assert not (copy / "qc" / "replay").exists() and "3D replay" not in (copy / "qc" / "report.html").read_text()
+    # --no-plots draws none and deletes none: the pages stay, linked, and the page keeps the plots drawn before
+    kept = (copy / "qc" / "report.html").read_text()
+    for rel in pages:
+        assert (copy / "qc" / rel).read_bytes() == (qc / rel).read_bytes(), rel
+        assert f'href="{rel}"' in kept
+    assert kept.count('<figure class="plot">') == drawn.count('<figure class="plot">') > 0
+    assert "none drawn (--no-plots)" in kept and "Kept from the report drawn before" in kept
+    assert (copy / "qc" / "report.json").read_bytes() == drawn_json
+
+
+def test_validate_keeps_the_replays_of_unchanged_takes_it_does_not_draw(out_copy: Path, tmp_path: Path) -> None:
+    """`validate` deletes no view of the current outputs: the replay pages of takes it does not draw this time
+    stay while they are their take's page; a take gone loses its page; --no-plots draws and deletes none."""
+    out = tmp_path / "out"
+    shutil.copytree(out_copy, out)
+    shutil.rmtree(out / "qc" / "replay")        # the run's pages (still current: they would be kept too)
+
+    def validate(*args: str) -> str:
+        res = CliRunner().invoke(cli, ["validate", str(out), "--plot-takes", "0", *args])
+        assert res.exit_code in (0, 3), res.output
+        return (out / "qc" / "report.html").read_text()
+
+    validate("--plot-take", "shift_y0[03]*")
+    replay = out / "qc" / "replay" / "session01"
+    shifts = sorted(p.name for p in replay.glob("*.html"))
+    assert shifts == ["shift_y000_p12.html", "shift_y036_p12.html", "shift_y036_pm12.html"]
+    before = {n: (replay / n).read_bytes() for n in shifts}
+    html = validate("--plot-take", "neutral")
+    assert sorted(p.name for p in replay.glob("*.html")) == sorted(shifts + ["neutral.html"])
+    assert all((replay / n).read_bytes() == data for n, data in before.items())
+    assert 'href="replay/session01/neutral.html"' in html and "shift_y000_p12.html" not in html
+    html = validate("--no-plots")
+    assert sorted(p.name for p in replay.glob("*.html")) == sorted(shifts + ["neutral.html"])
+    assert all(f'href="replay/session01/{n}"' in html for n in shifts + ["neutral.html"])
+    # a take whose outputs are gone (or changed): its page, a view of what is no longer there, goes
+    layout = open_output(out)
+    shutil.rmtree(layout.take_dir("session01", "shift_y036_pm12"))
+    shutil.rmtree(layout.record("session01", "shift_y036_pm12", "x").parent)
+    validate("--plot-take", "neutral")
+    assert sorted(p.name for p in replay.glob("*.html")) == ["neutral.html", "shift_y000_p12.html",
+                                                             "shift_y036_p12.html"]

@@ -235,3 +235,18 @@ def run_options(fn: Callable) -> Callable:
     for opt in reversed(opts):
         fn = opt(fn)
     return fn
+
+
+def check_destination(src: Path | None, dest: Path, overwrite: bool = True) -> None:
+    """Refuse to write over the input, over an existing file unless ``overwrite``, or into a folder that does
+    not exist (ConfigError, exit 2)."""
+    if src is not None and dest.exists() and src.exists() and dest.resolve() == src.resolve():
+        raise ConfigError(dest, "OUT is the input file: write the filled capture to another file")
+    if dest.is_dir():
+        raise ConfigError(dest, "OUT is a folder: give a file name")
+    if not overwrite and (dest.exists() or dest.is_symlink()):
+        raise ConfigError(dest, "OUT exists: give --force to overwrite it, or another file name")
+    parent = dest.parent
+    if not parent.is_dir():
+        what = "is not a folder" if parent.exists() else "does not exist: create it first"
+        raise ConfigError(dest, f"{parent} {what}")

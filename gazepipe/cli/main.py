@@ -13,6 +13,7 @@ import click
 from gazepipe import __version__
 from gazepipe.cli.common import (
     add_debug_option,
+    check_destination,
     debug_enabled,
     handle_errors,
     load_sessions,
@@ -222,27 +223,6 @@ _stage_command("build", "build", "Run every take stage (ingest, clean, frames, s
 
 
 @cli.command(epilog=FILE_EPILOG)
-@click.argument("out", type=click.Path(exists=True, file_okay=False))
-@click.argument("take")
-@click.option("--session", default=None, help="Session id (needed only when OUT holds several sessions).")
-@click.option("--to", "dest", required=True, type=click.Path(dir_okay=False),
-              help="File to write: .c3d or .csv (a plain wide CSV).")
-@click.option("--table", type=click.Choice(["markers", "markers_raw"]), default="markers", show_default=True,
-              help="Cleaned (stabilised, cropped) or raw markers.")
-@handle_errors
-def export(out: str, take: str, session: str | None, dest: str, table: str) -> None:
-    """Export a take's markers to C3D or CSV to look at them in your usual viewer.
-
-    Unfilled samples are written as gaps (C3D residual -1, empty CSV cells).
-    """
-    from gazepipe.io.export import export_markers
-
-    _check_destination(None, Path(dest))
-    path, n = export_markers(Path(out), take, session, Path(dest), table)
-    click.echo(f"wrote {path} ({n} frames)")
-
-
-@cli.command(epilog=FILE_EPILOG)
 @click.argument("src", metavar="IN", type=click.Path())
 @click.argument("dest", metavar="OUT", type=click.Path(dir_okay=False))
 @click.option("--max-gap-s", type=click.FloatRange(min=0), default=1.0, show_default=True,
@@ -290,7 +270,7 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     if dest_p.suffix.lower() != want:
         raise ConfigError(dest, f"OUT must be a {want or 'extension-less'} file like IN (the filler writes a copy "
                                 "of the input in its own format)")
-    _check_destination(src_p, dest_p, overwrite=force)
+    check_destination(src_p, dest_p, overwrite=force)
     fmt = sniff_format(src_p)
     # a text export is read once, with the layout its copy is written from
     text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
@@ -298,11 +278,14 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes, swaps=repair_swaps)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if fmt == "c3d":
-            _, n_wide = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
-            if n_wide:
-                markers.warnings.append(f"{n_wide} filled samples lie beyond the file's 16-bit integer range "
+            res = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
+            if res.wide:
+                markers.warnings.append(f"{res.wide} filled samples lie beyond the file's 16-bit integer range "
                                         "and are written as gaps (counted as filled below)")
-            summary["samples_written_as_gaps"] = n_wide
+            summary["samples_written_as_gaps"] = res.wide
+            unmarked = (f"{res.unmarked_measured} samples the input holds already have a residual or camera byte "
+                        "of 0 (the mark of a filled sample), so readers cannot tell the new fills from them") \
+                if res.unmarked_measured else None
         else:
             assert text is not None   # read above for every format but C3D
             write_filled_text(src_p, tmp, filled, fmt, removed=removed, original=text)
@@ -312,6 +295,8 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
                                         "missing from the file): the copy has no line for them, so they are not "
                                         "written (counted as filled below)")
             summary["samples_not_written"] = n_lineless
+            unmarked = "a text export has no residuals to mark filled samples with"
+    summary["sidecar"] = _fill_sidecar(src_p, dest_p, markers, filled, removed, summary, unmarked)
     summary = {"input": str(src_p), "output": str(dest_p), **summary, "warnings": list(markers.warnings)}
     if as_json:
         click.echo(json.dumps(summary, indent=1))
@@ -343,6 +328,27 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
         click.echo(f"  rigid clusters found: {len(summary['clusters'])}")
 
 
+def _fill_sidecar(src: Path, dest: Path, markers: Markers, filled: Markers, removed: np.ndarray,
+                  summary: dict, unmarked: str | None) -> str | None:
+    """Where the copy's own residuals cannot mark its filled samples (``unmarked`` says why), list them in
+    ``OUT.gazepipe.json`` and add a warning; else remove a sidecar an earlier OUT left. Returns its path."""
+    from gazepipe import __version__
+    from gazepipe.io.export import fill_listing, sidecar_path, write_sidecar
+    from gazepipe.pipeline.atomic import atomic_path
+
+    side = sidecar_path(dest)
+    listing = fill_listing(markers, filled, removed, summary["gap_list"])
+    if unmarked is None or not (listing["filled"] or listing["removed"]):
+        side.unlink(missing_ok=True)
+        return None
+    markers.warnings.append(f"{unmarked}: the filled samples are listed in {side}")
+    facts = {"gazepipe_version": __version__, "input": str(src), "file": dest.name, "why": unmarked,
+             "frame_numbers": "the file's own; ranges are first and last frame, inclusive", **listing}
+    with atomic_path(side, dest.parent, suffix=".json") as tmp:
+        write_sidecar(tmp, facts)
+    return str(side)
+
+
 def _filled_without_a_line(markers: Markers, filled: Markers, rows: np.ndarray | None) -> int:
     """Samples ``filled`` fills in rows the reader added for dropped frames (``rows``: each data line's row of
     ``markers``; None when there are none)."""
@@ -353,21 +359,6 @@ def _filled_without_a_line(markers: Markers, filled: Markers, rows: np.ndarray |
     lineless = np.ones(markers.n_frames, dtype=bool)
     lineless[np.asarray(rows, dtype=np.int64)] = False
     return int((filled.valid[lineless] & ~markers.valid[lineless]).sum())
-
-
-def _check_destination(src: Path | None, dest: Path, overwrite: bool = True) -> None:
-    """Refuse to write over the input, over an existing file unless ``overwrite``, or into a folder that does
-    not exist (ConfigError, exit 2)."""
-    if src is not None and dest.exists() and src.exists() and dest.resolve() == src.resolve():
-        raise ConfigError(dest, "OUT is the input file: write the filled capture to another file")
-    if dest.is_dir():
-        raise ConfigError(dest, "OUT is a folder: give a file name")
-    if not overwrite and (dest.exists() or dest.is_symlink()):
-        raise ConfigError(dest, "OUT exists: give --force to overwrite it, or another file name")
-    parent = dest.parent
-    if not parent.is_dir():
-        what = "is not a folder" if parent.exists() else "does not exist: create it first"
-        raise ConfigError(dest, f"{parent} {what}")
 
 
 @cli.command(epilog=FILE_EPILOG)
@@ -463,10 +454,12 @@ def params_cmd() -> None:
 
 
 def _register_commands() -> None:
+    from gazepipe.cli.export_cmd import export
     from gazepipe.cli.train import train
     from gazepipe.cli.validate import validate
     from gazepipe.cli.view import view
 
+    cli.add_command(export)
     cli.add_command(validate)
     cli.add_command(view)
     cli.add_command(train)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,13 @@ Exit codes: 0 ok; 1 the data could not be read or training failed; 2 usage error
 unknown trainer, a dataset the trainer cannot use, a bad --option, --device cuda
 without a GPU, or an --out folder that is not empty without --force.
 """
+
+
+#: the largest whole number the knobs take (a C int, as the trainers' ``--option``s:
+#: :data:`gazepipe.trainers.base.INT_MAX`, not imported here: `gazepipe --help` stays quick)
+INT_MAX = 2**31 - 1
+#: the largest seed (numpy and torch take 64-bit seeds)
+SEED_MAX = 2**63 - 1
 
 
 class _TrainCommand(click.Command):
@@ -97,15 +105,17 @@ def _facts(metrics: dict[str, Any]) -> list[str]:
               help="A built dataset folder (OUT/datasets/<name>).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Folder for the model: model.json (config, metrics) and its weights.")
-@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Training epochs (trainer default).")
-@click.option("--hidden", type=click.IntRange(min=1), default=None, help="Hidden units (trainer default).")
+@click.option("--epochs", type=click.IntRange(min=1, max=INT_MAX), default=None,
+              help="Training epochs (trainer default).")
+@click.option("--hidden", type=click.IntRange(min=1, max=INT_MAX), default=None,
+              help="Hidden units (trainer default).")
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Learning rate (trainer default).")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0, max=SEED_MAX), default=0, show_default=True,
               help="Random seed (same seed, same model: byte for byte on the CPU).")
 @click.option("--device", default=None, metavar="auto|cpu|cuda|cuda:N",
               help="Where a torch trainer trains (default auto: the GPU when PyTorch sees one).")
-@click.option("--patience", type=click.IntRange(min=0), default=None, metavar="N",
+@click.option("--patience", type=click.IntRange(min=0, max=INT_MAX), default=None, metavar="N",
               help="Stop after N epochs without a lower validation loss (default 10; 0: run every epoch). "
               "The best validation epoch's weights are kept either way (--option keep=last for the last).")
 @click.option("--option", "opts", multiple=True, metavar="KEY=VALUE",
@@ -147,8 +157,14 @@ def train(name: str, data_dir: str, out_dir: str, epochs: int | None, hidden: in
     out = Path(out_dir)
     _check_out(out, force)
     data = open_dataset(data_path)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    metrics = trainer.train(data, out, options)
+    try:
+        metrics = trainer.train(data, out, options)
+    except BaseException:
+        if created:        # a training that failed leaves no --out folder it made (empty, or half a model)
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     if metrics.get("epochs_run"):
         log.emit("info", "train_end", _end_message(metrics), epochs_run=metrics["epochs_run"],
                  stopped=metrics.get("stopped"), best_epoch=metrics.get("best_epoch"), kept=metrics.get("kept"),

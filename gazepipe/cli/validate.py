@@ -85,8 +85,9 @@ def _thresholds(pairs: tuple[str, ...]):
 @click.option("--plot-take", "plot_named", multiple=True, metavar="SESSION/TAKE",
               help="Also draw this take's plots: SESSION/TAKE, a take id (in any session) or a pattern such as "
               "'shift_*' (repeatable; --plot-takes 0 --plot-take X draws only X).")
-@click.option("--no-plots", is_flag=True, help="No plots or replays at all, datasets' included (the fastest page; "
-              "report.json and takes.parquet are the same with or without plots).")
+@click.option("--no-plots", is_flag=True, help="Draw no plot or replay, datasets' included (the fastest page), and "
+              "delete none: the plots and replays drawn before of unchanged outputs stay in the page (report.json "
+              "and takes.parquet are the same with or without plots).")
 @click.option("--json", "as_json", is_flag=True, help="Print the gate and the failing checks as JSON.")
 @handle_errors
 def validate(out: str, fail_on: str, thresholds: tuple[str, ...], plot_takes: int | None,

@@ -667,7 +667,7 @@ def _video_seconds(meta: dict) -> float:
 
 def run_eyes(ctx: TakeContext) -> UnitResult:
     from gazepipe.io.openface import read_openface
-    from gazepipe.stages.eyes.stage import HeadMotion, eyes_take
+    from gazepipe.stages.eyes.stage import HeadMotion, eyes_take, tag_mismatch
     from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
 
     take, ms = ctx.take, _given(ctx.session.markerset, "markerset")
@@ -682,7 +682,9 @@ def run_eyes(ctx: TakeContext) -> UnitResult:
         sync = ctx.load("sync")
         clock = ClockMap(offset_s=float(sync.column("offset_s")[0].as_py()),
                          ratio=float(sync.column("ratio")[0].as_py()), n_claps=sync.num_rows)
-        video = (take.video, _video_seconds(read_meta(sync)) * clock.ratio)
+        meta = read_meta(sync)
+        video = (take.video, _video_seconds(meta) * clock.ratio, meta.get("video_frames"),
+                 meta.get("video_nominal_fps"))
     camera = None if ms.camera_rotation is None else np.asarray(ms.camera_rotation, dtype=np.float64)
     res = eyes_take(eye, joints, ja["time_s"], clock if take.video is not None else None,
                     camera_rotation=camera, params=_build(EyesParams, ctx.params), path=take.eyes, take=take.id,
@@ -705,7 +707,9 @@ def run_eyes(ctx: TakeContext) -> UnitResult:
     table = attach_meta(table, {"camera_rotation": [float(x) for x in res.camera_rotation],
                                 "camera_source": res.camera_source, "rate_hz": float(joints.rate_hz)})
     qc = dict(res.qc)
-    qc["warnings"] = _file_notes(ctx, eyes_path, eye.warnings) + list(qc.get("warnings", []))
+    mismatch = tag_mismatch(video, eye)
+    qc["warnings"] = (_file_notes(ctx, eyes_path, eye.warnings) + list(qc.get("warnings", []))
+                      + (_file_notes(ctx, take.video, [mismatch]) if mismatch and take.video else []))
     return UnitResult(tables={"eyes": (table, EYES)}, qc=qc, warnings=qc["warnings"])
 
 

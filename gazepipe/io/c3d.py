@@ -33,6 +33,7 @@ import hashlib
 import os
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -521,11 +522,21 @@ def write_c3d(path: str | Path, markers: Markers) -> None:
         raise InputError(p, f"cannot write C3D file ({e})") from None
 
 
+class FilledC3D(NamedTuple):
+    """What :func:`write_filled_c3d` wrote: samples written, filled samples written as gaps (beyond the file's
+    16-bit integers), and the measured samples a reader cannot tell from a filled one (their fourth word gives
+    no residual or no camera, as a filled sample's 0 does: then only a sidecar can list the filled samples)."""
+
+    written: int
+    wide: int
+    unmarked_measured: int
+
+
 def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, removed: np.ndarray | None = None,
-                     original: Markers | None = None, default_units: str = "mm") -> tuple[int, int]:
+                     original: Markers | None = None, default_units: str = "mm") -> FilledC3D:
     """Write ``dest`` as a copy of the C3D file ``src`` in which only the samples that ``markers`` fills (or
-    ``removed`` takes out) are changed; return how many samples were written, and how many filled samples were
-    written as gaps instead because the file's 16-bit integer storage cannot hold them.
+    ``removed`` takes out) are changed (:class:`FilledC3D` says how many, and whether the file's own residuals
+    mark them).
 
     ``markers`` must be what :func:`read_c3d` returns for ``src`` (same markers, same order), with gaps
     filled: each sample that is a gap in ``src`` and valid in ``markers``, or marked in ``removed`` (T, M) and
@@ -548,9 +559,10 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, rem
         write, valid = filled_samples(orig, markers, removed)
     except ValueError as e:
         raise InputError(p, str(e)) from None
+    unmarked = _unmarked_measured(data, lay, meta, valid & ~write & orig.valid)
     if not write.any():
         Path(dest).write_bytes(data)
-        return 0, 0
+        return FilledC3D(0, 0, unmarked)
     marker_idx = np.flatnonzero(~_model_points(meta, meta.point_labels(lay.n_points)))
     to_mm = unit_scale_to_mm(orig.units, default_units)
     t_idx, m_idx = np.nonzero(write)
@@ -581,4 +593,27 @@ def write_filled_c3d(src: str | Path, dest: str | Path, markers: Markers, *, rem
     out = np.frombuffer(data, dtype=np.uint8).copy()
     out[offsets[:, None] + np.arange(sample_bytes)] = np.frombuffer(raw, dtype=np.uint8).reshape(-1, sample_bytes)
     Path(dest).write_bytes(out.tobytes())
-    return int(write.sum()) - n_wide, n_wide
+    return FilledC3D(int(write.sum()) - n_wide, n_wide, unmarked)
+
+
+def _unmarked_measured(data: bytes, lay: Layout, meta: C3DMeta, measured: np.ndarray) -> int:
+    """How many of the ``measured`` (T, M) marker samples have a fourth word with a zero residual byte (low) or
+    camera byte (high): a filled sample's word is 0, so some reader (the C3D manual's byte order, or ezc3d's
+    swapped one) cannot tell them apart."""
+    if not measured.any():
+        return 0
+    marker_idx = np.flatnonzero(~_model_points(meta, meta.point_labels(lay.n_points)))
+    t_idx, m_idx = np.nonzero(measured)
+    offsets = lay.data_offset + (t_idx * lay.frame_words + 4 * marker_idx[m_idx] + 3) * lay.word_bytes
+    if lay.is_float:
+        if lay.processor == "dec":
+            pairs = np.frombuffer(data, dtype="<u2")[(offsets[:, None] // 2) + np.array([1, 0])]
+            word = np.ascontiguousarray(pairs).view("<f4").reshape(-1).astype(np.float64) / 4.0
+        else:
+            word = np.frombuffer(data, dtype=">f4" if lay.processor == "mips" else "<f4")[offsets // 4]
+        ok = np.isfinite(word) & (word >= 0) & (word < 2.0**31)
+        as_int = np.where(ok, word, 0).astype(np.int64) & 0xFFFF
+    else:
+        as_int = np.frombuffer(data, dtype=">i2" if lay.processor == "mips" else "<i2")[offsets // 2]
+        as_int = as_int.astype(np.int64) & 0xFFFF
+    return int(np.count_nonzero(((as_int & 0xFF) == 0) | ((as_int >> 8) == 0)))

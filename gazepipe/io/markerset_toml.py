@@ -35,7 +35,7 @@ def load_markerset(path: str | Path) -> MarkerSet:
 
 
 def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
-    col = Collector(path)
+    col = Collector(path, doc="markerset")
     doc = read_document(path, col, _MARKERSET_TOP)
     if doc is None:
         return None, col.errors

@@ -2,7 +2,8 @@
 rules are in :mod:`gazepipe.io.markerset_toml`).
 
 Every problem is a :class:`~gazepipe.errors.ConfigError` naming the file, the key (TOML dotted form, array
-entries 0-based: ``takes[3].kind``, ``segments.head.markers[1]``) and what is wrong, on one line.
+entries 0-based: ``takes[3].kind``, ``segments.head.markers[1]``) and what is wrong, on one line, ending with the
+section of ``docs/session-format.md`` that explains the key (every key of both files is documented there).
 :func:`validate_session` and :func:`validate_markerset` return every problem found; :func:`load_session` and
 :func:`load_markerset` raise the first one.
 
@@ -36,6 +37,7 @@ from gazepipe.io.markerset_toml import _parse_markerset, load_markerset, validat
 from gazepipe.io.toml_common import (
     WORD,
     Collector,
+    doc_error,
     key_name,
     read_document,
     resolve_inside,
@@ -102,7 +104,7 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         root = toml_path.parent.resolve()
     except (OSError, RuntimeError) as exc:
         return None, [ConfigError(toml_path, f"cannot resolve the session folder: {exc}")]
-    col = Collector(toml_path)
+    col = Collector(toml_path, doc="session")
     doc = read_document(toml_path, col, _SESSION_TOP)
     if doc is None:
         return None, col.errors
@@ -158,11 +160,11 @@ def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]
         col.errors.extend(ms_errors)
         if ms is not None:
             if ms.target is None and any(t.kind == "gaze_follow" for t in takes):
-                col.errors.append(ConfigError(ms_path, "missing (gaze_follow takes need the target marker)",
-                                              key="target"))
+                col.errors.append(doc_error(ms_path, "missing (gaze_follow takes need the target marker)",
+                                            key="target", doc="markerset"))
             if not ms.clapper and any(t.video for t in takes):
-                col.errors.append(ConfigError(ms_path, "missing (takes with video need the two clapper markers)",
-                                              key="clapper"))
+                col.errors.append(doc_error(ms_path, "missing (takes with video need the two clapper markers)",
+                                            key="clapper", doc="markerset"))
     elif ms_rel is None and needs_ms:
         col.add("session.markerset", "missing (takes with mocap need a markerset.toml)")
 

@@ -53,16 +53,60 @@ def suggest(key: str, known: Iterable[str]) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
-class Collector:
-    """Gathers the problems of one file."""
+#: the page that documents every key of session.toml and markerset.toml (in the repository)
+FORMAT_DOC = "docs/session-format.md"
+#: the section of :data:`FORMAT_DOC` for each top-level key of a file (the heading's anchor as GitHub makes it)
+_DOC_SECTIONS: dict[str, dict[str, str]] = {
+    "session": {"schema": "schema", "session": "session", "defaults": "defaults", "takes": "takes"},
+    "markerset": {"schema": "schema", "segments": "segmentsname",
+                  **{k: k for k in ("up_axis", "units", "root", "target", "clapper", "head_centre", "eye_offset_mm",
+                                    "lod", "camera")}},
+}
+_FILE_SECTIONS = {"session": "sessiontoml", "markerset": "markersettoml"}
 
-    def __init__(self, path: Path) -> None:
+
+def doc_link(doc: str | None, key: str | None) -> str:
+    """Where :data:`FORMAT_DOC` explains ``key`` (dotted, ``takes[2].rate_hz``) of a ``doc`` file (``session``
+    or ``markerset``): ``docs/session-format.md#takes``; empty for another file or no key."""
+    if doc not in _DOC_SECTIONS or not key:
+        return ""
+    top = re.split(r"[.\[]", key, maxsplit=1)[0]
+    return f"{FORMAT_DOC}#{_DOC_SECTIONS[doc].get(top, _FILE_SECTIONS[doc])}"
+
+
+class FormatError(ConfigError):
+    """A problem of a session.toml or markerset.toml key: its line ends with where the key is explained
+    (``link``, :func:`doc_link`); ``problem`` is the problem alone."""
+
+    def __init__(self, path: str | Path | None, problem: str, *, key: str | None = None, take: str | None = None,
+                 link: str = "") -> None:
+        self.link = link
+        super().__init__(path, problem, key=key, take=take)
+
+    def one_line(self) -> str:
+        line = super().one_line()
+        return f"{line} (see {self.link})" if self.link else line
+
+
+def doc_error(path: str | Path | None, problem: str, *, key: str | None, doc: str | None,
+              take: str | None = None) -> ConfigError:
+    """A :class:`FormatError` naming the file and the key, its line ending with where the key is explained
+    (:func:`doc_link`)."""
+    return FormatError(path, problem, key=key, take=take, link=doc_link(doc, key))
+
+
+class Collector:
+    """Gathers the problems of one file; ``doc`` (``session`` or ``markerset``) links each problem naming a key to
+    the section of :data:`FORMAT_DOC` that explains it."""
+
+    def __init__(self, path: Path, doc: str | None = None) -> None:
         self.path = path
+        self.doc = doc
         self.errors: list[ConfigError] = []
         self.take: str | None = None  # the take id problems are attributed to, while reading a take
 
     def add(self, key: str | None, problem: str, take: str | None = None) -> None:
-        self.errors.append(ConfigError(self.path, problem, key=key, take=take or self.take))
+        self.errors.append(doc_error(self.path, problem, key=key, doc=self.doc, take=take or self.take))
 
     def unknown_keys(self, table: dict, known: Sequence[str], prefix: str, what: str = "key") -> None:
         for name in table:

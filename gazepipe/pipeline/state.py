@@ -87,13 +87,16 @@ def read_json(path: Path) -> Any | None:
 
 
 def all_records(layout: OutLayout) -> list[dict[str, Any]]:
-    """Every unit record under the output folder, sorted by session, take and stage name."""
+    """Every unit record under the output folder, sorted by session, take and stage name. A record whose
+    ``session``, ``take`` and ``stage`` are not where it lies (``units/<session>/<take>/<stage>.json``: a take
+    that is a path, ``x/../../escaped``) is not the engine's and is left out, so no path is made from it."""
     base = layout.state / "units"
     recs = []
     if base.is_dir():
         for p in sorted(base.glob("*/*/*.json")):
             rec = read_json(p)
-            if isinstance(rec, dict):
+            if isinstance(rec, dict) and (rec.get("session"), rec.get("take"), rec.get("stage")) == \
+                    (p.parent.parent.name, p.parent.name, p.stem):
                 recs.append(rec)
     return recs
 

@@ -34,7 +34,8 @@ class Figure:
 class PlotSelection:
     """Which takes the page has plots of, and why the others have none.
 
-    ``enabled`` false: no plots at all (``--no-plots``). ``limit``: the number of worst takes asked for
+    ``enabled`` false: no plot drawn (``--no-plots``; ``plotted`` then names the takes whose plots drawn before
+    are kept). ``limit``: the number of worst takes asked for
     (``None``: every take). ``ranked``: every take key (``session/take``), worst first. ``plotted``: the takes
     drawn, worst first. ``named``: the takes asked for by name. ``nothing_to_draw``: the takes without a table to
     draw from (face takes, takes whose ingest failed). ``failed``: takes asked for of which nothing could be drawn.
@@ -132,8 +133,12 @@ def _plots_paragraph(sel: PlotSelection) -> str:
     """Which takes have plots (links, worst first), how the takes were ranked, and how to plot the others."""
     items: list[str] = []
     if not sel.enabled:
-        head = ("<b>Plots</b>: left out (--no-plots); every check is in the page. <code>gazepipe validate OUT</code> "
-                "draws the datasets&rsquo; plots and those of the worst takes.")
+        head = ("<b>Plots</b>: none drawn (--no-plots); every check is in the page. <code>gazepipe validate OUT"
+                "</code> draws the datasets&rsquo; plots and those of the worst takes.")
+        if sel.plotted:
+            links = ", ".join(f'<a href="#{anchor("take", k)}">{escape(k)}</a>' for k in sel.plotted)
+            items.append(f"Kept from the report drawn before, their outputs unchanged: the plots and 3D replays of "
+                         f"{_n(len(sel.plotted), 'take')} ({links}).")
         items.append(f"To plot takes: {HOW_TO_PLOT}.")
     else:
         links = ", ".join(f'<a href="#{anchor("take", k)}">{escape(k)}</a>' for k in sel.plotted) or "none"

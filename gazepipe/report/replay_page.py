@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import base64
 import json
+import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from html import escape
 from pathlib import Path
@@ -370,9 +372,17 @@ def build_replay(inp: ReplayInputs, budget: int | None = None, max_bytes: int = 
     return Replay(fig, frames, stride, moments, start, half)
 
 
+#: characters of JSON text written as \\u escapes inside a page: ``<`` and ``>`` (no ``</script>``, ``<!--`` or
+#: ``<script`` can open or close anything in the script element), ``&`` (no entity), and U+2028 / U+2029 (line
+#: breaks to older JavaScript); the text stays the same JSON
+_SCRIPT_SAFE = str.maketrans({"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "\u2028": "\\u2028",
+                              "\u2029": "\\u2029"})
+
+
 def _json(obj: Any) -> str:
-    """Compact JSON safe inside a <script> element."""
-    return json.dumps(obj, separators=(",", ":"), ensure_ascii=True, allow_nan=False).replace("</", "<\\/")
+    """Compact JSON safe inside a <script> element (and an HTML attribute): every ``<``, ``>``, ``&``, U+2028
+    and U+2029 a \\u escape (a marker labelled ``<!--<script>`` otherwise leaves the page blank)."""
+    return json.dumps(obj, separators=(",", ":"), ensure_ascii=True, allow_nan=False).translate(_SCRIPT_SAFE)
 
 
 _SCRIPT = """(function(){
@@ -428,8 +438,9 @@ def _page(inp: ReplayInputs, rep: Replay, plotly_src: str) -> str:
     else:
         loader = f'<script src="{escape(plotly_src)}" charset="utf-8"></script>'
         src_note = escape(plotly_src)
-    script = (_SCRIPT.replace("FIG", _json(fig)).replace("INFO", _json(info))
-              .replace("SRC", _json(src_note)))
+    # one pass: a label holding a placeholder's name (a marker called INFO) is never replaced in turn
+    values = {"FIG": _json(fig), "INFO": _json(info), "SRC": _json(src_note)}
+    script = re.sub(r"\b(FIG|INFO|SRC)\b", lambda m: values[m.group(1)], _SCRIPT)
     moments = "".join(f'<li><a href="#jump={i}">{escape(m.label)}</a>: {escape(m.detail)}</li>'
                       for i, m in enumerate(rep.moments))
     windows = "" if not rep.moments else (f" Around each worst moment every frame is kept (&plusmn;{rep.window} "
@@ -496,7 +507,14 @@ def write_if_changed(path: Path, data: bytes, tmp: Path) -> None:
 
 
 def page_path(qc: Path, folder: str, session: str, take: str) -> Path:
-    """Where the page of a take goes: ``qc/<folder>/<session>/<take>.html``."""
+    """Where the page of a take goes: ``qc/<folder>/<session>/<take>.html``; a session or take that is not an id
+    (letters, digits, ``_``, ``-``: a path, say) is refused (:class:`ConfigError`), so no page lands outside."""
+    from gazepipe.errors import ConfigError, printable
+    from gazepipe.io.toml_common import WORD
+
+    for what, name in (("session", session), ("take", take)):
+        if not WORD.fullmatch(name):
+            raise ConfigError(None, f"{printable(name)!r} is not a {what} id: no page is written for it")
     return qc / folder / session / f"{take}.html"
 
 
@@ -508,10 +526,12 @@ REPLAY_DIR = "replay"
 VIEW_DIR = "view"
 
 
-def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes]) -> list[Path]:
+def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes], prune: bool = True,
+                         keep: Sequence[Path] = ()) -> list[Path]:
     """Write the report's replay pages (``(session, take)`` → page) under ``qc/replay/`` (atomically, each
-    unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and delete the other
-    files there (pages of takes the report no longer shows). Returns the pages' paths."""
+    unless it already holds these bytes), ``qc/plotly.min.js`` when there is a page, and, with ``prune``, delete
+    the other files there but ``keep`` (pages of takes gone, or of outputs since changed; ``validate
+    --no-plots`` deletes nothing). Returns the pages' paths."""
     if pages:
         write_plotly_js(qc, tmp)
     paths: list[Path] = []
@@ -520,14 +540,14 @@ def write_report_replays(qc: Path, tmp: Path, pages: dict[tuple[str, str], bytes
         write_if_changed(path, data, tmp)
         paths.append(path)
     base = qc / REPLAY_DIR
-    if base.is_dir():
-        keep = set(paths)
+    if prune and base.is_dir():
+        kept = set(paths) | set(keep)
         for p in sorted(base.rglob("*"), reverse=True):
             try:
                 if p.is_dir():
                     if not any(p.iterdir()):
                         p.rmdir()
-                elif p not in keep:
+                elif p not in kept:
                     p.unlink()
             except OSError:
                 pass

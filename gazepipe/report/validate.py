@@ -317,9 +317,9 @@ def dataset_part(layout: OutLayout, name: str, path: Path | None, record: dict[s
     key = parts.key(name, path, record, th)
     part = parts.get(key)
     if part is not None:
-        cached = figures.get(part["figure_key"]) if plots_on else ([], [])
-        if cached is not None:
-            return part["entry"], part["take_splits"], cached[0]
+        cached = figures.get(part["figure_key"])
+        if cached is not None or not plots_on:       # no plots: those drawn before for this dataset, or none
+            return part["entry"], part["take_splits"], [] if cached is None else cached[0]
     d = load_dataset(path, th) if path is not None else DatasetData(name)
     checks = _sorted_checks(dataset_checks(d, th, record, path is not None))
     counts = d.info.get("counts") or {}
@@ -329,7 +329,8 @@ def dataset_part(layout: OutLayout, name: str, path: Path | None, record: dict[s
              "checks": [c.to_dict() for c in checks]}
     part = json.loads(json.dumps({"entry": entry, "take_splits": d.take_splits,
                                   "figure_key": figures.dataset_key(d)}, allow_nan=False))
-    figs = dataset_figures_cached(d, figures) if plots_on else []
+    kept = figures.get(part["figure_key"])
+    figs = dataset_figures_cached(d, figures) if plots_on else ([] if kept is None else kept[0])
     parts.put(key, part)
     return part["entry"], part["take_splits"], figs
 
@@ -406,7 +407,8 @@ def validate_output(out: str | Path, thresholds: C.Thresholds | None = None, fai
     fail_on : the gate: ``fail`` (checks at fail or error) or ``warning`` (warning or worse).
     lock : hold the output folder's lock while reading and writing (a running ``gazepipe run`` makes this raise
         :class:`~gazepipe.errors.LockedError`, exit 75).
-    plots_on : draw the plots (off: the HTML page has the tables only).
+    plots_on : draw the plots (off: nothing is drawn and nothing deleted; the page keeps the plots and 3D
+        replays drawn before of the datasets and takes whose outputs are unchanged, read back from the caches).
     plot_takes : draw the plots of this many takes, the worst first (:func:`take_rank_key`; takes with nothing
         to draw, such as face takes, are passed over), or of every take (``"all"`` or ``None``). Every take is
         checked and keeps its checks table whatever the number; the page names the takes plotted and says how to
@@ -566,8 +568,7 @@ def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, cache: Figu
     plotted and the others."""
     ranked, named, chosen, drawable = plot_choice(layout, tp, plots)
     if not plots.on:
-        return {}, [], PlotSelection(False, plots.limit, tuple(ranked), named=tuple(named),
-                                     nothing_to_draw=tuple(k for k in ranked if k not in drawable)), {}
+        return _kept_take_plots(layout, tp, plots, ranked, named, drawable, cache, replays)
     by_key = {e.key: e for e in tp.entries}
     take_figs: dict[str, list[Figure]] = {}
     pages: dict[tuple[str, str], bytes] = {}
@@ -590,6 +591,50 @@ def _take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, cache: Figu
         True, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
         nothing_to_draw=tuple(k for k in ranked if k not in drawable),
         failed=tuple(k for k in chosen if k not in take_figs)), pages
+
+
+def pages_on_disk(layout: OutLayout, tp: TakePass, replays: ReplayCache,
+                  skip: Sequence[tuple[str, str]] = ()) -> dict[tuple[str, str], bytes]:
+    """The replay pages ``qc/replay/`` holds (takes in ``skip`` apart) that are still their take's page: the
+    replay cache has, for the take's outputs as they are now, a page of the same bytes. A page of a take gone,
+    or of outputs since changed, is not among them."""
+    from gazepipe.report.replay_page import REPLAY_DIR
+
+    base = layout.root / "qc" / REPLAY_DIR
+    by_key = {e.key: e for e in tp.entries}
+    found: dict[tuple[str, str], bytes] = {}
+    for path in sorted(base.glob("*/*.html")) if base.is_dir() else []:
+        e = by_key.get(f"{path.parent.name}/{path.stem}")
+        if e is None or (e.session, e.take) in skip:
+            continue
+        s = tp.sessions.get(e.session)
+        got = replays.get(replays.key(e, s.markerset if s is not None else None))
+        try:
+            if got is not None and got[0] is not None and got[0] == path.read_bytes():
+                found[(e.session, e.take)] = got[0]
+        except OSError:
+            continue
+    return found
+
+
+def _kept_take_plots(layout: OutLayout, tp: TakePass, plots: PlotRequest, ranked: list[str], named: list[str],
+                     drawable: set[str], cache: FigureCache, replays: ReplayCache
+                     ) -> tuple[dict[str, list[Figure]], list[str], PlotSelection, dict[tuple[str, str], bytes]]:
+    """``--no-plots``: nothing drawn, nothing deleted. The takes whose replay page the report folder holds, made
+    from their outputs as they are now (:func:`pages_on_disk`: the ones the report written before drew), keep
+    that page and their plots (read back from the caches, never drawn)."""
+    by_key = {e.key: e for e in tp.entries}
+    pages = pages_on_disk(layout, tp, replays)
+    take_figs: dict[str, list[Figure]] = {}
+    for session, take in pages:
+        e = by_key[f"{session}/{take}"]
+        s = tp.sessions.get(e.session)
+        figs = cache.get(cache.take_key(e, s.markerset if s is not None else None))
+        if figs is not None and figs[0]:
+            take_figs[e.key] = figs[0]
+    return take_figs, [], PlotSelection(
+        False, plots.limit, tuple(ranked), plotted=tuple(k for k in ranked if k in take_figs), named=tuple(named),
+        nothing_to_draw=tuple(k for k in ranked if k not in drawable)), pages
 
 
 def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: PlotRequest,
@@ -636,14 +681,18 @@ def finish_report(layout: OutLayout, th: C.Thresholds, fail_on: str, plots: Plot
         "notes": list(session_problems),
     }
     table = pa.Table.from_pylist(rows, schema=TAKES_SCHEMA) if rows else TAKES_SCHEMA.empty_table()
-    from gazepipe.report.replay_page import REPLAY_DIR, write_report_replays
+    from gazepipe.report.replay_page import REPLAY_DIR, page_path, write_report_replays
 
     links = {f"{s}/{t}": f"{REPLAY_DIR}/{s}/{t}.html" for s, t in pages}
     html = render_html(report, take_figs, ds_figs, plot_notes, plots=selection, replays=links)
     qc = layout.root / "qc"
     qc.mkdir(exist_ok=True)
     layout.tmp.mkdir(parents=True, exist_ok=True)
-    replay_paths = write_report_replays(qc, layout.tmp, pages)
+    # the pages of takes not drawn this time stay while they are their take's page (validate deletes no view of
+    # the current outputs); stale ones go, and with --no-plots nothing goes
+    kept = pages_on_disk(layout, tp, replay_cache, skip=list(pages)) if plots.on else {}
+    replay_paths = write_report_replays(qc, layout.tmp, pages, prune=plots.on,
+                                        keep=[page_path(qc, REPLAY_DIR, s, t) for s, t in kept])
     paths = [qc / "report.json", qc / "takes.parquet", qc / "report.html"]
     layout.write_bytes(paths[0], (json.dumps(report, indent=1, sort_keys=True, allow_nan=False,
                                              ensure_ascii=False) + "\n").encode())

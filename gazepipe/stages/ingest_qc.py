@@ -25,7 +25,9 @@ class IngestQC(QCRecord):
     frames: int
     rate_hz: float
     first_frame: int
-    units_found: str
+    #: POINT:UNITS or the units row as the file gives them; None when the file does not say (a QTM TSV, a wide
+    #: CSV: the markerset's ``units`` were assumed)
+    units_found: str | None
     markers: int
     #: per marker (capture label, renamed to the markerset's), the share of frames that are gaps
     gap_fraction: Mapping[str, float]

@@ -3,19 +3,43 @@ the bundled sample (:func:`gazepipe.synth.session.sample_config`), with its grou
 
 The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), label swaps,
 occlusion bursts, clapper hazards, no head camera or eye tracking. Without them it writes the bundled sample
-byte for byte."""
+byte for byte.
+
+Exit codes: 0 written; 1 the folder could not be written (read-only, unreachable, full: nothing of the session
+is left there); 2 a bad option or OUT_DIR (empty, a file)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
+from typing import NoReturn
 
-from gazepipe.synth.session import generate_session, sample_config
+from gazepipe.synth.session import OutputFolderError, generate_session, sample_config
 from gazepipe.synth.skeleton import FOUR_SEGMENTS
+
+PROG = "python -m gazepipe.synth"
 
 #: the markersets the command line offers: name → (segments with markers, the lab's up axis); None keeps the
 #: sample's ten segments in z-up axes
 SKELETONS: dict[str, tuple[tuple[str, ...], str] | None] = {"ten": None, "four": (FOUR_SEGMENTS, "y")}
+
+#: the most label swaps or occlusion bursts a take may be given (a 45 s take holds a few dozen at most)
+MAX_COUNT = 1000
+#: seeds are whole numbers below 2^64 (numpy's SeedSequence takes them)
+MAX_SEED = 2**64 - 1
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (no usage block), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        _fail(message, 2)
+
+
+def _fail(message: str, code: int) -> NoReturn:
+    print(f"{PROG}: error: {' '.join(str(message).split())}", file=sys.stderr)
+    sys.exit(code)
 
 
 def _config(a: argparse.Namespace):
@@ -30,38 +54,60 @@ def _config(a: argparse.Namespace):
 
 
 def _share(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a share between 0 and 1") from None
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"{text} is not a share between 0 and 1")
     return value
 
 
-def _count(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text} is not a count (0 or more)")
+def _whole(text: str, low: int, high: int, what: str) -> int:
+    try:
+        value = int(text.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text[:40]!r} is not {what}") from None
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"{text[:40]} is not {what}")
     return value
 
 
+def _count(text: str) -> int:
+    return _whole(text, 0, MAX_COUNT, f"a count (0 to {MAX_COUNT})")
+
+
+def _seed(text: str) -> int:
+    return _whole(text, 0, MAX_SEED, "a seed (a whole number, 0 or more, below 2^64)")
+
+
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gazepipe.synth", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("out_dir", help="the session folder to write (session.toml, markerset.toml, mocap/, ...)")
-    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed and options give the same bytes")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="random seed, 0 or more: the same seed and options give the same bytes")
     p.add_argument("--skeleton", choices=sorted(SKELETONS), default="ten",
                    help="markers on the ten segments of Klein's chain in z-up axes (default), or on four "
                         "(pelvis, chest, neck2, head) in y-up axes")
     p.add_argument("--label-swaps", type=_count, default=0, metavar="N",
-                   help="stretches per mocap take in which two markers carry each other's names (default 0)")
+                   help=f"stretches per mocap take in which two markers carry each other's names (default 0, at "
+                        f"most {MAX_COUNT})")
     p.add_argument("--occlusion-bursts", type=_count, default=0, metavar="N",
-                   help="moments per mocap take when a side of the body's markers vanish at once (default 0)")
+                   help=f"moments per mocap take when a side of the body's markers vanish at once (default 0, at "
+                        f"most {MAX_COUNT})")
     p.add_argument("--clap-hazards", type=_share, default=0.0, metavar="SHARE",
                    help="share of gaze_follow takes with a clapper hazard: a weak or hidden clap, video frames "
                         "dropped, the clapper's marker lost (default 0)")
     p.add_argument("--no-eyes", action="store_true",
                    help="no head camera and no eye tracking (a mocap-only session)")
     a = p.parse_args(argv)
-    out = generate_session(a.out_dir, seed=a.seed, config=_config(a))
+    try:
+        out = generate_session(a.out_dir, seed=a.seed, config=_config(a))
+    except OutputFolderError as e:
+        _fail(str(e), 2)
+    except OSError as e:
+        _fail(f"{a.out_dir}: cannot write the session ({e.strerror or type(e).__name__}); nothing of it is left "
+              "there", 1)
     print(out)
     return 0
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import functools
 import json
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -323,15 +325,70 @@ def builtin_writers(cfg: SynthConfig) -> list[ModalityWriter]:
     return out
 
 
+class OutputFolderError(ValueError):
+    """The session folder cannot be written there (``path``: the folder; ``problem``: why, a short phrase)."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = path, problem
+
+
 def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | None = None,
                      writers: tuple[ModalityWriter, ...] | list[ModalityWriter] = ()) -> Path:
     """Generate a session folder: session.toml, markerset.toml, mocap/*.c3d, video/*.mp4 and eyes/*.csv
     (gaze_follow takes, when ``head_camera``), face/*.csv (``face_takes``) and truth/ (npz per take,
     truth.json, README.md). ``writers`` run after the built-in ones. Same seed and config give byte-identical
-    files. Returns the folder."""
-    cfg = config or SynthConfig()
-    all_writers = [*builtin_writers(cfg), *writers]
+    files. Returns the folder.
+
+    The files are written into a folder beside ``out_dir`` (``.<name>.partial-<pid>``) and moved into it once
+    all are written, so a failure (a full disk, say) leaves no partial session: it raises, with the other files
+    of ``out_dir`` as they were. Raises :class:`OutputFolderError` when ``out_dir`` is empty or a file, and
+    :class:`OSError` when the folder cannot be written (read-only, unreachable, full)."""
+    if int(seed) < 0:
+        raise ValueError(f"seed {seed} is negative: a seed is a whole number 0 or more")
+    out = _session_folder(out_dir)
+    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)        # left by a run of this pid that was killed
+    stage.mkdir()
+    try:
+        _generate_into(stage, int(seed), config or SynthConfig(), writers)
+        _move_into(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return out
+
+
+def _session_folder(out_dir: str | Path) -> Path:
+    """``out_dir`` checked (not empty, not a file), its parent folders made."""
+    if not str(out_dir).strip():
+        raise OutputFolderError(repr(str(out_dir)), "no folder named: give the session folder to write")
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise OutputFolderError(str(out), "is a file, not a folder")
+    above = next((a for a in out.parents if a.exists()), None)
+    if above is not None and not above.is_dir():
+        raise OutputFolderError(str(out), f"{above} is a file, not a folder")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _move_into(stage: Path, out: Path) -> None:
+    """The generated files of ``stage`` into ``out``: the folder renamed when ``out`` does not exist, else each
+    file moved over the one of the same name (the folder's other files kept)."""
+    if not out.exists():
+        os.replace(stage, out)
+        return
+    for f in sorted(stage.rglob("*")):
+        if f.is_file():
+            target = out / f.relative_to(stage)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(f, target)
+
+
+def _generate_into(out: Path, seed: int, cfg: SynthConfig,
+                   writers: tuple[ModalityWriter, ...] | list[ModalityWriter]) -> None:
+    """Write the session of :func:`generate_session` into the folder ``out`` (it exists)."""
+    all_writers = [*builtin_writers(cfg), *writers]
     (out / "mocap").mkdir(parents=True, exist_ok=True)
     (out / "truth").mkdir(exist_ok=True)
     rate = float(cfg.rate_hz)
@@ -460,4 +517,3 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
     from gazepipe.synth.readme import TRUTH_README
     (out / "truth" / "README.md").write_text(TRUTH_README)
-    return out

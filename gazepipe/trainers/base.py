@@ -170,6 +170,9 @@ def check_options(trainer: Any, options: TrainOptions) -> None:
 TRUE_WORDS = ("true", "1", "yes")
 FALSE_WORDS = ("false", "0", "no")
 _INT_RE = re.compile(r"^[+-]?\d+$")
+#: the largest whole number an ``--option`` takes (a C int: what numpy and torch take for counts, threads and
+#: sizes); past it a value would pass the check and fail inside the trainer
+INT_MAX = 2**31 - 1
 
 
 @dataclass(frozen=True)
@@ -199,22 +202,28 @@ class Option:
     choices: tuple[str, ...] = ()
     default_text: str = ""
 
-    def allowed(self) -> str:
-        """What the option accepts, for people (``a whole number >= 1``, ``true or false``)."""
+    def allowed(self, cap: bool = False) -> str:
+        """What the option accepts, for people (``a whole number >= 1``, ``true or false``); with ``cap``, a whole
+        number's bound of :data:`INT_MAX` is said too where the trainer declares no maximum."""
         if self.type is bool:
             return "true or false"
         if self.type is str:
             return f"one of {', '.join(self.choices)}" if self.choices else "a text"
         kind = "a whole number" if self.type is int else "a number"
-        lo = None if self.min is None else ("(" if self.min_open else "[", self.min)
-        hi = None if self.max is None else (self.max, ")" if self.max_open else "]")
+        # a whole number is bounded by INT_MAX even when the trainer declares no maximum
+        top = f" (at most {INT_MAX})" if cap and self.type is int and self.max is None else ""
+        lo = None if self.min is None else ("(" if self.min_open else "[", self._shown(self.min))
+        hi = None if self.max is None else (self._shown(self.max), ")" if self.max_open else "]")
         if lo and hi:
-            return f"{kind} in {lo[0]}{lo[1]:g}, {hi[0]:g}{hi[1]}"
+            return f"{kind} in {lo[0]}{lo[1]}, {hi[0]}{hi[1]}"
         if lo:
-            return f"{kind} {'>' if self.min_open else '>='} {lo[1]:g}"
+            return f"{kind} {'>' if self.min_open else '>='} {lo[1]}{top}"
         if hi:
-            return f"{kind} {'<' if self.max_open else '<='} {hi[0]:g}"
-        return kind
+            return f"{kind} {'<' if self.max_open else '<='} {hi[0]}"
+        return kind + top
+
+    def _shown(self, v: float) -> str:
+        return str(int(v)) if self.type is int else f"{v:g}"
 
     def shown_default(self) -> str:
         if self.default is None:
@@ -228,7 +237,7 @@ class Option:
         :class:`ConfigError` (exit 2) naming the option, the value and what is allowed when it is not."""
         got = self._typed(value)
         if got is None or not self._in_range(got):
-            raise ConfigError(None, f"--option {self.name}={value}: {self.name} must be {self.allowed()}")
+            raise ConfigError(None, f"--option {self.name}={value}: {self.name} must be {self.allowed(cap=True)}")
         return got
 
     def _typed(self, value: Any) -> Any:
@@ -263,6 +272,8 @@ class Option:
         if self.type is bool:
             return True
         if self.min is not None and (x < self.min or (self.min_open and x == self.min)):
+            return False
+        if self.type is int and abs(x) > INT_MAX:
             return False
         return not (self.max is not None and (x > self.max or (self.max_open and x == self.max)))
 

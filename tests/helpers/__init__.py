@@ -14,6 +14,8 @@
 from __future__ import annotations
 
 import hashlib
+import json
+import re
 import shutil
 import textwrap
 from pathlib import Path
@@ -150,3 +152,28 @@ def tree_digest(root: Path, parts: tuple[str, ...]) -> dict[str, str]:
             if p.is_file():
                 out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest()
     return out
+
+
+# --------------------------------------------------------------------------------------- pages
+
+#: marker labels a capture may hold that must not break the page: one opening an HTML comment and a script (the
+#: script element then never ends: a blank page), a closing tag, entities and line separators, a placeholder name
+HOSTILE_LABELS = ["<!--<script>", "</script><b>x</b>", "a&amp;b\u2028\u2029", "INFO"]
+
+
+def script_data(page: str) -> list[str]:
+    """The text of each inline script element of a page (up to its first ``</script``, as a browser reads it)."""
+    return [m.group(1) for m in re.finditer(r"<script>(.*?)</script", page, flags=re.S)]
+
+
+def check_page_escapes(page: str, labels: list[str]) -> None:
+    """Every inline script of ``page`` is whole (it holds no ``<!--``, ``<script`` or ``</`` that a browser would
+    read as markup, no ``&``, U+2028 or U+2029) and its figure's JSON gives the ``labels`` back as they are."""
+    data = script_data(page)
+    assert data and page.count("</script>") == page.count("<script")
+    for text in data[-1:]:                          # the page's own script (a stand-alone page inlines Plotly first)
+        for bad in ("<!--", "<script", "</", "&", "\u2028", "\u2029"):
+            assert bad not in text.lower(), bad
+        fig = json.loads(re.search(r"var fig=(\{.*?\}), info=\{", text, flags=re.S).group(1))
+        texts = {t for frame in fig["frames"] for d in frame["data"] for t in d.get("text", [])}
+        assert set(labels) <= texts

@@ -145,7 +145,7 @@ class HeadMotion:
 SHORT_VIDEO_SHARE = 0.5
 
 
-def _short_video(video: tuple[Any, float] | None, take_s: float, take: str | None) -> None:
+def _short_video(video: tuple[Any, ...] | None, take_s: float, take: str | None) -> None:
     """Raise the error that names the video when it lasts less than :data:`SHORT_VIDEO_SHARE` of the take."""
     if video is None or video[0] is None or not video[1] < SHORT_VIDEO_SHARE * take_s:
         return
@@ -154,10 +154,45 @@ def _short_video(video: tuple[Any, float] | None, take_s: float, take: str | Non
                                "or a cut file?)", take=take)
 
 
+#: how far (share) the eye tracking's frame rate may be from the video's tag before the tag is named as wrong
+TAG_TOLERANCE = 0.01
+
+
+def eye_track_rate(eye: Any) -> float | None:
+    """The frame rate the eye tracking was timed at (OpenFace times its rows by the video's frame rate tag): its
+    frame numbers over its timestamps; None when it cannot tell."""
+    f = np.asarray(getattr(eye, "frame", ()), dtype=np.float64)
+    t = np.asarray(getattr(eye, "time_s", ()), dtype=np.float64)
+    if f.size < 2 or t.size != f.size or not t[-1] > t[0]:
+        return None
+    return float((f[-1] - f[0]) / (t[-1] - t[0]))
+
+
+def tag_mismatch(video: tuple[Any, ...] | None, eye: Any) -> str | None:
+    """What is wrong when the video's frame rate tag (``video[3]``, fps) is not the rate its eye tracking was
+    timed at: a video re-tagged after OpenFace ran, or the eye tracking of another file. None when they agree or
+    either is unknown."""
+    fps = float(video[3]) if video is not None and len(video) > 3 and video[3] else None
+    rate = eye_track_rate(eye)
+    if fps is None or rate is None or not np.isfinite(fps) or abs(rate / fps - 1.0) <= TAG_TOLERANCE:
+        return None
+    return (f"the video is tagged {fps:g} fps but its eye tracking was timed at {rate:.4g} fps (a frame rate tag "
+            "that is not the camera's, or the eye tracking of another video)")
+
+
+def _video_at_fault(video: tuple[Any, ...] | None, take_s: float, eye: Any, take: str | None) -> None:
+    """Raise the error naming the video when the camera rotation cannot be estimated because of it: a video far
+    shorter than its take (:func:`_short_video`), or one whose frame rate tag its eye tracking contradicts."""
+    _short_video(video, take_s, take)
+    why = tag_mismatch(video, eye)
+    if why is not None and video is not None and video[0] is not None:
+        raise StageError(video[0], f"eyes: cannot estimate the camera rotation: {why}", take=take)
+
+
 def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, clock: Any = None, *,
               camera_rotation: np.ndarray | None = None, params: EyesParams | None = None,
               path: Any = None, take: str | None = None,
-              video: tuple[Any, float] | None = None) -> EyesResult:
+              video: tuple[Any, ...] | None = None) -> EyesResult:
     """Eye direction per mocap frame of one take (SPEC §3.5).
 
     Parameters
@@ -174,9 +209,11 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
         eyes' lag behind the target (:func:`estimate_camera_rotation_lagged`).
     params : :class:`EyesParams`.
     path, take : for error messages.
-    video : the take's head-camera video and its duration (s), for error messages: a camera rotation that
-        cannot be estimated while the video lasts less than :data:`SHORT_VIDEO_SHARE` of the take is the
-        video's fault (the error names it), not the eyes file's.
+    video : the take's head-camera video, its duration (s) and optionally its frame count and its frame rate
+        tag (fps), for error messages: a camera rotation that cannot be estimated while the video lasts less
+        than :data:`SHORT_VIDEO_SHARE` of the take, or while its tag contradicts the rate its eye tracking was
+        timed at, is the video's fault (the error names it), not the eyes file's (the pipeline warns of the
+        second, naming the video, when the rotation is estimated anyway: :func:`tag_mismatch`).
 
     Returns
     -------
@@ -218,7 +255,7 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
     residual: float | None = None
     if camera_rotation is None:
         if not eye_valid.any():
-            _short_video(video, n / rate, take)
+            _video_at_fault(video, n / rate, eye, take)
             raise StageError(path, f"eyes: cannot estimate the camera rotation: no frame has valid eye data "
                              f"({int(np.count_nonzero(covered))} of {n} frames covered by the video, "
                              f"{g.qc['gated_share']:.0%} of the video's samples gated out)", take=take)
@@ -226,7 +263,7 @@ def eyes_take(eye: Any, joints: HeadMotion | Any, mocap_time_s: np.ndarray, cloc
             est, lag = estimate_camera_rotation_lagged(gaze_cam, head_q, tdir_char, rate, eye_valid,
                                                        char_rot=char_rot, params=p)
         except ValueError as e:
-            _short_video(video, n / rate, take)
+            _video_at_fault(video, n / rate, eye, take)
             raise StageError(path, f"eyes: cannot estimate the camera rotation: {e}", take=take) from None
         r_cam, source, residual, n_used = est.quat, "estimated", est.residual_deg, est.n_used
     else:
