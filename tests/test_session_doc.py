@@ -142,3 +142,18 @@ def test_an_error_naming_a_key_links_to_its_section(file, edit, key, anchor, tmp
     assert anchor in slugs()
     res = CliRunner().invoke(cli, ["run", str(tmp_path), "--out", str(tmp_path / "out")])
     assert res.exit_code == 2 and res.stderr.strip() == f"error: {line}"
+
+
+def test_a_markerset_without_lod_asks_for_no_lod_dataset(tmp_path: Path) -> None:
+    """[lod] is optional: the sample session without it plans gaze_rnn from its gaze_follow takes, and neither
+    rows of gaze_rnn_lod nor its build (which would fail on every take for want of the segments)."""
+    folder = tmp_path / "nolod"
+    shutil.copytree(SAMPLE, folder, ignore=shutil.ignore_patterns("truth"))
+    ms = (folder / "markerset.toml").read_text()
+    assert "[lod]\n" in ms
+    (folder / "markerset.toml").write_text(ms[:ms.index("[lod]\n")])
+    res = CliRunner().invoke(cli, ["run", str(folder), "--out", str(tmp_path / "out"), "--dry-run",
+                                   "--log-format", "text"])
+    assert res.exit_code == 0, res.output[-3000:]
+    assert "dataset gaze_rnn: would build" in res.output
+    assert "gaze_rnn_lod" not in res.output

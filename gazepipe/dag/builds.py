@@ -115,10 +115,15 @@ def _rows_stage(name: str):
     return run
 
 
+def _has_lod(session: Session) -> bool:
+    """Whether the session's markerset names the level-of-detail segments (``[lod]``) gaze_rnn_lod keeps."""
+    return session.markerset is not None and bool(session.markerset.lod_segments)
+
+
 def _rows_applies(name: str):
     def applies(session: Session, take: Take) -> bool:
-        return take.kind == KINDS[name] and all(registry.get(st).applies(session, take)
-                                                for st in NEEDS[name] if st not in OPTIONAL.get(name, ()))
+        return _feeds(name)(session, take) and all(registry.get(st).applies(session, take)
+                                                   for st in NEEDS[name] if st not in OPTIONAL.get(name, ()))
     return applies
 
 
@@ -172,8 +177,10 @@ def run_build(ctx: DatasetContext) -> DatasetResult:
 
 
 def _feeds(name: str):
+    """Which takes feed dataset ``name``: those of its kind (gaze_rnn_lod: of sessions whose markerset has
+    ``[lod]``; a markerset without it asks for no level-of-detail dataset)."""
     def applies(session: Session, take: Take) -> bool:
-        return take.kind == KINDS[name]
+        return take.kind == KINDS[name] and (name != "gaze_rnn_lod" or _has_lod(session))
     return applies
 
 
