@@ -19,6 +19,7 @@ from gazepipe.synth.markers import (
     make_label_swaps,
     make_long_gaps,
     make_occlusion_bursts,
+    make_root_final_rest_gap,
     make_root_rest_gap,
     make_spikes,
 )
@@ -77,7 +78,10 @@ class SynthConfig:
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
     vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
     share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
-    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which);
+    ``root_final_rest_gap_s``: (shortest, longest) seconds: every gaze_shift take's final rest is lengthened by
+    its drawn length plus 1.6 s and the root marker itself is lost for that long inside it, measured still on
+    both sides (:func:`~gazepipe.synth.markers.make_root_final_rest_gap`; None: no such gap, the take as it was).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -107,6 +111,11 @@ class SynthConfig:
     label_swaps: int = 0
     occlusion_bursts: int = 0
     clap_hazards: float = 0.0
+    root_final_rest_gap_s: tuple[float, float] | None = None
+
+
+#: the final rest around a root-marker gap of ``SynthConfig.root_final_rest_gap_s`` (s): added to the gap's length
+FINAL_REST_MARGIN_S = 1.6
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -320,8 +329,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps, r_rest = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -332,6 +341,7 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
             meta_takes[take_id] = rec.truth_scalars
             records.append(rec)
             continue
+        still_gap_s = None
         if kind == "gaze_follow":
             rebound = None
             if cfg.clap_rebounds > 0:
@@ -356,7 +366,10 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
                 mm = r_hazard.uniform(40.0, 150.0)
                 step = (float(r_hazard.uniform(-0.8, -0.2)), float(r_hazard.uniform(0.8, 1.4)),
                         mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
-            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step)
+            if cfg.root_final_rest_gap_s is not None:
+                still_gap_s = float(r_rest.uniform(*cfg.root_final_rest_gap_s))
+            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step,
+                                  more_rest_s=0.0 if still_gap_s is None else still_gap_s + FINAL_REST_MARGIN_S)
         else:
             motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
         kin = build_kinematics(motion, cfg.placement, cfg.segments)
@@ -371,6 +384,9 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         if cfg.gaps and cfg.root_rest_gaps:
             rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
             mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
+        if cfg.gaps and still_gap_s is not None:
+            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+            mask |= make_root_final_rest_gap(r_rest, kin.labels, n, rate, rests, still_gap_s)
         if cfg.gaps and cfg.occlusion_bursts:
             mask |= make_occlusion_bursts(r_bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
         hazard = motion.design.get("clap_hazard")
