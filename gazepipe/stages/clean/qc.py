@@ -53,6 +53,14 @@ class GapQC(QCRecord):
 
 
 @dataclass(frozen=True)
+class UnfilledQC(QCRecord):
+    """The gaps left unfilled for one reason, and their samples."""
+
+    gaps: int
+    samples: int
+
+
+@dataclass(frozen=True)
 class SwapQC(QCRecord):
     """One stretch where two markers carried each other's names."""
 
@@ -94,6 +102,8 @@ class CleanQC(QCRecord):
     spikes_removed: int
     #: every gap the filler decided (none when the take had no gap)
     gaps: tuple[GapQC, ...]
+    #: the gaps left unfilled, by reason (too long, no error estimate, an unlabeled trajectory, ...)
+    unfilled_gaps: Mapping[str, UnfilledQC]
     markers: Mapping[str, MarkerQC]
     root_missing_frames: int
     #: rest periods, ``[start, stop)`` frames of the uncropped take
@@ -109,4 +119,4 @@ class CleanQC(QCRecord):
     lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
 
 
-__all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC"]
+__all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC", "UnfilledQC"]
