@@ -331,6 +331,9 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     if g["edge_filled"]:
         click.echo(f"  {g['edge_filled']} of the filled gaps are at the file's start or end (filled from other "
                    "markers only: check them)")
+    if g["filled"]:
+        click.echo(f"  every fill has an estimated error (--json lists them) and no filled step is faster than the "
+                   f"file's fastest measured one, {summary['fastest_measured_step_mm']:.1f} mm per frame")
     for reason, n in summary["unfilled_by_reason"].items():
         click.echo(f"  left as gaps: {n['gaps']} gap(s), {n['samples']} samples: {reason}")
     unl = summary["unlabeled"]
