@@ -288,7 +288,8 @@ def test_report_table_and_replay_quote_one_estimate_per_gap(sample_run):
     """Every filled gap of the sample has one estimated error: the one its keep/reject decision used. The clean
     QC records it (``GapQC.error_mm``), the markers table's ``fill_error_mm`` holds it on each of the gap's kept
     samples, the report's ``fill_error`` check grades the largest of them (value and message), and the
-    replay's worst-fill buttons (``qc/replay/...``) quote it for the gap at their frame."""
+    replay's worst-fill buttons (``qc/replay/...``) quote it for the gap at their frame. The gaps left unfilled
+    are counted per reason in QC and in the check."""
     import json
     import re
 
@@ -318,6 +319,11 @@ def test_report_table_and_replay_quote_one_estimate_per_gap(sample_run):
             assert (col == g.error_mm).all(), (entry.key, g)      # the float32 the table stores, exactly
             samples += rows.size
         check = report[(entry.session, entry.take)]["fill_error"]
+        left = [g for g in cqc.gaps if g.method == "unfilled"]
+        by_reason = {r: sum(g.reason == r for g in left) for r in {g.reason for g in left}}
+        assert {r: u.gaps for r, u in cqc.unfilled_gaps.items()} == by_reason          # counted apart in QC
+        assert check["details"]["unfilled_by_reason"] == by_reason
+        assert ("left unfilled" in check["message"]) == bool(left)
         if filled:
             worst = max(g.error_mm for g in filled)
             assert check["value"] == worst and f"{worst:.1f} mm" in check["message"], (entry.key, check)

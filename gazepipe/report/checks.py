@@ -336,13 +336,16 @@ def check_fill_error(clean_qc: CleanQC | None, th: Thresholds) -> Check:
     methods = Counter(g.method for g in gaps)
     unfilled = dict(sorted(Counter(g.reason for g in gaps if g.method == "unfilled").items()))
     details: dict[str, Any] = {"gaps_by_method": dict(sorted(methods.items())), "unfilled_by_reason": unfilled}
+    left = sum(unfilled.values())
+    why = "" if not left else f"; {left} gap(s) left unfilled, e.g. {max(unfilled, key=lambda k: unfilled[k])}"
     if not errs:
-        return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled", details=details)
+        return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled{why}", details=details)
     e, g = max(errs, key=lambda eg: eg[0])
     over = sum(1 for x, _ in errs if th.fill_error_warn_mm is not None and x > th.fill_error_warn_mm)
     msg = f"worst fill estimated error {e:.1f} mm ({g.marker} frames {g.start}-{g.stop}, {g.method})"
     if over:
         msg += f"; {over} gap(s) above {th.fill_error_warn_mm:g} mm"
+    msg += why
     return Check("fill_error", grade(e, th.fill_error_warn_mm, None), msg, value=float(e),
                  threshold=_thr(th.fill_error_warn_mm),
                  details={**details, "over": over, "median_mm": float(np.median([x for x, _ in errs]))})
