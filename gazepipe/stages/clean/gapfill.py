@@ -35,11 +35,15 @@ it predicts the hidden stretches better. When no sample can be hidden the first 
 A fill is kept when its estimated error is within the limit (``max_error_mm``): the larger of its mean error on
 the hidden stretches and, for the part of it that comes from interpolation, how far it strays from the curve
 that meets the gap's edges with the marker's velocities there (:func:`edge_velocity_error`: a turn inside the
-gap that the stretches beside it cannot show).
+gap that the stretches beside it cannot show). A fill whose error cannot be estimated at all is not kept
+(:data:`REASON_NO_ESTIMATE`): every fill written carries the estimate it was kept on, the one every report of
+it quotes.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
-mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled.
+mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled, but where
+the marker is still through them (``still_speed_mm_s``; :func:`still_gap`: a rest is not motion). Unlabeled
+trajectories (:func:`unlabeled_markers`) are left alone when the caller says so (``leave``).
 
 Each gap is decided from its neighbourhood only: the frames within ``_GapSettings.reach`` of it (the PCA
 training window, the mates' window and the hidden stretches of the longest gap all fit), plus two statistics of
@@ -51,7 +55,8 @@ samples measurably better than the noise they carry, and these are most of the g
 
 Every fill is checked for plausible speed before it is kept (:func:`step_limits`): no step from frame to frame,
 into, across or out of the gap, may exceed both 2.5x the marker's own 99th-percentile measured step and 1.5x
-the largest such percentile of any marker. A fill that does (seen for PCA at the end of a take whose last
+the largest such percentile of any marker, nor ever the fastest step measured anywhere in the take (no fill
+moves faster than the capture was seen to move). A fill that does (seen for PCA at the end of a take whose last
 poses the training frames never held: a foot marker moving 120 mm per frame) is replaced by the next method
 by validation error that passes, or the gap stays unfilled (``GapRecord.reason``).
 """
