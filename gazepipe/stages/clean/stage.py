@@ -357,7 +357,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     were not looked for),
     ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
-    marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
+    marker, start, stop, method, its fill's estimated error as the markers table stores it, each method's
+    validation error in mm), ``unfilled_gaps`` (gaps and samples left unfilled, per reason),
+    ``root_missing_frames``, ``lowpass`` (cutoff,
     runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
     ``warnings`` and ``failures`` (lists of one-line strings; ``failures`` stays empty here because a failure
     raises instead).
