@@ -32,7 +32,8 @@ class GapQC(QCRecord):
     stop: int
     #: the fill method chosen (a fill code name of :data:`gazepipe.model.FILL_CODES`), or ``unfilled``
     method: str
-    #: the fill's estimated error (of the blend, when several methods were averaged); null when not measured
+    #: the fill's estimated error (of the blend, when several methods were averaged), mm: the one the fill was kept
+    #: or refused on, as the markers table's ``fill_error_mm`` stores it (float32); null when none could be made
     error_mm: float | None
     reason: str
     #: every configured method's validation error (null: it could not apply or nothing could be hidden)
@@ -48,7 +49,8 @@ class GapQC(QCRecord):
 
     @property
     def method_error_mm(self) -> float | None:
-        """The validation error of the method chosen (null for an unfilled gap, or one not validated)."""
+        """The raw validation error of the method chosen (null for an unfilled gap, or one not validated): one
+        input to ``error_mm``, which is what a fill is graded on."""
         return None if self.method == "unfilled" else self.errors_mm[self.method]
 
 
