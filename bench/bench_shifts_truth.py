@@ -164,7 +164,8 @@ def main() -> None:
         worst_start: list[tuple[float, str]] = []
         worst_l: list[tuple[float, str]] = []
         worst_eye: list[tuple[float, str]] = []
-        masks = {"mask_mismatch": 0, "rows_without_a_value": 0, "no_start": 0, "spurious": 0, "missed": 0}
+        masks = {"mask_mismatch": 0, "rows_without_a_value": 0, "no_start": 0, "spurious": 0, "missed": 0,
+                 "hole": 0}
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(args.seeds):
                 cfg = SynthConfig(follow_poses=("standing", "standing", "sitting"), follow_duration_s=args.duration,
@@ -226,8 +227,9 @@ def main() -> None:
                     mask_names = info.get("masks", {}).get("known")
                     known = dict(zip(mask_names, r["known"], strict=True)) if mask_names else {}
                     null = [k for k, v in known.items() if not v]
+                    reasons_of = info["counts"]["per_take"][f"{cfg.session_id}/{take}"].get("null_reasons", {})
                     if null:
-                        reasons = info["counts"]["per_take"][f"{cfg.session_id}/{take}"].get("null_reasons", {})
+                        reasons = reasons_of
                         null_takes.append(f"s{seed} {take}: " + ", ".join(f"{k} ({reason_kind(reasons.get(k, ''))})"
                                                                           for k in null))
                         for k in null:
@@ -255,7 +257,9 @@ def main() -> None:
                             masks["no_start"] += 1
                             masks["spurious"] += got is not None
                         elif got is None:
-                            masks["missed"] += known.get(s, True)      # (a start null for a hole is not missed)
+                            # a start null because it may lie in an unbridgeable hole is not missed
+                            why = reasons_of.get(f"{s} start", "") + reasons_of.get(s, "")
+                            masks["hole" if "cannot be computed" in why else "missed"] += 1
                         else:
                             start_err.append(got * r["duration_s"] * rate - want)
                             worst_start.append((abs(start_err[-1]), f"s{seed} {take} {s} {start_err[-1]:+.0f}"))
@@ -299,7 +303,7 @@ def main() -> None:
         print(f"  gaze_map masks: {masks['rows_without_a_value']} rows without a known value; "
               f"{masks['mask_mismatch']} start times whose null and start_known disagree; of the segments the "
               f"truth never starts ({masks['no_start']}), {masks['spurious']} given a start; of those it starts, "
-              f"{masks['missed']} without one")
+              f"{masks['missed']} without one (and {masks['hole']} null for an unbridgeable hole before it)")
         stat("l", l_err, "frames", 2.0)
         print("    worst: " + "; ".join(w for a, w in sorted(worst_l, reverse=True)[:4] if a > 2))
         stat(f"start times ({undec} undecidable left out)", start_err, "frames", 2.0)
