@@ -104,8 +104,6 @@ class CleanQC(QCRecord):
     spikes_removed: int
     #: every gap the filler decided (none when the take had no gap)
     gaps: tuple[GapQC, ...]
-    #: the gaps left unfilled, by reason (too long, no error estimate, an unlabeled trajectory, ...)
-    unfilled_gaps: Mapping[str, UnfilledQC]
     markers: Mapping[str, MarkerQC]
     root_missing_frames: int
     #: rest periods, ``[start, stop)`` frames of the uncropped take
@@ -119,6 +117,10 @@ class CleanQC(QCRecord):
     swaps_not_checked: str | None = absent_when("swaps were looked for, or clean.repair_swaps is off")
     # absent unless clean.lowpass_hz is set: nothing was low-passed
     lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
+    # the gaps left unfilled, by reason (too long, no error estimate, an unlabeled trajectory, ...); every gap is
+    # in ``gaps`` with its reason too, so a record written before the count was kept still reads
+    unfilled_gaps: Mapping[str, UnfilledQC] | None = absent_when(
+        "the record was written by a clean stage older than version 25, which did not count them apart")
 
 
 __all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC", "UnfilledQC"]

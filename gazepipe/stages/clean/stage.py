@@ -53,7 +53,7 @@ class CleanParams:
 
     Attributes
     ----------
-    max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled, but with ``fill_still_gaps``.
+    max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
     fill_still_gaps : a gap longer than ``max_gap_s`` is still filled when its marker is still (a rest is not
         motion): measured still (below ``rest_speed_mm_s``) on both sides, and the markers moving with it stay
         so through the gap, which gives the fill's error estimate
