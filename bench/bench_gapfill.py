@@ -9,8 +9,17 @@ kineticstoolkit's cubic fill when it is installed.
 Data: the sample session's truth (``sample_data/session01``, with 0.5 mm noise added to the input and errors
 measured against the noise-free truth; gaps in the subject's markers, segments from its markerset), and the gap-free stretches of two real C3D files: Walking_Hybrid_2
 (trajectories de-duplicated; rigid clusters found from the data) and ART-Human (whole ART triplets hidden).
+The per-gap choice may leave a gap unfilled (no error estimate, every fill faster than the capture's fastest
+measured step): ``choice`` is then over the gaps it filled, with its coverage, and ``choice/hind`` compares it
+with the best method in hindsight on those same gaps.
 
-Usage: ``PYTHONPATH=. python bench/bench_gapfill.py [--trials N] [--seeds K] [--seed S] [--data all|session|real]``
+``--data corpus``: what ``gazepipe fill`` (:func:`gazepipe.stages.clean.standalone.fill_capture`, defaults) does
+to every real C3D in tests/data/corpus/c3d as it comes: gaps filled and left (per reason), filled gaps
+without an error estimate, the fastest filled step (into, across or out of a fill) against the file's fastest
+measured step (spikes left out, and all of them), and samples of unlabeled trajectories filled.
+
+Usage: ``PYTHONPATH=. python bench/bench_gapfill.py [--trials N] [--seeds K] [--seed S]
+[--data all|session|real|corpus]``
 """
 
 from __future__ import annotations
@@ -219,6 +228,7 @@ def run(ds: dict, trials: int, seed: int, pattern: str = "random") -> dict:
     cols = ("choice", "hindsight", *METHODS, "ktk")
     per_bin = {b: {c: [] for c in cols} for b in BINS}
     cover = {b: {c: [0, 0] for c in METHODS} for b in BINS}
+    chosen = {b: [0, 0] for b in BINS}          # [gaps the choice filled, gaps]
     # choice-vs-method on the gaps a method could fill: [sum choice err, sum method err]
     paired = {b: {c: [0.0, 0.0] for c in METHODS} for b in BINS}
     long_gaps = {c: [] for c in cols}
@@ -245,6 +255,10 @@ def run(ds: dict, trials: int, seed: int, pattern: str = "random") -> dict:
             t_ktk += time.perf_counter() - t0
             for m, s, e in find_all(valid):
                 sl = np.s_[s:e, m]
+                chosen[(lo, hi)][1] += 1
+                if (res.fill_code[sl] == FILL_CODES["unfilled"]).any():
+                    continue            # left unfilled: the errors below are over the gaps it filled
+                chosen[(lo, hi)][0] += 1
                 err = {"choice": np.linalg.norm(res.xyz[sl] - truth[sl], axis=1)}
                 for meth, r in forced.items():
                     cover[(lo, hi)][meth][1] += 1
@@ -263,7 +277,8 @@ def run(ds: dict, trials: int, seed: int, pattern: str = "random") -> dict:
                     per_bin[(lo, hi)][k].append(v)
                     if (e - s) / rate > LONG_S:
                         long_gaps[k].append(v)
-    return {"per_bin": per_bin, "cover": cover, "paired": paired, "long": long_gaps, "changed": changed,
+    return {"per_bin": per_bin, "cover": cover, "chosen": chosen, "paired": paired, "long": long_gaps,
+            "changed": changed,
             "t_fill": t_fill / max(n_calls, 1), "t_ktk": t_ktk / max(n_calls, 1), "pattern": pattern}
 
 
@@ -287,6 +302,7 @@ def merge(outs: list[dict]) -> dict:
                     for b in first["per_bin"]},
         "cover": {b: {c: [sum(o["cover"][b][c][i] for o in outs) for i in range(2)] for c in first["cover"][b]}
                   for b in first["cover"]},
+        "chosen": {b: [sum(o["chosen"][b][i] for o in outs) for i in range(2)] for b in first["chosen"]},
         "paired": {b: {c: [sum(o["paired"][b][c][i] for o in outs) for i in range(2)] for c in first["paired"][b]}
                    for b in first["paired"]},
         "long": {c: [v for o in outs for v in o["long"][c]] for c in first["long"]},
@@ -340,9 +356,83 @@ def report(ds: dict, out: dict, has_ktk: bool) -> None:
               f"{('ktk ' + format(r_k, '.1f') + s_k + 'x lower'):>16s}  {worst}")
     cov = " ".join(f"{m} {100 * sum(out['cover'][b][m][0] for b in BINS) / max(1, sum(out['cover'][b][m][1] for b in BINS)):.0f}%"
                    for m in METHODS)
+    ch = [sum(out["chosen"][b][i] for b in BINS) for i in range(2)]
+    cov = f"choice {100 * ch[0] / max(1, ch[1]):.1f}% ({ch[1] - ch[0]} gaps left), " + cov
     print(f"coverage: {cov}; measured samples changed: {out['changed']}; "
           f"time per take: fill_gaps {out['t_fill'] * 1000:.0f} ms"
           + (f", kineticstoolkit cubic {out['t_ktk'] * 1000:.0f} ms" if has_ktk else ""))
+
+
+# ---------------------------------------------------------------------------------------------- corpus
+def _unlabeled(labels: list[str]) -> list[int]:
+    """Unlabeled trajectories by the filler's rule when it has one (else Vicon ``*N`` and ``Unlabeled...``)."""
+    try:
+        from gazepipe.stages.clean.gapfill import unlabeled_markers
+    except ImportError:
+        return [i for i, lab in enumerate(labels) if lab.split(":")[-1].startswith("*")
+                or lab.lower().startswith("unlabel")]
+    return unlabeled_markers(labels)
+
+
+def corpus_audit() -> None:
+    """``gazepipe fill``'s rules on every real C3D of the corpus, as the files come (defaults)."""
+    from gazepipe.io.capture import read_markers
+    from gazepipe.stages.clean import standalone
+    from gazepipe.stages.clean.spikes import find_spikes
+
+    entries: list[dict] = []
+    plain = standalone._gap_entry
+
+    def entry(markers, g, at_edge):          # every gap's estimate, whatever the summary holds
+        d = plain(markers, g, at_edge)
+        entries.append({"filled": g.method != "unfilled", "estimate": float(g.error_mm), "frames": g.length})
+        return d
+
+    print("\n== gazepipe fill on every corpus C3D (defaults): gaps filled / total, filled gaps without an error "
+          "estimate (samples), fastest filled step vs the file's fastest measured step (mm per frame; spikes left "
+          "out, and all), unlabeled samples filled, unfilled gaps by reason")
+    total = {"gaps": 0, "filled": 0, "noest": 0, "noest_samples": 0, "faster": 0, "unl": 0}
+    standalone._gap_entry = entry
+    try:
+        for path in sorted(CORPUS.glob("*.c3d")):
+            m = read_markers(path)
+            entries.clear()
+            t0 = time.perf_counter()
+            filled, summary, _ = standalone.fill_capture(m)
+            dt = time.perf_counter() - t0
+            steps = np.linalg.norm(np.diff(filled.xyz, axis=0), axis=2)
+            new = filled.valid & ~m.valid
+            near = (new[1:] | new[:-1]) & filled.valid[1:] & filled.valid[:-1]
+            measured = m.valid[1:] & m.valid[:-1]
+            # the file's fastest measured step, spikes (as the filler finds them) left out
+            clean = m.valid & ~find_spikes(m.xyz, m.valid, m.rate_hz, find_rigid_clusters(m.xyz, m.valid))
+            both = clean[1:] & clean[:-1]
+            raw = np.linalg.norm(np.diff(np.where(m.valid[..., None], m.xyz, 0.0), axis=0), axis=2)
+            fast_all = float(raw[measured].max()) if measured.any() else 0.0
+            fast = float(raw[both].max()) if both.any() else 0.0
+            top = float(steps[near].max()) if near.any() else 0.0
+            noest = [e for e in entries if e["filled"] and not np.isfinite(e["estimate"])]
+            unl = _unlabeled(list(m.labels))
+            n_unl = int(new[:, unl].sum()) if unl else 0
+            g = summary["gaps"]
+            faster = int((steps[near] > fast).sum())
+            print(f"{path.stem:34s} gaps {g['filled']:4d}/{g['total']:4d} ({int(new.sum())} samples); no estimate "
+                  f"{len(noest):3d} ({sum(e['frames'] for e in noest)}); fastest filled {top:6.1f} vs measured "
+                  f"{fast:6.1f} / {fast_all:7.1f}, {faster} filled steps faster; unlabeled filled {n_unl} of "
+                  f"{len(unl)} trajectories' gaps; {dt:.1f} s")
+            for reason, n in sorted(summary["unfilled_reasons"].items()):
+                print(f"{'':36s}left: {n:4d} {reason}")
+            total["gaps"] += g["total"]
+            total["filled"] += g["filled"]
+            total["noest"] += len(noest)
+            total["noest_samples"] += sum(e["frames"] for e in noest)
+            total["faster"] += faster
+            total["unl"] += n_unl
+    finally:
+        standalone._gap_entry = plain
+    print(f"all files: {total['filled']} of {total['gaps']} gaps filled; {total['noest']} filled without an error "
+          f"estimate ({total['noest_samples']} samples); {total['faster']} filled steps faster than their file's "
+          f"fastest measured step; {total['unl']} unlabeled samples filled")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -350,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=5, help="occlusion patterns per bin, take and seed")
     ap.add_argument("--seeds", type=int, default=3, help="seeds (the ratios' spread is their std over seeds)")
     ap.add_argument("--seed", type=int, default=0, help="first seed")
-    ap.add_argument("--data", choices=("all", "session", "real"), default="all")
+    ap.add_argument("--data", choices=("all", "session", "real", "corpus"), default="all")
     ap.add_argument("--takes", type=int, default=4, help="sample-session takes to use (0: all)")
     ap.add_argument("--pattern", choices=("random", "neighbours"), default="random",
                     help="which markers are hidden together with the first one of an occlusion")
@@ -362,6 +452,10 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         has_ktk = False
         print("kineticstoolkit not installed: its column is skipped")
+    if args.data in ("all", "corpus"):
+        corpus_audit()
+        if args.data == "corpus":
+            return 0
     datasets = session_datasets(args.takes) if args.data in ("all", "session") else []
     for name in ("Walking_Hybrid_2", "ART-Human_2persons_integer") if args.data in ("all", "real") else ():
         ds = real_dataset(name)

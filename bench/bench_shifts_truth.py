@@ -21,9 +21,16 @@ Printed per layout:
   true crop (those the datasets use; frames before the first clap are an extrapolation, and a video frame dropped
   there cannot be seen by any clap), and how many of those beyond 5 ms the report's ``clock_map`` check fails.
 
+gaze_map's masks are checked too: a row with no known value (none should be written), a start time null
+without its ``start_known`` entry or masked but not null, and against the truth's segments that never reach
+18°/s (peak under 15.5°/s) or clearly do (over 20.5°/s): starts found where there is none (spurious) and none
+found where there is one (missed).
+
 Usage: ``python bench/bench_shifts_truth.py [--seeds 2] [--duration 20] [--long-gaps 4] [--swaps 0] [--bursts 0]
-[--clap-hazards 0]`` (``--swaps N``: N label swaps per mocap take; ``--bursts N``: N occlusion bursts per mocap
-take; ``--clap-hazards S``: that share of the gaze_follow takes gets a clap hazard)
+[--clap-hazards 0] [--still-gap LO,HI]`` (``--swaps N``: N label swaps per mocap take; ``--bursts N``: N occlusion
+bursts per mocap take; ``--clap-hazards S``: that share of the gaze_follow takes gets a clap hazard;
+``--still-gap LO,HI``: the root marker lost for LO–HI s in every gaze shift's final rest,
+``SynthConfig.root_final_rest_gap_s``)
 """
 
 from __future__ import annotations
@@ -73,13 +80,13 @@ def chain_local(tr: dict, segs: list[str]) -> list:
 
 def truth_starts(local: list, rate: float) -> tuple[list[float], set[int]]:
     """Per segment of the chain: the truth's start frame from the crop's first (first frame whose noise-free
-    angular speed exceeds 18°/s, 0 if none), and the segments whose peak speed is within 2.5°/s of 18°/s
+    angular speed exceeds 18°/s, NaN if none), and the segments whose peak speed is within 2.5°/s of 18°/s
     (undecidable under the speed noise)."""
     starts, near = [], set()
     for k, r in enumerate(local):
         w = np.degrees(angular_speed(r, rate))
         hit = np.flatnonzero(w > 18.0)
-        starts.append(float(hit[0]) if len(hit) else 0.0)
+        starts.append(float(hit[0]) if len(hit) else float("nan"))
         if abs(w.max() - 18.0) < 2.5:
             near.add(k)
     return starts, near
@@ -130,9 +137,14 @@ def main() -> None:
     ap.add_argument("--bursts", type=int, default=0, help="occlusion bursts per mocap take")
     ap.add_argument("--clap-hazards", type=float, default=0.0,
                     help="share of gaze_follow takes with a clap hazard (SynthConfig.clap_hazards)")
+    ap.add_argument("--still-gap", default="", metavar="LO,HI",
+                    help="seconds of a root-marker gap in every gaze shift's final rest "
+                         "(SynthConfig.root_final_rest_gap_s; default none)")
     args = ap.parse_args()
+    still = {"root_final_rest_gap_s": tuple(float(x) for x in args.still_gap.split(","))} if args.still_gap else {}
     print(f"hazards: body steps in half the gaze shifts, a root-segment marker gap in a rest per take, clapper "
-          f"rebounds on half the claps, plus the cleaning hazards ({args.long_gaps} long occlusions per take); "
+          f"rebounds on half the claps, plus the cleaning hazards ({args.long_gaps} long occlusions per take)"
+          + (f", a {args.still_gap} s root gap in each gaze shift's final rest" if still else "") + "; "
           f"{args.seeds} seeds; 3 gaze_follow "
           f"({args.duration:g} s), 5 gaze_shift and 2 face takes per session")
     for label, (segments, up) in LAYOUTS.items():
@@ -152,13 +164,15 @@ def main() -> None:
         worst_start: list[tuple[float, str]] = []
         worst_l: list[tuple[float, str]] = []
         worst_eye: list[tuple[float, str]] = []
+        masks = {"mask_mismatch": 0, "rows_without_a_value": 0, "no_start": 0, "spurious": 0, "missed": 0,
+                 "hole": 0}
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(args.seeds):
                 cfg = SynthConfig(follow_poses=("standing", "standing", "sitting"), follow_duration_s=args.duration,
                                   shift_targets=SHIFTS, spikes_per_marker_min=1.0, long_gaps=args.long_gaps,
                                   gaps_per_marker_min=3.0, segments=segments, up_axis=up, body_steps=0.5,
                                   root_rest_gaps=True, clap_rebounds=0.5, label_swaps=args.swaps,
-                                  clap_hazards=args.clap_hazards, occlusion_bursts=args.bursts)
+                                  clap_hazards=args.clap_hazards, occlusion_bursts=args.bursts, **still)
                 folder = generate_session(Path(tmp) / f"s{seed}", seed=seed, config=cfg)
                 out = Path(tmp) / f"out{seed}"
                 summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",
@@ -213,8 +227,9 @@ def main() -> None:
                     mask_names = info.get("masks", {}).get("known")
                     known = dict(zip(mask_names, r["known"], strict=True)) if mask_names else {}
                     null = [k for k, v in known.items() if not v]
+                    reasons_of = info["counts"]["per_take"][f"{cfg.session_id}/{take}"].get("null_reasons", {})
                     if null:
-                        reasons = info["counts"]["per_take"][f"{cfg.session_id}/{take}"].get("null_reasons", {})
+                        reasons = reasons_of
                         null_takes.append(f"s{seed} {take}: " + ", ".join(f"{k} ({reason_kind(reasons.get(k, ''))})"
                                                                           for k in null))
                         for k in null:
@@ -229,9 +244,24 @@ def main() -> None:
                     local = chain_local(tr, segs)
                     want_start, skip = truth_starts(local, rate)
                     undec += len(skip)
+                    st = np.array(r["start_times"], dtype=np.float64)
+                    st_known = np.array(r.get("start_known", np.isfinite(st)), dtype=bool)
+                    masks["mask_mismatch"] += int((np.isnan(st) == st_known).sum())
+                    masks["rows_without_a_value"] += int(not (any(r["known"]) or st_known.any()))
                     for k, s in enumerate(segs):
-                        if k not in skip and known.get(s, True):
-                            start_err.append(r["start_times"][k] * r["duration_s"] * rate - want_start[k])
+                        if k in skip:
+                            continue
+                        # a start the pipeline reports against one the truth has (NaN: none, < 18°/s)
+                        got, want = (st[k] if np.isfinite(st[k]) and st_known[k] else None), want_start[k]
+                        if np.isnan(want):
+                            masks["no_start"] += 1
+                            masks["spurious"] += got is not None
+                        elif got is None:
+                            # a start null because it may lie in an unbridgeable hole is not missed
+                            why = reasons_of.get(f"{s} start", "") + reasons_of.get(s, "")
+                            masks["hole" if "cannot be computed" in why else "missed"] += 1
+                        else:
+                            start_err.append(got * r["duration_s"] * rate - want)
                             worst_start.append((abs(start_err[-1]), f"s{seed} {take} {s} {start_err[-1]:+.0f}"))
                     if known.get("overshoot", True):
                         if overshoot_amplitude_deg(tr) >= 0.5:
@@ -270,6 +300,10 @@ def main() -> None:
             print(f"  {name}: max {a.max():.2f} {unit}, median {np.median(a):.2f}; {int((a > tol + 1e-6).sum())} of "
                   f"{a.size} beyond {tol:g}")
 
+        print(f"  gaze_map masks: {masks['rows_without_a_value']} rows without a known value; "
+              f"{masks['mask_mismatch']} start times whose null and start_known disagree; of the segments the "
+              f"truth never starts ({masks['no_start']}), {masks['spurious']} given a start; of those it starts, "
+              f"{masks['missed']} without one (and {masks['hole']} null for an unbridgeable hole before it)")
         stat("l", l_err, "frames", 2.0)
         print("    worst: " + "; ".join(w for a, w in sorted(worst_l, reverse=True)[:4] if a > 2))
         stat(f"start times ({undec} undecidable left out)", start_err, "frames", 2.0)

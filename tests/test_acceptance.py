@@ -32,6 +32,7 @@ from tests.helpers.sample import (
     mirror_rnn,
     near_threshold,
     overshoot_amplitude_deg,
+    peak_speeds,
     session_takes,
     take_ids,
     truth,
@@ -491,6 +492,7 @@ def _gaze_map(out):
         d[c] = feature_values(table, c)[:, 0].astype(np.float64)
     d["start_times"] = feature_values(table, "start_times").astype(np.float64)
     d["p_plus"] = feature_values(table, "p_plus").astype(np.float64)
+    d["start_known"] = np.array(table.column("start_known").to_pylist(), dtype=bool)
     return d, info
 
 
@@ -514,6 +516,7 @@ def _gaze_map_errors(out) -> list[dict]:
         c0_p, c0_t = out.unit(take, "clean")["qc"]["crop"][0], sc["crop"][0]
         l_p, l_t = float(d["duration_s"][i]), float(sc["l_s"])
         start_p = {s: float(d["start_times"][i, k]) * l_p * rate for k, s in enumerate(segs)}
+        assert (np.isnan(d["start_times"][i]) == ~d["start_known"][i]).all(), take     # null with the mask
         start_t = {s: sc["start_frac"][s] * l_t * rate for s in segs}
         tb_p, tb_t = float(d["overshoot_time"][i]) * l_p * rate, sc["t_beta_frac"] * l_t * rate
         rows.append({
@@ -524,7 +527,9 @@ def _gaze_map_errors(out) -> list[dict]:
             "abs_start_err": {s: c0_p + start_p[s] - c0_t - start_t[s] for s in segs},
             "tb_err": tb_p - tb_t, "abs_tb_err": c0_p + tb_p - c0_t - tb_t,
             "beta_err": float(d["overshoot"][i]) - sc["beta"], "beta": (float(d["overshoot"][i]), sc["beta"]),
-            "near_threshold": near_threshold(truth(take), rate),
+            "near_threshold": near_threshold(truth(take), rate), "peak": peak_speeds(truth(take), rate),
+            "rate": rate,
+            "start_known": dict(zip(segs, d["start_known"][i].tolist(), strict=True)),
         })
     return rows
 
@@ -551,20 +556,30 @@ def test_gaze_map_requested_angles(out):
 
 
 def test_gaze_map_start_times(out):
-    """Segments that do start (truth start > 0), the known early chest on +/-72 degree shifts aside."""
+    """Segments that do start (truth start > 0): the row has the start, within 2 frames, or (one of them at
+    most) none where the rule can barely see it: its noise-free speed, low-passed as the rule does (2 Hz),
+    peaks under 22 deg/s, within the few deg/s of speed noise of the threshold (the ~5 deg head pitch of
+    shift_y000_p12: 28 deg/s raw, 20.6 low-passed, 17 in the capture; Pejsa's rule wrote 0 there, which
+    matched its start at frame 1 by chance)."""
     rows = _gaze_map_errors(out)
     _print_gaze_map(rows)
-    misses = [(r["take"], s, round(e, 2)) for r in rows for s, e in r["start_err"].items()
-              if r["start_t"][s] > 0 and not _undecidable(r, s) and abs(e) > FRAME_TOL]
-    assert not misses, misses
+    starts = [(r, s) for r in rows for s in r["start_t"] if r["start_t"][s] > 0 and not _undecidable(r, s)]
+    off = [(r["take"], s, round(r["start_err"][s], 2)) for r, s in starts
+           if r["start_known"][s] and not abs(r["start_err"][s]) <= FRAME_TOL]
+    assert not off, off
+    null = [(r["take"], s) for r, s in starts if not r["start_known"][s]]
+    assert len(null) <= 1, null
+    assert all(peak_speeds(truth(t), rows[0]["rate"], 2.0)[s] < 22.0 for t, s in null), null
 
 
 def test_gaze_map_no_spurious_starts(out):
-    """Segments whose truth never reaches 18 deg/s (start 0): the row's start is within 2 frames of 0."""
+    """Segments whose truth never reaches 18 deg/s: the row's start is null (masked in start_known), never a
+    0 that reads as a start at the crop's first frame."""
     rows = _gaze_map_errors(out)
-    misses = [(r["take"], s, round(e, 2)) for r in rows for s, e in r["start_err"].items()
-              if r["start_t"][s] == 0 and not _undecidable(r, s) and abs(e) > FRAME_TOL]
-    assert not misses, misses
+    spurious = [(r["take"], s) for r in rows for s in r["start_err"]
+                if r["peak"][s] < 18.0 and not _undecidable(r, s) and r["start_known"][s]]
+    assert not spurious, spurious
+    assert sum(not k for r in rows for k in r["start_known"].values()) >= 40      # most of the spine: no start
 
 
 def test_gaze_map_undecidable_starts_are_few(out):
@@ -601,7 +616,8 @@ def test_gaze_map_mirrored_rows(out):
         assert d["yaw_deg"][j] == -d["yaw_deg"][i] and d["pitch_deg"][j] == d["pitch_deg"][i]
         for c in ("duration_s", "overshoot_time", "overshoot"):
             assert d[c][j] == d[c][i], (take, c)
-        assert np.array_equal(d["start_times"][j], d["start_times"][i]), take
+        assert np.array_equal(d["start_times"][j], d["start_times"][i], equal_nan=True), take
+        assert np.array_equal(d["start_known"][j], d["start_known"][i]), take
         pp = d["p_plus"][i].reshape(-1, 4)
         np.testing.assert_array_equal(d["p_plus"][j].reshape(-1, 4), mirror_quat(pp))
 

@@ -291,7 +291,7 @@ def test_missing_markers_do_not_end_a_rest():
     half = [mk.labels.index(lab) for lab in list(SUBJECT)[: len(SUBJECT) // 2 + 1]]
     xyz[int(3.0 * rate):int(3.3 * rate), half] = np.nan    # inside the second rest: most markers lost
     cut = Markers(labels=mk.labels, xyz=xyz, valid=np.isfinite(xyz).all(axis=2), rate_hz=rate)
-    res = clean_markers(cut, markerset(), "gaze_shift", replace(P, max_gap_s=0.0))
+    res = clean_markers(cut, markerset(), "gaze_shift", replace(P, max_gap_s=0.0, fill_still_gaps=False))
     assert np.isnan(res.speed_mm_s[int(3.0 * rate) + 2:int(3.3 * rate) - 2]).all()
     assert np.isfinite(res.speed_mm_s[100:140]).all()
     assert len(res.rests) == len(full.rests) == 3
@@ -480,7 +480,7 @@ def test_lowpass_in_clean_respects_unfilled_gaps():
     valid[250:330, m] = False                       # longer than 1 s: unfilled
     xyz[~valid] = np.nan
     res = clean_markers(Markers(labels=mk.labels, xyz=xyz, valid=valid, rate_hz=rate), markerset(), "neutral",
-                        CleanParams(remove_spikes=False, lowpass_hz=6.0, max_gap_s=1.0))
+                        CleanParams(remove_spikes=False, lowpass_hz=6.0, max_gap_s=1.0, fill_still_gaps=False))
     out = res.markers.xyz[:, m]
     assert np.isnan(out[250:330]).all() and np.isfinite(out[:250]).all() and np.isfinite(out[330:]).all()
     # the run after the gap equals filtering that run alone

@@ -404,6 +404,91 @@ def test_fill_never_keeps_an_implausibly_fast_fill(tmp_path):
     assert any("bit-identical" in w for w in summary["warnings"])
 
 
+@pytest.mark.parametrize("path", sorted((CORPUS / "c3d").glob("*.c3d")), ids=lambda p: p.stem)
+def test_fill_on_every_real_c3d_keeps_to_what_it_can_show(path, tmp_path):
+    """``gazepipe fill`` on each real C3D of the corpus, as it comes: every filled gap has an error estimate
+    (the others stay gaps, counted by reason in the summary, and the text says why); no step into, across or
+    out of a fill is faster than the fastest step measured in the file (spikes left out: the summary's, at
+    most the raw fastest); no unlabeled trajectory is filled by default; what the file says is what it wrote."""
+    from gazepipe.stages.clean.gapfill import unlabeled_markers
+
+    out = tmp_path / path.name
+    res = invoke("fill", str(path), str(out), "--json")
+    assert res.exit_code == 0, res.stderr
+    summary = json.loads(res.stdout)
+    gaps = summary["gap_list"]
+    filled = [g for g in gaps if g["method"] != "unfilled"]
+    assert all(g["error_mm"] is not None for g in filled), [g for g in filled if g["error_mm"] is None][:3]
+    left = [g for g in gaps if g["method"] == "unfilled"]
+    assert summary["gaps"]["unfilled"] == len(left)
+    assert {k: v["gaps"] for k, v in summary["unfilled_by_reason"].items()} == summary["unfilled_reasons"]
+    assert sum(v["samples"] for v in summary["unfilled_by_reason"].values()) == sum(g["frames"] for g in left)
+    m0, m1 = read_c3d(path), read_c3d(out)
+    new = m1.valid & ~m0.valid
+    assert new.sum() == sum(g["frames"] for g in filled) - summary.get("samples_written_as_gaps", 0)
+    steps = np.linalg.norm(np.diff(m1.xyz, axis=0), axis=2)
+    near = (new[1:] | new[:-1]) & m1.valid[1:] & m1.valid[:-1]
+    measured = m0.valid[1:] & m0.valid[:-1]
+    fastest = summary["fastest_measured_step_mm"]
+    raw = np.linalg.norm(np.diff(np.where(m0.valid[..., None], m0.xyz, 0.0), axis=0), axis=2)
+    assert fastest <= (raw[measured].max() if measured.any() else 0.0) + 1e-9
+    # (float32 or integer storage may move a written sample by a fraction of a millimetre)
+    assert not near.any() or steps[near].max() <= fastest + 0.01, (steps[near].max(), fastest)
+    assert not new[:, unlabeled_markers(m0.labels)].any()
+
+
+def test_fill_text_says_what_stayed_unfilled_and_why(tmp_path):
+    """A trajectory seen only every eighth frame for a while, alone in its file: nothing can be hidden beside
+    its gaps, nor seen through them, to check a fill on, so they stay gaps; the text summary counts them, with
+    their samples and the reason, as the JSON does."""
+    from gazepipe.model import Markers
+    from gazepipe.stages.clean.gapfill import REASON_NO_ESTIMATE
+
+    src, truth, labels = _walking_truth()
+    valid = np.ones((truth.shape[0], 1), bool)
+    valid[100:300:8] = False
+    valid[100:300] = ~valid[100:300]           # measured every eighth frame from 100 to 300
+    inp = tmp_path / "in.c3d"
+    write_markers(inp, Markers(labels=labels[:1], xyz=np.where(valid[..., None], truth[:, :1], np.nan),
+                               valid=valid, rate_hz=src.rate_hz, first_frame=src.first_frame))
+    summary = json.loads(invoke("fill", str(inp), str(tmp_path / "a.c3d"), "--json").stdout)
+    # 25 gaps of 7 frames; the first and the last have the measured take beside them to hide and are filled
+    assert summary["unfilled_by_reason"] == {REASON_NO_ESTIMATE: {"gaps": 23, "samples": 161}}
+    assert summary["gaps"]["filled"] == 2
+    assert [g["first_frame"] - src.first_frame for g in summary["gap_list"] if g["method"] != "unfilled"] == [101, 293]
+    text = invoke("fill", str(inp), str(tmp_path / "b.c3d")).stdout
+    assert f"left as gaps: 23 gap(s), 161 samples: {REASON_NO_ESTIMATE}" in text
+
+
+def test_fill_leaves_unlabeled_trajectories_unless_asked(tmp_path):
+    """Trajectories named as labellers name what they could not label (Vicon ``*12``, ``Unlabeled 3``, with a
+    subject prefix) keep their gaps, and the summary and the text say so; ``--fill-unlabeled`` fills them too.
+    The others are filled either way."""
+    from gazepipe.model import Markers
+    from gazepipe.stages.clean.gapfill import unlabeled_markers
+
+    src, truth, labels = _walking_truth()
+    valid = _six_gaps(truth.shape[:2], seed=5)
+    holed_cols = np.flatnonzero(~valid.all(axis=0))
+    names = list(labels)
+    for k, new_name in zip(holed_cols[:3], ("*12", "Unlabeled 3", "Subject:*155"), strict=True):
+        names[k] = new_name
+    assert unlabeled_markers(names) == sorted(holed_cols[:3].tolist())
+    inp = tmp_path / "in.c3d"
+    write_markers(inp, Markers(labels=names, xyz=np.where(valid[..., None], truth, np.nan), valid=valid,
+                               rate_hz=src.rate_hz, first_frame=src.first_frame))
+    res = invoke("fill", str(inp), str(tmp_path / "out.c3d"), "--json")
+    summary = json.loads(res.stdout)
+    assert summary["unlabeled"] == {"markers": ["*12", "Unlabeled 3", "Subject:*155"], "filled": False}
+    back = read_c3d(tmp_path / "out.c3d")
+    assert not back.valid[:, holed_cols[:3]].all(axis=0).any() and back.valid[:, holed_cols[3:]].all()
+    assert summary["unfilled_reasons"] == {"an unlabeled trajectory (filled only when asked)": 3}
+    assert "3 unlabeled trajectories left as they are" in invoke("fill", str(inp), str(tmp_path / "t.c3d")).stdout
+    res = invoke("fill", str(inp), str(tmp_path / "all.c3d"), "--fill-unlabeled", "--json")
+    assert json.loads(res.stdout)["unlabeled"]["filled"] is True
+    assert read_c3d(tmp_path / "all.c3d").valid.all()
+
+
 def test_plausible_fill_falls_back_then_gives_up():
     """The blend is kept when smooth; a jumping first choice gives way to the next method by validation error;
     with every method jumping the gap stays unfilled."""
@@ -426,15 +511,25 @@ def test_plausible_fill_falls_back_then_gives_up():
     assert fill is None and note == REASON_IMPLAUSIBLE
 
 
-def test_step_limits_cover_a_still_marker_with_the_fastest_markers_steps():
-    from gazepipe.stages.clean.gapfill import step_limits
+def test_step_limits_cover_a_still_marker_with_the_fastest_markers_steps_and_no_more():
+    """A still marker may be filled moving as fast as the fastest marker was measured to move, never faster:
+    the capture's fastest measured step caps every marker's limit (2.5 x its own 99th percentile, 1.5 x the
+    largest one, and a step of the fast marker that is its fastest by far)."""
+    from gazepipe.stages.clean.gapfill import fastest_step, step_limits
 
     t = np.arange(100, dtype=float)
     fast = np.stack([10.0 * t, 0 * t, 0 * t], axis=1)   # 10 mm per frame
     still = np.zeros((100, 3)) + 5.0
-    xyz = np.stack([fast, still], axis=1)
-    lim = step_limits(xyz, np.ones((100, 2), bool))
-    np.testing.assert_allclose(lim, [25.0, 15.0])
+    slow = np.stack([2.0 * t, 0 * t, 0 * t], axis=1)    # 2 mm per frame
+    xyz = np.stack([fast, still, slow], axis=1)
+    valid = np.ones((100, 3), bool)
+    np.testing.assert_allclose(step_limits(xyz, valid), [10.0, 10.0, 10.0])
+    xyz[50:, 0, 0] += 12.0                              # one 22 mm step: the fastest measured
+    p99 = np.percentile(np.r_[np.full(98, 10.0), 22.0], 99)
+    np.testing.assert_allclose(step_limits(xyz, valid), [22.0, 1.5 * p99, 1.5 * p99])
+    assert fastest_step(xyz, valid) == 22.0
+    valid[50, 0] = False                                # the step is not measured: the cap falls back
+    assert fastest_step(xyz, valid) == 10.0 and step_limits(xyz, valid).max() == 10.0
 
 
 def test_fill_refuses_to_overwrite_its_input_or_write_into_a_missing_folder(tmp_path):

@@ -711,3 +711,66 @@ def test_neighbours_from_another_segment_are_only_as_rigid_as_they_stay() -> Non
     x, valid = hide(measured, [(4, s, e)])
     assert mates_misfit(x, valid, 4, s, e, clusters[1], 120) < 5 * NOISE      # the reference frame's noise, carried
     assert mates_misfit(x, valid, 4, s, e, [4, *clusters[0][:3]], 120) > 20.0
+
+
+# ------------------------------------------------------------------------- fills that can show their error
+
+def test_a_gap_whose_fill_cannot_be_estimated_stays_a_gap_unless_validation_is_off():
+    """A marker alone, seen every fourth frame: nothing beside its gaps can be hidden, nothing is measured
+    through them: no fill can show its error, so none is written (with or without an error limit), and each
+    gap says why. With validation off (the caller's explicit choice) the first method fills them."""
+    from gazepipe.stages.clean.gapfill import REASON_NO_ESTIMATE
+
+    truth, measured, _ = body(300, seed=2)
+    valid = np.ones((300, 1), bool)
+    valid[100:200] = (np.arange(100, 200) % 4 == 0)[:, None]
+    x = np.where(valid[..., None], measured[:, :1], np.nan)
+    for limit in (None, 5.0):
+        res = fill_gaps(x, valid, RATE, max_error_mm=limit)
+        inner = [g for g in res.gaps if 101 < g.start and g.stop < 199]
+        assert inner and all(g.method == "unfilled" and g.reason == REASON_NO_ESTIMATE for g in inner)
+        assert all(np.isfinite(g.error_mm) for g in res.gaps if g.method != "unfilled")
+    blind = fill_gaps(x, valid, RATE, validation=False)
+    assert all(g.method != "unfilled" for g in blind.gaps)
+
+
+def test_a_blend_nothing_could_be_hidden_for_is_estimated_by_its_members_errors():
+    """Gaps of one frame between single measured samples (a marker seen every other frame): no stretch beside
+    them can be hidden, but the markers moving with it, measured through them, give interpolation's error on
+    the gap's own frames. A blend of such members is estimated by its weighted errors, which bound its own
+    (triangle inequality), so the gaps are filled, with estimates no smaller than their real errors."""
+    from gazepipe.stages.clean.gapfill import fill_error
+
+    assert fill_error({"pchip": 0.5, "linear": 0.5}, {"pchip": 1.0, "linear": 3.0}, None) == 2.0
+    assert np.isnan(fill_error({"pchip": 0.5, "linear": 0.5}, {"pchip": 1.0, "linear": np.nan}, None))
+    truth, measured, clusters = body(300, seed=3)
+    valid = np.ones(measured.shape[:2], bool)
+    valid[100:160:2, 1] = False
+    x = np.where(valid[..., None], measured, np.nan)
+    res = fill_gaps(x, valid, RATE, clusters=clusters, max_error_mm=5.0, methods=("pchip", "linear"))
+    inner = [g for g in res.gaps if 101 < g.start < 158]
+    assert inner and all(g.method != "unfilled" and np.isfinite(g.error_mm) for g in inner)
+    real = np.array([np.linalg.norm(res.xyz[g.start, 1] - truth[g.start, 1]) for g in inner])
+    est = np.array([g.error_mm for g in inner])
+    assert real.mean() <= est.mean()
+
+
+def test_unlabeled_trajectories_are_named_as_labellers_name_them():
+    from gazepipe.stages.clean.gapfill import unlabeled_markers
+
+    names = ["*155", "Subject:*3", "Unlabeled 3", "Unlabeled:1001", "unlabelled_7", "Unidentified 12", "_unnamed",
+             "_unnamed~2", "Unnamed4", "SACR", "M1", "Star", "*", "LASI*", "C7", "Unlabeled_marker_cap"]
+    assert [names[i] for i in unlabeled_markers(names)] == names[:9]
+
+
+def test_an_unlabeled_trajectory_is_left_alone():
+    """``leave``: the gaps of the markers it names stay, and say why; the others' are filled."""
+    from gazepipe.stages.clean.gapfill import REASON_UNLABELED
+
+    truth, measured, clusters = body(300, seed=4)
+    x, valid = hide(measured, [(1, 100, 130), (5, 150, 170)])
+    res = fill_gaps(x, valid, RATE, clusters=clusters, leave=[1])
+    g1 = next(g for g in res.gaps if g.marker == 1)
+    assert g1.method == "unfilled" and g1.reason == REASON_UNLABELED
+    assert (res.fill_code[100:130, 1] == FILL_CODES["unfilled"]).all()
+    assert (res.fill_code[150:170, 5] != FILL_CODES["unfilled"]).all()

@@ -70,7 +70,7 @@ def test_schema_version_and_columns_are_checked(datasets, tmp_path):
     info["schema_version"] = 99
     (copy / "_dataset.json").write_text(json.dumps(info))
     res = run_train("gaze_map", "--data", str(copy), "--out", str(tmp_path / "m"))
-    assert res.exit_code == 2 and "reads schema version 2, the dataset has 99" in res.output
+    assert res.exit_code == 2 and "reads schema version 3, the dataset has 99" in res.output
 
     class Needy:
         name, dataset, schema_version, required_columns = "needy", "gaze_map", 1, ("p_plus", "gaze_target")
@@ -138,7 +138,7 @@ def test_overshoot_curve():
     assert second.max() < 1.05 * (np.pi ** 2 / 2) * 0.44 / 0.32 ** 2 / 200 ** 2
 
 
-def _toy_map(known=None, poison=False):
+def _toy_map(known=None, poison=False, start_known=None):
     """Five examples of a two-segment map on a yaw line; with ``poison`` the nearest one to yaw 10° has NaN for
     segment 1 (P+ and start) and the overshoot."""
     rng = np.random.default_rng(0)
@@ -149,7 +149,7 @@ def _toy_map(known=None, poison=False):
     if poison:
         q[1, 1], start[1, 1], t_b[1], beta[1] = np.nan, np.nan, np.nan, np.nan
     return GazeMap(["a", "b"], yaw, np.zeros(5), q.reshape(5, -1), np.full(5, 0.8), start, t_b, beta, k=2,
-                   known=known)
+                   known=known, start_known=start_known)
 
 
 def test_gaze_map_never_blends_a_null_parameter(monkeypatch):
@@ -190,12 +190,20 @@ def test_gaze_map_never_blends_a_null_parameter(monkeypatch):
     ev = gm.evaluate(poisoned)
     assert ev["compared"] == 14 and ev["not_compared"] == 1 and np.isfinite(ev["final_pose_error_deg_max"])
     assert all(np.isfinite(v) for v in ev["final_pose_error_deg_per_joint_mean"].values())
-    # a joint no example knows is NaN in the motion and stays still in its curve
+    # a joint whose P+ no example knows is NaN in the motion and stays still in its curve; its start time is
+    # the dataset's start_known's business: blended where examples know it, 0 (Pejsa) where none does
     mask[:, 1] = False
     lone = _toy_map(mask).motion(10.0, 0.0)
-    assert np.isnan(lone.p_plus[1]).all() and np.isnan(lone.start_times[1])
+    assert np.isnan(lone.p_plus[1]).all() and lone.start_times[1] == pytest.approx(full.start_times[1])
     _, curve = lone.curve(fps=30)
     assert np.isfinite(curve).all() and np.allclose(curve[:, 1], [1, 0, 0, 0])
+    no_start = np.ones((5, 2), bool)
+    no_start[:, 1] = False
+    unstarted = _toy_map(start_known=no_start)
+    assert (unstarted.start_known == no_start).all() and (unstarted.known == np.ones((5, 4), bool)).all()
+    got = unstarted.motion(10.0, 0.0)
+    assert got.start_times[1] == 0.0 and got.start_times[0] == pytest.approx(full.start_times[0])
+    np.testing.assert_allclose(got.p_plus, full.p_plus, atol=1e-12)
 
 
 def test_gaze_map_reproduces_held_out_examples(datasets, tmp_path):

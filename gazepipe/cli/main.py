@@ -235,16 +235,21 @@ _stage_command("build", "build", "Run every take stage (ingest, clean, frames, s
 @click.option("--repair-swaps", is_flag=True, help="Put samples back under their own names where two markers "
               "carried each other's names (label swaps), proven frame by frame against the file's own marker "
               "geometry, before anything else; unprovable stretches become gaps (files of 20 s or more).")
+@click.option("--fill-unlabeled", is_flag=True, help="Also fill unlabeled trajectories (Vicon *12, 'Unlabeled 3', "
+              "...; default: left as they are, since a fill between their scattered samples joins different "
+              "markers).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON (with every gap).")
 @click.option("--force", is_flag=True, help="Overwrite OUT when it exists (default: refuse).")
 @handle_errors
 def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_spikes: bool, repair_swaps: bool,
-         as_json: bool, force: bool) -> None:
+         fill_unlabeled: bool, as_json: bool, force: bool) -> None:
     """Fill the gaps of one capture file (C3D, Vicon CSV, QTM TSV, wide CSV) with no session or markerset.
 
     Rigid clusters are found from the data; each gap gets the best of rigid-cluster, PCA, PCHIP and linear
-    fill, chosen by hiding known samples next to it. OUT is a copy of IN, in its format and with its extension,
-    in which only the filled samples changed; gaps it could not fill stay gaps. A .c3d keeps its analog data,
+    fill, chosen by hiding known samples next to it. A gap is filled only where that gives its fill an error
+    estimate, and no filled step is faster than the fastest step measured in the file. OUT is a copy of IN, in
+    its format and with its extension, in which only the filled samples changed; gaps it could not fill stay
+    gaps, and the summary says why. A .c3d keeps its analog data,
     events, model outputs and parameters, and a filled sample gets residual 0 (the C3D mark of a sample not
     reconstructed from cameras). A text export (Vicon Nexus CSV, QTM TSV, wide CSV) keeps its header, other
     blocks, columns and line endings; filled cells are written in the file's units with its number of
@@ -275,7 +280,8 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     # a text export is read once, with the layout its copy is written from
     text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
     markers = read_markers(src_p, rate_hz=rate_hz) if text is None else text[0]
-    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes, swaps=repair_swaps)
+    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes, swaps=repair_swaps,
+                                            unlabeled=fill_unlabeled)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if fmt == "c3d":
             res = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
@@ -310,8 +316,14 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     if g["edge_filled"]:
         click.echo(f"  {g['edge_filled']} of the filled gaps are at the file's start or end (filled from other "
                    "markers only: check them)")
-    for reason, n in summary["unfilled_reasons"].items():
-        click.echo(f"  left as gaps: {n} {reason}")
+    if g["filled"]:
+        click.echo(f"  every fill has an estimated error (--json lists them) and no filled step is faster than the "
+                   f"file's fastest measured one, {summary['fastest_measured_step_mm']:.1f} mm per frame")
+    for reason, n in summary["unfilled_by_reason"].items():
+        click.echo(f"  left as gaps: {n['gaps']} gap(s), {n['samples']} samples: {reason}")
+    unl = summary["unlabeled"]
+    if unl["markers"] and not unl["filled"]:
+        click.echo(f"  {len(unl['markers'])} unlabeled trajectories left as they are (--fill-unlabeled fills them)")
     sp = summary["spikes"]
     if sp["samples"]:
         what = ("turned into gaps before filling" if sp["removed"]

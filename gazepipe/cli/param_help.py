@@ -103,6 +103,8 @@ USER_HELP: dict[str, str] = {
     "clean.rest_refine": "move the end of each long rest to where the movement really starts",
     "clean.remove_heading": "turn every frame so the subject faces the same way (lab +X to their left)",
     "clean.repair_swaps": "find markers that swapped labels and put their samples back under their own names",
+    "clean.fill_unlabeled": "also fill unlabeled trajectories (*12, Unlabeled 3, ...); off: their gaps stay",
+    "clean.fill_still_gaps": "fill a longer gap too where its marker is still on both sides and its body through it",
     "clean.swap_tolerance": "how far off (in spreads of a marker-to-marker distance) a sample is suspect of "
                             "a swap",
     "frames.min_neutral_frames": "fewest neutral-pose frames needed to calibrate a segment",

@@ -55,8 +55,8 @@ from gazepipe.stages.build.stage import (
     with_split,
 )
 
-BUILD_VERSION = "4"
-ROWS_VERSION = "1"
+BUILD_VERSION = "5"
+ROWS_VERSION = "2"
 #: per-take tables each dataset reads, and the stages that write them
 NEEDS: dict[str, tuple[str, ...]] = {
     "gaze_rnn": ("frames", "eyes"), "gaze_rnn_lod": ("frames",), "gaze_map": ("frames", "clean"),

@@ -22,8 +22,9 @@ check                                   warning         fail         measured on
 ``gap_share``                           > 20 %          –            per marker, share of the take's frames that
                                                                      were gaps at ingest (worst marker)
 ``longest_gap``                         > 1.0 s         –            per marker, longest gap after spike removal
-``fill_error``                          > 10 mm         –            per filled gap, the chosen method's error on
-                                                                     the hidden samples next to the gap
+``fill_error``                          > 10 mm         –            per filled gap, its estimated error (the one
+                                                                     its keep/reject decision used, quoted by the
+                                                                     markers table and the replay)
 ``unfilled``                            > 5 %           > 30 %       per marker, unfilled share of the kept
                                                                      (cropped) frames (worst marker): at most
                                                                      a warning; the fail grades the share of
@@ -325,24 +326,29 @@ def check_longest_gap(clean_qc: CleanQC | None, th: Thresholds) -> Check:
 
 
 def check_fill_error(clean_qc: CleanQC | None, th: Thresholds) -> Check:
-    """The chosen method's validation error of every filled gap; the worst one is graded."""
+    """The estimated error of every filled gap, the worst one graded: the estimate the filler kept or rejected the
+    fill on (``GapQC.error_mm``), the very figure the markers table's ``fill_error_mm`` and the replay quote.
+    Gaps left unfilled are counted by reason (those without an error estimate apart)."""
     if clean_qc is None:
         return skipped("fill_error", "no clean record")
     gaps = clean_qc.gaps
-    errs = [(e, g) for g in gaps if (e := g.method_error_mm) is not None and np.isfinite(e)]
+    errs = [(e, g) for g in gaps if g.method != "unfilled" and (e := g.error_mm) is not None and np.isfinite(e)]
     methods = Counter(g.method for g in gaps)
+    unfilled = dict(sorted(Counter(g.reason for g in gaps if g.method == "unfilled").items()))
+    details: dict[str, Any] = {"gaps_by_method": dict(sorted(methods.items())), "unfilled_by_reason": unfilled}
+    left = sum(unfilled.values())
+    why = "" if not left else f"; {left} gap(s) left unfilled, e.g. {max(unfilled, key=lambda k: unfilled[k])}"
     if not errs:
-        return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled with a validation error",
-                     details={"gaps_by_method": dict(sorted(methods.items()))})
+        return Check("fill_error", "pass", f"{len(gaps)} gap(s), none filled{why}", details=details)
     e, g = max(errs, key=lambda eg: eg[0])
     over = sum(1 for x, _ in errs if th.fill_error_warn_mm is not None and x > th.fill_error_warn_mm)
-    msg = f"worst fill validation error {e:.1f} mm ({g.marker} frames {g.start}-{g.stop}, {g.method})"
+    msg = f"worst fill estimated error {e:.1f} mm ({g.marker} frames {g.start}-{g.stop}, {g.method})"
     if over:
         msg += f"; {over} gap(s) above {th.fill_error_warn_mm:g} mm"
+    msg += why
     return Check("fill_error", grade(e, th.fill_error_warn_mm, None), msg, value=float(e),
                  threshold=_thr(th.fill_error_warn_mm),
-                 details={"gaps_by_method": dict(sorted(methods.items())), "over": over,
-                          "median_mm": float(np.median([x for x, _ in errs]))})
+                 details={**details, "over": over, "median_mm": float(np.median([x for x, _ in errs]))})
 
 
 def fill_shares(fill: np.ndarray, labels: Sequence[str]) -> dict[str, dict[str, float]]:

@@ -19,9 +19,11 @@ check                  warning                                    fail
                                                                   more than ``stats_max_z`` standard errors
 ``skipped_takes``      takes left out of the build                –
 ``null_parameters``    rows with null parameters (gaze_map: a     –
-                       segment's, the eyes' or the overshoot's,
-                       NaN and False in ``known``), counted per
-                       entry and take with the first reason
+                       segment's P+ or start, the eyes' or the
+                       overshoot's, NaN and False in ``known`` /
+                       ``start_known``), counted per entry and
+                       take with the first reason (a start null
+                       because never reached: counted, no warning)
 ``windowed_rows``      under ``windowed_rows_warn`` of the rows   –
                        lie in segments at least one window long
                        (the rest feed no training window)
@@ -326,20 +328,28 @@ def check_skipped(info: dict[str, Any], left_out: list[dict[str, Any]] | None = 
 
 
 def check_null_parameters(info: dict[str, Any]) -> Check:
-    """Rows that keep their take with some parameters null (gaze_map: a segment's P+ and start time, the eyes'
+    """Rows that keep their take with some parameters null (gaze_map: a segment's P+ or start time, the eyes'
     P+, the overshoot; ``counts.null_segments`` and each take's ``null_segments`` / ``null_reasons``): a
-    warning that counts them, never a failure (the rest of those rows is computed)."""
+    warning that counts them, never a failure (the rest of those rows is computed). A start time that is null
+    because the segment never reached the start speed (each take's ``no_start``) is the rule, not a failure:
+    counted in the details and the message, never a warning."""
     counts = info.get("counts") or {}
     if "null_segments" not in counts:
         return skipped("null_parameters", "rows of this dataset have no null parameters")
     per_take = {t: q.get("null_segments") or [] for t, q in (counts.get("per_take") or {}).items()
                 if isinstance(q, dict)}
+    no_start = {t: q.get("no_start") or [] for t, q in (counts.get("per_take") or {}).items()
+                if isinstance(q, dict) and q.get("no_start")}
     takes = sorted(t for t, v in per_take.items() if v)
     by = dict(sorted((counts.get("null_segments") or {}).items(), key=lambda kv: (-kv[1], kv[0])))
     details = {"null_segments": by, "takes": {t: per_take[t] for t in takes},
-               "reasons": {t: (counts["per_take"][t].get("null_reasons") or {}) for t in takes}}
+               "reasons": {t: (counts["per_take"][t].get("null_reasons") or {}) for t in takes},
+               "no_start": no_start}
+    n_no = sum(len(v) for v in no_start.values())
+    tail = (f"; {n_no} start time(s) null in {len(no_start)} take(s) because the segment never reached the start "
+            "speed (the rule, not a failure)" if n_no else "")
     if not takes:
-        return Check("null_parameters", "pass", f"every parameter of the {len(per_take)} take(s) computed",
+        return Check("null_parameters", "pass", f"every parameter of the {len(per_take)} take(s) computed{tail}",
                      value=0, details=details)
     first = takes[0]
     reason = next(iter(details["reasons"][first].values()), "")
@@ -347,7 +357,7 @@ def check_null_parameters(info: dict[str, Any]) -> Check:
                  f"{len(takes)} of {len(per_take)} take(s) have null parameters ("
                  + ", ".join(f"{k} {v}" for k, v in list(by.items())[:6])
                  + f"); their other values stand. E.g. {first}: {', '.join(per_take[first])}"
-                 + (f" ({reason})" if reason else ""), value=len(takes), details=details)
+                 + (f" ({reason})" if reason else "") + tail, value=len(takes), details=details)
 
 
 def check_windowed_rows(info: dict[str, Any], th: Thresholds) -> Check:

@@ -17,8 +17,9 @@ from gazepipe.errors import SchemaError
 from gazepipe.schemas.base import read_meta, with_identity
 
 SCHEMA_VERSION = 1
-#: gaze_map's own version: 2 added the ``known`` mask, with NaN in the parameters it marks null
-GAZE_MAP_SCHEMA_VERSION = 2
+#: gaze_map's own version: 2 added the ``known`` mask, with NaN in the parameters it marks null; 3 the
+#: ``start_known`` mask (a start time is null where no start was found, never 0), ``known`` marking P+ alone
+GAZE_MAP_SCHEMA_VERSION = 3
 DATASETS = ("gaze_rnn", "gaze_rnn_lod", "gaze_map", "face_clean")
 
 #: identifier columns, first in every dataset file, in this order
@@ -57,10 +58,11 @@ def gaze_map_schema(n_segments: int) -> pa.Schema:
     eyes (4·(S+1) values), ``start_times`` one fraction of ``duration_s`` per segment.
 
     ``known`` (S + 2 bools: the segments, then ``eyes``, then ``overshoot``) says which parameters could be
-    computed (SPEC §3.6): False for a segment = its 4 ``p_plus`` values and its ``start_times`` value are NaN;
-    for ``eyes`` = the eyes' 4 ``p_plus`` values are NaN; for ``overshoot`` = ``overshoot_time`` and
-    ``overshoot`` are NaN. Every NaN in a row is marked there; ``yaw_deg``, ``pitch_deg`` and ``duration_s`` are
-    never null. Nulls are NaN, not Arrow nulls, so each list column stays an (N, D) float32 array.
+    computed (SPEC §3.6): False for a segment = its 4 ``p_plus`` values are NaN; for ``eyes`` = the eyes' 4
+    ``p_plus`` values are NaN; for ``overshoot`` = ``overshoot_time`` and ``overshoot`` are NaN. ``start_known``
+    (S bools) marks the ``start_times`` values: False = NaN (no start found, or one that could not be read).
+    Every NaN in a row is marked in one of them; ``yaw_deg``, ``pitch_deg`` and ``duration_s`` are never null.
+    Nulls are NaN, not Arrow nulls, so each list column stays an (N, D) float32 array.
     """
     f32 = pa.float32()
     return with_identity(pa.schema([
@@ -73,6 +75,7 @@ def gaze_map_schema(n_segments: int) -> pa.Schema:
         pa.field("overshoot", f32, nullable=False),
         pa.field("p_plus", vec32(4 * (n_segments + 1)), nullable=False),
         pa.field("known", pa.list_(pa.bool_(), n_segments + 2), nullable=False),
+        pa.field("start_known", pa.list_(pa.bool_(), n_segments), nullable=False),
     ]), "gaze_map", GAZE_MAP_SCHEMA_VERSION)
 
 

@@ -224,6 +224,23 @@ def make_root_rest_gap(rng: np.random.Generator, labels: list[str], n: int, rate
     return mask
 
 
+def make_root_final_rest_gap(rng: np.random.Generator, labels: list[str], n: int, rate_hz: float,
+                             rests: np.ndarray, seconds: float) -> np.ndarray:
+    """A gap of ``seconds`` on the root marker itself inside the take's last rest, as a (T, M) mask: starting
+    0.5–0.8 s into the rest, so the marker is measured still on both sides when the rest is long enough (the
+    caller lengthens it). The hazard of a still subject whose root marker a camera lost for longer than
+    ``clean.max_gap_s``: unfilled, it leaves the rest without a character frame."""
+    mask = np.zeros((n, len(labels)), dtype=bool)
+    if not len(rests) or ROOT_MARKER not in labels:
+        return mask
+    a, b = (int(x) for x in rests[-1])
+    start = a + int(rng.uniform(0.5, 0.8) * rate_hz)
+    stop = min(b - 1, start + int(round(seconds * rate_hz)))
+    if stop > start:
+        mask[start:stop, labels.index(ROOT_MARKER)] = True
+    return mask
+
+
 #: ghost reflections: displacement (mm) and length (frames) of a spike
 SPIKE_MM = (15.0, 50.0)
 SPIKE_FRAMES = (1, 2)

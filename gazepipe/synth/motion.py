@@ -281,14 +281,15 @@ def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement
 
 
 def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement, pose: str,
-                 yaw_deg: float, pitch_deg: float, step: tuple[float, float, np.ndarray] | None = None
-                 ) -> TakeMotion:
+                 yaw_deg: float, pitch_deg: float, step: tuple[float, float, np.ndarray] | None = None,
+                 more_rest_s: float = 0.0) -> TakeMotion:
     """A gaze_shift take (Pejsa 5.2.1): rest ≥ 1 s, one gaze change with a cascade and an overshoot, rest ≥ 1 s.
 
     The eyes start first (saccade), then head, neck3 … neck1, chest, spine4 … spine1, pelvis, each after a
     known delay; every segment follows the same overshooting profile of duration ``D``. ``step`` = (start
     relative to the end of the gaze change, s; duration, s; displacement (3,) lab mm): the whole body also
     steps (its floor point moves, smoothly) as the change ends; the take grows by the step's length.
+    ``more_rest_s``: the final rest lasts that much longer (the same random draws either way).
     """
     h = placement.h_lab
     floor = floor_point(placement, pose)
@@ -317,7 +318,7 @@ def shift_motion(rng: np.random.Generator, rate_hz: float, placement: Placement,
 
     rest1 = float(rng.uniform(1.2, 1.6))
     t_end = rest1 + (onset[moving].max() if moving.any() else 0.0) + dur
-    tail = rng.uniform(1.3, 1.6)
+    tail = rng.uniform(1.3, 1.6) + more_rest_s
     extra = 0.0 if step is None else max(0.0, step[0] + step[1])
     n = int(np.ceil((t_end + extra + tail) * rate_hz))
     t = np.arange(n) / rate_hz

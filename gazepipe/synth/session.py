@@ -21,6 +21,7 @@ from gazepipe.synth.markers import (
     make_label_swaps,
     make_long_gaps,
     make_occlusion_bursts,
+    make_root_final_rest_gap,
     make_root_rest_gap,
     make_spikes,
 )
@@ -84,7 +85,10 @@ class SynthConfig:
     a Trajectories block, labels ``<subject>:<marker>``, 6 significant digits, CRLF line ends; the take's
     ``mocap`` in the truth says which file); ``face_tracking_loss``: stretches of 0.2–1.5 s per face take in which
     the tracked file's rows are written as Live Link Face writes them while ARKit has lost the face (the timecode,
-    a ``BlendShapeCount`` of 0 and nothing else; the truth marks them in ``face_tracked_lost``).
+    a ``BlendShapeCount`` of 0 and nothing else; the truth marks them in ``face_tracked_lost``);
+    ``root_final_rest_gap_s``: (shortest, longest) seconds: every gaze_shift take's final rest is lengthened by
+    its drawn length plus 1.6 s and the root marker itself is lost for that long inside it, measured still on
+    both sides (:func:`~gazepipe.synth.markers.make_root_final_rest_gap`; None: no such gap, the take as it was).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -116,6 +120,11 @@ class SynthConfig:
     clap_hazards: float = 0.0
     nexus_csv: float = 0.0
     face_tracking_loss: int = 0
+    root_final_rest_gap_s: tuple[float, float] | None = None
+
+
+#: the final rest around a root-marker gap of ``SynthConfig.root_final_rest_gap_s`` (s): added to the gap's length
+FINAL_REST_MARGIN_S = 1.6
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -398,8 +407,8 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
     n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps, r_rest = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11))
         if kind == "face":
             assert target is not None
             face_scalars: dict[str, Any] = {"kind": kind, "rate_hz": target[0], "duration_s": target[1]}
@@ -413,6 +422,7 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
             meta_takes[take_id] = rec.truth_scalars
             records.append(rec)
             continue
+        still_gap_s = None
         if kind == "gaze_follow":
             rebound = None
             if cfg.clap_rebounds > 0:
@@ -437,7 +447,10 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
                 mm = r_hazard.uniform(40.0, 150.0)
                 step = (float(r_hazard.uniform(-0.8, -0.2)), float(r_hazard.uniform(0.8, 1.4)),
                         mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
-            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step)
+            if cfg.root_final_rest_gap_s is not None:
+                still_gap_s = float(r_rest.uniform(*cfg.root_final_rest_gap_s))
+            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step,
+                                  more_rest_s=0.0 if still_gap_s is None else still_gap_s + FINAL_REST_MARGIN_S)
         else:
             motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
         kin = build_kinematics(motion, cfg.placement, cfg.segments)
@@ -452,6 +465,9 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
         if cfg.gaps and cfg.root_rest_gaps:
             rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
             mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
+        if cfg.gaps and still_gap_s is not None:
+            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+            mask |= make_root_final_rest_gap(r_rest, kin.labels, n, rate, rests, still_gap_s)
         if cfg.gaps and cfg.occlusion_bursts:
             mask |= make_occlusion_bursts(r_bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
         hazard = motion.design.get("clap_hazard")
@@ -465,9 +481,10 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
         for a, b, s, e in swaps:                 # a ghost on a swapped marker shows under the other name
             spiked[s:e, [a, b]] = spiked[s:e, [b, a]]
         noisy[mask] = np.nan
-        # the export's format: a stream of its own, drawn only when asked for (the other streams stay as they were)
+        # the export's format: a stream of its own (the twelfth: the eleventh is r_rest's), drawn only when asked
+        # for (the other streams stay as they were)
         nexus = cfg.nexus_csv > 0 and np.random.default_rng(
-            np.random.SeedSequence([seed, index]).spawn(11)[10]).random() < cfg.nexus_csv
+            np.random.SeedSequence([seed, index]).spawn(12)[11]).random() < cfg.nexus_csv
         mocap_rel = f"mocap/{take_id}.csv" if nexus else f"mocap/{take_id}.c3d"
         if cfg.up_axis != "z":
             noisy = noisy @ _lab_axes(cfg.up_axis).T

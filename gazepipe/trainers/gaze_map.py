@@ -16,10 +16,12 @@ with e the ease-in/ease-out e(s) = (1 − cos πs) / 2 (zero slope at both ends,
 linear form has corners). The eyes start at u = 0. A joint that starts after the overshoot peak eases from 0 to
 P+_j over [t_j, 1] without overshoot. Time in seconds is u · l.
 
-Null parameters (the dataset's ``known`` mask: a segment's P+ and start time, the eyes' P+, the overshoot) are
-never blended: each joint, and the overshoot, is blended from the k nearest examples that know it (its own
-neighbours and weights), so a NaN never enters a blend or an error; a joint no example knows is NaN in the
-motion (and stays still in its curve), an overshoot none knows is none (t_β = 1, β = 0).
+Null parameters (the dataset's ``known`` mask: a segment's P+, the eyes' P+, the overshoot; its
+``start_known`` mask: a segment's start time) are never blended: each joint's P+, each start time, and the
+overshoot, is blended from the k nearest examples that know it (its own neighbours and weights), so a NaN never
+enters a blend or an error; a joint whose P+ no example knows is NaN in the motion (and stays still in its
+curve), a start time none knows is 0 (Pejsa: the joint starts with the shift), an overshoot none knows is none
+(t_β = 1, β = 0).
 """
 
 from __future__ import annotations
@@ -141,14 +143,15 @@ class GazeMotion:
 class GazeMap:
     """Pejsa's parametric gaze map: the examples' gaze displacement motions indexed by (yaw, pitch), degrees.
 
-    ``known`` (E, S + 2) bool: per example, which joints' parameters (each segment's P+ and start time, the eyes'
-    P+) and whether the overshoot are known (the dataset's ``known`` mask); it is also False wherever those
-    values are not finite, so NaN values are never used whatever the mask says.
+    ``known`` (E, S + 2) bool: per example, which joints' P+ (each segment's, the eyes') and whether the
+    overshoot are known (the dataset's ``known`` mask); ``start_known`` (E, S) which segments' start times are
+    (its ``start_known``; without it, those that are finite). Both are also False wherever those values are not
+    finite, so NaN values are never used whatever the masks say.
     """
 
     def __init__(self, segments: list[str], yaw: np.ndarray, pitch: np.ndarray, p_plus: np.ndarray,
                  duration: np.ndarray, start_times: np.ndarray, overshoot_time: np.ndarray, overshoot: np.ndarray,
-                 k: int = 4, known: np.ndarray | None = None) -> None:
+                 k: int = 4, known: np.ndarray | None = None, start_known: np.ndarray | None = None) -> None:
         self.segments = list(segments)
         self.yaw = np.asarray(yaw, np.float64)
         self.pitch = np.asarray(pitch, np.float64)
@@ -162,23 +165,28 @@ class GazeMap:
         if e == 0:
             raise ConfigError(None, "a gaze map needs at least one example")
         finite = np.concatenate([
-            np.isfinite(self.p_plus).all(axis=2) & np.isfinite(np.append(self.start_times, np.zeros((e, 1)), 1)),
+            np.isfinite(self.p_plus).all(axis=2),
             (np.isfinite(self.overshoot_time) & np.isfinite(self.overshoot))[:, None]], axis=1)
         given = np.ones((e, ns + 2), bool) if known is None else np.asarray(known, bool).reshape(e, ns + 2)
         self.known = finite & given
+        self.start_known = np.isfinite(self.start_times) & (
+            True if start_known is None else np.asarray(start_known, bool).reshape(e, ns))
         if not (np.isfinite(self.yaw).all() and np.isfinite(self.pitch).all() and np.isfinite(self.duration).all()):
             raise ConfigError(None, "a gaze map's requested angles and durations must be finite")
 
     @classmethod
     def from_table(cls, table, segments: list[str], k: int = 4) -> GazeMap:
-        """From ``gaze_map`` dataset rows (a pyarrow table); its ``known`` mask when it has one."""
+        """From ``gaze_map`` dataset rows (a pyarrow table); its ``known`` and ``start_known`` masks when it has
+        them."""
         from gazepipe.datasets import column_array
 
-        known = column_array(table, "known") if "known" in table.column_names else None
+        def mask(name: str) -> np.ndarray | None:
+            return column_array(table, name) if name in table.column_names else None
+
         return cls(segments, column_array(table, "yaw_deg")[:, 0], column_array(table, "pitch_deg")[:, 0],
                    column_array(table, "p_plus"), column_array(table, "duration_s")[:, 0],
                    column_array(table, "start_times"), column_array(table, "overshoot_time")[:, 0],
-                   column_array(table, "overshoot")[:, 0], k, known)
+                   column_array(table, "overshoot")[:, 0], k, mask("known"), mask("start_known"))
 
     def __len__(self) -> int:
         return len(self.yaw)
@@ -195,8 +203,9 @@ class GazeMap:
 
     def motion(self, yaw_deg: float, pitch_deg: float, exclude: int | None = None) -> GazeMotion:
         """The blended gaze displacement motion for a requested change (degrees); ``exclude`` leaves one example
-        out (leave-one-out checks). Each joint (P+ and start time) and the overshoot are blended from the
-        nearest examples that know them; the duration from the nearest examples."""
+        out (leave-one-out checks). Each joint's P+, each start time and the overshoot are blended from the
+        nearest examples that know them (a start time none knows is 0); the duration from the nearest
+        examples."""
         keep = np.ones(len(self), bool)
         if exclude is not None:
             keep[exclude] = False
@@ -208,8 +217,9 @@ class GazeMap:
             jdx, jw = self.neighbours(yaw_deg, pitch_deg, keep & self.known[:, j])
             if len(jdx):
                 p_plus[j] = blend_quaternions(self.p_plus[jdx, j:j + 1], jw)[0]
-                if j < ns:
-                    start[j] = jw @ self.start_times[jdx, j]
+            if j < ns:
+                sdx, sw = self.neighbours(yaw_deg, pitch_deg, keep & self.start_known[:, j])
+                start[j] = sw @ self.start_times[sdx, j] if len(sdx) else 0.0
         odx, ow = self.neighbours(yaw_deg, pitch_deg, keep & self.known[:, ns + 1])
         return GazeMotion(
             yaw_deg=float(yaw_deg), pitch_deg=float(pitch_deg), names=[*self.segments, "eyes"],
@@ -220,7 +230,8 @@ class GazeMap:
     def arrays(self) -> dict[str, np.ndarray]:
         return {"yaw_deg": self.yaw, "pitch_deg": self.pitch, "p_plus": self.p_plus, "duration_s": self.duration,
                 "start_times": self.start_times, "overshoot_time": self.overshoot_time, "overshoot": self.overshoot,
-                "segments": np.array(self.segments), "k": np.array(self.k), "known": self.known}
+                "segments": np.array(self.segments), "k": np.array(self.k), "known": self.known,
+                "start_known": self.start_known}
 
     @classmethod
     def load(cls, model_dir: str | Path) -> GazeMap:
@@ -233,7 +244,8 @@ class GazeMap:
         except (OSError, ValueError) as exc:
             raise ConfigError(path, f"not a readable gaze map ({exc})") from None
         return cls([str(s) for s in a["segments"]], a["yaw_deg"], a["pitch_deg"], a["p_plus"], a["duration_s"],
-                   a["start_times"], a["overshoot_time"], a["overshoot"], int(a["k"]), a.get("known"))
+                   a["start_times"], a["overshoot_time"], a["overshoot"], int(a["k"]), a.get("known"),
+                   a.get("start_known"))
 
 
 def pose_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -359,7 +371,7 @@ class GazeMapTrainer:
 
     name = "gaze_map"
     dataset = "gaze_map"
-    schema_version = 2
+    schema_version = 3
     required_columns = ("yaw_deg", "pitch_deg", "duration_s", "start_times", "overshoot_time", "overshoot", "p_plus")
     knobs: tuple[str, ...] = ()
     options = options_table(

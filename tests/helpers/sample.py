@@ -157,24 +157,30 @@ def frame_rows(frames: np.ndarray, wanted: np.ndarray) -> np.ndarray:
     return idx
 
 
-def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg_s: float = 2.5) -> tuple[str, ...]:
-    """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
-    gaze_map start threshold (the root: its turn in the character frame held fixed at the crop start). With
-    a few deg/s of speed noise left after the low-pass, whether such a segment "starts" cannot be decided."""
-    from gazepipe.stages.build.gaze import angular_speed
+def peak_speeds(tr: dict, rate_hz: float, filter_hz: float | None = None) -> dict[str, float]:
+    """Each segment's noise-free parent-relative peak angular speed in the crop, deg/s (the root: its turn in
+    the character frame held fixed at the crop start); with ``filter_hz``, of the rotations low-passed as the
+    gaze_map start rule does (:func:`gazepipe.stages.build.gaze.smooth_rotations`)."""
+    from gazepipe.stages.build.gaze import angular_speed, smooth_rotations
     from gazepipe.stages.geometry import from_wxyz
 
     c0, c1 = tr["scalars"]["crop"]
     c = from_wxyz(tr["char_quat_lab"][c0:c1])
-    out = []
+    out = {}
     for k, s in enumerate(tr["segments"]):
         if k == 0:
             r = c[0].inv() * c * from_wxyz(tr["seg_quat_char"][c0:c1, 0].astype(np.float64))
         else:
             r = from_wxyz(tr["seg_quat_local"][c0:c1, k].astype(np.float64))
-        if abs(np.degrees(angular_speed(r, rate_hz).max()) - thr_deg_s) < margin_deg_s:
-            out.append(s)
-    return tuple(out)
+        out[s] = float(np.degrees(angular_speed(smooth_rotations(r, rate_hz, filter_hz), rate_hz).max()))
+    return out
+
+
+def near_threshold(tr: dict, rate_hz: float, thr_deg_s: float = 18.0, margin_deg_s: float = 2.5) -> tuple[str, ...]:
+    """Segments whose noise-free parent-relative peak speed in the crop lies within ``margin_deg_s`` of the
+    gaze_map start threshold (the root: its turn in the character frame held fixed at the crop start). With
+    a few deg/s of speed noise left after the low-pass, whether such a segment "starts" cannot be decided."""
+    return tuple(s for s, w in peak_speeds(tr, rate_hz).items() if abs(w - thr_deg_s) < margin_deg_s)
 
 
 def overshoot_amplitude_deg(tr: dict) -> float:

@@ -260,11 +260,17 @@ MASK_TAIL = ("eyes", "overshoot")
 
 
 def gaze_map_names(segments: list[str]) -> dict[str, list[str]]:
-    """Element names of the gaze_map columns (features, then the ``known`` mask: segments, eyes, overshoot)."""
+    """Element names of the gaze_map columns (features, then the masks: ``known``, segments then eyes and
+    overshoot; ``start_known``, one per segment)."""
     return {"yaw_deg": ["yaw_deg"], "pitch_deg": ["pitch_deg"], "duration_s": ["duration_s"],
             "start_times": list(segments), "overshoot_time": ["overshoot_time"], "overshoot": ["overshoot"],
             "p_plus": [f"{s}.{c}" for s in (*segments, "eyes") for c in "wxyz"],
-            "known": [*segments, *MASK_TAIL]}
+            "known": [*segments, *MASK_TAIL], "start_known": list(segments)}
+
+
+#: the QC name of a segment's start time among ``null_segments`` (the P+ entries are named by the segment)
+def start_entry(segment: str) -> str:
+    return f"{segment} start"
 
 
 def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitch_deg: float, *,
@@ -295,7 +301,9 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
       global displacement is the requested change;
     - start time per segment: first crop frame where the angular speed of L (central differences of L
       low-passed at ``start_filter_hz``, :func:`start_frame`) exceeds ``start_speed_deg_s`` for at least
-      ``start_min_s``, as a fraction of l; 0 when it never does (Pejsa: the joint starts with the shift);
+      ``start_min_s``, as a fraction of l; null when it never does (Pejsa's rule gives 0, which reads as a start
+      at the crop's first frame: a real value for the head, not for a spine segment that never moved that fast;
+      QC ``no_start`` lists them);
     - overshoot time t_β and amount β of the head's displacement (:func:`overshoot`), t_β a fraction of l
       (1 with β = 0 when there is no overshoot).
 
@@ -304,14 +312,18 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     leaves the frames from it on unknown (QC ``unbridged_frames``), and an event (a segment's start, the head's
     overshoot) must then be found before it (it is the first one there; after it, it may have happened unseen).
 
-    What cannot be computed is null, not a reason to leave the take out (SPEC §3.6). Feature ``known`` (bool,
-    segments then ``eyes`` then ``overshoot``, :data:`MASK_TAIL`) says what was: a segment is known when its P+
-    and its start time both are (a joint's curve needs both, Pejsa 5.2.3); otherwise both are NaN. The eyes
-    are known when the head's global displacement is (their P+ is NaN otherwise). The overshoot (t_β and β,
-    both NaN when unknown) is a parameter of the whole motion, masked apart from the head's P+ and start: it
-    needs the head's displacement over the crop, so it is known when the head's end poses are and the event
-    is read before any unbridgeable hole. QC ``null_segments`` lists the mask names that are null and
-    ``null_reasons`` says why, one line each.
+    What cannot be computed is null, not a reason to leave the take out (SPEC §3.6); a row with nothing known
+    at all is (:class:`StageError`: the build lists the take as skipped, with the reasons). Feature ``known``
+    (bool, segments then ``eyes`` then ``overshoot``, :data:`MASK_TAIL`) says which P+ were computed (NaN
+    otherwise), and ``start_known`` (one per segment) which start times were (NaN otherwise: no start found,
+    or one that may lie in an unbridgeable hole); each is blended from the examples that know it. The eyes are
+    known when the head's global displacement is (their P+ is NaN otherwise). The overshoot (t_β and β, both
+    NaN when unknown) is a parameter of the whole motion, masked apart from the head's P+ and start: it needs
+    the head's displacement over the crop, so it is known when the head's end poses are and the event is read
+    before any unbridgeable hole. QC ``null_segments`` lists what could not be computed (P+ by segment name,
+    ``eyes``, ``overshoot``, a start time as ``"<segment> start"``: :func:`start_entry`) and ``null_reasons``
+    says why, one line each; ``no_start`` lists the segments whose start is null because they never reached
+    the start speed.
 
     Parameters
     ----------
@@ -324,8 +336,8 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     head : index of the head segment.
 
     Raises :class:`StageError` (the reason no row can be computed) when fewer than two rests are given, the crop
-    has fewer than 3 frames, l ≤ 0, or the character frame is unknown at the crop's first or last frame
-    (every rotation is taken in it).
+    has fewer than 3 frames, l ≤ 0, the character frame is unknown at the crop's first or last frame (every
+    rotation is taken in it), or no P+, start time, eyes' P+ nor overshoot could be computed.
     """
     if len(rests) < 2:
         raise StageError(path, f"gaze_map: {len(rests)} rest period(s), need two", take=take)
@@ -428,6 +440,7 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     # after it, it could have happened unseen
     thr = np.deg2rad(start_speed_deg_s)
     starts = np.full(ns, np.nan)
+    no_start: list[str] = []                     # never reached the start speed: null, but known to be so
     min_frames = max(1, int(round(start_min_s * rate_hz)))
     for k, loc in enumerate(local):
         chain = ["character frame", f"segment {names[k]!r}"]
@@ -435,14 +448,15 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
             chain.append(f"segment {names[parents[k]]!r}")
         stop, what = known_until(*chain)
         j0 = start_frame(loc[:stop], rate_hz, thr, start_filter_hz, min_frames) if stop >= 2 else -1
-        if j0 < 0 and what is not None:
-            why = cannot("start time", what)
-            reasons[names[k]] = f"{reasons[names[k]]}; {why}" if names[k] in reasons else why
-            continue
-        starts[k] = j0 / rate_hz / duration if j0 >= 0 else 0.0
-    seg_ok = p_ok & np.isfinite(starts)
-    for k in np.flatnonzero(~seg_ok).tolist():  # a joint's curve needs both (Pejsa 5.2.3): both null
-        starts[k], p_plus[k] = np.nan, nan4
+        if j0 >= 0:
+            starts[k] = j0 / rate_hz / duration
+        elif what is not None:
+            reasons[start_entry(names[k])] = cannot("start time", what)
+        else:
+            no_start.append(names[k])
+    start_ok = np.isfinite(starts)
+    for k in np.flatnonzero(~p_ok).tolist():
+        p_plus[k] = nan4
     disp = fixed[head] * fixed[head][0].inv()
     stop, what = known_until("character frame", f"segment {names[head]!r}")
     t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s, known=stop)
@@ -453,8 +467,12 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
                                 f"needs the head's displacement, and {names[head]!r} has an unknown end pose")
         t_frac, beta, j = np.nan, np.nan, -1
 
-    known = np.array([*seg_ok, eyes_ok, ov_ok], dtype=bool)
+    known = np.array([*p_ok, eyes_ok, ov_ok], dtype=bool)
     mask_names = [*names, *MASK_TAIL]
+    if not known.any() and not start_ok.any():
+        # nothing to learn from: the row is not written (the build lists the take as skipped, with this reason)
+        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:3])
+        raise StageError(path, f"gaze_map: no parameter of the row could be computed ({why})", take=take)
     f32 = np.float32
     feats = {
         "yaw_deg": np.array([yaw_deg], f32), "pitch_deg": np.array([pitch_deg], f32),
@@ -463,14 +481,16 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         "overshoot_time": np.array([t_frac], f32), "overshoot": np.array([beta], f32),
         "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
         "known": known[None, :],
+        "start_known": start_ok[None, :],
     }
     frame = np.asarray(joints["frame"], dtype=np.int64)
     null = [mask_names[i] for i in np.flatnonzero(~known)]
+    null += [start_entry(names[k]) for k in np.flatnonzero(~start_ok) if names[k] not in no_start]
     qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
           "unbridged_frames": int(np.logical_or.reduce([*unknown.values(), np.zeros(n, bool)]).sum()),
           "overshoot_frame": int(frame[j]) if j >= 0 else None,
           "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1])),
-          "null_segments": null, "null_reasons": {k: reasons[k] for k in null}}
+          "null_segments": null, "null_reasons": {k: reasons[k] for k in null}, "no_start": no_start}
     return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
                     time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
 
@@ -488,4 +508,6 @@ def mirror_gaze_map(features: dict[str, np.ndarray], perm: np.ndarray) -> dict[s
     out["start_times"] = features["start_times"][:, perm]
     if "known" in features:
         out["known"] = features["known"][:, np.concatenate([perm, len(perm) + np.arange(len(MASK_TAIL))])]
+    if "start_known" in features:
+        out["start_known"] = features["start_known"][:, perm]
     return out

@@ -332,9 +332,10 @@ DESCRIPTIONS: dict[str, str] = {
     "gaze_map": ("Pejsa 5.1 gaze displacement motions: one row per gaze_shift take; rotations in the character "
                  "frame held fixed at the crop's first frame; p_plus = parent-relative displacement per segment "
                  "L(last)·L(first)^-1, then the eyes' D_head^T·Ry(yaw)·Rx(-pitch); start_times and "
-                 "overshoot_time are fractions of duration_s (0: no start found). known (segments, eyes, "
-                 "overshoot) marks what could be computed: where False, that segment's p_plus and start_times, "
-                 "the eyes' p_plus, or overshoot_time and overshoot are NaN."),
+                 "overshoot_time are fractions of duration_s. known (segments, eyes, overshoot) marks what could "
+                 "be computed: where False, that segment's p_plus, the eyes' p_plus, or overshoot_time and "
+                 "overshoot are NaN; start_known marks start_times: False = NaN (the segment never reached the "
+                 "start speed, or its start could not be read). A take with nothing known gives no row."),
     "face_clean": ("Berson 3.1 face cleaner: one row per aligned frame of a face take; dt_s = t[n+1] - t[n]; "
                    "tracked_dK / clean_dK are forward derivatives of order K divided by dt; rows of a take form "
                    "one sequence (segment 0)."),
@@ -348,6 +349,7 @@ UNITS: dict[str, dict[str, str]] = {
     "gaze_map": {"yaw_deg": "deg", "pitch_deg": "deg", "duration_s": "s", "start_times": "fraction of duration",
                  "overshoot_time": "fraction of duration", "overshoot": "fraction of the final displacement",
                  "p_plus": "quaternion w, x, y, z", "known": "True = computed, False = NaN in the row",
+                 "start_known": "True = a start found, False = NaN in start_times",
                  "time_s": "s"},
     "face_clean": {"tracked": "blendshape coefficient", "clean": "blendshape coefficient", "dt_s": "s",
                    "tracked_dK": "1/s^K", "clean_dK": "1/s^K", "time_s": "s"},

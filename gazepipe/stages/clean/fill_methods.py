@@ -26,7 +26,7 @@ from gazepipe.stages.geometry import cross3, frame_from_points, kabsch, norm3
 _N_DONORS = 3
 #: largest standard deviation (mm) of a mate's distance to the marker (the validation judges the rigid fit; 20 mm
 #: lets the neighbouring bodies of a whole hidden ART body or a limb serve, measured better than 5 or 10 mm)
-_MATES_MAX_STD_MM = 20.0
+MATES_MAX_STD_MM = 20.0
 #: PCA in a frame moving with the body (the predictors' mean trajectory subtracted), as Gløersen & Federolf
 PCA_BODY_FRAME = True
 #: PCA on coordinates normalised by their standard deviation before the distance weighting (off: measured
@@ -684,7 +684,7 @@ def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
                          methods: list[str], n_donors: int = _N_DONORS, *, window: int | None = None,
-                         max_std_mm: float = _MATES_MAX_STD_MM) -> dict[str, float]:
+                         max_std_mm: float = MATES_MAX_STD_MM) -> dict[str, float]:
     """Mean error (mm) of each interpolation method over frames ``[s, e)`` of the ``n_donors`` markers nearest
     to ``m`` that are measured there and on both sides (NaN when there is none).
 
@@ -724,7 +724,7 @@ def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
 
 
 def find_steady_mates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, window: int,
-                  n_mates: int = 3, max_std_mm: float = _MATES_MAX_STD_MM) -> list[int] | None:
+                  n_mates: int = 3, max_std_mm: float = MATES_MAX_STD_MM) -> list[int] | None:
     """A rigid cluster for marker ``m`` around gap ``[s, e)`` when it has none: the ``n_mates`` markers measured
     through the gap whose distance to ``m`` varied least (standard deviation below ``max_std_mm``) over the
     ``window`` frames on each side where both are measured. ``None`` when fewer than two qualify."""

@@ -35,11 +35,15 @@ it predicts the hidden stretches better. When no sample can be hidden the first 
 A fill is kept when its estimated error is within the limit (``max_error_mm``): the larger of its mean error on
 the hidden stretches and, for the part of it that comes from interpolation, how far it strays from the curve
 that meets the gap's edges with the marker's velocities there (:func:`edge_velocity_error`: a turn inside the
-gap that the stretches beside it cannot show).
+gap that the stretches beside it cannot show). A fill whose error cannot be estimated at all is not kept
+(:data:`REASON_NO_ESTIMATE`): every fill written carries the estimate it was kept on, the one every report of
+it quotes.
 
 Gaps at the start or end of a take are never extrapolated in time: pchip and linear cannot fill them; rigid and
 PCA fill them only from the other markers measured in those frames (and only up to ``max_gap_s``), with the
-mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled.
+mismatch correction taken from the one measured edge. Gaps longer than ``max_gap_s`` stay unfilled, but where
+the marker is still through them (``still_speed_mm_s``; :func:`still_gap`: a rest is not motion). Unlabeled
+trajectories (:func:`unlabeled_markers`) are left alone when the caller says so (``leave``).
 
 Each gap is decided from its neighbourhood only: the frames within ``_GapSettings.reach`` of it (the PCA
 training window, the mates' window and the hidden stretches of the longest gap all fit), plus two statistics of
@@ -51,14 +55,16 @@ samples measurably better than the noise they carry, and these are most of the g
 
 Every fill is checked for plausible speed before it is kept (:func:`step_limits`): no step from frame to frame,
 into, across or out of the gap, may exceed both 2.5x the marker's own 99th-percentile measured step and 1.5x
-the largest such percentile of any marker. A fill that does (seen for PCA at the end of a take whose last
+the largest such percentile of any marker, nor ever the fastest step measured anywhere in the take (no fill
+moves faster than the capture was seen to move). A fill that does (seen for PCA at the end of a take whose last
 poses the training frames never held: a foot marker moving 120 mm per frame) is replaced by the next method
 by validation error that passes, or the gap stays unfilled (``GapRecord.reason``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import re
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import cast
 
@@ -68,7 +74,9 @@ from gazepipe.blas import one_blas_thread
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean import framewise
 from gazepipe.stages.clean.fill_methods import (
+    MATES_MAX_STD_MM,
     PcaModel,
+    distance_stats,
     donor_interp_errors,
     edge_speed,
     find_steady_mates,
@@ -131,7 +139,11 @@ REASON_NEVER_MEASURED = "marker never measured"
 REASON_NO_METHOD = "no method applies"
 REASON_IMPLAUSIBLE = "every fill implausibly fast"
 REASON_UNCERTAIN = "estimated error above its limit (clean.max_fill_error_mm; the target's, max_target_fill_error_deg)"
-REASON_NO_ESTIMATE = "no measured stretch beside it to estimate a fill's error on"
+REASON_NO_ESTIMATE = ("its fill's error cannot be estimated (nothing measured beside it to hide, or moving with it "
+                      "through it, to check a fill on)")
+REASON_UNLABELED = "an unlabeled trajectory (filled only when asked)"
+#: the note of a gap longer than ``max_gap_s`` filled because its marker is still (:func:`still_gap`)
+NOTE_STILL = "longer than max_gap_s, filled as still: still on both sides, and the markers moving with it stay so"
 
 
 @dataclass
@@ -581,14 +593,18 @@ def check_blend(weights: dict[str, float], truth: np.ndarray, hidden: dict[str, 
 
 def fill_error(weights: dict[str, float], errors: dict[str, float], stretches: Stretches | None) -> float:
     """The estimated error (mm) of a fill with ``weights``: the method's validation error, or for a blend its
-    mean error on the hidden samples (over the frames every blended method predicts); NaN when unknown."""
+    mean error on the hidden samples (over the frames every blended method predicts). A blend that cannot be
+    tried on hidden samples (none could be hidden beside the gap: its members' errors come from the markers
+    moving with it through the gap, :func:`_motion_checks`) gets the weighted sum of its members' errors, which
+    bounds its own (a convex blend errs by at most as much: triangle inequality). NaN when unknown."""
     if len(weights) == 1:
         return float(errors.get(next(iter(weights)), np.nan))
-    if stretches is None or any(k not in stretches.hidden for k in weights):
-        return float("nan")
-    truth, hidden = stretches.truth, stretches.hidden
-    q, ok = _blend_on_hidden(weights, hidden)
-    return float(norm3(q[ok] - truth[ok]).mean()) if ok.any() else float("nan")
+    if stretches is not None and all(k in stretches.hidden for k in weights):
+        q, ok = _blend_on_hidden(weights, stretches.hidden)
+        if ok.any():
+            return float(norm3(q[ok] - stretches.truth[ok]).mean())
+    bound = sum(w * errors.get(k, np.nan) for k, w in weights.items())
+    return float(bound) if np.isfinite(bound) else float("nan")
 
 
 def _blend_on_hidden(weights: dict[str, float], hidden: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -602,7 +618,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
               pca_window_s: float | None = 10.0, blend: bool = True, steady_mates: bool = True,
               max_error_mm: float | np.ndarray | ErrorLimits | None = None, framewise: bool = True,
               stats: TakeStatistics | None = None, in_place: bool = False,
-              groups: list[list[int]] | None = None) -> FillResult:
+              groups: list[list[int]] | None = None, leave: Collection[int] = (),
+              still_speed_mm_s: float | None = None) -> FillResult:
     """Fill marker gaps, choosing the best method per gap.
 
     Parameters
@@ -617,9 +634,10 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         least around the gap (standard deviation under 20 mm over 2 s each side), when there are two or more.
     max_gap_s : gaps of more than ``max_gap_s * rate_hz`` missing samples stay unfilled.
     max_error_mm : gaps whose fill's estimated error (:func:`fill_error`) is above this stay unfilled (None: no
-        limit; a fill without an estimate, when nothing beside the gap could be hidden, is kept). A (T, M) array
-        or an :class:`ErrorLimits` gives a limit per sample; a gap's limit is the smaller of those of the
-        measured frames on either side.
+        limit). A (T, M) array or an :class:`ErrorLimits` gives a limit per sample; a gap's limit is the smaller
+        of those of the measured frames on either side. Whatever the limit, with ``validation`` a gap whose
+        fill's error cannot be estimated (nothing beside it could be hidden) stays unfilled
+        (:data:`REASON_NO_ESTIMATE`).
     methods : candidate methods, subset of ``("rigid", "pca", "pchip", "linear")``; the order breaks ties
         and decides when nothing can be hidden for validation. A single method forces that method.
     validation : when False, skip hiding samples and take the first applicable method in ``methods`` order.
@@ -637,6 +655,11 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     groups : lists of marker indices that move independently of every other group (the subject; each prop, such
         as a gaze target or a clapper): a gap is filled from its own group's markers only (PCA predictors,
         steady mates, frame-by-frame donors). A marker in no group is a group of its own. None: one group.
+    leave : markers whose gaps stay unfilled (:data:`REASON_UNLABELED`: unlabeled trajectories,
+        :func:`unlabeled_markers`, unless the caller was asked to fill them).
+    still_speed_mm_s : when given, a gap longer than ``max_gap_s`` is still filled where its marker is measured
+        still (at most this speed, mm/s) on both sides and the markers moving with it stay still through it
+        (:func:`still_gap`); None: longer gaps stay unfilled.
 
     Returns
     -------
@@ -663,7 +686,8 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     code = np.where(valid, FILL_CODES["measured"], FILL_CODES["unfilled"]).astype(np.int8)
     cfg = _GapSettings.for_take(rate_hz, n_t, tuple(methods), max_gap_s=max_gap_s, validation=validation,
                                 pca_window_s=pca_window_s, blend=blend, steady_mates=steady_mates,
-                                framewise=framewise)
+                                framewise=framewise, still_speed_mm_s=still_speed_mm_s)
+    left = {int(i) for i in leave}
     cluster_of: dict[int, list[int]] = {}
     for c in clusters or []:
         for j in c:
@@ -680,17 +704,20 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
             gaps = find_gaps(valid[:, m]) if n_t else []
             filled = {k: 0 for k in METHODS}
             for s, e in gaps:
-                if e - s > cfg.max_len or not ever[m]:
-                    records.append(GapRecord(m, s, e, "unfilled", reason=REASON_TOO_LONG if e - s > cfg.max_len
-                                             else REASON_NEVER_MEASURED))
+                why = REASON_NEVER_MEASURED if not ever[m] else REASON_UNLABELED if m in left else ""
+                if why or (e - s > cfg.max_len and cfg.still_speed is None):
+                    records.append(GapRecord(m, s, e, "unfilled", reason=why or REASON_TOO_LONG))
                     continue
                 # everything about a gap is decided from its neighbourhood: the cost per gap does not grow with
                 # the take, and the result does not depend on what lies farther away
                 lo, hi = max(0, s - cfg.reach), min(n_t, e + cfg.reach)
                 limit = None if max_error_mm is None else gap_limit(max_error_mm, m, s, e)
                 near = valid[lo:hi] if same_group is None else valid[lo:hi] & same_group[m]
-                record, fill = _fill_gap(src[lo:hi], near, m, s - lo, e - lo, cluster_of.get(m),
-                                         float(limits[m]), limit, float(noise[m]), cfg)
+                if e - s > cfg.max_len:
+                    record, fill = still_gap(src[lo:hi], near, m, s - lo, e - lo, float(limits[m]), limit, cfg)
+                else:
+                    record, fill = _fill_gap(src[lo:hi], near, m, s - lo, e - lo, cluster_of.get(m),
+                                             float(limits[m]), limit, float(noise[m]), cfg)
                 record.start, record.stop = s, e
                 records.append(record)
                 if fill is not None:
@@ -747,19 +774,25 @@ class _GapSettings:
     edge_window: int
     reach: int
     cheap_max_len: int
+    #: a gap longer than ``max_len`` is filled as still when its marker moves at most this much (mm per frame) on
+    #: both sides over ``still_side`` frames (None: never)
+    still_speed: float | None = None
+    still_side: int = 0
 
     @classmethod
     def for_take(cls, rate_hz: float, n_t: int, methods: tuple[str, ...], *, max_gap_s: float,
                  validation: bool, pca_window_s: float | None, blend: bool, steady_mates: bool,
-                 framewise: bool) -> _GapSettings:
+                 framewise: bool, still_speed_mm_s: float | None = None) -> _GapSettings:
         max_len = int(np.floor(max_gap_s * rate_hz + 1e-9))
         pca_window = None if pca_window_s is None else int(round(pca_window_s * rate_hz))
         mates_window = max(1, int(round(_MATES_WINDOW_S * rate_hz)))
         edge_window = max(_EDGE_MIN_SAMPLES, int(round(_EDGE_WINDOW_S * rate_hz)))
-        reach = max(n_t if pca_window is None else pca_window, mates_window, edge_window,
+        still_side = max(_STILL_MIN_SAMPLES, int(round(_STILL_SIDE_S * rate_hz)))
+        reach = max(n_t if pca_window is None else pca_window, mates_window, edge_window, still_side,
                     _stretch_reach(max_len)) + 1
+        still = None if still_speed_mm_s is None or not validation else float(still_speed_mm_s) / rate_hz
         return cls(methods, validation, blend, steady_mates, framewise, max_len, pca_window, mates_window,
-                   edge_window, reach, int(np.floor(_CHEAP_MAX_S * rate_hz + 1e-9)))
+                   edge_window, reach, int(np.floor(_CHEAP_MAX_S * rate_hz + 1e-9)), still, still_side)
 
 
 #: a gap up to this long (s) whose interpolation validates at the marker's noise floor is filled by
@@ -909,7 +942,9 @@ def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluste
         error = max(error, weights["rigid"] * mates_misfit(src, valid, m, s, e, cluster, cfg.mates_window))
     if cfg.validation:
         error = max(error, distance_miss(src, valid, m, s, e, own_mates, fill, cfg.mates_window))
-    if max_error is not None and not np.isfinite(error) and e - s >= _FRAMEWISE_MIN_FRAMES:
+    if cfg.validation and not np.isfinite(error):
+        # a fill is kept only where its error can be estimated (SPEC §3.2 step 2): nothing could be hidden beside
+        # the gap, or no method predicted what was
         return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_NO_ESTIMATE, error), None
     if max_error is not None and error > max_error:
         return GapRecord(m, s, e, "unfilled", full_errors, weights, REASON_UNCERTAIN, error), None
@@ -1125,7 +1160,16 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     """Largest plausible step (mm per frame) of each marker's filled samples, (M,): the larger of ``factor``
     times the marker's 99th-percentile step between consecutive measured frames and ``factor_any`` times the
     largest such percentile of any marker (so a marker seen only still may still be filled moving as fast as
-    the others). Inf where nothing was measured twice in a row anywhere."""
+    the others), and never more than the fastest step measured anywhere in the capture (:func:`fastest_step`):
+    no fill moves faster than the capture was seen to move. Inf where nothing was measured twice in a row
+    anywhere.
+
+    The cap is the capture's, not the marker's own fastest step: a marker is often hidden while it moves fastest
+    (a hand pushing a wheelchair rim, a foot in swing), and its own measured steps would refuse every fill of such
+    a gap; the capture's fastest step is the most that any of its markers did, so a fill above it moves as
+    nothing in the capture was seen to move (a linear fill across a marker that changed identity in the gap:
+    42.7 mm per frame where the file's fastest measured step was 29.7 mm). ``valid`` should leave out the
+    samples taken as spikes: a ghost's jump is not a speed the body reached."""
     n_m = valid.shape[1]
     if valid.shape[0] < 2:
         return np.full(n_m, np.inf)
@@ -1134,15 +1178,34 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     if not enough.any():
         return np.full(n_m, np.inf)
     p99 = np.full(n_m, np.nan)
+    top = np.zeros(n_m)
     # markers measured throughout, a few at a time (one call for many); the others one at a time (their own
     # measured steps): either way the memory of a few trajectories, not of the take
     dense = np.flatnonzero(both.all(axis=0))
     for lo in range(0, dense.size, _STATS_MARKERS):
         cols = dense[lo:lo + _STATS_MARKERS]
-        p99[cols] = np.percentile(norm3(xyz[1:, cols] - xyz[:-1, cols]), 99, axis=0)
-    for m in np.flatnonzero(enough & ~both.all(axis=0)):
-        p99[m] = np.percentile(norm3(xyz[1:, m] - xyz[:-1, m])[both[:, m]], 99)
-    return np.fmax(factor * p99, factor_any * np.nanmax(p99))
+        steps = norm3(xyz[1:, cols] - xyz[:-1, cols])
+        p99[cols] = np.percentile(steps, 99, axis=0)
+        top[cols] = steps.max(axis=0)
+    for m in np.flatnonzero(both.any(axis=0) & ~both.all(axis=0)):
+        steps = norm3(xyz[1:, m] - xyz[:-1, m])[both[:, m]]
+        top[m] = steps.max()
+        if enough[m]:
+            p99[m] = np.percentile(steps, 99)
+    return np.fmin(np.fmax(factor * p99, factor_any * np.nanmax(p99)), top.max())
+
+
+def fastest_step(xyz: np.ndarray, valid: np.ndarray) -> float:
+    """The fastest step (mm per frame) between consecutive measured frames of any marker of ``xyz`` (T, M, 3),
+    ``valid`` (T, M); 0 when nothing was measured twice in a row."""
+    both = valid[1:] & valid[:-1]
+    cols = np.flatnonzero(both.any(axis=0))
+    top = 0.0
+    for lo in range(0, cols.size, _STATS_MARKERS):
+        c = cols[lo:lo + _STATS_MARKERS]
+        steps = norm3(xyz[1:, c] - xyz[:-1, c])
+        top = max(top, float(np.max(np.where(both[:, c], steps, 0.0))))
+    return top
 
 
 def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarray], weights: dict[str, float],
@@ -1169,6 +1232,130 @@ def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarr
             if ok(preds[k]):
                 return {k: 1.0}, preds[k], f"{best} fill implausibly fast; {k} used"
     return weights, None, REASON_IMPLAUSIBLE
+
+
+#: seconds each side of a gap longer than ``max_gap_s`` over which its marker must be measured still for the gap
+#: to be filled as still (:func:`still_gap`; SPEC §3.2 step 2), and the fewest measured samples there (at least
+#: half of that side's frames too)
+_STILL_SIDE_S = 0.5
+_STILL_MIN_SAMPLES = 5
+
+
+def _edge_lines(xyz: np.ndarray, valid: np.ndarray, s: int, e: int, side: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Least-squares lines through the measured samples of the ``side`` frames before gap ``[s, e)`` and of those
+    after it, of each column of ``xyz`` (T, K, 3) mm, ``valid`` (T, K): ``(p0, p1, v0, v1)``, the lines' positions
+    at frames ``s - 1`` and ``e`` (K, 3) and their velocities (K, 3) mm per frame; None where a side has fewer
+    than ``max(_STILL_MIN_SAMPLES, side // 2)`` measured samples in some column, or misses the frame touching
+    the gap."""
+    n_t = valid.shape[0]
+    if s < side or e + side > n_t or not (valid[s - 1].all() and valid[e].all()):
+        return None
+    out = []
+    for a, b, at in ((s - side, s, s - 1), (e, e + side, e)):
+        w = valid[a:b].astype(np.float64)                         # (side, K)
+        n = w.sum(axis=0)
+        if (n < max(_STILL_MIN_SAMPLES, side // 2)).any():
+            return None
+        t = np.arange(a, b, dtype=np.float64)[:, None]
+        p = np.where(valid[a:b, :, None], xyz[a:b], 0.0)
+        tm = (w * t).sum(axis=0) / n                                # (K,)
+        pm = (w[..., None] * p).sum(axis=0) / n[:, None]            # (K, 3)
+        dt = np.where(valid[a:b], t - tm, 0.0)
+        v = (dt[..., None] * (p - pm)).sum(axis=0) / (dt * dt).sum(axis=0)[:, None]
+        out.append((pm + v * (at - tm)[:, None], v))
+    (p0, v0), (p1, v1) = out
+    return p0, p1, v0, v1
+
+
+def _straight(p0: np.ndarray, p1: np.ndarray, s: int, e: int) -> np.ndarray:
+    """(e - s, K, 3): the straight lines from ``p0`` (K, 3) at frame ``s - 1`` to ``p1`` at frame ``e``."""
+    u = (np.arange(s, e, dtype=np.float64) - (s - 1)) / (e - s + 1)
+    return p0[None] + u[:, None, None] * (p1 - p0)[None]
+
+
+def still_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, step_limit: float,
+              max_error: float | None, cfg: _GapSettings) -> tuple[GapRecord, np.ndarray | None]:
+    """A gap ``[s, e)`` longer than ``max_gap_s`` (frames relative to the neighbourhood ``src`` (n, M, 3) mm,
+    ``valid`` (n, M)), filled when its marker is still: a rest is not motion (SPEC §3.2 step 2).
+
+    The marker must be measured still on both sides: the least-squares line through its measured samples of
+    the ``cfg.still_side`` frames (0.5 s) on each side moves at most ``cfg.still_speed``. The fill is the
+    straight line between those two lines' positions at the gap's edges: every measured sample of the sides
+    counts, so the fill carries a fraction of one sample's noise. Its error is estimated on the gap's own
+    frames, not assumed: up to three markers measured through the gap and both sides that keep their distance
+    to this one (the steadiest neighbours, :func:`~gazepipe.stages.clean.fill_methods.distance_sd` under 20 mm
+    over 2 s each side; the nearest of them) are filled the same way and compared with their measured samples
+    there; their mean error (their own measurement noise, the body's sway, a turn away and back) is the
+    estimate, at least half the distance between the marker's two edge positions (the most a straight line can
+    miss a marker that moved from one to the other at an unknown moment). Without such a marker there is no
+    estimate and the gap stays (:data:`REASON_NO_ESTIMATE`); above ``max_error`` it stays too
+    (:data:`REASON_UNCERTAIN`)."""
+    errors = {k: float("nan") for k in cfg.methods}
+    side = cfg.still_side
+    speed = cfg.still_speed
+    own = (None if "linear" not in cfg.methods or speed is None
+           else _edge_lines(src[:, m:m + 1], valid[:, m:m + 1], s, e, side))
+    if own is None or speed is None or max(float(np.linalg.norm(own[2])), float(np.linalg.norm(own[3]))) > speed:
+        return GapRecord(m, s, e, "unfilled", errors, reason=REASON_TOO_LONG), None
+    fill = _straight(own[0], own[1], s, e)[:, 0]
+    donor = _still_donor_error(src, valid, m, s, e, side, cfg.mates_window)
+    error = max(donor, 0.5 * float(np.linalg.norm(own[1] - own[0])))      # NaN stays NaN
+    errors["linear"] = error
+    if not np.isfinite(error):
+        return GapRecord(m, s, e, "unfilled", errors, reason=REASON_NO_ESTIMATE), None
+    if max_error is not None and error > max_error:
+        return GapRecord(m, s, e, "unfilled", errors, {"linear": 1.0}, REASON_UNCERTAIN, error), None
+    _, kept, note = _plausible_fill(src[:, m], s, e, {"linear": fill}, {"linear": 1.0}, errors, cfg.methods,
+                                    step_limit)
+    if kept is None:
+        return GapRecord(m, s, e, "unfilled", errors, reason=note), None
+    return GapRecord(m, s, e, "linear", errors, {"linear": 1.0}, NOTE_STILL, error), kept
+
+
+#: markers whose straight fill across a still gap estimates its error (:func:`still_gap`)
+_STILL_DONORS = 3
+
+
+def _still_donor_error(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, side: int, window: int
+                       ) -> float:
+    """Mean error (mm) of :func:`still_gap`'s straight fill on up to ``_STILL_DONORS`` markers measured through
+    gap ``[s, e)`` and the ``side`` frames on each side that keep their distance to marker ``m`` (standard
+    deviation under ``MATES_MAX_STD_MM`` over ``window`` frames each side), the nearest first; NaN with none."""
+    cand = np.flatnonzero(valid[s - side:e + side].all(axis=0))
+    cand = cand[cand != m]
+    if cand.size:
+        cand = cand[distance_stats(src, valid, m, cand, s, e, window)[1] < MATES_MAX_STD_MM]
+    if not cand.size:
+        return float("nan")
+    near = norm3(src[[s - 1, e]][:, cand] - src[[s - 1, e]][:, [m]]).mean(axis=0)
+    donors = cand[np.argsort(near, kind="stable")[:_STILL_DONORS]]
+    lines = _edge_lines(src[:, donors], valid[:, donors], s, e, side)
+    if lines is None:
+        return float("nan")
+    miss = norm3(_straight(lines[0], lines[1], s, e) - src[s:e][:, donors])
+    return float(miss.mean())
+
+
+#: labels of unlabeled trajectories, as capture programs write them (after a ``Subject:`` prefix, if any): Vicon
+#: Nexus/Shogun ``*12``; ``Unlabeled 3``, ``Unlabeled:1001``, ``unlabelled_7``, ``Unidentified 12``, ``Unnamed4``
+#: (Motive, Qualisys and other exporters); a point without a label, which the C3D reader names ``_unnamed``
+#: (``_unnamed~2``, ...)
+UNLABELED_PATTERN = re.compile(r"^(?:\*\d+|(?:unlabell?ed|unidentified|unnamed)(?:[\s_:#.-]*\d+)?|_unnamed(?:~\d+)?)$",
+                               re.IGNORECASE)
+
+
+def unlabeled_markers(labels: Sequence[str]) -> list[int]:
+    """Indices of the unlabeled trajectories among ``labels`` (:data:`UNLABELED_PATTERN`, matched on the whole
+    label and on its part after the last ``:``). Such a trajectory is whatever the labeller could not name: a
+    marker's fragments between identity changes, a ghost, a stray reflection; a fill between its scattered
+    samples joins points of different markers, so it is left alone unless asked."""
+    out = []
+    for i, lab in enumerate(labels):
+        name = lab.strip()
+        if UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()):
+            out.append(i)
+    return out
 
 
 def find_rigid_clusters(xyz: np.ndarray, valid: np.ndarray, *, max_rel_std: float = 0.02,

@@ -32,7 +32,8 @@ class GapQC(QCRecord):
     stop: int
     #: the fill method chosen (a fill code name of :data:`gazepipe.model.FILL_CODES`), or ``unfilled``
     method: str
-    #: the fill's estimated error (of the blend, when several methods were averaged); null when not measured
+    #: the fill's estimated error (of the blend, when several methods were averaged), mm: the one the fill was kept
+    #: or refused on, as the markers table's ``fill_error_mm`` stores it (float32); null when none could be made
     error_mm: float | None
     reason: str
     #: every configured method's validation error (null: it could not apply or nothing could be hidden)
@@ -48,8 +49,17 @@ class GapQC(QCRecord):
 
     @property
     def method_error_mm(self) -> float | None:
-        """The validation error of the method chosen (null for an unfilled gap, or one not validated)."""
+        """The raw validation error of the method chosen (null for an unfilled gap, or one not validated): one
+        input to ``error_mm``, which is what a fill is graded on."""
         return None if self.method == "unfilled" else self.errors_mm[self.method]
+
+
+@dataclass(frozen=True)
+class UnfilledQC(QCRecord):
+    """The gaps left unfilled for one reason, and their samples."""
+
+    gaps: int
+    samples: int
 
 
 @dataclass(frozen=True)
@@ -107,6 +117,10 @@ class CleanQC(QCRecord):
     swaps_not_checked: str | None = absent_when("swaps were looked for, or clean.repair_swaps is off")
     # absent unless clean.lowpass_hz is set: nothing was low-passed
     lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
+    # the gaps left unfilled, by reason (too long, no error estimate, an unlabeled trajectory, ...); every gap is
+    # in ``gaps`` with its reason too, so a record written before the count was kept still reads
+    unfilled_gaps: Mapping[str, UnfilledQC] | None = absent_when(
+        "the record was written by a clean stage older than version 25, which did not count them apart")
 
 
-__all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC"]
+__all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC", "UnfilledQC"]

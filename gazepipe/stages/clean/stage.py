@@ -17,7 +17,14 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.model import FILL_CODES, Markers, MarkerSet
 from gazepipe.stages.clean.filters import lowpass_runs, true_runs, zero_phase_sos
-from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error_map, fill_gaps
+from gazepipe.stages.clean.gapfill import (
+    METHODS,
+    ErrorLimits,
+    GapRecord,
+    error_map,
+    fill_gaps,
+    unlabeled_markers,
+)
 from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.clean.rests import (
     crop_bounds,
@@ -47,9 +54,14 @@ class CleanParams:
     Attributes
     ----------
     max_gap_s : longest gap (s) that gets filled; longer gaps stay unfilled.
+    fill_still_gaps : a gap longer than ``max_gap_s`` is still filled when its marker is still (a rest is not
+        motion): measured still (below ``rest_speed_mm_s``) on both sides, and the markers moving with it stay
+        so through the gap, which gives the fill's error estimate
+        (:func:`gazepipe.stages.clean.gapfill.still_gap`).
     max_fill_error_mm : a gap is filled only when its fill's estimated error (its mean error on measured samples
-        of the gap's own length hidden beside it, :func:`gazepipe.stages.clean.gapfill.fill_error`) is at most
-        this; a gap too long to hide anything beside it is filled without an estimate.
+        of the gap's own length hidden beside it, :func:`gazepipe.stages.clean.gapfill.fill_error`, with the
+        checks on the gap's own frames) is at most this; a gap whose fill's error cannot be estimated (nothing
+        beside it to hide) stays unfilled, counted apart in QC (``unfilled_gaps``).
     max_target_fill_error_deg : the target marker is used only as a direction from the head, so its fills are
         held to an angle instead: a target gap is filled when its estimated error is at most the larger of
         ``max_fill_error_mm`` and the head-to-target distance beside the gap times tan(this angle) (2° at 2 m:
@@ -97,6 +109,8 @@ class CleanParams:
         its usual value by more than this many of that distance's spreads (each spread at least 1 mm): 6
         (about 6 mm for a rigid mate) is far outside marker noise and well inside the 50-200 mm that two
         exchanged markers stand apart.
+    fill_unlabeled : also fill the gaps of unlabeled trajectories (Vicon ``*12``, ``Unlabeled 3``, ...:
+        :func:`gazepipe.stages.clean.gapfill.unlabeled_markers`); off: their gaps stay, counted in QC.
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
@@ -122,6 +136,8 @@ class CleanParams:
     remove_heading: bool = False
     repair_swaps: bool = True
     swap_tolerance: float = field(default=6.0, metadata={"gt": 0})
+    fill_unlabeled: bool = False
+    fill_still_gaps: bool = True
 
 
 @dataclass
@@ -209,19 +225,38 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
         res = fill_gaps(xyz, valid, markers.rate_hz, clusters=[c for c in clusters if len(c) >= 2],
                         max_gap_s=params.max_gap_s, methods=tuple(params.fill_methods),
                         max_error_mm=_error_limits(xyz, markers.labels, markerset, params), in_place=True,
-                        groups=_moving_groups(pos, markerset))
+                        groups=_moving_groups(pos, markerset),
+                        still_speed_mm_s=params.rest_speed_mm_s if params.fill_still_gaps else None,
+                        leave=() if params.fill_unlabeled else unlabeled_markers(markers.labels))
         records = res.gaps
         code = np.asarray(res.fill_code, dtype=np.int8)
         xyz = res.xyz                     # NaN wherever unfilled (fill_gaps writes only the samples it fills)
-        qc["gaps"] = [{"marker": markers.labels[g.marker], "start": int(g.start), "stop": int(g.stop),
-                       "method": g.method, "error_mm": None if not np.isfinite(g.error_mm) else float(g.error_mm),
-                       "reason": g.reason,
-                       "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
-                       "weights": {k: float(v) for k, v in g.weights.items()}}
-                      for g in res.gaps]
+        qc["gaps"] = [_gap_qc(g, markers.labels) for g in res.gaps]
+    qc["unfilled_gaps"] = unfilled_counts(records)
     code[swapped & (code == FILL_CODES["measured"])] = FILL_CODES["swap_repaired"]
     qc["markers"] = _marker_qc(code, valid, markers.labels, markers.rate_hz, spikes)
     return xyz, code, spike, records
+
+
+def _gap_qc(g: GapRecord, labels: list[str]) -> dict:
+    """One gap's QC entry. Its ``error_mm`` is the estimate as the markers table stores it (float32): QC, the
+    table's ``fill_error_mm`` and the replay quote one figure."""
+    return {"marker": labels[g.marker], "start": int(g.start), "stop": int(g.stop), "method": g.method,
+            "error_mm": float(np.float32(g.error_mm)) if np.isfinite(g.error_mm) else None, "reason": g.reason,
+            "errors_mm": {k: (None if not np.isfinite(v) else float(v)) for k, v in g.errors.items()},
+            "weights": {k: float(v) for k, v in g.weights.items()}}
+
+
+def unfilled_counts(records: list[GapRecord]) -> dict[str, dict[str, int]]:
+    """The gaps left unfilled, by reason (a ``REASON_*`` of :mod:`.gapfill`): ``{reason: {"gaps", "samples"}}``,
+    reasons in alphabetical order."""
+    out: dict[str, dict[str, int]] = {}
+    for g in records:
+        if g.method == "unfilled":
+            n = out.setdefault(g.reason, {"gaps": 0, "samples": 0})
+            n["gaps"] += 1
+            n["samples"] += g.length
+    return dict(sorted(out.items()))
 
 
 def _moving_groups(pos: dict[str, int], markerset: MarkerSet) -> list[list[int]]:
@@ -322,7 +357,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     were not looked for),
     ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:
-    marker, start, stop, method, each method's validation error in mm), ``root_missing_frames``, ``lowpass`` (cutoff,
+    marker, start, stop, method, its fill's estimated error as the markers table stores it, each method's
+    validation error in mm), ``unfilled_gaps`` (gaps and samples left unfilled, per reason),
+    ``root_missing_frames``, ``lowpass`` (cutoff,
     runs left unfiltered), ``rests`` (list of [start, stop]), ``crop`` ([start, stop]), ``kept_frames``,
     ``warnings`` and ``failures`` (lists of one-line strings; ``failures`` stays empty here because a failure
     raises instead).
