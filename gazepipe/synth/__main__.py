@@ -2,8 +2,8 @@
 the bundled sample (:func:`gazepipe.synth.session.sample_config`), with its ground truth under ``OUT_DIR/truth``.
 
 The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), label swaps,
-occlusion bursts, clapper hazards, no head camera or eye tracking. Without them it writes the bundled sample
-byte for byte."""
+occlusion bursts, clapper hazards, another mocap rate, a clapper the head camera sees less well, no head camera or
+eye tracking. Without them it writes the bundled sample byte for byte."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import dataclasses
 
 from gazepipe.synth.session import generate_session, sample_config
 from gazepipe.synth.skeleton import FOUR_SEGMENTS
+from gazepipe.synth.video import LOOKS
 
 #: the markersets the command line offers: name → (segments with markers, the lab's up axis); None keeps the
 #: sample's ten segments in z-up axes
@@ -25,6 +26,10 @@ def _config(a: argparse.Namespace):
         cfg = dataclasses.replace(cfg, segments=skeleton[0], up_axis=skeleton[1])
     if a.no_eyes:
         cfg = dataclasses.replace(cfg, head_camera=False)
+    if a.mocap_rate_hz is not None:
+        cfg = dataclasses.replace(cfg, rate_hz=a.mocap_rate_hz)
+    if a.clapper_look != "sample":
+        cfg = dataclasses.replace(cfg, clapper_look=LOOKS[a.clapper_look])
     return dataclasses.replace(cfg, label_swaps=a.label_swaps, occlusion_bursts=a.occlusion_bursts,
                                clap_hazards=a.clap_hazards)
 
@@ -43,6 +48,13 @@ def _count(text: str) -> int:
     return value
 
 
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 10.0 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a mocap rate in Hz (10 to 1000)")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m gazepipe.synth", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -58,6 +70,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clap-hazards", type=_share, default=0.0, metavar="SHARE",
                    help="share of gaze_follow takes with a clapper hazard: a weak or hidden clap, video frames "
                         "dropped, the clapper's marker lost (default 0)")
+    p.add_argument("--mocap-rate-hz", type=_rate, default=None, metavar="HZ",
+                   help="the mocap capture rate (default 29.97, as the sample)")
+    p.add_argument("--clapper-look", choices=list(LOOKS), default="sample",
+                   help="how the head camera sees the clapper: as in the sample (default); smaller (farther away); "
+                        "dim and noisy; blurred (a longer exposure, defocus); busy (a hand swinging beside it); "
+                        "far (a bit of each)")
     p.add_argument("--no-eyes", action="store_true",
                    help="no head camera and no eye tracking (a mocap-only session)")
     a = p.parse_args(argv)

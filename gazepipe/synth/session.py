@@ -36,6 +36,7 @@ from gazepipe.synth.skeleton import (
     eye_offset_mm,
 )
 from gazepipe.synth.truth import crop_bounds, quat_wxyz, rest_periods, subject_columns, take_truth, write_npz
+from gazepipe.synth.video import SAMPLE_LOOK, ClapperLook
 
 MOCAP_RATE_HZ = 30000.0 / 1001.0
 GENERATOR_VERSION = 3
@@ -77,7 +78,10 @@ class SynthConfig:
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
     vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
     share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
-    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which);
+    ``clapper_look``: how the head camera sees the clapper (smaller, dimmer, noisier, blurred, a hand swinging
+    beside it: :class:`~gazepipe.synth.video.ClapperLook`, :data:`~gazepipe.synth.video.LOOKS`; the truth's
+    ``video.clapper_look`` says which when it is not the sample's).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -107,6 +111,7 @@ class SynthConfig:
     label_swaps: int = 0
     occlusion_bursts: int = 0
     clap_hazards: float = 0.0
+    clapper_look: ClapperLook = SAMPLE_LOOK
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -296,7 +301,7 @@ def builtin_writers(cfg: SynthConfig) -> list[ModalityWriter]:
     out: list[ModalityWriter] = []
     if cfg.head_camera:
         out.append(functools.partial(head_camera_writer, blink_every_s=cfg.blink_every_s,
-                                     dip_every_s=cfg.eye_dip_every_s))
+                                     dip_every_s=cfg.eye_dip_every_s, look=cfg.clapper_look))
     if cfg.face_takes:
         out.append(face_writer)
     return out
