@@ -57,7 +57,7 @@ def test_two_claps_set_offset_and_ratio_and_the_bound_follows_their_timing():
     assert c.used == [True, True] and not c.warnings and not c.set_aside
     # the prior pulls the ratio towards 1 by (data's variance / prior's) of the way: (40 / 600 ppm)² of 500 ppm
     assert c.clock.ratio == pytest.approx(RATIO, abs=5e-6) and c.clock.offset_s == pytest.approx(OFFSET, abs=2e-4)
-    # each pair timed to sqrt(1² + 1²) ms; the bound is 2 standard deviations of the fitted line (with the
+    # each pair timed to sqrt(1² + 1²) ms; the bound is BOUND_SIGMAS standard deviations of the fitted line (with the
     # ratio's prior of 600 ppm) at the video's far end
     sd = np.full(2, np.sqrt(2.0) * MS)
     expected = BOUND_SIGMAS * _pred_sd(np.array([1.0, 50.0]), sd, 600e-6, 55.0) * 1000.0
@@ -120,7 +120,8 @@ def test_one_clap_and_the_prior_bound_grows_with_distance():
 
 def test_the_bound_covers_the_truth():
     """Claps timed with known uncertainties (Gaussian errors of the stated size, clap 2's three times clap 1's):
-    over a thousand draws the fitted map is within its bound at the span's worse end in about 95 % of them."""
+    over a thousand draws the fitted map is within its bound (BOUND_SIGMAS standard deviations: 90 %) at each
+    end of the span in about 90 % of them."""
     rng = np.random.default_rng(4)
     inside = []
     for _ in range(1000):
@@ -133,7 +134,7 @@ def test_the_bound_covers_the_truth():
         err = np.abs(fit.to_mocap(np.array(span)) - (0.5 + ratio * np.array(span))) * 1000.0
         bound = BOUND_SIGMAS * fit.sd_s(np.array(span)) * 1000.0
         inside.extend(err <= bound)
-    assert 0.93 <= np.mean(inside) <= 0.975
+    assert 0.87 <= np.mean(inside) <= 0.93
 
 
 def test_no_pair_at_all_is_an_error():
@@ -147,7 +148,7 @@ def _record(claps: list[dict], **over) -> dict:
            "drift_ms_over_take": 0.0, "residual_ms": 0.0, "claps": claps, "frames_without_video": 0,
            "frames_decoded": 300, "video_frames": 3000, "video_span_s": [0.0, 50.0], "n_claps": len(used),
            "clock_bound_ms": 0.0, "clock_ref_s": 25.0, "clock_cov": [1e-6, 0.0, 1e-10], "clock_prior_ppm": 600.0,
-           "clock_bound_sigmas": 2.0, "claps_used": used, "warnings": []}
+           "clock_bound_sigmas": BOUND_SIGMAS, "claps_used": used, "warnings": []}
     rec.update(over)
     return rec
 
@@ -178,7 +179,7 @@ def test_clock_map_check_over_the_crop_fails_beyond_5_ms_naming_the_limiting_cla
     got = _checks(rec, crop_s=(1.5, 41.0))
     assert got["clock_map"].severity == "fail"
     assert "nominal rate" in got["clock_map"].message and "clap 2" in got["clock_map"].message
-    assert got["clock_map"].value == pytest.approx(2.0 * np.hypot(np.sqrt(2.0), 0.6 * 40.0), rel=1e-6)
+    assert got["clock_map"].value == pytest.approx(BOUND_SIGMAS * np.hypot(np.sqrt(2.0), 0.6 * 40.0), rel=1e-6)
 
     claps = [_clap_record(1.0, 0.0), _clap_record(50.0, 49.0, timed_by="burst", video_ms=9.6)]
     sd = np.array([np.sqrt(2.0), np.hypot(1.0, 9.6)]) * MS

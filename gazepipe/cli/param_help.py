@@ -116,8 +116,7 @@ USER_HELP: dict[str, str] = {
     "face.k": "highest time derivative of the blendshapes to compute",
     "sync.window_s": "half-width, in s, of the video window searched around each expected clap",
     "sync.search_s": "how far into the video (s, from the start or the end) to look for the first clap",
-    "sync.max_drift": "largest clock-rate difference cameras show (0.001 = 0.1 %): the rate's prior, and how far "
-                      "claps may disagree before one is set aside",
+    "sync.max_drift": "largest clock-rate difference cameras show (0.001 = 0.1 %); claps beyond it are set aside",
     "sync.min_confidence": "video claps below this confidence count as not found",
     "sync.video_scale": "video frames are scaled by this before looking for claps (faster when smaller)",
     "eyes.min_confidence": "OpenFace samples below this confidence are not used",

@@ -47,8 +47,8 @@ check                                   warning         fail         measured on
                                                                      the crop (clean) mapped onto the video clock,
                                                                      or the whole video without a crop: each
                                                                      clap's timing carried through the weighted
-                                                                     fit, with the ratio's prior (2 standard
-                                                                     deviations); names the clap that limits it
+                                                                     fit, with the ratio's prior (a 90 %
+                                                                     bound); names the clap that limits it
 ``frames_without_video``                > 5 %           > 50 %       sync: mocap frames outside the video
 ``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
 ``eye_longest_invalid``                 > 1.0 s         –            eyes: longest invalid run after slerp fill

@@ -7,6 +7,7 @@ shared with the video side (:mod:`gazepipe.stages.sync.video`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,11 +82,23 @@ FIT_MISFIT = 4.0
 class _Root:
     """Where a fitted approach reaches the shut value: ``at`` frames after the fit's last frame, ``sd`` its
     standard uncertainty from the distance noise (frames), ``misfit`` the fit's reduced chi-square (NaN with no
-    spare frame)."""
+    spare frame); ``x``, ``coef``, ``sigma_d``: the fit (frames from its last frame, polynomial, noise), for
+    :meth:`sd_at`."""
 
     at: float
     sd: float
     misfit: float
+    x: tuple[float, ...] = ()
+    coef: tuple[float, ...] = ()
+    sigma_d: float = 0.0
+
+    def sd_at(self, at: float) -> float:
+        """The distance noise carried to an instant ``at`` frames after the fit's last frame (the fitted value's
+        standard deviation there over the fitted slope there), frames."""
+        deg = len(self.coef) - 1
+        weights = np.vander([at], deg + 1) @ np.linalg.pinv(np.vander(np.asarray(self.x), deg + 1))
+        slope = float(np.polyval(np.polyder(np.asarray(self.coef)), at))
+        return float(self.sigma_d * np.linalg.norm(weights) / abs(slope)) if slope < 0 else float("inf")
 
 
 def _fit_root(d: np.ndarray, idx: np.ndarray, shut: float, sigma_d: float) -> _Root | None:
@@ -108,14 +121,11 @@ def _fit_root(d: np.ndarray, idx: np.ndarray, shut: float, sigma_d: float) -> _R
         if not r.size:
             return None
         root = float(r.min())
-    slope = float(np.polyval(np.polyder(coef), root))
-    if not slope < 0:
-        return None
-    weights = np.vander([root], deg + 1) @ np.linalg.pinv(vander)       # the fitted value at root, per sample
     rss = float(np.sum((vander @ coef - y) ** 2))
     dof = idx.size - deg - 1
-    return _Root(root, float(sigma_d * np.linalg.norm(weights) / -slope),
-                 rss / (dof * sigma_d ** 2) if dof > 0 else float("nan"))
+    fit = _Root(root, 0.0, rss / (dof * sigma_d ** 2) if dof > 0 else float("nan"), tuple(x), tuple(coef), sigma_d)
+    sd = fit.sd_at(root)
+    return None if not np.isfinite(sd) else dataclasses.replace(fit, sd=sd)
 
 
 def _approach(d: np.ndarray, last: int, shut: float, sigma_d: float, opened: float, n_fit: int) -> _Root | None:
@@ -158,9 +168,9 @@ def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit
 
     The uncertainty is the distance noise carried through the fit, and the model's own
     (:data:`CONTACT_MODEL_FRAMES`, growing as the square of how far the fit is carried past its last frame), at
-    most that of a contact anywhere between the last frame seen open and k0 (their distance over √12), and that
-    much when the fit reaches shut only well past k0; a fit that does not reach shut within the frames a gap
-    hid (the closing hidden by it) leaves the contact halfway across them.
+    most that of a contact anywhere between the last frame seen open and k0 (their distance over √12); a fit
+    reaching shut past k0 puts the contact at k0 (the first frame shut), and one that does not reach shut within
+    the frames a gap hid (the closing hidden by it) leaves the contact halfway across them.
     """
     last = k0 - 1
     while last > 0 and not np.isfinite(d[last]):
@@ -182,8 +192,9 @@ def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit
         # no fit reaches shut within the frames a gap hid (the closing hidden by it): anywhere between them
         return float(last) + 0.5 * span, uniform
     at = float(np.clip(root.at, 0.0, span))
-    sd = uniform if root.at > span + 0.5 else min(_root_sd(root, max(at, 1.0)), uniform)
-    return float(last + at), sd
+    if at != root.at:                         # the fit's noise at the contact reported (k0, or the last frame seen)
+        root = dataclasses.replace(root, sd=min(root.sd_at(at), root.sd))
+    return float(last + at), min(_root_sd(root, max(at, 1.0)), uniform)
 
 
 def _root_sd(root: _Root, reach: float) -> float:

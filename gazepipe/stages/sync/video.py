@@ -65,9 +65,10 @@ class VideoClap:
 #: frame either side of it: 1/√3). ``bench/bench_claps_truth.py`` checks that they cover the errors.
 TIMING_FRAMES = {"displacement": 0.1, "match": 0.25, "burst": 1.0 / np.sqrt(3.0)}
 #: a frame exposed across the contact shows the arm still moving, so the fit through it comes out late, by up to
-#: an eighth of a frame for an exposure of a whole frame: added to a displacement's timing when the contact lies
-#: within half a frame after the last frame that moves (where any exposure up to a frame may take it in)
-STRADDLE_FRAMES = 0.125
+#: an eighth of a frame for an exposure of a whole frame: when the contact lies within half a frame after the last
+#: frame that moves (where any exposure up to a frame may take it in), the contact is moved this much earlier (half
+#: that range; the displacement's timing, :data:`TIMING_FRAMES`, covers the rest)
+STRADDLE_FRAMES = 0.0625
 
 
 #: the arm's displacement times a clap when it lies within a frame of the closing burst's end (which comes out late,
@@ -194,8 +195,8 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
                             roi: tuple[int, int, int, int] | None, n_before: int = 6,
                             n_shut: int = 10) -> tuple[float, float] | None:
     """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, and how well it
-    is known (one standard deviation, frames: :data:`TIMING_FRAMES`, and :data:`STRADDLE_FRAMES` more when the
-    last frame that moves may have been exposed across the contact), or None.
+    is known (one standard deviation, frames: :data:`TIMING_FRAMES`; when the last frame that moves may have been
+    exposed across the contact, moved :data:`STRADDLE_FRAMES` earlier), or None.
 
     Decodes the ``n_before`` frames before the edge and ``n_shut`` still frames after it (their median is the
     shut image), follows the displacement down from its largest value to the last frame where it still falls
@@ -255,8 +256,7 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     j = a + k
     # within half a frame after the last frame that moves, the contact may fall inside that frame's exposure
     straddle = STRADDLE_FRAMES if k + root - last_moving < 0.5 else 0.0
-    return (float(np.interp(j + root, np.arange(ts.size, dtype=float), ts)),
-            float(np.hypot(TIMING_FRAMES["displacement"], straddle)))
+    return float(np.interp(j + root - straddle, np.arange(ts.size, dtype=float), ts)), TIMING_FRAMES["displacement"]
 
 
 class _Kept:
