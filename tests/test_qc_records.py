@@ -67,8 +67,8 @@ def test_the_sample_takes_have_no_record_error(out: Path) -> None:
 
 #: the checks that read each stage's QC record (of a gaze_follow take with video and eyes; of a face take)
 READERS = {
-    "ingest": ["gap_share", "spikes", "crop", "clock_drift", "clap_residual", "frames_without_video"],
-    "clean": ["longest_gap", "fill_error", "spikes", "swaps", "crop", "invalid_frames"],
+    "ingest": ["gap_share", "spikes", "crop", "clap_residual", "frames_without_video"],
+    "clean": ["longest_gap", "fill_error", "spikes", "swaps", "crop", "invalid_frames", "clock_map"],
     "frames": ["invalid_frames"],
     "sync": list(C.SYNC_CHECKS),
     "eyes": list(C.EYES_CHECKS),

@@ -439,8 +439,9 @@ def test_unfilled_share_and_grading() -> None:
 
 
 def _clap(mocap_s: float, mocap_confidence: float, video_s: float, video_confidence: float) -> dict:
-    return {"mocap_s": mocap_s, "mocap_confidence": mocap_confidence, "video_s": video_s,
-            "video_confidence": video_confidence, "video_match": 0.9, "video_timing_ms": 1.0, "mocap_gap_frames": 0, "used": True}
+    return {"mocap_s": mocap_s, "mocap_confidence": mocap_confidence, "mocap_timing_ms": 1.0, "video_s": video_s,
+            "video_confidence": video_confidence, "video_match": 0.9, "video_timing_ms": 1.0,
+            "video_timed_by": "displacement", "mocap_gap_frames": 0, "used": True, "set_aside": False}
 
 
 def test_sync_and_eye_checks_read_their_stage_records() -> None:
@@ -449,8 +450,9 @@ def test_sync_and_eye_checks_read_their_stage_records() -> None:
         "offset_s": 1.25, "offset_at_video_zero_s": 1.25, "ratio": 1.0025, "drift_ppm": 2500.0,
         "drift_ms_over_take": 90.0, "n_claps": 2, "residual_ms": 0.0,
         "claps": [_clap(2.0, 0.9, 0.75, 0.3), _clap(60.0, 0.8, 58.66, 0.9)],
-        "frames_without_video": 300, "frames_decoded": 120, "video_frames": 3600, "clock_bound_ms": 1.0,
-        "claps_used": [1, 2], "warnings": []})
+        "frames_without_video": 300, "frames_decoded": 120, "video_frames": 3600, "video_span_s": [0.0, 60.0],
+        "clock_bound_ms": 1.0, "clock_ref_s": 30.0, "clock_cov": [2.5e-7, 0.0, 4e-10], "clock_prior_ppm": 600.0,
+        "clock_bound_sigmas": 2.0, "claps_used": [1, 2], "warnings": []})
     got = {c.id: c for c in C.sync_checks(sync, True, 1800, 30.0, th)}
     assert got["clap_offset"].value == 1.25
     assert got["clap_confidence"].severity == "warning" and got["clap_confidence"].value == 0.3

@@ -619,7 +619,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
     with FrameReader(video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
         res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts,
                         read_window, window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
-                        min_confidence=p.min_confidence, trust=p.trust, mocap_trust=p.mocap_trust,
+                        min_confidence=p.min_confidence,
                         mocap_path=take.mocap, video_path=take.video, take=take.id)
         damage = read_window.damage_warning()
     clock = res.clock
@@ -642,7 +642,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="sync", version="4", requires=("ingest",), params=_params_of(SyncParams),
+    name="sync", version="5", requires=("ingest",), params=_params_of(SyncParams),
     outputs=("sync",), applies=_sync_take,
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,

@@ -40,14 +40,16 @@ check                                   warning         fail         measured on
                                                                      segment rotation (frames stage)
 ``clap_confidence``                     < 0.5           –            lowest mocap or video clap confidence
 ``clock_drift``                         |drift| >       –            sync: 2+ claps: |ratio − 1| (a camera
-                                        2000 ppm, or                 labelled 60 fps running at 59.94 is 1000 ppm,
-                                        one clap and                 corrected by the clock map); one clap: drift
-                                        take > 60 s                  not measurable on a take longer than 60 s
+                                        2000 ppm                     labelled 60 fps running at 59.94 is 1000 ppm,
+                                                                     corrected by the clock map); skipped with
+                                                                     one clap (not measurable)
 ``clap_residual``                       > 1 frame       –            sync: largest clap-pair misfit (3+ claps)
 ``clock_map``                           –               > 5 ms       sync: how far the clock map may be off over
-                                                                     the video (``clock_bound_ms``: the claps it
-                                                                     rests on, and an unmeasured ratio when one
-                                                                     clap stands alone); names the claps
+                                                                     the crop (clean) mapped onto the video clock,
+                                                                     or the whole video without a crop: each
+                                                                     clap's timing carried through the weighted
+                                                                     fit, with the ratio's prior (a 90 %
+                                                                     bound); names the clap that limits it
 ``frames_without_video``                > 5 %           > 50 %       sync: mocap frames outside the video
 ``eye_gated``                           > 30 %          > 60 %       eyes: share of video samples gated out
 ``eye_longest_invalid``                 > 1.0 s         –            eyes: longest invalid run after slerp fill
@@ -100,7 +102,6 @@ class Thresholds:
     invalid_frames_fail: float | None = 0.60
     clap_confidence_warn: float | None = 0.5
     drift_warn_ppm: float | None = 2000.0
-    single_clap_max_video_s: float | None = 60.0
     clap_residual_warn_frames: float | None = 1.0
     clock_bound_fail_ms: float | None = 5.0
     no_video_warn: float | None = 0.05
@@ -229,8 +230,8 @@ def skipped(check_id: str, why: str) -> Check:
 CHECK_READS: dict[str, tuple[str, ...]] = {
     "gap_share": ("ingest",), "longest_gap": ("clean",), "fill_error": ("clean",), "spikes": ("clean", "ingest"),
     "swaps": ("clean",), "crop": ("clean", "ingest"), "invalid_frames": ("frames", "clean"),
-    "clap_offset": ("sync",), "clap_confidence": ("sync",), "clock_drift": ("sync", "ingest"),
-    "clap_residual": ("sync", "ingest"), "clock_map": ("sync",), "frames_without_video": ("sync", "ingest"),
+    "clap_offset": ("sync",), "clap_confidence": ("sync",), "clock_drift": ("sync",),
+    "clap_residual": ("sync", "ingest"), "clock_map": ("sync", "clean"), "frames_without_video": ("sync", "ingest"),
     "eye_gated": ("eyes",), "eye_longest_invalid": ("eyes",), "camera_residual": ("eyes",),
     "face_unmatched": ("face",), "face_dropped": ("face",),
 }
@@ -493,29 +494,54 @@ def check_invalid_frames(frames_qc: FramesQC | None, kept: int | None, th: Thres
 
 # --------------------------------------------------------------------------------------------------- sync
 
-def check_clock_map(sync_qc: SyncQC, th: Thresholds) -> Check:
-    """Whether the clock map can be shown within ``clock_bound_fail_ms`` over the video (SPEC §3.4); the message
-    names the claps it rests on and, when it fails, the sync's warnings say which claps were left out."""
-    bound = float(sync_qc.clock_bound_ms)
-    claps = sync_qc.claps
+def _clap_on(qc: SyncQC, j: int) -> str:
+    """Clap ``j`` (1-based) as a check names it: its number, mocap time and how its pair is timed."""
+    c = qc.claps[j - 1]
+    how = {"displacement": "the arm followed into contact", "match": "its motion matched to the mocap's",
+           "burst": "the closing burst's end alone"}.get(c.video_timed_by or "", c.video_timed_by or "no video")
+    return (f"clap {j} (mocap {float(c.mocap_s):.2f} s, timed to ±{c.timing_ms:.1f} ms: mocap "
+            f"±{float(c.mocap_timing_ms):.1f}, video ±{float(c.video_timing_ms or 0.0):.1f} by {how})")
+
+
+def check_clock_map(sync_qc: SyncQC, th: Thresholds, crop_s: tuple[float, float] | None = None) -> Check:
+    """Whether the clock map can be shown within ``clock_bound_fail_ms`` over the span that feeds the datasets
+    (SPEC §3.4): ``crop_s`` (the first and last kept mocap frame's time, s) mapped onto the video clock and
+    kept within the video, or the whole video without a crop. The bound is the sync's fit carried to that
+    span's ends (:meth:`SyncQC.bound_over`); the message names the claps the map rests on and, when it fails, the
+    clap whose timing limits it (or the nominal rate, when one clap stands alone) and any clap set aside."""
+    v0, v1 = (float(x) for x in sync_qc.video_span_s)
+    where = "the video"
+    span = (v0, v1)
+    if crop_s is not None:
+        a, b = ((t - float(sync_qc.offset_at_video_zero_s)) / float(sync_qc.ratio) for t in crop_s)
+        if max(a, v0) < min(b, v1):
+            span, where = (max(a, v0), min(b, v1)), "the crop"
+    bound, at, limiting = sync_qc.bound_over(span)
     used = [int(j) for j in sync_qc.claps_used]
-    on = ", ".join(f"clap {j} (mocap {float(claps[j - 1].mocap_s):.2f} s)" for j in used if 0 < j <= len(claps))
+    on = ", ".join(f"clap {j} (mocap {float(sync_qc.claps[j - 1].mocap_s):.2f} s)" for j in used
+                   if 0 < j <= len(sync_qc.claps))
     alone = " and the nominal rate" if len(used) == 1 else ""
-    msg = f"clock map within {bound:.1f} ms over the video, from {on or 'no clap'}{alone}"
+    msg = f"clock map within {bound:.1f} ms over {where} (video {span[0]:.1f}–{span[1]:.1f} s), from {on or 'no clap'}{alone}"
     left = [w for w in sync_qc.warnings if "clap" in w]
-    if left and th.clock_bound_fail_ms is not None and bound > th.clock_bound_fail_ms:
-        msg += f"; {left[0]}"
-    return Check("clock_map", grade(bound, None, th.clock_bound_fail_ms), msg, value=bound,
-                 threshold=_thr(None, th.clock_bound_fail_ms), details={"warnings": left})
+    sev = grade(bound, None, th.clock_bound_fail_ms)
+    if sev == "fail":
+        why = _clap_on(sync_qc, limiting) if limiting is not None else \
+            "the nominal rate (the ratio is not measured: one clap)"
+        msg = f"clock map may be {bound:.1f} ms off over {where} (at video {at:.1f} s), limited by {why}"
+        msg += f"; {left[0]}" if left else ""
+    return Check("clock_map", sev, msg, value=bound, threshold=_thr(None, th.clock_bound_fail_ms),
+                 details={"warnings": left, "span_video_s": list(span), "limiting_clap": limiting,
+                          "over": where.removeprefix("the ")})
 
 
 SYNC_CHECKS = ("clap_offset", "clap_confidence", "clock_drift", "clap_residual", "clock_map", "frames_without_video")
 
 
 def sync_checks(sync_qc: SyncQC | None, has_video: bool, frames: int | None, rate_hz: float | None,
-                th: Thresholds) -> list[Check]:
+                th: Thresholds, crop_s: tuple[float, float] | None = None) -> list[Check]:
     """clap_offset, clap_confidence, clock_drift, clap_residual, clock_map and frames_without_video from the sync
-    QC."""
+    QC; ``crop_s``: the first and last kept mocap frame's time, s (the clean stage's crop), over which clock_map
+    is bounded."""
     if sync_qc is None:
         why = "the take has no video" if not has_video else "no sync record"
         return [skipped(i, why) for i in SYNC_CHECKS]
@@ -542,14 +568,9 @@ def sync_checks(sync_qc: SyncQC | None, has_video: bool, frames: int | None, rat
         out.append(Check("clap_confidence", "error", "sync record lists no clap"))
     n_claps = int(sync_qc.n_claps)
     ppm = float(sync_qc.drift_ppm)
-    take_s = frames / rate_hz if frames and rate_hz else None  # the video's own length is not recorded
     if n_claps < 2:
-        long = take_s is not None and th.single_clap_max_video_s is not None and take_s > th.single_clap_max_video_s
-        msg = "one clap pair: drift not measurable"
-        if take_s is not None:
-            msg += f" (a 0.1 % rate error is {take_s:.1f} ms over this {take_s:.0f} s take)"
-        out.append(Check("clock_drift", "warning" if long else "pass", msg, value=None,
-                         threshold={"single_clap_max_video_s": th.single_clap_max_video_s}))
+        out.append(skipped("clock_drift", "one clap pair: the drift is not measurable (clock_map bounds what an "
+                                          "unmeasured rate can do)"))
     else:
         msg = f"clock drift {ppm:+.0f} ppm (ratio {float(sync_qc.ratio):.6f}, " \
             f"{float(sync_qc.drift_ms_over_take):+.1f} ms over the video), corrected"
@@ -563,7 +584,7 @@ def sync_checks(sync_qc: SyncQC | None, has_video: bool, frames: int | None, rat
                          threshold=_thr(th.clap_residual_warn_frames)))
     else:
         out.append(skipped("clap_residual", f"{n_claps} clap pair(s): the map fits them exactly"))
-    out.append(check_clock_map(sync_qc, th))
+    out.append(check_clock_map(sync_qc, th, crop_s))
     if frames:
         n = int(sync_qc.frames_without_video)
         v = n / frames

@@ -120,7 +120,8 @@ def _qc_checks(e: TakeEntry, tables: TakeTables, th: C.Thresholds) -> list[C.Che
     kept = None if clean is None else clean.kept_frames
     if e.kind in ("gaze_follow", "gaze_shift"):
         out.append(C.check_invalid_frames(frames_qc, kept, th))
-    out.extend(C.sync_checks(e.qc(SyncQC), e.has_video, n_frames, rate, th))
+    crop_s = None if clean is None or not rate else (clean.crop[0] / rate, (clean.crop[1] - 1) / rate)
+    out.extend(C.sync_checks(e.qc(SyncQC), e.has_video, n_frames, rate, th, crop_s))
     if e.kind == "gaze_follow":
         out.extend(C.eyes_checks(e.qc(EyesQC), e.has_eyes, th))
     return out

@@ -2,8 +2,8 @@
 the bundled sample (:func:`gazepipe.synth.session.sample_config`), with its ground truth under ``OUT_DIR/truth``.
 
 The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), label swaps,
-occlusion bursts, clapper hazards, no head camera or eye tracking. Without them it writes the bundled sample
-byte for byte.
+occlusion bursts, clapper hazards, another mocap rate, a clapper the head camera sees less well, no head camera or
+eye tracking. Without them it writes the bundled sample byte for byte.
 
 Exit codes: 0 written; 1 the folder could not be written (read-only, unreachable, full: nothing of the session
 is left there); 2 a bad option or OUT_DIR (empty, a file)."""
@@ -17,6 +17,7 @@ from typing import NoReturn
 
 from gazepipe.synth.session import OutputFolderError, generate_session, sample_config
 from gazepipe.synth.skeleton import FOUR_SEGMENTS
+from gazepipe.synth.video import LOOKS
 
 PROG = "python -m gazepipe.synth"
 
@@ -49,6 +50,10 @@ def _config(a: argparse.Namespace):
         cfg = dataclasses.replace(cfg, segments=skeleton[0], up_axis=skeleton[1])
     if a.no_eyes:
         cfg = dataclasses.replace(cfg, head_camera=False)
+    if a.mocap_rate_hz is not None:
+        cfg = dataclasses.replace(cfg, rate_hz=a.mocap_rate_hz)
+    if a.clapper_look != "sample":
+        cfg = dataclasses.replace(cfg, clapper_look=LOOKS[a.clapper_look])
     return dataclasses.replace(cfg, label_swaps=a.label_swaps, occlusion_bursts=a.occlusion_bursts,
                                clap_hazards=a.clap_hazards)
 
@@ -79,6 +84,11 @@ def _count(text: str) -> int:
 
 def _seed(text: str) -> int:
     return _whole(text, 0, MAX_SEED, "a seed (a whole number, 0 or more, below 2^64)")
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 10.0 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a mocap rate in Hz (10 to 1000)")
+    return value
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -98,6 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clap-hazards", type=_share, default=0.0, metavar="SHARE",
                    help="share of gaze_follow takes with a clapper hazard: a weak or hidden clap, video frames "
                         "dropped, the clapper's marker lost (default 0)")
+    p.add_argument("--mocap-rate-hz", type=_rate, default=None, metavar="HZ",
+                   help="the mocap capture rate (default 29.97, as the sample)")
+    p.add_argument("--clapper-look", choices=list(LOOKS), default="sample",
+                   help="how the head camera sees the clapper: as in the sample (default); smaller (farther away); "
+                        "dim and noisy; blurred (a longer exposure, defocus); busy (a hand swinging beside it); "
+                        "far (a bit of each)")
     p.add_argument("--no-eyes", action="store_true",
                    help="no head camera and no eye tracking (a mocap-only session)")
     a = p.parse_args(argv)

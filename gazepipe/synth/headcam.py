@@ -3,6 +3,7 @@ of its eyes, with their truth (SPEC §1 video/eyes, §3.4, §3.5)."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,7 +17,15 @@ from gazepipe.synth.openface import (
     eye_rows,
     write_openface_csv,
 )
-from gazepipe.synth.video import EXPOSURE_S, HEIGHT, WIDTH, CameraClock, camera_clock, write_head_video
+from gazepipe.synth.video import (
+    HEIGHT,
+    SAMPLE_LOOK,
+    WIDTH,
+    CameraClock,
+    ClapperLook,
+    camera_clock,
+    write_head_video,
+)
 
 if TYPE_CHECKING:
     from gazepipe.synth.record import TakeRecord
@@ -37,11 +46,13 @@ def _exposures(n: int, clock: CameraClock, claps: np.ndarray, hazard: dict[str, 
 
 
 def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple[float, float] = BLINK_EVERY_S,
-                       dip_every_s: tuple[float, float] = DIP_EVERY_S) -> dict[str, Any]:
+                       dip_every_s: tuple[float, float] = DIP_EVERY_S,
+                       look: ClapperLook = SAMPLE_LOOK) -> dict[str, Any]:
     """Write ``video/<take>.mp4`` and ``eyes/<take>.csv`` for a gaze_follow take; add their truth to the take.
 
     The clock variant cycles with the take's index (see :func:`gazepipe.synth.video.camera_clock`); the take
-    whose variant is 0 gets the older ", " OpenFace layout.
+    whose variant is 0 gets the older ", " OpenFace layout. ``look``: how the camera sees the clapper (the truth
+    says which look when it is not the sample's).
     """
     if take.kind != "gaze_follow" or take.motion is None or take.kinematics is None:
         return {}
@@ -65,7 +76,7 @@ def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple
     eyes_rel = f"eyes/{take.id}.csv"
     to_cam = cam.inv()
     write_head_video(session_dir / video_rel, r_video, clock, n, motion, to_cam.apply(rows.true_right_head),
-                     to_cam.apply(rows.true_left_head), rows.lid, exposures)
+                     to_cam.apply(rows.true_left_head), rows.lid, exposures, look)
     legacy = variant == 0
     write_openface_csv(session_dir / eyes_rel, r_csv, rows, cam, legacy=legacy)
 
@@ -90,13 +101,15 @@ def head_camera_writer(session_dir: Path, take: TakeRecord, blink_every_s: tuple
     })
     take.truth_scalars["video"] = {
         "path": video_rel, "codec": "mp4v", "fps": clock.fps, "n_frames": int(n), "width": WIDTH, "height": HEIGHT,
-        "exposure_s": EXPOSURE_S, "offset_s": clock.offset_s, "ratio": clock.ratio,
+        "exposure_s": look.exposure_s, "offset_s": clock.offset_s, "ratio": clock.ratio,
         "offset_at_first_clap_s": float(claps[0] - clap_video[0]) if claps.size else None,
         "clap_times_mocap_s": claps.tolist(), "clap_times_video_s": clap_video.tolist(),
         "starts_after_mocap": bool(clock.offset_s > 0),
         "mocap_frames_without_video": int((~has_video).sum()),
         "dropped_frames": int(exposures[-1] + 1 - n),
     }
+    if look != SAMPLE_LOOK:
+        take.truth_scalars["video"]["clapper_look"] = dataclasses.asdict(look)
     take.truth_scalars["eyes"] = {
         "path": eyes_rel, "layout": "openface_legacy" if legacy else "openface2", "rows": int(n),
         "noise_deg": EYE_NOISE_DEG, "confidence_threshold": CONF_THRESHOLD,

@@ -39,6 +39,7 @@ from gazepipe.synth.skeleton import (
     eye_offset_mm,
 )
 from gazepipe.synth.truth import crop_bounds, quat_wxyz, rest_periods, subject_columns, take_truth, write_npz
+from gazepipe.synth.video import SAMPLE_LOOK, ClapperLook
 
 MOCAP_RATE_HZ = 30000.0 / 1001.0
 GENERATOR_VERSION = 3
@@ -88,7 +89,10 @@ class SynthConfig:
     a ``BlendShapeCount`` of 0 and nothing else; the truth marks them in ``face_tracked_lost``);
     ``root_final_rest_gap_s``: (shortest, longest) seconds: every gaze_shift take's final rest is lengthened by
     its drawn length plus 1.6 s and the root marker itself is lost for that long inside it, measured still on
-    both sides (:func:`~gazepipe.synth.markers.make_root_final_rest_gap`; None: no such gap, the take as it was).
+    both sides (:func:`~gazepipe.synth.markers.make_root_final_rest_gap`; None: no such gap, the take as it was);
+    ``clapper_look``: how the head camera sees the clapper (smaller, dimmer, noisier, blurred, a hand swinging
+    beside it: :class:`~gazepipe.synth.video.ClapperLook`, :data:`~gazepipe.synth.video.LOOKS`; the truth's
+    ``video.clapper_look`` says which when it is not the sample's).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -121,6 +125,7 @@ class SynthConfig:
     nexus_csv: float = 0.0
     face_tracking_loss: int = 0
     root_final_rest_gap_s: tuple[float, float] | None = None
+    clapper_look: ClapperLook = SAMPLE_LOOK
 
 
 #: the final rest around a root-marker gap of ``SynthConfig.root_final_rest_gap_s`` (s): added to the gap's length
@@ -328,7 +333,7 @@ def builtin_writers(cfg: SynthConfig) -> list[ModalityWriter]:
     out: list[ModalityWriter] = []
     if cfg.head_camera:
         out.append(functools.partial(head_camera_writer, blink_every_s=cfg.blink_every_s,
-                                     dip_every_s=cfg.eye_dip_every_s))
+                                     dip_every_s=cfg.eye_dip_every_s, look=cfg.clapper_look))
     if cfg.face_takes:
         out.append(face_writer)
     return out

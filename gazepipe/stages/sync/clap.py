@@ -7,6 +7,7 @@ shared with the video side (:mod:`gazepipe.stages.sync.video`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +47,7 @@ class Clap:
     margin_mm : tolerance around ``shut_mm`` used to decide that the clapper is shut.
     gap_frames : clapper frames missing between the last closing frame and the shut plateau (the contact was
         extrapolated across them); 0 when the contact was seen.
+    timing_s : how well ``time_s`` is known, s (one standard deviation; see :func:`_contact_crossing`).
     """
 
     time_s: float
@@ -56,6 +58,7 @@ class Clap:
     shut_mm: float
     margin_mm: float
     gap_frames: int = 0
+    timing_s: float = 0.0
 
 
 def clapper_distance(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray,
@@ -66,50 +69,139 @@ def clapper_distance(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np
     return np.where(ok, d, np.nan)
 
 
-def _trajectory_root(d: np.ndarray, last: int, shut: float, n_fit: int) -> float | None:
-    """Where the closing trajectory fitted on its ``n_fit`` frames up to ``last`` reaches ``shut``, in frames
-    after ``last`` (a quadratic: constant acceleration; a line with two frames); None when it cannot say."""
-    idx = np.arange(max(last - n_fit + 1, 0), last + 1)
-    idx = idx[np.isfinite(d[idx])]
-    if idx.size < 2 or idx[-1] != last:
-        return None
-    x = (idx - last).astype(float)
+#: the contact refined below one frame is known to this share of a mocap frame at best, however little noise: the
+#: approach is modelled as a quadratic over its last frames, and how it ends inside the last frame is not sampled
+#: (``bench/bench_claps_truth.py --calibrate`` checks that the stated timing covers the error at 30–240 Hz)
+CONTACT_MODEL_FRAMES = 1.0 / 24.0
+#: a quadratic fit over more than three frames is kept while its misfit is within this many times the noise's
+#: (reduced chi-square); beyond, the approach is not one quadratic over those frames and fewer are fitted
+FIT_MISFIT = 4.0
+
+
+@dataclass(frozen=True)
+class _Root:
+    """Where a fitted approach reaches the shut value: ``at`` frames after the fit's last frame, ``sd`` its
+    standard uncertainty from the distance noise (frames), ``misfit`` the fit's reduced chi-square (NaN with no
+    spare frame); ``x``, ``coef``, ``sigma_d``: the fit (frames from its last frame, polynomial, noise), for
+    :meth:`sd_at`."""
+
+    at: float
+    sd: float
+    misfit: float
+    x: tuple[float, ...] = ()
+    coef: tuple[float, ...] = ()
+    sigma_d: float = 0.0
+
+    def sd_at(self, at: float) -> float:
+        """The distance noise carried to an instant ``at`` frames after the fit's last frame (the fitted value's
+        standard deviation there over the fitted slope there), frames."""
+        deg = len(self.coef) - 1
+        weights = np.vander([at], deg + 1) @ np.linalg.pinv(np.vander(np.asarray(self.x), deg + 1))
+        slope = float(np.polyval(np.polyder(np.asarray(self.coef)), at))
+        return float(self.sigma_d * np.linalg.norm(weights) / abs(slope)) if slope < 0 else float("inf")
+
+
+def _fit_root(d: np.ndarray, idx: np.ndarray, shut: float, sigma_d: float) -> _Root | None:
+    """The approach over frames ``idx`` (a quadratic, or a line through two) solved for ``shut``: the first
+    solution from a quarter frame before the last frame on; its noise propagated from ``sigma_d`` (the fitted
+    value's standard deviation at the solution over the slope there)."""
+    x = (idx - idx[-1]).astype(np.float64)
     y = d[idx] - shut
-    root = float(-y[-1] / (y[-1] - y[-2])) if y[-1] != y[-2] else None
-    if idx.size >= 3:
-        r = np.roots(np.polyfit(x, y, 2))
+    deg = 2 if idx.size >= 3 else 1
+    vander = np.vander(x, deg + 1)
+    coef, *_ = np.linalg.lstsq(vander, y, rcond=None)
+    if deg == 1:
+        if coef[0] == 0:
+            return None
+        root = float(-coef[1] / coef[0])
+    else:
+        r = np.roots(coef)
         r = r[np.abs(r.imag) < 1e-9].real
         r = r[r >= -0.25]
-        if r.size:
-            root = float(r.min())
-    return root
+        if not r.size:
+            return None
+        root = float(r.min())
+    rss = float(np.sum((vander @ coef - y) ** 2))
+    dof = idx.size - deg - 1
+    fit = _Root(root, 0.0, rss / (dof * sigma_d ** 2) if dof > 0 else float("nan"), tuple(x), tuple(coef), sigma_d)
+    sd = fit.sd_at(root)
+    return None if not np.isfinite(sd) else dataclasses.replace(fit, sd=sd)
 
 
-def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit: int) -> float:
-    """Fractional frame where the closing trajectory reaches ``shut``, near the first frame k0 within the margin.
+def _approach(d: np.ndarray, last: int, shut: float, sigma_d: float, opened: float, n_fit: int) -> _Root | None:
+    """The approach up to frame ``last`` solved for ``shut`` (frames after ``last``), fitted on as many of its
+    last frames (three to ``n_fit``, measured, below the open distance by more than 3 σ_d: closing) as one
+    quadratic explains within :data:`FIT_MISFIT`; with fewer than three closing frames, the one before them
+    (the arms at rest, open) joins them; None when under two frames are left."""
+    idx = np.arange(max(last - n_fit + 1, 0), last + 1)
+    idx = idx[np.isfinite(d[idx])]
+    if idx.size == 0 or idx[-1] != last:
+        return None
+    closing = d[idx] < opened - 3.0 * sigma_d
+    first = idx.size - int(np.argmin(closing[::-1])) if not closing.all() else 0
+    if idx.size - first < 3:
+        first = max(first - 1, 0)
+    idx = idx[first:]
+    if idx.size < 2:
+        return None
+    best = _fit_root(d, idx[-3:], shut, sigma_d)
+    for n in range(4, idx.size + 1):
+        r = _fit_root(d, idx[-n:], shut, sigma_d)
+        if r is None or not r.misfit <= FIT_MISFIT:
+            break
+        best = r
+    return best
+
+
+def _contact_crossing(d: np.ndarray, k0: int, shut: float, sigma_d: float, n_fit: int,
+                      opened: float) -> tuple[float, float]:
+    """Fractional frame where the closing trajectory reaches ``shut``, near the first frame k0 within the margin,
+    and its standard uncertainty (frames).
 
     The arms stop abruptly at contact, so the distance has a kink there: interpolating linearly between the
     two frames around the crossing would put the contact up to a frame late. Instead the closing trajectory
-    is fitted on its last ``n_fit`` frames before k0 and solved for ``shut``, within [k0 − 1, k0]. When that
-    solution lies beyond k0 and frame k0 is still more than 2 σ_d above the shut value (closing, only within
+    is fitted on its last frames before k0 (:func:`_approach`) and solved for ``shut``, within [k0 − 1, k0]. When
+    that solution lies beyond k0 and frame k0 is still more than 2 σ_d above the shut value (closing, only within
     the margin), the trajectory is refitted up to k0 and solved within [k0, k0 + 1]. When the frames just before
-    k0 are missing (a ghost sample taken out at contact), the trajectory up to the last measured frame is solved
-    within the gap.
+    k0 are missing (a ghost sample taken out at contact, a marker lost), the trajectory up to the last measured
+    frame is solved within the gap.
+
+    The uncertainty is the distance noise carried through the fit, and the model's own
+    (:data:`CONTACT_MODEL_FRAMES`, growing as the square of how far the fit is carried past its last frame), at
+    most that of a contact anywhere between the last frame seen open and k0 (their distance over √12); a fit
+    reaching shut past k0 puts the contact at k0 (the first frame shut), and one that does not reach shut within
+    the frames a gap hid (the closing hidden by it) leaves the contact halfway across them.
     """
     last = k0 - 1
     while last > 0 and not np.isfinite(d[last]):
         last -= 1
-    if last < k0 - 1:
-        root = _trajectory_root(d, last, shut, n_fit)
-        return float(k0) if root is None else float(last + np.clip(root, 0.0, k0 - last))
-    root = _trajectory_root(d, k0 - 1, shut, n_fit)
-    if root is None:
-        return float(k0)
-    if root > 1.0 and d[k0] - shut > 2.0 * sigma_d and k0 + 1 < d.size:
-        later = _trajectory_root(d, k0, shut, n_fit)
-        if later is not None:
-            return float(k0 + np.clip(later, 0.0, 1.0))
-    return float(k0 - 1 + np.clip(root, 0.0, 1.0))
+    root = _approach(d, last, shut, sigma_d, opened, n_fit)
+    k = k0
+    while (last == k - 1 and root is not None and root.at > 1.0 and d[k] - shut > 2.0 * sigma_d
+           and k + 1 < d.size and k - k0 < 3):
+        # frame k, though within the band, is still closing (a wide band under noise): the approach goes on
+        later = _approach(d, k, shut, sigma_d, opened, n_fit)
+        if later is None:
+            break
+        if later.at <= 1.0 or not np.isfinite(d[k + 1]):
+            return float(k + np.clip(later.at, 0.0, 1.0)), min(_root_sd(later, 1.0), 1.0 / np.sqrt(12.0))
+        last, k, root = k, k + 1, later
+    span = float(k - last)                    # the contact lies between the last frame seen open and k
+    uniform = span / np.sqrt(12.0)
+    if root is None or (span > 1.0 and root.at > span):
+        # no fit reaches shut within the frames a gap hid (the closing hidden by it): anywhere between them
+        return float(last) + 0.5 * span, uniform
+    at = float(np.clip(root.at, 0.0, span))
+    if at != root.at:                         # the fit's noise at the contact reported (k0, or the last frame seen)
+        root = dataclasses.replace(root, sd=min(root.sd_at(at), root.sd))
+    return float(last + at), min(_root_sd(root, max(at, 1.0)), uniform)
+
+
+def _root_sd(root: _Root, reach: float) -> float:
+    """A contact's standard uncertainty, frames: the noise's through the fit, and the model's
+    (:data:`CONTACT_MODEL_FRAMES`), which grows as the square of ``reach`` (frames from the fit's last frame to the
+    contact; one within the next frame)."""
+    return float(np.hypot(root.sd, CONTACT_MODEL_FRAMES * reach * reach))
 
 
 def _plateau_start(d: np.ndarray, s: int, shut: float, margin: float, near: float, n_shut: int) -> int | None:
@@ -212,7 +304,7 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
         k0 = _plateau_start(d, s, shut, margin, max(bounce_mm, margin), max(2, round(min_shut_s * rate)))
         if k0 is None:
             continue
-        frame = _contact_crossing(d, k0, shut, sigma_d, n_fit)
+        frame, sd_frames = _contact_crossing(d, k0, shut, sigma_d, n_fit, opened)
         last_seen = k0 - 1
         while last_seen > f and not np.isfinite(d[last_seen]):
             last_seen -= 1
@@ -223,7 +315,7 @@ def mocap_claps(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndar
         seen_share = float(np.clip(1.0 - unseen / rate / max_gap_s, 0.0, 1.0))
         clap = Clap(time_s=frame / rate, frame=frame, confidence=_score(z, z_lo, z_hi) * seen_share,
                     closing_speed_mm_s=speed, open_mm=opened, shut_mm=shut, margin_mm=margin,
-                    gap_frames=unseen)
+                    gap_frames=unseen, timing_s=sd_frames / rate)
         if found and clap.time_s - found[-1].time_s < min_separation_s:
             if clap.closing_speed_mm_s > found[-1].closing_speed_mm_s:
                 found[-1] = clap

@@ -1,9 +1,13 @@
 """sync stage, clocks: the map from the video clock to the mocap clock fitted to the clap pairs, and video-clock
 signals resampled onto the mocap frames.
 
-The mocap clock is the master clock (SPEC §2): t_mocap = offset + ratio · t_video. One clap pair gives the offset
-(ratio 1); two or more also give the ratio, which holds a camera's rate error (labelled 60 fps running at 59.94:
-ratio 1.001) or crystal drift. :func:`resample_to_mocap` never extrapolates.
+The mocap clock is the master clock (SPEC §2): t_mocap = offset + ratio · t_video. Every clap pair is a measurement
+with a timing uncertainty (its mocap and its video clap's, :attr:`Clap.timing_s`, :attr:`VideoClap.timing_s`); the
+map is their weighted least-squares line with the nominal ratio 1 as a prior whose width is what cameras do
+(:func:`fit_clock`). A pair is set aside only when it disagrees with the others and any camera rate within
+``max_drift`` of nominal beyond its uncertainty (:func:`choose_clock`), never for a low detector score. The map's
+uncertainty anywhere on the video clock follows from the fit (:meth:`ClockMap.sd_s`, :func:`bound_over`).
+:func:`resample_to_mocap` never extrapolates.
 """
 
 from __future__ import annotations
@@ -20,25 +24,34 @@ if TYPE_CHECKING:
     from gazepipe.stages.sync.clap import Clap
     from gazepipe.stages.sync.video import VideoClap
 
-__all__ = ["CLAP_TIMING_MS", "ClockChoice", "ClockMap", "choose_clock", "clap_timing_ms", "clock_map",
-           "resample_to_mocap"]
+__all__ = ["BOUND_SIGMAS", "DISAGREE_P", "ClockChoice", "ClockMap", "bound_over", "choose_clock", "clock_map",
+           "fit_clock", "map_sd_s", "resample_to_mocap", "set_aside"]
 
-#: how far a trusted clap pair's offset typically is from the truth, ms: ``bench/bench_sync.py`` (29.97–120 Hz
-#: mocap, 60 fps video, 0.4–2 mm marker noise) gives a median of 0.7 ms (the worst of 24 takes: 6 ms, at 29.97 Hz)
-CLAP_TIMING_MS = 1.5
+#: the clock map's bound is this many standard deviations of its error at the span's worse end (90 % of maps lie
+#: within it there: a clap pair at 30 Hz mocap and 60 fps video is timed to about ±2.3 ms, so a 95 % bound near a
+#: clap would sit at the 5 ms check's threshold however clean the claps)
+BOUND_SIGMAS = 1.645
+#: a clap pair is set aside when the claps cannot all be fitted, with a camera rate within tolerance, without a
+#: misfit that consistent claps would show less often than this (chi-square; 2.58 standard deviations for one
+#: degree of freedom)
+DISAGREE_P = 0.01
 
 
 @dataclass
 class ClockMap:
-    """t_mocap = offset_s + ratio · t_video.
+    """t_mocap = offset_s + ratio · t_video, and how well it is known.
 
     Attributes
     ----------
     offset_s : mocap time of video time 0, seconds.
-    ratio : mocap seconds per video second (1 with a single clap).
-    n_claps : clap pairs used.
-    offset_at_first_clap_s : t_mocap − t_video at the first clap pair.
-    residual_ms : largest misfit of a clap pair (0 with one or two pairs).
+    ratio : mocap seconds per video second.
+    n_claps : clap pairs the map rests on.
+    offset_at_first_clap_s : t_mocap − t_video at the first of those pairs.
+    residual_ms : largest misfit of a pair the map rests on, ms.
+    ref_s : video time the fit is centred on (the claps' weighted mean), s.
+    cov : covariance of (the map's mocap time at ``ref_s``, the ratio): (var s², cov s, var), from the claps'
+        timing and the ratio's prior; zeros when unknown.
+    prior_sd : standard deviation of the ratio's prior (what cameras do), dimensionless; 0 when none.
     """
 
     offset_s: float
@@ -46,9 +59,15 @@ class ClockMap:
     n_claps: int
     offset_at_first_clap_s: float = 0.0
     residual_ms: float = 0.0
+    ref_s: float = 0.0
+    cov: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    prior_sd: float = 0.0
 
     def to_mocap(self, t_video: np.ndarray | float) -> np.ndarray:
         return self.offset_s + self.ratio * np.asarray(t_video, dtype=np.float64)
+
+    def to_video(self, t_mocap: np.ndarray | float) -> np.ndarray:
+        return (np.asarray(t_mocap, dtype=np.float64) - self.offset_s) / self.ratio
 
     @property
     def drift_ppm(self) -> float:
@@ -58,25 +77,149 @@ class ClockMap:
         """How far the video clock drifts from the mocap clock over ``duration_s`` (video seconds), ms."""
         return (self.ratio - 1.0) * duration_s * 1000.0
 
+    def sd_s(self, t_video: np.ndarray | float) -> np.ndarray:
+        """Standard deviation of the mapped mocap time at video times ``t_video``, s (quadratic in t: largest at
+        the ends of any span)."""
+        return map_sd_s(self.cov, self.ref_s, t_video)
+
+
+def map_sd_s(cov: Sequence[float], ref_s: float, t_video: np.ndarray | float) -> np.ndarray:
+    """Standard deviation, s, of a map whose (value at ``ref_s``, ratio) have covariance ``cov`` = (var, cov,
+    var), at video times ``t_video``."""
+    x = np.asarray(t_video, dtype=np.float64) - ref_s
+    v = float(cov[0]) + 2.0 * float(cov[1]) * x + float(cov[2]) * x * x
+    return np.sqrt(np.maximum(v, 0.0))
+
+
+def fit_clock(t_video: np.ndarray, t_mocap: np.ndarray, sd_s: np.ndarray, prior_sd: float | None,
+              prior_ratio: float = 1.0) -> ClockMap:
+    """The weighted least-squares clock map through clap pairs.
+
+    Parameters
+    ----------
+    t_video, t_mocap : (n,) the pairs' instants on each clock, s.
+    sd_s : (n,) each pair's timing uncertainty (one standard deviation), s.
+    prior_sd : the ratio's prior standard deviation around ``prior_ratio`` (what cameras do); None: no prior
+        (needs two pairs or more at different times).
+
+    Returns
+    -------
+    The map minimising Σ ((t_mocap − map(t_video)) / sd)² + ((ratio − prior_ratio) / prior_sd)², with the
+    covariance of its value at the weighted mean video time and its ratio (the inverse of the normal matrix).
+    """
+    tv, tm = np.asarray(t_video, dtype=np.float64), np.asarray(t_mocap, dtype=np.float64)
+    w = 1.0 / np.square(np.asarray(sd_s, dtype=np.float64))
+    if tv.size == 0:
+        raise ValueError("no clap pair to map the clocks")
+    ref = float(np.sum(w * tv) / np.sum(w))
+    x = tv - ref
+    p = 0.0 if prior_sd is None or not prior_sd > 0 else 1.0 / prior_sd ** 2
+    normal = np.array([[np.sum(w), np.sum(w * x)], [np.sum(w * x), np.sum(w * x * x) + p]])
+    rhs = np.array([np.sum(w * tm), np.sum(w * x * tm) + p * prior_ratio])
+    if abs(np.linalg.det(normal)) < 1e-300 or not np.isfinite(normal).all():
+        raise ValueError("the clap pairs cannot set a ratio (one clap and no prior)")
+    at_ref, ratio = np.linalg.solve(normal, rhs)
+    cov = np.linalg.inv(normal)
+    res = tm - (at_ref + ratio * x)
+    offset = float(at_ref - ratio * ref)
+    return ClockMap(offset_s=offset, ratio=float(ratio), n_claps=int(tv.size),
+                    offset_at_first_clap_s=float(offset + (ratio - 1.0) * tv[0]),
+                    residual_ms=float(np.max(np.abs(res)) * 1000.0) if tv.size > 2 else 0.0,
+                    ref_s=ref, cov=(float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])),
+                    prior_sd=0.0 if p == 0.0 else float(prior_sd))  # type: ignore[arg-type]
+
 
 def clock_map(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | None]) -> ClockMap:
-    """Fit t_mocap = offset + ratio · t_video to the clap pairs (the i-th mocap clap with the i-th video clap;
-    pairs with ``None`` are skipped). One pair: ratio 1; two: exact; more: least squares."""
+    """The map through the clap pairs (the i-th mocap clap with the i-th video clap; pairs with ``None`` are
+    skipped), all weighted alike, without a prior: one pair gives ratio 1; two, the line through them; more, the
+    least-squares line."""
     pairs = [(m.time_s, v.time_s) for m, v in zip(mocap_claps, video_claps, strict=True) if v is not None]
     if not pairs:
         raise ValueError("no clap pair to map the clocks")
-    tm = np.array([p[0] for p in pairs])
-    tv = np.array([p[1] for p in pairs])
-    first = float(tm[0] - tv[0])
+    tm, tv = np.array(pairs).T
     if len(pairs) == 1:
+        first = float(tm[0] - tv[0])
         return ClockMap(offset_s=first, ratio=1.0, n_claps=1, offset_at_first_clap_s=first)
-    cv = tv - tv.mean()
-    ratio = float(np.dot(cv, tm - tm.mean()) / np.dot(cv, cv))
-    offset = float(tm.mean() - ratio * tv.mean())
-    res = tm - (offset + ratio * tv)
-    return ClockMap(offset_s=offset, ratio=ratio, n_claps=len(pairs),
-                    offset_at_first_clap_s=float(offset + (ratio - 1.0) * tv[0]),
-                    residual_ms=float(np.max(np.abs(res)) * 1000.0))
+    return fit_clock(tv, tm, np.ones(tv.size), None)
+
+
+def _misfit_within(tv: np.ndarray, tm: np.ndarray, w: np.ndarray, max_drift: float) -> float:
+    """The smallest weighted misfit Σ w (tm − a − r·tv)² of a line whose ratio r lies within ``max_drift`` of 1
+    (chi-square; 0 with one pair). It is a convex quadratic in r once a is chosen for it, so the best r is the
+    free least-squares ratio clamped to the tolerance."""
+    if tv.size < 2:
+        return 0.0
+    mv, mm = np.sum(w * tv) / np.sum(w), np.sum(w * tm) / np.sum(w)
+    cv, cm = tv - mv, tm - mm
+    sxx = float(np.sum(w * cv * cv))
+    r = float(np.sum(w * cv * cm) / sxx) if sxx > 0 else 1.0
+    r = min(max(r, 1.0 - max_drift), 1.0 + max_drift)
+    return float(np.sum(w * (cm - r * cv) ** 2))
+
+
+def _misfit_allowed(n: int) -> float:
+    """The largest chi-square of ``n`` consistent pairs (n − 1 degrees of freedom at the tolerance's edge, at
+    least one) at :data:`DISAGREE_P`."""
+    from scipy import stats  # here: planning a run imports this module and must not load scipy
+
+    return float(stats.chi2.isf(DISAGREE_P, max(n - 1, 1)))
+
+
+def set_aside(tv: np.ndarray, tm: np.ndarray, sd_s: np.ndarray, max_drift: float,
+              surety: np.ndarray | None = None) -> list[int]:
+    """Indices of the pairs to set aside, worst first: while the pairs kept cannot all be fitted with a ratio
+    within ``max_drift`` of 1 without a misfit beyond :data:`DISAGREE_P` (:func:`_misfit_within`), the pair
+    whose removal lowers the misfit most goes (between pairs that lower it alike, the less well timed one, then
+    the one with the lower ``surety``, the detectors' confidence). At least one pair is kept."""
+    keep = list(range(tv.size))
+    w = 1.0 / np.square(sd_s)
+    out: list[int] = []
+    sure = np.zeros(tv.size) if surety is None else np.asarray(surety, dtype=np.float64)
+    while len(keep) >= 2:
+        idx = np.array(keep)
+        chi2 = _misfit_within(tv[idx], tm[idx], w[idx], max_drift)
+        if chi2 <= _misfit_allowed(len(keep)):
+            break
+        gain = np.array([chi2 - _misfit_within(np.delete(tv[idx], k), np.delete(tm[idx], k), np.delete(w[idx], k),
+                                               max_drift) for k in range(len(keep))])
+        best = gain.max()
+        tied = [k for k in range(len(keep)) if gain[k] >= best - 1e-9 * max(best, 1.0)]
+        k = max(tied, key=lambda k: (sd_s[keep[k]], -sure[keep[k]]))
+        out.append(keep.pop(k))
+    return out
+
+
+def bound_over(cov: Sequence[float], ref_s: float, prior_sd: float, t_video: np.ndarray, sd_s: np.ndarray,
+               span: tuple[float, float], sigmas: float = BOUND_SIGMAS) -> tuple[float, float, int | None]:
+    """How far a fitted map may be off over the video-clock ``span``, and why.
+
+    Parameters
+    ----------
+    cov, ref_s, prior_sd : the map's covariance, the video time it is centred on, its ratio's prior standard
+        deviation (:class:`ClockMap`).
+    t_video, sd_s : the video times and timing (one standard deviation, s) of the clap pairs it rests on.
+    span : (start, end) video seconds.
+
+    Returns
+    -------
+    bound_ms : ``sigmas`` standard deviations of the map's error at the worse end of ``span`` (its variance is
+        quadratic in t, so the ends bound it), ms.
+    at_s : that end, video seconds.
+    limiting : the pair (index into ``t_video``) whose timing adds most to the variance there, or None when the
+        ratio's prior does (the map rests on one clap and the nominal rate there). The shares add up to the
+        variance: each pair's is (gᵀ C aᵢ)² / σᵢ², the prior's (gᵀ C e)² / σ_r², with C the covariance,
+        g = (1, at − ref), aᵢ = (1, tᵢ − ref) and e = (0, 1).
+    """
+    ends = np.array(span, dtype=np.float64)
+    sd = map_sd_s(cov, ref_s, ends)
+    k = int(np.argmax(sd))
+    at = float(ends[k])
+    c = np.array([[cov[0], cov[1]], [cov[1], cov[2]]], dtype=np.float64)
+    g = c @ np.array([1.0, at - ref_s])
+    share = (g[0] + g[1] * (np.asarray(t_video, dtype=np.float64) - ref_s)) ** 2 / np.square(sd_s)
+    prior = (g[1] / prior_sd) ** 2 if prior_sd > 0 else 0.0
+    limiting = None if share.size == 0 or prior > share.max() else int(np.argmax(share))
+    return float(sigmas * sd[k] * 1000.0), at, limiting
 
 
 @dataclass
@@ -86,105 +229,73 @@ class ClockChoice:
     Attributes
     ----------
     clock : the map.
-    used : per clap pair, whether it set the map.
-    bound_ms : how far the map may be from the truth anywhere over the video, ms: each clap's timing
-        (:func:`clap_timing_ms`: :data:`CLAP_TIMING_MS`, or half a video frame for a clap timed by its closing
-        burst alone) carried along the fitted line, plus, on a single clap, what an unmeasured ratio of up to
-        ``max_drift`` does over the video's distance from that clap.
-    warnings : one line per clap left out and why (naming the video and the clap).
+    used : per clap, whether the map rests on it (False: no video clap, or set aside).
+    set_aside : the claps set aside (0-based), worst first.
+    pair_sd_s : per clap, its pair's timing (one standard deviation, s; NaN without a video clap).
+    bound_ms, bound_at_s, limiting : :func:`bound_over` the whole video (``limiting`` 0-based, among all the
+        claps; None for the nominal rate).
+    warnings : one line per clap set aside (naming the video and the clap).
     """
 
     clock: ClockMap
     used: list[bool]
+    set_aside: list[int]
+    pair_sd_s: list[float]
     bound_ms: float
+    bound_at_s: float
+    limiting: int | None
     warnings: list[str]
 
 
-def _floor2(x: float) -> str:
-    """A confidence to two decimals, rounded down (so a value just under a threshold never prints as it)."""
-    return f"{np.floor(x * 100.0) / 100.0:.2f}"
-
-
-def clap_timing_ms(clap: VideoClap) -> float:
-    """How far a video clap's instant may be off, ms: the claps' typical timing (:data:`CLAP_TIMING_MS`), or
-    more where the clap could not be refined by the arm's displacement (``VideoClap.timing_ms``)."""
-    return CLAP_TIMING_MS if clap.timing_ms is None else max(CLAP_TIMING_MS, float(clap.timing_ms))
-
-
-def _bound_ms(tv_used: np.ndarray, eps_ms: np.ndarray, video_span: tuple[float, float], max_drift: float) -> float:
-    """How far the map fitted to claps at video times ``tv_used``, each within ``eps_ms``, may be off over
-    ``video_span``: one clap, its timing plus what an unmeasured ratio of up to ``max_drift`` does at the
-    span's far end; more, the least-squares line's error Σ |h_i(t)| ε_i (h_i(t) = 1/n + (t − t̄)(t_i − t̄) /
-    Σ(t_j − t̄)², each clap's weight in the line at t) at the span's ends and at the claps (it is convex in t):
-    with two claps of equal timing ε, ε between them and ε·distance/half-span beyond."""
-    far = max(abs(video_span[0] - tv_used.mean()), abs(video_span[1] - tv_used.mean()))
-    if tv_used.size == 1:
-        return float(eps_ms[0]) + max_drift * far * 1000.0
-    c = tv_used - tv_used.mean()
-    at = np.concatenate([np.asarray(video_span, dtype=np.float64), tv_used])
-    h = 1.0 / tv_used.size + np.outer(at - tv_used.mean(), c) / float(c @ c)      # (points, claps)
-    return float((np.abs(h) @ eps_ms).max())
+def clap_name(j: int, mocap: Clap, video: VideoClap | None) -> str:
+    """How a warning names clap ``j`` (0-based): its number and instants on both clocks."""
+    at = f"video {video.time_s:.2f} s" if video is not None else "no video clap"
+    return f"clap {j + 1} (mocap {mocap.time_s:.2f} s, {at})"
 
 
 def choose_clock(mocap_claps: Sequence[Clap], video_claps: Sequence[VideoClap | None], *,
-                 video_span: tuple[float, float], trust: float = 0.5, mocap_trust: float = 0.15,
-                 max_drift: float = 0.0012, video: str = "the video") -> ClockChoice:
-    """The clock map from the clap pairs that can be trusted, falling back rather than failing (SPEC §3.4).
+                 video_span: tuple[float, float], max_drift: float = 0.0012,
+                 video: str = "the video") -> ClockChoice:
+    """The clock map from every clap pair found, weighted by its timing (SPEC §3.4).
 
-    A pair is trusted when its video clap has at least ``trust`` confidence and its mocap clap at least
-    ``mocap_trust`` (the mocap's confidence saturates late: sharp claps under 2 mm of marker noise at 120 Hz
-    score 0.2–0.5 and land within a third of a frame, while slow, soft claps and contacts hidden by a gap score
-    under 0.1; ``bench/bench_sync.py``, ``bench/bench_claps_truth.py``). Two or more trusted pairs set the
-    offset and the ratio when the ratio is within ``max_drift`` of 1 (the rates' nominal ratio; a 59.94 Hz
-    camera labelled 60 is 0.001 off); otherwise the map falls back to the surest single pair and the nominal
-    ratio. A weak clap never sets the ratio. With no trusted pair the surest pair found stands alone. Every
-    clap left out gets a warning line naming ``video`` and the clap.
+    Each pair's uncertainty is its mocap and its video clap's timing together (sqrt(σ_m² + σ_v²)). Pairs that
+    disagree with the others and any camera rate within ``max_drift`` of nominal beyond their uncertainty are
+    set aside (:func:`set_aside`), with a warning naming ``video`` and the clap; the rest set the map with the
+    nominal ratio as a prior of standard deviation ``max_drift`` / 2 (``max_drift`` its 95 % range). A clap is
+    never left out for a low detector score.
 
     Raises ValueError when no pair has both claps.
     """
     pairs = [j for j, v in enumerate(video_claps) if v is not None]
     if not pairs:
         raise ValueError("no clap pair to map the clocks")
-    sure = {j: min(mocap_claps[j].confidence, video_claps[j].confidence) for j in pairs}  # type: ignore[union-attr]
-    trusted = [j for j in pairs if video_claps[j].confidence >= trust  # type: ignore[union-attr]
-               and mocap_claps[j].confidence >= mocap_trust]
-
-    def name(j: int) -> str:
-        v = video_claps[j]
-        at = f"video {v.time_s:.2f} s" if v is not None else "no video clap"
-        return f"clap {j + 1} (mocap {mocap_claps[j].time_s:.2f} s, {at})"
-
-    warnings: list[str] = []
-    use = trusted
-    if len(trusted) >= 2:
-        fit = clock_map([mocap_claps[j] for j in trusted], [video_claps[j] for j in trusted])
-        if abs(fit.ratio - 1.0) > max_drift:
-            best = max(trusted, key=lambda j: sure[j])
-            warnings.append(f"{video}: claps {', '.join(str(j + 1) for j in trusted)} give a clock ratio of "
-                            f"{fit.ratio:.6f} ({fit.drift_ppm:+.0f} ppm), more than cameras drift "
-                            f"({max_drift * 1e6:.0f} ppm): the clock rests on {name(best)} and the nominal rate")
-            use = [best]
-    elif len(trusted) == 1:
-        use = trusted
-    else:
-        use = [max(pairs, key=lambda j: sure[j])]
-    rests_on = " and ".join(name(k) for k in use) + (" and the nominal rate" if len(use) == 1 else "")
-    for j in (k for k in pairs if k not in trusted):
-        found = f"mocap {_floor2(mocap_claps[j].confidence)}, video {_floor2(video_claps[j].confidence)}"  # type: ignore[union-attr]
-        what = "it stands alone, with the nominal rate" if j in use else f"not used; the clock rests on {rests_on}"
-        warnings.append(f"{video}: {name(j)} found with low confidence ({found}; a clap pair sets the ratio from "
-                        f"mocap {mocap_trust:g} and video {trust:g}): {what}")
-    clock = clock_map(mocap_claps, [v if j in use else None for j, v in enumerate(video_claps)])
-    tv = np.array([video_claps[j].time_s for j in use])  # type: ignore[union-attr]
-    eps = np.array([clap_timing_ms(video_claps[j]) for j in use])  # type: ignore[arg-type]
-    for j, e in zip(use, eps, strict=True):
-        if e > CLAP_TIMING_MS:
-            warnings.append(f"{video}: {name(j)} is timed by the closing burst alone (the arm's approach to shut "
-                            f"could not be followed frame by frame, e.g. a clapper partly hidden): its instant "
-                            f"may be {e:.1f} ms off, and the clock map with it")
-    return ClockChoice(clock=clock, used=[j in use for j in range(len(mocap_claps))],
-                       bound_ms=_bound_ms(tv, eps, video_span, max_drift if len(use) == 1 else 0.0),
-                       warnings=warnings)
+    vc = [video_claps[j] for j in pairs]
+    tv = np.array([v.time_s for v in vc if v is not None])
+    tm = np.array([mocap_claps[j].time_s for j in pairs])
+    sd = np.array([float(np.hypot(mocap_claps[j].timing_s, v.timing_s)) for j, v in zip(pairs, vc, strict=True)
+                   if v is not None])
+    surety = np.array([min(mocap_claps[j].confidence, v.confidence) for j, v in zip(pairs, vc, strict=True)
+                       if v is not None])
+    out = set_aside(tv, tm, sd, max_drift, surety)
+    keep = [k for k in range(len(pairs)) if k not in out]
+    clock = fit_clock(tv[keep], tm[keep], sd[keep], 0.5 * max_drift)
+    bound, at, lim = bound_over(clock.cov, clock.ref_s, clock.prior_sd, tv[keep], sd[keep], video_span)
+    rests = " and ".join(clap_name(pairs[k], mocap_claps[pairs[k]], video_claps[pairs[k]]) for k in keep)
+    warnings = []
+    alone = " and the nominal rate" if len(keep) == 1 else ""
+    for k in out:
+        j = pairs[k]
+        miss = (tm[k] - float(clock.to_mocap(tv[k]))) * 1000.0
+        warnings.append(f"{video}: {clap_name(j, mocap_claps[j], video_claps[j])} set aside: it is {miss:+.1f} ms "
+                        f"off the clock the other clap{'s give' if len(keep) > 1 else ' gives'} with a camera rate within "
+                        f"{max_drift * 1e6:.0f} ppm of nominal, beyond its timing (±{sd[k] * 1000.0:.1f} ms); the "
+                        f"clock rests on {rests}{alone}")
+    used = [False] * len(mocap_claps)
+    pair_sd = [float("nan")] * len(mocap_claps)
+    for k, j in enumerate(pairs):
+        used[j], pair_sd[j] = k in keep, float(sd[k])
+    return ClockChoice(clock=clock, used=used, set_aside=[pairs[k] for k in out], pair_sd_s=pair_sd, bound_ms=bound,
+                       bound_at_s=at, limiting=None if lim is None else pairs[keep[lim]], warnings=warnings)
 
 
 def resample_to_mocap(t_video: np.ndarray, values: np.ndarray, kind: str, mocap_times: np.ndarray,

@@ -10,11 +10,12 @@ once near the start and once near the end of a take. The mocap clock is the mast
   saw it (opening, hold, closing), refined to the end of the closing burst; from a few seconds of frames around
   each expected clap only (the video is never decoded whole). A hand coming into view or the clapper opening
   is a burst of another shape.
-- Clock map (:func:`choose_clock`): one clap pair gives the offset (ratio 1); two or more also give the ratio,
-  which holds a camera's rate error (labelled 60 fps running at 59.94: ratio 1.001) or crystal drift. Only
-  pairs found with confidence set the ratio, and only a ratio cameras can have; otherwise the map falls back
-  to the surest clap and the nominal ratio, warns naming the video and the clap, and says how far it may be
-  off (``clock_bound_ms``, the report's ``clock_map`` check).
+- Clock map (:func:`choose_clock`): every clap pair is a measurement with a timing uncertainty (its mocap and
+  video claps', from their detection); the map is fitted to all of them, weighted, with the nominal ratio as a
+  prior as wide as what cameras do (a camera labelled 60 fps running at 59.94 has ratio 1.001). A pair is set
+  aside, with a warning naming the video and the clap, only when it disagrees with the others and any camera
+  rate beyond its uncertainty, never for a low detector score. How far the map may be off anywhere follows
+  from the fit (``clock_bound_ms`` over the video; the report's ``clock_map`` check over the crop).
 - :func:`resample_to_mocap` puts video-clock signals on the mocap frames, never extrapolating.
 
 Everything here is pure: the video comes in as its probe's frame timestamps and a ``read_window(start, stop)``
@@ -34,9 +35,13 @@ import numpy as np
 from gazepipe.errors import StageError
 from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.sync.clap import Clap, clap_profile, clapper_distance, mocap_claps
-from gazepipe.stages.sync.clock import ClockMap, choose_clock, clap_timing_ms
+from gazepipe.stages.sync.clock import BOUND_SIGMAS, ClockMap, choose_clock
 from gazepipe.stages.sync.qc import ClapQC, SyncQC
 from gazepipe.stages.sync.video import ReadWindow, VideoClap, match_clap
+
+#: without a prior, a first clap found with less video confidence than this is weighed against the last clap
+#: searched for at the video's tail (the surer one anchors the search for the others)
+ANCHOR_CONFIDENCE = 0.5
 
 
 @dataclass(frozen=True)
@@ -46,10 +51,9 @@ class SyncParams:
     window_s : half-width (s) of each video window searched around a predicted clap.
     search_s : without a prior, the first clap is looked for in the first (or last) ``search_s`` of the video.
     max_drift : largest |ratio − 1| cameras show (a 59.94 Hz camera labelled 60 is 0.001, plus its crystal's
-        error); claps that give more do not set the ratio (the map falls back to one clap, with a warning).
+        error): the ratio's prior has standard deviation ``max_drift`` / 2, and claps that disagree beyond it
+        and their timing are set aside (:func:`gazepipe.stages.sync.clock.choose_clock`).
     min_confidence : video claps below this confidence count as not found.
-    trust, mocap_trust : a clap pair sets the clock ratio only when its video clap has at least ``trust``
-        confidence and its mocap clap ``mocap_trust`` (:func:`gazepipe.stages.sync.clock.choose_clock`).
     video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
@@ -59,8 +63,6 @@ class SyncParams:
     search_s: float = field(default=20.0, metadata={"gt": 0})
     max_drift: float = field(default=0.0012, metadata={"min": 0, "lt": 1})
     min_confidence: float = field(default=0.05, metadata={"min": 0, "max": 1})
-    trust: float = field(default=0.5, metadata={"min": 0, "max": 1})
-    mocap_trust: float = field(default=0.15, metadata={"min": 0, "max": 1})
     video_scale: float = field(default=0.5, metadata={"gt": 0, "max": 1})
 
 
@@ -90,7 +92,6 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
               rate_hz: float, probe_timestamps: np.ndarray, read_window: ReadWindow, *,
               offset_guess_s: float | None = None, ratio_guess: float = 1.0, window_s: float = 1.5,
               search_s: float = 20.0, max_drift: float = 0.0012, min_confidence: float = 0.05,
-              trust: float = 0.5, mocap_trust: float = 0.15,
               roi: tuple[int, int, int, int] | None = None, mocap_path: str | None = None,
               video_path: str | None = None, take: str | None = None,
               mocap_kw: dict | None = None, video_kw: dict | None = None) -> SyncResult:
@@ -107,17 +108,16 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
         the last ``search_s``), and the other claps are predicted from that pair.
     window_s : half-width of each video search window; windows predicted from a clap pair widen by
         ``max_drift`` times the distance to that pair.
-    max_drift : largest |ratio − 1| cameras show; claps giving more fall back (:func:`choose_clock`).
-    min_confidence : video claps below this confidence count as not found.
-    trust, mocap_trust : the confidence a pair's video and mocap claps need to set the clock ratio
+    max_drift : largest |ratio − 1| cameras show: the ratio's prior, and how far claps may disagree
         (:func:`choose_clock`).
+    min_confidence : video claps below this confidence count as not found.
     mocap_path, video_path, take : named in error messages.
     mocap_kw, video_kw : further parameters of :func:`mocap_claps` and :func:`match_clap`.
 
     Raises
     ------
-    StageError : no clap in the mocap, or no clap found in the video. Weak claps and implausible ratios
-        fall back to the claps that can be trusted and the nominal ratio, with warnings (never an error).
+    StageError : no clap in the mocap, or no clap found in the video. Claps that disagree are set aside with a
+        warning (never an error).
     """
     mocap_kw = dict(mocap_kw or {})
     video_kw = dict(video_kw or {}, roi=roi)
@@ -163,7 +163,7 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
             return find(j, float(ts[-1]) - half, float(ts[-1]))
 
         anchor, first = 0, search(0)
-        if len(mc) > 1 and (first is None or first.confidence < trust):
+        if len(mc) > 1 and (first is None or first.confidence < ANCHOR_CONFIDENCE):
             last = search(len(mc) - 1)
             if last is not None and (first is None or last.confidence > first.confidence):
                 anchor, first = len(mc) - 1, last
@@ -179,8 +179,8 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
             f"in the first or last {search_s:g} s"
         raise StageError(video_path, f"no clap found in the video {where} ({counted[0]} frames decoded)",
                          take=take)
-    choice = choose_clock(mc, vc, video_span=(float(ts[0]), float(ts[-1])), trust=trust,
-                          mocap_trust=mocap_trust, max_drift=max_drift, video=video_path or "the video")
+    span_v = (float(ts[0]), float(ts[-1]))
+    choice = choose_clock(mc, vc, video_span=span_v, max_drift=max_drift, video=video_path or "the video")
     clock = choice.clock
     frame_t = np.arange(T, dtype=np.float64) / float(rate_hz)
     span = clock.to_mocap(ts[[0, -1]])
@@ -194,17 +194,23 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
         drift_ms_over_take=clock.drift_ms(duration_v),
         n_claps=clock.n_claps,
         residual_ms=clock.residual_ms,
-        claps=tuple(ClapQC(mocap_s=m.time_s, mocap_confidence=m.confidence,
+        claps=tuple(ClapQC(mocap_s=m.time_s, mocap_confidence=m.confidence, mocap_timing_ms=m.timing_s * 1000.0,
                            video_s=None if v is None else v.time_s,
                            video_confidence=None if v is None else v.confidence,
                            video_match=None if v is None else v.match,
-                           video_timing_ms=None if v is None else clap_timing_ms(v),
-                           mocap_gap_frames=m.gap_frames, used=u)
-                    for m, v, u in zip(mc, vc, choice.used, strict=True)),
+                           video_timing_ms=None if v is None else v.timing_s * 1000.0,
+                           video_timed_by=None if v is None else v.timed_by,
+                           mocap_gap_frames=m.gap_frames, used=u, set_aside=j in choice.set_aside)
+                    for j, (m, v, u) in enumerate(zip(mc, vc, choice.used, strict=True))),
         frames_without_video=uncovered,
         frames_decoded=counted[0],
         video_frames=int(ts.size),
+        video_span_s=span_v,
         clock_bound_ms=choice.bound_ms,
+        clock_ref_s=clock.ref_s,
+        clock_cov=clock.cov,
+        clock_prior_ppm=clock.prior_sd * 1e6,
+        clock_bound_sigmas=BOUND_SIGMAS,
         claps_used=tuple(j + 1 for j, u in enumerate(choice.used) if u),
         warnings=tuple([f"{video_path or 'the video'}: mocap clap {j + 1} at {m.time_s:.3f} s has no video "
                         f"counterpart" for j, (m, v) in enumerate(zip(mc, vc, strict=True)) if v is None]

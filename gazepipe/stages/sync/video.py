@@ -37,11 +37,11 @@ class VideoClap:
     match : how well the motion energy around it follows the mocap clapper's speed (normalised correlation,
         −1..1; :func:`match_clap`), or None when it was found without the mocap's help.
     match_time_s : the contact as the match alone places it (video clock), or None.
-    timing_ms : how far ``time_s`` may be off, ms, when it is known less well than a clap refined by the arm's
-        displacement (:func:`_refine_by_displacement`): half a video frame where it is the closing burst's end
-        alone (which comes out late by up to half a frame when the arm moves more than its width between
-        frames) or the match alone; None for a refined clap (the claps' typical timing,
-        :data:`gazepipe.stages.sync.clock.CLAP_TIMING_MS`).
+    timed_by : what set ``time_s``: ``"displacement"`` (the arm's displacement from its shut position followed
+        into contact, :func:`_refine_by_displacement`), ``"match"`` (the motion energy matched to the mocap
+        clapper's speed, :func:`match_clap`) or ``"burst"`` (the closing burst's end alone).
+    timing_s : how well ``time_s`` is known, s (one standard deviation, :func:`video_timing_s`).
+    burst_time_s : the closing burst's end (video clock), s, whatever timed ``time_s``.
     """
 
     time_s: float
@@ -52,7 +52,35 @@ class VideoClap:
     window: tuple[int, int]
     match: float | None = None
     match_time_s: float | None = None
-    timing_ms: float | None = None
+    timed_by: str = "displacement"
+    timing_s: float = 0.0
+    burst_time_s: float | None = None
+
+
+#: how well a video clap is timed, in video frames (one standard deviation), by what timed it: the arm's
+#: displacement followed into contact (a quadratic through its last moving frames: the exposure's blur and the
+#: displacement's own shape leave about a tenth of a frame); the motion energy matched to the mocap clapper's
+#: speed (the peak of a correlation sampled every quarter frame, of an energy that saturates when the arm moves
+#: more than its width between frames: about a quarter frame); the closing burst's end alone (anywhere within a
+#: frame either side of it: 1/√3). ``bench/bench_claps_truth.py`` checks that they cover the errors.
+TIMING_FRAMES = {"displacement": 0.1, "match": 0.25, "burst": 1.0 / np.sqrt(3.0)}
+#: a frame exposed across the contact shows the arm still moving, so the fit through it comes out late, by up to
+#: an eighth of a frame for an exposure of a whole frame: when the contact lies within half a frame after the last
+#: frame that moves (where any exposure up to a frame may take it in), the contact is moved this much earlier (half
+#: that range; the displacement's timing, :data:`TIMING_FRAMES`, covers the rest)
+STRADDLE_FRAMES = 0.0625
+
+
+#: the arm's displacement times a clap when it lies within a frame of the closing burst's end (which comes out late,
+#: by up to half a frame and more under noise) or agrees with the motion match within this many standard
+#: deviations of their timings together
+AGREE_SIGMAS = 2.0
+
+
+def video_timing_s(timed_by: str, frame_s: float) -> float:
+    """How well a video clap timed by ``timed_by`` is known (one standard deviation, s), with frames ``frame_s``
+    apart (:data:`TIMING_FRAMES`)."""
+    return TIMING_FRAMES[timed_by] * frame_s
 
 
 def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[int, int, int, int] | None = None,
@@ -165,14 +193,17 @@ _NEARLY_SHUT = 0.1
 
 def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: float,
                             roi: tuple[int, int, int, int] | None, n_before: int = 6,
-                            n_shut: int = 10) -> float | None:
-    """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, or None.
+                            n_shut: int = 10) -> tuple[float, float] | None:
+    """The instant the arm's displacement from its shut position reaches zero, near ``t_edge``, and how well it
+    is known (one standard deviation, frames: :data:`TIMING_FRAMES`; when the last frame that moves may have been
+    exposed across the contact, moved :data:`STRADDLE_FRAMES` earlier), or None.
 
     Decodes the ``n_before`` frames before the edge and ``n_shut`` still frames after it (their median is the
     shut image), follows the displacement down from its largest value to the last frame where it still falls
     (a rebound after contact rises again), fits that frame and the two before it (a quadratic) and solves it
     for zero between that frame and the next; the fractional frame becomes a time by interpolating the
-    two frames' timestamps.
+    two frames' timestamps. Pixels that move in the still frames (something moving beside the clapper) are left
+    out.
     """
     k_e = int(np.searchsorted(ts, t_edge, side="right")) - 1  # the frame at or before the edge
     a, b = k_e - n_before, k_e + 3 + n_shut
@@ -190,7 +221,12 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     still = fr[-n_shut:].astype(np.float32)
     shut = np.median(still, axis=0)
     sigma = _robust_sigma((still - shut[None]).ravel())
-    s = _displacement(fr[: n_before + 3], shut, max(3.0, 4.0 * sigma))
+    # only pixels that stay still once the clapper is shut can show how far its arm is from shut (a hand moving
+    # beside the clapper does not stay still)
+    moves = np.abs(still - shut[None]).max(axis=0) > 6.0 * max(sigma, 0.5)
+    approach = fr[: n_before + 3].astype(np.float32)
+    approach[:, moves] = shut[moves]
+    s = _displacement(approach, shut, max(3.0, 4.0 * sigma))
     moving = np.flatnonzero(s > 0.02 * s.max())
     if moving.size == 0:
         return None
@@ -207,7 +243,7 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     # the arms close accelerating: a fit that decelerates into a last frame already (nearly) shut says that frame
     # is past the contact (a stick bouncing open after it), so the three frames before it are fitted instead and
     # the contact sought up to two frames on, when they do accelerate
-    span = 1.0
+    span, last_moving = 1.0, k
     if (s[k] < _NEARLY_SHUT * s.max() and k >= 3 and s[k - 3] > s[k - 2]
             and s[k] - 2.0 * s[k - 1] + s[k - 2] > 0 >= s[k - 1] - 2.0 * s[k - 2] + s[k - 3]):
         k, span = k - 1, 2.0
@@ -218,7 +254,9 @@ def _refine_by_displacement(ts: np.ndarray, read_window: ReadWindow, t_edge: flo
     root = float(r.min()) if r.size else float(y[2] / (y[1] - y[2]))
     root = min(max(root, 0.0), span)
     j = a + k
-    return float(np.interp(j + root, np.arange(ts.size, dtype=float), ts))
+    # within half a frame after the last frame that moves, the contact may fall inside that frame's exposure
+    straddle = STRADDLE_FRAMES if k + root - last_moving < 0.5 else 0.0
+    return float(np.interp(j + root - straddle, np.arange(ts.size, dtype=float), ts)), TIMING_FRAMES["displacement"]
 
 
 class _Kept:
@@ -258,8 +296,10 @@ class _Kept:
 
 def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, post_s: float, exclude_s: float,
              roi: tuple[int, int, int, int] | None, chunk: int, z_lo: float, z_hi: float,
-             min_distinct: float, refine: bool) -> VideoClap | None:
-    """The strongest closing burst among the frames with timestamps in [t0, t1 + post_s]."""
+             min_distinct: float, refine: bool, anchor: float | None = None) -> VideoClap | None:
+    """The strongest closing burst among the frames with timestamps in [t0, t1 + post_s]; refined by the arm's
+    displacement when that lies within a frame of the burst's end or, given an ``anchor`` (the contact as the
+    motion match places it), within :data:`AGREE_SIGMAS` of their timings of it."""
     i0 = int(np.searchsorted(ts, t0, side="left"))
     i1 = int(np.searchsorted(ts, t1 + post_s, side="right"))
     i0, i1 = max(i0 - 1, 0), min(i1, ts.size)
@@ -280,12 +320,15 @@ def _clap_in(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, *, p
         return None
     t, conf, peak, still = r
     refined = _refine_by_displacement(ts, read_window, t, roi) if refine else None
-    timing_ms: float | None = 500.0 * dt              # the burst's end alone: up to half a frame late
-    if refined is not None and abs(refined - t) <= dt:
-        t, timing_ms = refined, None
+    t_burst, timed_by, timing = t, "burst", video_timing_s("burst", dt)
+    if refined is not None:
+        t_ref, sd_ref = refined[0], refined[1] * dt
+        if abs(t_ref - t) <= dt or (anchor is not None and abs(t_ref - anchor) <= AGREE_SIGMAS * float(np.hypot(
+                sd_ref, video_timing_s("match", dt)))):
+            t, timed_by, timing = t_ref, "displacement", sd_ref
     frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
     return VideoClap(time_s=t, frame=frame, confidence=conf, peak=peak, still=still, window=(i0, i0 + n),
-                     timing_ms=timing_ms)
+                     timed_by=timed_by, timing_s=timing, burst_time_s=t_burst)
 
 
 def video_claps(probe_timestamps: np.ndarray, read_window: ReadWindow, approx_times: Sequence[float] | None,
@@ -380,13 +423,14 @@ def match_clap(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, pr
     stillness); the contact is where the energy, read at each candidate contact plus ``profile_s``, correlates
     best with it (normalised correlation, candidates every quarter frame). A burst of another shape (a hand
     coming into view, the clapper opening, a head movement) correlates poorly however strong it is. The
-    instant is then refined by the end of the closing burst (:func:`_clap_in` over the frames from a frame
-    before the matched contact's closing to a frame after it) when that lies within a frame of the match.
+    instant is then refined by the arm's displacement followed into contact (:func:`_clap_in` over the frames
+    from a frame before the matched contact's closing to a frame after it) when that agrees with the match
+    (:data:`AGREE_SIGMAS`) or lies within a frame of the closing burst's end; otherwise the match's instant stands
+    (``timed_by``, ``timing_s``: the closing burst's end alone is known less well than the match).
 
     Confidence: the match mapped linearly from ``min_match`` (0) to ``good_match`` (1), times how far the
     closing's energy stands out of the window's noise (as in :func:`video_claps`, ``z_lo`` → 0, ``z_hi`` → 1),
-    times the burst end's own confidence, or halved when the burst's end lies more than a frame from the match (the match's
-    instant is kept). ``exclude_s``, ``z_lo``, ``z_hi``, ``min_distinct``, ``refine``: the burst's end and
+    times the burst end's own confidence, or halved when the burst's end lies more than a frame from the match. ``exclude_s``, ``z_lo``, ``z_hi``, ``min_distinct``, ``refine``: the burst's end and
     confidence, as in :func:`video_claps`. Returns None when nothing matches at least ``min_match``.
     """
     tau = np.asarray(profile_s, dtype=np.float64)
@@ -414,7 +458,7 @@ def match_clap(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, pr
             t += 0.25 * dt * float(np.clip(0.5 * (y0 - y2) / den, -1.0, 1.0))
     closing = tau[np.argmax(np.asarray(profile_speed)[tau <= 0.0])] if np.any(tau <= 0.0) else -dt
     edge = _clap_in(ts, kept, t + min(closing, -dt) - dt, t + dt, post_s=post_s, exclude_s=exclude_s, roi=roi,
-                    chunk=chunk, z_lo=z_lo, z_hi=z_hi, min_distinct=min_distinct, refine=refine)
+                    chunk=chunk, z_lo=z_lo, z_hi=z_hi, min_distinct=min_distinct, refine=refine, anchor=t)
     conf = float(np.clip((score - min_match) / (good_match - min_match), 0.0, 1.0))
     # the closing must stand out of the frames' noise, whatever the match
     still = float(np.median(e))
@@ -422,12 +466,16 @@ def match_clap(ts: np.ndarray, read_window: ReadWindow, t0: float, t1: float, pr
     near = (tm >= t + min(closing, -dt) - dt) & (tm <= t + dt)
     burst = float(e[near].max()) if near.any() else still
     conf *= _score((burst - still) / max(noise, 1e-9 * max(burst, 1.0)), z_lo, z_hi)
-    t_match = t
-    timing_ms: float | None = 500.0 * dt
-    if edge is not None and abs(edge.time_s - t) <= dt:
-        t, conf, timing_ms = edge.time_s, conf * edge.confidence, edge.timing_ms
+    t_match, timed_by, t_burst = t, "match", None
+    timing = video_timing_s("match", dt)
+    if edge is not None:
+        t_burst = edge.burst_time_s
+        if edge.timed_by == "displacement":    # it agrees with the match or the burst's end
+            t, timing, timed_by = edge.time_s, edge.timing_s, edge.timed_by
+    if edge is not None and t_burst is not None and abs(t_burst - t_match) <= dt:
+        conf *= edge.confidence
     else:
-        conf *= 0.5                            # the burst's end disagrees with the match: the match alone
+        conf *= 0.5                            # the burst's end disagrees with the match
     frame = float(np.interp(t, ts, np.arange(ts.size, dtype=float)))
-    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=burst, still=still,
-                     window=(i0, i0 + n), match=score, match_time_s=t_match, timing_ms=timing_ms)
+    return VideoClap(time_s=t, frame=frame, confidence=conf, peak=burst, still=still, window=(i0, i0 + n),
+                     match=score, match_time_s=t_match, timed_by=timed_by, timing_s=timing, burst_time_s=t_burst)
