@@ -20,6 +20,13 @@
 - peak memory: resident set of the whole process tree (the run and its workers), sampled every 50 ms;
 - with ``--profile``: the serial run under cProfile, top functions by own time.
 
+With ``--against REV`` (e.g. ``ff48992``) it instead times serial runs of that commit's package (checked out under
+``bench/_work/rev-<sha>``) and of this tree, interleaved in fresh processes (``--repeats`` each, the minimum
+kept), and prints the CPU seconds of the whole run (its process tree), of each stage (the unit records'
+``cpu_s``; a commit that did not record it gives its ``duration_s``, which a serial run on an idle machine spends
+on CPU), of the dataset builds and of the tail after the last take unit (the QC report), with the encode floor,
+and whether the two versions wrote the same bytes (every table under takes/ and datasets/).
+
 Work folders go under ``--work`` (default ``bench/_work/scale``), one per executor, recreated each time.
 """
 
@@ -91,9 +98,9 @@ class TreeMemory:
 
 
 def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = None, fresh: bool = True,
-            profile: Path | None = None, params: list[str] | None = None) -> dict:
-    """``python -m gazepipe run`` in a fresh process (``params``: its ``--param`` values); wall time, exit code,
-    peak memory of the process tree."""
+            profile: Path | None = None, params: list[str] | None = None, tree: Path = REPO) -> dict:
+    """``python -m gazepipe run`` of the package in ``tree`` in a fresh process (``params``: its ``--param``
+    values); wall time, exit code, peak memory of the process tree."""
     if fresh and out.exists():
         shutil.rmtree(out)
     cmd = [sys.executable]
@@ -105,7 +112,7 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
         cmd += ["-j", str(jobs)]
     for kv in params or []:
         cmd += ["--param", kv]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), *filter(None, [os.environ.get("PYTHONPATH")])]))
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
@@ -156,14 +163,16 @@ def after_takes(run: dict, out: Path) -> dict[str, float] | None:
     return {"tail_s": max(run["end"] - last, 0.0), "cpu_s": cpu_end, "cpu_after_s": cpu_end - cpu_at}
 
 
-def stage_times(out: Path) -> dict[str, float]:
-    """Seconds per stage summed over takes (unit records), and per dataset build."""
+def stage_times(out: Path, key: str = "duration_s") -> dict[str, float]:
+    """Seconds per stage summed over takes (unit records), and per dataset build: ``key`` ``duration_s`` (wall)
+    or ``cpu_s`` (CPU; a record without it gives its ``duration_s``)."""
     per: dict[str, float] = defaultdict(float)
     for p in (out / ".gazepipe" / "units").glob("*/*/*.json"):
         rec = json.loads(p.read_text())
-        per[rec["stage"]] += float(rec.get("duration_s", 0.0))
+        per[rec["stage"]] += float(rec.get(key, rec.get("duration_s", 0.0)))
     for p in (out / ".gazepipe" / "datasets").glob("*.json"):
-        per[f"build:{p.stem}"] += float(json.loads(p.read_text()).get("duration_s", 0.0))
+        rec = json.loads(p.read_text())
+        per[f"build:{p.stem}"] += float(rec.get(key, rec.get("duration_s", 0.0)))
     return dict(per)
 
 
@@ -269,6 +278,57 @@ def top_profile(path: Path, n: int = 15) -> list[str]:
 
 # ----------------------------------------------------------------------------------------------- main
 
+def _tables(out: Path) -> dict[str, bytes]:
+    """Every Parquet table a run wrote under takes/ and datasets/, by path relative to ``out``."""
+    return {str(p.relative_to(out)): p.read_bytes() for sub in ("takes", "datasets")
+            for p in sorted((out / sub).rglob("*.parquet"))}
+
+
+def _cpu_total(run: dict) -> float:
+    """The CPU seconds the run's process tree used (its last sample)."""
+    return run["cpu"][-1][1] if run["cpu"] else float("nan")
+
+
+def against(a: argparse.Namespace, sessions: list[Path], work: Path) -> int:
+    """Serial runs of ``a.against`` and of this tree interleaved in fresh processes; CPU per stage, old vs new."""
+    import compileall
+
+    from bench.bench_fill_speed import checkout
+
+    trees = {"old": checkout(a.against), "new": REPO}
+    for tree in trees.values():
+        compileall.compile_dir(str(tree / "gazepipe"), quiet=1)
+    best: dict[str, dict] = {}
+    for k in range(a.repeats):
+        for side, tree in trees.items():
+            run = run_cli(sessions, work / f"against_{side}", "serial", params=a.param, tree=tree)
+            run["cpu_s"] = _cpu_total(run)
+            run["stages"] = stage_times(work / f"against_{side}", "cpu_s")
+            run["tail"] = after_takes(run, work / f"against_{side}") or {}
+            run["tables"] = _tables(work / f"against_{side}")
+            print(f"  repeat {k + 1} {side}: {run['cpu_s']:.1f} CPU s ({run['wall_s']:.1f} s wall, exit {run['rc']}); "
+                  f"load average {os.getloadavg()[0]:.1f}", flush=True)
+            if side not in best or run["cpu_s"] < best[side]["cpu_s"]:
+                best[side] = {key: v for key, v in run.items() if key != "cpu"}
+    old, new = best["old"], best["new"]
+    floor = io_floor(sessions, work / "against_new")
+    print(f"\nold = {a.against}, new = this tree; serial runs, CPU seconds, minimum of {a.repeats} interleaved")
+    print(f"{'':<26}{'old':>9}{'new':>9}{'new/old':>9}")
+    rows = [("whole run (process tree)", old["cpu_s"], new["cpu_s"])]
+    rows += [(f"  {name}", old["stages"].get(name, 0.0), new["stages"].get(name, 0.0))
+             for name in sorted(set(old["stages"]) | set(new["stages"]),
+                                key=lambda n: -max(old["stages"].get(n, 0.0), new["stages"].get(n, 0.0)))]
+    rows.append(("after the last take unit", old["tail"].get("cpu_after_s", float("nan")),
+                 new["tail"].get("cpu_after_s", float("nan"))))
+    for label, o, n in rows:
+        print(f"{label:<26}{o:9.2f}{n:9.2f}{n / o if o else float('nan'):9.2f}")
+    print(f"encode floor (wall): {floor['total_s']:.2f} s; new run {new['cpu_s'] / floor['total_s']:.1f}x it")
+    same = old["tables"] == new["tables"]
+    differ = sorted(p for p in set(old["tables"]) | set(new["tables"]) if old["tables"].get(p) != new["tables"].get(p))
+    print(f"same bytes: {same} ({len(new['tables'])} tables" + (f"; {len(differ)} differ, e.g. {differ[:3]})" if differ else ")"))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("corpus", help="A folder of session folders (bench/make_corpus.py output).")
@@ -283,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--param", action="append", default=[], metavar="STAGE.NAME=VALUE",
                    help="Passed to every run as gazepipe's --param (repeatable), e.g. to see what a cheaper gap "
                         "filler buys: --param 'clean.fill_methods=[\"linear\"]'.")
+    p.add_argument("--against", metavar="REV",
+                   help="Time serial runs of this commit and of this tree interleaved (CPU per stage, old vs new).")
+    p.add_argument("--repeats", type=int, default=3, help="With --against: runs of each version (minimum kept).")
     a = p.parse_args(argv)
 
     corpus = Path(a.corpus)
@@ -296,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}"
           + "".join(f"; --param {kv}" for kv in a.param), flush=True)
 
+    if a.against:
+        return against(a, sessions, work)
     # the package's bytecode, as a pip install compiles it: with PYTHONDONTWRITEBYTECODE set (as on some CI and
     # container images) an editable checkout would otherwise recompile every module in every run (~0.15 s,
     # a fifth of the no-op re-run)

@@ -194,7 +194,7 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
     with it) the build stops before publishing anything or writing its record.
     """
     registry.ensure(plan.dag)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     ds = next(d for d in registry.datasets() if d.name == plan.name)
     outcome = UnitOutcome("-", "-", f"build:{plan.name}", "ok", reason=plan.reason)
     record: dict[str, Any] = {"dataset": plan.name, "fingerprint": plan.fingerprint, "components": plan.components,
@@ -255,6 +255,9 @@ def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],
         record.update(status="failed", error=outcome.error)
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)
+    # the CPU seconds of the process while it ran (the unit's own under the serial and process executors,
+    # which run one at a time per process)
+    record["cpu_s"] = round(time.process_time() - cpu0, 4)
     path = _record_path(layout, plan.name)
     try:
         layout.write_json(path, record)

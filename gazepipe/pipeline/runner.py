@@ -365,7 +365,7 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
               session: SessionLike, files: list[str], layout: OutLayout,
               written: dict[Path, pa.Table] | None = None) -> UnitOutcome:
     """Run one unit (``run``: the stage's work on its context), write its tables atomically and its record."""
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     store = registry.table_store()
     table_path, record_path, who = _unit_paths(layout, plan)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
@@ -428,6 +428,9 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
                 table_path(name).unlink()
     outcome.duration_s = time.perf_counter() - t0
     record["duration_s"] = round(outcome.duration_s, 4)
+    # the CPU seconds of the process while it ran (the unit's own under the serial and process executors,
+    # which run one at a time per process)
+    record["cpu_s"] = round(time.process_time() - cpu0, 4)
     try:
         layout.write_json(record_path, record)
     except OSError as exc:   # the unit's outputs stand unrecorded: the next run does it again
