@@ -280,3 +280,20 @@ def test_qc_report_after_a_kill_between_the_build_and_the_report(session, refere
     shutil.rmtree(fresh / "qc")
     validate_output(fresh)
     assert (out / "qc" / "report.json").read_bytes() == (fresh / "qc" / "report.json").read_bytes()
+
+
+def test_a_units_tables_are_written_together_or_not_at_all(tmp_path: Path) -> None:
+    """``atomic_paths``: every file in place after the block; an exception inside it leaves the old files as they
+    were and no temporary behind."""
+    from gazepipe.pipeline.atomic import atomic_paths
+
+    finals = [tmp_path / "take" / "a.parquet", tmp_path / "take" / "b.parquet"]
+    with atomic_paths(finals, tmp_path / "tmp") as temporaries:
+        for tmp, text in zip(temporaries, ("A1", "B1"), strict=True):
+            tmp.write_text(text)
+    assert [p.read_text() for p in finals] == ["A1", "B1"]
+    with pytest.raises(RuntimeError), atomic_paths(finals, tmp_path / "tmp") as temporaries:
+        temporaries[0].write_text("A2")
+        raise RuntimeError("the second table could not be built")
+    assert [p.read_text() for p in finals] == ["A1", "B1"]
+    assert list((tmp_path / "tmp").iterdir()) == []

@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from gazepipe.durable import fsync_dir, temporary_name
@@ -39,6 +39,36 @@ def atomic_path(final: str | Path, tmp_dir: str | Path, suffix: str = "") -> Ite
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+@contextlib.contextmanager
+def atomic_paths(finals: Sequence[str | Path], tmp_dir: str | Path) -> Iterator[list[Path]]:
+    """:func:`atomic_path` for several files written together (a unit's tables): yield one temporary path per
+    final path; on success each is fsynced, all are renamed into place, then each folder they went to is fsynced
+    once (not once per file). On any exception every temporary is removed and no final path is touched.
+
+    Each file is replaced atomically, the set is not: a run killed between two renames leaves some new files
+    beside old ones, which the unit's record (written after them) does not vouch for, so the unit runs again.
+    """
+    tmp_dir = Path(tmp_dir)
+    tmp_dir.mkdir(parents=True, exist_ok=True)
+    pairs = [(Path(final), temporary_name(Path(final), tmp_dir, "")) for final in finals]
+    try:
+        yield [tmp for _, tmp in pairs]
+        for _, tmp in pairs:
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+        folders: dict[Path, None] = {}
+        for final, tmp in pairs:
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
+            folders[final.parent] = None
+        for folder in folders:
+            fsync_dir(folder)
+    finally:
+        for _, tmp in pairs:
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
 
 
 def atomic_write_bytes(final: str | Path, data: bytes, tmp_dir: str | Path) -> None:

@@ -25,7 +25,7 @@ from gazepipe import __version__
 from gazepipe.blas import one_blas_thread
 from gazepipe.errors import GazepipeError, InputError, SchemaError, printable
 from gazepipe.pipeline import registry
-from gazepipe.pipeline.atomic import atomic_path
+from gazepipe.pipeline.atomic import atomic_paths
 from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
 from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import (
@@ -382,13 +382,19 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
         if missing:
             raise RuntimeError(f"stage {stage} produced no {missing}")
         sizes = {}
-        for name, (table, schema) in sorted(result.tables.items()):
-            final = writing = table_path(name)
-            with atomic_path(final, layout.tmp) as tmp:
+        names = sorted(result.tables)
+        finals = [table_path(name) for name in names]
+        # every table written first, then fsynced and renamed together, their folder fsynced once
+        with atomic_paths(finals, layout.tmp) as temporaries:
+            for name, final, tmp in zip(names, finals, temporaries, strict=True):
+                writing = final
+                table, schema = result.tables[name]
                 store.write(table, tmp, schema)
+        writing = None
+        for name, final in zip(names, finals, strict=True):
             sizes[final.name] = final.stat().st_size
             if written is not None:
-                written[final] = table
+                written[final] = result.tables[name][0]
         record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings,
                       read={os.path.relpath(p, session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)
