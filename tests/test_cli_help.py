@@ -49,3 +49,16 @@ def test_a_file_system_refusal_is_one_line_naming_the_file_not_an_internal_error
     res = CliRunner().invoke(cmd, [])
     assert res.exit_code == 1
     assert res.output.strip() == "error: /some/out: File exists"
+
+
+def test_fill_and_run_fill_the_same_gaps_by_default():
+    """``gazepipe fill`` and ``fill_capture`` default to the clean stage's ``max_gap_s``, not a length of their own."""
+    import inspect
+
+    from gazepipe.cli.main import fill
+    from gazepipe.stages.clean.stage import CleanParams
+    from gazepipe.stages.clean.standalone import fill_capture
+
+    option = next(p for p in fill.params if p.name == "max_gap_s")
+    assert option.default == CleanParams().max_gap_s
+    assert inspect.signature(fill_capture).parameters["max_gap_s"].default == CleanParams().max_gap_s

@@ -675,7 +675,7 @@ def test_fill_text_export_changes_only_the_filled_cells(fmt, mm_per_unit, decima
     orig, back = read_markers(inp), read_markers(out)
     assert back.valid.all() and back.labels == orig.labels
     np.testing.assert_array_equal(back.xyz[valid], orig.xyz[valid])
-    filled, _, _ = fill_capture(orig, max_gap_s=1.0, spikes=False)
+    filled, _, _ = fill_capture(orig, spikes=False)     # the command's defaults
     step = mm_per_unit * 10.0 ** -decimals     # one unit in the last written decimal, mm
     np.testing.assert_allclose(back.xyz[~valid], filled.xyz[~valid], rtol=0, atol=0.5 * step + 1e-9)
     err = np.linalg.norm(back.xyz[~valid] - truth[~valid], axis=-1)

@@ -225,8 +225,9 @@ _stage_command("build", "build", "Run every take stage (ingest, clean, frames, s
 @cli.command(epilog=FILE_EPILOG)
 @click.argument("src", metavar="IN", type=click.Path())
 @click.argument("dest", metavar="OUT", type=click.Path(dir_okay=False))
-@click.option("--max-gap-s", type=click.FloatRange(min=0), default=1.0, show_default=True,
-              help="Longest gap to fill, in seconds; longer gaps stay gaps (0: fill nothing).")
+@click.option("--max-gap-s", type=click.FloatRange(min=0), default=3.0, show_default=True,
+              help="Longest gap to fill, in seconds, as `gazepipe run`'s clean.max_gap_s (the same default); longer "
+                   "gaps stay gaps (0: fill nothing).")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Rate for CSV files that do not carry one.")
 @click.option("--remove-spikes", is_flag=True, help="Turn spikes (ghosts of a frame or two off a marker's path or "

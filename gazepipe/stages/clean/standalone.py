@@ -22,11 +22,11 @@ from gazepipe.stages.clean.gapfill import (
     unlabeled_markers,
 )
 from gazepipe.stages.clean.spikes import find_spikes
-from gazepipe.stages.clean.stage import OWN_REFERENCES_MIN_S, unfilled_counts
+from gazepipe.stages.clean.stage import OWN_REFERENCES_MIN_S, CleanParams, unfilled_counts
 from gazepipe.stages.clean.swaps import repair_swaps
 
 
-def fill_capture(markers: Markers, *, max_gap_s: float = 1.0, methods: tuple[str, ...] = METHODS,
+def fill_capture(markers: Markers, *, max_gap_s: float = CleanParams.max_gap_s, methods: tuple[str, ...] = METHODS,
                  spikes: bool = False, swaps: bool = False, unlabeled: bool = False
                  ) -> tuple[Markers, dict[str, Any], np.ndarray]:
     """Fill the gaps of ``markers``; return the filled markers, a summary of what was filled, by method, and
