@@ -214,3 +214,18 @@ def test_an_interrupted_run_logs_how_far_it_got_and_keeps_finished_takes(tiny_se
     code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
     ran = {e["take"] for e in events(err) if e["event"] == "unit" and e.get("status") == "ok"}
     assert code == 0 and ran == {"t0", "t1", "t2"} - {calls[0]}
+
+
+def test_a_file_rewritten_in_the_same_process_is_identified_afresh(tmp_path):
+    """No cache keyed by path alone: a capture rewritten while the process runs (a broken capture mended between
+    two runs of one process) has a new identity, so whether it is usable is looked at again."""
+    from gazepipe.dag.takes import _file_id, _usable_capture
+
+    path = tmp_path / "t.c3d"
+    path.write_bytes(b"not a capture")
+    first = _file_id(str(path))
+    assert not _usable_capture(str(path), first)
+    path.write_bytes(b"still not a capture, but longer")
+    second = _file_id(str(path))
+    assert second[0] == len(b"still not a capture, but longer")
+    assert second != first

@@ -179,9 +179,9 @@ register(Stage(
 
 # ---------------------------------------------------------------------------------------- session stages
 
-@functools.lru_cache(maxsize=8)
 def _file_id(path: str) -> tuple[int, int, int]:
-    """Size, mtime and inode of a file: a changed file is looked at again by :func:`_usable_capture`."""
+    """Size, mtime (ns) and inode of a file, stat'ed on every call (never cached: a file rewritten in the same
+    process gets a new id), so a changed file is looked at again by :func:`_usable_capture`."""
     st = os.stat(path)
     return st.st_size, st.st_mtime_ns, st.st_ino
 
