@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -229,3 +230,91 @@ def test_a_file_rewritten_in_the_same_process_is_identified_afresh(tmp_path):
     second = _file_id(str(path))
     assert second[0] == len(b"still not a capture, but longer")
     assert second != first
+
+
+# ------------------------------------------------------------------------------- outputs that cannot go stale
+
+def _neutral_and_face_session(dest: Path) -> Path:
+    """The sample session's neutral take and its first face take, in a folder of their own."""
+    from tests.helpers import SAMPLE
+
+    files = ["markerset.toml", "mocap/neutral.c3d", "face/face_01_tracked.csv", "face/face_01_clean.csv"]
+    for rel in files:
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(SAMPLE / rel, dest / rel)
+    (dest / "session.toml").write_text(
+        'schema = 1\n[session]\nid = "s"\nsubject = "p01"\nmarkerset = "markerset.toml"\n\n'
+        '[[takes]]\nid = "neutral"\nkind = "neutral"\npose = "standing"\nmocap = "mocap/neutral.c3d"\n\n'
+        '[[takes]]\nid = "face_01"\nkind = "face"\ntracked = "face/face_01_tracked.csv"\n'
+        'clean = "face/face_01_clean.csv"\nrate_hz = 60\ntimecode_fps = 60\n')
+    return dest
+
+
+def _records(out: Path) -> dict[str, tuple[int, int]]:
+    """Every unit and dataset record of ``out`` by its path under the run state, with its inode and mtime: a
+    unit that runs writes its record anew (atomically: a new file)."""
+    state = out / ".gazepipe"
+    return {str(p.relative_to(state)): (p.stat().st_ino, p.stat().st_mtime_ns)
+            for part in ("units", "session_units", "datasets") for p in sorted((state / part).rglob("*.json"))}
+
+
+def _run_with(package_root: Path, session: Path, out: Path) -> set[str]:
+    """``gazepipe run`` in a fresh process importing gazepipe from ``package_root`` (its working folder: ``-m``
+    puts that first on the path): the records it wrote."""
+    before = _records(out) if out.exists() else {}
+    env = {**os.environ, "PYTHONPATH": str(package_root)}
+    res = subprocess.run([sys.executable, "-m", "gazepipe", "run", str(session), "--out", str(out),
+                          "--executor", "serial"], env=env, cwd=package_root, capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return {k for k, v in _records(out).items() if before.get(k) != v}
+
+
+@pytest.mark.slow
+def test_an_edit_of_a_stages_code_reruns_it_and_its_readers_and_nothing_else(tmp_path):
+    """A stage's units are up to date only with the code they ran: an edit of a function the face stage runs
+    re-runs the face unit, the face_clean rows it feeds and the dataset, and nothing of the neutral take; an edit
+    of its comments and docstrings re-runs nothing."""
+    import gazepipe
+
+    copy = tmp_path / "code"
+    shutil.copytree(Path(gazepipe.__file__).parent, copy / "gazepipe",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    session, out = _neutral_and_face_session(tmp_path / "session"), tmp_path / "out"
+    first = _run_with(copy, session, out)
+    assert "units/s/face_01/face.json" in first and "units/s/neutral/clean.json" in first
+
+    stage = copy / "gazepipe" / "stages" / "face" / "stage.py"
+    source = stage.read_text()
+    head = 'def align_face('
+    assert head in source
+    commented = source.replace(head, "# a comment that changes nothing\n" + head, 1).replace(
+        '"""Tracked and clean blendshapes', '"""Tracked and clean (docstring edited) blendshapes', 1)
+    assert commented != source
+    stage.write_text(commented)
+    assert _run_with(copy, session, out) == set()
+
+    # a line of align_face written otherwise (computing the same): its code changed
+    assert commented.count("rows_out=int(m),") == 1
+    edited = commented.replace("rows_out=int(m),", "rows_out=int(m) + 0,")
+    stage.write_text(edited)
+    assert _run_with(copy, session, out) == {"units/s/face_01/face.json", "units/s/face_01/rows_face_clean.json",
+                                             "datasets/face_clean.json"}
+
+
+def test_the_samples_outputs_never_change_under_an_unchanged_identity(sample_run):
+    """Against a record of an earlier run of the sample (``tests/data/sample_identities.json``, written by
+    ``python -m tests.helpers.identities``): a unit whose fingerprint and code identity are what they were then
+    wrote the same bytes. A change of outputs that neither saw (code the digest does not reach, a library it does
+    not name) would leave every output folder made before it up to date with stale tables.
+
+    Units whose identity changed since (an edit of their code, another library) are not judged: the record is
+    refreshed after a deliberate change of the sample's outputs."""
+    from tests.helpers.identities import RECORD, unit_identities
+
+    recorded = json.loads(RECORD.read_text())
+    now = unit_identities(sample_run)
+    assert set(now) == set(recorded), "the sample's units changed: refresh the record"
+    judged = [k for k in sorted(now) if now[k]["identity"] == recorded[k]["identity"]]
+    stale = [k for k in judged if now[k]["outputs"] != recorded[k]["outputs"]]
+    assert not stale, f"outputs changed under an unchanged fingerprint and code identity ({len(judged)} judged)"

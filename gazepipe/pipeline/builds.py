@@ -22,6 +22,7 @@ from typing import Any
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError
 from gazepipe.pipeline import registry
+from gazepipe.pipeline.codehash import code_of
 from gazepipe.pipeline.hashing import sha256_json
 from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import SessionLike, TakeLike
@@ -116,6 +117,7 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
     """
     planned_to_run = {(p.session, p.take, p.stage) for p in take_plans if p.run}
     fp = {(p.session, p.take, p.stage): p.fingerprint for p in take_plans}
+    code = {(p.session, p.take, p.stage): p.code for p in take_plans}
     plans = []
     for ds in registry.datasets():
         name = ds.name
@@ -142,7 +144,7 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
                         why = f"its {stage} stage never ran"
                     elif rec.get("status") != "ok":
                         why = f"its {stage} stage failed: {rec.get('error', '?')}"
-                    elif rec.get("fingerprint") != fp[key]:
+                    elif rec.get("fingerprint") != fp[key] or rec.get("code") != code[key]:
                         why = f"its {stage} stage is not up to date with its inputs"
                     if why:
                         break
@@ -154,9 +156,12 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
         rec = read_json(_record_path(layout, name))
         if not takes and not isinstance(rec, dict) and not (layout.root / "datasets" / name).exists():
             continue   # nothing to build and nothing built before
-        comp = {"dataset": name, "version": ds.version,
+        own = code_of(ds.run)
+        comp = {"dataset": name, "version": ds.version, "code": own.digest, "libraries": dict(own.libraries),
                 "params": registry.group_values(ds.params, params) if ds.params else {},
-                "takes": sorted([s.id, t.id, u] for s, t, u in takes)}
+                "takes": sorted([s.id, t.id, u] for s, t, u in takes),
+                # the code that made the takes' tables (the units' fingerprints cover their inputs only)
+                "takes_code": sorted([s.id, t.id, {st: code[(s.id, t.id, st)] for st in u}] for s, t, u in takes)}
         fingerprint = sha256_json(comp)
         reason = error = ""
         if not takes:
@@ -176,8 +181,11 @@ def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans
                 reason = "failed last time"
         elif rec.get("fingerprint") != fingerprint:
             old = rec.get("components", {})
-            reason = ("parameters changed" if old.get("params") != comp["params"] else
-                      "its takes changed" if old.get("takes") != comp["takes"] else "fingerprint changed")
+            reason = ("code changed" if old.get("code") != comp["code"] else
+                      "libraries changed" if old.get("libraries") != comp["libraries"] else
+                      "parameters changed" if old.get("params") != comp["params"] else
+                      "its takes changed" if old.get("takes") != comp["takes"] else
+                      "its takes' code changed" if old.get("takes_code") != comp["takes_code"] else "fingerprint changed")
         elif not all((layout.root / "datasets" / name / f).is_file() for f in rec.get("outputs", {})):
             reason = "an output file is missing"
         plans.append(DatasetPlan(name, fingerprint, comp, takes, bool(reason),

@@ -147,7 +147,9 @@ class Stage:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the stage's output for the same inputs changes.
+    name, version : bump ``version`` only for a change of its outputs that its code identity cannot see (a data
+        file it reads beside its code, a library it reaches only through another): the code its ``run`` reaches
+        is in every unit's code identity (:mod:`gazepipe.pipeline.codehash`).
     requires : upstream stages (same take) whose outputs it loads.
     params : the parameters it uses with their defaults; part of its fingerprint.
     outputs : table names it writes under ``takes/<session>/<take>/``.
@@ -182,7 +184,7 @@ class SessionStage:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the stage's output for the same inputs changes.
+    name, version : as :attr:`Stage.version`: only for what its code identity cannot see.
     requires : upstream session stages whose tables it loads.
     uses : parameter groups (take stages or :class:`ParamGroup`) whose values it uses; part of its
         fingerprint (a session stage repeats a take stage's work, with that stage's parameters).
@@ -210,7 +212,7 @@ class Dataset:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the dataset for the same inputs changes.
+    name, version : as :attr:`Stage.version`: only for what its code identity cannot see.
     needs : stages whose tables it reads from each contributing take. A take contributes when each of them has
         an up-to-date ``ok`` unit, except an ``optional`` one that does not apply to the take.
     applies : which takes may feed it.
