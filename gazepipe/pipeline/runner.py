@@ -240,20 +240,33 @@ def _why(stage: str, comp: dict[str, Any], ids: tuple[str, str], record_path: Pa
             return ""   # an input problem: the same inputs fail the same way
         return "failed last time"
     if same:
-        for rel, digest in (rec.get("read") or {}).items():
-            try:
-                if hash_of(rel) != digest:
-                    return f"input changed: {rel}"
-            except GazepipeError:
-                return f"input {rel} unreadable"
-        sizes = rec.get("outputs", {})
-        for p in outputs:
-            try:
-                if p.stat().st_size != sizes.get(p.name):
-                    return f"output {p.name} changed on disk"
-            except FileNotFoundError:
-                return f"output {p.name} missing"
-        return ""
+        return _what_moved(rec, outputs, hash_of)
+    return _what_changed(stage, comp, rec, ids, running)
+
+
+def _what_moved(rec: dict[str, Any], outputs: list[Path], hash_of: Callable[[str], str]) -> str:
+    """For a unit whose record matches its identity: an input it found it needed that changed since, or an
+    output that changed on disk or is gone ('' when none)."""
+    for rel, digest in (rec.get("read") or {}).items():
+        try:
+            if hash_of(rel) != digest:
+                return f"input changed: {rel}"
+        except GazepipeError:
+            return f"input {rel} unreadable"
+    sizes = rec.get("outputs", {})
+    for p in outputs:
+        try:
+            if p.stat().st_size != sizes.get(p.name):
+                return f"output {p.name} changed on disk"
+        except FileNotFoundError:
+            return f"output {p.name} missing"
+    return ""
+
+
+def _what_changed(stage: str, comp: dict[str, Any], rec: dict[str, Any], ids: tuple[str, str],
+                  running: set[str]) -> str:
+    """Which component of a unit's identity differs from its record's, the first of: version, code,
+    libraries, parameters, inputs, take settings, upstream units."""
     old = rec.get("components", {})
     if old.get("version") != comp["version"]:
         return f"stage version {old.get('version')} -> {comp['version']}"
