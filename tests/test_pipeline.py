@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -318,3 +319,57 @@ def test_the_samples_outputs_never_change_under_an_unchanged_identity(sample_run
     judged = [k for k in sorted(now) if now[k]["identity"] == recorded[k]["identity"]]
     stale = [k for k in judged if now[k]["outputs"] != recorded[k]["outputs"]]
     assert not stale, f"outputs changed under an unchanged fingerprint and code identity ({len(judged)} judged)"
+
+
+# ------------------------------------------------------------------------------------ stages as declarations
+
+def test_the_engine_derives_each_stages_upstream_from_the_tables_it_declares():
+    """A stage declares the tables it reads; the engine derives the stages it follows from their writers, and
+    refuses a table nobody writes before it, or stages named instead of tables."""
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.pipeline import registry
+
+    derived = {st.name: (st.requires, st.session_requires) for st in registry.stages()}
+    assert derived["clean"] == (("ingest",), ("subject_geometry",))
+    assert derived["frames"] == (("clean",), ("neutral_poses",))
+    assert derived["sync"] == (("ingest",), ())
+    assert derived["eyes"] == (("frames", "sync"), ())
+    assert derived["rows_gaze_map"] == (("frames", "clean"), ())
+    assert registry.get_session_stage("neutral_poses").requires == ("subject_geometry",)
+    with pytest.raises(ValueError, match="no stage registered before it writes"):
+        registry.register(dataclasses.replace(registry.get("eyes"), name="late", inputs=("nowhere",),
+                                              outputs=("late",), requires=(), session_requires=()))
+    with pytest.raises(ValueError, match="declare the tables it reads"):
+        registry.register(dataclasses.replace(registry.get("eyes"), name="late", outputs=("late",)))
+
+
+def test_a_stage_that_loads_a_table_it_does_not_declare_fails_loudly(tiny_session, tmp_path, monkeypatch):
+    """frames declares the cleaned markers and the neutral rest, not the raw markers: asking for them fails its
+    unit, naming the table, before anything is read."""
+    import io
+
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.io.session_toml import load_session
+    from gazepipe.pipeline import registry
+    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.pipeline.events import EventLog
+
+    frames = registry.get("frames")
+    read: list[str] = []
+
+    def sneaky(ctx):
+        read.append("asked")
+        ctx.load("markers_raw")
+        read.append("read")
+        return frames.run(ctx)
+
+    monkeypatch.setitem(registry._STAGES, "frames", dataclasses.replace(frames, run=sneaky))
+    out = tmp_path / "out"
+    run_pipeline([load_session(tiny_session / "session.toml")], out, executor="serial", until="frames",
+                 log=EventLog(fmt="json", stream=io.StringIO()))
+    rec = json.loads((out / ".gazepipe" / "units" / "tiny" / "t1" / "frames.json").read_text())
+    assert rec["status"] == "failed"
+    assert "'markers_raw', which it does not declare among its inputs (markers, neutral)" in rec["error"]
+    assert read and set(read) == {"asked"}   # every take asked; none was given the table
+    clean = json.loads((out / ".gazepipe" / "units" / "tiny" / "t1" / "clean.json").read_text())
+    assert clean["status"] == "ok"

@@ -357,7 +357,8 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
             continue
         ctx: UnitContext[Any, Any] = UnitContext(
             job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written), job.params,
-            session_loader=_session_loader(layout))
+            session_loader=_session_loader(layout), inputs=frozenset(st.inputs),
+            session_inputs=frozenset(st.session_inputs))
         out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, _files_of(job),
                         layout, written)
         if out.status == "failed":
@@ -392,7 +393,8 @@ def run_session_job(job: SessionJob) -> list[UnitOutcome]:
                                         reason=plan.reason, error=plan.error))
         else:
             ctx: SessionContext[Any] = SessionContext(job.session, {}, layout.root,
-                                                      _session_loader(layout, written), job.params)
+                                                      _session_loader(layout, written), job.params,
+                                                      inputs=frozenset(st.inputs))
             out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, [],
                             layout, written)
             if out.status == "failed":
