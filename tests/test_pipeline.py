@@ -373,3 +373,26 @@ def test_a_stage_that_loads_a_table_it_does_not_declare_fails_loudly(tiny_sessio
     assert read and set(read) == {"asked"}   # every take asked; none was given the table
     clean = json.loads((out / ".gazepipe" / "units" / "tiny" / "t1" / "clean.json").read_text())
     assert clean["status"] == "ok"
+
+
+@pytest.mark.slow
+def test_a_stages_code_identity_depends_on_neither_the_folder_nor_the_hash_seed(tmp_path):
+    """The same code gives the same digests from another folder, under another hash seed, imported in another
+    order (the DAG's modules before the engine's)."""
+    import gazepipe
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.pipeline import registry
+    from gazepipe.pipeline.codehash import code_of
+
+    here = {st.name: code_of(st.run).digest for st in registry.stages()}
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(Path(gazepipe.__file__).parent, copy / "gazepipe", ignore=shutil.ignore_patterns("__pycache__"))
+    script = ("import json, gazepipe.dag.takes, gazepipe.dag\n"
+              "from gazepipe.pipeline import registry\nfrom gazepipe.pipeline.codehash import code_of\n"
+              "print(json.dumps({st.name: code_of(st.run).digest for st in registry.stages()}))")
+    env = {**os.environ, "PYTHONPATH": str(copy), "PYTHONHASHSEED": "12345"}
+    res = subprocess.run([sys.executable, "-c", script], env=env, cwd=copy, capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout) == here
+    assert len(set(here.values())) >= 5   # the stages' code differs

@@ -332,6 +332,24 @@ def _distributions() -> Mapping[str, list[str]]:
     return importlib.metadata.packages_distributions()
 
 
+def _providers(top: str) -> dict[str, str]:
+    """The distributions providing the top-level module ``top``, with their versions: the one of that name
+    when there is one (most are), else those naming it in their metadata (a slower look through every
+    installed distribution's files, done once)."""
+    try:
+        dist = importlib.metadata.distribution(top)
+        return {dist.metadata["Name"]: dist.version}
+    except importlib.metadata.PackageNotFoundError:
+        pass
+    out: dict[str, str] = {}
+    for name in _distributions().get(top, ()):
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return out
+
+
 @functools.cache
 def _installed() -> tuple[str, ...]:
     """The distribution metadata folders on ``sys.path`` (``numpy-2.1.0.dist-info``…): their names carry the
@@ -356,11 +374,7 @@ def _libraries(tops: set[str]) -> dict[str, str]:
         return {str(k): str(v) for k, v in hit.items()}
     out: dict[str, str] = {}
     for top in sorted(tops):
-        for dist in _distributions().get(top, ()):
-            try:
-                out[dist] = importlib.metadata.version(dist)
-            except importlib.metadata.PackageNotFoundError:
-                continue
+        out.update(_providers(top))
     out["python"] = f"{sys.version_info.major}.{sys.version_info.minor}"
     _MEMO[key] = out = dict(sorted(out.items()))
     return out
