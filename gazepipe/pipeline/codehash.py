@@ -22,9 +22,11 @@ package lies in, nor the hash seed, nor the order of imports. Digests are comput
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import hashlib
 import importlib.metadata
+import json
 import os
 import sys
 import types
@@ -62,10 +64,53 @@ def code_of(fn: Callable[..., Any], memo: MutableMapping[str, Any] | None = None
     if key not in _CODES:
         if memo is not None:
             _MEMO.update((k, v) for k, v in memo.items() if k not in _MEMO)
+        shared = _shared_memo(key[0].partition(".")[0])
+        _MEMO.update((k, v) for k, v in shared.items() if k not in _MEMO)
+        known = len(_MEMO)
         _CODES[key] = _code_of(*key)
+        if len(_MEMO) != known:
+            _keep_shared_memo(key[0].partition(".")[0])
     if memo is not None:
         memo.update((k, v) for k, v in _MEMO.items() if k not in memo)
     return _CODES[key]
+
+
+def _shared_memo_path(top: str) -> Path | None:
+    """Where the memo beside the package's own bytecode cache lies (``<package>/__pycache__/``; None when
+    Python writes no bytecode, ``sys.dont_write_bytecode``)."""
+    if sys.dont_write_bytecode or sys.pycache_prefix or not hasattr(sys.modules.get(top), "__path__"):
+        return None
+    root = Path(sys.modules[top].__file__ or "").parent
+    return root / "__pycache__" / f"codehash.{sys.implementation.cache_tag}.json"
+
+
+@functools.cache
+def _shared_memo(top: str) -> dict[str, Any]:
+    """The memo kept beside the package's bytecode (read once per process; its entries are keyed by the hashes
+    of the sources they come from, so an entry is never stale): a process planning a run in a new output
+    folder does not parse the modules again."""
+    path = _shared_memo_path(top)
+    try:
+        got = json.loads(path.read_text()) if path is not None and path.is_file() else {}
+    except (OSError, ValueError):
+        return {}
+    return got if isinstance(got, dict) else {}
+
+
+def _keep_shared_memo(top: str) -> None:
+    """Write the memo beside the package's bytecode, whole and at once (another process reads either the old
+    file or the new one); where that folder cannot be written, nothing is kept, as Python keeps no bytecode."""
+    path = _shared_memo_path(top)
+    if path is None:
+        return
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(exist_ok=True)
+        tmp.write_text(json.dumps(_MEMO, sort_keys=True))
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
 
 
 #: the code of each ``run`` function seen in this process, by (module, top-level name)
