@@ -595,7 +595,7 @@ def _sync_take(session: Session, take: Take) -> bool:
 def _short_video_note(ts: np.ndarray, take_s: float) -> list[str]:
     """A note when a video (frame times ``ts``, s) lasts less than half its take (``take_s``): it cannot
     cover the take's eye data (the eyes stage names the video when that makes it fail)."""
-    from gazepipe.stages.eyes.stage import SHORT_VIDEO_SHARE
+    from gazepipe.stages.eyes.params import SHORT_VIDEO_SHARE
 
     video_s = float(ts[-1] - ts[0]) if ts.size >= 2 else 0.0
     if video_s < SHORT_VIDEO_SHARE * take_s:
