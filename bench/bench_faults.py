@@ -454,7 +454,7 @@ RATES = (0.0, 1e-30, 1e30, math.nan, math.inf, -math.inf, -100.0, 0.5, 20000.0, 
 SCALES = (0.0, math.nan, math.inf, 1e30, -1e30, 1e-30, -1e-30)
 
 
-def _c3d_ops(proc: str) -> list[tuple[str, bool, Callable[[bytearray, np.random.Generator], None]]]:
+def _c3d_ops(proc: str) -> list[tuple[str, bool, Callable[[bytearray, np.random.Generator], None]]]:  # noqa: C901
     """(mutation name, flag, edit) for a C3D file of processor ``proc`` (float edits only where the bench can
     write the file's float format)."""
     e = ">" if proc == "mips" else "<"
@@ -1292,7 +1292,7 @@ def _short_video(frames: int, cut_eyes: bool) -> Mutate:
     return apply
 
 
-def named_cases(seed: int, quota: dict[str, int], bases: dict[str, Path] | None = None) -> list[Case]:
+def named_cases(seed: int, quota: dict[str, int], bases: dict[str, Path] | None = None) -> list[Case]:  # noqa: C901
     """The named classes' cases (``quota``: cases per class), seeded: the same seed gives the same cases."""
     b = bases or {}
 
@@ -1752,7 +1752,7 @@ def _inspect_warnings(stdout: str) -> list[str]:
     return out
 
 
-def classify(case: Case, res: dict, target: Path, folder: Path, baseline: set[str] | None) -> Outcome:
+def classify(case: Case, res: dict, target: Path, folder: Path, baseline: set[str] | None) -> Outcome:  # noqa: C901
     """Turn a finished command into an :class:`Outcome` (see the module docstring for the problems)."""
     problems: list[tuple[str, str]] = []
     out, err, rc = res["stdout"], res["stderr"], res["exit"]
@@ -1918,7 +1918,7 @@ def _run_cmd(session: Path, out: Path, executor: str = "process") -> list[str]:
     return cmd + (["-j", "2"] if executor != "serial" else [])
 
 
-def kill_family(seed: int, work: Path, bases: dict[str, Path], trials: int = KILL_TRIALS) -> list[Outcome]:
+def kill_family(seed: int, work: Path, bases: dict[str, Path], trials: int = KILL_TRIALS) -> list[Outcome]:  # noqa: C901
     """SIGKILL ``trials`` process-executor runs at seeded random moments (half the leader only, half its
     group), check for orphans 2 s later, rerun, compare with the reference run's bytes."""
     rng = rng_for(seed, "kills")

@@ -126,7 +126,7 @@ def gaze_map_rows(out: Path) -> dict[str, dict]:
     return rows
 
 
-def main() -> None:
+def main() -> None:  # noqa: C901
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of each gaze_follow take")

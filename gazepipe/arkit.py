@@ -116,3 +116,25 @@ def mirror_permutation(names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, 
         perm[j] = where[p]
     negate = np.array([c.endswith(("Yaw", "Roll")) for c in canon], dtype=bool)
     return perm, negate
+
+
+def mirror_face(values: np.ndarray, names: list[str] | tuple[str, ...]) -> np.ndarray:
+    """Mirror face channels (SPEC §2): swap ``…Left``/``…Right`` and left/right eyes, negate yaw and roll.
+
+    Parameters
+    ----------
+    values : (..., D) array whose last axis follows ``names`` (blendshapes, head and eye angles, or their
+        derivatives).
+    names : the D channel names (any spelling :func:`normalise_name` accepts).
+
+    Returns
+    -------
+    A new array of the same shape and dtype. Mirroring twice gives back ``values`` exactly.
+    """
+    values = np.asarray(values)
+    if values.shape[-1] != len(names):
+        raise ValueError(f"{len(names)} names for {values.shape[-1]} columns")
+    perm, negate = mirror_permutation(names)
+    out = values[..., perm]
+    out[..., negate] = np.negative(out[..., negate])
+    return out

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import re
 from pathlib import Path
 
 import pytest
@@ -170,3 +171,19 @@ def test_each_part_imports_only_what_the_readme_says_it_may():
         if wrong:
             bad[module] = wrong
     assert bad == {}
+
+
+def test_the_complexity_exceptions_can_only_shrink():
+    """``ruff check .`` fails on a function above complexity 15 (C901, pyproject.toml) unless it is marked in
+    place with ``# noqa: C901``; the marked ones are at most 20, and the rule is on."""
+    import tomllib
+
+    root = PACKAGE.parent
+    config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["ruff"]["lint"]
+    assert "C901" in config["select"] and config["mccabe"]["max-complexity"] == 15
+    mark = re.compile(r"\bdef \w+\(.*#\s*noqa:\s*C901\s*$")
+    marked = [f"{path.relative_to(root)}:{i}" for folder in ("gazepipe", "tests", "bench")
+              for path in sorted((root / folder).rglob("*.py"))
+              for i, line in enumerate(path.read_text().splitlines(), 1) if mark.search(line)]
+    assert len(marked) <= 20, marked
+    assert marked   # found: the scan reads the sources

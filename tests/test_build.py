@@ -625,8 +625,7 @@ def face_take(tid: str, n: int, seed: int, k: int = 1) -> TakeTables:
 
 
 def test_face_clean():
-    from gazepipe.arkit import ARKIT_NAMES
-    from gazepipe.stages.face.stage import mirror_face
+    from gazepipe.arkit import ARKIT_NAMES, mirror_face
 
     takes = [face_take("face_01", 300, 1), face_take("face_02", 250, 2)]
     built = build_dataset("face_clean", takes)

@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, mirror_face
 from gazepipe.errors import StageError
 from gazepipe.io.livelinkface import read_livelinkface
-from gazepipe.stages.face.stage import align_face, forward_derivatives, mirror_face
+from gazepipe.stages.face.stage import align_face, forward_derivatives
 
 RATE, TC_FPS = 30, 60
 BASE = (10 * 3600 + 20 * 60 + 30) * TC_FPS  # 10:20:30:00 in timecode frames

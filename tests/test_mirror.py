@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from scipy.spatial.transform import Rotation
 
-from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES
+from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, mirror_face
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet, Segment
 from gazepipe.stages.build.mirror import (
@@ -23,7 +23,6 @@ from gazepipe.stages.build.mirror import (
     mirror_yaw_pitch,
     mirror_yaw_pitch_roll,
 )
-from gazepipe.stages.face.stage import mirror_face
 from gazepipe.stages.frames.stage import FramesParams, Joints, character_frame, compute_frames
 from gazepipe.stages.geometry import from_wxyz, matrix_from_six, six_from_rotation
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -214,3 +216,183 @@ def test_an_interrupted_run_logs_how_far_it_got_and_keeps_finished_takes(tiny_se
     code, _, err = run_cli("ingest", str(tiny_session), "--out", str(out), "--executor", "serial")
     ran = {e["take"] for e in events(err) if e["event"] == "unit" and e.get("status") == "ok"}
     assert code == 0 and ran == {"t0", "t1", "t2"} - {calls[0]}
+
+
+def test_a_file_rewritten_in_the_same_process_is_identified_afresh(tmp_path):
+    """No cache keyed by path alone: a capture rewritten while the process runs (a broken capture mended between
+    two runs of one process) has a new identity, so whether it is usable is looked at again."""
+    from gazepipe.dag.takes import _file_id, _usable_capture
+
+    path = tmp_path / "t.c3d"
+    path.write_bytes(b"not a capture")
+    first = _file_id(str(path))
+    assert not _usable_capture(str(path), first)
+    path.write_bytes(b"still not a capture, but longer")
+    second = _file_id(str(path))
+    assert second[0] == len(b"still not a capture, but longer")
+    assert second != first
+
+
+# ------------------------------------------------------------------------------- outputs that cannot go stale
+
+def _neutral_and_face_session(dest: Path) -> Path:
+    """The sample session's neutral take and its first face take, in a folder of their own."""
+    from tests.helpers import SAMPLE
+
+    files = ["markerset.toml", "mocap/neutral.c3d", "face/face_01_tracked.csv", "face/face_01_clean.csv"]
+    for rel in files:
+        (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(SAMPLE / rel, dest / rel)
+    (dest / "session.toml").write_text(
+        'schema = 1\n[session]\nid = "s"\nsubject = "p01"\nmarkerset = "markerset.toml"\n\n'
+        '[[takes]]\nid = "neutral"\nkind = "neutral"\npose = "standing"\nmocap = "mocap/neutral.c3d"\n\n'
+        '[[takes]]\nid = "face_01"\nkind = "face"\ntracked = "face/face_01_tracked.csv"\n'
+        'clean = "face/face_01_clean.csv"\nrate_hz = 60\ntimecode_fps = 60\n')
+    return dest
+
+
+def _records(out: Path) -> dict[str, tuple[int, int]]:
+    """Every unit and dataset record of ``out`` by its path under the run state, with its inode and mtime: a
+    unit that runs writes its record anew (atomically: a new file)."""
+    state = out / ".gazepipe"
+    return {str(p.relative_to(state)): (p.stat().st_ino, p.stat().st_mtime_ns)
+            for part in ("units", "session_units", "datasets") for p in sorted((state / part).rglob("*.json"))}
+
+
+def _run_with(package_root: Path, session: Path, out: Path) -> set[str]:
+    """``gazepipe run`` in a fresh process importing gazepipe from ``package_root`` (its working folder: ``-m``
+    puts that first on the path): the records it wrote."""
+    before = _records(out) if out.exists() else {}
+    env = {**os.environ, "PYTHONPATH": str(package_root)}
+    res = subprocess.run([sys.executable, "-m", "gazepipe", "run", str(session), "--out", str(out),
+                          "--executor", "serial"], env=env, cwd=package_root, capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return {k for k, v in _records(out).items() if before.get(k) != v}
+
+
+@pytest.mark.slow
+def test_an_edit_of_a_stages_code_reruns_it_and_its_readers_and_nothing_else(tmp_path):
+    """A stage's units are up to date only with the code they ran: an edit of a function the face stage runs
+    re-runs the face unit, the face_clean rows it feeds and the dataset, and nothing of the neutral take; an edit
+    of its comments and docstrings re-runs nothing."""
+    import gazepipe
+
+    copy = tmp_path / "code"
+    shutil.copytree(Path(gazepipe.__file__).parent, copy / "gazepipe",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    session, out = _neutral_and_face_session(tmp_path / "session"), tmp_path / "out"
+    first = _run_with(copy, session, out)
+    assert "units/s/face_01/face.json" in first and "units/s/neutral/clean.json" in first
+
+    stage = copy / "gazepipe" / "stages" / "face" / "stage.py"
+    source = stage.read_text()
+    head = 'def align_face('
+    assert head in source
+    commented = source.replace(head, "# a comment that changes nothing\n" + head, 1).replace(
+        '"""Tracked and clean blendshapes', '"""Tracked and clean (docstring edited) blendshapes', 1)
+    assert commented != source
+    stage.write_text(commented)
+    assert _run_with(copy, session, out) == set()
+
+    # a line of align_face written otherwise (computing the same): its code changed
+    assert commented.count("rows_out=int(m),") == 1
+    edited = commented.replace("rows_out=int(m),", "rows_out=int(m) + 0,")
+    stage.write_text(edited)
+    assert _run_with(copy, session, out) == {"units/s/face_01/face.json", "units/s/face_01/rows_face_clean.json",
+                                             "datasets/face_clean.json"}
+
+
+def test_the_samples_outputs_never_change_under_an_unchanged_identity(sample_run):
+    """Against a record of an earlier run of the sample (``tests/data/sample_identities.json``, written by
+    ``python -m tests.helpers.identities``): a unit whose fingerprint and code identity are what they were then
+    wrote the same bytes. A change of outputs that neither saw (code the digest does not reach, a library it does
+    not name) would leave every output folder made before it up to date with stale tables.
+
+    Units whose identity changed since (an edit of their code, another library) are not judged: the record is
+    refreshed after a deliberate change of the sample's outputs."""
+    from tests.helpers.identities import RECORD, unit_identities
+
+    recorded = json.loads(RECORD.read_text())
+    now = unit_identities(sample_run)
+    assert set(now) == set(recorded), "the sample's units changed: refresh the record"
+    judged = [k for k in sorted(now) if now[k]["identity"] == recorded[k]["identity"]]
+    stale = [k for k in judged if now[k]["outputs"] != recorded[k]["outputs"]]
+    assert not stale, f"outputs changed under an unchanged fingerprint and code identity ({len(judged)} judged)"
+
+
+# ------------------------------------------------------------------------------------ stages as declarations
+
+def test_the_engine_derives_each_stages_upstream_from_the_tables_it_declares():
+    """A stage declares the tables it reads; the engine derives the stages it follows from their writers, and
+    refuses a table nobody writes before it, or stages named instead of tables."""
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.pipeline import registry
+
+    derived = {st.name: (st.requires, st.session_requires) for st in registry.stages()}
+    assert derived["clean"] == (("ingest",), ("subject_geometry",))
+    assert derived["frames"] == (("clean",), ("neutral_poses",))
+    assert derived["sync"] == (("ingest",), ())
+    assert derived["eyes"] == (("frames", "sync"), ())
+    assert derived["rows_gaze_map"] == (("frames", "clean"), ())
+    assert registry.get_session_stage("neutral_poses").requires == ("subject_geometry",)
+    with pytest.raises(ValueError, match="no stage registered before it writes"):
+        registry.register(dataclasses.replace(registry.get("eyes"), name="late", inputs=("nowhere",),
+                                              outputs=("late",), requires=(), session_requires=()))
+    with pytest.raises(ValueError, match="declare the tables it reads"):
+        registry.register(dataclasses.replace(registry.get("eyes"), name="late", outputs=("late",)))
+
+
+def test_a_stage_that_loads_a_table_it_does_not_declare_fails_loudly(tiny_session, tmp_path, monkeypatch):
+    """frames declares the cleaned markers and the neutral rest, not the raw markers: asking for them fails its
+    unit, naming the table, before anything is read."""
+    import io
+
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.io.session_toml import load_session
+    from gazepipe.pipeline import registry
+    from gazepipe.pipeline.engine import run_pipeline
+    from gazepipe.pipeline.events import EventLog
+
+    frames = registry.get("frames")
+    read: list[str] = []
+
+    def sneaky(ctx):
+        read.append("asked")
+        ctx.load("markers_raw")
+        read.append("read")
+        return frames.run(ctx)
+
+    monkeypatch.setitem(registry._STAGES, "frames", dataclasses.replace(frames, run=sneaky))
+    out = tmp_path / "out"
+    run_pipeline([load_session(tiny_session / "session.toml")], out, executor="serial", until="frames",
+                 log=EventLog(fmt="json", stream=io.StringIO()))
+    rec = json.loads((out / ".gazepipe" / "units" / "tiny" / "t1" / "frames.json").read_text())
+    assert rec["status"] == "failed"
+    assert "'markers_raw', which it does not declare among its inputs (markers, neutral)" in rec["error"]
+    assert read and set(read) == {"asked"}   # every take asked; none was given the table
+    clean = json.loads((out / ".gazepipe" / "units" / "tiny" / "t1" / "clean.json").read_text())
+    assert clean["status"] == "ok"
+
+
+@pytest.mark.slow
+def test_a_stages_code_identity_depends_on_neither_the_folder_nor_the_hash_seed(tmp_path):
+    """The same code gives the same digests from another folder, under another hash seed, imported in another
+    order (the DAG's modules before the engine's)."""
+    import gazepipe
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.pipeline import registry
+    from gazepipe.pipeline.codehash import code_of
+
+    here = {st.name: code_of(st.run).digest for st in registry.stages()}
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(Path(gazepipe.__file__).parent, copy / "gazepipe", ignore=shutil.ignore_patterns("__pycache__"))
+    script = ("import json, gazepipe.dag.takes, gazepipe.dag\n"
+              "from gazepipe.pipeline import registry\nfrom gazepipe.pipeline.codehash import code_of\n"
+              "print(json.dumps({st.name: code_of(st.run).digest for st in registry.stages()}))")
+    env = {**os.environ, "PYTHONPATH": str(copy), "PYTHONHASHSEED": "12345"}
+    res = subprocess.run([sys.executable, "-c", script], env=env, cwd=copy, capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert json.loads(res.stdout) == here
+    assert len(set(here.values())) >= 5   # the stages' code differs

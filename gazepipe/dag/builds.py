@@ -63,6 +63,8 @@ NEEDS: dict[str, tuple[str, ...]] = {
     "face_clean": ("face",),
 }
 OPTIONAL = {"gaze_rnn": ("eyes",)}
+#: the table of each stage a dataset's rows read (:func:`_take_inputs`; the cleaned markers for their metadata)
+TABLE_OF = {"frames": "joints", "eyes": "eyes", "face": "face", "clean": "markers"}
 #: a dataset whose take-level optional input no contributing take has is skipped (not failed), with the reason
 NEEDS_ANY: dict[str, tuple[tuple[str, str], ...]] = {"gaze_rnn": (("eyes", "no take has eye tracking"),)}
 #: each dataset's per-take stage, and the name of the table it writes
@@ -191,7 +193,8 @@ register_params(ParamGroup(
 ))
 for _name in DATASETS:
     register(Stage(
-        name=ROWS[_name], version=ROWS_VERSION, requires=NEEDS[_name], params={}, outputs=(ROWS[_name], PARTS[_name]),
+        name=ROWS[_name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[_name]), params={},
+        outputs=(ROWS[_name], PARTS[_name]),
         applies=_rows_applies(_name), sources=lambda s, t: [], run=_rows_stage(_name), groups=("build",),
         help=f"the take's rows of dataset {_name} (mirrored copies, its split) and their partial statistics",
     ))

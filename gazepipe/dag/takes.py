@@ -1,7 +1,8 @@
 """gazepipe's take stages, registered with the engine in dependency order, and the table store they write with.
 
 Each entry wires a pure function of :mod:`gazepipe.stages` to the engine: which takes it applies to, which raw
-files it reads (through :mod:`gazepipe.io`), which upstream tables it loads and which tables it returns.
+files it reads (through :mod:`gazepipe.io`), which tables it reads (``inputs``, ``session_inputs``: the engine
+derives the stages it follows from them and refuses a load of any other) and which tables it returns.
 Readers and stage functions are imported inside the ``run_*`` functions: planning needs only the parameter
 defaults, so a run with nothing to do never pays for importing scipy.signal, pandas or OpenCV.
 """
@@ -168,7 +169,7 @@ def run_ingest(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="ingest", version="2", requires=(), params={},
+    name="ingest", version="2", params={},
     outputs=("markers_raw",), applies=_has_mocap,
     sources=lambda s, t: [t.mocap, *_markerset_file(s)],
     run=run_ingest,
@@ -179,9 +180,9 @@ register(Stage(
 
 # ---------------------------------------------------------------------------------------- session stages
 
-@functools.lru_cache(maxsize=8)
 def _file_id(path: str) -> tuple[int, int, int]:
-    """Size, mtime and inode of a file: a changed file is looked at again by :func:`_usable_capture`."""
+    """Size, mtime (ns) and inode of a file, stat'ed on every call (never cached: a file rewritten in the same
+    process gets a new id), so a changed file is looked at again by :func:`_usable_capture`."""
     st = os.stat(path)
     return st.st_size, st.st_mtime_ns, st.st_ino
 
@@ -278,7 +279,7 @@ def _subject_references(table: pa.Table) -> SubjectReferences | None:
 
 
 register_session_stage(SessionStage(
-    name="subject_geometry", version="1", requires=(), uses=(), outputs=("subject_geometry",),
+    name="subject_geometry", version="1", uses=(), outputs=("subject_geometry",),
     applies=_has_subject, sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
     run=run_subject_geometry,
     help="the subject's marker geometry from every subject capture of the session, that label swaps are judged "
@@ -369,10 +370,10 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="25", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="25", inputs=("markers_raw",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
-    sources=lambda s, t: _markerset_file(s), session_requires=("subject_geometry",),
+    sources=lambda s, t: _markerset_file(s), session_inputs=("subject_geometry",),
     run=run_clean,
     help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
     rules=rules_of(CleanParams),
@@ -444,7 +445,7 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
 
 
 register_session_stage(SessionStage(
-    name="neutral_poses", version="1", requires=("subject_geometry",), uses=("clean", "frames"),
+    name="neutral_poses", version="1", inputs=("subject_geometry",), uses=("clean", "frames"),
     outputs=("neutral_poses",), applies=lambda s: any(_frames_take(s, t) for t in s.takes),
     sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
     run=run_neutral_poses,
@@ -541,9 +542,9 @@ def run_frames(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="13", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="13", inputs=("markers", "neutral"), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
-    sources=lambda s, t: _markerset_file(s), session_requires=("neutral_poses",),
+    sources=lambda s, t: _markerset_file(s), session_inputs=("neutral_poses",),
     run=run_frames,
     help="segment orientations in the character frame, head centre, target direction",
     rules=rules_of(FramesParams),
@@ -573,7 +574,7 @@ def run_face(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="face", version="2", requires=(), params={"k": 1},
+    name="face", version="2", params={"k": 1},
     outputs=("face",), applies=_face_take,
     sources=lambda s, t: [t.tracked, t.clean],
     run=run_face,
@@ -594,7 +595,7 @@ def _sync_take(session: Session, take: Take) -> bool:
 def _short_video_note(ts: np.ndarray, take_s: float) -> list[str]:
     """A note when a video (frame times ``ts``, s) lasts less than half its take (``take_s``): it cannot
     cover the take's eye data (the eyes stage names the video when that makes it fail)."""
-    from gazepipe.stages.eyes.stage import SHORT_VIDEO_SHARE
+    from gazepipe.stages.eyes.params import SHORT_VIDEO_SHARE
 
     video_s = float(ts[-1] - ts[0]) if ts.size >= 2 else 0.0
     if video_s < SHORT_VIDEO_SHARE * take_s:
@@ -642,7 +643,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="sync", version="5", requires=("ingest",), params=_params_of(SyncParams),
+    name="sync", version="5", inputs=("markers_raw",), params=_params_of(SyncParams),
     outputs=("sync",), applies=_sync_take,
     sources=lambda s, t: [t.video, *_markerset_file(s)],
     run=run_sync,
@@ -714,7 +715,7 @@ def run_eyes(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="eyes", version="2", requires=("frames", "sync"), params=_params_of(EyesParams),
+    name="eyes", version="2", inputs=("joints", "sync"), params=_params_of(EyesParams),
     outputs=("eyes",), applies=_eyes_take,
     sources=lambda s, t: [t.eyes, *_markerset_file(s)],
     run=run_eyes,

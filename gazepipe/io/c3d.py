@@ -334,7 +334,7 @@ def read_guarded(path: str | Path, body):
             raise InputError(p, f"not a readable C3D file: {e}") from None
 
 
-def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:
+def _assemble(p: Path, fh, meta: C3DMeta, lay: Layout, default_units: str) -> tuple[Markers, dict]:  # noqa: C901
     notes: list[str] = list(lay.notes)
     units, to_mm, raw_labels, is_model, marker_idx = _points(p, meta, lay, default_units)
 

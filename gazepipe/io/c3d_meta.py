@@ -171,7 +171,7 @@ class C3DMeta:
         # changed to -1, a char array whose dimension count was zeroed)
         return all(len(prm.dims) <= 7 and (prm.type != -1 or len(prm.dims) >= 1) for prm in self.params.values())
 
-    def layout(self, file_size: int) -> Layout:
+    def layout(self, file_size: int) -> Layout:  # noqa: C901
         """Check the header against the parameters and the file size; raise MetaError when they disagree."""
         h = self.header
         n_points = int(h["points"])
@@ -278,20 +278,42 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
     end = start + max(n_blocks, 1) * 512
     if end > len(data):
         raise MetaError("parameter section truncated")
+    meta = C3DMeta(processor=processor, header=_header(data, processor))
+    groups, raw_params = _records(data, start + 4, end, ">" if processor == "mips" else "<", meta)
+    seen_names: set[tuple[int, str]] = set()
+    for gid, name, prm in raw_params:
+        gname = groups.get(gid)
+        if gname is None:
+            meta.irregular = True
+            continue
+        if (gid, name) in seen_names:
+            meta.irregular = True
+        seen_names.add((gid, name))
+        meta.params.setdefault((gname, name), prm)
+    if not all(_printable(n) for n in [*groups.values(), *(n for _, n, _ in raw_params)]):
+        meta.irregular = True
+    return meta
+
+
+def _header(data: bytes, processor: str) -> dict[str, float]:
+    """The header's counts, frames, scale, data start and rate."""
     e = ">" if processor == "mips" else "<"
     w = struct.unpack(e + "BBHHHHH", data[:12])
     words = struct.unpack(e + "HHHHHH", data[12:16] + data[16:18] + data[18:20] + data[20:24])
     scale = float(_floats(data[12:16], processor)[0])
     rate = float(_floats(data[20:24], processor)[0])
-    header = {"points": w[2], "analog_words": w[3], "first_frame": w[4], "last_frame": w[5],
-              "max_gap": w[6], "scale": scale, "data_start": words[2], "analog_per_frame": words[3],
-              "rate": rate}
-    meta = C3DMeta(processor=processor, header=header)
+    return {"points": w[2], "analog_words": w[3], "first_frame": w[4], "last_frame": w[5],
+            "max_gap": w[6], "scale": scale, "data_start": words[2], "analog_per_frame": words[3],
+            "rate": rate}
 
+
+def _records(data: bytes, p: int, end: int, e: str,
+             meta: C3DMeta) -> tuple[dict[int, str], list[tuple[int, str, _Param]]]:
+    """The group names by id and the parameters ``(group id, name, parameter)`` of the parameter records from
+    byte ``p`` up to ``end`` (byte order ``e``), in file order; ``meta.irregular`` set where ezc3d must not be
+    trusted with them."""
     groups: dict[int, str] = {}
     raw_params: list[tuple[int, str, _Param]] = []
-    seen_names: set[tuple[int, str]] = set()
-    p = start + 4
     while p + 2 <= end:
         nlen = struct.unpack_from("b", data, p)[0]
         gid = struct.unpack_from("b", data, p + 1)[0]
@@ -309,20 +331,8 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
             groups.setdefault(-gid, name)
             desc_at = name_end + 2
         else:
-            q = name_end + 2
-            if q + 2 > end:
-                raise MetaError(f"parameter {name} truncated")
-            ptype = struct.unpack_from("b", data, q)[0]
-            ndim = data[q + 1]
-            if ptype not in _PARAM_TYPES:
-                raise MetaError(f"parameter {name} has unknown type {ptype}")
-            dims = tuple(data[q + 2: q + 2 + ndim])
-            size = _PARAM_TYPES[ptype] * (math.prod(dims) if ndim else 1)  # Python ints: no overflow
-            if len(dims) != ndim or q + 2 + ndim + size > end:
-                raise MetaError(f"parameter {name} runs past the parameter section")
-            raw = bytes(data[q + 2 + ndim: q + 2 + ndim + size])
-            raw_params.append((gid, name, _Param(ptype, dims, raw)))
-            desc_at = q + 2 + ndim + size
+            prm, desc_at = _parameter(data, name_end + 2, end, name)
+            raw_params.append((gid, name, prm))
         # the description must end inside its record, and its length byte must be below 128: ezc3d reads
         # it as a signed byte and hangs or crashes (SIGSEGV) on a "negative" length
         record_end = nxt if offset > 0 else end
@@ -335,18 +345,24 @@ def parse_c3d_meta(data: bytes) -> C3DMeta:
             meta.irregular = True
             break
         p = nxt
-    for gid, name, prm in raw_params:
-        gname = groups.get(gid)
-        if gname is None:
-            meta.irregular = True
-            continue
-        if (gid, name) in seen_names:
-            meta.irregular = True
-        seen_names.add((gid, name))
-        meta.params.setdefault((gname, name), prm)
-    if not all(_printable(n) for n in [*groups.values(), *(n for _, n, _ in raw_params)]):
-        meta.irregular = True
-    return meta
+    return groups, raw_params
+
+
+def _parameter(data: bytes, q: int, end: int, name: str) -> tuple[_Param, int]:
+    """Parameter ``name``'s type, dimensions and bytes from its record at byte ``q`` (after its name and
+    offset), and where its description starts."""
+    if q + 2 > end:
+        raise MetaError(f"parameter {name} truncated")
+    ptype = struct.unpack_from("b", data, q)[0]
+    ndim = data[q + 1]
+    if ptype not in _PARAM_TYPES:
+        raise MetaError(f"parameter {name} has unknown type {ptype}")
+    dims = tuple(data[q + 2: q + 2 + ndim])
+    size = _PARAM_TYPES[ptype] * (math.prod(dims) if ndim else 1)  # Python ints: no overflow
+    if len(dims) != ndim or q + 2 + ndim + size > end:
+        raise MetaError(f"parameter {name} runs past the parameter section")
+    raw = bytes(data[q + 2 + ndim: q + 2 + ndim + size])
+    return _Param(ptype, dims, raw), q + 2 + ndim + size
 
 
 def _printable(name: str) -> bool:

@@ -753,7 +753,7 @@ def read_vicon_csv(path: str | Path, *, rate_hz: float | None = None,
 _QTM_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
 
 
-def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:
+def _parse_qtm(path: Path, raw: bytes, rate_hz: float | None, default_units: str) -> tuple[Markers, TextLayout]:  # noqa: C901
     lines = _Lines(raw)
     header: dict[str, list[str]] = {}
     i = 0

@@ -40,6 +40,29 @@ def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
     if doc is None:
         return None, col.errors
 
+    up_axis, units = _axis_and_units(doc, col)
+    root = col.marker_name(doc["root"], "root") if "root" in doc else None
+    if "root" not in doc:
+        col.add("root", "missing (the marker at the base of the spine)")
+    target = col.marker_name(doc["target"], "target") if "target" in doc else None
+    head_centre = col.marker_name(doc["head_centre"], "head_centre") if "head_centre" in doc else None
+    clapper = _clapper(doc, col)
+    eye_offset = _vector(doc, "eye_offset_mm", 3, col)
+    segments = _segments(doc, col)
+    _off_subject(segments, root, head_centre, target, clapper, col)
+    lod = _lod(doc, col, [s.name for s in segments])
+    rotation = _camera(doc, col)
+
+    if col.errors:
+        return None, col.errors
+    assert up_axis is not None and root is not None
+    return MarkerSet(path=str(path), up_axis=up_axis.strip().lower(), units=units.strip().lower(), root=root,
+                     target=target, clapper=clapper, segments=tuple(segments), head_centre=head_centre,
+                     eye_offset_mm=eye_offset, lod_segments=lod, camera_rotation=rotation), []  # type: ignore[arg-type]
+
+
+def _axis_and_units(doc: dict, col: Collector) -> tuple[str | None, str]:
+    """``up_axis`` (None when missing or not y or z) and ``units`` (default mm)."""
     up_axis = col.string(doc, "up_axis", "up_axis", required=True)
     if up_axis is not None and up_axis.strip().lower() not in ("y", "z"):
         col.add("up_axis", f"must be \"y\" or \"z\", got {show(up_axis)}")
@@ -49,30 +72,29 @@ def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
         unit_scale_to_mm(units)
     except KeyError:
         col.add("units", f"unknown units {show(units)} (expected mm, cm, m, dm or in)")
-    root = col.marker_name(doc["root"], "root") if "root" in doc else None
-    if "root" not in doc:
-        col.add("root", "missing (the marker at the base of the spine)")
-    target = col.marker_name(doc["target"], "target") if "target" in doc else None
-    head_centre = col.marker_name(doc["head_centre"], "head_centre") if "head_centre" in doc else None
+    return up_axis, units
 
-    clapper: tuple[str, ...] = ()
-    if "clapper" in doc:
-        value = doc["clapper"]
-        if not isinstance(value, list) or len(value) != 2:
-            col.add("clapper", f"must be an array of two marker names, got {show(value)}")
-        else:
-            names = [col.marker_name(v, f"clapper[{i}]") for i, v in enumerate(value)]
-            if None not in names:
-                if names[0] == names[1]:
-                    col.add("clapper", f"the two clapper markers are the same ({names[0]!r})")
-                else:
-                    clapper = tuple(names)  # type: ignore[arg-type]
 
-    eye_offset = _vector(doc, "eye_offset_mm", 3, col)
-    segments = _segments(doc, col)
-    seg_names = [s.name for s in segments]
+def _clapper(doc: dict, col: Collector) -> tuple[str, ...]:
+    """The two clapper markers (none when absent or wrong)."""
+    if "clapper" not in doc:
+        return ()
+    value = doc["clapper"]
+    if not isinstance(value, list) or len(value) != 2:
+        col.add("clapper", f"must be an array of two marker names, got {show(value)}")
+        return ()
+    names = [col.marker_name(v, f"clapper[{i}]") for i, v in enumerate(value)]
+    if None in names:
+        return ()
+    if names[0] == names[1]:
+        col.add("clapper", f"the two clapper markers are the same ({names[0]!r})")
+        return ()
+    return tuple(names)  # type: ignore[arg-type]
 
-    # the target and the clapper are not on the subject: they must not share a name with its markers
+
+def _off_subject(segments: list[Segment], root: str | None, head_centre: str | None, target: str | None,
+                 clapper: tuple[str, ...], col: Collector) -> None:
+    """The target and the clapper are not on the subject: they must not share a name with its markers."""
     seen: dict[str, str] = {}
     for s in segments:
         for m in s.markers:
@@ -87,40 +109,40 @@ def _parse_markerset(path: Path) -> tuple[MarkerSet | None, list[ConfigError]]:
     if target is not None and target in clapper:
         col.add("target", f"marker {target!r} is also a clapper marker")
 
-    lod: tuple[str, ...] = ()
-    if "lod" in doc and (table := col.table(doc["lod"], "lod")) is not None:
-        col.unknown_keys(table, ("segments",), "lod.")
-        value = table.get("segments", [])
-        if not isinstance(value, list):
-            col.add("lod.segments", f"must be an array of segment names, got {type_name(value)}")
+
+def _lod(doc: dict, col: Collector, seg_names: list[str]) -> tuple[str, ...]:
+    """The ``[lod]`` table's segments (none when absent)."""
+    if "lod" not in doc or (table := col.table(doc["lod"], "lod")) is None:
+        return ()
+    col.unknown_keys(table, ("segments",), "lod.")
+    value = table.get("segments", [])
+    if not isinstance(value, list):
+        col.add("lod.segments", f"must be an array of segment names, got {type_name(value)}")
+        return ()
+    lod_names: list[str] = []
+    for i, v in enumerate(value):
+        if not isinstance(v, str) or v not in seg_names:
+            col.add(f"lod.segments[{i}]", f"{show(v)} is not a segment{suggest(str(v), seg_names)}")
+        elif v in lod_names:
+            col.add(f"lod.segments[{i}]", f"segment {v!r} listed twice")
         else:
-            lod_names: list[str] = []
-            for i, v in enumerate(value):
-                if not isinstance(v, str) or v not in seg_names:
-                    col.add(f"lod.segments[{i}]", f"{show(v)} is not a segment{suggest(str(v), seg_names)}")
-                elif v in lod_names:
-                    col.add(f"lod.segments[{i}]", f"segment {v!r} listed twice")
-                else:
-                    lod_names.append(v)
-            lod = tuple(lod_names)
+            lod_names.append(v)
+    return tuple(lod_names)
 
-    rotation = None
-    if "camera" in doc and (table := col.table(doc["camera"], "camera")) is not None:
-        col.unknown_keys(table, ("rotation",), "camera.")
-        q = _vector(table, "rotation", 4, col, prefix="camera.")
-        if q is not None:
-            norm = math.sqrt(sum(c * c for c in q))
-            if abs(norm - 1.0) > 1e-3:
-                col.add("camera.rotation", f"not a unit quaternion (w, x, y, z): norm {norm:.6g}")
-            else:
-                rotation = tuple(c / norm for c in q)
 
-    if col.errors:
-        return None, col.errors
-    assert up_axis is not None and root is not None
-    return MarkerSet(path=str(path), up_axis=up_axis.strip().lower(), units=units.strip().lower(), root=root,
-                     target=target, clapper=clapper, segments=tuple(segments), head_centre=head_centre,
-                     eye_offset_mm=eye_offset, lod_segments=lod, camera_rotation=rotation), []  # type: ignore[arg-type]
+def _camera(doc: dict, col: Collector) -> tuple[float, ...] | None:
+    """The ``[camera]`` table's rotation, a unit quaternion (w, x, y, z); None when absent."""
+    if "camera" not in doc or (table := col.table(doc["camera"], "camera")) is None:
+        return None
+    col.unknown_keys(table, ("rotation",), "camera.")
+    q = _vector(table, "rotation", 4, col, prefix="camera.")
+    if q is None:
+        return None
+    norm = math.sqrt(sum(c * c for c in q))
+    if abs(norm - 1.0) > 1e-3:
+        col.add("camera.rotation", f"not a unit quaternion (w, x, y, z): norm {norm:.6g}")
+        return None
+    return tuple(c / norm for c in q)
 
 
 def _vector(table: dict, name: str, n: int, col: Collector, prefix: str = "") -> tuple[float, ...] | None:
@@ -155,26 +177,7 @@ def _segments(doc: dict, col: Collector) -> list[Segment]:
         if seg is None:
             continue
         col.unknown_keys(seg, ("markers", "parent"), f"{key}.")
-        markers: list[str] = []
-        value = seg.get("markers")
-        if value is None:
-            col.add(f"{key}.markers", "missing (three or more marker names)")
-        elif not isinstance(value, list):
-            col.add(f"{key}.markers", f"must be an array of marker names, got {type_name(value)}")
-        else:
-            for i, v in enumerate(value):
-                m = col.marker_name(v, f"{key}.markers[{i}]")
-                if m is None:
-                    continue
-                if m in markers:
-                    col.add(f"{key}.markers[{i}]", f"marker {m!r} listed twice")
-                elif m in owner:
-                    col.add(f"{key}.markers[{i}]", f"marker {m!r} is already on segment {owner[m]!r}")
-                else:
-                    markers.append(m)
-                    owner[m] = name
-            if len(value) < 3:
-                col.add(f"{key}.markers", f"a segment needs at least 3 markers, got {len(value)}")
+        markers = _segment_markers(seg.get("markers"), key, name, owner, col)
         parent = seg.get("parent")
         if parent is not None and not isinstance(parent, str):
             col.add(f"{key}.parent", f"must be a segment name (string), got {type_name(parent)}")
@@ -182,7 +185,38 @@ def _segments(doc: dict, col: Collector) -> list[Segment]:
             parent = None
         parents[name] = parent
         segments.append(Segment(name=str(name), markers=tuple(markers), parent=parent))
+    _check_parents(order, parents, bad_parent, col)
+    return segments
 
+
+def _segment_markers(value: Any, key: str, name: str, owner: dict[str, str], col: Collector) -> list[str]:
+    """Segment ``name``'s markers (its ``markers`` array, at ``key``), each on no other segment (``owner``:
+    the segment each marker is on so far, updated)."""
+    markers: list[str] = []
+    if value is None:
+        col.add(f"{key}.markers", "missing (three or more marker names)")
+        return markers
+    if not isinstance(value, list):
+        col.add(f"{key}.markers", f"must be an array of marker names, got {type_name(value)}")
+        return markers
+    for i, v in enumerate(value):
+        m = col.marker_name(v, f"{key}.markers[{i}]")
+        if m is None:
+            continue
+        if m in markers:
+            col.add(f"{key}.markers[{i}]", f"marker {m!r} listed twice")
+        elif m in owner:
+            col.add(f"{key}.markers[{i}]", f"marker {m!r} is already on segment {owner[m]!r}")
+        else:
+            markers.append(m)
+            owner[m] = name
+    if len(value) < 3:
+        col.add(f"{key}.markers", f"a segment needs at least 3 markers, got {len(value)}")
+    return markers
+
+
+def _check_parents(order: list[str], parents: dict[str, Any], bad_parent: set[str], col: Collector) -> None:
+    """One root; every parent a known segment listed before its child; no cycle (each reported once)."""
     roots = [n for n in parents if parents[n] is None and n not in bad_parent]
     for extra in roots[1:]:
         col.add(f"segments.{key_name(extra)}.parent",
@@ -193,7 +227,7 @@ def _segments(doc: dict, col: Collector) -> list[Segment]:
         if parent is None or name not in parents:
             continue
         key = f"segments.{key_name(name)}.parent"
-        if parent not in table:
+        if parent not in order:
             col.add(key, f"unknown parent {parent!r}{suggest(parent, order)}")
             continue
         # walk up the chain: a cycle returns to this segment
@@ -207,4 +241,3 @@ def _segments(doc: dict, col: Collector) -> list[Segment]:
                 reported_cycle.update(chain)
         elif cur is None and order.index(parent) > idx:
             col.add(key, f"parent {parent!r} comes after {name!r}: list segments from the root to the head")
-    return segments

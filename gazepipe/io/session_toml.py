@@ -97,7 +97,7 @@ def load_session(path: str | Path) -> Session:
     return session
 
 
-def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]:
+def _parse_session(path: str | Path) -> tuple[Session | None, list[ConfigError]]:  # noqa: C901
     p = Path(path).absolute()
     toml_path = p / "session.toml" if p.is_dir() else p
     try:
@@ -210,6 +210,29 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
             col.add(f"{key}.id", f"duplicate take id {tid!r} (also takes[{ids[tid]}])", tid)
         else:
             ids[tid] = i
+    kind = _take_kind(t, key, tid, col, d_rate)
+
+    pose = col.word(t, "pose", f"{key}.pose", "pose") if "pose" in t else d_pose
+    if pose is None and kind in ("gaze_follow", "gaze_shift") and "pose" not in t:
+        col.add(f"{key}.pose", "missing (set it on the take or in [defaults])", tid)
+    split = _split(t, f"{key}.split", col, tid) if "split" in t else d_split
+    files = _take_files(t, key, tid, kind, root, col)
+    rate = col.rate(t, "rate_hz", f"{key}.rate_hz") if "rate_hz" in t else d_rate
+    tc = col.rate(t, "timecode_fps", f"{key}.timecode_fps") if "timecode_fps" in t else d_tc
+    yaw, pitch = _target(t, key, tid, kind, col)
+
+    if len(col.errors) > n_before:
+        return None
+    assert tid is not None and kind is not None
+    return Take(id=tid, kind=kind, pose=pose or UNSPECIFIED_POSE, mocap=files.get("mocap"), video=files.get("video"),
+                eyes=files.get("eyes"), tracked=files.get("tracked"), clean=files.get("clean"), split=split,
+                target_yaw_deg=yaw, target_pitch_deg=pitch,
+                rate_hz=None if rate is None else stated_rate(rate),
+                timecode_fps=60.0 if tc is None else stated_rate(tc))
+
+
+def _take_kind(t: dict, key: str, tid: str | None, col: Collector, d_rate: float | None) -> str | None:
+    """The take's kind (None when missing or unknown), its keys checked against it."""
     kind = col.string(t, "kind", f"{key}.kind", required=True)
     if kind is not None and kind not in TAKE_KINDS:
         col.add(f"{key}.kind", f"unknown take kind {show(kind)}{suggest(kind, TAKE_KINDS)}"
@@ -224,14 +247,13 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
         for name in _KIND_REQUIRED[kind]:
             if name not in t and not (name == "rate_hz" and d_rate is not None):
                 col.add(f"{key}.{name}", f"missing: {kind} takes need {name!r}", tid)
+    return kind
 
-    pose = col.word(t, "pose", f"{key}.pose", "pose") if "pose" in t else d_pose
-    if pose is None and kind in ("gaze_follow", "gaze_shift") and "pose" not in t:
-        col.add(f"{key}.pose", "missing (set it on the take or in [defaults])", tid)
-    split = _split(t, f"{key}.split", col, tid) if "split" in t else d_split
 
-    # a take's files must be paths inside the session folder (else the session is refused); whether they exist
-    # and can be read is the take's own matter: a missing one fails that take when the run plans it
+def _take_files(t: dict, key: str, tid: str | None, kind: str | None, root: Path,
+                col: Collector) -> dict[str, str | None]:
+    """The take's files by key: paths inside the session folder (else the session is refused); whether they
+    exist and can be read is the take's own matter (a missing one fails that take when the run plans it)."""
     files: dict[str, str | None] = {}
     for name in _FILE_KEYS:
         if name in t and (kind is None or name in _KIND_KEYS[kind]):
@@ -242,10 +264,12 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
     if mocap is not None and Path(mocap).suffix.lower() not in MOCAP_SUFFIXES:
         col.add(f"{key}.mocap", f"unsupported mocap file type {show(Path(mocap).suffix)} "
                 f"(expected {', '.join(MOCAP_SUFFIXES)})", tid)
+    return files
 
-    rate = col.rate(t, "rate_hz", f"{key}.rate_hz") if "rate_hz" in t else d_rate
-    tc = col.rate(t, "timecode_fps", f"{key}.timecode_fps") if "timecode_fps" in t else d_tc
 
+def _target(t: dict, key: str, tid: str | None, kind: str | None,
+            col: Collector) -> tuple[float | None, float | None]:
+    """A gaze_shift take's requested change (yaw, pitch), degrees; None where not given."""
     yaw = pitch = None
     if "target" in t and kind == "gaze_shift" and (tgt := col.table(t["target"], f"{key}.target")) is not None:
         col.unknown_keys(tgt, ("yaw_deg", "pitch_deg"), f"{key}.target.")
@@ -258,15 +282,7 @@ def _take_fields(t: dict, i: int, tid: str | None, root: Path, col: Collector, i
             col.add(f"{key}.target.yaw_deg", f"out of range [-180, 180]: {show(yaw)}", tid)
         if pitch is not None and abs(pitch) > 90:
             col.add(f"{key}.target.pitch_deg", f"out of range [-90, 90]: {show(pitch)}", tid)
-
-    if len(col.errors) > n_before:
-        return None
-    assert tid is not None and kind is not None
-    return Take(id=tid, kind=kind, pose=pose or UNSPECIFIED_POSE, mocap=mocap, video=files.get("video"),
-                eyes=files.get("eyes"), tracked=files.get("tracked"), clean=files.get("clean"), split=split,
-                target_yaw_deg=yaw, target_pitch_deg=pitch,
-                rate_hz=None if rate is None else stated_rate(rate),
-                timecode_fps=60.0 if tc is None else stated_rate(tc))
+    return yaw, pitch
 
 
 # -------------------------------------------------------------------------------------------------- capture labels

@@ -57,7 +57,7 @@ def read_header(path: Path) -> list[str]:
     return [c.strip() for c in next(csv.reader([first]))]
 
 
-def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[str] = (), *,
+def read_columns(path: str | Path, required: Sequence[str], optional: Sequence[str] = (), *,  # noqa: C901
                  text: tuple[str, ...] = (), what: str = "CSV",
                  lost_when_zero: str | None = None) -> tuple[dict[str, np.ndarray], list[str]]:
     """Read named columns of a numeric CSV whose names and values may be padded with spaces.

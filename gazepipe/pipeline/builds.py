@@ -22,9 +22,10 @@ from typing import Any
 from gazepipe import __version__
 from gazepipe.errors import GazepipeError
 from gazepipe.pipeline import registry
+from gazepipe.pipeline.codehash import code_of
 from gazepipe.pipeline.hashing import sha256_json
 from gazepipe.pipeline.lock import pid_alive
-from gazepipe.pipeline.registry import SessionLike, TakeLike
+from gazepipe.pipeline.registry import Dataset, SessionLike, TakeLike
 from gazepipe.pipeline.runner import UnitOutcome, UnitPlan, _loader, os_problem
 from gazepipe.pipeline.state import OutLayout, read_json
 
@@ -106,84 +107,100 @@ def _record_path(layout: OutLayout, name: str) -> Path:
     return layout.state / "datasets" / f"{name}.json"
 
 
+#: the units each take's tables come from: their fingerprints and code identities, by (session, take, stage)
+_Ids = dict[tuple[str, str, str], tuple[str, str]]
+
+
 def plan_datasets(sessions: Sequence[SessionLike], layout: OutLayout, take_plans: Sequence[UnitPlan],
                   params: dict[str, Any], force: bool = False, optimistic: bool = False) -> list[DatasetPlan]:
     """Which datasets have takes to build from, and whether each must be rebuilt.
 
     A take contributes when every unit writing a table the dataset needs has an ``ok`` record whose
-    fingerprint equals the planned one (it is up to date, or ran successfully in this run). ``optimistic``
-    (for ``--dry-run``) counts units that are about to run as successful.
+    fingerprint and code identity equal the planned ones (it is up to date, or ran successfully in this run).
+    ``optimistic`` (for ``--dry-run``) counts units that are about to run as successful.
     """
-    planned_to_run = {(p.session, p.take, p.stage) for p in take_plans if p.run}
-    fp = {(p.session, p.take, p.stage): p.fingerprint for p in take_plans}
+    ids: _Ids = {(p.session, p.take, p.stage): (p.fingerprint, p.code) for p in take_plans}
+    planned = {(p.session, p.take, p.stage) for p in take_plans if p.run} if optimistic else set()
     plans = []
     for ds in registry.datasets():
         name = ds.name
-        takes = []
+        takes: list[tuple[SessionLike, TakeLike, dict[str, str]]] = []
         left: list[tuple[str, str, str]] = []
         for s in sessions:
             for t in s.takes:
-                if not ds.applies(s, t):
-                    continue
-                units: dict[str, str] = {}
-                why = ""
-                for stage in ds.needs:
-                    key = (s.id, t.id, stage)
-                    if key not in fp:
-                        if stage in ds.optional:
-                            continue
-                        why = f"no {stage} stage for it"
-                        break
-                    if optimistic and key in planned_to_run:
-                        units[stage] = fp[key]
-                        continue
-                    rec = read_json(layout.record(s.id, t.id, stage))
-                    if not isinstance(rec, dict):
-                        why = f"its {stage} stage never ran"
-                    elif rec.get("status") != "ok":
-                        why = f"its {stage} stage failed: {rec.get('error', '?')}"
-                    elif rec.get("fingerprint") != fp[key]:
-                        why = f"its {stage} stage is not up to date with its inputs"
+                if ds.applies(s, t):
+                    units, why = _take_units(ds, s.id, t.id, layout, ids, planned)
                     if why:
-                        break
-                    units[stage] = fp[key]
-                if why:
-                    left.append((s.id, t.id, why))
-                else:
-                    takes.append((s, t, units))
+                        left.append((s.id, t.id, why))
+                    else:
+                        takes.append((s, t, units))
         rec = read_json(_record_path(layout, name))
         if not takes and not isinstance(rec, dict) and not (layout.root / "datasets" / name).exists():
             continue   # nothing to build and nothing built before
-        comp = {"dataset": name, "version": ds.version,
+        own = code_of(ds.run)
+        comp = {"dataset": name, "version": ds.version, "code": own.digest, "libraries": dict(own.libraries),
                 "params": registry.group_values(ds.params, params) if ds.params else {},
-                "takes": sorted([s.id, t.id, u] for s, t, u in takes)}
+                "takes": sorted([s.id, t.id, u] for s, t, u in takes),
+                # the code that made the takes' tables (the units' fingerprints cover their inputs only)
+                "takes_code": sorted([s.id, t.id, {st: ids[(s.id, t.id, st)][1] for st in u}] for s, t, u in takes)}
         fingerprint = sha256_json(comp)
-        reason = error = ""
-        if not takes:
-            reason = "no take can feed it" if (isinstance(rec, dict) and rec.get("status") == "ok") or \
-                (layout.root / "datasets" / name).exists() else ""
-            error = "" if reason else (rec or {}).get("error", "no take can feed it")
-        elif force:
-            reason = "--force"
-        elif not isinstance(rec, dict):
-            reason = "never built"
-        elif rec.get("status") == "skipped" and rec.get("fingerprint") == fingerprint:
-            pass   # skipped on these same inputs: nothing to build
-        elif rec.get("status") != "ok":
-            if rec.get("fingerprint") == fingerprint and not rec.get("retry", True):
-                error = rec.get("error", "failed")
-            else:
-                reason = "failed last time"
-        elif rec.get("fingerprint") != fingerprint:
-            old = rec.get("components", {})
-            reason = ("parameters changed" if old.get("params") != comp["params"] else
-                      "its takes changed" if old.get("takes") != comp["takes"] else "fingerprint changed")
-        elif not all((layout.root / "datasets" / name / f).is_file() for f in rec.get("outputs", {})):
-            reason = "an output file is missing"
+        reason, error = _build_reason(name, comp, fingerprint, rec, bool(takes), layout, force)
         plans.append(DatasetPlan(name, fingerprint, comp, takes, bool(reason),
                                  reason or ("failed earlier on these same inputs" if error else "up to date"), error,
                                  registry.modules(), left))
     return plans
+
+
+def _take_units(ds: Dataset, session: str, take: str, layout: OutLayout, ids: _Ids,
+                planned: set[tuple[str, str, str]]) -> tuple[dict[str, str], str]:
+    """The fingerprints (by stage) of the units of a take that dataset ``ds`` reads, or why the take cannot feed
+    it (a unit it needs never ran, failed or is not up to date; units in ``planned`` count as up to date)."""
+    units: dict[str, str] = {}
+    for stage in ds.needs:
+        key = (session, take, stage)
+        if key not in ids:
+            if stage in ds.optional:
+                continue
+            return units, f"no {stage} stage for it"
+        if key not in planned:
+            rec = read_json(layout.record(session, take, stage))
+            if not isinstance(rec, dict):
+                return units, f"its {stage} stage never ran"
+            if rec.get("status") != "ok":
+                return units, f"its {stage} stage failed: {rec.get('error', '?')}"
+            if (rec.get("fingerprint"), rec.get("code")) != ids[key]:
+                return units, f"its {stage} stage is not up to date with its inputs"
+        units[stage] = ids[key][0]
+    return units, ""
+
+
+def _build_reason(name: str, comp: dict[str, Any], fingerprint: str, rec: Any, has_takes: bool,
+                  layout: OutLayout, force: bool) -> tuple[str, str]:
+    """Why dataset ``name`` must be built (``rec``: its record) or '', and the error it failed with before on
+    these same inputs (or '')."""
+    published = (layout.root / "datasets" / name).exists()
+    if not has_takes:
+        reason = "no take can feed it" if (isinstance(rec, dict) and rec.get("status") == "ok") or published else ""
+        return reason, "" if reason else (rec or {}).get("error", "no take can feed it")
+    if force:
+        return "--force", ""
+    if not isinstance(rec, dict):
+        return "never built", ""
+    if rec.get("status") == "skipped" and rec.get("fingerprint") == fingerprint:
+        return "", ""   # skipped on these same inputs: nothing to build
+    if rec.get("status") != "ok":
+        if rec.get("fingerprint") == fingerprint and not rec.get("retry", True):
+            return "", rec.get("error", "failed")
+        return "failed last time", ""
+    if rec.get("fingerprint") != fingerprint:
+        old = rec.get("components", {})
+        changed = [why for key, why in (("code", "code changed"), ("libraries", "libraries changed"),
+                                        ("params", "parameters changed"), ("takes", "its takes changed"),
+                                        ("takes_code", "its takes' code changed")) if old.get(key) != comp[key]]
+        return (changed or ["fingerprint changed"])[0], ""
+    if not all((layout.root / "datasets" / name / f).is_file() for f in rec.get("outputs", {})):
+        return "an output file is missing", ""
+    return "", ""
 
 
 def run_dataset(plan: DatasetPlan, layout: OutLayout, params: dict[str, Any],

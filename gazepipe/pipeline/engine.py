@@ -15,6 +15,7 @@ from gazepipe.errors import ConfigError, GazepipeError
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import clear_stale_temporaries
 from gazepipe.pipeline.builds import plan_datasets, run_dataset
+from gazepipe.pipeline.codehash import code_of
 from gazepipe.pipeline.events import EventLog
 from gazepipe.pipeline.executors import check_executor, make_executor
 from gazepipe.pipeline.hashing import HashCache
@@ -125,6 +126,8 @@ def plan_run(sessions: Sequence[SessionLike], out: Path, *, until: str | None = 
     session_stages = registry.session_stages_for(stages)
     params = params or {}
     hashes = hashes or HashCache(layout.hashes)
+    for ds in registry.datasets():   # the datasets' code identities, kept in the memo with the stages'
+        code_of(ds.run, hashes.code)
     run = RunPlan()
     dag = registry.modules()
     for session in sessions:

@@ -30,18 +30,21 @@ def sha256_json(obj: Any) -> str:
 class HashCache:
     """sha256 of files keyed by absolute path, trusted while size, mtime (ns) and inode are unchanged.
 
-    The cache is a JSON file; :meth:`save` writes it back only when something changed.
+    The cache is a JSON file; :meth:`save` writes it back only when something changed. Beside it (``code.json``)
+    :attr:`code` keeps what the stages' source files gave, keyed by hashes of their contents
+    (:func:`gazepipe.pipeline.codehash.code_of`'s memo).
     """
 
     def __init__(self, path: str | Path | None = None) -> None:
         self.path = Path(path) if path else None
-        self._entries: dict[str, list] = {}
+        self._entries: dict[str, list] = _read_dict(self.path)
         self._dirty = False
-        if self.path and self.path.is_file():
-            try:
-                self._entries = json.loads(self.path.read_text())
-            except (OSError, ValueError):
-                self._entries = {}
+        self.code: dict[str, Any] = _read_dict(self.code_path)
+        self._code_seen = len(self.code)
+
+    @property
+    def code_path(self) -> Path | None:
+        return self.path.with_name("code.json") if self.path else None
 
     def hash(self, path: str | Path, check: Callable[[Path], None] | None = None) -> str:
         """The file's sha256; ``check(path)`` is called first when it must be read (not cached)."""
@@ -73,3 +76,17 @@ class HashCache:
         if self.path and self._dirty:
             write_bytes(self.path, json.dumps(self._entries, sort_keys=True).encode())
             self._dirty = False
+        if self.code_path and len(self.code) != self._code_seen:
+            write_bytes(self.code_path, json.dumps(self.code, sort_keys=True).encode())
+            self._code_seen = len(self.code)
+
+
+def _read_dict(path: Path | None) -> dict[str, Any]:
+    """The JSON object in the file at ``path``; empty when there is none or it cannot be read."""
+    if path is None or not path.is_file():
+        return {}
+    try:
+        got = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return got if isinstance(got, dict) else {}

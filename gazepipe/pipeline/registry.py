@@ -3,12 +3,13 @@ tables are read and written.
 
 The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers:
 
-- take stages (:func:`register`): a stage runs once per take (a *unit of work*); its ``run`` receives a
-  :class:`UnitContext` (the take, its parameters, and a loader for upstream tables) and returns a
-  :class:`UnitResult` (Arrow tables to write and a QC record); the engine does all reading and writing, so the
-  stage functions stay pure;
+- take stages (:func:`register`): a stage runs once per take (a *unit of work*); it declares the tables it
+  reads (``inputs``) and writes (``outputs``), and the engine derives the stages it follows from them (kedro's
+  nodes, by table name); its ``run`` receives a :class:`UnitContext` (the take, its parameters, and a loader for
+  its declared tables, which refuses any other) and returns a :class:`UnitResult` (Arrow tables to write and a
+  QC record); the engine does all reading and writing, so the stage functions stay pure;
 - session stages (:func:`register_session_stage`): work done once per session that take stages read (their
-  ``session_requires``), such as a pose every take is calibrated against; they run before the session's take
+  ``session_inputs``), such as a pose every take is calibrated against; they run before the session's take
   units, with a :class:`SessionContext`;
 - datasets built from many takes' tables (:func:`register_dataset`, :mod:`gazepipe.pipeline.builds`);
 - parameter groups that belong to no take stage (:func:`register_params`: the datasets' parameters);
@@ -111,15 +112,34 @@ class UnitContext(Generic[SessionT, TakeT]):
         """Another stage's parameter values (defaults overridden), for a stage that repeats its work."""
         return group_values(stage, self.all_params)
 
+    #: the take tables and the session tables the stage declares it reads (:attr:`Stage.inputs`,
+    #: :attr:`Stage.session_inputs`); None: any
+    inputs: frozenset[str] | None = None
+    session_inputs: frozenset[str] | None = None
+
     def load(self, table: str, take_id: str | None = None) -> pa.Table:
-        """Read an upstream table of this take (or of ``take_id`` in the same session), schema-checked."""
+        """Read an upstream table of this take (or of ``take_id`` in the same session), schema-checked; one the
+        stage does not declare among its inputs is refused (:class:`UndeclaredLoad`)."""
+        _check_declared(table, self.inputs, "inputs")
         return self.loader(self.session.id, take_id or self.take.id, table)
 
     def load_session(self, table: str) -> pa.Table:
-        """Read a table of one of the stage's ``session_requires`` (this take's session), schema-checked."""
+        """Read a table of one of the stage's ``session_inputs`` (this take's session), schema-checked."""
+        _check_declared(table, self.session_inputs, "session_inputs")
         if self.session_loader is None:
             raise RuntimeError(f"no session tables in this context (asked for {table})")
         return self.session_loader(self.session.id, table)
+
+
+class UndeclaredLoad(RuntimeError):
+    """A stage asked for a table it does not declare among its inputs: its unit fails (a wiring error, not
+    the data's)."""
+
+
+def _check_declared(table: str, declared: frozenset[str] | None, what: str) -> None:
+    if declared is not None and table not in declared:
+        raise UndeclaredLoad(f"the stage loads table {table!r}, which it does not declare among its {what} "
+                             f"({', '.join(sorted(declared)) or 'none'})")
 
 
 @dataclass
@@ -131,13 +151,17 @@ class SessionContext(Generic[SessionT]):
     out_dir: Path
     loader: Callable[[str, str], pa.Table]
     all_params: dict[str, Any] = field(default_factory=dict)
+    #: the session tables the stage declares it reads (:attr:`SessionStage.inputs`); None: any
+    inputs: frozenset[str] | None = None
 
     def params_of(self, stage: str) -> dict[str, Any]:
         """The parameter values (defaults overridden) of stage or group ``stage``."""
         return group_values(stage, self.all_params)
 
     def load(self, table: str) -> pa.Table:
-        """Read a table of an upstream session stage of this session, schema-checked."""
+        """Read a table of an upstream session stage of this session, schema-checked; one the stage does not
+        declare among its inputs is refused (:class:`UndeclaredLoad`)."""
+        _check_declared(table, self.inputs, "inputs")
         return self.loader(self.session.id, table)
 
 
@@ -147,24 +171,29 @@ class Stage:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the stage's output for the same inputs changes.
-    requires : upstream stages (same take) whose outputs it loads.
+    name, version : bump ``version`` only for a change of its outputs that its code identity cannot see (a data
+        file it reads beside its code, a library it reaches only through another): the code its ``run`` reaches
+        is in every unit's code identity (:mod:`gazepipe.pipeline.codehash`).
     params : the parameters it uses with their defaults; part of its fingerprint.
-    outputs : table names it writes under ``takes/<session>/<take>/``.
+    outputs : table names it writes under ``takes/<session>/<take>/``; no other stage writes a table of
+        that name.
+    inputs : the tables of the same take it reads (:meth:`UnitContext.load` refuses any other), each written
+        by a stage registered before it.
+    session_inputs : the tables of session stages (:class:`SessionStage`) it reads
+        (:meth:`UnitContext.load_session`); they run first, and a change of theirs re-runs it.
     applies : which takes it runs on.
     sources : the raw input files it reads (content-hashed into its fingerprint).
     run : the work itself.
     rules : the allowed values of its parameters, by name (see :func:`value_problem`); none = any value of
         the default's type.
-    session_requires : session stages (:class:`SessionStage`) whose tables it loads
-        (:meth:`UnitContext.load_session`); they run first, and a change of theirs re-runs it.
     groups : parameter groups (:func:`register_params`) whose values it reads too (``ctx.all_params``); they
         are part of its fingerprint as its own parameters are.
+    requires, session_requires : derived by :func:`register` from ``inputs`` and ``session_inputs``: the
+        stages and session stages that write them, in the order of the tables.
     """
 
     name: str
     version: str
-    requires: tuple[str, ...]
     params: Mapping[str, Any]
     outputs: tuple[str, ...]
     applies: Callable[[Any, Any], bool]
@@ -172,8 +201,11 @@ class Stage:
     run: Callable[[Any], UnitResult]
     help: str = ""
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    session_requires: tuple[str, ...] = ()
+    inputs: tuple[str, ...] = ()
+    session_inputs: tuple[str, ...] = ()
     groups: tuple[str, ...] = ()
+    requires: tuple[str, ...] = ()
+    session_requires: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -182,25 +214,27 @@ class SessionStage:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the stage's output for the same inputs changes.
-    requires : upstream session stages whose tables it loads.
+    name, version : as :attr:`Stage.version`: only for what its code identity cannot see.
+    inputs : the tables of upstream session stages it reads (:meth:`SessionContext.load` refuses any other).
     uses : parameter groups (take stages or :class:`ParamGroup`) whose values it uses; part of its
         fingerprint (a session stage repeats a take stage's work, with that stage's parameters).
     outputs : table names it writes under ``sessions/<session>/``.
     applies : whether the session needs it.
     sources : the raw input files it reads (content-hashed into its fingerprint).
     run : the work itself: a :class:`SessionContext` in, a :class:`UnitResult` out.
+    requires : derived by :func:`register_session_stage` from ``inputs``: the session stages that write them.
     """
 
     name: str
     version: str
-    requires: tuple[str, ...]
     uses: tuple[str, ...]
     outputs: tuple[str, ...]
     applies: Callable[[Any], bool]
     sources: Callable[[Any], Sequence[str]]
     run: Callable[[Any], UnitResult]
     help: str = ""
+    inputs: tuple[str, ...] = ()
+    requires: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -210,7 +244,7 @@ class Dataset:
 
     Attributes
     ----------
-    name, version : bump ``version`` whenever the dataset for the same inputs changes.
+    name, version : as :attr:`Stage.version`: only for what its code identity cannot see.
     needs : stages whose tables it reads from each contributing take. A take contributes when each of them has
         an up-to-date ``ok`` unit, except an ``optional`` one that does not apply to the take.
     applies : which takes may feed it.
@@ -252,30 +286,53 @@ _GROUPS: dict[str, ParamGroup] = {}
 _TABLES: list[TableStore] = []
 
 
+def _writers(stage: str, tables: Sequence[str], stages: Sequence[Stage | SessionStage],
+             what: str) -> tuple[str, ...]:
+    """The registered stages (of ``stages``) that write ``tables``, in the order of the tables."""
+    by_table = {t: st.name for st in stages for t in st.outputs}
+    unknown = [t for t in tables if t not in by_table]
+    if unknown:
+        raise ValueError(f"stage {stage} reads {what} {unknown} that no stage registered before it writes")
+    return tuple(dict.fromkeys(by_table[t] for t in tables))
+
+
+def _check_outputs(name: str, outputs: Sequence[str]) -> None:
+    registered: list[Stage | SessionStage] = [*_STAGES.values(), *_SESSION_STAGES.values()]
+    taken = {t: st.name for st in registered for t in st.outputs}
+    twice = [t for t in outputs if t in taken]
+    if twice:
+        raise ValueError(f"stage {name} writes tables {twice} that stage {taken[twice[0]]} writes")
+
+
 def register(stage: Stage) -> Stage:
-    """Add a take stage; the stages and session stages it requires must be registered before it."""
+    """Add a take stage, its upstream stages and session stages derived from the tables it declares it reads
+    (their writers must be registered before it)."""
     if stage.name in _STAGES or stage.name in _GROUPS or stage.name in _SESSION_STAGES:
         raise ValueError(f"stage {stage.name} registered twice")
-    for up in stage.requires:
-        if up not in _STAGES:
-            raise ValueError(f"stage {stage.name} requires unknown stage {up}")
-    for up in stage.session_requires:
-        if up not in _SESSION_STAGES:
-            raise ValueError(f"stage {stage.name} requires unknown session stage {up}")
+    if stage.requires or stage.session_requires:
+        raise ValueError(f"stage {stage.name}: declare the tables it reads (inputs), not the stages")
+    _check_outputs(stage.name, stage.outputs)
     for group in stage.groups:
         if group not in _GROUPS:
             raise ValueError(f"stage {stage.name} reads unknown parameter group {group}")
+    stage = dataclasses.replace(stage, requires=_writers(stage.name, stage.inputs, list(_STAGES.values()), "tables"),
+                                session_requires=_writers(stage.name, stage.session_inputs,
+                                                          list(_SESSION_STAGES.values()), "session tables"))
     _STAGES[stage.name] = stage
     return stage
 
 
 def register_session_stage(stage: SessionStage) -> SessionStage:
-    """Add a session stage; the session stages it requires must be registered first."""
+    """Add a session stage, its upstream session stages derived from the tables it declares it reads (their
+    writers must be registered before it)."""
     if stage.name in _SESSION_STAGES or stage.name in _STAGES or stage.name in _GROUPS:
         raise ValueError(f"stage {stage.name} registered twice")
-    unknown = [u for u in stage.requires if u not in _SESSION_STAGES]
-    if unknown:   # the groups it uses may come later: take stages that read it are registered after it
-        raise ValueError(f"session stage {stage.name} requires unknown session stages: {unknown}")
+    if stage.requires:
+        raise ValueError(f"session stage {stage.name}: declare the tables it reads (inputs), not the stages")
+    _check_outputs(stage.name, stage.outputs)
+    # the groups it uses may come later: take stages that read it are registered after it
+    stage = dataclasses.replace(stage, requires=_writers(stage.name, stage.inputs, list(_SESSION_STAGES.values()),
+                                                         "session tables"))
     _SESSION_STAGES[stage.name] = stage
     return stage
 

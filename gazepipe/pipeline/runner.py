@@ -26,6 +26,7 @@ from gazepipe.blas import one_blas_thread
 from gazepipe.errors import GazepipeError, InputError, SchemaError, printable
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.atomic import atomic_paths
+from gazepipe.pipeline.codehash import code_of, library_changes
 from gazepipe.pipeline.hashing import HashCache, sha256_file, sha256_json
 from gazepipe.pipeline.lock import pid_alive
 from gazepipe.pipeline.registry import (
@@ -55,6 +56,8 @@ class UnitPlan:
     run: bool
     reason: str
     error: str = ""     # set when the unit failed before on the same inputs and is not retried
+    #: the code that makes its outputs (:func:`code_identity`): its stage's and its upstream units'
+    code: str = ""
 
 
 @dataclass
@@ -120,6 +123,23 @@ def _take_config(session: SessionLike, take: TakeLike) -> dict[str, Any]:
     return cfg
 
 
+#: the components that say which code a unit runs: apart from its fingerprint (:func:`code_identity`)
+CODE_COMPONENTS = ("code", "libraries")
+
+
+def fingerprint(comp: dict[str, Any]) -> str:
+    """A unit's fingerprint: the hash of its inputs and settings (its components but its code's), which the
+    datasets cite as the provenance of the tables they are made from."""
+    return sha256_json({k: v for k, v in comp.items() if k not in CODE_COMPONENTS})
+
+
+def code_identity(comp: dict[str, Any], upstream: dict[str, str]) -> str:
+    """A unit's code identity: the hash of its stage's code and libraries (``comp``) and its upstream units' code
+    identities (``upstream``, by name). A unit is up to date only while both its fingerprint and its code
+    identity are what its record says: an edit of the code a stage runs re-runs it and its readers."""
+    return sha256_json({**{k: comp[k] for k in CODE_COMPONENTS}, "upstream": upstream})
+
+
 def session_key(name: str) -> str:
     """How a take unit's fingerprint names a session stage among its upstream units."""
     return f"session:{name}"
@@ -131,19 +151,22 @@ def plan_session(session: SessionLike, stages: Sequence[SessionStage], params: d
     take :data:`SESSION_UNIT`)."""
     plans: list[UnitPlan] = []
     fps: dict[str, str] = {}
+    codes: dict[str, str] = {}
     running: set[str] = set()
     for st in stages:
         if not st.applies(session):
             continue
         check = registry.source_check()
         sources = {os.path.relpath(p, session.root): hashes.hash(p, check) for p in st.sources(session)}
+        code = code_of(st.run, hashes.code)
         comp = {
-            "stage": st.name, "version": st.version,
+            "stage": st.name, "version": st.version, "code": code.digest, "libraries": dict(code.libraries),
             "params": {f"{g}.{k}": v for g in st.uses for k, v in registry.group_values(g, params).items()},
             "sources": sources, "upstream": {u: fps[u] for u in st.requires if u in fps},
         }
-        fps[st.name] = sha256_json(comp)
-        plans.append(_decide(session, SESSION_UNIT, st.name, comp, fps[st.name],
+        fps[st.name] = fingerprint(comp)
+        codes[st.name] = code_identity(comp, {u: codes[u] for u in st.requires if u in codes})
+        plans.append(_decide(session, SESSION_UNIT, st.name, comp, (fps[st.name], codes[st.name]),
                              layout.session_record(session.id, st.name),
                              [layout.session_table(session.id, o) for o in st.outputs], running, force, hashes))
     return plans
@@ -157,6 +180,7 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
     runs."""
     plans: list[UnitPlan] = []
     fps: dict[str, str] = {session_key(u.stage): u.fingerprint for u in session_units}
+    codes: dict[str, str] = {session_key(u.stage): u.code for u in session_units}
     running: set[str] = {session_key(u.stage) for u in session_units if u.run}
     for st in stages:
         if not st.applies(session, take):
@@ -164,24 +188,29 @@ def plan_take(session: SessionLike, take: TakeLike, stages: Sequence[Stage], par
         check = registry.source_check()
         sources = {os.path.relpath(p, session.root): hashes.hash(p, check) for p in st.sources(session, take)}
         upstream = [*st.requires, *map(session_key, st.session_requires)]
+        code = code_of(st.run, hashes.code)
         comp = {
-            "stage": st.name, "version": st.version, "params": stage_params(st, params),
+            "stage": st.name, "version": st.version, "code": code.digest, "libraries": dict(code.libraries),
+            "params": stage_params(st, params),
             "take": _take_config(session, take), "sources": sources,
             "upstream": {u: fps[u] for u in upstream if u in fps},
         }
         if st.groups:
             comp["groups"] = {g: registry.group_values(g, params) for g in st.groups}
-        fps[st.name] = sha256_json(comp)
-        plans.append(_decide(session, take.id, st.name, comp, fps[st.name], layout.record(session.id, take.id, st.name),
+        fps[st.name] = fingerprint(comp)
+        codes[st.name] = code_identity(comp, {u: codes[u] for u in upstream if u in codes})
+        plans.append(_decide(session, take.id, st.name, comp, (fps[st.name], codes[st.name]),
+                             layout.record(session.id, take.id, st.name),
                              [layout.table(session.id, take.id, o) for o in st.outputs], running, force, hashes))
     return plans
 
 
-def _decide(session: SessionLike, take_id: str, stage: str, comp: dict[str, Any], fp: str, record_path: Path,
-            outputs: list[Path], running: set[str], force: bool, hashes: HashCache) -> UnitPlan:
+def _decide(session: SessionLike, take_id: str, stage: str, comp: dict[str, Any], ids: tuple[str, str],
+            record_path: Path, outputs: list[Path], running: set[str], force: bool, hashes: HashCache) -> UnitPlan:
     """A unit's plan: whether it must run (adding it to ``running``) and why, or the error it failed with
-    before on the same inputs."""
-    reason = _why(stage, comp, fp, record_path, outputs, running, force,
+    before on the same inputs (``ids``: its fingerprint and code identity)."""
+    fp, code = ids
+    reason = _why(stage, comp, ids, record_path, outputs, running, force,
                   lambda rel: hashes.hash(os.path.join(session.root, rel)))
     error = ""
     if reason:
@@ -192,40 +221,60 @@ def _decide(session: SessionLike, take_id: str, stage: str, comp: dict[str, Any]
             error = rec.get("error", "failed")
     return UnitPlan(session.id, take_id, stage, fp, comp, bool(reason),
                     reason or ("failed earlier on these same inputs (--force retries)" if error else "up to date"),
-                    error)
+                    error, code)
 
 
-def _why(stage: str, comp: dict[str, Any], fp: str, record_path: Path, outputs: list[Path],
+def _why(stage: str, comp: dict[str, Any], ids: tuple[str, str], record_path: Path, outputs: list[Path],
          running: set[str], force: bool, hash_of: Callable[[str], str]) -> str:
-    """Why a unit must run, or '' when it is up to date (``hash_of`` hashes a path relative to the session,
-    for the inputs the unit's last run found it needed, :attr:`UnitResult.read`)."""
+    """Why a unit must run, or '' when it is up to date (``ids``: its fingerprint and code identity;
+    ``hash_of`` hashes a path relative to the session, for the inputs the unit's last run found it needed,
+    :attr:`UnitResult.read`)."""
     if force:
         return "--force"
     rec = read_json(record_path)
     if not isinstance(rec, dict) or "fingerprint" not in rec:
         return "never ran"
+    same = [rec["fingerprint"], rec.get("code")] == list(ids)
     if rec.get("status") != "ok":
-        if rec["fingerprint"] == fp and not rec.get("retry", True):
+        if same and not rec.get("retry", True):
             return ""   # an input problem: the same inputs fail the same way
         return "failed last time"
-    if rec["fingerprint"] == fp:
-        for rel, digest in (rec.get("read") or {}).items():
-            try:
-                if hash_of(rel) != digest:
-                    return f"input changed: {rel}"
-            except GazepipeError:
-                return f"input {rel} unreadable"
-        sizes = rec.get("outputs", {})
-        for p in outputs:
-            try:
-                if p.stat().st_size != sizes.get(p.name):
-                    return f"output {p.name} changed on disk"
-            except FileNotFoundError:
-                return f"output {p.name} missing"
-        return ""
+    if same:
+        return _what_moved(rec, outputs, hash_of)
+    return _what_changed(stage, comp, rec, ids, running)
+
+
+def _what_moved(rec: dict[str, Any], outputs: list[Path], hash_of: Callable[[str], str]) -> str:
+    """For a unit whose record matches its identity: an input it found it needed that changed since, or an
+    output that changed on disk or is gone ('' when none)."""
+    for rel, digest in (rec.get("read") or {}).items():
+        try:
+            if hash_of(rel) != digest:
+                return f"input changed: {rel}"
+        except GazepipeError:
+            return f"input {rel} unreadable"
+    sizes = rec.get("outputs", {})
+    for p in outputs:
+        try:
+            if p.stat().st_size != sizes.get(p.name):
+                return f"output {p.name} changed on disk"
+        except FileNotFoundError:
+            return f"output {p.name} missing"
+    return ""
+
+
+def _what_changed(stage: str, comp: dict[str, Any], rec: dict[str, Any], ids: tuple[str, str],
+                  running: set[str]) -> str:
+    """Which component of a unit's identity differs from its record's, the first of: version, code,
+    libraries, parameters, inputs, take settings, upstream units."""
     old = rec.get("components", {})
     if old.get("version") != comp["version"]:
         return f"stage version {old.get('version')} -> {comp['version']}"
+    if old.get("code") != comp["code"]:
+        return "stage code changed"
+    libraries = library_changes(old.get("libraries"), comp["libraries"])
+    if libraries:
+        return "libraries changed: " + libraries
     changed = [k if "." in k else f"{stage}.{k}"   # a session stage's parameters are named with their group
                for k in comp["params"] if old.get("params", {}).get(k) != comp["params"][k]]
     changed += [f"{g}.{k}" for g, values in comp.get("groups", {}).items() for k in values
@@ -240,7 +289,7 @@ def _why(stage: str, comp: dict[str, Any], fp: str, record_path: Path, outputs: 
     ups = [u for u in comp["upstream"] if u in running or old.get("upstream", {}).get(u) != comp["upstream"][u]]
     if ups:
         return "upstream re-runs: " + ", ".join(ups)
-    return "fingerprint changed"
+    return "fingerprint changed" if rec["fingerprint"] != ids[0] else "upstream code changed"
 
 
 # -------------------------------------------------------------------------------------------- execution
@@ -308,7 +357,8 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
             continue
         ctx: UnitContext[Any, Any] = UnitContext(
             job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written), job.params,
-            session_loader=_session_loader(layout))
+            session_loader=_session_loader(layout), inputs=frozenset(st.inputs),
+            session_inputs=frozenset(st.session_inputs))
         out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, _files_of(job),
                         layout, written)
         if out.status == "failed":
@@ -343,7 +393,8 @@ def run_session_job(job: SessionJob) -> list[UnitOutcome]:
                                         reason=plan.reason, error=plan.error))
         else:
             ctx: SessionContext[Any] = SessionContext(job.session, {}, layout.root,
-                                                      _session_loader(layout, written), job.params)
+                                                      _session_loader(layout, written), job.params,
+                                                      inputs=frozenset(st.inputs))
             out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, [],
                             layout, written)
             if out.status == "failed":
@@ -361,6 +412,22 @@ def _unit_paths(layout: OutLayout, plan: UnitPlan) -> tuple[Callable[[str], Path
             f"take {plan.session}/{plan.take}")
 
 
+def _write_tables(tables: dict[str, tuple[pa.Table, Any]], table_path: Callable[[str], Path], tmp_dir: Path,
+                  store: registry.TableStore, writing: list[Path]) -> dict[str, int]:
+    """Write a unit's ``tables`` (name → (table, schema)) to their paths: every one written first, then fsynced
+    and renamed together, their folder fsynced once. Returns each file's size by file name; ``writing`` ends
+    with the path being written when an error is raised."""
+    names = sorted(tables)
+    finals = [table_path(name) for name in names]
+    with atomic_paths(finals, tmp_dir) as temporaries:
+        for name, final, tmp in zip(names, finals, temporaries, strict=True):
+            writing.append(final)
+            table, schema = tables[name]
+            store.write(table, tmp, schema)
+    writing.clear()
+    return {final.name: final.stat().st_size for final in finals}
+
+
 def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult], plan: UnitPlan,
               session: SessionLike, files: list[str], layout: OutLayout,
               written: dict[Path, pa.Table] | None = None) -> UnitOutcome:
@@ -369,10 +436,10 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
     store = registry.table_store()
     table_path, record_path, who = _unit_paths(layout, plan)
     record: dict[str, Any] = {"session": plan.session, "take": plan.take, "stage": plan.stage,
-                              "fingerprint": plan.fingerprint, "components": plan.components,
+                              "fingerprint": plan.fingerprint, "code": plan.code, "components": plan.components,
                               "gazepipe_version": __version__}
     outcome = UnitOutcome(plan.session, plan.take, plan.stage, "ok", reason=plan.reason)
-    writing: Path | None = None   # the output being written, for an I/O error's message
+    writing: list[Path] = []   # the output being written, for an I/O error's message
     try:
         # one BLAS thread whatever the executor: results must not depend on where a unit ran (a multi-threaded
         # BLAS sums in another order), and takes already run in parallel
@@ -381,20 +448,9 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
         missing = [o for o in outputs if o not in result.tables]
         if missing:
             raise RuntimeError(f"stage {stage} produced no {missing}")
-        sizes = {}
-        names = sorted(result.tables)
-        finals = [table_path(name) for name in names]
-        # every table written first, then fsynced and renamed together, their folder fsynced once
-        with atomic_paths(finals, layout.tmp) as temporaries:
-            for name, final, tmp in zip(names, finals, temporaries, strict=True):
-                writing = final
-                table, schema = result.tables[name]
-                store.write(table, tmp, schema)
-        writing = None
-        for name, final in zip(names, finals, strict=True):
-            sizes[final.name] = final.stat().st_size
-            if written is not None:
-                written[final] = result.tables[name][0]
+        sizes = _write_tables(result.tables, table_path, layout.tmp, store, writing)
+        if written is not None:
+            written.update({table_path(name): table for name, (table, _) in result.tables.items()})
         record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings,
                       read={os.path.relpath(p, session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)
@@ -414,7 +470,7 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
     except OSError as exc:   # the disk, not the take: full, read-only, no permission; retried next time
         record["retry"] = True
         outcome.status = "failed"
-        outcome.error = f"{who}: stage {stage}: {os_problem(exc, writing)}"
+        outcome.error = f"{who}: stage {stage}: {os_problem(exc, writing[-1] if writing else None)}"
         outcome.traceback = traceback.format_exc()
     except MemoryError:   # the machine, not the take: tried again next time
         record["retry"] = True

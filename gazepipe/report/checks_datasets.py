@@ -250,23 +250,7 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
         return Check("stats_sanity", "fail", "_dataset.json has no normalisation statistics")
     columns = list((info.get("features") or {}).keys())
     blocks = {"overall": stats["overall"], **{f"pose {p}": b for p, b in sorted(stats.get("per_pose", {}).items())}}
-    nonfinite, constant, missing, unknown = [], [], [], []
-    for where, block in blocks.items():
-        for c in columns:
-            arr = _stat_arrays(block, c)
-            if arr is None:
-                missing.append(f"{where} {c}")
-                continue
-            mean, std = arr
-            if not (np.isfinite(mean).all() and np.isfinite(std).all()):
-                nonfinite.append(f"{where} {c}")
-            elif where == "overall":
-                count = _stat_count(block, c)
-                none = np.zeros(std.size, bool) if count is None or count.size != std.size else count == 0
-                if none.any():
-                    unknown.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero(none)[:8])}]")
-                if np.any((std <= 0) & ~none):
-                    constant.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero((std <= 0) & ~none)[:8])}]")
+    nonfinite, constant, missing, unknown = _stat_problems(blocks, columns)
     details: dict[str, Any] = {"nonfinite": nonfinite, "constant": constant, "missing": missing,
                                "null_in_every_training_row": unknown}
     problems = [f"non-finite statistics in {nonfinite[0]}"] if nonfinite else []
@@ -279,23 +263,7 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
         details["sample_rows"] = int(sample.pose.size)
         if rows != sample.n_total:
             problems.append(f"statistics count {rows} training rows, the files hold {sample.n_total}")
-        worst_what = ""
-        for where, block in blocks.items():
-            pose = None if where == "overall" else where[5:]
-            sel = np.ones(sample.pose.size, bool) if pose is None else sample.pose == pose
-            n_total = sample.n_total if pose is None else sample.n_total_by_pose.get(pose, 0)
-            if pose is not None and block.get("rows") != n_total:
-                problems.append(f"{where}: statistics count {block.get('rows')} training rows, files {n_total}")
-            if not sel.any():
-                continue
-            for c in columns:
-                arr = _stat_arrays(block, c)
-                if arr is None or c not in sample.columns or not np.isfinite(arr[0]).all():
-                    continue
-                z, what = _compare(sample.columns[c][sel], n_total, arr[0], arr[1], th.stats_max_z,
-                                   _stat_count(block, c))
-                if z > worst_z:
-                    worst_z, worst_what = z, f"{where} {c} {what}"
+        worst_z, worst_what = _recomputed(blocks, columns, sample, th, problems)
         details["worst_z"] = worst_z
         details["worst"] = worst_what
         if worst_z > th.stats_max_z:
@@ -313,6 +281,55 @@ def check_stats(info: dict[str, Any], sample: StatsSample | None, th: Thresholds
         note += f"; null in every training row (mean 0, std 0): {', '.join(unknown[:4])}"
     return Check("stats_sanity", "pass", f"finite{note}{how}", value=worst_z,
                  threshold={"max_z": th.stats_max_z}, details=details)
+
+
+def _stat_problems(blocks: dict[str, Any], columns: list[str]) -> tuple[list[str], list[str], list[str], list[str]]:
+    """What the statistics blocks (overall, per pose) say of themselves: columns with non-finite statistics,
+    elements constant over the training rows, columns without statistics, elements null in every training row
+    (the last two overall only)."""
+    nonfinite, constant, missing, unknown = [], [], [], []
+    for where, block in blocks.items():
+        for c in columns:
+            arr = _stat_arrays(block, c)
+            if arr is None:
+                missing.append(f"{where} {c}")
+                continue
+            mean, std = arr
+            if not (np.isfinite(mean).all() and np.isfinite(std).all()):
+                nonfinite.append(f"{where} {c}")
+            elif where == "overall":
+                count = _stat_count(block, c)
+                none = np.zeros(std.size, bool) if count is None or count.size != std.size else count == 0
+                if none.any():
+                    unknown.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero(none)[:8])}]")
+                if np.any((std <= 0) & ~none):
+                    constant.append(f"{c}[{', '.join(str(i) for i in np.flatnonzero((std <= 0) & ~none)[:8])}]")
+    return nonfinite, constant, missing, unknown
+
+
+def _recomputed(blocks: dict[str, Any], columns: list[str], sample: StatsSample, th: Thresholds,
+                problems: list[str]) -> tuple[float, str]:
+    """The statistics recomputed on the sampled training rows against the blocks': the worst disagreement
+    (standard errors) and where it is; a per-pose block whose row count differs from the files' joins
+    ``problems``."""
+    worst_z, worst_what = 0.0, ""
+    for where, block in blocks.items():
+        pose = None if where == "overall" else where[5:]
+        sel = np.ones(sample.pose.size, bool) if pose is None else sample.pose == pose
+        n_total = sample.n_total if pose is None else sample.n_total_by_pose.get(pose, 0)
+        if pose is not None and block.get("rows") != n_total:
+            problems.append(f"{where}: statistics count {block.get('rows')} training rows, files {n_total}")
+        if not sel.any():
+            continue
+        for c in columns:
+            arr = _stat_arrays(block, c)
+            if arr is None or c not in sample.columns or not np.isfinite(arr[0]).all():
+                continue
+            z, what = _compare(sample.columns[c][sel], n_total, arr[0], arr[1], th.stats_max_z,
+                               _stat_count(block, c))
+            if z > worst_z:
+                worst_z, worst_what = z, f"{where} {c} {what}"
+    return worst_z, worst_what
 
 
 def check_skipped(info: dict[str, Any], left_out: list[dict[str, Any]] | None = None) -> Check:

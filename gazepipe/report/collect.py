@@ -335,8 +335,6 @@ def dataset_records(layout: OutLayout) -> dict[str, dict[str, Any]]:
 
 def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     """Read dataset.json, ``_common_metadata`` and every take file's identifiers; sample the training rows."""
-    from urllib.parse import unquote
-
     from gazepipe.io.dataset_files import COMMON_METADATA, read_info, take_files
     from gazepipe.io.dataset_files import expected_schema as ds_schema
 
@@ -359,60 +357,78 @@ def load_dataset(path: Path, th: Thresholds) -> DatasetData:
     # at a time and keeps only the sampled rows, so memory holds one take whatever the dataset's size
     readable: list[tuple[Path, str, int, np.ndarray]] = []   # file, pose, rows, positions of training rows
     for f in take_files(path):
-        rel = str(f.relative_to(path))
-        facts = FileFacts(rel, session=unquote(f.parent.name), take=unquote(f.stem), folder=f.parent.parent.name)
-        try:
-            pf = pq.ParquetFile(str(f))
-            names = pf.schema_arrow.names
-            facts.schema_hash = schema_hash(pf.schema_arrow)
-            ident = pf.read(columns=[c for c in ("split", "session", "take", "subject", "pose") if c in names])
-            split = np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str) \
-                if "split" in ident.column_names else np.zeros(0, str)
-            for sp, n in zip(*np.unique(split, return_counts=True), strict=True):
-                facts.rows_by_split[str(sp)] = int(n)
-            for col in ("session", "take", "subject", "pose"):
-                values = ident.column(col).unique().to_pylist() if col in ident.column_names else []
-                if len(values) == 1:
-                    setattr(facts, col if col in ("subject", "pose") else f"{col}_column", str(values[0]))
-            if all(c in names for c in feature_cols):
-                readable.append((f, facts.pose, pf.metadata.num_rows, np.flatnonzero(split == "train")))
-        except (OSError, pa.ArrowException) as exc:
-            facts.error = f"{f}: unreadable ({' '.join(str(exc).split())})"
+        facts = _file_facts(f, path, feature_cols, readable)
+        if facts.error:
             d.errors.append(facts.error)
         d.files.append(facts)
         splits = [s for s, n in facts.rows_by_split.items() if n]
         if len(splits) == 1:
             d.take_splits[f"{facts.session}/{facts.take}"] = splits[0]
     if readable:
-        train_pick = _choose([(pose, len(tr)) for _, pose, _, tr in readable], th)
-        all_pick = _choose([(pose, n) for _, pose, n, _ in readable], th)
-        train_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
-        all_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
-        train_pose: list[np.ndarray] = []
-        all_pose: list[np.ndarray] = []
-        for i, (f, pose, _, train) in enumerate(readable):
-            t_idx, a_idx = train[train_pick.rows[i]], all_pick.rows[i]
-            if not (t_idx.size or a_idx.size):
-                continue
-            try:
-                t = read_table(f, columns=feature_cols)
-            except GazepipeError as exc:
-                d.errors.append(exc.one_line())
-                continue
-            except (OSError, pa.ArrowException) as exc:
-                d.errors.append(f"{f}: unreadable ({' '.join(str(exc).split())})")
-                continue
-            for idx, rows, poses in ((t_idx, train_rows, train_pose), (a_idx, all_rows, all_pose)):
-                if idx.size:
-                    sub = t.take(pa.array(idx))
-                    for c in feature_cols:
-                        rows[c].append(_values(sub, c))
-                    poses.append(np.full(idx.size, pose, dtype=object))
-        if train_pick.n_total:
-            d.sample = train_pick.sample(train_rows, train_pose)
-        if all_pick.n_total:
-            d.all_rows = all_pick.sample(all_rows, all_pose)
+        _sample_rows(d, readable, feature_cols, th)
     return d
+
+
+def _file_facts(f: Path, path: Path, feature_cols: list[str],
+                readable: list[tuple[Path, str, int, np.ndarray]]) -> FileFacts:
+    """What a take file of the dataset at ``path`` holds, from its identifier columns; the file joins
+    ``readable`` (file, pose, rows, positions of its training rows) when it has every feature column."""
+    from urllib.parse import unquote
+
+    facts = FileFacts(str(f.relative_to(path)), session=unquote(f.parent.name), take=unquote(f.stem),
+                      folder=f.parent.parent.name)
+    try:
+        pf = pq.ParquetFile(str(f))
+        names = pf.schema_arrow.names
+        facts.schema_hash = schema_hash(pf.schema_arrow)
+        ident = pf.read(columns=[c for c in ("split", "session", "take", "subject", "pose") if c in names])
+        split = np.asarray(ident.column("split").to_pylist(), dtype=object).astype(str) \
+            if "split" in ident.column_names else np.zeros(0, str)
+        for sp, n in zip(*np.unique(split, return_counts=True), strict=True):
+            facts.rows_by_split[str(sp)] = int(n)
+        for col in ("session", "take", "subject", "pose"):
+            values = ident.column(col).unique().to_pylist() if col in ident.column_names else []
+            if len(values) == 1:
+                setattr(facts, col if col in ("subject", "pose") else f"{col}_column", str(values[0]))
+        if all(c in names for c in feature_cols):
+            readable.append((f, facts.pose, pf.metadata.num_rows, np.flatnonzero(split == "train")))
+    except (OSError, pa.ArrowException) as exc:
+        facts.error = f"{f}: unreadable ({' '.join(str(exc).split())})"
+    return facts
+
+
+def _sample_rows(d: DatasetData, readable: list[tuple[Path, str, int, np.ndarray]], feature_cols: list[str],
+                 th: Thresholds) -> None:
+    """The seeded samples of the training rows (``d.sample``) and of all rows (``d.all_rows``) of the
+    ``readable`` take files, reading one file's feature columns at a time."""
+    train_pick = _choose([(pose, len(tr)) for _, pose, _, tr in readable], th)
+    all_pick = _choose([(pose, n) for _, pose, n, _ in readable], th)
+    train_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
+    all_rows: dict[str, list[np.ndarray]] = {c: [] for c in feature_cols}
+    train_pose: list[np.ndarray] = []
+    all_pose: list[np.ndarray] = []
+    for i, (f, pose, _, train) in enumerate(readable):
+        t_idx, a_idx = train[train_pick.rows[i]], all_pick.rows[i]
+        if not (t_idx.size or a_idx.size):
+            continue
+        try:
+            t = read_table(f, columns=feature_cols)
+        except GazepipeError as exc:
+            d.errors.append(exc.one_line())
+            continue
+        except (OSError, pa.ArrowException) as exc:
+            d.errors.append(f"{f}: unreadable ({' '.join(str(exc).split())})")
+            continue
+        for idx, rows, poses in ((t_idx, train_rows, train_pose), (a_idx, all_rows, all_pose)):
+            if idx.size:
+                sub = t.take(pa.array(idx))
+                for c in feature_cols:
+                    rows[c].append(_values(sub, c))
+                poses.append(np.full(idx.size, pose, dtype=object))
+    if train_pick.n_total:
+        d.sample = train_pick.sample(train_rows, train_pose)
+    if all_pick.n_total:
+        d.all_rows = all_pick.sample(all_rows, all_pose)
 
 
 @dataclass

@@ -107,7 +107,7 @@ ROOT_MARKERS = (ROOT_MARKER, *SEGMENT_MARKERS["pelvis"])
 MAX_ROOT_GAP = 3
 
 
-def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,
+def make_gaps(rng: np.random.Generator, labels: list[str], n: int, kind: str,  # noqa: C901
               clapper_busy: np.ndarray | None) -> np.ndarray:
     """Occlusion mask (T, M) bool, True where a sample is missing.
 

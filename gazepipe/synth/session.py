@@ -405,112 +405,23 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
     all_writers = [*builtin_writers(cfg), *writers]
     (out / "mocap").mkdir(parents=True, exist_ok=True)
     (out / "truth").mkdir(exist_ok=True)
-    rate = float(cfg.rate_hz)
     cam = camera_to_head()
     records: list[TakeRecord] = []
     meta_takes: dict[str, Any] = {}
     n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps, r_rest = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11))
+        rngs = _Streams(*(np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11)))
         if kind == "face":
             assert target is not None
             face_scalars: dict[str, Any] = {"kind": kind, "rate_hz": target[0], "duration_s": target[1]}
             if cfg.face_tracking_loss:
                 face_scalars["tracking_loss_stretches"] = int(cfg.face_tracking_loss)
-            rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, face_scalars, r_writer, cam,
+            rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, face_scalars, rngs.writer, cam,
                              {"id": take_id, "kind": kind})
-            for w in all_writers:
-                rec.entries.update(w(out, rec))
-            write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
-            meta_takes[take_id] = rec.truth_scalars
-            records.append(rec)
-            continue
-        still_gap_s = None
-        if kind == "gaze_follow":
-            rebound = None
-            if cfg.clap_rebounds > 0:
-                bounce = r_hazard.random(2) < cfg.clap_rebounds
-                rebound = np.stack([np.where(bounce, r_hazard.uniform(3.0, 6.0, 2), 0.0),
-                                    r_hazard.uniform(1.0, 2.0, 2) / rate], axis=1)
-            secs = cfg.follow_duration_s if target is None else target[0]
-            hazard = None
-            if cfg.clap_hazards > 0 and r_claps.random() < cfg.clap_hazards:
-                hazard = clap_hazard(r_claps, CLAP_HAZARDS[n_clap_hazards % len(CLAP_HAZARDS)], rate)
-                n_clap_hazards += 1
-            weak = None if hazard is None or hazard["kind"] != "weak" else (
-                hazard["clap"], hazard["closing_s"], hazard["depth"], hazard["softness"])
-            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound, weak)
-            if hazard is not None:
-                motion.design["clap_hazard"] = hazard
-        elif kind == "gaze_shift":
-            assert target is not None
-            step = None
-            if cfg.body_steps > 0 and r_hazard.random() < cfg.body_steps:
-                ang = r_hazard.uniform(0.0, 2.0 * np.pi)
-                mm = r_hazard.uniform(40.0, 150.0)
-                step = (float(r_hazard.uniform(-0.8, -0.2)), float(r_hazard.uniform(0.8, 1.4)),
-                        mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
-            if cfg.root_final_rest_gap_s is not None:
-                still_gap_s = float(r_rest.uniform(*cfg.root_final_rest_gap_s))
-            motion = shift_motion(r_motion, rate, cfg.placement, pose, *target, step=step,
-                                  more_rest_s=0.0 if still_gap_s is None else still_gap_s + FINAL_REST_MARGIN_S)
         else:
-            motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
-        kin = build_kinematics(motion, cfg.placement, cfg.segments)
-        n, m = kin.markers_true.shape[:2]
-        mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
-                else np.zeros((n, m), dtype=bool))
-        noisy = kin.markers_true + r_noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
-        if cfg.gaps and (cfg.long_gaps or cfg.gaps_per_marker_min):
-            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
-            mask |= make_long_gaps(r_long, kin.labels, n, rate, cfg.long_gaps, cfg.gaps_per_marker_min, rests,
-                                   crop_bounds(rests, kind))
-        if cfg.gaps and cfg.root_rest_gaps:
-            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
-            mask |= make_root_rest_gap(r_hazard, kin.labels, n, rate, rests)
-        if cfg.gaps and still_gap_s is not None:
-            rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
-            mask |= make_root_final_rest_gap(r_rest, kin.labels, n, rate, rests, still_gap_s)
-        if cfg.gaps and cfg.occlusion_bursts:
-            mask |= make_occlusion_bursts(r_bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
-        hazard = motion.design.get("clap_hazard")
-        if hazard is not None and hazard["kind"] == "clapper_gap":
-            mask |= clapper_gap(kin.labels, n, rate, motion.clap_times_s, hazard)
-        offsets, spiked = make_spikes(r_spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
-                                      motion.clapper_busy)
-        noisy += offsets
-        swaps = make_label_swaps(r_swaps, kin.labels, mask, rate, cfg.label_swaps) if cfg.label_swaps else []
-        swapped = apply_label_swaps(noisy, mask, swaps)
-        for a, b, s, e in swaps:                 # a ghost on a swapped marker shows under the other name
-            spiked[s:e, [a, b]] = spiked[s:e, [b, a]]
-        noisy[mask] = np.nan
-        # the export's format: a stream of its own (the twelfth: the eleventh is r_rest's), drawn only when asked
-        # for (the other streams stay as they were)
-        nexus = cfg.nexus_csv > 0 and np.random.default_rng(
-            np.random.SeedSequence([seed, index]).spawn(12)[11]).random() < cfg.nexus_csv
-        mocap_rel = f"mocap/{take_id}.csv" if nexus else f"mocap/{take_id}.c3d"
-        if cfg.up_axis != "z":
-            noisy = noisy @ _lab_axes(cfg.up_axis).T
-        if nexus:
-            write_nexus_csv(out / mocap_rel, kin.labels, noisy, rate, cfg.subject)
-        else:
-            write_c3d(out / mocap_rel, kin.labels, noisy, rate)
-        arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
-        if cfg.up_axis != "z":
-            _relabel_lab(arrays, _lab_axes(cfg.up_axis))
-        arrays["spike_mask"] = spiked
-        scalars["spike_samples"] = int(spiked.sum())
-        if cfg.label_swaps:
-            arrays["swap_mask"] = swapped
-            arrays["swaps"] = np.array(swaps, dtype=np.int64).reshape(-1, 4)
-            scalars["swap_samples"] = int(swapped.sum())
-        scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
-        entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
-        if kind == "gaze_shift" and target is not None:
-            entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
-        rec = TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, r_writer, cam, entries)
+            motion, still_gap_s, n_clap_hazards = _take_motion(kind, pose, target, cfg, rngs, n_clap_hazards)
+            rec = _mocap_take(out, seed, index, (take_id, kind, pose, target), cfg, motion, still_gap_s, rngs, cam)
         for w in all_writers:
             rec.entries.update(w(out, rec))
         write_npz(out / "truth" / f"{take_id}.npz", rec.truth_arrays)
@@ -519,10 +430,144 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
 
     (out / "markerset.toml").write_text(markerset_toml(cfg.segments, cfg.up_axis))
     (out / "session.toml").write_text(session_toml(cfg, records))
-    meta = {
+    meta = _session_truth(seed, cfg, cam, meta_takes)
+    (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+    from gazepipe.synth.readme import TRUTH_README
+    (out / "truth" / "README.md").write_text(TRUTH_README)
+
+
+@dataclass(frozen=True)
+class _Streams:
+    """A take's random streams, one per purpose, in the order they are spawned."""
+
+    motion: np.random.Generator
+    noise: np.random.Generator
+    gaps: np.random.Generator
+    writer: np.random.Generator
+    spikes: np.random.Generator
+    long: np.random.Generator
+    hazard: np.random.Generator
+    swaps: np.random.Generator
+    bursts: np.random.Generator
+    claps: np.random.Generator
+    rest: np.random.Generator
+
+
+def _take_motion(kind: str, pose: str, target: tuple[float, float] | None, cfg: SynthConfig, rngs: _Streams,
+                 n_clap_hazards: int) -> tuple[Any, float | None, int]:
+    """A mocap take's motion, the length of the gap a still marker gets in its final rest (s; None for none),
+    and the count of clap hazards drawn so far in the session."""
+    rate = float(cfg.rate_hz)
+    still_gap_s = None
+    if kind == "gaze_follow":
+        rebound = None
+        if cfg.clap_rebounds > 0:
+            bounce = rngs.hazard.random(2) < cfg.clap_rebounds
+            rebound = np.stack([np.where(bounce, rngs.hazard.uniform(3.0, 6.0, 2), 0.0),
+                                rngs.hazard.uniform(1.0, 2.0, 2) / rate], axis=1)
+        secs = cfg.follow_duration_s if target is None else target[0]
+        hazard = None
+        if cfg.clap_hazards > 0 and rngs.claps.random() < cfg.clap_hazards:
+            hazard = clap_hazard(rngs.claps, CLAP_HAZARDS[n_clap_hazards % len(CLAP_HAZARDS)], rate)
+            n_clap_hazards += 1
+        weak = None if hazard is None or hazard["kind"] != "weak" else (
+            hazard["clap"], hazard["closing_s"], hazard["depth"], hazard["softness"])
+        motion = follow_motion(rngs.motion, rate, cfg.placement, pose, secs, rebound, weak)
+        if hazard is not None:
+            motion.design["clap_hazard"] = hazard
+    elif kind == "gaze_shift":
+        assert target is not None
+        step = None
+        if cfg.body_steps > 0 and rngs.hazard.random() < cfg.body_steps:
+            ang = rngs.hazard.uniform(0.0, 2.0 * np.pi)
+            mm = rngs.hazard.uniform(40.0, 150.0)
+            step = (float(rngs.hazard.uniform(-0.8, -0.2)), float(rngs.hazard.uniform(0.8, 1.4)),
+                    mm * np.array([np.cos(ang), np.sin(ang), 0.0]))
+        if cfg.root_final_rest_gap_s is not None:
+            still_gap_s = float(rngs.rest.uniform(*cfg.root_final_rest_gap_s))
+        motion = shift_motion(rngs.motion, rate, cfg.placement, pose, *target, step=step,
+                              more_rest_s=0.0 if still_gap_s is None else still_gap_s + FINAL_REST_MARGIN_S)
+    else:
+        motion = neutral_motion(rngs.motion, rate, cfg.placement, cfg.neutral_s)
+    return motion, still_gap_s, n_clap_hazards
+
+
+def _gap_mask(kind: str, cfg: SynthConfig, motion: Any, kin: Any, still_gap_s: float | None,
+              rngs: _Streams) -> np.ndarray:
+    """Which samples (frames, markers) the capture lost: gaps, long gaps, rest gaps, occlusion bursts, a
+    clapper gap."""
+    rate = float(cfg.rate_hz)
+    n, m = kin.markers_true.shape[:2]
+    mask = (make_gaps(rngs.gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
+            else np.zeros((n, m), dtype=bool))
+    if cfg.gaps and (cfg.long_gaps or cfg.gaps_per_marker_min):
+        rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+        mask |= make_long_gaps(rngs.long, kin.labels, n, rate, cfg.long_gaps, cfg.gaps_per_marker_min, rests,
+                               crop_bounds(rests, kind))
+    if cfg.gaps and cfg.root_rest_gaps:
+        rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+        mask |= make_root_rest_gap(rngs.hazard, kin.labels, n, rate, rests)
+    if cfg.gaps and still_gap_s is not None:
+        rests = rest_periods(kin.markers_true[:, subject_columns(kin.labels)], rate)
+        mask |= make_root_final_rest_gap(rngs.rest, kin.labels, n, rate, rests, still_gap_s)
+    if cfg.gaps and cfg.occlusion_bursts:
+        mask |= make_occlusion_bursts(rngs.bursts, kin.labels, kin.markers_true, rate, cfg.occlusion_bursts)
+    hazard = motion.design.get("clap_hazard")
+    if hazard is not None and hazard["kind"] == "clapper_gap":
+        mask |= clapper_gap(kin.labels, n, rate, motion.clap_times_s, hazard)
+    return mask
+
+
+def _mocap_take(out: Path, seed: int, index: int, plan: tuple[str, str, str, tuple[float, float] | None],
+                cfg: SynthConfig,
+                motion: Any, still_gap_s: float | None, rngs: _Streams, cam: Rotation) -> TakeRecord:
+    """A mocap take's capture written (C3D, or Nexus CSV when drawn), with its truth."""
+    take_id, kind, pose, target = plan
+    rate = float(cfg.rate_hz)
+    kin = build_kinematics(motion, cfg.placement, cfg.segments)
+    mask = _gap_mask(kind, cfg, motion, kin, still_gap_s, rngs)
+    noisy = kin.markers_true + rngs.noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
+    offsets, spiked = make_spikes(rngs.spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
+                                  motion.clapper_busy)
+    noisy += offsets
+    swaps = make_label_swaps(rngs.swaps, kin.labels, mask, rate, cfg.label_swaps) if cfg.label_swaps else []
+    swapped = apply_label_swaps(noisy, mask, swaps)
+    for a, b, s, e in swaps:                 # a ghost on a swapped marker shows under the other name
+        spiked[s:e, [a, b]] = spiked[s:e, [b, a]]
+    noisy[mask] = np.nan
+    # the export's format: a stream of its own (the twelfth: the eleventh is the rest stream), drawn only when
+    # asked for (the other streams stay as they were)
+    nexus = cfg.nexus_csv > 0 and np.random.default_rng(
+        np.random.SeedSequence([seed, index]).spawn(12)[11]).random() < cfg.nexus_csv
+    mocap_rel = f"mocap/{take_id}.csv" if nexus else f"mocap/{take_id}.c3d"
+    if cfg.up_axis != "z":
+        noisy = noisy @ _lab_axes(cfg.up_axis).T
+    if nexus:
+        write_nexus_csv(out / mocap_rel, kin.labels, noisy, rate, cfg.subject)
+    else:
+        write_c3d(out / mocap_rel, kin.labels, noisy, rate)
+    arrays, scalars = take_truth(kind, motion, kin, mask, gap_runs(mask), rate, target)
+    if cfg.up_axis != "z":
+        _relabel_lab(arrays, _lab_axes(cfg.up_axis))
+    arrays["spike_mask"] = spiked
+    scalars["spike_samples"] = int(spiked.sum())
+    if cfg.label_swaps:
+        arrays["swap_mask"] = swapped
+        arrays["swaps"] = np.array(swaps, dtype=np.int64).reshape(-1, 4)
+        scalars["swap_samples"] = int(swapped.sum())
+    scalars.update({"kind": kind, "pose": pose, "mocap": mocap_rel, "rate_hz": rate})
+    entries: dict[str, Any] = {"id": take_id, "kind": kind, "pose": pose, "mocap": mocap_rel}
+    if kind == "gaze_shift" and target is not None:
+        entries["target"] = {"yaw_deg": target[0], "pitch_deg": target[1]}
+    return TakeRecord(take_id, kind, pose, index, rate, motion, kin, arrays, scalars, rngs.writer, cam, entries)
+
+
+def _session_truth(seed: int, cfg: SynthConfig, cam: Rotation, meta_takes: dict[str, Any]) -> dict[str, Any]:
+    """The session's ``truth.json``: the generator's settings, frames and every take's truth scalars."""
+    return {
         "generator_version": GENERATOR_VERSION,
         "seed": int(seed),
-        "rate_hz": rate,
+        "rate_hz": float(cfg.rate_hz),
         "noise_mm": cfg.noise_mm,
         "subject_floor_lab_mm": (list(cfg.placement.floor_mm) if cfg.up_axis == "z" else
                                  (np.asarray(cfg.placement.floor_mm) @ _lab_axes(cfg.up_axis).T).tolist()),
@@ -536,6 +581,3 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
         **({} if cfg.up_axis == "z" else {"up_axis": cfg.up_axis}),
         "takes": meta_takes,
     }
-    (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    from gazepipe.synth.readme import TRUTH_README
-    (out / "truth" / "README.md").write_text(TRUTH_README)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
+from gazepipe.arkit import mirror_face
 from gazepipe.schemas.joints import list_to_numpy
 from gazepipe.schemas.tracks import N_BLENDSHAPES
 from gazepipe.stages.build.gaze import TakeRows
-from gazepipe.stages.face.stage import mirror_face
 
 
 def face_columns(k: int) -> list[str]:

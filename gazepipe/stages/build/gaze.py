@@ -349,8 +349,63 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     if duration <= 0:
         raise StageError(path, f"gaze_map: rests {rests[:2]} give a duration of {duration:.3f} s", take=take)
     names = list(joints["segments"])
-    max_run = int(np.floor(max_bridge_s * rate_hz + 1e-9))
     char_rot = np.array(joints["char_rot"], dtype=np.float64)
+    reasons: dict[str, str] = {}
+    ends_ok = _end_poses(joints, rests, quat, char_rot, rate_hz, reasons, path, take)
+    holes = _Holes(n, rate_hz, max_bridge_s)
+    bridged = holes.bridge({"character frame": char_rot, **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}})
+    parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
+    rc = from_wxyz(char_rot)
+    fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]
+    local = [fixed[k] if parents[k] < 0 else fixed[parents[k]].inv() * fixed[k] for k in range(ns)]
+
+    p_plus, p_ok, eyes_ok = _p_plus(local, fixed, ends_ok, parents, names, head, (yaw_deg, pitch_deg), reasons)
+    # an event (a start, the overshoot) read before the first frame that cannot be bridged is the first one;
+    # after it, it could have happened unseen
+    starts, no_start = _start_times(local, names, parents, holes, duration,
+                                    (start_speed_deg_s, start_filter_hz, start_min_s), reasons)
+    start_ok = np.isfinite(starts)
+    nan4 = np.full(4, np.nan)
+    for k in np.flatnonzero(~p_ok).tolist():
+        p_plus[k] = nan4
+    t_frac, beta, j, ov_ok = _head_overshoot(fixed[head], names[head], holes, overshoot_window_s, duration,
+                                             eyes_ok, reasons)
+
+    known = np.array([*p_ok, eyes_ok, ov_ok], dtype=bool)
+    mask_names = [*names, *MASK_TAIL]
+    if not known.any() and not start_ok.any():
+        # nothing to learn from: the row is not written (the build lists the take as skipped, with this reason)
+        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:3])
+        raise StageError(path, f"gaze_map: no parameter of the row could be computed ({why})", take=take)
+    f32 = np.float32
+    feats = {
+        "yaw_deg": np.array([yaw_deg], f32), "pitch_deg": np.array([pitch_deg], f32),
+        "duration_s": np.array([duration], f32),
+        "start_times": starts.astype(f32)[None, :],
+        "overshoot_time": np.array([t_frac], f32), "overshoot": np.array([beta], f32),
+        "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
+        "known": known[None, :],
+        "start_known": start_ok[None, :],
+    }
+    frame = np.asarray(joints["frame"], dtype=np.int64)
+    null = [mask_names[i] for i in np.flatnonzero(~known)]
+    null += [start_entry(names[k]) for k in np.flatnonzero(~start_ok) if names[k] not in no_start]
+    qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
+          "unbridged_frames": int(np.logical_or.reduce([*holes.unknown.values(), np.zeros(n, bool)]).sum()),
+          "overshoot_frame": int(frame[j]) if j >= 0 else None,
+          "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1])),
+          "null_segments": null, "null_reasons": {k: reasons[k] for k in null}, "no_start": no_start}
+    return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
+                    time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
+
+
+def _end_poses(joints: dict, rests: list, quat: np.ndarray, char_rot: np.ndarray, rate_hz: float,
+               reasons: dict[str, str], path: str | None, take: str | None) -> np.ndarray:
+    """Put the subject's still poses at the crop's first and last frames (:func:`gaze_map_row`) into ``quat``
+    (N, S, 4) and ``char_rot`` (N, 4), in place; (S,) bool: which segments have both. Why a segment has not is
+    in ``reasons``; a missing character frame pose raises :class:`StageError`."""
+    n, ns = quat.shape[:2]
+    names = list(joints["segments"])
     measured = np.all(np.isfinite(quat), axis=2)
     if joints.get("rot_measured") is not None:
         measured &= np.asarray(joints["rot_measured"], dtype=bool)
@@ -367,7 +422,6 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
         last = mean_wxyz(q[tail:], 3)
         return last if last is not None else mean_wxyz(q[second:], 3)
 
-    reasons: dict[str, str] = {}
     first_c = before.get("char_rot")
     first_c = np.asarray(first_c, dtype=np.float64) if first_c is not None else (
         char_rot[0] if np.isfinite(char_rot[0]).all() else None)
@@ -394,36 +448,56 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
                      f"no measured rotation in the crop's final rest (frames {second}–{n - 1})"
                      if last is None else ""]
             reasons[names[k]] = "P+: " + "; ".join(w for w in where if w)
+    return ends_ok
 
-    series = {"character frame": char_rot, **{f"segment {names[k]!r}": quat[:, k] for k in range(ns)}}
-    bridged = np.zeros(n, dtype=bool)
-    unknown: dict[str, np.ndarray] = {}          # frames a bridge cannot reach: longer runs without a rotation
-    for series_name, q in series.items():
-        ok = np.isfinite(q).all(axis=1)
-        if ok.all():
-            continue
-        q[:], _ = bridge_rotations(q, max_run)
-        gone = ~np.isfinite(q).all(axis=1)
-        bridged |= ~ok & ~gone
-        if gone.any():
-            unknown[series_name] = gone
-            q[gone] = (1.0, 0.0, 0.0, 0.0)       # placeholders: no event is read at or after them
-    parents = [int(p) for p in joints["meta"].get("parents", [-1] + list(range(ns - 1)))]
-    rc = from_wxyz(char_rot)
-    fixed = [rc[0].inv() * rc * from_wxyz(quat[:, k]) for k in range(ns)]
-    local = [fixed[k] if parents[k] < 0 else fixed[parents[k]].inv() * fixed[k] for k in range(ns)]
 
-    def known_until(*whats: str) -> tuple[int, str | None]:
+@dataclass
+class _Holes:
+    """The crop's runs of frames without a rotation that no bridge reaches, by series (character frame,
+    segments), once :meth:`bridge` ran."""
+
+    n: int
+    rate_hz: float
+    max_bridge_s: float
+    unknown: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def bridge(self, series: dict[str, np.ndarray]) -> np.ndarray:
+        """Bridge each series' runs without a rotation in place (:func:`bridge_rotations`), up to
+        ``max_bridge_s``; longer runs get placeholders (no event is read at or after them) and are remembered.
+        (N,) bool: the frames bridged in any series."""
+        max_run = int(np.floor(self.max_bridge_s * self.rate_hz + 1e-9))
+        bridged = np.zeros(self.n, dtype=bool)
+        for series_name, q in series.items():
+            ok = np.isfinite(q).all(axis=1)
+            if ok.all():
+                continue
+            q[:], _ = bridge_rotations(q, max_run)
+            gone = ~np.isfinite(q).all(axis=1)
+            bridged |= ~ok & ~gone
+            if gone.any():
+                self.unknown[series_name] = gone
+                q[gone] = (1.0, 0.0, 0.0, 0.0)       # placeholders: no event is read at or after them
+        return bridged
+
+    def known_until(self, *whats: str) -> tuple[int, str | None]:
         """The first frame none of ``whats`` can be bridged to (n when all are known), and which one."""
-        firsts: list[tuple[int, str | None]] = [(int(np.argmax(unknown[w])), w) for w in whats if w in unknown]
-        return min(firsts, key=lambda f: f[0]) if firsts else (n, None)
+        firsts: list[tuple[int, str | None]] = [(int(np.argmax(self.unknown[w])), w) for w in whats
+                                                if w in self.unknown]
+        return min(firsts, key=lambda f: f[0]) if firsts else (self.n, None)
 
-    def cannot(quantity: str, what: str) -> str:
-        a, b = true_runs(unknown[what])[0]
-        return (f"{quantity} cannot be computed: crop frames {a}–{b - 1} ({(b - a) / rate_hz:.2f} s) have no "
-                f"{what} rotation, more than build.max_bridge_s ({max_bridge_s:g} s) can bridge, and the event is "
-                "not found before them")
+    def cannot(self, quantity: str, what: str) -> str:
+        a, b = true_runs(self.unknown[what])[0]
+        return (f"{quantity} cannot be computed: crop frames {a}–{b - 1} ({(b - a) / self.rate_hz:.2f} s) have "
+                f"no {what} rotation, more than build.max_bridge_s ({self.max_bridge_s:g} s) can bridge, and the "
+                "event is not found before them")
 
+
+def _p_plus(local: list[Rotation], fixed: list[Rotation], ends_ok: np.ndarray, parents: list[int], names: list[str], head: int,
+            gaze_deg: tuple[float, float], reasons: dict[str, str]) -> tuple[list[np.ndarray], np.ndarray, bool]:
+    """P+ of every segment (wxyz; NaN where unknown), then the eyes'; which segments' are known; whether the
+    eyes' is."""
+    ns = len(local)
+    n = len(fixed[head])
     nan4 = np.full(4, np.nan)
     p_ok = np.array([ends_ok[k] and (parents[k] < 0 or ends_ok[parents[k]]) for k in range(ns)], dtype=bool)
     for k in np.flatnonzero(ends_ok & ~p_ok).tolist():
@@ -431,68 +505,52 @@ def gaze_map_row(joints: dict, rests: list, rate_hz: float, yaw_deg: float, pitc
     p_plus = [to_wxyz(loc[n - 1] * loc[0].inv()) if p_ok[k] else nan4 for k, loc in enumerate(local)]
     eyes_ok = bool(ends_ok[head])
     d_head = fixed[head][n - 1] * fixed[head][0].inv()
-    p_plus.append(to_wxyz(d_head.inv() * gaze_rotation(np.deg2rad(yaw_deg), np.deg2rad(pitch_deg)))
+    p_plus.append(to_wxyz(d_head.inv() * gaze_rotation(np.deg2rad(gaze_deg[0]), np.deg2rad(gaze_deg[1])))
                   if eyes_ok else nan4)
     if not eyes_ok:
         reasons["eyes"] = f"P+: needs the head's displacement, and {names[head]!r} has an unknown end pose"
+    return p_plus, p_ok, eyes_ok
 
-    # an event (a start, the overshoot) read before the first frame that cannot be bridged is the first one;
-    # after it, it could have happened unseen
-    thr = np.deg2rad(start_speed_deg_s)
-    starts = np.full(ns, np.nan)
+
+def _start_times(local: list[Rotation], names: list[str], parents: list[int], holes: _Holes, duration: float,
+                 rule: tuple[float, float | None, float], reasons: dict[str, str]) -> tuple[np.ndarray, list[str]]:
+    """Each segment's start time as a fraction of the duration (NaN where unknown, :func:`start_frame` with
+    ``rule``: start speed deg/s, filter Hz, minimum s), and the segments that never reached the start speed."""
+    speed_deg_s, filter_hz, min_s = rule
+    rate_hz = holes.rate_hz
+    thr = np.deg2rad(speed_deg_s)
+    starts = np.full(len(local), np.nan)
     no_start: list[str] = []                     # never reached the start speed: null, but known to be so
-    min_frames = max(1, int(round(start_min_s * rate_hz)))
+    min_frames = max(1, int(round(min_s * rate_hz)))
     for k, loc in enumerate(local):
         chain = ["character frame", f"segment {names[k]!r}"]
         if parents[k] >= 0:
             chain.append(f"segment {names[parents[k]]!r}")
-        stop, what = known_until(*chain)
-        j0 = start_frame(loc[:stop], rate_hz, thr, start_filter_hz, min_frames) if stop >= 2 else -1
+        stop, what = holes.known_until(*chain)
+        j0 = start_frame(loc[:stop], rate_hz, thr, filter_hz, min_frames) if stop >= 2 else -1
         if j0 >= 0:
             starts[k] = j0 / rate_hz / duration
         elif what is not None:
-            reasons[start_entry(names[k])] = cannot("start time", what)
+            reasons[start_entry(names[k])] = holes.cannot("start time", what)
         else:
             no_start.append(names[k])
-    start_ok = np.isfinite(starts)
-    for k in np.flatnonzero(~p_ok).tolist():
-        p_plus[k] = nan4
-    disp = fixed[head] * fixed[head][0].inv()
-    stop, what = known_until("character frame", f"segment {names[head]!r}")
-    t_beta, beta, j = overshoot(disp, rate_hz, overshoot_window_s, known=stop)
+    return starts, no_start
+
+
+def _head_overshoot(head_fixed: Rotation, head_name: str, holes: _Holes, window_s: float, duration: float,
+                    eyes_ok: bool, reasons: dict[str, str]) -> tuple[float, float, int, bool]:
+    """The head's overshoot (:func:`overshoot`): its time as a fraction of the duration, its amount, its frame
+    (-1 for none) and whether it is known (NaN, NaN, -1 when not)."""
+    disp = head_fixed * head_fixed[0].inv()
+    stop, what = holes.known_until("character frame", f"segment {head_name!r}")
+    t_beta, beta, j = overshoot(disp, holes.rate_hz, window_s, known=stop)
     t_frac = t_beta / duration if j >= 0 else 1.0
     ov_ok = eyes_ok and not (j < 0 and what is not None)
     if not ov_ok:
-        reasons["overshoot"] = (cannot("overshoot", what) if eyes_ok and what is not None else
-                                f"needs the head's displacement, and {names[head]!r} has an unknown end pose")
+        reasons["overshoot"] = (holes.cannot("overshoot", what) if eyes_ok and what is not None else
+                                f"needs the head's displacement, and {head_name!r} has an unknown end pose")
         t_frac, beta, j = np.nan, np.nan, -1
-
-    known = np.array([*p_ok, eyes_ok, ov_ok], dtype=bool)
-    mask_names = [*names, *MASK_TAIL]
-    if not known.any() and not start_ok.any():
-        # nothing to learn from: the row is not written (the build lists the take as skipped, with this reason)
-        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:3])
-        raise StageError(path, f"gaze_map: no parameter of the row could be computed ({why})", take=take)
-    f32 = np.float32
-    feats = {
-        "yaw_deg": np.array([yaw_deg], f32), "pitch_deg": np.array([pitch_deg], f32),
-        "duration_s": np.array([duration], f32),
-        "start_times": starts.astype(f32)[None, :],
-        "overshoot_time": np.array([t_frac], f32), "overshoot": np.array([beta], f32),
-        "p_plus": np.concatenate(p_plus).astype(f32)[None, :],
-        "known": known[None, :],
-        "start_known": start_ok[None, :],
-    }
-    frame = np.asarray(joints["frame"], dtype=np.int64)
-    null = [mask_names[i] for i in np.flatnonzero(~known)]
-    null += [start_entry(names[k]) for k in np.flatnonzero(~start_ok) if names[k] not in no_start]
-    qc = {"crop_frames": int(n), "bridged_frames": int(bridged.sum()),
-          "unbridged_frames": int(np.logical_or.reduce([*unknown.values(), np.zeros(n, bool)]).sum()),
-          "overshoot_frame": int(frame[j]) if j >= 0 else None,
-          "crop_start_vs_rest_end": int(frame[0] - int(rests[0][1])),
-          "null_segments": null, "null_reasons": {k: reasons[k] for k in null}, "no_start": no_start}
-    return TakeRows(segment=np.zeros(1, np.int32), frame=frame[:1].astype(np.int32),
-                    time_s=np.asarray(joints["time_s"], dtype=np.float64)[:1], features=feats, qc=qc)
+    return t_frac, beta, j, ov_ok
 
 
 def mirror_gaze_map(features: dict[str, np.ndarray], perm: np.ndarray) -> dict[str, np.ndarray]:

@@ -19,10 +19,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from gazepipe.arkit import EYE_NAMES, HEAD_NAMES
+from gazepipe.arkit import EYE_NAMES, HEAD_NAMES, mirror_face
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
-from gazepipe.stages.face.stage import mirror_face
 from gazepipe.stages.frames.stage import Joints, character_frame
 from gazepipe.stages.geometry import from_wxyz
 
@@ -94,7 +93,7 @@ def mirror_yaw_pitch_roll(angles: np.ndarray, names: Iterable[str] | None = None
     names : optional channel names of the last axis (any spelling :func:`gazepipe.arkit.normalise_name`
         accepts), for other layouts; may include blendshapes.
 
-    The work is done by :func:`gazepipe.stages.face.stage.mirror_face`, so angles and blendshapes follow one rule.
+    The work is done by :func:`gazepipe.arkit.mirror_face`, so angles and blendshapes follow one rule.
     Exact involution.
     """
     a = np.asarray(angles)

@@ -878,7 +878,7 @@ def _stretch_reach(max_len: int) -> int:
     return int((n_win * (lengths + _SEPARATION)).max()) + _SEPARATION + 1
 
 
-def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int] | None,
+def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int] | None,  # noqa: C901
               step_limit: float, max_error: float | None, noise_mm: float, cfg: _GapSettings
               ) -> tuple[GapRecord, np.ndarray | None]:
     """Fill gap ``[s, e)`` of marker ``m`` from its neighbourhood ``src`` (n, M, 3) mm, ``valid`` (n, M), frames

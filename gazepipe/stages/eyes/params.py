@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["EyesParams"]
+__all__ = ["SHORT_VIDEO_SHARE", "EyesParams"]
+
+#: a head-camera video shorter than this share of its take is too short to be the take's (see
+#: :func:`gazepipe.stages.eyes.stage.eyes_take`; the sync stage notes such a video too)
+SHORT_VIDEO_SHARE = 0.5
 
 
 @dataclass(frozen=True)

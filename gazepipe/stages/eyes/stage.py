@@ -38,7 +38,7 @@ from gazepipe.stages.eyes.camera import (
 )
 from gazepipe.stages.eyes.gate import Gated, gate
 from gazepipe.stages.eyes.lag import check_camera_rotation, estimate_camera_rotation_lagged, world_targets
-from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.eyes.params import SHORT_VIDEO_SHARE, EyesParams
 from gazepipe.stages.eyes.qc import EyesQC
 from gazepipe.stages.geometry import from_wxyz, to_wxyz
 from gazepipe.stages.sync.clock import ClockMap, resample_to_mocap
@@ -139,10 +139,6 @@ class HeadMotion:
     rate_hz: float
     target_dir: np.ndarray | None = None
     char_rot: np.ndarray | None = None
-
-
-#: a head-camera video shorter than this share of its take is too short to be the take's (see eyes_take)
-SHORT_VIDEO_SHARE = 0.5
 
 
 def _short_video(video: tuple[Any, ...] | None, take_s: float, take: str | None) -> None:

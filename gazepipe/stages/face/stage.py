@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from gazepipe.arkit import mirror_permutation, normalise_name
+from gazepipe.arkit import normalise_name
 from gazepipe.errors import StageError
 from gazepipe.model import FaceTrack
 from gazepipe.stages.face.qc import FaceQC
 
-__all__ = ["FaceAligned", "align_face", "forward_derivatives", "mirror_face"]
+__all__ = ["FaceAligned", "align_face", "forward_derivatives"]
 
 
 @dataclass
@@ -185,25 +185,3 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
         k=int(k),
         qc=qc,
     )
-
-
-def mirror_face(values: np.ndarray, names: list[str] | tuple[str, ...]) -> np.ndarray:
-    """Mirror face channels (SPEC §2): swap ``…Left``/``…Right`` and left/right eyes, negate yaw and roll.
-
-    Parameters
-    ----------
-    values : (..., D) array whose last axis follows ``names`` (blendshapes, head and eye angles, or their
-        derivatives).
-    names : the D channel names (any spelling :func:`gazepipe.arkit.normalise_name` accepts).
-
-    Returns
-    -------
-    A new array of the same shape and dtype. Mirroring twice gives back ``values`` exactly.
-    """
-    values = np.asarray(values)
-    if values.shape[-1] != len(names):
-        raise ValueError(f"{len(names)} names for {values.shape[-1]} columns")
-    perm, negate = mirror_permutation(names)
-    out = values[..., perm]
-    out[..., negate] = np.negative(out[..., negate])
-    return out

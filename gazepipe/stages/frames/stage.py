@@ -309,7 +309,7 @@ def _marker_frames(pts: np.ndarray, ref: np.ndarray | None, triangle: str = "rig
     return out, centre, unc
 
 
-def compute_frames(markers: Markers, markerset: MarkerSet,
+def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
                    neutral: Markers | Sequence[tuple[str, Markers]] | None, params: FramesParams | None = None,
                    *, path: str | None = None, take: str | None = None, before: Markers | None = None,
                    measured: np.ndarray | None = None, before_measured: np.ndarray | None = None,
