@@ -1,5 +1,5 @@
 """Synthetic takes with known truth for the sync and eyes stages, shared by their tests and benchmarks
-(``tests/test_sync.py``, ``tests/test_eyes.py``, ``bench/bench_sync.py``, ``bench/bench_eyes.py``).
+(``tests/stages/sync/test_sync.py``, ``tests/stages/eyes/test_eyes.py``, ``bench/bench_sync.py``, ``bench/bench_eyes.py``).
 
 Clapper. The model (used for the mocap curves and for the videos alike): shut, opened over 0.3 s, held open, then
 closed with constant acceleration over ``closing_s`` so that the arms hit each other at full speed at the contact

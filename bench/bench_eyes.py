@@ -1,6 +1,6 @@
 """Eyes stage accuracy and speed on synthetic takes with known truth.
 
-Per seed, a 60 s take from the generator of ``bench/_av.py`` (shared with ``tests/test_eyes.py``): a camera below and in front of the face,
+Per seed, a 60 s take from the generator of ``bench/_av.py`` (shared with ``tests/stages/eyes/test_eyes.py``): a camera below and in front of the face,
 head turns, a target 1.5–3 m away that either jumps between goals and stays ("jumps") or keeps moving from goal
 to goal ("pursuit", as Klein's pole), eyes 0.2 s behind it, per-eye angular noise, confidence dips, blinks and
 lost tracking with junk gaze, a video clock with an offset and a 400 ppm rate error. Reported: the eye direction

@@ -24,7 +24,7 @@ cases, byte for byte) and prints a summary table:
   leader only (``os.kill``: what the OOM killer does), 10 the whole process group (``os.killpg``); no process of
   the killed run may be alive 2 s after the kill (its session id, from ``/proc/*/stat``), files left under OUT
   must be complete copies of the reference's, and a rerun must give the reference run's bytes (every file
-  under OUT outside ``OUT/.gazepipe``, as ``tests/test_fault_tolerance.py`` compares).
+  under OUT outside ``OUT/.gazepipe``, as ``tests/pipeline/test_fault_tolerance.py`` compares).
 - ``disk``: OUT on a 2 MB and a 20 MB tmpfs (the latter also nearly filled beforehand, leaving 0.4, 1.2 or
   2.5 MB: the run's 3 MB of outputs then meet the full disk at different moments), serial and process
   executors (root and ``mount -t tmpfs`` needed; skipped with the reason otherwise): exit 1 (or 2) with one

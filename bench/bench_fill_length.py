@@ -1,5 +1,5 @@
 """How the gap filler's time grows with the take's length: the same motion and gap density (one gap a second,
-2-40 frames, on a random marker of a 12-marker body at 60 Hz, from ``tests/test_gapfill.body``), takes of
+2-40 frames, on a random marker of a 12-marker body at 60 Hz, from ``tests/stages/clean/test_gapfill.body``), takes of
 ``--frames`` frames, in the column-major layout the Parquet loader gives. Prints the CPU time of
 :func:`gazepipe.stages.clean.gapfill.fill_gaps` per take and per frame; with ``--against REV`` the same for that
 commit, run in fresh processes interleaved with this tree's (see ``bench_fill_speed.py``). Linear time shows as a
@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def take(n_t: int) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
     """A take of ``n_t`` frames with one gap a second (seeded)."""
     sys.path.append(str(ROOT))     # after PYTHONPATH: gazepipe stays the version under test
-    from tests.test_gapfill import body
+    from tests.stages.clean.test_gapfill import body
 
     _, meas, clusters = body(n_t, seed=0)
     rng = np.random.default_rng(1)

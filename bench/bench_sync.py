@@ -14,7 +14,7 @@
    contact and the video clap comes out late by a fraction of a frame; the table shows by how much.
 
 The synthetic clapper, its video rendering and the counting reader (one FrameReader per take, as the pipeline
-reads a video) come from ``bench/_av.py``, shared with ``tests/test_sync.py``.
+reads a video) come from ``bench/_av.py``, shared with ``tests/stages/sync/test_sync.py``.
 
 Usage: ``PYTHONPATH=. python bench/bench_sync.py [--takes N] [--seed S]``
 """

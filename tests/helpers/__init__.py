@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
+TESTS = REPO / "tests"
 SAMPLE = REPO / "sample_data" / "session01"
 CORPUS = REPO / "tests" / "data" / "corpus"
 

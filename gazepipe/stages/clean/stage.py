@@ -94,7 +94,7 @@ class CleanParams:
         Butterworth ringing ahead of a fast movement crosses it and moves rest bounds by up to 0.5 s; the
         Gaussian's smear moves them by ~2 frames at 30 Hz (≤ 0.1 s at any rate) against the noise-free
         speed's crossing (early at the end of a rest: the smear spreads the motion's onset back; hence
-        ``rest_refine``). Measured by tests/test_clean.py.
+        ``rest_refine``). Measured by tests/stages/clean/test_clean.py.
     rest_refine : move the end of every rest of at least 0.7 s to where the noise-free speed reaches the
         threshold, from a fit of the smoothed speed's rise (:func:`refine_onset`). Without it the end of the
         first rest of the sample session's gaze shifts comes 1–2 frames early (median −2); with it the

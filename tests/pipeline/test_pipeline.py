@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
 from gazepipe.schemas.markers import table_to_markers
-from tests.helpers import make_tiny_session, output_digests, tiny_motion, write_wide_csv
+from tests.helpers import REPO, make_tiny_session, output_digests, tiny_motion, write_wide_csv
 
 
 def run_cli(*args: str) -> tuple[int, str, str]:
@@ -134,7 +134,7 @@ def test_sigkill_midway_then_rerun_gives_identical_outputs(tmp_path):
     assert run_cli("ingest", str(session), "--out", str(ref), "--executor", "serial")[0] == 0
     expected = output_digests(ref)
     rng = np.random.default_rng(7)
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    env = dict(os.environ, PYTHONPATH=str(REPO))
     for trial in range(3):
         out = tmp_path / f"k{trial}"
         proc = subprocess.Popen([sys.executable, "-m", "gazepipe", "ingest", str(session), "--out", str(out),

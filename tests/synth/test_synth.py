@@ -14,6 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from gazepipe.synth import SynthConfig, generate_session, load_truth
+from tests.helpers import REPO
 
 RATE = 30000.0 / 1001.0
 SMALL = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=16.0,
@@ -439,7 +440,7 @@ def test_module_entry_writes_the_bundled_sample(tmp_path: Path) -> None:
     assert kinds.count("face") == 5
     assert all("video" in t and "eyes" in t for t in doc["takes"] if t["kind"] == "gaze_follow")
     assert sum(t["target"]["yaw_deg"] < 0 for t in doc["takes"] if "target" in t) >= 3
-    sample = Path(__file__).parents[1] / "sample_data" / "session01"
+    sample = REPO / "sample_data" / "session01"
     ours = sorted(p.relative_to(tmp_path / "s") for p in (tmp_path / "s").rglob("*") if p.is_file())
     theirs = sorted(p.relative_to(sample) for p in sample.rglob("*") if p.is_file())
     assert ours == theirs

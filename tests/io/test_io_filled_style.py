@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +16,9 @@ from gazepipe.io.capture import read_markers
 from gazepipe.io.filled_text import write_filled_text
 from gazepipe.io.marker_csv import read_text_export
 from gazepipe.stages.clean.standalone import fill_capture
+from tests.helpers import TESTS
 
-TEXT = Path(__file__).resolve().parent / "data" / "corpus" / "text"
+TEXT = TESTS / "data" / "corpus" / "text"
 
 
 def _changed_cells(before: bytes, after: bytes, sep: bytes) -> list[tuple[int, int, bytes, bytes]]:

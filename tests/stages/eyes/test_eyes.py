@@ -40,6 +40,7 @@ from gazepipe.stages.eyes.gate import cyclopean, gate
 from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.eyes.stage import eyes_take
 from gazepipe.stages.geometry import angle_between, from_wxyz, slerp_vectors, to_wxyz
+from tests.helpers import TESTS
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -371,7 +372,7 @@ def test_combine_camera_estimates():
     assert np.allclose(np.abs(q1), np.abs(quats[0])) and worst1 < 1e-6
 
 
-CORPUS_OPENFACE = Path(__file__).resolve().parent / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
+CORPUS_OPENFACE = TESTS / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
 
 
 def test_real_openface_file_gates_by_its_own_columns():

@@ -310,7 +310,7 @@ def test_html_is_self_contained(clean_out: Path) -> None:
     assert _section(html, "dataset-gaze_rnn").count("<svg") == 2          # x and y
     assert _section(html, "dataset-gaze_map").count("<svg") == 3          # scalars, p_plus, start_times
     # with a cap, only the worst take keeps its plots; the page names it and says how to plot the others (the
-    # default cap, 6, plots all five takes of this slice: tests/test_validate_speed.py covers a capped default)
+    # default cap, 6, plots all five takes of this slice: tests/report/test_validate_speed.py covers a capped default)
     assert _validate(clean_out, "--plot-takes", "1").exit_code == 0
     html = (clean_out / "qc" / "report.html").read_text()
     plotted = [t for t in TAKES if "<svg" in _section(html, f"take-session01-{t}")]

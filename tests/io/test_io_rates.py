@@ -3,8 +3,6 @@ taken as written, and a rate implausible for its kind of track is noted with wha
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -15,8 +13,9 @@ from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import load_session
 from gazepipe.model import Markers
 from gazepipe.timebase import implausible_rate, snap_rate, stated_rate
+from tests.helpers import REPO, TESTS
 
-CORPUS = Path(__file__).resolve().parent / "data" / "corpus"
+CORPUS = TESTS / "data" / "corpus"
 
 
 @pytest.mark.parametrize(("written", "rate"), [
@@ -93,7 +92,7 @@ def test_openface_with_millisecond_frame_numbers_for_timestamps_is_flagged():
     odd = [w for w in eye.warnings if "1000 Hz" in w]
     assert len(odd) == 1 and "1 ms" in odd[0] and "FeatureExtraction" in odd[0] and "frame rate" in odd[0]
     # a 60 Hz file with millisecond timestamps (the bundled sample) is not flagged
-    sample = Path(__file__).resolve().parents[1] / "sample_data" / "session01" / "eyes" / "follow_sitting_01.csv"
+    sample = REPO / "sample_data" / "session01" / "eyes" / "follow_sitting_01.csv"
     assert not any("implausible" in w for w in read_openface(sample).warnings)
 
 

@@ -12,8 +12,9 @@ import pytest
 from gazepipe.arkit import ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, mirror_permutation, normalise_name
 from gazepipe.errors import InputError
 from gazepipe.io.livelinkface import read_livelinkface
+from tests.helpers import TESTS
 
-CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "livelinkface" / "alex_rom_3_first300.csv"
+CORPUS = TESTS / "data" / "corpus" / "livelinkface" / "alex_rom_3_first300.csv"
 
 
 def _tc_frames(tc: str, fps: int = 60) -> Fraction:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -11,9 +9,10 @@ from scipy.spatial.transform import Rotation
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean.gapfill import fill_gaps, find_gaps, find_rigid_clusters
 from gazepipe.stages.clean.spikes import remove_spikes
+from tests.helpers import TESTS
 from tests.helpers.captures import NOISE, RATE, body, hide
 
-CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
+CORPUS = TESTS / "data" / "corpus" / "c3d"
 
 
 def gap_error(res, truth: np.ndarray, m: int, s: int, e: int) -> float:

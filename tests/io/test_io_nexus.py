@@ -6,7 +6,6 @@ Outputs and Segments blocks). Every reading is checked against an independent pa
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -15,8 +14,9 @@ import pytest
 from gazepipe.io.c3d import read_c3d
 from gazepipe.io.capture import inspect_capture, read_markers, sniff_format
 from gazepipe.io.marker_csv import read_vicon_csv
+from tests.helpers import TESTS
 
-TEXT = Path(__file__).resolve().parent / "data" / "corpus" / "text"
+TEXT = TESTS / "data" / "corpus" / "text"
 NEXUS1 = TEXT / "pycgm_Sample_Static_first60.csv"
 NEXUS2 = TEXT / "pyomeca_markers.csv"
 NEXUS2_C3D = TEXT.parent / "c3d" / "pyomeca_markers_analogs.c3d"

@@ -10,6 +10,7 @@ import pytest
 
 from gazepipe.errors import InputError
 from gazepipe.io.video import FrameReader, probe_video, read_frames
+from tests.helpers import REPO
 
 W, H, N, FPS = 64, 48, 30, 30.0
 
@@ -153,7 +154,7 @@ def test_bad_videos(tmp_path):
             assert "\n" not in msg and str(p) in msg, msg
 
 
-SAMPLE_VIDEO = Path(__file__).resolve().parents[1] / "sample_data" / "session01" / "video" / "follow_standing_03.mp4"
+SAMPLE_VIDEO = REPO / "sample_data" / "session01" / "video" / "follow_standing_03.mp4"
 
 
 def _flipped(dest: Path, seed: int) -> Path:

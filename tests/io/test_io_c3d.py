@@ -17,8 +17,9 @@ from gazepipe.errors import InputError
 from gazepipe.io.c3d import duplicate_trajectories, read_c3d, read_c3d_info, write_c3d
 from gazepipe.io.capture import inspect_capture, read_markers
 from gazepipe.model import Markers
+from tests.helpers import REPO, TESTS
 
-CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "c3d"
+CORPUS = TESTS / "data" / "corpus" / "c3d"
 
 
 def _provenance() -> dict[str, dict[str, str]]:
@@ -447,7 +448,7 @@ def test_header_analog_count_contradicted_by_file_size(tmp_path):
     assert any("the file size agrees with the parameters" in w for w in m.warnings)
 
 
-SAMPLE_C3D = Path(__file__).resolve().parents[1] / "sample_data" / "session01" / "mocap"
+SAMPLE_C3D = REPO / "sample_data" / "session01" / "mocap"
 
 
 def _hostile_copy(dest: Path) -> Path:

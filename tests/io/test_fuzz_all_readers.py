@@ -33,8 +33,8 @@ from gazepipe.io.parquet import write_options
 from gazepipe.pipeline.events import EventLog
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.session import DEFAULT_SHIFTS
+from tests.helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 CORPUS = REPO / "tests" / "data" / "corpus"
 CASES = {"openface": 120, "livelinkface": 120, "video": 80, "parquet": 120, "dataset": 80}
 CASE_TIMEOUT_S = 15      # per case (an alarm in the child)

@@ -17,9 +17,9 @@ from gazepipe.io.c3d_summary import summarise_c3d
 from gazepipe.io.capture import inspect_capture, read_markers
 from gazepipe.io.marker_csv import read_qtm_tsv, read_vicon_csv, read_wide_csv
 from gazepipe.io.session_toml import load_session
-from tests.helpers import SAMPLE
+from tests.helpers import SAMPLE, TESTS
 
-CORPUS = Path(__file__).parent / "data" / "corpus" / "c3d"
+CORPUS = TESTS / "data" / "corpus" / "c3d"
 
 
 def _vicon(rows: int = 20, rate: str = "100", extra: str = "", units: str = "mm", scale: float = 1.0) -> list[str]:

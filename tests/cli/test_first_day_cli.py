@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from gazepipe.cli.main import cli
+from tests.helpers import TESTS
 
 
 def invoke(*args: str, **kw):
@@ -119,7 +120,7 @@ def test_readme_torch_comment_is_what_the_example_prints_on_the_sample(sample_ru
     import runpy
 
     pytest.importorskip("torch")
-    example = Path(__file__).parent / "readme_examples" / "torch_example.py"
+    example = TESTS / "readme_examples" / "torch_example.py"
     said = re.search(r"# on the sample: (.*)$", example.read_text(), re.M)
     assert said is not None
     (tmp_path / "out").symlink_to(sample_run)
@@ -132,7 +133,7 @@ def test_readme_torch_comment_is_what_the_example_prints_on_the_sample(sample_ru
 
 # ------------------------------------------------------------------------------------------------ inspect
 
-CORPUS = Path(__file__).parent / "data" / "corpus" / "c3d"
+CORPUS = TESTS / "data" / "corpus" / "c3d"
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)) * 8
 
 

@@ -23,8 +23,8 @@ from gazepipe.errors import InputError
 from gazepipe.io.c3d_meta import MetaError, parse_c3d_meta
 from gazepipe.io.capture import read_markers
 from gazepipe.model import Markers
+from tests.helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 CORPUS = REPO / "tests" / "data" / "corpus" / "c3d"
 C3D_FILES = sorted(CORPUS.glob("*.c3d"))
 C3D_BYTES = [p.read_bytes() for p in C3D_FILES]

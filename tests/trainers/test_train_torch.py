@@ -18,10 +18,11 @@ from click.testing import CliRunner
 
 from gazepipe.cli.train import train as train_cmd
 from gazepipe.errors import ConfigError
+from tests.helpers import TESTS
 
 torch = pytest.importorskip("torch")
 
-EXAMPLES = Path(__file__).parent / "readme_examples"
+EXAMPLES = TESTS / "readme_examples"
 SMALL = ["--epochs", "2", "--hidden", "16", "--option", "threads=1", "--option", "max_windows=16"]
 CUDA = torch.cuda.is_available()
 

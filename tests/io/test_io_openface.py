@@ -11,8 +11,9 @@ import pytest
 
 from gazepipe.errors import InputError
 from gazepipe.io.openface import read_openface
+from tests.helpers import TESTS
 
-CORPUS = Path(__file__).resolve().parent / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
+CORPUS = TESTS / "data" / "corpus" / "openface" / "pyfeat_OpenFace_Test.csv"
 
 
 def _raw(path: Path) -> pd.DataFrame:

@@ -22,8 +22,9 @@ from gazepipe.stages.build.qc import RowsQC
 from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.qc import QCRecordError
 from gazepipe.stages.sync.qc import SyncQC
+from tests.helpers import REPO
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+SAMPLE = REPO / "sample_data" / "session01"
 #: one take of each kind that runs every take stage: ingest, clean (neutral); + frames, sync, eyes; face
 TAKES = ("neutral", "follow_sitting_01", "face_01")
 

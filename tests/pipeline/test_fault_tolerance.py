@@ -36,8 +36,8 @@ from gazepipe.pipeline.events import EventLog
 from gazepipe.report.validate import validate_output
 from gazepipe.synth import SynthConfig, generate_session
 from gazepipe.synth.session import DEFAULT_SHIFTS
+from tests.helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 TRIALS = 20
 SEED = 14
 #: trials run with ``--executor process -j 2`` (the others with the serial executor, for timing control)

@@ -32,9 +32,10 @@ from gazepipe.stages.build.stage import (
     with_split,
 )
 from gazepipe.synth import load_truth
+from tests.helpers import REPO
 from tests.helpers.sample import truth_joints
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "session01"
+SAMPLE = REPO / "sample_data" / "session01"
 FOLLOW = ("follow_standing_01", "follow_standing_02", "follow_standing_03", "follow_sitting_01",
           "follow_sitting_02")
 
