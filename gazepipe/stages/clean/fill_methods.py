@@ -102,8 +102,8 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
     if not intervals:
         return []
     bounds = np.array(intervals, dtype=np.int64).reshape(-1, 2)
-    out, good = kernels.interp_intervals(np.ascontiguousarray(xyz_m, dtype=np.float64),
-                                         np.ascontiguousarray(known_m, dtype=np.bool_),
+    # the marker's column and mask as they are (strided views): a copy would cost the neighbourhood's length
+    out, good = kernels.interp_intervals(np.asarray(xyz_m, dtype=np.float64), np.asarray(known_m, dtype=np.bool_),
                                          np.ascontiguousarray(bounds[:, 0]), np.ascontiguousarray(bounds[:, 1]),
                                          kind == "pchip", _N_ANCHORS)
     offs = np.cumsum(bounds[:, 1] - bounds[:, 0]) - (bounds[:, 1] - bounds[:, 0])
@@ -616,37 +616,21 @@ def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple
     zero residual, which adds exact zeros). An interval with an unpredicted (NaN) frame is None unless
     ``partial`` (its NaN rows then stay NaN); with no predicted frame it is None. Returns ``(filled, none)`` as
     :func:`pca_fill_packed` does."""
-    n_k = preds.shape[0]
-    lo_l, hi_l = [lo for lo, _ in spans], [hi for _, hi in spans]
-    a_l, b_l = [j[0] for j in jobs], [j[1] for j in jobs]
-    lo, hi, a, b = (np.array(v, dtype=np.int64) for v in (lo_l, hi_l, a_l, b_l))
+    from gazepipe.stages.clean import kernels
+
+    lo = np.array([x for x, _ in spans], dtype=np.int64)
+    hi = np.array([x for _, x in spans], dtype=np.int64)
+    a = np.array([j[0] for j in jobs], dtype=np.int64)
+    b = np.array([j[1] for j in jobs], dtype=np.int64)
+    # whether the marker is known in the frame before each interval and the one after it (inside its span)
+    known_l = np.array([a_ - 1 >= lo_ and bool(j[2][a_ - 1]) for a_, lo_, j in zip(a.tolist(), lo.tolist(), jobs,
+                                                                                      strict=True)], dtype=bool)
+    known_r = np.array([b_ < hi_ and bool(j[2][b_]) for b_, hi_, j in zip(b.tolist(), hi.tolist(), jobs,
+                                                                            strict=True)], dtype=bool)
     partial = np.array([j[3] for j in jobs], dtype=bool)
-    lens = hi - lo
-    offs = np.cumsum(lens) - lens
-    n_in = b - a
-    job_of = np.repeat(np.arange(len(jobs)), n_in)
-    in_offs = np.cumsum(n_in) - n_in
-    # each interval's frames [a, b) within the spans, and the frame numbers
-    t = np.arange(n_in.sum()) - in_offs[job_of] + a[job_of]
-    inner = offs[job_of] + t - lo[job_of]
-    core = preds[:, inner]
-    bad = np.isnan(core).any(axis=2)
-    n_bad = np.add.reduceat(bad, in_offs, axis=1) if inner.size else np.zeros((n_k, len(jobs)), np.int64)
-    none = (n_bad == n_in) | ((n_bad > 0) & ~partial)
-    # the known samples next to each interval (spans start at a - 1 and end at b + 1 inside the take)
-    known_l = np.array([a_ - 1 >= lo_ and bool(j[2][a_ - 1]) for a_, lo_, j in zip(a_l, lo_l, jobs, strict=True)])
-    known_r = np.array([b_ < hi_ and bool(j[2][b_]) for b_, hi_, j in zip(b_l, hi_l, jobs, strict=True)])
-    p_l = preds[:, offs + np.maximum(a - 1 - lo, 0)]
-    p_r = preds[:, offs + np.minimum(b - lo, lens - 1)]
-    ok_l = known_l & np.isfinite(p_l).all(axis=2)
-    ok_r = known_r & np.isfinite(p_r).all(axis=2)
-    res_l = np.where(ok_l[..., None], xyz_m[np.maximum(a - 1, 0)] - p_l, 0.0)
-    res_r = np.where(ok_r[..., None], xyz_m[np.minimum(b, xyz_m.shape[0] - 1)] - p_r, 0.0)
-    w2 = (t - (a[job_of] - 1)) / (b[job_of] - (a[job_of] - 1))
-    w = np.where(ok_l[:, job_of], np.where(ok_r[:, job_of], w2, 0.0), 1.0)[..., None]
-    filled = core + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of]
-    filled[none[:, job_of]] = np.nan
-    return filled, none
+    # the marker's column as it is (a strided view): copying it would cost the neighbourhood's length
+    return kernels.edge_correct(np.ascontiguousarray(preds, dtype=np.float64), np.asarray(xyz_m, dtype=np.float64),
+                                lo, hi, a, b, partial, known_l, known_r)
 
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,

@@ -196,3 +196,66 @@ def _all_valid(valid: np.ndarray, f: int, cols: np.ndarray) -> bool:
         if not valid[f, c]:
             return False
     return True
+
+
+# ------------------------------------------------------------------------------------------ edge correction
+
+@_jit
+def edge_correct(preds: np.ndarray, xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, a: np.ndarray,
+                 b: np.ndarray, partial: np.ndarray, known_l: np.ndarray, known_r: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Each of ``preds`` (K, F, 3) corrected to meet the measured marker ``xyz_m`` (T, 3) next to each interval
+    ``[a[j], b[j])`` (K intervals' predictions over their spans ``[lo[j], hi[j])`` lie one after the other along
+    F): the mismatches at frames ``a - 1`` (where ``known_l``, and predicted) and ``b`` (``known_r``) blended
+    linearly across the interval, one of them added throughout when the other is missing. An interval with an
+    unpredicted (NaN) frame has none unless ``partial`` (its NaN rows stay NaN), and none with no predicted frame.
+    Returns ``(filled (K, Σ (b − a), 3) NaN where none, none (K, J))``: the formulas and order of
+    :func:`gazepipe.stages.clean.fill_methods._edge_correct_packed`'s former array code, so the same bits."""
+    n_k = preds.shape[0]
+    n_j = a.size
+    n_t = xyz_m.shape[0]
+    filled = np.full((n_k, (b - a).sum(), 3), np.nan)
+    none = np.zeros((n_k, n_j), dtype=np.bool_)
+    res_l = np.zeros(3)
+    res_r = np.zeros(3)
+    for k in range(n_k):
+        off = 0
+        at = 0
+        for j in range(n_j):
+            n_in = b[j] - a[j]
+            first = off + a[j] - lo[j]
+            n_bad = 0
+            for q in range(n_in):
+                if _any_nan(preds, k, first + q):
+                    n_bad += 1
+            none[k, j] = n_bad == n_in or (n_bad > 0 and not partial[j])
+            if not none[k, j]:
+                i_l = off + max(a[j] - 1 - lo[j], 0)
+                i_r = off + min(b[j] - lo[j], hi[j] - lo[j] - 1)
+                ok_l = known_l[j] and not _any_nan(preds, k, i_l) and _all_finite(preds, k, i_l)
+                ok_r = known_r[j] and not _any_nan(preds, k, i_r) and _all_finite(preds, k, i_r)
+                f_l, f_r = max(a[j] - 1, 0), min(b[j], n_t - 1)
+                for c in range(3):
+                    res_l[c] = xyz_m[f_l, c] - preds[k, i_l, c] if ok_l else 0.0
+                    res_r[c] = xyz_m[f_r, c] - preds[k, i_r, c] if ok_r else 0.0
+                for q in range(n_in):
+                    w = ((a[j] + q) - (a[j] - 1)) / (b[j] - (a[j] - 1))
+                    if not ok_l:
+                        w = 1.0
+                    elif not ok_r:
+                        w = 0.0
+                    for c in range(3):
+                        filled[k, at + q, c] = (preds[k, first + q, c] + (1.0 - w) * res_l[c]) + w * res_r[c]
+            off += hi[j] - lo[j]
+            at += n_in
+    return filled, none
+
+
+@_jit
+def _any_nan(preds: np.ndarray, k: int, row: int) -> bool:
+    return np.isnan(preds[k, row, 0]) or np.isnan(preds[k, row, 1]) or np.isnan(preds[k, row, 2])
+
+
+@_jit
+def _all_finite(preds: np.ndarray, k: int, row: int) -> bool:
+    return np.isfinite(preds[k, row, 0]) and np.isfinite(preds[k, row, 1]) and np.isfinite(preds[k, row, 2])
