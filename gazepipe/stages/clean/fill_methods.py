@@ -181,6 +181,8 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
                     intervals: list[tuple[int, int]], partial: bool = False) -> list[np.ndarray | None]:
     """:func:`rigid_fill` over each of ``intervals`` (the same ``valid`` and ``known_m``): occlusion patterns
     and the frames where each set of mates is complete are found once for all of them."""
+    from gazepipe.stages.clean import kernels
+
     n_t = xyz.shape[0]
     cl = np.asarray(cluster, dtype=np.int64)
     others = cl[cl != m]
@@ -190,20 +192,22 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
     frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
     pred_all = np.full((frames_all.size, 3), np.nan)
-    starts = np.array([a for a, _ in intervals])
-    stops = np.array([b for _, b in intervals])
+    starts = np.array([a for a, _ in intervals], dtype=np.int64)
+    stops = np.array([b for _, b in intervals], dtype=np.int64)
     for pattern, rows in row_patterns(valid[frames_all][:, others]):
         if pattern.sum() < 2:
             continue
         sub = others[pattern]
-        complete = np.flatnonzero(known_m & valid[:, sub].all(axis=1))
-        if complete.size == 0:
+        # each row's reference frames: the nearest complete frames (``known_m`` and every mate of the pattern
+        # measured) before and after its interval, -1 where none; searched outward from each interval
+        jobs_here = np.unique(which[rows])
+        b_job, a_job = kernels.nearest_complete(np.asarray(known_m, dtype=np.bool_),
+                                                np.asarray(valid, dtype=np.bool_), sub, starts[jobs_here],
+                                                stops[jobs_here])
+        at = np.searchsorted(jobs_here, which[rows])
+        before, after = b_job[at], a_job[at]
+        if (before < 0).all() and (after < 0).all():
             continue
-        # each row's reference frames: the nearest complete frames before and after its interval (-1: none)
-        j0 = np.searchsorted(complete, starts[which[rows]])
-        j1 = np.searchsorted(complete, stops[which[rows]])
-        before = np.where(j0 > 0, complete[np.maximum(j0 - 1, 0)], -1)
-        after = np.where(j1 < complete.size, complete[np.minimum(j1, complete.size - 1)], -1)
         refs = np.unique(np.concatenate([before, after]))
         refs = refs[refs >= 0]
         ref_pts = xyz[refs][:, sub]
