@@ -75,6 +75,7 @@ from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean import framewise
 from gazepipe.stages.clean.fill_methods import (
     MATES_MAX_STD_MM,
+    WINDOW_SAMPLES,
     PcaModel,
     distance_stats,
     donor_interp_errors,
@@ -86,6 +87,7 @@ from gazepipe.stages.clean.fill_methods import (
     pca_novelty,
     rigid_fill,
     rigid_fill_many,
+    sample_step,
     speed_over,
 )
 from gazepipe.stages.clean.spikes import _nanmedian
@@ -254,9 +256,13 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
     n_win = max(_WINDOWS_PER_SIDE, -(-_MIN_HIDDEN_PER_SIDE // length))
     wins: list[tuple[int, int]] = []
     edge = s == 0 or e == n_t
+    # the stretches reach at most this far from the gap: the search for the nearest unmeasured sample (the end of
+    # the marker's measured run) looks no farther, so a gap costs its own length, not the take's
+    need = n_win * (length + _SEPARATION) + _SEPARATION + 2
     if s > 0:
-        before = np.flatnonzero(~valid_m[:s])
-        r0 = int(before[-1]) + 1 if before.size else 0
+        w0 = max(0, s - need)
+        before = np.flatnonzero(~valid_m[w0:s])
+        r0 = int(before[-1]) + 1 + w0 if before.size else w0
         if edge:
             lp = min(length, s - r0 - 1)
             if lp >= 1:
@@ -270,8 +276,9 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
                 wins.append((stop - lp, stop))
                 stop -= lp + _SEPARATION
     if e < n_t:
-        after = np.flatnonzero(~valid_m[e:])
-        r1 = int(after[0]) + e if after.size else n_t
+        w1 = min(n_t, e + need)
+        after = np.flatnonzero(~valid_m[e:w1])
+        r1 = int(after[0]) + e if after.size else w1
         if edge:
             lp = min(length, r1 - e - 1)
             if lp >= 1:
@@ -693,6 +700,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         for j in c:
             cluster_of.setdefault(int(j), [int(k) for k in c])
     same_group = _same_group(groups, n_m)
+    masked: dict[bytes, np.ndarray] = {}     # valid for each group's markers only, made once per group
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
     stats = take_statistics(src, valid) if stats is None else stats
@@ -712,7 +720,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 # the take, and the result does not depend on what lies farther away
                 lo, hi = max(0, s - cfg.reach), min(n_t, e + cfg.reach)
                 limit = None if max_error_mm is None else gap_limit(max_error_mm, m, s, e)
-                near = valid[lo:hi] if same_group is None else valid[lo:hi] & same_group[m]
+                near = valid[lo:hi] if same_group is None else _group_valid(valid, same_group[m], masked)[lo:hi]
                 if e - s > cfg.max_len:
                     record, fill = still_gap(src[lo:hi], near, m, s - lo, e - lo, float(limits[m]), limit, cfg)
                 else:
@@ -731,6 +739,15 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     for m, s, e, fill in fills:
         src[s:e, m] = fill
     return FillResult(src, code, qc, records)
+
+
+def _group_valid(valid: np.ndarray, members: np.ndarray, masked: dict[bytes, np.ndarray]) -> np.ndarray:
+    """``valid`` (T, M) with the markers outside ``members`` (M,) bool cleared, made once per group and kept in
+    ``masked``: a gap then slices its neighbourhood out of it instead of masking the neighbourhood again."""
+    key = members.tobytes()
+    if key not in masked:
+        masked[key] = valid & members
+    return masked[key]
 
 
 def _same_group(groups: list[list[int]] | None, n_m: int) -> np.ndarray | None:
@@ -986,7 +1003,8 @@ def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cl
     its distance error, so this is a lower bound on the fill's error from the gap's own frames, which the
     stretches beside the gap cannot give when the gap moves unlike them (a chest marker filled from the pelvis,
     neck and head across a 2 s occlusion: 2 mm on the stretches, 20 mm in the gap, while two of its mates were
-    measured through half of it). 0 without a mate measured in the gap."""
+    measured through half of it). 0 without a mate measured in the gap. The usual distance is read at most at
+    ``WINDOW_SAMPLES`` evenly spaced frames of the window (:func:`~.fill_methods.sample_step`)."""
     if not cluster:
         return 0.0
     mates = np.array([j for j in cluster if j != m], dtype=int)
@@ -994,8 +1012,9 @@ def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cl
     if not mates.size or not shown.any():
         return 0.0
     lo, hi = max(0, s - window), min(len(valid), e + window)
-    both = valid[lo:hi][:, mates] & valid[lo:hi, m][:, None]
-    usual = np.where(both, norm3(src[lo:hi][:, mates] - src[lo:hi, m][:, None]), np.nan)
+    step = sample_step(hi - lo, WINDOW_SAMPLES)
+    both = valid[lo:hi:step][:, mates] & valid[lo:hi:step, m][:, None]
+    usual = np.where(both, norm3(src[lo:hi:step][:, mates] - src[lo:hi:step, m][:, None]), np.nan)
     ref = np.where(both.sum(axis=0) >= 10, _nanmedian(usual, axis=0), np.nan)
     dist = norm3(src[s:e][:, mates] - fill[:, None])
     miss = np.abs(dist - ref)[shown & np.isfinite(ref)]
