@@ -706,12 +706,16 @@ def distance_stats(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray,
     within ``window`` of gap ``[s, e)`` where both are measured (and ``known_m``, when given, is True); the
     deviation is inf with fewer than 10 such frames. A window of more than ``WINDOW_SAMPLES`` frames is read at
     every :func:`sample_step`-th frame: the statistics of a few thousand evenly spaced samples, whatever the rate."""
+    from gazepipe.stages.clean import kernels
+
     n_t = valid.shape[0]
     lo, hi = max(0, s - window), min(n_t, e + window)
-    step = sample_step(hi - lo, WINDOW_SAMPLES)
-    own = valid[lo:hi:step, m] if known_m is None else known_m[lo:hi:step]
-    both = valid[lo:hi:step][:, cand] & own[:, None]
-    d = norm3(xyz[lo:hi:step][:, cand] - xyz[lo:hi:step][:, [m]])       # NaN where not both: never summed
+    own = valid[:, m] if known_m is None else known_m
+    d, both = kernels.distances(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_),
+                                np.asarray(own, dtype=np.bool_), m, np.asarray(cand, dtype=np.int64), lo, hi,
+                                sample_step(hi - lo, WINDOW_SAMPLES))
+    # (frames, markers) with the frames contiguous, as the array code laid them out: its sums' order, its bits
+    d, both = d.T, both.T
     n = both.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mu = np.where(both, d, 0.0).sum(axis=0) / n

@@ -259,3 +259,31 @@ def _any_nan(preds: np.ndarray, k: int, row: int) -> bool:
 @_jit
 def _all_finite(preds: np.ndarray, k: int, row: int) -> bool:
     return np.isfinite(preds[k, row, 0]) and np.isfinite(preds[k, row, 1]) and np.isfinite(preds[k, row, 2])
+
+
+# ----------------------------------------------------------------------------------------- window statistics
+
+@_jit
+def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand: np.ndarray, lo: int, hi: int,
+              step: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distance (mm) of each marker ``cand[k]`` of ``xyz`` (T, M, 3) to marker ``m`` in frames ``lo, lo +
+    step, ... < hi``, and whether both count there (``own`` (T,) set and ``cand[k]`` measured in ``valid``
+    (T, M)): ``(d, both)``, (K, frames) each, d 0 where not both. The distance is ``sqrt((dx² + dy²) + dz²)``,
+    as :func:`gazepipe.stages.geometry.norm3`; frames read one by one, not gathered into temporaries."""
+    n_k = cand.size
+    n_f = (hi - lo + step - 1) // step
+    d = np.zeros((n_k, n_f))
+    both = np.zeros((n_k, n_f), dtype=np.bool_)
+    for i in range(n_f):
+        f = lo + i * step
+        if not own[f]:
+            continue
+        for k in range(n_k):
+            c = cand[k]
+            if valid[f, c]:
+                dx = xyz[f, c, 0] - xyz[f, m, 0]
+                dy = xyz[f, c, 1] - xyz[f, m, 1]
+                dz = xyz[f, c, 2] - xyz[f, m, 2]
+                d[k, i] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                both[k, i] = True
+    return d, both
