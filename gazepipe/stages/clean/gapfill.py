@@ -181,8 +181,8 @@ class Stretches:
     hidden: dict[str, np.ndarray]
     #: (n,) their frame indices
     frames: np.ndarray
-    #: (T, M) the visibility the methods saw (the gap's occlusion pattern laid over each stretch)
-    vis: np.ndarray
+    #: (n, M) the visibility the methods saw in those frames (the gap's occlusion pattern laid over each stretch)
+    vis_rows: np.ndarray
     #: (T,) the marker's samples the methods could use (measured, not in the gap or a stretch)
     known: np.ndarray
     #: start of each stretch in ``truth``
@@ -302,8 +302,29 @@ class Hidden:
     wins: list[tuple[int, int]]
     #: (T,) the marker's samples the methods may use (measured, not in the gap or a stretch)
     known: np.ndarray
-    #: (T, M) the visibility the methods see (the gap's occlusion pattern laid over each stretch)
-    vis: np.ndarray
+    #: (T, M) the measured samples of the neighbourhood, and the gap ``[s, e)`` whose occlusion pattern the
+    #: stretches get
+    valid: np.ndarray
+    s: int
+    e: int
+    _vis: np.ndarray | None = field(default=None, repr=False)
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        """(b - a, M) the visibility the methods see in hidden stretch ``[a, b)``: the gap's occlusion pattern
+        laid over it (a marker missing in the gap's i-th frame is missing in the stretch's i-th frame)."""
+        return self.valid[a:b] & self.valid[self.s + np.minimum(np.arange(b - a), self.e - self.s - 1)]
+
+    @property
+    def vis(self) -> np.ndarray:
+        """(T, M) the visibility the methods see: ``valid`` with :meth:`rows` in the stretches. A copy of the
+        neighbourhood's, made when first asked for (by the rigid and PCA candidates): a gap that interpolation
+        fills alone needs only the stretches' rows."""
+        if self._vis is None:
+            vis = self.valid.copy()
+            for a, b in self.wins:
+                vis[a:b] = self.rows(a, b)
+            self._vis = vis
+        return self._vis
 
 
 @dataclass
@@ -326,11 +347,9 @@ def hide_stretches(valid: np.ndarray, m: int, s: int, e: int, validate: bool) ->
     valid_m = valid[:, m]
     wins = _validation_windows(valid_m, s, e) if validate else []
     known = valid_m.copy()
-    vis = valid.copy()
     for a, b in wins:
         known[a:b] = False
-        vis[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
-    return Hidden(wins, known, vis)
+    return Hidden(wins, known, valid, s, e)
 
 
 def _seen_in_stretches(valid: np.ndarray, hid: Hidden, m: int) -> np.ndarray:
@@ -340,7 +359,7 @@ def _seen_in_stretches(valid: np.ndarray, hid: Hidden, m: int) -> np.ndarray:
     without it, the fill with it was 48 mm off."""
     if not hid.wins:
         return valid
-    seen = np.logical_and.reduce([hid.vis[a:b].all(axis=0) for a, b in hid.wins])
+    seen = np.logical_and.reduce([hid.rows(a, b).all(axis=0) for a, b in hid.wins])
     seen[m] = True
     return valid & seen
 
@@ -415,7 +434,8 @@ def validate_candidates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
                                         for a, b in hid.wins]) for meth in preds}
         frames = np.concatenate([np.arange(a, b) for a, b in hid.wins])
         cuts = np.cumsum([0] + [b - a for a, b in hid.wins[:-1]])
-        stretches = Stretches(truth, hidden, frames, hid.vis, hid.known, cuts)
+        stretches = Stretches(truth, hidden, frames, np.concatenate([hid.rows(a, b) for a, b in hid.wins]),
+                              hid.known, cuts)
         err = norm3(np.stack(list(hidden.values())) - truth)
         common = np.isfinite(err).all(axis=0)
         for i, meth in enumerate(preds):
@@ -1064,7 +1084,7 @@ def _framewise_fill(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, 
     if len(prior) < 2 or any(k not in st.hidden for k in prior):
         return None
     links = framewise.linked_neighbours(xyz, valid, st.known, m, s, e, window)
-    on_hidden = framewise.average(st.hidden, prior, st.frames, xyz, st.vis, links, st.cuts)
+    on_hidden = framewise.average(st.hidden, prior, st.frames, xyz, valid, links, st.cuts, vis_rows=st.vis_rows)
     if on_hidden is None or not np.isfinite(on_hidden).all():
         return None
     fill = framewise.average(preds, prior, np.arange(s, e), xyz, valid, links)
