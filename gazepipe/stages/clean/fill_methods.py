@@ -59,9 +59,10 @@ _FRAME_MIN_EDGE_MM = 5.0
 _FRAME_MIN_SINE = 0.1
 #: the most frames a window statistic reads (:func:`distance_stats`) and a PCA model trains on
 #: (:func:`fit_pca_models`): a window is given in seconds, so at a high capture rate it holds many frames, and
-#: evenly spaced samples of it give the same statistics at a cost that does not grow with the rate (at 240 Hz,
-#: 2 s each side of a 1 s gap are 1,200 frames, all read; at 10 kHz 50,000 frames, every 25th read)
-WINDOW_SAMPLES = 2000
+#: evenly spaced samples of it give the same statistics at a cost that does not grow with the rate. Every frame
+#: is read up to 200 Hz (2 s each side of a 1 s gap: 1,000 frames; PCA's 10 s each side: 4,000); at 10 kHz,
+#: every 41st of a short gap's 40,000 (a thousand samples fix a mean and a spread to a few percent of it)
+WINDOW_SAMPLES = 1000
 PCA_MAX_TRAIN = 4000
 
 

@@ -48,7 +48,11 @@ trajectories (:func:`unlabeled_markers`) are left alone when the caller says so 
 Each gap is decided from its neighbourhood only: the frames within ``_GapSettings.reach`` of it (the PCA
 training window, the mates' window and the hidden stretches of the longest gap all fit), plus two statistics of
 the whole take (:class:`TakeStatistics`: step limits and noise floors). So its cost does not grow with the take,
-and a take cut anywhere farther than that from a gap fills the gap to the same bits. A short gap (up to
+and a take cut anywhere farther than that from a gap fills the gap to the same bits. Nor does it grow with the
+capture rate: the windows are in seconds, but a window statistic reads at most ``WINDOW_SAMPLES`` evenly spaced
+frames and PCA trains on at most ``PCA_MAX_TRAIN`` (:mod:`.fill_methods`; every frame below ~480 and ~200 Hz),
+the searches for a fill's anchors and reference frames go outward from the gap (:mod:`.kernels`, compiled), and
+nothing copies the neighbourhood unless the rigid or PCA candidates are tried. A short gap (up to
 ``_CHEAP_MAX_S``) whose interpolation already validates at the marker's noise floor
 (:func:`interpolation_noise_mm`) is filled without the rigid and PCA candidates: nothing can predict the hidden
 samples measurably better than the noise they carry, and these are most of the gaps a spike leaves.
@@ -1031,11 +1035,13 @@ def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cl
     shown = valid[s:e][:, mates]
     if not mates.size or not shown.any():
         return 0.0
+    from gazepipe.stages.clean import kernels
+
     lo, hi = max(0, s - window), min(len(valid), e + window)
-    step = sample_step(hi - lo, WINDOW_SAMPLES)
-    both = valid[lo:hi:step][:, mates] & valid[lo:hi:step, m][:, None]
-    usual = np.where(both, norm3(src[lo:hi:step][:, mates] - src[lo:hi:step, m][:, None]), np.nan)
-    ref = np.where(both.sum(axis=0) >= 10, _nanmedian(usual, axis=0), np.nan)
+    d, both = kernels.distances(src, valid, valid[:, m], m, mates.astype(np.int64), lo, hi,
+                                sample_step(hi - lo, WINDOW_SAMPLES))
+    usual = np.where(both, d, np.nan).T                          # (frames, mates)
+    ref = np.where(both.sum(axis=1) >= 10, _nanmedian(usual, axis=0), np.nan)
     dist = norm3(src[s:e][:, mates] - fill[:, None])
     miss = np.abs(dist - ref)[shown & np.isfinite(ref)]
     return float(miss.mean()) if miss.size else 0.0
