@@ -833,3 +833,25 @@ def test_nearest_complete_frames_are_found_outward_from_each_interval() -> None:
             a_ref = complete[complete >= stops[i]]
             assert before[i] == (b_ref[-1] if b_ref.size else -1)
             assert after[i] == (a_ref[0] if a_ref.size else -1)
+
+
+def test_kernels_compile_where_no_cache_can_be_written(monkeypatch) -> None:
+    """Where numba finds no writable cache directory (a read-only install, no writable home) it refuses
+    ``cache=True`` when the function is decorated; the kernels are then compiled once per process instead."""
+    import numba
+
+    from gazepipe.stages.clean import kernels
+
+    real = numba.njit
+
+    def refusing(*args, cache=False, **kwargs):
+        if cache:
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'kernels.py'")
+        return real(*args, cache=cache, **kwargs)
+
+    monkeypatch.setattr(numba, "njit", refusing)
+
+    def twice(x: float) -> float:
+        return 2.0 * x
+
+    assert kernels._jit(twice)(1.5) == 3.0
