@@ -14,8 +14,15 @@ ratio, and whether the outputs are the same bits. The clean stage gets the set's
 label-swap repair, as the pipeline gives it its session's; computing them, once per session and worker in the
 pipeline, is timed apart (last column).
 
+With ``--rate`` two more sets: one take of a high capture rate (``--rate-hz``, default 10 kHz; ``--rate-s``
+seconds, default 20) generated gap-free with the markerset's rigid segments, filled as it is and with
+``--rate-gaps`` short gaps (default 2,267: one to 40 samples each, random markers and places, seeded) punched
+into it. The table then gives, for each version, the gapped take's fill time over the gap-free one's: the cost of
+its gaps, which should not grow with the rate (each gap's work bounded by its own length and by windows in
+seconds read at a bounded number of samples). The generated take is cached under ``bench/_work/rate-*.npz``.
+
 Usage: ``PYTHONPATH=. python bench/bench_fill_speed.py [--takes 8] [--repeats 3] [--profile] [--hostile]
-[--against REV]``
+[--klein PATH] [--rate] [--against REV]``
 """
 
 from __future__ import annotations
@@ -109,12 +116,57 @@ def digest_of(results: list) -> str:
     return digest.hexdigest()[:16]
 
 
+def rate_takes(rate_hz: float, seconds: float, n_gaps: int, seed: int = 0) -> list[tuple[str, list[dict]]]:
+    """Two sets of one take each: a generated take at ``rate_hz`` (``seconds`` of a standing gaze_follow take,
+    no gaps), and the same take with ``n_gaps`` short gaps (1 to 40 samples; never within 3 samples of another
+    gap of the same marker), both as :func:`load_takes` gives them (no spikes to find: none generated)."""
+    from gazepipe.io.capture import read_markers
+
+    cache = ROOT / "bench" / "_work" / f"rate-{rate_hz:g}hz-{seconds:g}s-seed{seed}.npz"
+    if not cache.is_file():
+        from gazepipe.synth import SynthConfig, generate_session
+
+        cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=seconds, shift_targets=(), neutral_s=1.0,
+                          head_camera=False, face_takes=(), gaps=False, rate_hz=rate_hz)
+        folder = generate_session(cache.with_suffix(""), seed=seed, config=cfg)
+        mk = read_markers(folder / "mocap" / "follow_standing_01.c3d")
+        ms = load_markerset(folder / "markerset.toml")
+        pos = {lab.split(":")[-1]: i for i, lab in enumerate(mk.labels)}
+        clusters = [[pos[x] for x in seg.markers if x in pos] for seg in ms.segments]
+        np.savez(cache, xyz=mk.xyz, valid=mk.valid, rate=mk.rate_hz,
+                 cluster_marker=np.concatenate([c for c in clusters if len(c) >= 2]),
+                 cluster_size=np.array([len(c) for c in clusters if len(c) >= 2]))
+    z = np.load(cache)
+    xyz, valid = z["xyz"], z["valid"] & np.isfinite(z["xyz"]).all(axis=2)
+    n_frames = int(round(seconds * float(z["rate"])))
+    xyz, valid = np.ascontiguousarray(xyz[:n_frames]), valid[:n_frames]
+    clusters = [c.tolist() for c in np.split(z["cluster_marker"], np.cumsum(z["cluster_size"])[:-1])]
+    p = CleanParams()
+    gapped = valid.copy()
+    rng = np.random.default_rng(seed)
+    made = 0
+    while made < n_gaps:
+        m, length = int(rng.integers(xyz.shape[1])), int(rng.integers(1, 41))
+        start = int(rng.integers(5, n_frames - length - 5))
+        if gapped[start - 3:start + length + 3, m].all():
+            gapped[start:start + length, m] = False
+            made += 1
+    base = {"rate": float(z["rate"]), "clusters": clusters, "max_gap_s": p.max_gap_s,
+            "max_error_mm": p.max_fill_error_mm, "methods": tuple(p.fill_methods), "spike_s": 0.0}
+    label = f"{float(z['rate']) / 1000:g} kHz {seconds:g} s"
+    return [(f"{label}, no gaps", [dict(base, name="plain", xyz=np.where(valid[..., None], xyz, np.nan),
+                                        valid=valid)]),
+            (f"{label}, {n_gaps} gaps", [dict(base, name="gapped", xyz=np.where(gapped[..., None], xyz, np.nan),
+                                              valid=gapped)])]
+
+
 def load_sets(args: argparse.Namespace) -> list[tuple[str, list[dict]]]:
     sets = []
-    if (KLEIN / "mocap").is_dir():
-        sets.append(("klein_laying", load_takes(KLEIN, args.takes, args.step)))
+    klein = Path(args.klein)
+    if (klein / "mocap").is_dir():
+        sets.append((klein.name, load_takes(klein, args.takes, args.step)))
     else:
-        print(f"{KLEIN} absent (run bench/make_corpus.py): skipped")
+        print(f"{klein} absent (run bench/make_corpus.py): skipped")
     if (SAMPLE / "mocap").is_dir():
         sets.append(("sample session01", load_takes(SAMPLE, 0, 1)))
     if args.hostile:
@@ -123,6 +175,8 @@ def load_sets(args: argparse.Namespace) -> list[tuple[str, list[dict]]]:
         cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=45.0, head_camera=False,
                           face_takes=(), spikes_per_marker_min=1.0, long_gaps=4, gaps_per_marker_min=3.0)
         sets.append(("hostile generated session", load_takes(generate_session(HOSTILE, seed=0, config=cfg), 0, 1)))
+    if args.rate:
+        sets += rate_takes(args.rate_hz, args.rate_s, args.rate_gaps)
     return sets
 
 
@@ -133,21 +187,38 @@ def child(args: argparse.Namespace) -> int:
     sets = load_sets(args)
     out = {}
     with threadpool_limits(limits=1):
+        # the first fill of a process loads (or, with no cache yet, compiles) the filler's compiled kernels: timed
+        # apart, on a small take, so the figures below are those of a warm worker
+        c0 = time.process_time()
+        warm_up()
+        out["warm-up"] = {"first_cpu": time.process_time() - c0}
         for name, takes in sets:
             c0 = time.process_time()
             results = [fill(t) for t in takes]
             fill_cpu = time.process_time() - c0
-            c0 = time.process_time()
-            references = subject_references(takes)
-            refs_cpu = time.process_time() - c0
-            c0 = time.process_time()
-            for t in takes:
-                clean(t, references)
-            clean_cpu = time.process_time() - c0
+            refs_cpu = clean_cpu = float("nan")
+            if "markers" in takes[0]:         # the generated high-rate take is timed in fill_gaps only
+                c0 = time.process_time()
+                references = subject_references(takes)
+                refs_cpu = time.process_time() - c0
+                c0 = time.process_time()
+                for t in takes:
+                    clean(t, references)
+                clean_cpu = time.process_time() - c0
             out[name] = {"takes": len(takes), "fill_cpu": fill_cpu, "clean_cpu": clean_cpu, "refs_cpu": refs_cpu,
                          "digest": digest_of(results)}
     print("RESULT " + json.dumps(out))
     return 0
+
+
+def warm_up() -> None:
+    """One small fill with every method (2 s at 60 Hz, a few gaps): what a worker's first take pays once."""
+    rng = np.random.default_rng(0)
+    t = np.arange(120)[:, None, None] / 60.0
+    xyz = 100.0 * np.sin(t + rng.uniform(0, 6, (1, 8, 3))) + rng.normal(0, 0.5, (120, 8, 3))
+    valid = np.ones((120, 8), dtype=bool)
+    valid[40:43, 0] = valid[60:80, 3] = valid[90:92, 5] = False
+    fill_gaps(np.where(valid[..., None], xyz, np.nan), valid, 60.0, clusters=[[0, 1, 2, 3], [4, 5, 6, 7]])
 
 
 def checkout(rev: str) -> Path:
@@ -167,8 +238,12 @@ def against(args: argparse.Namespace) -> int:
     """Old (``args.against``) and new interleaved in fresh processes; the table of CPU time per take."""
     trees = {"old": checkout(args.against), "new": ROOT}
     best: dict[tuple[str, str], dict] = {}
+    first: dict[str, float] = {}
     base = [sys.executable, str(Path(__file__).resolve()), "--child", "--takes", str(args.takes),
-            "--step", str(args.step)] + (["--hostile"] if args.hostile else [])
+            "--step", str(args.step), "--klein", str(args.klein)] + (["--hostile"] if args.hostile else [])
+    if args.rate:
+        base += ["--rate", "--rate-hz", str(args.rate_hz), "--rate-s", str(args.rate_s), "--rate-gaps",
+                 str(args.rate_gaps)]
     for _ in range(args.repeats):
         for side, tree in trees.items():
             env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), str(ROOT / "bench")]))
@@ -176,6 +251,9 @@ def against(args: argparse.Namespace) -> int:
             line = next(x for x in run.stdout.splitlines() if x.startswith("RESULT "))
             for name, r in json.loads(line[len("RESULT "):]).items():
                 key = (name, side)
+                if name == "warm-up":
+                    first[side] = min(first.get(side, np.inf), r["first_cpu"])
+                    continue
                 if key not in best:
                     best[key] = r
                 else:
@@ -192,6 +270,15 @@ def against(args: argparse.Namespace) -> int:
               f"{n['fill_cpu'] / o['fill_cpu']:6.2f} {1000 * o['clean_cpu'] / k:10.1f} "
               f"{1000 * n['clean_cpu'] / k:10.1f} {n['clean_cpu'] / o['clean_cpu']:6.2f}  "
               f"{'yes' if o['digest'] == n['digest'] else 'no':>11}  {1000 * n.get('refs_cpu', 0.0):.0f} ms")
+    print(f"first fill of a process (kernels loaded or compiled; not in the figures above), CPU: old "
+          f"{1000 * first.get('old', np.nan):.0f} ms, new {1000 * first.get('new', np.nan):.0f} ms")
+    names = list(dict.fromkeys(k[0] for k in best))
+    plain = [x for x in names if x.endswith(", no gaps")]
+    if args.rate and plain:
+        gapped = next(x for x in names if x.startswith(plain[0][:-len("no gaps")]) and x != plain[0])
+        for side in ("old", "new"):
+            g, z = best[(gapped, side)]["fill_cpu"], best[(plain[0], side)]["fill_cpu"]
+            print(f"{side}: {gapped} {g:.1f} s CPU, without the gaps {z:.1f} s: ratio {g / z:.1f}")
     return 0
 
 
@@ -203,6 +290,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile", action="store_true", help="cProfile one pass and print the top functions")
     ap.add_argument("--hostile", action="store_true",
                     help="also a generated session with spikes, long trunk occlusions and dense gaps")
+    ap.add_argument("--klein", default=str(KLEIN), help="the Klein session folder (default %(default)s)")
+    ap.add_argument("--rate", action="store_true", help="also a generated high-rate take, with and without gaps")
+    ap.add_argument("--rate-hz", type=float, default=10000.0)
+    ap.add_argument("--rate-s", type=float, default=20.0)
+    ap.add_argument("--rate-gaps", type=int, default=2267)
     ap.add_argument("--against", metavar="REV", help="also time this commit's filler, interleaved with this one")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -215,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # one BLAS thread, as the pipeline runs every unit
     limit = threadpool_limits(limits=1)
+    cpu_of: dict[str, float] = {}
     for name, takes in sets:
         n_gaps = 0
         digest = "-"
@@ -227,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
             if rep == 0:
                 n_gaps = sum(sum(g.method != "unfilled" for g in r.gaps) for r in results)
                 digest = digest_of(results)
+        cpu_of[name] = best_cpu
         frames = sum(t["xyz"].shape[0] for t in takes)
         markers = np.mean([t["xyz"].shape[1] for t in takes])
         print(f"{name}: {len(takes)} takes, {frames / len(takes):.0f} frames x {markers:.0f} markers, "
@@ -246,6 +340,11 @@ def main(argv: list[str] | None = None) -> int:
             pr.disable()
             pstats.Stats(pr).sort_stats("cumulative").print_stats(25)
     limit.restore_original_limits()
+    plain = [x for x in cpu_of if x.endswith(", no gaps")]
+    if plain:
+        gapped = next(x for x in cpu_of if x.startswith(plain[0][:-len("no gaps")]) and x != plain[0])
+        print(f"{gapped}: {cpu_of[gapped]:.1f} s CPU, without the gaps {cpu_of[plain[0]]:.1f} s: "
+              f"ratio {cpu_of[gapped] / cpu_of[plain[0]]:.1f}")
     return 0
 
 

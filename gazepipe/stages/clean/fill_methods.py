@@ -57,49 +57,27 @@ _PCA_DISTANCE_FRAMES = 200
 #: the triangle's angle): otherwise its rotation would be mostly noise
 _FRAME_MIN_EDGE_MM = 5.0
 _FRAME_MIN_SINE = 0.1
+#: the most frames a window statistic reads (:func:`distance_stats`) and a PCA model trains on
+#: (:func:`fit_pca_models`): a window is given in seconds, so at a high capture rate it holds many frames, and
+#: evenly spaced samples of it give the same statistics at a cost that does not grow with the rate. Every frame
+#: is read up to 200 Hz (2 s each side of a 1 s gap: 1,000 frames; PCA's 10 s each side: 4,000); at 10 kHz,
+#: every 41st of a short gap's 40,000 (a thousand samples fix a mean and a spread to a few percent of it)
+WINDOW_SAMPLES = 1000
+PCA_MAX_TRAIN = 4000
+
+
+def sample_step(n: int, most: int) -> int:
+    """The stride that reads at most ``most`` of ``n`` evenly spaced frames (1 when ``n <= most``)."""
+    return max(1, -(-n // most))
 
 
 def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """PCHIP interpolant through knots ``x`` (n,) increasing, values ``y`` (n, k), evaluated at ``t`` (q,) inside
-    ``[x[0], x[-1]]``: (q, k).
+    ``[x[0], x[-1]]``: (q, k), bit for bit ``scipy.interpolate.PchipInterpolator(x, y, axis=0)(t)``
+    (:func:`gazepipe.stages.clean.kernels.pchip_eval`, compiled)."""
+    from gazepipe.stages.clean import kernels
 
-    The same arithmetic as ``scipy.interpolate.PchipInterpolator(x, y, axis=0)(t)`` (Fritsch–Carlson slopes as
-    a weighted harmonic mean, Moler's one-sided three-point end slopes, the cubic Hermite piece evaluated as
-    ``c3 + c2 s + c1 s² + c0 s³``), so the results are bit for bit the same, without the cost of building a
-    piecewise polynomial for every knot when a few pieces are evaluated.
-    """
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    hk = (x[1:] - x[:-1])[:, None]
-    mk = (y[1:] - y[:-1]) / hk
-    dk = np.empty_like(y)
-    if y.shape[0] == 2:
-        dk[0] = mk[0]
-        dk[1] = mk[0]
-    else:
-        smk = np.sign(mk)
-        cond = (smk[1:] != smk[:-1]) | (mk[1:] == 0) | (mk[:-1] == 0)
-        w1 = 2 * hk[1:] + hk[:-1]
-        w2 = hk[1:] + 2 * hk[:-1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            whmean = (w1 / mk[:-1] + w2 / mk[1:]) / (w1 + w2)
-            dk[1:-1] = np.where(cond, 0.0, 1.0 / whmean)
-        # both ends at once: rows 0 (first knot) and 1 (last knot)
-        h0, h1 = hk[[0, -1]], hk[[1, -2]]
-        m0, m1 = mk[[0, -1]], mk[[1, -2]]
-        d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
-        flat = np.sign(d) != np.sign(m0)
-        big = ~flat & (np.sign(m0) != np.sign(m1)) & (np.abs(d) > 3.0 * np.abs(m0))
-        dk[[0, -1]] = np.where(flat, 0.0, np.where(big, 3.0 * m0, d))
-    j = np.clip(np.searchsorted(x, t, side="right") - 1, 0, x.size - 2)
-    h = hk[j]
-    slope = mk[j]
-    tt = (dk[j] + dk[j + 1] - 2 * slope) / h
-    c0 = tt / h
-    c1 = (slope - dk[j]) / h - tt
-    s = (np.asarray(t, dtype=np.float64) - x[j])[:, None]
-    s2 = s * s
-    return ((y[j] + dk[j] * s) + c1 * s2) + c0 * (s2 * s)
+    return kernels.pchip_eval(*(np.ascontiguousarray(v, dtype=np.float64) for v in (x, y, t)))
 
 
 def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[int, int]],
@@ -112,41 +90,26 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
     known_m : (T,) bool, samples that may be used.
     kind : ``"linear"`` or ``"pchip"``.
 
-    An interval gets ``None`` unless known samples exist on both sides (never extrapolates in time).
-    PCHIP is local (each knot's slope depends on its neighbours only), so one interpolant through the
-    ``_N_ANCHORS`` known samples on each side of every interval serves all of them.
+    An interval gets ``None`` unless known samples exist on both sides and none inside it (never extrapolates
+    in time). PCHIP runs through the ``_N_ANCHORS`` known samples on each side of the interval (PCHIP is local:
+    the same bits as an interpolant through every known sample). Compiled
+    (:func:`gazepipe.stages.clean.kernels.interp_intervals`): the search for the anchors goes outward from each
+    interval, so an interval costs its own length and the distance to its anchors, not the take's length.
     """
-    known_idx = np.flatnonzero(known_m)
-    out: list[np.ndarray | None] = []
-    anchors: list[np.ndarray] = []
-    ok: list[bool] = []
-    for a, b in intervals:
-        i0 = np.searchsorted(known_idx, a)  # first known sample at or after a
-        i1 = np.searchsorted(known_idx, b)  # first known sample at or after b
-        good = i0 > 0 and i1 < known_idx.size and i0 == i1
-        ok.append(bool(good))
-        if good:
-            anchors.append(known_idx[max(0, i0 - _N_ANCHORS):i1 + _N_ANCHORS])
-    if kind == "pchip" and anchors:
-        knots = np.unique(np.concatenate(anchors))
-        t_all = np.concatenate([np.arange(a, b, dtype=np.float64) for (a, b), good in zip(intervals, ok,
-                                                                                         strict=True) if good])
-        q_all = pchip_eval(knots, xyz_m[knots], t_all)
-    at = 0   # where the next good interval starts in q_all
-    for (a, b), good in zip(intervals, ok, strict=True):
-        if not good:
-            out.append(None)
-            continue
-        if kind == "linear":
-            t = np.arange(a, b, dtype=np.float64)
-            i = np.searchsorted(known_idx, a)
-            t0, t1 = known_idx[i - 1], known_idx[i]
-            w = ((t - t0) / (t1 - t0))[:, None]
-            out.append((1.0 - w) * xyz_m[t0] + w * xyz_m[t1])
-        else:
-            out.append(q_all[at:at + b - a])
-            at += b - a
-    return out
+    from gazepipe.stages.clean import kernels
+
+    if kind not in ("linear", "pchip"):
+        raise ValueError(f"interpolation kind must be 'linear' or 'pchip', not {kind!r}")
+    if not intervals:
+        return []
+    bounds = np.array(intervals, dtype=np.int64).reshape(-1, 2)
+    # the marker's column and mask as they are (strided views): a copy would cost the neighbourhood's length
+    out, good = kernels.interp_intervals(np.asarray(xyz_m, dtype=np.float64), np.asarray(known_m, dtype=np.bool_),
+                                         np.ascontiguousarray(bounds[:, 0]), np.ascontiguousarray(bounds[:, 1]),
+                                         kind == "pchip", _N_ANCHORS)
+    offs = np.cumsum(bounds[:, 1] - bounds[:, 0]) - (bounds[:, 1] - bounds[:, 0])
+    return [out[o:o + b - a] if ok else None
+            for (a, b), o, ok in zip(intervals, offs.tolist(), good.tolist(), strict=True)]
 
 
 def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -219,6 +182,8 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
                     intervals: list[tuple[int, int]], partial: bool = False) -> list[np.ndarray | None]:
     """:func:`rigid_fill` over each of ``intervals`` (the same ``valid`` and ``known_m``): occlusion patterns
     and the frames where each set of mates is complete are found once for all of them."""
+    from gazepipe.stages.clean import kernels
+
     n_t = xyz.shape[0]
     cl = np.asarray(cluster, dtype=np.int64)
     others = cl[cl != m]
@@ -228,20 +193,22 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
     frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
     which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
     pred_all = np.full((frames_all.size, 3), np.nan)
-    starts = np.array([a for a, _ in intervals])
-    stops = np.array([b for _, b in intervals])
+    starts = np.array([a for a, _ in intervals], dtype=np.int64)
+    stops = np.array([b for _, b in intervals], dtype=np.int64)
     for pattern, rows in row_patterns(valid[frames_all][:, others]):
         if pattern.sum() < 2:
             continue
         sub = others[pattern]
-        complete = np.flatnonzero(known_m & valid[:, sub].all(axis=1))
-        if complete.size == 0:
+        # each row's reference frames: the nearest complete frames (``known_m`` and every mate of the pattern
+        # measured) before and after its interval, -1 where none; searched outward from each interval
+        jobs_here = np.unique(which[rows])
+        b_job, a_job = kernels.nearest_complete(np.asarray(known_m, dtype=np.bool_),
+                                                np.asarray(valid, dtype=np.bool_), sub, starts[jobs_here],
+                                                stops[jobs_here])
+        at = np.searchsorted(jobs_here, which[rows])
+        before, after = b_job[at], a_job[at]
+        if (before < 0).all() and (after < 0).all():
             continue
-        # each row's reference frames: the nearest complete frames before and after its interval (-1: none)
-        j0 = np.searchsorted(complete, starts[which[rows]])
-        j1 = np.searchsorted(complete, stops[which[rows]])
-        before = np.where(j0 > 0, complete[np.maximum(j0 - 1, 0)], -1)
-        after = np.where(j1 < complete.size, complete[np.minimum(j1, complete.size - 1)], -1)
         refs = np.unique(np.concatenate([before, after]))
         refs = refs[refs >= 0]
         ref_pts = xyz[refs][:, sub]
@@ -554,8 +521,10 @@ def fit_pca_models(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarr
     Predictors: the markers measured in every frame of ``[a - 1, b + 1)`` (the gap and the edge frames its
     correction uses), only the ``max_predictors`` nearest to ``m`` (mean distance over the window): the
     distance weighting makes far markers contribute next to nothing, and the model stays small and fast.
-    Training frames: ``known_m`` and every predictor measured, inside ``window`` (half-open) when given. When
-    fewer than ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
+    Training frames: ``known_m`` and every predictor measured, inside ``window`` (half-open) when given, among
+    every :func:`sample_step`-th frame of it when it holds more than ``PCA_MAX_TRAIN`` (a window in seconds at a
+    high capture rate: the model's cost bounded, its components those of the same motion). When fewer than
+    ``min_train`` frames remain, the predictor measured least often is dropped, and so on.
     """
     chosen = _pca_training(xyz, valid, m, known_m, a, b, window, min_train, max_predictors)
     if chosen is None:
@@ -598,10 +567,13 @@ def _pca_training(xyz: np.ndarray, valid: np.ndarray, m: int, known_m: np.ndarra
             mean_d = np.where(both, d, 0.0).sum(axis=0) / both.sum(axis=0)
         mean_d[~np.isfinite(mean_d)] = np.inf
         preds = np.sort(preds[np.argsort(mean_d, kind="stable")[:max_predictors]])
+    # the training frames among evenly spaced frames of the window, at most PCA_MAX_TRAIN of them
+    train_step = sample_step(hi - lo, PCA_MAX_TRAIN)
+    rows, vw = rows[::train_step], vw[::train_step]
     while preds.size:
         ok = rows & vw[:, preds].all(axis=1)
         if np.count_nonzero(ok) >= min_train:
-            return preds, np.flatnonzero(ok) + lo
+            return preds, np.flatnonzero(ok) * train_step + lo
         counts = (vw[:, preds] & rows[:, None]).sum(axis=0)
         preds = np.delete(preds, int(np.argmin(counts)))
     return None
@@ -649,37 +621,21 @@ def _edge_correct_packed(preds: np.ndarray, xyz_m: np.ndarray, spans: list[tuple
     zero residual, which adds exact zeros). An interval with an unpredicted (NaN) frame is None unless
     ``partial`` (its NaN rows then stay NaN); with no predicted frame it is None. Returns ``(filled, none)`` as
     :func:`pca_fill_packed` does."""
-    n_k = preds.shape[0]
-    lo_l, hi_l = [lo for lo, _ in spans], [hi for _, hi in spans]
-    a_l, b_l = [j[0] for j in jobs], [j[1] for j in jobs]
-    lo, hi, a, b = (np.array(v, dtype=np.int64) for v in (lo_l, hi_l, a_l, b_l))
+    from gazepipe.stages.clean import kernels
+
+    lo = np.array([x for x, _ in spans], dtype=np.int64)
+    hi = np.array([x for _, x in spans], dtype=np.int64)
+    a = np.array([j[0] for j in jobs], dtype=np.int64)
+    b = np.array([j[1] for j in jobs], dtype=np.int64)
+    # whether the marker is known in the frame before each interval and the one after it (inside its span)
+    known_l = np.array([a_ - 1 >= lo_ and bool(j[2][a_ - 1]) for a_, lo_, j in zip(a.tolist(), lo.tolist(), jobs,
+                                                                                      strict=True)], dtype=bool)
+    known_r = np.array([b_ < hi_ and bool(j[2][b_]) for b_, hi_, j in zip(b.tolist(), hi.tolist(), jobs,
+                                                                            strict=True)], dtype=bool)
     partial = np.array([j[3] for j in jobs], dtype=bool)
-    lens = hi - lo
-    offs = np.cumsum(lens) - lens
-    n_in = b - a
-    job_of = np.repeat(np.arange(len(jobs)), n_in)
-    in_offs = np.cumsum(n_in) - n_in
-    # each interval's frames [a, b) within the spans, and the frame numbers
-    t = np.arange(n_in.sum()) - in_offs[job_of] + a[job_of]
-    inner = offs[job_of] + t - lo[job_of]
-    core = preds[:, inner]
-    bad = np.isnan(core).any(axis=2)
-    n_bad = np.add.reduceat(bad, in_offs, axis=1) if inner.size else np.zeros((n_k, len(jobs)), np.int64)
-    none = (n_bad == n_in) | ((n_bad > 0) & ~partial)
-    # the known samples next to each interval (spans start at a - 1 and end at b + 1 inside the take)
-    known_l = np.array([a_ - 1 >= lo_ and bool(j[2][a_ - 1]) for a_, lo_, j in zip(a_l, lo_l, jobs, strict=True)])
-    known_r = np.array([b_ < hi_ and bool(j[2][b_]) for b_, hi_, j in zip(b_l, hi_l, jobs, strict=True)])
-    p_l = preds[:, offs + np.maximum(a - 1 - lo, 0)]
-    p_r = preds[:, offs + np.minimum(b - lo, lens - 1)]
-    ok_l = known_l & np.isfinite(p_l).all(axis=2)
-    ok_r = known_r & np.isfinite(p_r).all(axis=2)
-    res_l = np.where(ok_l[..., None], xyz_m[np.maximum(a - 1, 0)] - p_l, 0.0)
-    res_r = np.where(ok_r[..., None], xyz_m[np.minimum(b, xyz_m.shape[0] - 1)] - p_r, 0.0)
-    w2 = (t - (a[job_of] - 1)) / (b[job_of] - (a[job_of] - 1))
-    w = np.where(ok_l[:, job_of], np.where(ok_r[:, job_of], w2, 0.0), 1.0)[..., None]
-    filled = core + (1.0 - w) * res_l[:, job_of] + w * res_r[:, job_of]
-    filled[none[:, job_of]] = np.nan
-    return filled, none
+    # the marker's column as it is (a strided view): copying it would cost the neighbourhood's length
+    return kernels.edge_correct(np.ascontiguousarray(preds, dtype=np.float64), np.asarray(xyz_m, dtype=np.float64),
+                                lo, hi, a, b, partial, known_l, known_r)
 
 
 def donor_interp_errors(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int,
@@ -749,12 +705,18 @@ def distance_stats(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray,
                    known_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard deviation (mm) of each of markers ``cand``'s distance to marker ``m`` over the frames
     within ``window`` of gap ``[s, e)`` where both are measured (and ``known_m``, when given, is True); the
-    deviation is inf with fewer than 10 such frames."""
+    deviation is inf with fewer than 10 such frames. A window of more than ``WINDOW_SAMPLES`` frames is read at
+    every :func:`sample_step`-th frame: the statistics of a few thousand evenly spaced samples, whatever the rate."""
+    from gazepipe.stages.clean import kernels
+
     n_t = valid.shape[0]
     lo, hi = max(0, s - window), min(n_t, e + window)
-    own = valid[lo:hi, m] if known_m is None else known_m[lo:hi]
-    both = valid[lo:hi][:, cand] & own[:, None]
-    d = norm3(np.nan_to_num(xyz[lo:hi][:, cand] - xyz[lo:hi][:, [m]]))
+    own = valid[:, m] if known_m is None else known_m
+    d, both = kernels.distances(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_),
+                                np.asarray(own, dtype=np.bool_), m, np.asarray(cand, dtype=np.int64), lo, hi,
+                                sample_step(hi - lo, WINDOW_SAMPLES))
+    # (frames, markers) with the frames contiguous, as the array code laid them out: its sums' order, its bits
+    d, both = d.T, both.T
     n = both.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         mu = np.where(both, d, 0.0).sum(axis=0) / n

@@ -54,12 +54,13 @@ def linked_neighbours(xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray, m
 
 
 def link_residuals(preds: np.ndarray, frames: np.ndarray, xyz: np.ndarray, vis: np.ndarray, links: np.ndarray,
-                   dist: np.ndarray, spread: np.ndarray) -> np.ndarray:
+                   dist: np.ndarray, spread: np.ndarray, vis_rows: np.ndarray | None = None) -> np.ndarray:
     """Mean squared distance error (in units of each link's spread) of fills ``preds`` (C, n, 3) at ``frames``
-    against the links measured there (``vis`` (T, M) the visibility the fills saw), (n, C); NaN where no link
-    is."""
+    against the links measured there (``vis`` (T, M) the visibility the fills saw, or ``vis_rows`` (n, M) that
+    visibility in ``frames`` when given), (n, C); NaN where no link is."""
     pos = xyz[frames][:, links]                                     # (n, K, 3)
-    seen = vis[frames][:, links] & np.isfinite(pos).all(axis=2)
+    rows = vis[frames] if vis_rows is None else vis_rows
+    seen = rows[:, links] & np.isfinite(pos).all(axis=2)
     diff = np.nan_to_num(pos)[None] - preds[:, :, None, :]          # (C, n, K, 3)
     z = (np.sqrt(np.einsum("cnkd,cnkd->cnk", diff, diff)) - dist) / spread
     k = seen.sum(axis=1)
@@ -89,16 +90,17 @@ def _smooth(r: np.ndarray, cuts: np.ndarray) -> np.ndarray:
 
 def average(preds: dict[str, np.ndarray], prior: dict[str, float], frames: np.ndarray, xyz: np.ndarray,
             vis: np.ndarray, links: tuple[np.ndarray, np.ndarray, np.ndarray],
-            cuts: np.ndarray | None = None) -> np.ndarray | None:
+            cuts: np.ndarray | None = None, *, vis_rows: np.ndarray | None = None) -> np.ndarray | None:
     """The frame-by-frame weighted mean (n, 3) of the candidate fills ``preds`` (method -> (n, 3) at
     ``frames``, NaN where a method has none) with weights ``prior[k] / (1 + residual_k)``, the residual being
     :func:`link_residuals` smoothed over ``SMOOTH_FRAMES`` (within the runs starting at ``cuts``). None when
-    there are fewer than two candidates or no links; frames where no candidate has a value are NaN."""
+    there are fewer than two candidates or no links; frames where no candidate has a value are NaN.
+    ``vis_rows`` (n, M): the visibility in ``frames``, when the caller has it without a (T, M) ``vis``."""
     names = [k for k in prior if k in preds]
     if len(names) < 2 or links[0].size == 0:
         return None
     stack = np.stack([preds[k] for k in names])                     # (C, n, 3)
-    res = link_residuals(stack, frames, xyz, vis, *links)
+    res = link_residuals(stack, frames, xyz, vis, *links, vis_rows=vis_rows)
     res = _smooth(res, np.zeros(1, dtype=np.int64) if cuts is None else cuts)
     have = np.isfinite(stack).all(axis=2).T                        # (n, C)
     w = np.array([prior[k] for k in names])[None, :] / (1.0 + np.where(np.isfinite(res), res, 0.0))

@@ -48,7 +48,11 @@ trajectories (:func:`unlabeled_markers`) are left alone when the caller says so 
 Each gap is decided from its neighbourhood only: the frames within ``_GapSettings.reach`` of it (the PCA
 training window, the mates' window and the hidden stretches of the longest gap all fit), plus two statistics of
 the whole take (:class:`TakeStatistics`: step limits and noise floors). So its cost does not grow with the take,
-and a take cut anywhere farther than that from a gap fills the gap to the same bits. A short gap (up to
+and a take cut anywhere farther than that from a gap fills the gap to the same bits. Nor does it grow with the
+capture rate: the windows are in seconds, but a window statistic reads at most ``WINDOW_SAMPLES`` evenly spaced
+frames and PCA trains on at most ``PCA_MAX_TRAIN`` (:mod:`.fill_methods`; every frame below ~480 and ~200 Hz),
+the searches for a fill's anchors and reference frames go outward from the gap (:mod:`.kernels`, compiled), and
+nothing copies the neighbourhood unless the rigid or PCA candidates are tried. A short gap (up to
 ``_CHEAP_MAX_S``) whose interpolation already validates at the marker's noise floor
 (:func:`interpolation_noise_mm`) is filled without the rigid and PCA candidates: nothing can predict the hidden
 samples measurably better than the noise they carry, and these are most of the gaps a spike leaves.
@@ -75,6 +79,7 @@ from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean import framewise
 from gazepipe.stages.clean.fill_methods import (
     MATES_MAX_STD_MM,
+    WINDOW_SAMPLES,
     PcaModel,
     distance_stats,
     donor_interp_errors,
@@ -86,6 +91,7 @@ from gazepipe.stages.clean.fill_methods import (
     pca_novelty,
     rigid_fill,
     rigid_fill_many,
+    sample_step,
     speed_over,
 )
 from gazepipe.stages.clean.spikes import _nanmedian
@@ -179,8 +185,8 @@ class Stretches:
     hidden: dict[str, np.ndarray]
     #: (n,) their frame indices
     frames: np.ndarray
-    #: (T, M) the visibility the methods saw (the gap's occlusion pattern laid over each stretch)
-    vis: np.ndarray
+    #: (n, M) the visibility the methods saw in those frames (the gap's occlusion pattern laid over each stretch)
+    vis_rows: np.ndarray
     #: (T,) the marker's samples the methods could use (measured, not in the gap or a stretch)
     known: np.ndarray
     #: start of each stretch in ``truth``
@@ -254,9 +260,13 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
     n_win = max(_WINDOWS_PER_SIDE, -(-_MIN_HIDDEN_PER_SIDE // length))
     wins: list[tuple[int, int]] = []
     edge = s == 0 or e == n_t
+    # the stretches reach at most this far from the gap: the search for the nearest unmeasured sample (the end of
+    # the marker's measured run) looks no farther, so a gap costs its own length, not the take's
+    need = n_win * (length + _SEPARATION) + _SEPARATION + 2
     if s > 0:
-        before = np.flatnonzero(~valid_m[:s])
-        r0 = int(before[-1]) + 1 if before.size else 0
+        w0 = max(0, s - need)
+        before = np.flatnonzero(~valid_m[w0:s])
+        r0 = int(before[-1]) + 1 + w0 if before.size else w0
         if edge:
             lp = min(length, s - r0 - 1)
             if lp >= 1:
@@ -270,8 +280,9 @@ def _validation_windows(valid_m: np.ndarray, s: int, e: int) -> list[tuple[int, 
                 wins.append((stop - lp, stop))
                 stop -= lp + _SEPARATION
     if e < n_t:
-        after = np.flatnonzero(~valid_m[e:])
-        r1 = int(after[0]) + e if after.size else n_t
+        w1 = min(n_t, e + need)
+        after = np.flatnonzero(~valid_m[e:w1])
+        r1 = int(after[0]) + e if after.size else w1
         if edge:
             lp = min(length, r1 - e - 1)
             if lp >= 1:
@@ -295,8 +306,29 @@ class Hidden:
     wins: list[tuple[int, int]]
     #: (T,) the marker's samples the methods may use (measured, not in the gap or a stretch)
     known: np.ndarray
-    #: (T, M) the visibility the methods see (the gap's occlusion pattern laid over each stretch)
-    vis: np.ndarray
+    #: (T, M) the measured samples of the neighbourhood, and the gap ``[s, e)`` whose occlusion pattern the
+    #: stretches get
+    valid: np.ndarray
+    s: int
+    e: int
+    _vis: np.ndarray | None = field(default=None, repr=False)
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        """(b - a, M) the visibility the methods see in hidden stretch ``[a, b)``: the gap's occlusion pattern
+        laid over it (a marker missing in the gap's i-th frame is missing in the stretch's i-th frame)."""
+        return self.valid[a:b] & self.valid[self.s + np.minimum(np.arange(b - a), self.e - self.s - 1)]
+
+    @property
+    def vis(self) -> np.ndarray:
+        """(T, M) the visibility the methods see: ``valid`` with :meth:`rows` in the stretches. A copy of the
+        neighbourhood's, made when first asked for (by the rigid and PCA candidates): a gap that interpolation
+        fills alone needs only the stretches' rows."""
+        if self._vis is None:
+            vis = self.valid.copy()
+            for a, b in self.wins:
+                vis[a:b] = self.rows(a, b)
+            self._vis = vis
+        return self._vis
 
 
 @dataclass
@@ -319,11 +351,9 @@ def hide_stretches(valid: np.ndarray, m: int, s: int, e: int, validate: bool) ->
     valid_m = valid[:, m]
     wins = _validation_windows(valid_m, s, e) if validate else []
     known = valid_m.copy()
-    vis = valid.copy()
     for a, b in wins:
         known[a:b] = False
-        vis[a:b] &= valid[s + np.minimum(np.arange(b - a), e - s - 1)]
-    return Hidden(wins, known, vis)
+    return Hidden(wins, known, valid, s, e)
 
 
 def _seen_in_stretches(valid: np.ndarray, hid: Hidden, m: int) -> np.ndarray:
@@ -333,7 +363,7 @@ def _seen_in_stretches(valid: np.ndarray, hid: Hidden, m: int) -> np.ndarray:
     without it, the fill with it was 48 mm off."""
     if not hid.wins:
         return valid
-    seen = np.logical_and.reduce([hid.vis[a:b].all(axis=0) for a, b in hid.wins])
+    seen = np.logical_and.reduce([hid.rows(a, b).all(axis=0) for a, b in hid.wins])
     seen[m] = True
     return valid & seen
 
@@ -408,7 +438,8 @@ def validate_candidates(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: i
                                         for a, b in hid.wins]) for meth in preds}
         frames = np.concatenate([np.arange(a, b) for a, b in hid.wins])
         cuts = np.cumsum([0] + [b - a for a, b in hid.wins[:-1]])
-        stretches = Stretches(truth, hidden, frames, hid.vis, hid.known, cuts)
+        stretches = Stretches(truth, hidden, frames, np.concatenate([hid.rows(a, b) for a, b in hid.wins]),
+                              hid.known, cuts)
         err = norm3(np.stack(list(hidden.values())) - truth)
         common = np.isfinite(err).all(axis=0)
         for i, meth in enumerate(preds):
@@ -693,6 +724,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
         for j in c:
             cluster_of.setdefault(int(j), [int(k) for k in c])
     same_group = _same_group(groups, n_m)
+    masked: dict[bytes, np.ndarray] = {}     # valid for each group's markers only, made once per group
     records: list[GapRecord] = []
     qc: list[MarkerQC] = []
     stats = take_statistics(src, valid) if stats is None else stats
@@ -712,7 +744,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                 # the take, and the result does not depend on what lies farther away
                 lo, hi = max(0, s - cfg.reach), min(n_t, e + cfg.reach)
                 limit = None if max_error_mm is None else gap_limit(max_error_mm, m, s, e)
-                near = valid[lo:hi] if same_group is None else valid[lo:hi] & same_group[m]
+                near = valid[lo:hi] if same_group is None else _group_valid(valid, same_group[m], masked)[lo:hi]
                 if e - s > cfg.max_len:
                     record, fill = still_gap(src[lo:hi], near, m, s - lo, e - lo, float(limits[m]), limit, cfg)
                 else:
@@ -731,6 +763,15 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     for m, s, e, fill in fills:
         src[s:e, m] = fill
     return FillResult(src, code, qc, records)
+
+
+def _group_valid(valid: np.ndarray, members: np.ndarray, masked: dict[bytes, np.ndarray]) -> np.ndarray:
+    """``valid`` (T, M) with the markers outside ``members`` (M,) bool cleared, made once per group and kept in
+    ``masked``: a gap then slices its neighbourhood out of it instead of masking the neighbourhood again."""
+    key = members.tobytes()
+    if key not in masked:
+        masked[key] = valid & members
+    return masked[key]
 
 
 def _same_group(groups: list[list[int]] | None, n_m: int) -> np.ndarray | None:
@@ -986,17 +1027,21 @@ def distance_miss(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cl
     its distance error, so this is a lower bound on the fill's error from the gap's own frames, which the
     stretches beside the gap cannot give when the gap moves unlike them (a chest marker filled from the pelvis,
     neck and head across a 2 s occlusion: 2 mm on the stretches, 20 mm in the gap, while two of its mates were
-    measured through half of it). 0 without a mate measured in the gap."""
+    measured through half of it). 0 without a mate measured in the gap. The usual distance is read at most at
+    ``WINDOW_SAMPLES`` evenly spaced frames of the window (:func:`~.fill_methods.sample_step`)."""
     if not cluster:
         return 0.0
     mates = np.array([j for j in cluster if j != m], dtype=int)
     shown = valid[s:e][:, mates]
     if not mates.size or not shown.any():
         return 0.0
+    from gazepipe.stages.clean import kernels
+
     lo, hi = max(0, s - window), min(len(valid), e + window)
-    both = valid[lo:hi][:, mates] & valid[lo:hi, m][:, None]
-    usual = np.where(both, norm3(src[lo:hi][:, mates] - src[lo:hi, m][:, None]), np.nan)
-    ref = np.where(both.sum(axis=0) >= 10, _nanmedian(usual, axis=0), np.nan)
+    d, both = kernels.distances(src, valid, valid[:, m], m, mates.astype(np.int64), lo, hi,
+                                sample_step(hi - lo, WINDOW_SAMPLES))
+    usual = np.where(both, d, np.nan).T                          # (frames, mates)
+    ref = np.where(both.sum(axis=1) >= 10, _nanmedian(usual, axis=0), np.nan)
     dist = norm3(src[s:e][:, mates] - fill[:, None])
     miss = np.abs(dist - ref)[shown & np.isfinite(ref)]
     return float(miss.mean()) if miss.size else 0.0
@@ -1045,7 +1090,7 @@ def _framewise_fill(xyz: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, 
     if len(prior) < 2 or any(k not in st.hidden for k in prior):
         return None
     links = framewise.linked_neighbours(xyz, valid, st.known, m, s, e, window)
-    on_hidden = framewise.average(st.hidden, prior, st.frames, xyz, st.vis, links, st.cuts)
+    on_hidden = framewise.average(st.hidden, prior, st.frames, xyz, valid, links, st.cuts, vis_rows=st.vis_rows)
     if on_hidden is None or not np.isfinite(on_hidden).all():
         return None
     fill = framewise.average(preds, prior, np.arange(s, e), xyz, valid, links)

@@ -147,3 +147,73 @@ def test_error_limits_by_marker_say_what_the_full_array_says() -> None:
     for m in range(4):
         for s, e in [(0, 3), (10, 12), (29, 33), (31, 32), (45, 50), (20, 21)]:
             assert gap_limit(limits, m, s, e) == gap_limit(full, m, s, e)
+
+
+def _high_rate_body(rate: float, seconds: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+    """:func:`body`'s motion captured at ``rate`` Hz (its noise-free trajectories resampled by cubic splines, then
+    0.5 mm of noise): (truth, measured, clusters)."""
+    from scipy.interpolate import CubicSpline
+
+    n_low = int(seconds * RATE) + 4
+    truth_low, _, clusters = body(n_low, seed=seed)
+    t = np.arange(int(seconds * rate)) / rate
+    truth = CubicSpline(np.arange(n_low) / RATE, truth_low, axis=0)(t)
+    rng = np.random.default_rng(seed + 100)
+    return truth, truth + rng.normal(0, 0.5, truth.shape), clusters
+
+
+def test_window_statistics_at_a_high_rate_are_those_of_the_whole_window() -> None:
+    """A window in seconds holds 60,000 frames at 6 kHz: distance_stats reads at most WINDOW_SAMPLES evenly spaced
+    ones, and its mean and spread of each marker's distance are those of every frame (to 2 % of the spread)."""
+    from gazepipe.stages.clean.fill_methods import WINDOW_SAMPLES, distance_stats, sample_step
+
+    truth, measured, _ = _high_rate_body(6000.0, 12.0)
+    valid = np.ones(measured.shape[:2], dtype=bool)
+    valid[30000:30050, 2] = False
+    s, e, window = 30000, 30050, 12000
+    cand = np.array([0, 1, 3, 5, 9], dtype=np.int64)
+    mu, sd = distance_stats(measured, valid, 2, cand, s, e, window)
+    assert sample_step(e - s + 2 * window, WINDOW_SAMPLES) > 1             # the window really is read sparsely
+    rows = np.r_[s - window:s, e:e + window]
+    d = np.linalg.norm(measured[rows][:, cand] - measured[rows][:, [2]], axis=2)
+    assert np.all(np.abs(mu - d.mean(axis=0)) < 0.02 * d.std(axis=0) + 0.05)
+    assert np.all(np.abs(sd - d.std(axis=0)) < 0.02 * d.std(axis=0) + 0.05)
+
+
+def test_pca_trains_on_a_bounded_number_of_evenly_spaced_frames() -> None:
+    """PCA's training window is in seconds: at a high rate its frames are read every k-th, at most PCA_MAX_TRAIN,
+    each one where the marker and every predictor are measured."""
+    from gazepipe.stages.clean.fill_methods import PCA_MAX_TRAIN, _pca_training
+
+    _, measured, _ = _high_rate_body(3000.0, 8.0)
+    valid = np.ones(measured.shape[:2], dtype=bool)
+    valid[12000:12030, 4] = False
+    valid[5000:5200, 7] = False
+    chosen = _pca_training(measured, valid, 4, valid[:, 4], 12000, 12030, (0, 24000), 20, 12)
+    assert chosen is not None
+    preds, train = chosen
+    assert 0.9 * PCA_MAX_TRAIN < train.size <= PCA_MAX_TRAIN
+    assert (train % 6 == 0).all() and np.median(np.diff(train)) == 6     # every 6th frame, where measured
+    assert valid[train, 4].all() and valid[np.ix_(train, preds)].all()
+
+
+def test_short_gaps_at_a_high_rate_are_filled_right() -> None:
+    """At 6 kHz (a window in seconds holds tens of thousands of frames, read at a few thousand samples) short gaps
+    of 1 to 40 samples are filled within a few times the noise of the truth, each with a finite estimate, and
+    most are kept under a 5 mm limit (the estimates of the swinging segments' markers run high: their edge
+    velocities come from 0.2 s of curved motion, as at any rate)."""
+    truth, measured, clusters = _high_rate_body(6000.0, 4.0, seed=1)
+    rng = np.random.default_rng(2)
+    gaps = []
+    for m in range(12):
+        for start in rng.choice(np.arange(1000, 23000, 200), 3, replace=False):
+            gaps.append((m, int(start), int(start + rng.integers(1, 41))))
+    xyz, valid = hide(measured, gaps)
+    res = fill_gaps(xyz, valid, 6000.0, clusters=clusters, max_error_mm=5.0)
+    assert sorted((g.marker, g.start, g.stop) for g in res.gaps) == sorted(gaps)
+    filled = [g for g in res.gaps if g.method != "unfilled"]
+    assert len(filled) >= 0.75 * len(gaps)
+    for g in filled:
+        err = np.linalg.norm(res.xyz[g.start:g.stop, g.marker] - truth[g.start:g.stop, g.marker], axis=1).mean()
+        assert err < 2.5, (g.marker, g.start, g.stop, err)
+        assert np.isfinite(g.error_mm) and g.error_mm > 0.5 * err

@@ -773,3 +773,84 @@ def test_an_unlabeled_trajectory_is_left_alone():
     assert g1.method == "unfilled" and g1.reason == REASON_UNLABELED
     assert (res.fill_code[100:130, 1] == FILL_CODES["unfilled"]).all()
     assert (res.fill_code[150:170, 5] != FILL_CODES["unfilled"]).all()
+
+
+# ------------------------------------------------------------------------------------------- compiled kernels
+def test_interpolation_kernel_is_the_interpolant_through_every_known_sample() -> None:
+    """interp_fill (compiled, a few anchors each side) gives the bits of scipy's PCHIP through every known sample
+    and of the straight line between the nearest known samples; None exactly where an interval has no known
+    sample on one side or one inside it."""
+    from scipy.interpolate import PchipInterpolator
+
+    from gazepipe.stages.clean.fill_methods import interp_fill
+
+    rng = np.random.default_rng(11)
+    for trial in range(200):
+        n_t = int(rng.integers(6, 90))
+        xyz = rng.normal(0, 40, (n_t, 3)).cumsum(axis=0)
+        if trial % 3 == 0:
+            xyz = np.round(xyz)                          # equal neighbours: zero slopes
+        known = rng.random(n_t) > rng.uniform(0.1, 0.6)
+        starts = rng.integers(0, n_t - 1, 4)
+        intervals = [(int(a), int(min(n_t, a + rng.integers(1, 9)))) for a in starts]
+        idx = np.flatnonzero(known)
+        for kind in ("pchip", "linear"):
+            got = interp_fill(xyz, known, intervals, kind)
+            for (a, b), g in zip(intervals, got, strict=True):
+                ok = idx.size > 0 and idx[0] < a and idx[-1] >= b and not known[a:b].any()
+                assert (g is not None) == ok, (trial, kind, a, b)
+                if not ok:
+                    continue
+                t = np.arange(a, b, dtype=np.float64)
+                if kind == "pchip":
+                    ref = PchipInterpolator(idx.astype(np.float64), xyz[idx], axis=0)(t)
+                else:
+                    t0, t1 = idx[idx < a][-1], idx[idx >= b][0]
+                    w = ((t - t0) / (t1 - t0))[:, None]
+                    ref = (1.0 - w) * xyz[t0] + w * xyz[t1]
+                assert np.array_equal(g, ref), (trial, kind, a, b)
+
+
+def test_nearest_complete_frames_are_found_outward_from_each_interval() -> None:
+    """The compiled search for a rigid fill's reference frames finds the nearest frame before each interval and
+    the nearest at or after its end where the marker is known and every mate measured (-1: none), as a search
+    over every frame does."""
+    from gazepipe.stages.clean import kernels
+
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        n_t, n_m = int(rng.integers(5, 60)), 6
+        valid = rng.random((n_t, n_m)) > 0.3
+        known = rng.random(n_t) > 0.3
+        cols = np.sort(rng.choice(n_m, int(rng.integers(1, 4)), replace=False)).astype(np.int64)
+        starts = rng.integers(0, n_t, 3).astype(np.int64)
+        stops = np.minimum(starts + rng.integers(1, 6, 3), n_t).astype(np.int64)
+        before, after = kernels.nearest_complete(known, valid, cols, starts, stops)
+        complete = np.flatnonzero(known & valid[:, cols].all(axis=1))
+        for i in range(3):
+            b_ref = complete[complete < starts[i]]
+            a_ref = complete[complete >= stops[i]]
+            assert before[i] == (b_ref[-1] if b_ref.size else -1)
+            assert after[i] == (a_ref[0] if a_ref.size else -1)
+
+
+def test_kernels_compile_where_no_cache_can_be_written(monkeypatch) -> None:
+    """Where numba finds no writable cache directory (a read-only install, no writable home) it refuses
+    ``cache=True`` when the function is decorated; the kernels are then compiled once per process instead."""
+    import numba
+
+    from gazepipe.stages.clean import kernels
+
+    real = numba.njit
+
+    def refusing(*args, cache=False, **kwargs):
+        if cache:
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'kernels.py'")
+        return real(*args, cache=cache, **kwargs)
+
+    monkeypatch.setattr(numba, "njit", refusing)
+
+    def twice(x: float) -> float:
+        return 2.0 * x
+
+    assert kernels._jit(twice)(1.5) == 3.0

@@ -1,0 +1,289 @@
+"""The gap filler's compiled kernels: the loops over a gap's few samples, markers and candidates, where numpy's
+per-call cost (dispatch, temporaries) outweighs the arithmetic.
+
+Each kernel is the one implementation of its step (no numpy twin), compiled by numba on its first call in a process
+(``cache=True``: the machine code is written beside this file, or in numba's user cache when this folder is
+read-only, so every later process and worker loads it instead of compiling; with no writable cache anywhere it is
+compiled once per process). ``fastmath`` is off and every operation is written in the order numpy would do it, so
+the results are the same bits as the array code they replaced (elementwise arithmetic; sums in numpy's order where
+a kernel sums); ``error_model="numpy"``: a division by zero gives inf or NaN as in numpy, never an exception.
+
+This module imports numba, which takes a few tenths of a second: the filler imports it where a kernel is first
+needed, so planning a run (which imports the clean stage's parameters) goes without it.
+
+Frames are rows; intervals are half-open ``[start, stop)``; positions are float64 mm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numba
+import numpy as np
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _jit(fn: F) -> F:
+    """``fn`` compiled on its first call, its machine code cached on disk where numba finds a writable place."""
+    try:
+        return cast(F, numba.njit(cache=True, error_model="numpy")(fn))
+    except RuntimeError:          # no writable cache directory at all: compiled once per process
+        return cast(F, numba.njit(cache=False, error_model="numpy")(fn))
+
+
+# ------------------------------------------------------------------------------------------- interpolation
+
+@_jit
+def _sign(x: float) -> float:
+    """``np.sign`` of a float (NaN stays NaN)."""
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    if x == 0.0:
+        return 0.0
+    return x
+
+
+@_jit
+def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """PCHIP interpolant through knots ``x`` (n,) increasing, values ``y`` (n, k), evaluated at ``t`` (q,) inside
+    ``[x[0], x[-1]]``: (q, k).
+
+    The same arithmetic as ``scipy.interpolate.PchipInterpolator(x, y, axis=0)(t)`` (Fritsch–Carlson slopes as a
+    weighted harmonic mean, Moler's one-sided three-point end slopes, the cubic Hermite piece evaluated as
+    ``c3 + c2 s + c1 s² + c0 s³``), so the results are bit for bit the same, without building a piecewise
+    polynomial for every knot when a few pieces are evaluated."""
+    n, k = y.shape
+    hk = np.empty(n - 1)
+    mk = np.empty((n - 1, k))
+    for i in range(n - 1):
+        hk[i] = x[i + 1] - x[i]
+        for c in range(k):
+            mk[i, c] = (y[i + 1, c] - y[i, c]) / hk[i]
+    dk = np.empty((n, k))
+    for c in range(k):
+        if n == 2:
+            dk[0, c] = mk[0, c]
+            dk[1, c] = mk[0, c]
+            continue
+        for i in range(1, n - 1):
+            m0, m1 = mk[i - 1, c], mk[i, c]
+            if _sign(m1) != _sign(m0) or m1 == 0.0 or m0 == 0.0:
+                dk[i, c] = 0.0
+            else:
+                w1 = 2.0 * hk[i] + hk[i - 1]
+                w2 = hk[i] + 2.0 * hk[i - 1]
+                dk[i, c] = 1.0 / ((w1 / m0 + w2 / m1) / (w1 + w2))
+        for end in range(2):
+            # Moler's end slope: at the first knot from the first two pieces, at the last from the last two
+            i, i0, i1 = (0, 0, 1) if end == 0 else (n - 1, n - 2, n - 3)
+            h0, h1, m0, m1 = hk[i0], hk[i1], mk[i0, c], mk[i1, c]
+            d = ((2.0 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
+            if _sign(d) != _sign(m0):
+                dk[i, c] = 0.0
+            elif _sign(m0) != _sign(m1) and abs(d) > 3.0 * abs(m0):
+                dk[i, c] = 3.0 * m0
+            else:
+                dk[i, c] = d
+    out = np.empty((t.size, k))
+    for q in range(t.size):
+        j = min(max(np.searchsorted(x, t[q], side="right") - 1, 0), n - 2)
+        h = hk[j]
+        s = t[q] - x[j]
+        s2 = s * s
+        for c in range(k):
+            slope = mk[j, c]
+            tt = (dk[j, c] + dk[j + 1, c] - 2.0 * slope) / h
+            c0 = tt / h
+            c1 = (slope - dk[j, c]) / h - tt
+            out[q, c] = ((y[j, c] + dk[j, c] * s) + c1 * s2) + c0 * (s2 * s)
+    return out
+
+
+@_jit
+def interp_intervals(xyz_m: np.ndarray, known_m: np.ndarray, starts: np.ndarray, stops: np.ndarray,
+                     pchip: bool, n_anchors: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear or PCHIP interpolation of one marker, ``xyz_m`` (T, 3), over each interval ``[starts[i], stops[i])``
+    from its samples ``known_m`` (T,): ``(out, good)``, the intervals' predictions one after the other
+    (Σ (stop − start), 3) and (K,) whether each has one (a known sample on both sides and none inside; never
+    extrapolated in time; NaN rows where not).
+
+    Linear joins the nearest known samples either side; PCHIP runs through the ``n_anchors`` nearest known samples
+    on each side (PCHIP is local: the slopes at the interval's two edge knots depend on their neighbours only, so
+    the interval gets the same bits as from an interpolant through every known sample). The search for them goes
+    outward from the interval and stops at the last anchor: its cost is the distance to them, not the take."""
+    n_t = known_m.shape[0]
+    n_k = starts.size
+    lengths = stops - starts
+    out = np.full((lengths.sum(), 3), np.nan)
+    good = np.zeros(n_k, dtype=np.bool_)
+    knots = np.empty(2 * n_anchors, dtype=np.int64)
+    at = 0
+    for i in range(n_k):
+        a, b = starts[i], stops[i]
+        nb = 0
+        f = a - 1
+        while f >= 0 and nb < n_anchors:
+            if known_m[f]:
+                nb += 1
+                knots[n_anchors - nb] = f
+            f -= 1
+        na = 0
+        f = b
+        while f < n_t and na < n_anchors:
+            if known_m[f]:
+                knots[n_anchors + na] = f
+                na += 1
+            f += 1
+        inside = False
+        for f in range(a, b):
+            if known_m[f]:
+                inside = True
+                break
+        if nb > 0 and na > 0 and not inside:
+            good[i] = True
+            t = np.arange(a, b).astype(np.float64)
+            if pchip:
+                ks = knots[n_anchors - nb:n_anchors + na]
+                y = np.empty((ks.size, 3))
+                for j in range(ks.size):
+                    y[j] = xyz_m[ks[j]]
+                out[at:at + b - a] = pchip_eval(ks.astype(np.float64), y, t)
+            else:
+                t0, t1 = knots[n_anchors - 1], knots[n_anchors]
+                for q in range(b - a):
+                    w = (t[q] - t0) / (t1 - t0)
+                    for c in range(3):
+                        out[at + q, c] = (1.0 - w) * xyz_m[t0, c] + w * xyz_m[t1, c]
+        at += b - a
+    return out, good
+
+
+# ------------------------------------------------------------------------------------------------ searches
+
+@_jit
+def nearest_complete(known_m: np.ndarray, valid: np.ndarray, cols: np.ndarray, starts: np.ndarray,
+                     stops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each interval ``[starts[i], stops[i])``, the nearest frame before it and the nearest at or after its
+    end where ``known_m`` (T,) is set and every marker of ``cols`` is measured (``valid`` (T, M)): ``(before,
+    after)``, (K,) each, -1 where there is none. The search goes outward from the interval and stops at the first
+    such frame."""
+    n_t = known_m.shape[0]
+    before = np.full(starts.size, -1, dtype=np.int64)
+    after = np.full(starts.size, -1, dtype=np.int64)
+    for i in range(starts.size):
+        f = starts[i] - 1
+        while f >= 0:
+            if known_m[f] and _all_valid(valid, f, cols):
+                before[i] = f
+                break
+            f -= 1
+        f = stops[i]
+        while f < n_t:
+            if known_m[f] and _all_valid(valid, f, cols):
+                after[i] = f
+                break
+            f += 1
+    return before, after
+
+
+@_jit
+def _all_valid(valid: np.ndarray, f: int, cols: np.ndarray) -> bool:
+    for c in cols:
+        if not valid[f, c]:
+            return False
+    return True
+
+
+# ------------------------------------------------------------------------------------------ edge correction
+
+@_jit
+def edge_correct(preds: np.ndarray, xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, a: np.ndarray,
+                 b: np.ndarray, partial: np.ndarray, known_l: np.ndarray, known_r: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Each of ``preds`` (K, F, 3) corrected to meet the measured marker ``xyz_m`` (T, 3) next to each interval
+    ``[a[j], b[j])`` (K intervals' predictions over their spans ``[lo[j], hi[j])`` lie one after the other along
+    F): the mismatches at frames ``a - 1`` (where ``known_l``, and predicted) and ``b`` (``known_r``) blended
+    linearly across the interval, one of them added throughout when the other is missing. An interval with an
+    unpredicted (NaN) frame has none unless ``partial`` (its NaN rows stay NaN), and none with no predicted frame.
+    Returns ``(filled (K, Σ (b − a), 3) NaN where none, none (K, J))``: the formulas and order of
+    :func:`gazepipe.stages.clean.fill_methods._edge_correct_packed`'s former array code, so the same bits."""
+    n_k = preds.shape[0]
+    n_j = a.size
+    n_t = xyz_m.shape[0]
+    filled = np.full((n_k, (b - a).sum(), 3), np.nan)
+    none = np.zeros((n_k, n_j), dtype=np.bool_)
+    res_l = np.zeros(3)
+    res_r = np.zeros(3)
+    for k in range(n_k):
+        off = 0
+        at = 0
+        for j in range(n_j):
+            n_in = b[j] - a[j]
+            first = off + a[j] - lo[j]
+            n_bad = 0
+            for q in range(n_in):
+                if _any_nan(preds, k, first + q):
+                    n_bad += 1
+            none[k, j] = n_bad == n_in or (n_bad > 0 and not partial[j])
+            if not none[k, j]:
+                i_l = off + max(a[j] - 1 - lo[j], 0)
+                i_r = off + min(b[j] - lo[j], hi[j] - lo[j] - 1)
+                ok_l = known_l[j] and not _any_nan(preds, k, i_l) and _all_finite(preds, k, i_l)
+                ok_r = known_r[j] and not _any_nan(preds, k, i_r) and _all_finite(preds, k, i_r)
+                f_l, f_r = max(a[j] - 1, 0), min(b[j], n_t - 1)
+                for c in range(3):
+                    res_l[c] = xyz_m[f_l, c] - preds[k, i_l, c] if ok_l else 0.0
+                    res_r[c] = xyz_m[f_r, c] - preds[k, i_r, c] if ok_r else 0.0
+                for q in range(n_in):
+                    w = ((a[j] + q) - (a[j] - 1)) / (b[j] - (a[j] - 1))
+                    if not ok_l:
+                        w = 1.0
+                    elif not ok_r:
+                        w = 0.0
+                    for c in range(3):
+                        filled[k, at + q, c] = (preds[k, first + q, c] + (1.0 - w) * res_l[c]) + w * res_r[c]
+            off += hi[j] - lo[j]
+            at += n_in
+    return filled, none
+
+
+@_jit
+def _any_nan(preds: np.ndarray, k: int, row: int) -> bool:
+    return np.isnan(preds[k, row, 0]) or np.isnan(preds[k, row, 1]) or np.isnan(preds[k, row, 2])
+
+
+@_jit
+def _all_finite(preds: np.ndarray, k: int, row: int) -> bool:
+    return np.isfinite(preds[k, row, 0]) and np.isfinite(preds[k, row, 1]) and np.isfinite(preds[k, row, 2])
+
+
+# ----------------------------------------------------------------------------------------- window statistics
+
+@_jit
+def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand: np.ndarray, lo: int, hi: int,
+              step: int) -> tuple[np.ndarray, np.ndarray]:
+    """The distance (mm) of each marker ``cand[k]`` of ``xyz`` (T, M, 3) to marker ``m`` in frames ``lo, lo +
+    step, ... < hi``, and whether both count there (``own`` (T,) set and ``cand[k]`` measured in ``valid``
+    (T, M)): ``(d, both)``, (K, frames) each, d 0 where not both. The distance is ``sqrt((dx² + dy²) + dz²)``,
+    as :func:`gazepipe.stages.geometry.norm3`; frames read one by one, not gathered into temporaries."""
+    n_k = cand.size
+    n_f = (hi - lo + step - 1) // step
+    d = np.zeros((n_k, n_f))
+    both = np.zeros((n_k, n_f), dtype=np.bool_)
+    for i in range(n_f):
+        f = lo + i * step
+        if not own[f]:
+            continue
+        for k in range(n_k):
+            c = cand[k]
+            if valid[f, c]:
+                dx = xyz[f, c, 0] - xyz[f, m, 0]
+                dy = xyz[f, c, 1] - xyz[f, m, 1]
+                dz = xyz[f, c, 2] - xyz[f, m, 2]
+                d[k, i] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                both[k, i] = True
+    return d, both
