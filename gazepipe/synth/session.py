@@ -21,6 +21,7 @@ from gazepipe.synth.markers import (
     make_occlusion_bursts,
     make_root_rest_gap,
     make_spikes,
+    with_unlisted_markers,
 )
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
 from gazepipe.synth.record import ModalityWriter, TakeRecord
@@ -77,7 +78,13 @@ class SynthConfig:
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
     vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
     share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
-    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which);
+    ``unlisted_markers``: markers the capture carries that the markerset lists in no segment (names of
+    :data:`~gazepipe.synth.skeleton.UNLISTED_MARKERS`: shoulders and elbows, moving against the chest
+    (:func:`~gazepipe.synth.markers.with_unlisted_markers`); written after the listed subject markers, with
+    gaps, spikes and bursts like any marker, and label swaps between them: mirror pairs and their neighbours);
+    ``unlisted_motion``: how far they move against the chest, as a multiple of the default (20 mm shrugs, 15 mm
+    reaches, the upper arm's 20° swing).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -107,6 +114,8 @@ class SynthConfig:
     label_swaps: int = 0
     occlusion_bursts: int = 0
     clap_hazards: float = 0.0
+    unlisted_markers: tuple[str, ...] = ()
+    unlisted_motion: float = 1.0
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -320,8 +329,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps, r_unlisted = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -360,6 +369,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         else:
             motion = neutral_motion(r_motion, rate, cfg.placement, cfg.neutral_s)
         kin = build_kinematics(motion, cfg.placement, cfg.segments)
+        if cfg.unlisted_markers:
+            kin = with_unlisted_markers(r_unlisted, kin, tuple(cfg.unlisted_markers), cfg.unlisted_motion)
         n, m = kin.markers_true.shape[:2]
         mask = (make_gaps(r_gaps, kin.labels, n, kind, motion.clapper_busy) if cfg.gaps
                 else np.zeros((n, m), dtype=bool))
@@ -425,9 +436,10 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
         "segments": list(SEGMENTS),
         **({} if cfg.segments == SEGMENTS else {"marker_segments": list(cfg.segments)}),
         **({} if cfg.up_axis == "z" else {"up_axis": cfg.up_axis}),
+        **({} if not cfg.unlisted_markers else {"unlisted_markers": list(cfg.unlisted_markers)}),
         "takes": meta_takes,
     }
     (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    from gazepipe.synth.readme import TRUTH_README
-    (out / "truth" / "README.md").write_text(TRUTH_README)
+    from gazepipe.synth.readme import TRUTH_README, UNLISTED_README
+    (out / "truth" / "README.md").write_text(TRUTH_README + (UNLISTED_README if cfg.unlisted_markers else ""))
     return out
