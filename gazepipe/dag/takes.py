@@ -268,7 +268,9 @@ def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
     meta: dict[str, Any] = {"takes": used, "labels": []}
     arrays: dict[str, np.ndarray] = {}
     if pooled:
-        refs = pooled_references(pooled, markers=set(ms.subject_markers))
+        # every marker the captures carry but the target and the clapper, listed in the markerset or not
+        refs = pooled_references(pooled, markers={lab for labels, _, _ in pooled for lab in labels}
+                                 - {ms.target, *ms.clapper})
         meta["labels"] = list(refs.labels)
         arrays = {f.name: getattr(refs.references, f.name) for f in dataclasses.fields(refs.references)
                   if getattr(refs.references, f.name) is not None}
@@ -287,7 +289,7 @@ def _subject_references(table: pa.Table) -> SubjectReferences | None:
 
 
 register_session_stage(SessionStage(
-    name="subject_geometry", version="1", requires=(), uses=(), outputs=("subject_geometry",),
+    name="subject_geometry", version="2", requires=(), uses=(), outputs=("subject_geometry",),
     applies=_has_subject, sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
     run=run_subject_geometry,
     help="the subject's marker geometry from every subject capture of the session, that label swaps are judged "
@@ -378,7 +380,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="24", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="26", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_requires=("subject_geometry",),
