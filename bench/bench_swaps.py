@@ -22,7 +22,9 @@ name, or gone some other way); the samples ``made wrong`` (a sample moved under 
 sample that was not swapped moved, removed or replaced); ``false pos.``: samples repaired or removed outside
 every swapped stretch of the truth; and the CPU time per take. A sample is wrong when it lies more than
 :data:`WRONG_MM` from the truth of the name it carries (a ghost spike, which moves with its sample, is judged
-where it lands). Then the totals per rate, reference source and class over every seed and skeleton.
+where it lands). Then the totals per rate, reference source and class over every seed and skeleton, and the
+marker of each with the smallest share of its swapped samples repaired or removed. The four-segment sessions are
+in y-up axes, as ``python -m gazepipe.synth --skeleton four`` writes them.
 
 Usage: ``PYTHONPATH=. python bench/bench_swaps.py [--seeds 0,1,2] [--swaps 3] [--bursts 0] [--unlisted arms]
 [--motion 1] [--rates 30,120] [--refs own,session]``
@@ -65,7 +67,8 @@ def session(seed: int, skeleton: str, swaps: int, bursts: int = 0, unlisted: str
                                    occlusion_bursts=bursts, rate_hz=RATES[rate],
                                    unlisted_markers=UNLISTED_SETS[unlisted] if unlisted else (),
                                    unlisted_motion=motion,
-                                   segments=FOUR_SEGMENTS if skeleton == "four" else SEGMENTS)
+                                   segments=FOUR_SEGMENTS if skeleton == "four" else SEGMENTS,
+                                   up_axis="y" if skeleton == "four" else "z")
         generate_session(folder, seed, cfg)
     return folder
 
@@ -112,8 +115,10 @@ def take_counts(mk, res: SwapResult, truth) -> dict[str, np.ndarray]:
     return {k: m.sum(axis=0) for k, m in masks.items()}
 
 
-def evaluate(folder: Path, sources: list[str]) -> dict[str, dict[str, dict[str, float]]]:
-    """Per reference source and marker class (``listed``, ``unlisted``): the counts and the CPU time."""
+def evaluate(folder: Path, sources: list[str], per_marker: dict[tuple[str, str, str], list[int]]
+             ) -> dict[str, dict[str, dict[str, float]]]:
+    """Per reference source and marker class (``listed``, ``unlisted``): the counts and the CPU time; adds to
+    ``per_marker`` (per source, class and marker) its swapped samples and those repaired or removed."""
     listed = set(load_markerset(folder / "markerset.toml").subject_markers)
     takes = {c.stem: read_markers(c) for c in sorted((folder / "mocap").glob("*.c3d"))}
     target_clapper = {"POLE", "CLAP1", "CLAP2"}
@@ -138,6 +143,10 @@ def evaluate(folder: Path, sources: list[str]) -> dict[str, dict[str, dict[str, 
             for k, per_column in counts.items():
                 for c in ("listed", "unlisted"):
                     tot[c][k] += int(per_column[cls == c].sum())
+            for j, lab in enumerate(mk.labels):
+                mine = per_marker.setdefault((source, str(cls[j]), lab), [0, 0])
+                mine[0] += int(counts["swapped"][j])
+                mine[1] += int(counts["repaired"][j] + counts["removed"][j])
         out[source] = {**tot, "time": {"ms_per_take": 1000 * cpu / max(n_takes, 1)}}
     return out
 
@@ -166,11 +175,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{head} {'class':>8} {'swapped':>8} {'repaired':>13} {'removed':>13} {'missed':>13} {'made wrong':>10} "
           f"{'false pos.':>10} {'ms/take':>8}")
     totals: dict[tuple[str, str, str], dict[str, float]] = {}
+    per_marker: dict[tuple[str, str, str, str], list[int]] = {}
     for rate in args.rates.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
             for skeleton in ("ten", "four"):
                 folder = session(seed, skeleton, args.swaps, args.bursts, args.unlisted, rate, args.motion)
-                for source, per_class in evaluate(folder, sources).items():
+                mine: dict[tuple[str, str, str], list[int]] = {}
+                for source, per_class in evaluate(folder, sources, mine).items():
                     for cls in ("listed", "unlisted"):
                         t = per_class[cls]
                         total = totals.setdefault((rate, source, cls), dict.fromkeys(COUNTS, 0))
@@ -180,11 +191,22 @@ def main(argv: list[str] | None = None) -> int:
                             continue
                         print(_row(f"{seed:4d} {skeleton:>8} {rate:>4} {source:>8}", cls, t,
                                    per_class["time"]["ms_per_take"]))
+                for (source, cls, lab), (n, handled) in mine.items():
+                    acc = per_marker.setdefault((rate, source, cls, lab), [0, 0])
+                    acc[0], acc[1] = acc[0] + n, acc[1] + handled
     print("totals over the seeds and both skeletons:")
     for (rate, source, cls), t in totals.items():
         if cls == "unlisted" and not args.unlisted:
             continue
         print(_row(f"{'all':>4} {'both':>8} {rate:>4} {source:>8}", cls, t))
+    print("the marker with the smallest share of its swapped samples repaired or removed, over the seeds and both "
+          "skeletons:")
+    for (rate, source, cls) in totals:
+        shares = {lab: (h / n, n) for (r, s, c, lab), (n, h) in per_marker.items()
+                  if (r, s, c) == (rate, source, cls) and n}
+        if shares:
+            lab = min(shares, key=lambda k: (shares[k][0], k))
+            print(f"{rate:>4} Hz {source:>8} {cls:>8}: {lab} {100 * shares[lab][0]:5.1f}% of {shares[lab][1]}")
     return 0
 
 

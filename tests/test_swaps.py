@@ -598,3 +598,12 @@ def test_shrugging_shoulders_and_swinging_elbows_of_a_plain_take_are_left_alone(
         assert not res.records, (name, res.records)
         assert not res.repaired.any() and not res.removed.any(), name
         assert np.array_equal(res.valid, mk.valid & np.isfinite(mk.xyz).all(axis=2)), name
+
+
+def test_every_marker_but_the_target_the_clapper_and_unlabeled_trajectories_is_judged() -> None:
+    from gazepipe.stages.clean.swaps import judged_columns
+
+    labels = ["PEL_L", "*12", "Sub:Unlabeled 3", "LSHO", "POLE", "CLAP1", "_unnamed~2", "RSHO", "Unnamed_shoulder"]
+    # the shoulders, on no segment, are judged like a listed marker; the target, the clapper and whatever the
+    # labeller could not name are not
+    assert judged_columns(labels, "POLE", ("CLAP1", "CLAP2")).tolist() == [0, 3, 7, 8]

@@ -252,7 +252,7 @@ def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
     """The subject's marker geometry that each take's label swaps are judged against
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), from evenly spread frames of every subject capture
     of the session. A capture that cannot be read is passed over (its own take fails)."""
-    from gazepipe.stages.clean.swaps import even_rows, pooled_references
+    from gazepipe.stages.clean.swaps import even_rows, judged_columns, pooled_references
 
     ms = ctx.session.markerset
     assert ms is not None
@@ -268,9 +268,10 @@ def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
     meta: dict[str, Any] = {"takes": used, "labels": []}
     arrays: dict[str, np.ndarray] = {}
     if pooled:
-        # every marker the captures carry but the target and the clapper, listed in the markerset or not
-        refs = pooled_references(pooled, markers={lab for labels, _, _ in pooled for lab in labels}
-                                 - {ms.target, *ms.clapper})
+        # every marker the captures carry, listed in the markerset or not, but the target, the clapper and
+        # unlabeled trajectories: the markers the clean stage judges
+        refs = pooled_references(pooled, markers={labels[i] for labels, _, _ in pooled
+                                                  for i in judged_columns(labels, ms.target, ms.clapper)})
         meta["labels"] = list(refs.labels)
         arrays = {f.name: getattr(refs.references, f.name) for f in dataclasses.fields(refs.references)
                   if getattr(refs.references, f.name) is not None}

@@ -31,6 +31,7 @@ Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) 
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -117,12 +118,27 @@ class SwapResult:
     records: list[SwapRecord]
 
 
+#: labels of unlabeled trajectories as capture programs write them (after a ``Subject:`` prefix, if any): Vicon
+#: ``*12``; ``Unlabeled 3``, ``unlabelled_7``, ``Unidentified 12``, ``Unnamed4``; the C3D reader's ``_unnamed~2``.
+#: Whatever the labeller could not name (a marker's fragments, a ghost) has no geometry of its own to judge
+UNLABELED_PATTERN = re.compile(r"^(?:\*\d+|(?:unlabell?ed|unidentified|unnamed)(?:[\s_:#.-]*\d+)?|_unnamed(?:~\d+)?)$",
+                               re.IGNORECASE)
+
+
+def is_unlabeled(label: str) -> bool:
+    """Whether ``label`` names an unlabeled trajectory (:data:`UNLABELED_PATTERN`, on the whole label or its part
+    after the last ``:``)."""
+    name = label.strip()
+    return bool(UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()))
+
+
 def judged_columns(labels: Sequence[str], target: str | None, clapper: Sequence[str]) -> np.ndarray:
     """(K,) int64 columns of ``labels`` whose swaps are looked for, and that serve as each other's references:
     every marker the table carries, listed in a markerset segment or not, but the ``target`` and the
-    ``clapper`` (no part of the body)."""
+    ``clapper`` (no part of the body) and unlabeled trajectories (:func:`is_unlabeled`: no marker's name)."""
     other = {target, *clapper}
-    return np.array([i for i, lab in enumerate(labels) if lab not in other], dtype=np.int64)
+    return np.array([i for i, lab in enumerate(labels) if lab not in other and not is_unlabeled(lab)],
+                    dtype=np.int64)
 
 
 def even_rows(n_rows: int, at_most: int) -> np.ndarray:
