@@ -589,6 +589,25 @@ def test_a_left_right_exchange_of_unlisted_shoulders_is_caught_by_handedness_rel
     assert not blind.records and np.allclose(blind.xyz, swapped)
 
 
+def test_a_shoulder_carrying_its_hidden_mirror_twins_name_is_handed_back_by_handedness() -> None:
+    # the right shoulder hidden over frames 200-260 and the left one carrying its name there: the sample stands
+    # as far from every trunk marker as the left shoulder would, so only the side of the trunk it is on says
+    # whose it is. It goes back to the right shoulder; the left one, not measured there, is a gap
+    from gazepipe.stages.clean.swaps import steady_references
+
+    xyz, _ = _trunk_and_shoulders()
+    valid = np.ones(xyz.shape[:2], dtype=bool)
+    taken = xyz.copy()
+    taken[200:260, 5], taken[200:260, 6] = xyz[200:260, 6], np.nan
+    valid[200:260, 6] = False
+    refs = steady_references(*_trunk_and_shoulders(seed=8)[:1], np.ones(xyz.shape[:2], dtype=bool))
+    res = repair_swaps(taken, valid, references=refs)
+    assert np.allclose(res.xyz[200:260, 6], xyz[200:260, 6]) and res.valid[200:260, 6].all()
+    assert not res.valid[200:260, 5].any()
+    assert np.allclose(res.xyz[res.valid], xyz[res.valid])               # nothing else moved
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(5, 6, 200, 260, True)]
+
+
 def test_shrugging_shoulders_and_swinging_elbows_of_a_plain_take_are_left_alone(tmp_path: Path) -> None:
     # no swap: shoulders and elbows on no segment, moving twice as far as the generator's default against the
     # chest (40 mm shrugs, the arm's 40° swing), with spikes and gaps. Nothing is repaired or removed as a swap

@@ -12,8 +12,9 @@ marker ``a`` is explained by a swap with ``b`` when it fits ``b``'s references w
 that vouches for its own place tells ``b``'s place from ``a``'s there (a reference the sample fits as ``b`` and
 misfits as ``a``, put where it is by others than the two: :func:`_vouched_for`; or the handedness), and ``b``'s own
 sample in that frame is either suspect and fits ``a``'s references (exchanging the two names restores both
-markers' distances), or missing while most of ``a``'s references disagree with ``a``'s sample (one reference astray
-cannot hand a sample to a missing marker). Distances cannot tell a body from its mirror image (a segment with two
+markers' distances), or missing while most of ``a``'s references disagree with ``a``'s sample, or most of its chiral
+triples seen turn it to its mirror image (a mirror twin stands as far from the trunk's mirror plane as its own
+marker would: its side is what is wrong; one reference astray cannot hand a sample to a missing marker). Distances cannot tell a body from its mirror image (a segment with two
 mirror pairs: exchanging either pair restores every distance of a swap of the other; the left and right shoulders
 against the markers on the trunk's mirror plane), so an exchange must also leave each marker's chiral triples
 with their handedness, most of those seen in the frame (:class:`References`: several per marker, of markers on
@@ -674,8 +675,10 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
         worst, median = _misfit(x[rows], x[rows], trusted[rows], np.arange(n_m), refs, exclude=None)
         with np.errstate(invalid="ignore"):
             own[rows] = ok[rows] & (worst > refs.tolerance[None])
-            # off by most references' reckoning, not one astray: what a sample handed to a missing partner needs
-            gone_wrong[rows] = ok[rows, a] & (median[:, a] > refs.tolerance[a])
+            # off by most references' reckoning, not one astray, or turned to its mirror image by most of its chiral
+            # triples seen (a mirror twin, an elbow on the other side, stands as far from the trunk's mirror plane
+            # as its own marker would: its side is what is wrong): what a sample handed to a missing partner needs
+            gone_wrong[rows] = ok[rows, a] & ((median[:, a] > refs.tolerance[a]) | np.isinf(worst[:, a]))
     # a partner is missing or suspect itself in the frame where a is suspect
     maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
     maybe[:, a] = False
