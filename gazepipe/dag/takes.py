@@ -244,7 +244,7 @@ def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
     """The subject's marker geometry that each take's label swaps are judged against
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), from evenly spread frames of every subject capture
     of the session. A capture that cannot be read is passed over (its own take fails)."""
-    from gazepipe.stages.clean.swaps import even_rows, pooled_references
+    from gazepipe.stages.clean.swaps import even_rows, judged_columns, pooled_references
 
     ms = ctx.session.markerset
     assert ms is not None
@@ -260,7 +260,10 @@ def run_subject_geometry(ctx: SessionUnitContext) -> UnitResult:
     meta: dict[str, Any] = {"takes": used, "labels": []}
     arrays: dict[str, np.ndarray] = {}
     if pooled:
-        refs = pooled_references(pooled, markers=set(ms.subject_markers))
+        # every marker the captures carry, listed in the markerset or not, but the target, the clapper and
+        # unlabeled trajectories: the markers the clean stage judges
+        refs = pooled_references(pooled, markers={labels[i] for labels, _, _ in pooled
+                                                  for i in judged_columns(labels, ms.target, ms.clapper)})
         meta["labels"] = list(refs.labels)
         arrays = {f.name: getattr(refs.references, f.name) for f in dataclasses.fields(refs.references)
                   if getattr(refs.references, f.name) is not None}
@@ -279,7 +282,7 @@ def _subject_references(table: pa.Table) -> SubjectReferences | None:
 
 
 register_session_stage(SessionStage(
-    name="subject_geometry", version="1", uses=(), outputs=("subject_geometry",),
+    name="subject_geometry", version="2", uses=(), outputs=("subject_geometry",),
     applies=_has_subject, sources=lambda s: [*_markerset_file(s), *_subject_files(s)],
     run=run_subject_geometry,
     help="the subject's marker geometry from every subject capture of the session, that label swaps are judged "
@@ -370,7 +373,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="25", inputs=("markers_raw",), params=_params_of(CleanParams),
+    name="clean", version="26", inputs=("markers_raw",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_inputs=("subject_geometry",),

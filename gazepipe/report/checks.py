@@ -434,8 +434,10 @@ def check_spikes(clean_qc: CleanQC | None, frames: int | None, th: Thresholds) -
 
 
 def check_swaps(clean_qc: CleanQC | None) -> Check:
-    """Label swaps the clean stage found: repaired ones pass (their samples are measured, under the right names,
-    coded ``swap_repaired`` on the gap timeline); a stretch it could not prove, made gaps, is a warning."""
+    """Label swaps the clean stage found, on any markers the table carries (listed in the markerset or not):
+    repaired ones pass (their samples are measured, under the right names, coded ``swap_repaired`` on the gap
+    timeline); a stretch it could not prove, made gaps, is a warning. The message counts stretches and samples,
+    repaired and made gaps apart, per pair."""
     if clean_qc is None:
         return skipped("swaps", "no clean record of label swaps")
     if clean_qc.swaps_not_checked:
@@ -445,10 +447,20 @@ def check_swaps(clean_qc: CleanQC | None) -> Check:
     removed = sum(c.removed for c in pairs.values())
     if not pairs:
         return Check("swaps", "pass", "no label swap found", value=0.0)
-    by_pair = ", ".join(f"{k} {c.repaired + c.removed}" for k, c in sorted(pairs.items()))
-    msg = f"{repaired} label-swap stretch(es) repaired ({by_pair})"
+    if any(c.repaired_samples is None or c.removed_samples is None for c in pairs.values()):
+        # a record from a clean stage older than version 26 counted stretches only
+        by_pair = ", ".join(f"{k} {c.repaired + c.removed}" for k, c in sorted(pairs.items()))
+        msg = f"{repaired} label-swap stretch(es) repaired ({by_pair})"
+        lost = ""
+    else:
+        by_pair = ", ".join(f"{k} {c.repaired_samples}" + (f"+{c.removed_samples} made gaps" if c.removed_samples
+                                                             else "") for k, c in sorted(pairs.items()))
+        msg = (f"{repaired} label-swap stretch(es) repaired, "
+               f"{sum(c.repaired_samples or 0 for c in pairs.values())} sample(s) put back under their names "
+               f"(per pair: {by_pair})")
+        lost = f", {sum(c.removed_samples or 0 for c in pairs.values())},"
     if removed:
-        msg += f"; {removed} stretch(es) not provable: both markers' samples there became gaps"
+        msg += f"; {removed} stretch(es) not provable: both markers' samples there{lost} became gaps"
     return Check("swaps", "warning" if removed else "pass", msg, value=float(repaired + removed),
                  details={"per_pair": {k: c.to_record() for k, c in pairs.items()}})
 

@@ -1,8 +1,8 @@
 """``python -m gazepipe.synth OUT_DIR [--seed N] [--skeleton four] [--label-swaps N] ...``: write a session like
 the bundled sample (:func:`gazepipe.synth.session.sample_config`), with its ground truth under ``OUT_DIR/truth``.
 
-The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), label swaps,
-occlusion bursts, clapper hazards, another mocap rate, a clapper the head camera sees less well, no head camera or
+The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), markers the
+markerset lists in no segment (shoulders, elbows), label swaps, occlusion bursts, clapper hazards, another mocap rate, a clapper the head camera sees less well, no head camera or
 eye tracking. Without them it writes the bundled sample byte for byte.
 
 Exit codes: 0 written; 1 the folder could not be written (read-only, unreachable, full: nothing of the session
@@ -16,7 +16,7 @@ import sys
 from typing import NoReturn
 
 from gazepipe.synth.session import OutputFolderError, generate_session, sample_config
-from gazepipe.synth.skeleton import FOUR_SEGMENTS
+from gazepipe.synth.skeleton import FOUR_SEGMENTS, UNLISTED_SETS
 from gazepipe.synth.video import LOOKS
 
 PROG = "python -m gazepipe.synth"
@@ -54,6 +54,9 @@ def _config(a: argparse.Namespace):
         cfg = dataclasses.replace(cfg, rate_hz=a.mocap_rate_hz)
     if a.clapper_look != "sample":
         cfg = dataclasses.replace(cfg, clapper_look=LOOKS[a.clapper_look])
+    if a.unlisted_markers:
+        cfg = dataclasses.replace(cfg, unlisted_markers=UNLISTED_SETS[a.unlisted_markers],
+                                  unlisted_motion=a.unlisted_motion)
     return dataclasses.replace(cfg, label_swaps=a.label_swaps, occlusion_bursts=a.occlusion_bursts,
                                clap_hazards=a.clap_hazards)
 
@@ -65,6 +68,16 @@ def _share(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a share between 0 and 1") from None
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"{text} is not a share between 0 and 1")
+    return value
+
+
+def _scale(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text[:40]!r} is not a scale (0 to 10)") from None
+    if not 0.0 <= value <= 10.0:
+        raise argparse.ArgumentTypeError(f"{text[:40]} is not a scale (0 to 10)")
     return value
 
 
@@ -99,6 +112,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--skeleton", choices=sorted(SKELETONS), default="ten",
                    help="markers on the ten segments of Klein's chain in z-up axes (default), or on four "
                         "(pelvis, chest, neck2, head) in y-up axes")
+    p.add_argument("--unlisted-markers", choices=sorted(UNLISTED_SETS), default=None,
+                   help="markers in no markerset segment, moving against the chest: the left and right shoulders "
+                        "(LSHO, RSHO, 340 mm apart), or the shoulders and the elbows (LELB, RELB); label swaps "
+                        "then exchange them too: the mirror pairs, a shoulder and its elbow or the chest's marker "
+                        "on its side (default: none)")
+    p.add_argument("--unlisted-motion", type=_scale, default=1.0, metavar="SCALE",
+                   help="how far the unlisted markers move against the chest, as a multiple of the default "
+                        "(20 mm shrugs, 15 mm reaches, 20 degrees of arm swing; default 1, at most 10)")
     p.add_argument("--label-swaps", type=_count, default=0, metavar="N",
                    help=f"stretches per mocap take in which two markers carry each other's names (default 0, at "
                         f"most {MAX_COUNT})")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -10,13 +10,16 @@ from scipy.spatial.transform import Rotation
 from gazepipe.synth.motion import EYE_LIMIT_DEG, FORWARD, HEAD, TakeMotion
 from gazepipe.synth.skeleton import (
     CLAPPER_MARKERS,
+    ELBOW_SHOULDER,
     HALF_IPD_MM,
     HEAD_CENTRE_MARKER,
     JOINTS_MM,
     ROOT_MARKER,
     SEGMENT_MARKERS,
     SEGMENTS,
+    SHOULDER_JOINT_BELOW_MM,
     TARGET_MARKER,
+    UNLISTED_MARKERS,
     Placement,
     head_centre_offset,
     subject_marker_layout,
@@ -99,6 +102,73 @@ def build_kinematics(motion: TakeMotion, placement: Placement, segments: tuple[s
     return Kinematics(labels=labels, markers_true=markers, h_lab=h, q_char0=q, joints_lab=joints,
                       eye_dir_char0=q[HEAD].apply(in_head), eye_in_head=in_head,
                       eye_left_char0=eyes[0], eye_right_char0=eyes[1])
+
+
+#: the unlisted markers' own motion (:func:`with_unlisted_markers`): the shoulder blade's reach out, shrug up and
+#: reach forward (mm, at most), the upper arm's swing forward and out (degrees, at most) and its usual angle out
+SHOULDER_MOTION_MM = (6.0, 20.0, 15.0)
+ARM_SWING_DEG = (20.0, 8.0)
+ARM_OUT_DEG = 8.0
+#: the own motion goes on as the body moves: waves over the body's path (its markers' mean path, mm), so it
+#: stops when the subject rests (the rests stay the body's) and looks the same at any capture rate
+OWN_WAVELENGTH_MM = (80.0, 400.0)
+OWN_WAVES = 6
+
+
+def _own_motion(rng: np.random.Generator, path_mm: np.ndarray, count: int) -> np.ndarray:
+    """(T, count) smooth signals in (−1, 1) over the body's path ``path_mm`` (T,): sums of :data:`OWN_WAVES`
+    waves of random wavelength, phase and weight, squashed."""
+    lam = rng.uniform(*OWN_WAVELENGTH_MM, size=(OWN_WAVES, count))
+    phase = rng.uniform(0.0, 2.0 * np.pi, size=(OWN_WAVES, count))
+    weight = rng.uniform(0.5, 1.0, size=(OWN_WAVES, count))
+    s = (weight[None] * np.sin(2.0 * np.pi * path_mm[:, None, None] / lam[None] + phase[None])).sum(axis=1)
+    return np.tanh(s / np.sqrt(0.5 * (weight ** 2).sum(axis=0))[None])
+
+
+def with_unlisted_markers(rng: np.random.Generator, kin: Kinematics, names: tuple[str, ...], scale: float = 1.0
+                          ) -> Kinematics:
+    """``kin`` with the markers ``names`` (of :data:`~gazepipe.synth.skeleton.UNLISTED_MARKERS`) added after the
+    subject's listed markers (before the target and the clapper).
+
+    A shoulder (``LSHO``, ``RSHO``) rides on the chest and moves against it with its shoulder blade by up to
+    :data:`SHOULDER_MOTION_MM`; an elbow (``LELB``, ``RELB``) hangs from that shoulder's joint
+    (:data:`~gazepipe.synth.skeleton.SHOULDER_JOINT_BELOW_MM` below the acromion) on an upper arm that swings
+    forward and out (:data:`ARM_SWING_DEG`). Both go on only while the body moves (:data:`OWN_WAVELENGTH_MM`).
+    ``scale`` multiplies the own motion (the shoulder blade's millimetres and the arm's degrees).
+    The signals are drawn for both sides whichever markers are asked for, so a set's shoulders move the same
+    with or without its elbows."""
+    unknown = [n for n in names if n not in UNLISTED_MARKERS]
+    if unknown:
+        raise ValueError(f"unknown unlisted marker(s) {', '.join(unknown)} (known: {', '.join(UNLISTED_MARKERS)})")
+    subject = [i for i, lab in enumerate(kin.labels) if lab != TARGET_MARKER and lab not in CLAPPER_MARKERS]
+    x = kin.markers_true[:, subject]
+    path = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(x, axis=0), axis=2).mean(axis=1))])
+    own = _own_motion(rng, path, 10).reshape(-1, 2, 5)            # per side (left, right): 3 blade, 2 arm
+    chest = SEGMENTS.index("chest")
+    to_lab = kin.h_lab * kin.q_char0[chest]
+    blade: dict[str, np.ndarray] = {}
+    for k, shoulder in enumerate(("LSHO", "RSHO")):
+        side = np.sign(UNLISTED_MARKERS[shoulder][0])
+        moves = scale * own[:, k, :3] * np.asarray(SHOULDER_MOTION_MM)[None] * np.array([side, 1.0, 1.0])[None]
+        blade[shoulder] = np.asarray(UNLISTED_MARKERS[shoulder])[None] + moves
+    cols = []
+    for name in names:
+        if name in blade:
+            local = blade[name]
+        else:
+            shoulder = ELBOW_SHOULDER[name]
+            k = ("LSHO", "RSHO").index(shoulder)
+            side = np.sign(UNLISTED_MARKERS[name][0])
+            joint = np.asarray(UNLISTED_MARKERS[shoulder]) + np.asarray(SHOULDER_JOINT_BELOW_MM)
+            arm = Rotation.from_euler("ZX", np.column_stack([
+                side * np.deg2rad(ARM_OUT_DEG + scale * ARM_SWING_DEG[1] * own[:, k, 4]),
+                np.deg2rad(scale * ARM_SWING_DEG[0]) * own[:, k, 3]]))
+            local = blade[shoulder] + np.asarray(SHOULDER_JOINT_BELOW_MM)[None] \
+                + arm.apply(np.asarray(UNLISTED_MARKERS[name]) - joint)
+        cols.append(kin.joints_lab[:, chest] + to_lab.apply(local))
+    at = len(subject)
+    markers = np.concatenate([kin.markers_true[:, :at], np.stack(cols, axis=1), kin.markers_true[:, at:]], axis=1)
+    return replace(kin, labels=[*kin.labels[:at], *names, *kin.labels[at:]], markers_true=markers)
 
 
 #: gap length classes in frames (inclusive bounds) and how many of each a long take gets
@@ -295,14 +365,22 @@ def swap_pairs(labels: list[str]) -> dict[str, list[tuple[int, int]]]:
     """The marker pairs an auto-labeller exchanges, by kind, as column pairs of ``labels``: ``cluster`` (two
     markers of one segment), ``neighbour`` (the root marker and the nearest pelvis marker, the head centre and
     the nearest head marker: close markers of neighbouring rigid bodies), ``left_right`` (the chest's, else the
-    pelvis's, left and right markers, as when the arms cross before the body)."""
+    pelvis's, left and right markers, as when the arms cross before the body); with unlisted markers
+    (:data:`~gazepipe.synth.skeleton.UNLISTED_MARKERS`), ``mirror`` (the left and right shoulders, the left and
+    right elbows: mirror images across the body, in no segment) and ``unlisted`` (a shoulder and its elbow, a
+    shoulder and the chest's marker on its side)."""
     idx = {lab: i for i, lab in enumerate(labels)}
     cluster = [(idx[a], idx[b]) for seg in SEGMENT_MARKERS.values() for a in seg for b in seg
                if a in idx and b in idx and idx[a] < idx[b]]
     neighbour = [(idx[a], idx[b]) for a, b in ((ROOT_MARKER, "PEL_B"), (HEAD_CENTRE_MARKER, "HFL"))
                  if a in idx and b in idx]
     left_right = [(idx[a], idx[b]) for a, b in (("CHA", "CHB"), ("PEL_L", "PEL_R")) if a in idx and b in idx][:1]
-    return {k: v for k, v in {"cluster": cluster, "neighbour": neighbour, "left_right": left_right}.items() if v}
+    mirror = [(idx[a], idx[b]) for a, b in (("LSHO", "RSHO"), ("LELB", "RELB")) if a in idx and b in idx]
+    unlisted = [(idx[a], idx[b]) for a, b in (("LSHO", "LELB"), ("RSHO", "RELB"), ("CHA", "LSHO"), ("CHB", "RSHO"))
+                if a in idx and b in idx]
+    kinds = {"cluster": cluster, "neighbour": neighbour, "left_right": left_right, "mirror": mirror,
+             "unlisted": unlisted}
+    return {k: v for k, v in kinds.items() if v}
 
 
 def make_label_swaps(rng: np.random.Generator, labels: list[str], gap_mask: np.ndarray, rate_hz: float,

@@ -223,3 +223,16 @@ plus an offset 0-0.04, cross-talk (0.15 jawOpen into mouthClose, 0.25 mouthSmile
 truth.json `takes.<id>`: `rate_hz`, `timecode_fps`, `duration_s`, `n_frames`, `clock_drift`, `head_tracking`,
 `clean`, `tracked`, `dropped_clean`, `dropped_tracked`, `first_timecode`.
 """
+
+#: appended to :data:`TRUTH_README` for a session with markers in no segment (``SynthConfig.unlisted_markers``)
+UNLISTED_README = """
+## Markers in no segment
+
+The capture also carries markers that markerset.toml lists in no segment (`unlisted_markers` in truth.json),
+after the listed subject markers: LSHO and RSHO (the shoulders, 340 mm apart, moving with the chest plus up to
+20 mm of shrugging and 15 mm of reaching of their own) and, with `arms`, LELB and RELB (the elbows, on upper
+arms swinging up to 20 degrees about the shoulder joints); `unlisted_motion` scales that motion. They move on
+their own only while the body moves (the rests are the body's), get gaps, spikes and bursts like any marker,
+and label swaps exchange them too (the mirror pairs, a shoulder and its elbow, a shoulder and the chest's marker
+on its side).
+"""

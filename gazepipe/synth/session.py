@@ -24,6 +24,7 @@ from gazepipe.synth.markers import (
     make_root_final_rest_gap,
     make_root_rest_gap,
     make_spikes,
+    with_unlisted_markers,
 )
 from gazepipe.synth.motion import follow_motion, neutral_motion, shift_motion
 from gazepipe.synth.record import ModalityWriter, TakeRecord
@@ -92,7 +93,13 @@ class SynthConfig:
     both sides (:func:`~gazepipe.synth.markers.make_root_final_rest_gap`; None: no such gap, the take as it was);
     ``clapper_look``: how the head camera sees the clapper (smaller, dimmer, noisier, blurred, a hand swinging
     beside it: :class:`~gazepipe.synth.video.ClapperLook`, :data:`~gazepipe.synth.video.LOOKS`; the truth's
-    ``video.clapper_look`` says which when it is not the sample's).
+    ``video.clapper_look`` says which when it is not the sample's);
+    ``unlisted_markers``: markers the capture carries that the markerset lists in no segment (names of
+    :data:`~gazepipe.synth.skeleton.UNLISTED_MARKERS`: shoulders and elbows, moving against the chest
+    (:func:`~gazepipe.synth.markers.with_unlisted_markers`); written after the listed subject markers, with
+    gaps, spikes and bursts like any marker, and label swaps between them: mirror pairs and their neighbours);
+    ``unlisted_motion``: how far they move against the chest, as a multiple of the default (20 mm shrugs, 15 mm
+    reaches, the upper arm's 20° swing).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -126,6 +133,8 @@ class SynthConfig:
     face_tracking_loss: int = 0
     root_final_rest_gap_s: tuple[float, float] | None = None
     clapper_look: ClapperLook = SAMPLE_LOOK
+    unlisted_markers: tuple[str, ...] = ()
+    unlisted_motion: float = 1.0
 
 
 #: the final rest around a root-marker gap of ``SynthConfig.root_final_rest_gap_s`` (s): added to the gap's length
@@ -432,8 +441,8 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
     (out / "session.toml").write_text(session_toml(cfg, records))
     meta = _session_truth(seed, cfg, cam, meta_takes)
     (out / "truth" / "truth.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    from gazepipe.synth.readme import TRUTH_README
-    (out / "truth" / "README.md").write_text(TRUTH_README)
+    from gazepipe.synth.readme import TRUTH_README, UNLISTED_README
+    (out / "truth" / "README.md").write_text(TRUTH_README + (UNLISTED_README if cfg.unlisted_markers else ""))
 
 
 @dataclass(frozen=True)
@@ -525,6 +534,9 @@ def _mocap_take(out: Path, seed: int, index: int, plan: tuple[str, str, str, tup
     take_id, kind, pose, target = plan
     rate = float(cfg.rate_hz)
     kin = build_kinematics(motion, cfg.placement, cfg.segments)
+    if cfg.unlisted_markers:   # a stream of its own (the thirteenth), drawn only when asked for
+        unlisted = np.random.default_rng(np.random.SeedSequence([seed, index]).spawn(13)[12])
+        kin = with_unlisted_markers(unlisted, kin, tuple(cfg.unlisted_markers), cfg.unlisted_motion)
     mask = _gap_mask(kind, cfg, motion, kin, still_gap_s, rngs)
     noisy = kin.markers_true + rngs.noise.normal(0.0, cfg.noise_mm, size=kin.markers_true.shape)
     offsets, spiked = make_spikes(rngs.spikes, kin.labels, mask, rate, cfg.spikes_per_marker_min,
@@ -579,5 +591,6 @@ def _session_truth(seed: int, cfg: SynthConfig, cam: Rotation, meta_takes: dict[
         "segments": list(SEGMENTS),
         **({} if cfg.segments == SEGMENTS else {"marker_segments": list(cfg.segments)}),
         **({} if cfg.up_axis == "z" else {"up_axis": cfg.up_axis}),
+        **({} if not cfg.unlisted_markers else {"unlisted_markers": list(cfg.unlisted_markers)}),
         "takes": meta_takes,
     }

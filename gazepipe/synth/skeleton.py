@@ -67,6 +67,22 @@ EXTRA_MARKERS: dict[str, tuple[str, tuple[float, float, float]]] = {
 }
 
 
+#: markers a capture may carry that no markerset segment lists (``SynthConfig.unlisted_markers``), as offsets
+#: from the chest joint (character axes, neutral pose, mm): the acromions (shoulders, 340 mm apart), which ride
+#: on the chest plus the shoulder blade's own shrugging and reaching, and the lateral epicondyles (elbows), at
+#: the end of an upper arm that swings about the shoulder joint: rigid with no segment
+UNLISTED_MARKERS: dict[str, tuple[float, float, float]] = {
+    "LSHO": (170.0, 60.0, -25.0), "RSHO": (-170.0, 60.0, -25.0),
+    "LELB": (205.0, -275.0, -40.0), "RELB": (-205.0, -275.0, -40.0),
+}
+#: the sets of unlisted markers the generator's command line offers, by name
+UNLISTED_SETS: dict[str, tuple[str, ...]] = {"shoulders": ("LSHO", "RSHO"), "arms": ("LSHO", "RSHO", "LELB", "RELB")}
+#: each elbow's shoulder marker (the arm hangs from that shoulder's joint)
+ELBOW_SHOULDER: dict[str, str] = {"LELB": "LSHO", "RELB": "RSHO"}
+#: the shoulder joint (the upper arm's centre of rotation) relative to its acromion marker, chest axes, mm
+SHOULDER_JOINT_BELOW_MM: tuple[float, float, float] = (0.0, -45.0, 0.0)
+
+
 def head_centre_offset() -> np.ndarray:
     """HEADC relative to the head joint, (3,) mm, head axes."""
     return np.array(EXTRA_MARKERS[HEAD_CENTRE_MARKER][1])

@@ -75,10 +75,17 @@ class SwapQC(QCRecord):
 
 @dataclass(frozen=True)
 class SwapPairQC(QCRecord):
-    """Per marker pair ``"A/B"``: stretches repaired and stretches made gaps."""
+    """Per marker pair ``"A/B"`` (any two markers the table carries, listed in the markerset or not):
+    stretches repaired and stretches made gaps, and their samples apart."""
 
     repaired: int
     removed: int
+    #: samples put back under their own names (both markers')
+    repaired_samples: int | None = absent_when(
+        "the record was written by a clean stage older than version 26, which counted stretches only")
+    #: samples made gaps (both markers')
+    removed_samples: int | None = absent_when(
+        "the record was written by a clean stage older than version 26, which counted stretches only")
 
 
 @dataclass(frozen=True)
@@ -99,7 +106,7 @@ class CleanQC(QCRecord):
     failures: tuple[str, ...]
     #: every swapped stretch
     swaps: tuple[SwapQC, ...]
-    #: per pair ``"A/B"``: stretches repaired and made gaps
+    #: per pair ``"A/B"``: stretches repaired and made gaps, and their samples
     swap_pairs: Mapping[str, SwapPairQC]
     spikes_removed: int
     #: every gap the filler decided (none when the take had no gap)

@@ -35,7 +35,7 @@ from gazepipe.stages.clean.rests import (
 )
 from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
-from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
+from gazepipe.stages.clean.swaps import SubjectReferences, judged_columns, repair_swaps
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
@@ -281,17 +281,21 @@ def _repair_swaps(xyz: np.ndarray, valid: np.ndarray, labels: list[str], rate_hz
                                    "right names by itself (the pipeline judges every take against all of the "
                                    "session's)")
         return np.zeros(valid.shape, dtype=bool)
-    body = set(markerset.subject_markers)
+    # every marker the table carries is judged, listed in the markerset or not: the target and the clapper only
+    # are no part of the body
     res = repair_swaps(xyz, valid, params.swap_tolerance,
                        references=None if references is None else references.for_labels(labels),
-                       markers=np.array([i for i, lab in enumerate(labels) if lab in body], dtype=np.int64),
-                       in_place=True)
+                       markers=judged_columns(labels, markerset.target, markerset.clapper), in_place=True)
     qc["swaps"] = [{"markers": [labels[r.first], labels[r.second]], "start": r.start, "stop": r.stop,
                     "repaired": r.repaired} for r in res.records]
     pairs: dict[str, dict[str, int]] = {}
     for r in res.records:
-        count = pairs.setdefault(f"{labels[r.first]}/{labels[r.second]}", {"repaired": 0, "removed": 0})
-        count["repaired" if r.repaired else "removed"] += 1
+        count = pairs.setdefault(f"{labels[r.first]}/{labels[r.second]}", dict.fromkeys(
+            ("repaired", "removed", "repaired_samples", "removed_samples"), 0))
+        outcome = "repaired" if r.repaired else "removed"
+        count[outcome] += 1
+        mask = res.repaired if r.repaired else res.removed
+        count[f"{outcome}_samples"] += int(mask[r.start:r.stop, [r.first, r.second]].sum())
     qc["swap_pairs"] = pairs
     if any(not r.repaired for r in res.records):
         lost = int(res.removed.sum())
@@ -353,7 +357,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     missing or the rest periods the kind needs are not found.
 
     ``qc`` holds: ``swaps`` (every swapped stretch: the two markers, start, stop, repaired or made gaps),
-    ``swap_pairs`` (per pair ``"A/B"``: stretches repaired and removed), ``swaps_not_checked`` (why, when swaps
+    ``swap_pairs`` (per pair ``"A/B"``: stretches repaired and removed, and their samples apart),
+    ``swaps_not_checked`` (why, when swaps
     were not looked for),
     ``markers`` (per marker: gaps after spike removal, longest gap in frames and seconds, spikes
     removed, samples per fill method, unfilled samples), ``spikes_removed`` (total), ``gaps`` (every gap:

@@ -1,28 +1,40 @@
 """Label swaps (SPEC §3.2 step 1): stretches where the auto-labeller gave two markers each other's names.
 
-A marker's *references* are the markers whose distance to it varies least over the take: its rigid mates first,
-then markers of neighbouring segments (:func:`steady_references`). A sample's *misfit* is the largest, over its
-references measured in that frame, of how far its distance to each is from that distance's median, in that
-distance's own spread (:func:`_misfit`). A sample is *suspect* where its misfit is above the tolerance (6 spreads, each at least 1 mm). A
-suspect sample of marker ``a`` is explained by a swap with ``b`` when it fits ``b``'s references within ``b``'s
-tolerance and ``b``'s own sample in that frame is either suspect and fits ``a``'s references (exchanging the
-two names restores both markers' distances), or missing while most of ``a``'s references disagree with ``a``'s
-sample (one reference astray cannot hand a sample to a missing marker). Distances cannot tell a body from its
-mirror image (a segment with two mirror pairs: exchanging either pair restores every distance of a swap of the
-other), so an exchange must also leave each marker's chiral reference triples with their handedness, most of those
-seen in the frame (:class:`References`: several per marker, rigid ones first, so that one hidden marker leaves the
-others to judge). A sample that fits two missing markers (mirror twins), or is handed to a missing marker for no
-more than the one or two frames of a ghost while its own marker is measured on both sides, proves no swap and is
-left to spike removal. Those samples are exchanged (``repaired``); frames in which both
-markers are suspect but the exchange does not restore them are made gaps (``removed``). Anything else suspect is
-left to spike removal. A sample never moves unless the exchange is proven frame by frame, so a swap that starts
-or ends in a gap, or across neighbouring segments, is handled like any other.
+Every marker the table carries is judged, listed in a markerset segment or not (:func:`judged_columns`: all but
+the target and the clapper). A marker's *references* are the markers whose distance to it varies least over the
+take: its rigid mates first, then markers of neighbouring segments; a marker rigid with too few others (a
+shoulder or an elbow, on no segment) takes its steadiest distances whatever their spread, each judged within its
+own spread, so that a 340 mm exchange stands out while a few centimetres of shrugging do not
+(:func:`steady_references`). A sample's *misfit* is the largest, over its references measured in that frame, of
+how far its distance to each is from that distance's median, in that distance's own spread (:func:`_misfit`). A
+sample is *suspect* where its misfit is above the tolerance (6 spreads, each at least 1 mm). A suspect sample of
+marker ``a`` is explained by a swap with ``b`` when it fits ``b``'s references within ``b``'s tolerance, something
+that vouches for its own place tells ``b``'s place from ``a``'s there (a reference the sample fits as ``b`` and
+misfits as ``a``, put where it is by others than the two: :func:`_vouched_for`; or the handedness), and ``b``'s own
+sample in that frame is either suspect and fits ``a``'s references (exchanging the two names restores both
+markers' distances), or missing while most of ``a``'s references disagree with ``a``'s sample, or most of its chiral
+triples seen turn it to its mirror image (a mirror twin stands as far from the trunk's mirror plane as its own
+marker would: its side is what is wrong; one reference astray cannot hand a sample to a missing marker). Distances cannot tell a body from its mirror image (a segment with two
+mirror pairs: exchanging either pair restores every distance of a swap of the other; the left and right shoulders
+against the markers on the trunk's mirror plane), so an exchange must also leave each marker's chiral triples
+with their handedness, most of those seen in the frame (:class:`References`: several per marker, of markers on
+rigid bodies only, rigid ones first, then those that tell the marker from its mirror twin, so that one hidden
+marker leaves the others to judge). A sample that fits two missing markers (mirror twins), or is handed to a
+missing marker for no more than the one or two frames of a ghost while its own marker is measured on both sides,
+proves no swap and is left to spike removal. Those samples are exchanged (``repaired``), and the stretches
+carried on by trajectory continuity; frames in which both markers are suspect but the exchange does not restore
+them are made gaps (``removed``). Anything else suspect is left to spike removal. A
+sample never moves unless the exchange is proven frame by frame, so a swap that starts or ends in a gap, or
+across neighbouring segments, is handled like any other.
 
 Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) bool; frames are rows.
 """
 
 from __future__ import annotations
 
+import re
+import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from itertools import combinations
 
@@ -34,9 +46,10 @@ from gazepipe.stages.geometry import norm3
 
 #: references per marker (the steadiest distances): several, so that one astray is outvoted
 N_REFERENCES = 6
-#: a marker is a reference of another only when their distance's spread (1.4826 MAD, mm: robust to the swaps
-#: themselves) is below this: rigid mates (noise, ~1 mm) and markers across one joint (a few mm) are
-#: candidates; the steadiest are taken
+#: a distance is *steady* when its spread (1.4826 MAD, mm: robust to the swaps themselves) is at most this: rigid
+#: mates (noise, ~1 mm) and markers across one joint (a few mm). Steady references put a reference where it is
+#: (:func:`_vouched_for`); a marker with fewer than :data:`N_REFERENCES` takes its steadiest distances whatever
+#: their spread
 MAX_REFERENCE_SPREAD_MM = 15.0
 #: a reference's spread is taken as at least this (mm): marker noise, so that a perfectly rigid pair does not
 #: make every sub-millimetre wobble suspect
@@ -74,9 +87,9 @@ class References:
     #: unknown (or turn it)
     chiral: np.ndarray | None = None
     handedness: np.ndarray | None = None
-    #: (M, M) every steady distance (mm: median; NaN where its spread is above :data:`MAX_REFERENCE_SPREAD_MM` or
-    #: never measured) and its spread (mm, at least :data:`SPREAD_FLOOR_MM`): a sample that may be another
-    #: marker's is judged as that marker against the references of both (:func:`_pair_references`)
+    #: (M, M) every distance (mm: median; NaN where never measured together) and its spread (mm, at least
+    #: :data:`SPREAD_FLOOR_MM`): a sample that may be another marker's is judged as that marker against the
+    #: references of both (:func:`_pair_references`), each within that marker's spread of it
     distance_all: np.ndarray | None = None
     spread_all: np.ndarray | None = None
 
@@ -104,6 +117,29 @@ class SwapResult:
     repaired: np.ndarray
     removed: np.ndarray
     records: list[SwapRecord]
+
+
+#: labels of unlabeled trajectories as capture programs write them (after a ``Subject:`` prefix, if any): Vicon
+#: ``*12``; ``Unlabeled 3``, ``unlabelled_7``, ``Unidentified 12``, ``Unnamed4``; the C3D reader's ``_unnamed~2``.
+#: Whatever the labeller could not name (a marker's fragments, a ghost) has no geometry of its own to judge
+UNLABELED_PATTERN = re.compile(r"^(?:\*\d+|(?:unlabell?ed|unidentified|unnamed)(?:[\s_:#.-]*\d+)?|_unnamed(?:~\d+)?)$",
+                               re.IGNORECASE)
+
+
+def is_unlabeled(label: str) -> bool:
+    """Whether ``label`` names an unlabeled trajectory (:data:`UNLABELED_PATTERN`, on the whole label or its part
+    after the last ``:``)."""
+    name = label.strip()
+    return bool(UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()))
+
+
+def judged_columns(labels: Sequence[str], target: str | None, clapper: Sequence[str]) -> np.ndarray:
+    """(K,) int64 columns of ``labels`` whose swaps are looked for, and that serve as each other's references:
+    every marker the table carries, listed in a markerset segment or not, but the ``target`` and the
+    ``clapper`` (no part of the body) and unlabeled trajectories (:func:`is_unlabeled`: no marker's name)."""
+    other = {target, *clapper}
+    return np.array([i for i, lab in enumerate(labels) if lab not in other and not is_unlabeled(lab)],
+                    dtype=np.int64)
 
 
 def even_rows(n_rows: int, at_most: int) -> np.ndarray:
@@ -136,20 +172,28 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
         median = _nanmedian(d[:, enough], axis=0)
         spread = 1.4826 * _nanmedian(np.abs(d[:, enough] - median), axis=0)
         cols = np.flatnonzero(enough)
-        steady = spread <= MAX_REFERENCE_SPREAD_MM
-        distance_all[m, cols[steady]] = median[steady]
-        spread_all[m, cols[steady]] = np.maximum(spread[steady], SPREAD_FLOOR_MM)
+        distance_all[m, cols] = median
+        spread_all[m, cols] = np.maximum(spread, SPREAD_FLOOR_MM)
+        # the steadiest distances: a marker rigid with too few others for the bound (a shoulder, an elbow: on no
+        # segment) takes its steadiest others as well, each judged within its own spread
         order = np.argsort(spread, kind="stable")[:N_REFERENCES]
-        order = order[spread[order] <= MAX_REFERENCE_SPREAD_MM]
         index[m, :order.size] = cols[order]
         distance[m, :order.size] = median[order]
         spread_mm[m, :order.size] = np.maximum(spread[order], SPREAD_FLOOR_MM)
+    distance_all, spread_all = _known_distances(distance_all, spread_all)
     # the handedness from the samples that keep their distances only: a marker's own swaps (a large share of a
     # short take's frames) are no part of its body's shape
     plain = with_tolerances(References(index, distance, spread_mm, np.full(n_m, np.inf)), TOLERANCE)
     suspect = _screen(x, ok, plain, slice(None))[0]
-    chiral, handedness = _handedness(x, ok & ~suspect, index, spread_all)
+    chiral, handedness = _handedness(x, ok & ~suspect, _chiral_pool(index), spread_all, distance_all)
     return References(index, distance, spread_mm, np.full(n_m, np.inf), chiral, handedness, distance_all, spread_all)
+
+
+def _known_distances(distance_all: np.ndarray, spread_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (M, M) distances (and spreads) of :class:`References` from those measured from each marker: a pair
+    measured from one end only (its frames too few a share of the other's) has that end's, both ways."""
+    return (np.where(np.isnan(distance_all), distance_all.T, distance_all),
+            np.where(np.isnan(spread_all), spread_all.T, spread_all))
 
 
 #: a reference triple's volume, as a share of the product of its three distances, must be at least this in
@@ -183,14 +227,36 @@ RIGID_SPREAD_MM = 2.0
 CHIRAL_OUTLIERS = 0.05
 
 
-def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
+#: markers whose triples may give a marker its handedness: its references, then its next steadiest distances
+N_CHIRAL_POOL = 12
+
+
+def _chiral_pool(index: np.ndarray) -> np.ndarray:
+    """(M, :data:`N_CHIRAL_POOL`) columns (−1: none) whose triples may tell each marker from its mirror image:
+    its references, then its steadiest reference's references, then the next one's, and so on. A marker on no
+    segment (an elbow) has few references near it that can tell its side; the body it hangs from (its
+    shoulder's references: the other shoulder, the chest) can."""
+    n_m = index.shape[0]
+    pool = np.full((n_m, N_CHIRAL_POOL), -1, dtype=np.int64)
+    for m in range(n_m):
+        own = index[m][index[m] >= 0]
+        cols = np.concatenate([own, index[own].reshape(-1)]) if own.size else own
+        cols = cols[(cols >= 0) & (cols != m)]
+        cols = cols[np.sort(np.unique(cols, return_index=True)[1])][:N_CHIRAL_POOL]     # first seen first
+        pool[m, :cols.size] = cols
+    return pool
+
+
+def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np.ndarray,
+                distance_all: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each marker's chiral reference triples and their handedness (see :class:`References`), from sample
-    frames ``x`` (S, M, 3) where ``ok`` (S, M), the references ``index`` (M, K) and every pair's distance
-    spread ``spread_all`` (M, M; NaN: not steady): of its references' triples whose volume from it is clear in
-    the median frame, the rigid ones (:data:`RIGID_SPREAD_MM`) first, largest volume first, then those across
-    a joint that keep their sign (:data:`CHIRAL_OUTLIERS`), farthest from turning over first; at most
-    :data:`N_CHIRAL`."""
+    frames ``x`` (S, M, 3) where ``ok`` (S, M), the candidate corners ``index`` (M, K) and every pair's
+    distance (``distance_all``, M x M, mm) and its spread (``spread_all``; NaN: unknown): of the triples whose
+    volume from it is clear in the median frame, the rigid ones (:data:`RIGID_SPREAD_MM`) first, largest
+    volume first, then those that tell it from its twin (:func:`_twins`: its volume from the twin's place
+    keeps the other sign, by a clear share, as its own keeps its), then the others that keep their sign
+    (:data:`CHIRAL_OUTLIERS`), farthest from turning over first; at most :data:`N_CHIRAL`. Corners are markers
+    of rigid bodies only (the trunk, for a marker on no segment)."""
     n_m, k = index.shape
     chiral = np.full((n_m, N_CHIRAL, 3), -1, dtype=np.int64)
     handedness = np.zeros((n_m, N_CHIRAL))
@@ -198,8 +264,12 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
     keep = even_rows(len(x), CHIRAL_FRAMES)
     x, ok = x[keep], ok[keep]                      # a handedness's sign settles on a few hundred frames
     spread = np.nan_to_num(spread_all, nan=np.inf)
+    twins = _twins(distance_all, spread_all)
+    # a corner must be anchored in a rigid body (rigid with at least MIN_REFERENCES others: a segment's marker):
+    # a marker on no segment may be swapped itself (an elbow with its twin), and turn the triple with it
+    anchored = np.append((spread <= RIGID_SPREAD_MM).sum(axis=1) >= MIN_REFERENCES, False)    # index −1: none
     for m in range(n_m):
-        usable = triples[(index[m][triples] >= 0).all(axis=1)]
+        usable = triples[(index[m][triples] >= 0).all(axis=1) & anchored[index[m][triples]].all(axis=1)]
         rows = np.flatnonzero(ok[:, m])
         if usable.size == 0 or rows.size < 10:
             continue
@@ -211,7 +281,7 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
         enough = seen.sum(axis=0) >= 10
         if not enough.any():
             continue
-        tri, vol = tri[enough], vol[:, enough]
+        tri, vol, corners = tri[enough], vol[:, enough], corners[:, enough]
         median = _nanmedian(vol, axis=0)
         sign = np.sign(median)
         rigid = np.maximum.reduce([spread[m, tri[:, 0]], spread[m, tri[:, 1]], spread[m, tri[:, 2]],
@@ -221,10 +291,58 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
         low = np.nanquantile(sign[None] * vol, CHIRAL_OUTLIERS, axis=0)
         clear = np.abs(median) >= MIN_CHIRAL_VOLUME
         good = clear & (rigid | (low >= 0.5 * MIN_CHIRAL_VOLUME))
-        rank = np.where(rigid, 1.0 + np.abs(median), low)        # rigid first (a share is at most 1)
+        telling = good & ~rigid & (_tells_twin(x[rows], ok[rows], twins[m], tri, corners, sign, vol)
+                                   >= 0.5 * MIN_CHIRAL_VOLUME)
+        # rigid first, then those telling the twin; the others only for a marker without either (a triple that
+        # keeps its sign from the twin's place too outvotes the ones that turn when the two are exchanged)
+        if (good & rigid).any() or telling.any():
+            good &= rigid | telling
+        rank = np.where(rigid, 2.0 + np.abs(median), low)                # a share is at most 1
         order = _spread_out(tri, np.flatnonzero(good)[np.argsort(-rank[good], kind="stable")])
         chiral[m, :order.size], handedness[m, :order.size] = tri[order], sign[order]
     return chiral, handedness
+
+
+def _twins(distance_all: np.ndarray, spread_all: np.ndarray) -> np.ndarray:
+    """(M,) each marker's twin (−1: none): the marker whose distances to the others, sorted, are nearest its
+    own sorted (the median difference, mm): its mirror image across the body (the left and the right shoulder
+    stand as far from the trunk, each from its own side), which distances to the markers on the mirror plane
+    cannot tell from it."""
+    n_m = distance_all.shape[0]
+    out = np.full(n_m, -1, dtype=np.int64)
+    known = np.isfinite(distance_all) & np.isfinite(spread_all)
+    for m in range(n_m):
+        score = np.full(n_m, np.inf)
+        for q in np.flatnonzero(known[m]):
+            both = known[m] & known[q]
+            both[[m, q]] = False
+            if both.sum() < MIN_REFERENCES:
+                continue
+            score[q] = float(np.median(np.abs(np.sort(distance_all[m, both]) - np.sort(distance_all[q, both]))))
+        if np.isfinite(score).any():
+            out[m] = int(np.argmin(score))
+    return out
+
+
+def _tells_twin(x: np.ndarray, ok: np.ndarray, twin: int, tri: np.ndarray, corners: np.ndarray, sign: np.ndarray,
+                vol: np.ndarray) -> np.ndarray:
+    """(C,) how clearly each triple ``tri`` (corners (S, C, 3, 3) in the frames ``x`` (S, M, 3) where the
+    marker is ``ok``) tells the marker from its ``twin`` (−1: none): the low quantile (:data:`CHIRAL_OUTLIERS`)
+    over the frames where both are seen of the smaller of the marker's signed volume (``vol``, its ``sign``)
+    and the twin's, the other way; −inf where it cannot tell (no twin, the twin a corner)."""
+    out = np.full(tri.shape[0], -np.inf)
+    if twin < 0:
+        return out
+    at = ok[:, twin]
+    if at.sum() < 10:
+        return out
+    other = _volume(x[at, twin][:, None], corners[at][:, :, 0], corners[at][:, :, 1], corners[at][:, :, 2])
+    both = np.minimum(sign[None] * vol[at], -sign[None] * other)
+    both[:, (tri == twin).any(axis=1)] = np.nan
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # a triple never seen with the twin: NaN
+        low = np.nanquantile(both, CHIRAL_OUTLIERS, axis=0)
+    return np.where(np.isfinite(low), low, -np.inf)
 
 
 def _spread_out(tri: np.ndarray, ranked: np.ndarray) -> np.ndarray:
@@ -360,21 +478,42 @@ def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: 
     """(n, C) bool: ``points`` judged as ``as_marker`` turn more of its chiral triples (all three measured there,
     and none of them ``exclude``) against their handedness, by a clear volume, than they leave with it: one
     corner astray turns the triples it is in only."""
-    if refs.chiral is None or refs.handedness is None:
+    vol, hand, seen = _chiral_volumes(points, xyz, valid, as_marker, refs, exclude)
+    return _turned(vol, hand[None], seen) if vol is not None else np.zeros(points.shape[:2], dtype=bool)
+
+
+def _hand_kept(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References
+               ) -> np.ndarray:
+    """(n, C) bool: ``points`` judged as ``as_marker`` leave one of its chiral triples seen there (all three
+    measured) with its handedness, by a clear volume."""
+    vol, hand, seen = _chiral_volumes(points, xyz, valid, as_marker, refs, None)
+    if vol is None:
         return np.zeros(points.shape[:2], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return (seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == hand[None])).any(axis=-1)
+
+
+def _chiral_volumes(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray,
+                    refs: References, exclude: np.ndarray | None
+                    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """The volumes (n, C, J) of ``points`` (n, C, 3) judged as ``as_marker`` (C,) against its chiral triples
+    (none of them ``exclude``; NaN where unused), their handedness (C, J) and where all three corners are
+    measured (n, C, J); volumes None when no triple can be used."""
+    if refs.chiral is None or refs.handedness is None:
+        return None, np.zeros(0), np.zeros(0, dtype=bool)
     tri = refs.chiral[as_marker]                                        # (C, J, 3)
     hand = refs.handedness[as_marker]                                   # (C, J)
     usable = (tri >= 0).all(axis=2) & (hand != 0)
     if exclude is not None:
         usable &= ~(tri == np.asarray(exclude)[:, None, None]).any(axis=2)
     if not usable.any():
-        return np.zeros(points.shape[:2], dtype=bool)
+        return None, hand, np.zeros(0, dtype=bool)
     c, j = np.nonzero(usable)                       # the triples there are only (most markers have fewer)
     vol = np.full((points.shape[0],) + usable.shape, np.nan)
     vol[:, c, j] = _volume(points[:, c], xyz[:, tri[c, j, 0]], xyz[:, tri[c, j, 1]], xyz[:, tri[c, j, 2]])
     seen = np.zeros(vol.shape, dtype=bool)
     seen[:, c, j] = valid[:, tri[c, j]].all(axis=2)
-    return _turned(vol, hand[None], seen)
+    return vol, hand, seen
 
 
 def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -536,8 +675,10 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
         worst, median = _misfit(x[rows], x[rows], trusted[rows], np.arange(n_m), refs, exclude=None)
         with np.errstate(invalid="ignore"):
             own[rows] = ok[rows] & (worst > refs.tolerance[None])
-            # off by most references' reckoning, not one astray: what a sample handed to a missing partner needs
-            gone_wrong[rows] = ok[rows, a] & (median[:, a] > refs.tolerance[a])
+            # off by most references' reckoning, not one astray, or turned to its mirror image by most of its chiral
+            # triples seen (a mirror twin, an elbow on the other side, stands as far from the trunk's mirror plane
+            # as its own marker would: its side is what is wrong): what a sample handed to a missing partner needs
+            gone_wrong[rows] = ok[rows, a] & ((median[:, a] > refs.tolerance[a]) | np.isinf(worst[:, a]))
     # a partner is missing or suspect itself in the frame where a is suspect
     maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
     maybe[:, a] = False
@@ -676,10 +817,10 @@ def _joined(unproven: np.ndarray, silent: np.ndarray, repaired: np.ndarray) -> n
 
 def _pair_references(refs: References, a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What a sample that may be ``a``'s is judged against as ``b``'s: the references of both markers (neither
-    marker itself), at ``b``'s steady distance to each. A reference of one of them only can be all that tells
-    the two apart (a mirror pair's mates stand as far from either), so ``b``'s own are not enough. Without the
-    (M, M) distances of :class:`References`, ``b``'s own references. Returns the columns (K,), the distances
-    (K,, mm, median) and their spreads (K,, mm)."""
+    marker itself), at ``b``'s distance to each (within its spread). A reference of one of them only can be all
+    that tells the two apart (a mirror pair's mates stand as far from either), so ``b``'s own are not enough.
+    Without the (M, M) distances of :class:`References`, ``b``'s own references. Returns the columns (K,), the
+    distances (K,, mm, median) and their spreads (K,, mm)."""
     if refs.distance_all is None or refs.spread_all is None:
         keep = (refs.index[b] >= 0) & (refs.index[b] != a)
         return refs.index[b][keep], refs.distance_mm[b][keep], refs.spread_mm[b][keep]
@@ -715,9 +856,37 @@ def _fits_as(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: in
     against = seen & ~within & ~nearer_b
     flipped = _flipped(x[:, [a]], x, trusted, np.array([b]), refs, exclude=np.array([a]))[:, 0]
     fits = (agree.sum(axis=1) >= MIN_REFERENCES) & ~against.any(axis=1) & ~flipped
-    # what tells the two apart must be a reference the sample fits as b (or the handedness): one merely
-    # nearer b's distance than a's proves nothing
-    return fits & _told_apart(x, trusted, refs, a, b, cols, telling=agree)
+    # what tells the two apart must be a reference the sample fits as b and that makes it suspect as a in that
+    # frame (or the handedness): one merely nearer b's distance than a's proves nothing, nor one whose distance
+    # to b spreads so far (a marker on no segment) that a's distance lies within it, nor one suspect itself by
+    # the others, nor one the others do not vouch for (an elbow swapped with its twin makes each shoulder look
+    # swapped, and the other way round: what the elbow's place says counts only where something but the
+    # shoulders, which only loose distances tie it to, puts it there)
+    with np.errstate(invalid="ignore"):
+        telling = agree & (as_a > refs.tolerance[a]) & _vouched_for(x, trusted, refs, cols, [a, b])
+    return fits & _told_apart(x, trusted, refs, a, b, cols, telling=telling)
+
+
+def _vouched_for(x: np.ndarray, trusted: np.ndarray, refs: References, cols: np.ndarray, pair: list[int]
+                 ) -> np.ndarray:
+    """(n, K) bool: the markers ``cols`` that their references trusted in each frame of ``x`` (n, M, 3), the two
+    of ``pair`` aside, put where they are: not suspect by them (distances and handedness), and either within
+    tolerance of at least :data:`MIN_REFERENCES` of them that are steady (a spread within
+    :data:`MAX_REFERENCE_SPREAD_MM`: a loose distance fits a marker anywhere near its place) or with one of its
+    chiral triples seen and kept (the side of the trunk it is on)."""
+    seen = trusted.copy()
+    seen[:, pair] = False
+    worst = _misfit(x[:, cols], x, seen, cols, refs, exclude=None)[0]
+    idx = refs.index[cols]                                                      # (K, R)
+    steady = (idx >= 0) & (refs.spread_mm[cols] <= MAX_REFERENCE_SPREAD_MM) & ~np.isin(idx, pair)
+    at = np.where(steady, idx, 0)
+    d = norm3(x[:, cols][:, :, None] - x[:, at])                                # (n, K, R)
+    with np.errstate(invalid="ignore"):
+        within = np.abs(d - refs.distance_mm[cols][None]) <= refs.tolerance[cols][None, :, None] \
+            * refs.spread_mm[cols][None]
+        placed = ((within & steady[None] & seen[:, at]).sum(axis=2) >= MIN_REFERENCES) \
+            | _hand_kept(x[:, cols], x, seen, cols, refs)
+        return (worst <= refs.tolerance[cols][None]) & placed
 
 
 def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray,

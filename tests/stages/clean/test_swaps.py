@@ -255,11 +255,21 @@ def test_the_report_check_passes_repaired_swaps_and_warns_of_stretches_made_gaps
     assert check_swaps(None).severity == "skipped"
     assert check_swaps(clean_qc(swap_pairs={})).severity == "pass"
     assert check_swaps(clean_qc(swap_pairs={}, swaps_not_checked="a short take")).severity == "skipped"
-    fixed = check_swaps(clean_qc(swap_pairs={"CHA/CHB": {"repaired": 2, "removed": 0}}))
-    assert fixed.severity == "pass" and "CHA/CHB 2" in fixed.message and fixed.value == 2.0
-    lost = check_swaps(clean_qc(swap_pairs={"CHA/CHB": {"repaired": 1, "removed": 1},
-                                            "SACR/PEL_B": {"repaired": 1, "removed": 0}}))
+    def pair(repaired: int, removed: int, repaired_samples: int, removed_samples: int) -> dict[str, int]:
+        return {"repaired": repaired, "removed": removed, "repaired_samples": repaired_samples,
+                "removed_samples": removed_samples}
+
+    fixed = check_swaps(clean_qc(swap_pairs={"CHA/CHB": pair(2, 0, 120, 0)}))
+    assert fixed.severity == "pass" and "CHA/CHB 120" in fixed.message and fixed.value == 2.0
+    assert "120 sample(s) put back" in fixed.message
+    # a pair of markers in no segment counts like any other; samples repaired and made gaps apart
+    lost = check_swaps(clean_qc(swap_pairs={"CHA/CHB": pair(1, 1, 40, 18), "LSHO/RSHO": pair(1, 0, 90, 0)}))
     assert lost.severity == "warning" and "became gaps" in lost.message and lost.value == 3.0
+    assert "LSHO/RSHO 90" in lost.message and "CHA/CHB 40+18 made gaps" in lost.message
+    assert "130 sample(s) put back" in lost.message and "there, 18, became gaps" in lost.message
+    # a record from a clean stage that counted stretches only still reads
+    old = check_swaps(clean_qc(swap_pairs={"CHA/CHB": {"repaired": 1, "removed": 1}}))
+    assert old.severity == "warning" and "CHA/CHB 2" in old.message and "became gaps" in old.message
 
 
 def test_fill_command_repairs_swaps_in_a_capture_file(tmp_path: Path) -> None:
@@ -416,3 +426,203 @@ def test_the_head_centre_marker_swapped_with_a_head_marker_is_repaired_with_the_
         assert ("HFL", "HEADC", True) in found or ("HEADC", "HFL", True) in found
         assert not (after & ~before).any()
         assert not after.any()
+
+
+# ------------------------------------------------------------------------------ markers in no segment
+
+
+def _unlisted_session(folder: Path, skeleton: str, seed: int, swaps: int, motion: float = 1.0,
+                      unlisted: tuple[str, ...] = ("LSHO", "RSHO")) -> Path:
+    """A small session whose subject also carries markers the markerset lists in no segment (the shoulders, by
+    default), with ``swaps`` label swaps per take (mirror pairs among them), spikes and gaps."""
+    from gazepipe.synth.session import SynthConfig
+
+    cfg = SynthConfig(follow_poses=("standing", "sitting"), follow_duration_s=20.0,
+                      shift_targets=((36.0, 12.0), (-72.0, 0.0), (0.0, -12.0)), face_takes=(), head_camera=False,
+                      spikes_per_marker_min=1.0, segments=SEGMENTS if skeleton == "ten" else FOUR_SEGMENTS,
+                      up_axis="z" if skeleton == "ten" else "y", label_swaps=swaps, unlisted_markers=unlisted,
+                      unlisted_motion=motion)
+    return generate_session(folder, seed, cfg)
+
+
+def _judged_repairs(folder: Path):
+    """Each take of ``folder``: its name, capture, truth and the repair against the subject's references pooled
+    from every take, on every marker but the target and the clapper (as the clean stage judges them)."""
+    from gazepipe.stages.clean.swaps import judged_columns
+
+    takes = _takes(folder)
+    ms = load_markerset(folder / "markerset.toml")
+    pooled = pooled_references([(mk.labels, mk.xyz, mk.valid) for mk in takes.values()],
+                               markers={lab for mk in takes.values() for lab in mk.labels}
+                               - {ms.target, *ms.clapper})
+    for name, mk in takes.items():
+        truth = np.load(folder / "truth" / f"{name}.npz")
+        yield name, mk, truth, repair_swaps(mk.xyz, mk.valid, references=pooled.for_labels(mk.labels),
+                                            markers=judged_columns(mk.labels, ms.target, ms.clapper))
+
+
+@pytest.fixture(scope="module", params=[("ten", 3), ("four", 5)], ids=["ten-segments", "four-segments"])
+def shoulder_session(request, tmp_path_factory) -> Path:
+    skeleton, seed = request.param
+    return _unlisted_session(tmp_path_factory.mktemp(f"shoulders-{skeleton}"), skeleton, seed, swaps=3)
+
+
+def test_the_generator_adds_shoulders_in_no_segment_that_move_against_the_chest(shoulder_session: Path) -> None:
+    from gazepipe.synth.truth import rest_periods
+
+    ms = load_markerset(shoulder_session / "markerset.toml")
+    assert not {"LSHO", "RSHO"} & set(ms.all_markers)
+    for name, mk in _takes(shoulder_session).items():
+        truth = np.load(shoulder_session / "truth" / f"{name}.npz")
+        assert {"LSHO", "RSHO"} <= set(mk.labels)
+        x = truth["markers_true"].astype(np.float64)
+        sho, cha = x[:, [mk.labels.index("LSHO"), mk.labels.index("RSHO")]], x[:, mk.labels.index("CHA")]
+        apart = np.linalg.norm(sho[:, 0] - sho[:, 1], axis=1)
+        assert np.all(np.abs(apart - 340.0) < 25.0), name           # 340 mm apart, a few cm of shrugging
+        if name.startswith("follow"):
+            to_chest = np.linalg.norm(sho[:, 0] - cha, axis=1)
+            assert 10.0 < np.ptp(to_chest) < 80.0, name               # not rigid with the chest
+        # they move only while the body does: the take's first and last rests are the listed markers', within a
+        # frame or two where the body slows to the rests' speed bound (a pause inside a take may split apart)
+        listed = [i for i, lab in enumerate(mk.labels) if lab in ms.subject_markers]
+        rests = rest_periods(x[:, listed], mk.rate_hz)
+        assert np.abs(rests[[0, -1]] - truth["rest_periods"][[0, -1]]).max() <= 2, name
+
+
+def test_the_generator_command_line_adds_unlisted_markers(tmp_path: Path) -> None:
+    import json
+
+    from gazepipe.synth.__main__ import main
+
+    assert main([str(tmp_path / "s"), "--seed", "2", "--no-eyes", "--unlisted-markers", "arms",
+                 "--unlisted-motion", "1.5", "--label-swaps", "2"]) == 0
+    meta = json.loads((tmp_path / "s" / "truth" / "truth.json").read_text())
+    assert meta["unlisted_markers"] == ["LSHO", "RSHO", "LELB", "RELB"]
+    labels = read_markers(tmp_path / "s" / "mocap" / "neutral.c3d").labels
+    assert labels[labels.index("HEADC") + 1:labels.index("HEADC") + 5] == ["LSHO", "RSHO", "LELB", "RELB"]
+    assert "Markers in no segment" in (tmp_path / "s" / "truth" / "README.md").read_text()
+
+
+def test_swaps_of_shoulders_in_no_segment_are_repaired_against_the_truth(shoulder_session: Path) -> None:
+    # the left and right shoulders are on no segment of the markerset, 340 mm apart, shrugging a few cm against
+    # the chest: judged by their own steadiest distances, every swapped sample of theirs is put back under its
+    # own name or made a gap, and nothing right is moved
+    shoulders = swapped = handled = 0
+    for name, mk, truth, res in _judged_repairs(shoulder_session):
+        if "swap_mask" not in truth:
+            continue
+        before, after = _wrong(mk, res, truth)
+        cols = [mk.labels.index("LSHO"), mk.labels.index("RSHO")]
+        pairs = {(mk.labels[a], mk.labels[b]) for a, b, _, _ in truth["swaps"]}
+        shoulders += ("LSHO", "RSHO") in pairs
+        swapped += int(truth["swap_mask"][:, cols].sum())
+        handled += int((truth["swap_mask"][:, cols] & ~after[:, cols]).sum())
+        assert not (after & ~before).any(), name
+        moved = res.repaired & ~truth["spike_mask"].any(axis=1)[:, None]
+        assert (np.linalg.norm(res.xyz[moved] - truth["markers_true"][moved], axis=1) < WRONG_MM).all(), name
+    assert shoulders >= 2 and swapped > 100                         # the session swaps the mirror pair
+    assert handled / swapped >= 0.95
+
+
+def test_clean_repairs_a_shoulder_swap_and_counts_its_samples_per_pair(shoulder_session: Path) -> None:
+    from gazepipe.stages.clean.swaps import SubjectReferences
+
+    takes = _takes(shoulder_session)
+    ms = load_markerset(shoulder_session / "markerset.toml")
+    # the subject's geometry as the session stage pools it: every marker but the target and the clapper
+    pooled: SubjectReferences = pooled_references(
+        [(m.labels, m.xyz, m.valid) for m in takes.values()],
+        markers={lab for m in takes.values() for lab in m.labels} - {ms.target, *ms.clapper})
+    for name, mk in takes.items():
+        truth = np.load(shoulder_session / "truth" / f"{name}.npz")
+        rows = [(s, e) for a, b, s, e in truth["swaps"] if {mk.labels[a], mk.labels[b]} == {"LSHO", "RSHO"}]
+        if not rows or not name.startswith("follow"):
+            continue
+        res = clean_markers(mk, ms, "gaze_follow", references=pooled)
+        count = res.qc["swap_pairs"]["LSHO/RSHO"]
+        assert count["repaired"] >= 1 and count["repaired_samples"] > 0
+        cols = [mk.labels.index("LSHO"), mk.labels.index("RSHO")]
+        kept = truth["swap_mask"][res.frames][:, cols]
+        code = res.fill_code[:, cols]
+        # the samples that were swapped and kept (measured, in the crop) are coded as repaired
+        assert (code[kept] == FILL_CODES["swap_repaired"]).mean() > 0.95
+        return
+    pytest.fail("no gaze_follow take with a shoulder swap")
+
+
+def _trunk_and_shoulders(n: int = 600, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 7, 3) mm and the truth of its two last columns: a rigid trunk of five markers on its mirror plane
+    (x = 0: the back of the pelvis, the spine, the chest, the neck, the head's front) turning and stepping
+    slowly, and the left (5) and right (6) shoulders, 340 mm apart, each shrugging up to 25 mm on its own; 0.5
+    mm noise. Every distance of a shoulder to the trunk equals its mirror twin's."""
+    rng = np.random.default_rng(seed)
+    trunk = np.array([[0, -400, -100], [0, -200, -140], [0, 0, -135], [0, 130, -80], [0, 250, 95.0]])
+    t = np.arange(n) / 30.0
+    shrug = np.stack([np.stack([25.0 * np.sin(2 * np.pi * t / p + ph) for p, ph in
+                                zip(rng.uniform(2, 6, 3), rng.uniform(0, 6.3, 3), strict=True)], axis=1)
+                      for _ in range(2)], axis=1) * np.array([0.3, 1.0, 0.6])       # (n, 2, 3): out, up, forward
+    shoulders = np.array([[170.0, 60, -25], [-170.0, 60, -25]]) + shrug
+    local = np.concatenate([np.broadcast_to(trunk, (n, 5, 3)), shoulders], axis=1)
+    turns = Rotation.from_rotvec(np.cumsum(rng.normal(0, 0.01, (n, 3)), axis=0)).as_matrix()
+    xyz = np.einsum("tij,tmj->tmi", turns, local) + np.cumsum(rng.normal(0, 1.0, (n, 1, 3)), axis=0)
+    return xyz + rng.normal(0, 0.5, (n, 7, 3)), xyz
+
+
+def test_a_left_right_exchange_of_unlisted_shoulders_is_caught_by_handedness_relative_to_the_trunk() -> None:
+    # the shoulders exchanged over frames 200-260: every trunk marker is on the mirror plane, so each swapped
+    # sample stands exactly as far from each as its own marker would, and the two stand as far from each other.
+    # Only the side of the trunk's plane each is on tells them apart
+    from gazepipe.stages.clean.swaps import steady_references
+
+    xyz, _ = _trunk_and_shoulders()
+    valid = np.ones(xyz.shape[:2], dtype=bool)
+    swapped = xyz.copy()
+    swapped[200:260, [5, 6]] = xyz[200:260, [6, 5]]
+    # the subject's geometry, as from its other takes (a tenth of a take exchanged would turn its handedness in a
+    # tenth of the frames it is learnt from)
+    refs = steady_references(*_trunk_and_shoulders(seed=8)[:1], valid)
+    res = repair_swaps(swapped, valid, references=refs)
+    assert np.allclose(res.xyz, xyz)
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(5, 6, 200, 260, True)]
+    # without the handedness the exchange cannot be told from the capture's names: nothing is done
+    blind = repair_swaps(swapped, valid, references=replace(refs, chiral=None, handedness=None))
+    assert not blind.records and np.allclose(blind.xyz, swapped)
+
+
+def test_a_shoulder_carrying_its_hidden_mirror_twins_name_is_handed_back_by_handedness() -> None:
+    # the right shoulder hidden over frames 200-260 and the left one carrying its name there: the sample stands
+    # as far from every trunk marker as the left shoulder would, so only the side of the trunk it is on says
+    # whose it is. It goes back to the right shoulder; the left one, not measured there, is a gap
+    from gazepipe.stages.clean.swaps import steady_references
+
+    xyz, _ = _trunk_and_shoulders()
+    valid = np.ones(xyz.shape[:2], dtype=bool)
+    taken = xyz.copy()
+    taken[200:260, 5], taken[200:260, 6] = xyz[200:260, 6], np.nan
+    valid[200:260, 6] = False
+    refs = steady_references(*_trunk_and_shoulders(seed=8)[:1], np.ones(xyz.shape[:2], dtype=bool))
+    res = repair_swaps(taken, valid, references=refs)
+    assert np.allclose(res.xyz[200:260, 6], xyz[200:260, 6]) and res.valid[200:260, 6].all()
+    assert not res.valid[200:260, 5].any()
+    assert np.allclose(res.xyz[res.valid], xyz[res.valid])               # nothing else moved
+    assert [(r.first, r.second, r.start, r.stop, r.repaired) for r in res.records] == [(5, 6, 200, 260, True)]
+
+
+def test_shrugging_shoulders_and_swinging_elbows_of_a_plain_take_are_left_alone(tmp_path: Path) -> None:
+    # no swap: shoulders and elbows on no segment, moving twice as far as the generator's default against the
+    # chest (40 mm shrugs, the arm's 40° swing), with spikes and gaps. Nothing is repaired or removed as a swap
+    folder = _unlisted_session(tmp_path / "s", "four", 2, swaps=0, motion=2.0,
+                               unlisted=("LSHO", "RSHO", "LELB", "RELB"))
+    for name, mk, _truth, res in _judged_repairs(folder):
+        assert not res.records, (name, res.records)
+        assert not res.repaired.any() and not res.removed.any(), name
+        assert np.array_equal(res.valid, mk.valid & np.isfinite(mk.xyz).all(axis=2)), name
+
+
+def test_every_marker_but_the_target_the_clapper_and_unlabeled_trajectories_is_judged() -> None:
+    from gazepipe.stages.clean.swaps import judged_columns
+
+    labels = ["PEL_L", "*12", "Sub:Unlabeled 3", "LSHO", "POLE", "CLAP1", "_unnamed~2", "RSHO", "Unnamed_shoulder"]
+    # the shoulders, on no segment, are judged like a listed marker; the target, the clapper and whatever the
+    # labeller could not name are not
+    assert judged_columns(labels, "POLE", ("CLAP1", "CLAP2")).tolist() == [0, 3, 7, 8]
