@@ -1390,17 +1390,19 @@ UNLABELED_PATTERN = re.compile(r"^(?:\*\d+|(?:unlabell?ed|unidentified|unnamed)(
                                re.IGNORECASE)
 
 
+def is_unlabeled(label: str) -> bool:
+    """Whether ``label`` names an unlabeled trajectory (:data:`UNLABELED_PATTERN`, on the whole label or its part
+    after the last ``:``)."""
+    name = label.strip()
+    return bool(UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()))
+
+
 def unlabeled_markers(labels: Sequence[str]) -> list[int]:
     """Indices of the unlabeled trajectories among ``labels`` (:data:`UNLABELED_PATTERN`, matched on the whole
     label and on its part after the last ``:``). Such a trajectory is whatever the labeller could not name: a
     marker's fragments between identity changes, a ghost, a stray reflection; a fill between its scattered
     samples joins points of different markers, so it is left alone unless asked."""
-    out = []
-    for i, lab in enumerate(labels):
-        name = lab.strip()
-        if UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()):
-            out.append(i)
-    return out
+    return [i for i, lab in enumerate(labels) if is_unlabeled(lab)]
 
 
 def find_rigid_clusters(xyz: np.ndarray, valid: np.ndarray, *, max_rel_std: float = 0.02,

@@ -23,7 +23,7 @@ from gazepipe.stages.clean.gapfill import (
 )
 from gazepipe.stages.clean.spikes import find_spikes
 from gazepipe.stages.clean.stage import OWN_REFERENCES_MIN_S, CleanParams, unfilled_counts
-from gazepipe.stages.clean.swaps import repair_swaps
+from gazepipe.stages.clean.swaps import judged_columns, repair_swaps
 
 
 def fill_capture(markers: Markers, *, max_gap_s: float = CleanParams.max_gap_s, methods: tuple[str, ...] = METHODS,
@@ -60,7 +60,8 @@ def fill_capture(markers: Markers, *, max_gap_s: float = CleanParams.max_gap_s, 
     repaired = np.zeros(markers.valid.shape, dtype=bool)
     swap_summary: dict[str, Any] = {"looked_for": False, "stretches": []}
     if swaps and markers.n_frames >= OWN_REFERENCES_MIN_S * markers.rate_hz:
-        fixed = repair_swaps(markers.xyz, markers.valid)
+        # every named marker judged, as the clean stage judges them; unlabeled trajectories are no marker
+        fixed = repair_swaps(markers.xyz, markers.valid, markers=judged_columns(markers.labels, None, ()))
         changed, repaired = fixed.repaired | fixed.removed, fixed.repaired
         swap_summary = {"looked_for": True, "samples_repaired": int(fixed.repaired.sum()),
                         "samples_removed": int(fixed.removed.sum()), "samples_removed_as_spikes": 0,

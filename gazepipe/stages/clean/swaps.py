@@ -32,7 +32,6 @@ Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) 
 
 from __future__ import annotations
 
-import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -41,6 +40,7 @@ from itertools import combinations
 import numpy as np
 
 from gazepipe.stages.clean.filters import true_runs
+from gazepipe.stages.clean.gapfill import is_unlabeled
 from gazepipe.stages.clean.spikes import _MEDIAN_HALF, _nanmedian
 from gazepipe.stages.geometry import norm3
 
@@ -118,19 +118,6 @@ class SwapResult:
     removed: np.ndarray
     records: list[SwapRecord]
 
-
-#: labels of unlabeled trajectories as capture programs write them (after a ``Subject:`` prefix, if any): Vicon
-#: ``*12``; ``Unlabeled 3``, ``unlabelled_7``, ``Unidentified 12``, ``Unnamed4``; the C3D reader's ``_unnamed~2``.
-#: Whatever the labeller could not name (a marker's fragments, a ghost) has no geometry of its own to judge
-UNLABELED_PATTERN = re.compile(r"^(?:\*\d+|(?:unlabell?ed|unidentified|unnamed)(?:[\s_:#.-]*\d+)?|_unnamed(?:~\d+)?)$",
-                               re.IGNORECASE)
-
-
-def is_unlabeled(label: str) -> bool:
-    """Whether ``label`` names an unlabeled trajectory (:data:`UNLABELED_PATTERN`, on the whole label or its part
-    after the last ``:``)."""
-    name = label.strip()
-    return bool(UNLABELED_PATTERN.match(name) or UNLABELED_PATTERN.match(name.rsplit(":", 1)[-1].strip()))
 
 
 def judged_columns(labels: Sequence[str], target: str | None, clapper: Sequence[str]) -> np.ndarray:
