@@ -2,7 +2,7 @@
 the bundled sample (:func:`gazepipe.synth.session.sample_config`), with its ground truth under ``OUT_DIR/truth``.
 
 The options make it harder, as real capture is: another markerset (four segments in y-up lab axes), label swaps,
-occlusion bursts, clapper hazards, no head camera or eye tracking. Without them it writes the bundled sample
+occlusion bursts, clapper hazards, another mocap rate, no head camera or eye tracking. Without them it writes the bundled sample
 byte for byte."""
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ def _config(a: argparse.Namespace):
         cfg = dataclasses.replace(cfg, segments=skeleton[0], up_axis=skeleton[1])
     if a.no_eyes:
         cfg = dataclasses.replace(cfg, head_camera=False)
+    if a.mocap_rate_hz is not None:
+        cfg = dataclasses.replace(cfg, rate_hz=a.mocap_rate_hz)
     return dataclasses.replace(cfg, label_swaps=a.label_swaps, occlusion_bursts=a.occlusion_bursts,
                                clap_hazards=a.clap_hazards)
 
@@ -33,6 +35,13 @@ def _share(text: str) -> float:
     value = float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"{text} is not a share between 0 and 1")
+    return value
+
+
+def _rate(text: str) -> float:
+    value = float(text)
+    if not 1.0 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a capture rate in Hz (1 to 1000)")
     return value
 
 
@@ -58,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clap-hazards", type=_share, default=0.0, metavar="SHARE",
                    help="share of gaze_follow takes with a clapper hazard: a weak or hidden clap, video frames "
                         "dropped, the clapper's marker lost (default 0)")
+    p.add_argument("--mocap-rate-hz", type=_rate, default=None, metavar="HZ",
+                   help="the motion capture rate (default 29.97, the sample's; e.g. 120)")
     p.add_argument("--no-eyes", action="store_true",
                    help="no head camera and no eye tracking (a mocap-only session)")
     a = p.parse_args(argv)

@@ -77,7 +77,10 @@ class SynthConfig:
     ``occlusion_bursts``: per mocap take, moments when 30–80 % of the subject's markers, on one side of the body,
     vanish at once for 0.2–1.5 s (:func:`~gazepipe.synth.markers.make_occlusion_bursts`); ``clap_hazards``:
     share of gaze_follow takes with one of the clapper's hazards on one of its claps, the kinds taking turns
-    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which).
+    over the session (:data:`CLAP_HAZARDS`, :func:`clap_hazard`; the truth's ``design.clap_hazard`` says which);
+    ``own_motion_deg``: in gaze_follow takes each segment also turns on its own, smooth (below 1.5 Hz) and
+    unlike its neighbours, by this RMS angle per axis (degrees; trunk twists and leans, nods), rests kept still
+    (:func:`~gazepipe.synth.motion.follow_motion`).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -107,6 +110,7 @@ class SynthConfig:
     label_swaps: int = 0
     occlusion_bursts: int = 0
     clap_hazards: float = 0.0
+    own_motion_deg: float = 0.0
 
 
 #: the clapper's hazards (SPEC §3.4): a slow, soft clap; the clapper partly hidden from the camera (an occluder
@@ -320,8 +324,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
     n_clap_hazards = 0                   # the kinds of clap hazard take turns over the session's takes
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
-        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps = (
-            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(10))
+        r_motion, r_noise, r_gaps, r_writer, r_spikes, r_long, r_hazard, r_swaps, r_bursts, r_claps, r_own = (
+            np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11))
         if kind == "face":
             assert target is not None
             rec = TakeRecord(take_id, kind, pose, index, target[0], None, None, {}, {"kind": kind, "rate_hz": target[0],
@@ -345,7 +349,8 @@ def generate_session(out_dir: str | Path, seed: int = 0, config: SynthConfig | N
                 n_clap_hazards += 1
             weak = None if hazard is None or hazard["kind"] != "weak" else (
                 hazard["clap"], hazard["closing_s"], hazard["depth"], hazard["softness"])
-            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound, weak)
+            motion = follow_motion(r_motion, rate, cfg.placement, pose, secs, rebound, weak,
+                                   (r_own, cfg.own_motion_deg) if cfg.own_motion_deg > 0 else None)
             if hazard is not None:
                 motion.design["clap_hazard"] = hazard
         elif kind == "gaze_shift":
