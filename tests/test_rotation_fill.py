@@ -25,7 +25,7 @@ def _fill(yaw: np.ndarray, s: int, e: int) -> tuple[np.ndarray, dict, np.ndarray
     gmat = _chain(yaw)
     truth = gmat[:, 1].copy()
     gmat[s:e, 1] = np.nan
-    filled, records = fill_rotation_gaps(gmat, np.array([-1, 0]), np.ones(len(yaw), bool), 2.0)
+    filled, records, _ = fill_rotation_gaps(gmat, np.array([-1, 0]), np.ones(len(yaw), bool), 2.0)
     if not filled[s:e, 1].all():
         return filled, records[0], np.array([])
     miss = Rotation.from_matrix(gmat[s:e, 1]).inv() * Rotation.from_matrix(truth[s:e])

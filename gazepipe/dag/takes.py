@@ -550,7 +550,7 @@ def run_frames(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="13", requires=("clean",), params=_params_of(FramesParams),
+    name="frames", version="14", requires=("clean",), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: _markerset_file(s), session_requires=("neutral_poses",),
     run=run_frames,
