@@ -378,7 +378,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="24", requires=("ingest",), params=_params_of(CleanParams),
+    name="clean", version="25", requires=("ingest",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_requires=("subject_geometry",),

@@ -84,6 +84,29 @@ def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray
     return out
 
 
+#: a frame's rest speed comes from its measured markers when at least this share of the subject's markers is
+#: measured there, else from the markers present (measured or gap-filled) when at least :data:`PRESENT_SHARE` are
+MEASURED_SHARE = 0.2
+PRESENT_SHARE = 0.5
+
+
+def rest_speed(xyz: np.ndarray, present: np.ndarray, measured: np.ndarray, rate_hz: float, filter_hz: float | None,
+               threshold: float, markers: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
+    """The subject's speed per frame (mm/s, (T,)) for finding its rests: the mean speed of its ``measured``
+    markers (T, M) where at least :data:`MEASURED_SHARE` of them are, else of those ``present`` (measured or
+    gap-filled) where at least :data:`PRESENT_SHARE` are, else unknown unless the subject provably moved across
+    (:func:`moved_across_unknown`). A fill's speed is a guess at the subject's: one across a gaze shift hidden
+    by an occlusion of most markers moves slowly and evenly (under the rest threshold), and the markers seen
+    show the shift; where too few are seen, the fills are the better evidence (a motion settling into a rest
+    behind an occlusion: the fills put its end within a frame of the truth, the few markers seen nowhere)."""
+    speed = mean_speed(xyz, measured, rate_hz, filter_hz, min_share=MEASURED_SHARE, markers=markers)
+    unknown = np.isnan(speed)
+    if unknown.any():
+        speed[unknown] = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE,
+                                    markers=markers)[unknown]
+    return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers)
+
+
 def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,
                  min_s: float) -> list[tuple[int, int]]:
     """Rest periods (start, stop), half-open rows, from a per-frame speed (Pejsa 5.2.2.1 steps 2–3).

@@ -21,10 +21,9 @@ from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error
 from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.clean.rests import (
     crop_bounds,
-    mean_speed,
-    moved_across_unknown,
     refine_rests,
     rest_periods,
+    rest_speed,
 )
 from gazepipe.stages.clean.spikes import G_MM_S2, find_spikes
 from gazepipe.stages.clean.stabilise import stabilise
@@ -32,8 +31,6 @@ from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
-#: a frame where fewer than this share of the subject's markers are present has no rest speed (SPEC §3.2)
-REST_MIN_PRESENT = 0.5
 #: without the subject's references, a take's own frames judge its swaps only when it is at least this long (s):
 #: a swap (0.3-3 s) is then a small minority of its frames; in a short take one can be most of them, and the
 #: right names would look swapped (bench/bench_swaps.py: on 4-s takes, hundreds of samples made wrong)
@@ -338,9 +335,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    speed = mean_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, min_share=REST_MIN_PRESENT,
-                       markers=subj)
-    speed = moved_across_unknown(speed, xyz, code != UNFILLED, rate, params.rest_speed_mm_s, subj)
+    speed = rest_speed(xyz, code != UNFILLED, np.isin(code, (FILL_CODES["measured"], FILL_CODES["swap_repaired"])),
+                       rate, params.rest_filter_hz, params.rest_speed_mm_s, subj)
 
     # 3. stabilisation
     up = left_pair = None
