@@ -107,6 +107,9 @@ class CleanQC(QCRecord):
     swaps_not_checked: str | None = absent_when("swaps were looked for, or clean.repair_swaps is off")
     # absent unless clean.lowpass_hz is set: nothing was low-passed
     lowpass: LowpassQC | None = absent_when("clean.lowpass_hz is not set")
+    #: per crop bound, the frames against it where too few of the subject's markers are seen to tell rest from
+    #: motion (the bound may be off by up to that many; 0: that bound is seen)
+    crop_hidden: tuple[int, int] | None = absent_when("both crop bounds are seen")
 
 
 __all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC"]

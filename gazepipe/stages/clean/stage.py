@@ -21,6 +21,7 @@ from gazepipe.stages.clean.gapfill import METHODS, ErrorLimits, GapRecord, error
 from gazepipe.stages.clean.qc import CleanQC
 from gazepipe.stages.clean.rests import (
     crop_bounds,
+    hidden_at,
     refine_rests,
     rest_periods,
     rest_speed,
@@ -297,6 +298,17 @@ def clean_memory_bytes(n_samples: int) -> int:
     return int(n_samples) * CLEAN_BYTES_PER_SAMPLE
 
 
+def _rigid_groups(markerset: MarkerSet, labels: list[str]) -> list[list[int]]:
+    """Columns of the markers that move rigidly together: each segment's, the root marker with the root segment's
+    and the head-centre marker with the head's (the segment named ``head``, else the last)."""
+    pos = {n: i for i, n in enumerate(labels)}
+    extra = {markerset.root_segment.name: markerset.root}
+    if markerset.head_centre:
+        names = [s.name for s in markerset.segments]
+        extra["head" if "head" in names else names[-1]] = markerset.head_centre
+    return [[pos[n] for n in (*s.markers, extra.get(s.name, "")) if n in pos] for s in markerset.segments]
+
+
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
                   *, path: str | None = None, take: str | None = None,
                   references: SubjectReferences | None = None) -> CleanResult:
@@ -335,8 +347,10 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
-    speed = rest_speed(xyz, code != UNFILLED, np.isin(code, (FILL_CODES["measured"], FILL_CODES["swap_repaired"])),
-                       rate, params.rest_filter_hz, params.rest_speed_mm_s, subj)
+    clusters = _rigid_groups(markerset, labels)
+    speed, hidden = rest_speed(xyz, code != UNFILLED,
+                               np.isin(code, (FILL_CODES["measured"], FILL_CODES["swap_repaired"])), rate,
+                               params.rest_filter_hz, params.rest_speed_mm_s, subj, clusters)
 
     # 3. stabilisation
     up = left_pair = None
@@ -378,6 +392,13 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     qc["warnings"].extend(warns)
     qc["crop"] = [int(start), int(stop)]
     qc["kept_frames"] = int(stop - start)
+    crop_hidden = [hidden_at(hidden, start) if start > 0 else 0, hidden_at(hidden, stop) if stop < len(speed) else 0]
+    if any(crop_hidden):
+        qc["crop_hidden"] = crop_hidden
+    for bound, frames in zip(("start", "end"), crop_hidden, strict=True):
+        if frames:
+            qc["warnings"].append(f"the crop's {bound} lies against {frames} frame(s) where too few of the subject's "
+                                  "markers are seen to tell rest from motion: it may be off by up to that many")
 
     def _slice(a: int, b: int, copy: bool = True) -> Markers:
         rows = slice(a, b)
