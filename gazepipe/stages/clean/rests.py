@@ -113,10 +113,8 @@ def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray
     return out
 
 
-#: a frame's rest speed comes from its measured markers when at least this share of the subject's markers is
-#: measured there, else from the markers present (measured or gap-filled) when at least :data:`PRESENT_SHARE` are
+#: a frame's rest speed comes from its measured markers, when at least this share of the subject's are measured
 MEASURED_SHARE = 0.2
-PRESENT_SHARE = 0.5
 #: a marker's step from one frame to the next is a jump (two markers exchanging names, a ghost) when it departs
 #: from the median step of its cluster by more than this (mm) plus :data:`JUMP_SPREAD` times the cluster's median
 #: step length (a cluster turning fast: its markers' steps differ by up to twice their length)
@@ -165,16 +163,16 @@ def rest_speed(xyz: np.ndarray, present: np.ndarray, measured: np.ndarray, rate_
                threshold: float, markers: np.ndarray | Sequence[int] | None = None,
                clusters: Sequence[Sequence[int]] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The subject's speed per frame (mm/s, (T,)) for finding its rests: the mean speed of its ``measured``
-    markers (T, M) where at least :data:`MEASURED_SHARE` of them are, else of those ``present`` (measured or
-    gap-filled) where at least :data:`PRESENT_SHARE` are, else unknown unless the subject provably moved across
-    (:func:`moved_across_unknown`). A fill's speed is a guess at the subject's: one across a gaze shift hidden
-    by an occlusion of most markers moves slowly and evenly (under the rest threshold), and the markers seen
-    show the shift; where too few are seen, the fills are the better evidence (a motion settling into a rest
-    behind an occlusion: the fills put its end within a frame of the truth, the few markers seen nowhere).
+    markers (T, M) where at least :data:`MEASURED_SHARE` of them are, else unknown unless the subject provably
+    moved across (:func:`moved_across_unknown`, from the markers ``present``: measured or gap-filled). A fill's
+    speed is not the subject's: one across a gaze shift hidden by an occlusion of most markers moves slowly and
+    evenly (under the rest threshold, so the shift became a rest), and one across a still stretch can wander
+    (a rest split in two); the markers seen show both.
 
-    A sample that leaps away from its cluster (``clusters``: the markerset's segments as column lists;
-    :func:`position_jumps`) is left out, so no speed is taken across the leap: two head markers exchanging names
-    in a rest leapt 140 mm, and the smoothed speed's bump split the rest (a crop 79 frames short).
+    A sample that leaps away from its rigid cluster (``clusters``: column lists; :func:`position_jumps`) is left
+    out, so no speed is taken across the leap, and so is a marker far faster than its cluster on a frame
+    (:func:`mean_speed`): two head markers exchanging names in a rest leapt 140 mm, and the smoothed speed's
+    bump split the rest (a crop 79 frames short).
 
     Returns the speed and the frames (T,) whose speed no marker gave (hidden: set by the motion across them,
     or unknown)."""
