@@ -62,7 +62,8 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
 
 
 def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
-    """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none."""
+    """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none (nor on a missing sample:
+    no difference is taken across it, so a sample left out breaks the marker's track)."""
     pos = xyz.copy() if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
     pos[~valid] = np.nan
     vel = np.full_like(pos, np.nan)
@@ -71,6 +72,7 @@ def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float
     if len(pos) >= 2:  # one-sided at the ends
         vel[0] = (pos[1] - pos[0]) * rate_hz
         vel[-1] = (pos[-1] - pos[-2]) * rate_hz
+    vel[~valid] = np.nan
     return np.linalg.norm(vel, axis=2)
 
 
@@ -113,8 +115,9 @@ def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray
     return out
 
 
-#: a frame's rest speed comes from its measured markers, when at least this share of the subject's are measured
-MEASURED_SHARE = 0.2
+#: a frame where fewer than this share of the subject's markers are present (measured or gap-filled) has no rest
+#: speed (SPEC §3.2)
+PRESENT_SHARE = 0.5
 #: a marker's step from one frame to the next is a jump (two markers exchanging names, a ghost) when it departs
 #: from the median step of its cluster by more than this (mm) plus :data:`JUMP_SPREAD` times the cluster's median
 #: step length (a cluster turning fast: its markers' steps differ by up to twice their length)
@@ -159,27 +162,26 @@ def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequ
     return out
 
 
-def rest_speed(xyz: np.ndarray, present: np.ndarray, measured: np.ndarray, rate_hz: float, filter_hz: float | None,
-               threshold: float, markers: np.ndarray | Sequence[int] | None = None,
+def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: float | None, threshold: float,
+               markers: np.ndarray | Sequence[int] | None = None,
                clusters: Sequence[Sequence[int]] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """The subject's speed per frame (mm/s, (T,)) for finding its rests: the mean speed of its ``measured``
-    markers (T, M) where at least :data:`MEASURED_SHARE` of them are, else unknown unless the subject provably
-    moved across (:func:`moved_across_unknown`, from the markers ``present``: measured or gap-filled). A fill's
-    speed is not the subject's: one across a gaze shift hidden by an occlusion of most markers moves slowly and
-    evenly (under the rest threshold, so the shift became a rest), and one across a still stretch can wander
-    (a rest split in two); the markers seen show both.
+    """The subject's speed per frame (mm/s, (T,)) for finding its rests (SPEC §3.2): the mean speed of its
+    markers ``present`` (T, M; measured or gap-filled) where at least :data:`PRESENT_SHARE` of them are, else
+    unknown unless the subject provably moved across (:func:`moved_across_unknown`).
 
     A sample that leaps away from its rigid cluster (``clusters``: column lists; :func:`position_jumps`) is left
     out, so no speed is taken across the leap, and so is a marker far faster than its cluster on a frame
     (:func:`mean_speed`): two head markers exchanging names in a rest leapt 140 mm, and the smoothed speed's
-    bump split the rest (a crop 79 frames short).
+    bump split the rest (a crop 79 frames short). The speed of the markers measured alone was tried too: a
+    fill's speed can hide a gaze shift behind an occlusion, but the measured markers' runs end at every gap and
+    their smoothed speed falls to nothing at each end (a motion's end behind an occlusion found 8 frames early
+    at 120 Hz), and over takes with every hazard it put more crop bounds more than 3 frames off (16 of 40 and 9
+    of 24 against 10 and 6).
 
-    Returns the speed and the frames (T,) whose speed no marker gave (hidden: set by the motion across them,
-    or unknown)."""
-    leap = position_jumps(xyz, present, clusters)
-    present = present & ~leap
-    measured = measured & ~leap
-    speed = mean_speed(xyz, measured, rate_hz, filter_hz, min_share=MEASURED_SHARE, markers=markers,
+    Returns the speed and the frames (T,) whose speed the markers do not give (hidden: set by the motion across
+    them, or unknown)."""
+    present = present & ~position_jumps(xyz, present, clusters)
+    speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=markers,
                        clusters=clusters)
     hidden = np.isnan(speed)
     return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers), hidden

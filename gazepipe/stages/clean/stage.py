@@ -348,9 +348,8 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     clusters = _rigid_groups(markerset, labels)
-    speed, hidden = rest_speed(xyz, code != UNFILLED,
-                               np.isin(code, (FILL_CODES["measured"], FILL_CODES["swap_repaired"])), rate,
-                               params.rest_filter_hz, params.rest_speed_mm_s, subj, clusters)
+    speed, hidden = rest_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, params.rest_speed_mm_s, subj,
+                               clusters)
 
     # 3. stabilisation
     up = left_pair = None
