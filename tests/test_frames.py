@@ -687,3 +687,31 @@ def test_a_flip_of_the_heading_leaves_the_frame_without_a_character_frame(take):
     rows = _rows_of(j)
     assert 300 not in rows.frame and 301 not in rows.frame and {299, 302} <= set(rows.frame.tolist())
     assert rows.qc["dropped"]["no_character_frame"] == 1
+
+
+def test_a_fit_to_fills_the_fill_across_it_contradicts_becomes_a_gap(take):
+    """A spine marker gap-filled up to 14 mm off over 40 frames (meeting the marker at both ends) while its fill
+    claims 3.5 mm: the fit to it is turned up to ~7° while its own estimate says ~1.3°, and it has no jump for
+    the continuity check. The fill across those frames, from the rotations around them, says otherwise (QC
+    ``fit_refuted_frames``): they become a gap of the spine's markers, filled across within a couple of
+    degrees. Where the marker is where it should be (the fill honest) the fit is kept, weighed with the fill."""
+    mk, neutral, rots, _ = take
+    sp3 = mk.index("SPN3")
+    xyz = mk.xyz.copy()
+    drift = 14.0 * np.sin(np.pi * (np.arange(300, 340) - 299) / 41.0)     # a fill meets its ends, off between
+    xyz[300:340, sp3] += drift[:, None] * [0.0, 1.0, 0.0]
+    measured = np.ones(mk.valid.shape, bool)
+    measured[300:340, sp3] = False
+    claims = np.full(mk.valid.shape, np.nan)
+    claims[300:340, sp3] = 3.5
+    bad = Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=RATE)
+    raw = compute_frames(bad, markerset(), neutral, FramesParams(max_fill_error_deg=0.0), measured=measured,
+                         fill_error_mm=claims)
+    assert angles_deg(raw.quat[300:340, 1], rots["spine"][300:340]).max() > 5.0
+    assert raw.qc["flip_frames"]["spine"] == 0                 # no jump: the continuity check sees nothing
+    j = compute_frames(bad, markerset(), neutral, measured=measured, fill_error_mm=claims)
+    assert j.qc["fit_refuted_frames"]["spine"] == 40 and j.rot_filled[300:340, 1].all()
+    assert angles_deg(j.quat[300:340, 1], rots["spine"][300:340]).max() < 2.5
+    honest = compute_frames(mk, markerset(), neutral, measured=measured, fill_error_mm=claims)
+    assert honest.qc["fit_refuted_frames"]["spine"] == 0 and not honest.rot_filled[300:340, 1].any()
+    assert angles_deg(honest.quat[300:340, 1], rots["spine"][300:340]).max() < 3.0

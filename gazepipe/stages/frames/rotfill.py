@@ -319,8 +319,8 @@ def _check_fits(view: _Segment, window: int) -> tuple[np.ndarray, list[tuple[np.
     left as it is).
 
     Where fit and fill disagree (their mean angle over the stretch's fits is more than :data:`DISAGREE_SIGMAS`
-    times the fits' RMS uncertainty and the fill's estimate combined), one of them is wrong and nothing says
-    which: those fits are refuted (returned True, to become a gap of the segment's markers). Where they agree,
+    times the fits' RMS uncertainty, the fill's estimate and the rotations' noise combined), one of them is wrong
+    and nothing says which: those fits are refuted (returned True, to become a gap of the segment's markers). Where they agree,
     each fit is replaced by the mean of the two weighted by their inverse squared uncertainties (returned per
     run as its frames and their parent-relative rotations): two independent estimates of the rotation, surer
     together.
@@ -339,7 +339,7 @@ def _check_fits(view: _Segment, window: int) -> tuple[np.ndarray, list[tuple[np.
         rows = np.flatnonzero(suspect[s:e])
         unc = np.maximum(view.unc[s + rows], 1e-6)
         diff = (view.local[s + rows].inv() * fill[rows]).as_rotvec()      # fit → fill, axes of the fit
-        both = float(np.sqrt(np.mean(unc ** 2) + max(error, 1e-6) ** 2))
+        both = float(np.sqrt(np.mean(unc ** 2) + max(error, 1e-6) ** 2 + view.noise ** 2))
         if np.degrees(np.linalg.norm(diff, axis=1)).mean() > DISAGREE_SIGMAS * both:
             out[s + rows] = True
             continue
