@@ -689,6 +689,43 @@ def test_a_flip_of_the_heading_leaves_the_frame_without_a_character_frame(take):
     assert rows.qc["dropped"]["no_character_frame"] == 1
 
 
+def _noisy_turn(n: int, seed: int, noise_deg: float = 0.3) -> np.ndarray:
+    """(n, 3, 3) rotations of a segment turning slowly (10°/s at 120 Hz about a tilted axis) with isotropic
+    noise of ``noise_deg`` RMS per axis."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 120.0
+    slow = Rotation.from_rotvec(np.radians(10.0) * t[:, None] * np.array([0.3, 0.2, 0.93]))
+    noise = Rotation.from_rotvec(np.radians(noise_deg) * rng.standard_normal((n, 3)))
+    return (slow * noise).as_matrix()
+
+
+def test_a_long_flip_is_a_gap_and_two_unrelated_noise_steps_are_not():
+    """:func:`~gazepipe.stages.frames.continuity.flips` at 120 Hz (the stage's rule there: 0.1 s short flips,
+    2 s at most). A 0.5 s run of a segment turned 25° off (a fit gone wrong the same way throughout) is a flip;
+    two steps past the threshold 1.5 s apart whose offsets do not match (3.8° each about axes 40° apart: 2.6°
+    between them, within the jump threshold, but most of the offset) leave the rotations between them alone
+    (they were a flip before :data:`~gazepipe.stages.frames.continuity._SAME`); nothing is found on the clean
+    rotations."""
+    from gazepipe.stages.frames.continuity import flips
+    from gazepipe.stages.frames.stage import _jump_rule
+
+    rule = _jump_rule(FramesParams(), 120.0)
+    assert rule is not None and rule.short_frames == 12 and rule.max_frames == 240
+    clean = _noisy_turn(900, 3)
+    assert not flips(clean, rule).any()
+    bad = clean.copy()
+    off = Rotation.from_rotvec(np.radians(25.0) * np.array([1.0, 0.0, 0.0]))
+    bad[300:360] = (Rotation.from_matrix(bad[300:360]) * off).as_matrix()
+    found = flips(bad, rule)
+    assert found[300:360].all() and found.sum() == 60
+    two = _noisy_turn(900, 0)
+    assert not flips(two, rule).any()
+    axis = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0])
+    two[400:] = (Rotation.from_matrix(two[400:]) * Rotation.from_rotvec(np.radians([3.8, 0.0, 0.0]))).as_matrix()
+    two[580:] = (Rotation.from_matrix(two[580:]) * Rotation.from_rotvec(np.radians(3.8) * axis).inv()).as_matrix()
+    assert not flips(two, rule).any()
+
+
 def test_a_fit_to_fills_the_fill_across_it_contradicts_becomes_a_gap(take):
     """A spine marker gap-filled up to 14 mm off over 40 frames (meeting the marker at both ends) while its fill
     claims 3.5 mm: the fit to it is turned up to ~7° while its own estimate says ~1.3°, and it has no jump for

@@ -26,12 +26,15 @@ class JumpRule:
     min_deg : and by at least this many degrees.
     window : half width (steps) of the running medians.
     max_frames : longest flip, frames from the jump away to the jump back.
+    short_frames : a flip up to this long needs no more than its two jumps and its coming back; a longer one
+        needs far jumps or the same offset at both ends (:func:`flips`).
     """
 
     factor: float
     min_deg: float
     window: int
     max_frames: int
+    short_frames: int = 1
 
 
 def _median_rows(x: np.ndarray, half: int) -> np.ndarray:
@@ -66,18 +69,22 @@ def step_departures(mats: np.ndarray, rule: JumpRule):
     return idx, rot, excess, thr, np.degrees(np.linalg.norm(vbar, axis=1))
 
 
-def flips(mats: np.ndarray, rule: JumpRule) -> np.ndarray:
-    """(N,) bool: the known frames of ``mats`` (N, 3, 3; NaN where unknown) inside a flip.
+def _offsets_agree(rot, k: int, m: int, tol_deg: float) -> bool:
+    """Whether the run of known rotations k + 1 … m sits off its neighbours k and m + 1 by the same rotation at
+    both ends (in the segment's own axes, or in the character frame's): a fit gone wrong the same way over the
+    run, not two unrelated jumps: their mismatch within ``tol_deg`` (deg) and within :data:`_SAME` of the smaller
+    offset (two of the noise's steps past the threshold are as far from each other as from nothing)."""
+    body = (rot[k].inv() * rot[k + 1]).inv() * (rot[m + 1].inv() * rot[m])
+    lab = (rot[k + 1] * rot[k].inv()).inv() * (rot[m] * rot[m + 1].inv())
+    offset = min(float(np.degrees((rot[k].inv() * rot[k + 1]).magnitude())),
+                 float(np.degrees((rot[m].inv() * rot[m + 1]).magnitude())))
+    mismatch = min(float(np.degrees(body.magnitude())), float(np.degrees(lab.magnitude())))
+    return mismatch <= min(tol_deg, _SAME * offset)
 
-    A flip starts with a jump between two consecutive frames (:func:`step_departures`: a step far beyond the
-    local angular velocity) and ends with a jump back, within ``rule.max_frames``; the jump back may be a step
-    across unknown frames. It comes back when the rotation after it is where the rotation before it would be
-    at the measured speed: their angle at most 1.5 × the faster of the two local speeds × the frames between
-    them, plus the larger jump threshold. Each jump away is paired with the first such jump back; a jump with
-    no jump back (the rotation stays where it jumped to) is left alone: nothing says which side is right.
-    """
-    n = len(mats)
-    out = np.zeros(n, dtype=bool)
+
+def _one_pass(mats: np.ndarray, rule: JumpRule) -> np.ndarray:
+    """The frames of one pass of :func:`flips` over ``mats``."""
+    out = np.zeros(len(mats), dtype=bool)
     idx, rot, excess, thr, speed = step_departures(mats, rule)
     if len(excess) < 2:
         return out
@@ -90,9 +97,49 @@ def flips(mats: np.ndarray, rule: JumpRule) -> np.ndarray:
             span = int(idx[m + 1] - idx[k])
             if span > rule.max_frames + 1:
                 break
+            tol = max(thr[k], thr[m])
             angle = float(np.degrees((rot[k].inv() * rot[m + 1]).magnitude()))
-            if angle <= 1.5 * max(speed[k], speed[m]) * span + max(thr[k], thr[m]):
+            if angle > 1.5 * max(speed[k], speed[m]) * span + tol:
+                continue
+            if (span <= rule.short_frames + 1 or min(excess[k], excess[m]) >= _FAR * tol
+                    or _offsets_agree(rot, k, m, tol + 1.5 * (speed[k] + speed[m]) * (idx[m + 1] - idx[m]))):
                 out[idx[k + 1:m + 1]] = True
                 done = m
                 break
+    return out
+
+
+#: a flip longer than ``JumpRule.short_frames`` needs jumps at least this many times the threshold, or the same
+#: offset at both ends: two of the noise's rare steps past the threshold, two seconds apart on a still segment,
+#: looked like a flip between them
+_FAR = 3.0
+#: the largest mismatch of the offsets at a flip's two ends, as a share of the smaller (:func:`_offsets_agree`):
+#: two jumps of 3.8° and 1.8° five degrees apart, on a still spine at 120 Hz, made 2 s of good rotations a gap
+_SAME = 0.5
+#: passes of :func:`flips` (a flip inside a flip, or two in a row, shows once the first is out)
+_PASSES = 3
+
+
+def flips(mats: np.ndarray, rule: JumpRule) -> np.ndarray:
+    """(N,) bool: the known frames of ``mats`` (N, 3, 3; NaN where unknown) inside a flip.
+
+    A flip starts with a jump between two consecutive frames (:func:`step_departures`: a step far beyond the
+    local angular velocity) and ends with a jump back, within ``rule.max_frames``; the jump back may be a step
+    across unknown frames. It comes back when the rotation after it is where the rotation before it would be
+    at the measured speed (their angle at most 1.5 × the faster of the two local speeds × the frames between
+    them, plus the larger jump threshold); a flip longer than ``rule.short_frames`` also needs both jumps
+    :data:`_FAR` times the threshold, or the run between sitting off its two neighbours by the same rotation at
+    both ends (:func:`_offsets_agree`: a fit gone wrong the same way, not two unrelated jumps). Each jump
+    away is paired with the first such jump back; a jump with no jump back (the rotation stays where it jumped
+    to) is left alone: nothing says which side is right. Up to :data:`_PASSES` passes, each over what the
+    last left.
+    """
+    work = np.array(mats, dtype=np.float64, copy=True)
+    out = np.zeros(len(mats), dtype=bool)
+    for _ in range(_PASSES):
+        found = _one_pass(work, rule)
+        if not found.any():
+            break
+        out |= found
+        work[found] = np.nan
     return out

@@ -532,6 +532,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet,
 
 #: seconds each side of a step over which :func:`_jump_rule`'s running medians run
 JUMP_WINDOW_S = 0.25
+#: a flip up to this long (s) needs no more than its two jumps and its coming back (a ghost, a one-frame flip)
+SHORT_FLIP_S = 0.1
 
 
 def _jump_rule(params: FramesParams, rate_hz: float) -> JumpRule | None:
@@ -540,7 +542,8 @@ def _jump_rule(params: FramesParams, rate_hz: float) -> JumpRule | None:
         return None
     return JumpRule(factor=params.jump_factor, min_deg=params.min_jump_deg,
                     window=max(3, int(round(JUMP_WINDOW_S * rate_hz))),
-                    max_frames=max(1, int(round(params.max_flip_s * rate_hz))))
+                    max_frames=max(1, int(round(params.max_flip_s * rate_hz))),
+                    short_frames=max(1, int(round(SHORT_FLIP_S * rate_hz))))
 
 
 #: seconds at the end of the rest before the take over which :func:`rest_pose` averages the pose
