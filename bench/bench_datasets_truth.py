@@ -186,6 +186,7 @@ def run_layout(args: argparse.Namespace, seeds: list[int], label: str, segments:
     crops: list[int] = []
     crop_bad: list[str] = []
     said: list[int] = []
+    whole: list[str] = []
     failed: list[str] = []
     flipped: Counter = Counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -196,7 +197,7 @@ def run_layout(args: argparse.Namespace, seeds: list[int], label: str, segments:
             summary = run_pipeline([load_session(folder / "session.toml")], out, executor="serial",
                                    params=params, log=EventLog(fmt="json", stream=io.StringIO()))
             failed += [f"s{seed} {o.take} {o.stage}: {o.error}" for o in summary.failed if o.take != "-"]
-            crop_errors(folder, out, cfg.session_id, seed, crops, crop_bad, said)
+            crop_errors(folder, out, cfg.session_id, seed, crops, crop_bad, said, whole)
             flipped.update(flip_counts(folder, out, cfg.session_id))
             for name in errs:
                 rows = dataset_rows(out, name)
@@ -218,7 +219,9 @@ def run_layout(args: argparse.Namespace, seeds: list[int], label: str, segments:
     print(f"\n{label}: takes failing a stage: {len(failed)}" + "".join(f"\n  {f}" for f in failed[:5]))
     print(f"  crop bounds: {len(ce) + len(said)}, largest error {ce.max() if ce.size else 0} frames, "
           f"{int((ce > 3).sum())} more than 3 frames off unannounced, {len(said)} more than 3 off where the stage "
-          "said they may be (markers hidden against them)" + "".join(f"\n    {b}" for b in crop_bad[:8]))
+          f"said they may be (markers hidden against them); {len(whole)} gaze_shift takes kept whole without a crop "
+          "(a rest not found, said so)" + "".join(f"\n    {b}" for b in crop_bad[:8])
+          + (f"\n    kept whole: {', '.join(whole)}" if whole else ""))
     print(f"  frames made gaps by the frames stage's continuity check (flips), gaze_follow takes: "
           f"{flipped['segment']} segment rotations, {flipped['heading']} character frames")
     for name in errs:
@@ -293,10 +296,11 @@ def how_counts(rows: list[dict], err: np.ndarray) -> Counter:
 
 
 def crop_errors(folder: Path, out: Path, session: str, seed: int, crops: list[int], bad: list[str],
-                said: list[int]) -> None:
+                said: list[int], whole: list[str]) -> None:
     """Each mocap take's crop bounds against the truth (frames), appended to ``crops``; those beyond 3 to ``bad``.
     A bound more than 3 frames off that the clean stage said may be off (QC ``crop_hidden``: frames hidden
-    against it) by at least as much goes to ``said`` instead of ``crops``."""
+    against it) by at least as much goes to ``said`` instead of ``crops``; a gaze_shift take kept whole, without
+    a crop, because one of its rests was not found (a warning says so) goes to ``whole``."""
     truth = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
     for take, t in truth.items():
         if t["kind"] in ("face", "neutral") or not t.get("crop"):
@@ -305,6 +309,9 @@ def crop_errors(folder: Path, out: Path, session: str, seed: int, crops: list[in
         rec = json.loads(path.read_text()) if path.is_file() else {}
         if rec.get("status") != "ok":
             bad.append(f"s{seed} {take}: clean failed")
+            continue
+        if any("kept whole" in w for w in rec["qc"].get("warnings", [])):
+            whole.append(f"s{seed} {take}")     # one rest found: no crop, said so (gaze_map leaves it out)
             continue
         e = [abs(rec["qc"]["crop"][i] - t["crop"][i]) for i in (0, 1)]
         hidden = rec["qc"].get("crop_hidden") or [0, 0]

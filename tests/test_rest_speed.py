@@ -74,3 +74,26 @@ def test_a_markers_leap_from_its_cluster_is_no_speed():
     assert np.nanmax(still) < 6.0 and not hidden.any()
     leapt, _ = rest_speed(xyz, present, 30.0, 1.75, 6.0)
     assert np.nanmax(leapt) > 6.0
+
+
+def test_frames_filled_through_time_for_most_markers_are_hidden_but_keep_their_speed():
+    """Six still markers; over frames 40-80 four of them are filled through time (``seen`` False: a PCHIP or
+    linear fill across an occlusion of most of the body), the other two measured. Their speed stays what the fills give (a best guess: the rest goes on), but those frames
+    are hidden, and the crop bound that lies against them is said to be off by up to that many frames
+    (:func:`hidden_at`). Two of six filled through time is no hiding."""
+    from gazepipe.stages.clean.rests import hidden_at, rest_speed
+
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(-100.0, 100.0, (6, 3))
+    xyz = np.broadcast_to(ref, (120, 6, 3)) + rng.normal(0.0, 0.5, (120, 6, 3))
+    present = np.ones((120, 6), bool)
+    seen = present.copy()
+    seen[40:80, :4] = False
+    speed, hidden = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)
+    assert np.isfinite(speed).all() and np.nanmax(speed) < 6.0
+    assert np.flatnonzero(hidden).tolist() == list(range(40, 80))
+    assert hidden_at(hidden, 40) == 40 and hidden_at(hidden, 80) == 40 and hidden_at(hidden, 90) == 0
+    unseen, _ = rest_speed(xyz, present, 30.0, 1.75, 6.0)
+    np.testing.assert_array_equal(unseen, speed)
+    seen[40:80, 2:4] = True
+    assert not rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)[1].any()

@@ -164,7 +164,8 @@ def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequ
 
 def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: float | None, threshold: float,
                markers: np.ndarray | Sequence[int] | None = None,
-               clusters: Sequence[Sequence[int]] = ()) -> tuple[np.ndarray, np.ndarray]:
+               clusters: Sequence[Sequence[int]] = (),
+               seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The subject's speed per frame (mm/s, (T,)) for finding its rests (SPEC §3.2): the mean speed of its
     markers ``present`` (T, M; measured or gap-filled) where at least :data:`PRESENT_SHARE` of them are, else
     unknown unless the subject provably moved across (:func:`moved_across_unknown`).
@@ -178,12 +179,24 @@ def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: 
     at 120 Hz), and over takes with every hazard it put more crop bounds more than 3 frames off (16 of 40 and 9
     of 24 against 10 and 6).
 
+    ``seen`` (T, M; default ``present``): the samples that tell where the marker is in their own frame (measured,
+    or filled from other markers measured there). A frame where fewer than :data:`PRESENT_SHARE` of the
+    subject's markers are seen is hidden too, though its speed (from fills through time) is kept: such a fill
+    across an occlusion of most of the body moves smoothly whatever the subject did (a gaze shift hidden that
+    way read as one rest from the start of the take to the end), but leaving those frames unknown was measured
+    and put more crop bounds more than 3 frames off over takes with every hazard (12 of 40 and 8 of 24 against
+    10 and 6; also when the subject's displacement across them was taken as motion: the motion's start or end
+    may lie anywhere in them). So the crop keeps the best guess, and says where it may be off.
+
     Returns the speed and the frames (T,) whose speed the markers do not give (hidden: set by the motion across
-    them, or unknown)."""
+    them, unknown, or from fills through time)."""
     present = present & ~position_jumps(xyz, present, clusters)
     speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=markers,
                        clusters=clusters)
     hidden = np.isnan(speed)
+    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    if seen is not None and cols.size:
+        hidden |= np.mean(seen[:, cols] & present[:, cols], axis=1) < PRESENT_SHARE
     return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers), hidden
 
 

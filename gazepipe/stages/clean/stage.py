@@ -32,6 +32,8 @@ from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
+#: fills drawn through time from the marker's own track (not from markers measured in the frame), and no fill
+_THROUGH_TIME = (FILL_CODES["linear"], FILL_CODES["pchip"], UNFILLED)
 #: without the subject's references, a take's own frames judge its swaps only when it is at least this long (s):
 #: a swap (0.3-3 s) is then a small minority of its frames; in a short take one can be most of them, and the
 #: right names would look swapped (bench/bench_swaps.py: on 4-s takes, hundreds of samples made wrong)
@@ -349,7 +351,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     clusters = _rigid_groups(markerset, labels)
     speed, hidden = rest_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, params.rest_speed_mm_s, subj,
-                               clusters)
+                               clusters, seen=~np.isin(code, _THROUGH_TIME))
 
     # 3. stabilisation
     up = left_pair = None
