@@ -97,3 +97,27 @@ def test_frames_filled_through_time_for_most_markers_are_hidden_but_keep_their_s
     np.testing.assert_array_equal(unseen, speed)
     seen[40:80, 2:4] = True
     assert not rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)[1].any()
+
+
+def test_a_motion_only_fills_through_time_show_is_hidden():
+    """Two of six markers filled through time (a PCHIP fill across an occlusion of the head) glide 60 mm over
+    frames 20-80 while the four seen stay still: the mean speed says the subject moves (about 10 mm/s, above
+    the 6 mm/s rest threshold), but only the fills say so, and those frames are hidden (the crop bound there
+    may be off). Seen markers moving the same way are motion, not hidden."""
+    from gazepipe.stages.clean.rests import rest_speed
+
+    rng = np.random.default_rng(2)
+    ref = rng.uniform(-100.0, 100.0, (6, 3))
+    xyz = np.broadcast_to(ref, (120, 6, 3)) + rng.normal(0.0, 0.3, (120, 6, 3))
+    glide = np.clip((np.arange(120) - 20) / 60.0, 0.0, 1.0) * 60.0
+    xyz[:, :2, 0] += glide[:, None]
+    present = np.ones((120, 6), bool)
+    seen = present.copy()
+    seen[10:90, :2] = False
+    speed, hidden = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)
+    moving = np.flatnonzero(speed >= 6.0)
+    assert 25 <= moving.size and np.isin(moving, np.arange(15, 85)).all()
+    assert hidden[moving].all() and not hidden[:10].any() and not hidden[90:].any()
+    speed2, hidden2 = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=present)
+    np.testing.assert_array_equal(speed2, speed)
+    assert not hidden2.any()

@@ -194,10 +194,27 @@ def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: 
     speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=markers,
                        clusters=clusters)
     hidden = np.isnan(speed)
-    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
-    if seen is not None and cols.size:
-        hidden |= np.mean(seen[:, cols] & present[:, cols], axis=1) < PRESENT_SHARE
+    if seen is not None:
+        hidden |= _told_by_time(speed, xyz, present, seen, rate_hz, filter_hz, threshold, markers, clusters)
     return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers), hidden
+
+
+def _told_by_time(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray, seen: np.ndarray, rate_hz: float,
+                  filter_hz: float | None, threshold: float, markers: np.ndarray | Sequence[int] | None,
+                  clusters: Sequence[Sequence[int]]) -> np.ndarray:
+    """(T,) bool: frames whose rest or motion the fills through time decide (:func:`rest_speed`'s ``seen``):
+    fewer than :data:`PRESENT_SHARE` of the markers present are seen, or the frame moves (``speed`` at or
+    above ``threshold``) only with the fills' speed (the seen markers' mean speed stays below it: a PCHIP fill
+    across an occlusion of the head ramps from the occlusion's start, and the motion read from it began 8
+    frames early)."""
+    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    if cols.size == 0:
+        return np.zeros(len(speed), dtype=bool)
+    n_present = present[:, cols].sum(axis=1)
+    few = (seen[:, cols] & present[:, cols]).sum(axis=1) < PRESENT_SHARE * np.maximum(n_present, 1)
+    part = mean_speed(xyz, seen & present, rate_hz, filter_hz, markers=cols, clusters=clusters)
+    moves = np.nan_to_num(speed, nan=-np.inf) >= threshold
+    return few | (moves & (np.nan_to_num(part) < threshold))
 
 
 def hidden_at(hidden: np.ndarray, bound: int) -> int:
