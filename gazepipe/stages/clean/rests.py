@@ -180,7 +180,7 @@ def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: 
     of 24 against 10 and 6).
 
     ``seen`` (T, M; default ``present``): the samples that tell where the marker is in their own frame (measured,
-    or filled from other markers measured there). A frame where fewer than :data:`PRESENT_SHARE` of the
+    or filled rigidly from its cluster's markers measured there). A frame where fewer than :data:`PRESENT_SHARE` of the
     subject's markers are seen is hidden too, though its speed (from fills through time) is kept: such a fill
     across an occlusion of most of the body moves smoothly whatever the subject did (a gaze shift hidden that
     way read as one rest from the start of the take to the end), but leaving those frames unknown was measured

@@ -32,8 +32,15 @@ from gazepipe.stages.clean.swaps import SubjectReferences, repair_swaps
 from gazepipe.stages.geometry import up_vector
 
 UNFILLED = FILL_CODES["unfilled"]
-#: fills drawn through time from the marker's own track (not from markers measured in the frame), and no fill
-_THROUGH_TIME = (FILL_CODES["linear"], FILL_CODES["pchip"], UNFILLED)
+#: a crop bound against at most this many hidden frames is not said to be off: it is found within a frame or two
+#: anyway (the clean takes of the benchmarks had a few such frames at a bound, where a fill moved faster than the
+#: markers seen)
+HIDDEN_WITHIN = 2
+#: samples that do not show where the subject is in their own frame: fills through time from the marker's own
+#: track, PCA fills (a model of the whole body, extrapolated from the few markers an occlusion leaves: a 2 mm
+#: drift of its fills read as a 7 mm/s motion 23 frames before the real one), and no fill; a rigid fill from its
+#: own cluster's markers measured there shows it
+_NOT_SEEN = (FILL_CODES["linear"], FILL_CODES["pchip"], FILL_CODES["pca"], UNFILLED)
 #: without the subject's references, a take's own frames judge its swaps only when it is at least this long (s):
 #: a swap (0.3-3 s) is then a small minority of its frames; in a short take one can be most of them, and the
 #: right names would look swapped (bench/bench_swaps.py: on 4-s takes, hundreds of samples made wrong)
@@ -351,7 +358,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     clusters = _rigid_groups(markerset, labels)
     speed, hidden = rest_speed(xyz, code != UNFILLED, rate, params.rest_filter_hz, params.rest_speed_mm_s, subj,
-                               clusters, seen=~np.isin(code, _THROUGH_TIME))
+                               clusters, seen=~np.isin(code, _NOT_SEEN))
 
     # 3. stabilisation
     up = left_pair = None
@@ -394,6 +401,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     qc["crop"] = [int(start), int(stop)]
     qc["kept_frames"] = int(stop - start)
     crop_hidden = [hidden_at(hidden, start) if start > 0 else 0, hidden_at(hidden, stop) if stop < len(speed) else 0]
+    crop_hidden = [h if h > HIDDEN_WITHIN else 0 for h in crop_hidden]
     if any(crop_hidden):
         qc["crop_hidden"] = crop_hidden
     for bound, frames in zip(("start", "end"), crop_hidden, strict=True):
