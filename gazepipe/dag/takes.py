@@ -373,7 +373,7 @@ def run_clean(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="clean", version="26", inputs=("markers_raw",), params=_params_of(CleanParams),
+    name="clean", version="27", inputs=("markers_raw",), params=_params_of(CleanParams),
     outputs=("markers", "neutral", "rest_speed"), applies=_subject_take,
     # label swaps are judged against the subject's geometry from every subject capture of the session
     sources=lambda s, t: _markerset_file(s), session_inputs=("subject_geometry",),
@@ -545,7 +545,7 @@ def run_frames(ctx: TakeContext) -> UnitResult:
 
 
 register(Stage(
-    name="frames", version="13", inputs=("markers", "neutral"), params=_params_of(FramesParams),
+    name="frames", version="14", inputs=("markers", "neutral"), params=_params_of(FramesParams),
     outputs=("joints",), applies=_frames_take,
     sources=lambda s, t: _markerset_file(s), session_inputs=("neutral_poses",),
     run=run_frames,

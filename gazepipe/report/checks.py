@@ -486,6 +486,9 @@ def check_crop(clean_qc: CleanQC | None, kind: str, frames: int | None, rate_hz:
     short = kept_s is not None and th.kept_min_s is not None and kept_s < th.kept_min_s
     if short:
         problems.append(f"kept only {kept_s:.2f} s")
+    for bound, hidden in zip(("start", "end"), clean_qc.crop_hidden or (0, 0), strict=True):
+        if hidden:
+            problems.append(f"its {bound} may be off by up to {hidden} frame(s): too few markers seen there")
     msg = f"kept frames [{a}, {b})" + (f" = {kept_s:.2f} s" if kept_s is not None else "") + \
         (f" of {frames}" if frames else "") + f", {len(rests)} rest(s)"
     if problems:

@@ -188,22 +188,31 @@ def _saccades(rng: np.random.Generator, t: np.ndarray, seen: np.ndarray, start_s
     return second_order(raw, rate_hz, 12.0, 1.0)
 
 
-def sway(rng: np.random.Generator, n: int, rate_hz: float, amp_deg: float) -> np.ndarray:
-    """Smooth random small rotations (T, S, 3) rotation vectors in radians, band below ~0.5 Hz."""
+def sway(rng: np.random.Generator, n: int, rate_hz: float, amp_deg: float, band_hz: float = 0.4) -> np.ndarray:
+    """Smooth random small rotations (T, S, 3) rotation vectors in radians, RMS ``amp_deg`` per axis, band below
+    ~``band_hz``."""
     noise = rng.standard_normal((n, S, 3))
-    b, a = signal.butter(2, 0.4, fs=rate_hz)
+    b, a = signal.butter(2, band_hz, fs=rate_hz)
     sm = signal.filtfilt(b, a, noise, axis=0)
     sm /= np.std(sm, axis=0, keepdims=True) + 1e-12
     return np.deg2rad(amp_deg) * sm
 
 
+#: band (Hz) of the segments' own motion in gaze_follow takes (``SynthConfig.own_motion_deg``)
+OWN_MOTION_HZ = 1.5
+
+
 def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement, pose: str,
                   duration_s: float, clap_rebound: np.ndarray | None = None,
-                  weak_clap: tuple[int, float, float, float] | None = None) -> TakeMotion:
+                  weak_clap: tuple[int, float, float, float] | None = None,
+                  own_motion: tuple[np.random.Generator, float] | None = None) -> TakeMotion:
     """A gaze_follow take (Klein 5.1): rest, the pole moving between random goals, settle, rest.
 
     ``clap_rebound``: see :func:`_clapper_distance`. ``weak_clap`` (clap index, closing seconds, share of the
-    opening, softness): that clap is slow and soft (see :func:`_clapper_distance`'s ``soft``).
+    opening, softness): that clap is slow and soft (see :func:`_clapper_distance`'s ``soft``). ``own_motion``
+    (its random stream, RMS degrees): each segment also turns on its own while the subject follows, smooth
+    (band below :data:`OWN_MOTION_HZ`) and unlike its neighbours (twists and leans of the trunk, nods of the
+    head); the rests stay still.
 
     The gaze follows the pole with a ~0.2 s reaction delay; the body's part of the gaze change goes through an
     underdamped second-order response (overshoot), with later onsets down the chain (Pejsa 5.1.2).
@@ -255,6 +264,8 @@ def follow_motion(rng: np.random.Generator, rate_hz: float, placement: Placement
     onset = np.array([0.20, 0.17, 0.15, 0.13, 0.11, 0.09, 0.06, 0.04, 0.02, 0.0])
     env = smoothstep((t - a0) / 0.6) * end_env
     sw = sway(rng, n, rate_hz, 0.6) * env[:, None, None]
+    if own_motion is not None and own_motion[1] > 0:
+        sw = sw + sway(own_motion[0], n, rate_hz, own_motion[1], OWN_MOTION_HZ) * env[:, None, None]
     local = []
     for k in range(S):
         yk = yaw_share[k] * delayed(body_yaw, t, onset[k])

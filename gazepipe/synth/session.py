@@ -6,7 +6,7 @@ import functools
 import json
 import os
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -99,7 +99,10 @@ class SynthConfig:
     (:func:`~gazepipe.synth.markers.with_unlisted_markers`); written after the listed subject markers, with
     gaps, spikes and bursts like any marker, and label swaps between them: mirror pairs and their neighbours);
     ``unlisted_motion``: how far they move against the chest, as a multiple of the default (20 mm shrugs, 15 mm
-    reaches, the upper arm's 20° swing).
+    reaches, the upper arm's 20° swing);
+    ``own_motion_deg``: in gaze_follow takes each segment also turns on its own, smooth (below 1.5 Hz) and
+    unlike its neighbours, by this RMS angle per axis (degrees; trunk twists and leans, nods), rests kept still
+    (:func:`~gazepipe.synth.motion.follow_motion`).
     """
 
     follow_poses: tuple[str, ...] = ("standing", "standing", "sitting")
@@ -135,6 +138,7 @@ class SynthConfig:
     clapper_look: ClapperLook = SAMPLE_LOOK
     unlisted_markers: tuple[str, ...] = ()
     unlisted_motion: float = 1.0
+    own_motion_deg: float = 0.0
 
 
 #: the final rest around a root-marker gap of ``SynthConfig.root_final_rest_gap_s`` (s): added to the gap's length
@@ -421,6 +425,9 @@ def _generate_into(out: Path, seed: int, cfg: SynthConfig,
     for index, (take_id, kind, pose, target) in enumerate(_take_plan(cfg)):
         # a stream per purpose; one added later is spawned last, so the earlier streams stay as they were
         rngs = _Streams(*(np.random.default_rng(s) for s in np.random.SeedSequence([seed, index]).spawn(11)))
+        if cfg.own_motion_deg > 0:
+            rngs = replace(rngs, own=np.random.default_rng(
+                np.random.SeedSequence([seed, index]).spawn(14)[13]))
         if kind == "face":
             assert target is not None
             face_scalars: dict[str, Any] = {"kind": kind, "rate_hz": target[0], "duration_s": target[1]}
@@ -460,6 +467,9 @@ class _Streams:
     bursts: np.random.Generator
     claps: np.random.Generator
     rest: np.random.Generator
+    #: the segments' own motion (``SynthConfig.own_motion_deg``): spawned apart (the fourteenth stream), and
+    #: only when asked for, so the other streams stay as they were
+    own: np.random.Generator | None = None
 
 
 def _take_motion(kind: str, pose: str, target: tuple[float, float] | None, cfg: SynthConfig, rngs: _Streams,
@@ -481,7 +491,8 @@ def _take_motion(kind: str, pose: str, target: tuple[float, float] | None, cfg: 
             n_clap_hazards += 1
         weak = None if hazard is None or hazard["kind"] != "weak" else (
             hazard["clap"], hazard["closing_s"], hazard["depth"], hazard["softness"])
-        motion = follow_motion(rngs.motion, rate, cfg.placement, pose, secs, rebound, weak)
+        own = None if rngs.own is None else (rngs.own, cfg.own_motion_deg)
+        motion = follow_motion(rngs.motion, rate, cfg.placement, pose, secs, rebound, weak, own)
         if hazard is not None:
             motion.design["clap_hazard"] = hazard
     elif kind == "gaze_shift":

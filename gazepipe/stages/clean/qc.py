@@ -128,6 +128,9 @@ class CleanQC(QCRecord):
     # in ``gaps`` with its reason too, so a record written before the count was kept still reads
     unfilled_gaps: Mapping[str, UnfilledQC] | None = absent_when(
         "the record was written by a clean stage older than version 25, which did not count them apart")
+    #: per crop bound, the frames against it where too few of the subject's markers are seen to tell rest from
+    #: motion (the bound may be off by up to that many; 0: that bound is seen)
+    crop_hidden: tuple[int, int] | None = absent_when("both crop bounds are seen")
 
 
 __all__ = ["CleanQC", "GapQC", "LowpassQC", "MarkerQC", "SwapPairQC", "SwapQC", "UnfilledQC"]

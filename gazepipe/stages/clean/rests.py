@@ -14,22 +14,46 @@ import numpy as np
 
 from gazepipe.stages.clean.filters import gaussian_runs, true_runs
 
+#: a marker's speed is not its cluster's (:func:`mean_speed`) above this many times their median plus this (mm/s):
+#: a rigid cluster turning fast has its markers' speeds within a factor of two or three
+OUTLIER_FACTOR = 3.0
+OUTLIER_MM_S = 20.0
+
 #: markers whose speeds are computed at once by :func:`mean_speed`: the smoothed positions and velocities of
 #: that many markers are held, not those of the whole take (about 100 bytes per marker sample otherwise)
 _SPEED_MARKERS = 4
 
 
 def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
-               min_share: float = 0.0, markers: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
+               min_share: float = 0.0, markers: np.ndarray | Sequence[int] | None = None,
+               clusters: Sequence[Sequence[int]] = ()) -> np.ndarray:
     """Per-frame mean over markers (``markers``, columns of ``xyz`` and ``valid``; default all) of the speed
     (mm/s) by central differences, (T,); NaN (unknown) where no marker, or fewer than ``min_share`` of them, has
     a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
+
+    ``clusters`` (column lists of markers that move rigidly together): on a frame where at least three of a
+    cluster's markers have a speed, one faster than :data:`OUTLIER_FACTOR` × their median +
+    :data:`OUTLIER_MM_S` is left out (it is not moving with its cluster: a leap of its name or position).
     """
     cols = np.arange(valid.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
     speed = np.full((valid.shape[0], cols.size), np.nan)
     for lo in range(0, cols.size, _SPEED_MARKERS):
         part = cols[lo:lo + _SPEED_MARKERS]
         speed[:, lo:lo + part.size] = _speeds(xyz[:, part], valid[:, part], rate_hz, filter_hz)
+    where = {int(c): i for i, c in enumerate(cols)}
+    for c in clusters:
+        idx = [where[int(m)] for m in c if int(m) in where]
+        if len(idx) < 3:
+            continue
+        sub = speed[:, idx]
+        judged = np.isfinite(sub).sum(axis=1) >= 3
+        if judged.any():
+            med = np.nanmedian(sub[judged], axis=1)
+            odd = sub[judged] > OUTLIER_FACTOR * med[:, None] + OUTLIER_MM_S
+            part = sub[judged]
+            part[odd] = np.nan
+            sub[judged] = part
+            speed[:, idx] = sub
     n = np.sum(np.isfinite(speed), axis=1)
     total = np.nansum(speed, axis=1)
     enough = (n > 0) & (n >= min_share * cols.size)
@@ -38,7 +62,8 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
 
 
 def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
-    """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none."""
+    """Each marker's speed (T, M) mm/s for :func:`mean_speed`; NaN where it has none (nor on a missing sample:
+    no difference is taken across it, so a sample left out breaks the marker's track)."""
     pos = xyz.copy() if filter_hz is None else gaussian_runs(xyz, valid, filter_hz, rate_hz)
     pos[~valid] = np.nan
     vel = np.full_like(pos, np.nan)
@@ -47,6 +72,7 @@ def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float
     if len(pos) >= 2:  # one-sided at the ends
         vel[0] = (pos[1] - pos[0]) * rate_hz
         vel[-1] = (pos[-1] - pos[-2]) * rate_hz
+    vel[~valid] = np.nan
     return np.linalg.norm(vel, axis=2)
 
 
@@ -60,7 +86,9 @@ def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray
                          threshold: float, markers: np.ndarray | Sequence[int] | None = None) -> np.ndarray:
     """``speed`` (T,) mm/s with each run of unknown frames (NaN) that the subject provably moved across set to
     the speed it must at least have had: the mean over ``markers`` present (``present`` (T, M)) in the frames
-    just before and just after the run of their displacement between them, over the run's duration. Set only
+    just before and just after the run of their displacement between them (the two largest left out when more
+    than four: a label exchange or a ghost inside the run moves two markers, not the subject), over the run's
+    duration. Set only
     where that is at least ``threshold`` (the run was not a rest; below it, the subject may have moved away and
     back, and the run stays unknown). A gaze shift hidden by an occlusion that covers most markers left the head
     36° from where it was, and the unknown frames joined the rests on both sides into one."""
@@ -77,11 +105,122 @@ def moved_across_unknown(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray
         with np.errstate(invalid="ignore"):
             before = np.nanmean(np.where(present[max(0, a - k):a, both, None], xyz[max(0, a - k):a, both], np.nan), axis=0)
             after = np.nanmean(np.where(present[b:b + k, both, None], xyz[b:b + k, both], np.nan), axis=0)
-        moved = float(np.linalg.norm(after - before, axis=1).mean())
+        # two markers that exchanged names (or a ghost) inside the run have not moved the subject: the two
+        # largest displacements are left out when there are more than four
+        dist = np.sort(np.linalg.norm(after - before, axis=1))
+        moved = float((dist[:-2] if dist.size > 4 else dist).mean())
         bound = moved * rate_hz / (b - a + 1)
         if moved >= _MOVED_MIN_MM and bound >= threshold:
             out[a:b] = bound
     return out
+
+
+#: a frame where fewer than this share of the subject's markers are present (measured or gap-filled) has no rest
+#: speed (SPEC §3.2)
+PRESENT_SHARE = 0.5
+#: a marker's step from one frame to the next is a jump (two markers exchanging names, a ghost) when it departs
+#: from the median step of its cluster by more than this (mm) plus :data:`JUMP_SPREAD` times the cluster's median
+#: step length (a cluster turning fast: its markers' steps differ by up to twice their length)
+JUMP_MM = 10.0
+JUMP_SPREAD = 3.0
+#: frames each side over which the cluster's step length is the running median
+_JUMP_SIDE = 3
+
+
+def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequence[int]]) -> np.ndarray:
+    """(T, M) bool: samples whose step from the frame before departs from their cluster's median step (the
+    component-wise median over the cluster's markers present in both frames, at least two) by more than
+    :data:`JUMP_MM` + :data:`JUMP_SPREAD` × the cluster's step length (the median over its markers, then the
+    running median over :data:`_JUMP_SIDE` frames each side: a leap of most of its markers lasts a frame). A rigid cluster's markers move
+    together; a marker that leaps away from its mates has not moved: its name or its position changed (a label
+    exchange, a ghost the spike filter left). With two markers present a leap of one marks both (the median
+    is their mean): leaving a sample out of the speed costs nothing."""
+    from scipy import ndimage
+
+    out = np.zeros(present.shape, dtype=bool)
+    if len(xyz) < 2:
+        return out
+    both = present[1:] & present[:-1]
+    for c in clusters:
+        cols = np.asarray(c, dtype=np.int64)
+        if cols.size < 2:
+            continue
+        ok = both[:, cols]
+        step = np.where(ok[..., None], xyz[1:, cols] - xyz[:-1, cols], np.nan)
+        judged = ok.sum(axis=1) >= 2
+        if not judged.any():
+            continue
+        rows = np.flatnonzero(judged)
+        s = step[rows]
+        med = np.nanmedian(s, axis=1)
+        # the cluster's step length around each frame (a leap of most of its markers is one frame's)
+        length = ndimage.median_filter(np.nanmedian(np.linalg.norm(s, axis=2), axis=1), size=2 * _JUMP_SIDE + 1,
+                                       mode="nearest")
+        dev = np.linalg.norm(s - med[:, None, :], axis=2)
+        jump = ok[rows] & (np.nan_to_num(dev) > JUMP_MM + JUMP_SPREAD * length[:, None])
+        out[1 + rows[:, None], cols[None, :]] |= jump
+    return out
+
+
+def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: float | None, threshold: float,
+               markers: np.ndarray | Sequence[int] | None = None,
+               clusters: Sequence[Sequence[int]] = (),
+               seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The subject's speed per frame (mm/s, (T,)) for finding its rests (SPEC §3.2): the mean speed of its
+    markers ``present`` (T, M; measured or gap-filled) where at least :data:`PRESENT_SHARE` of them are, else
+    unknown unless the subject provably moved across (:func:`moved_across_unknown`).
+
+    A sample that leaps away from its rigid cluster (``clusters``: column lists; :func:`position_jumps`) is left
+    out, so no speed is taken across the leap, and so is a marker far faster than its cluster on a frame
+    (:func:`mean_speed`): two head markers exchanging names in a rest leapt 140 mm, and the smoothed speed's
+    bump split the rest (a crop 79 frames short). The speed of the markers measured alone was tried too: a
+    fill's speed can hide a gaze shift behind an occlusion, but the measured markers' runs end at every gap and
+    their smoothed speed falls to nothing at each end (a motion's end behind an occlusion found 8 frames early
+    at 120 Hz), and over takes with every hazard it put more crop bounds more than 3 frames off (16 of 40 and 9
+    of 24 against 10 and 6).
+
+    ``seen`` (T, M; default ``present``): the samples that tell where the marker is in their own frame (measured,
+    or filled rigidly from its cluster's markers measured there). A frame where fewer than :data:`PRESENT_SHARE` of the
+    subject's markers are seen is hidden too, though its speed (from fills through time) is kept: such a fill
+    across an occlusion of most of the body moves smoothly whatever the subject did (a gaze shift hidden that
+    way read as one rest from the start of the take to the end), but leaving those frames unknown was measured
+    and put more crop bounds more than 3 frames off over takes with every hazard (12 of 40 and 8 of 24 against
+    10 and 6; also when the subject's displacement across them was taken as motion: the motion's start or end
+    may lie anywhere in them). So the crop keeps the best guess, and says where it may be off.
+
+    Returns the speed and the frames (T,) whose speed the markers do not give (hidden: set by the motion across
+    them, unknown, or from fills through time)."""
+    present = present & ~position_jumps(xyz, present, clusters)
+    speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=markers,
+                       clusters=clusters)
+    hidden = np.isnan(speed)
+    if seen is not None:
+        hidden |= _told_by_time(speed, xyz, present, seen, rate_hz, filter_hz, threshold, markers, clusters)
+    return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers), hidden
+
+
+def _told_by_time(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray, seen: np.ndarray, rate_hz: float,
+                  filter_hz: float | None, threshold: float, markers: np.ndarray | Sequence[int] | None,
+                  clusters: Sequence[Sequence[int]]) -> np.ndarray:
+    """(T,) bool: frames whose rest or motion the fills through time decide (:func:`rest_speed`'s ``seen``):
+    fewer than :data:`PRESENT_SHARE` of the markers present are seen, or the frame moves (``speed`` at or
+    above ``threshold``) only with the fills' speed (the seen markers' mean speed stays below it: a PCHIP fill
+    across an occlusion of the head ramps from the occlusion's start, and the motion read from it began 8
+    frames early)."""
+    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    if cols.size == 0:
+        return np.zeros(len(speed), dtype=bool)
+    n_present = present[:, cols].sum(axis=1)
+    few = (seen[:, cols] & present[:, cols]).sum(axis=1) < PRESENT_SHARE * np.maximum(n_present, 1)
+    part = mean_speed(xyz, seen & present, rate_hz, filter_hz, markers=cols, clusters=clusters)
+    moves = np.nan_to_num(speed, nan=-np.inf) >= threshold
+    return few | (moves & (np.nan_to_num(part) < threshold))
+
+
+def hidden_at(hidden: np.ndarray, bound: int) -> int:
+    """How many frames of ``hidden`` (T,) bool lie in the run that touches the crop bound ``bound`` (the frame
+    before it or the frame at it): the motion's start or end may lie anywhere in them (0: the bound is seen)."""
+    return sum(b - a for a, b in true_runs(hidden) if a <= bound <= b)
 
 
 def rest_periods(speed: np.ndarray, rate_hz: float, threshold: float, merge_s: float,

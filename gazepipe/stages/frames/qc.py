@@ -45,6 +45,13 @@ class FramesQC(QCRecord):
     #: per segment, frames whose rotation the filled markers' estimated errors may turn by more than
     #: ``max_fit_uncertainty_deg`` (treated as a gap of the segment's markers)
     fill_uncertain_frames: Mapping[str, int]
+    #: per segment, frames whose rotation jumped away and back (a flip) and were made a gap of its markers
+    flip_frames: Mapping[str, int]
+    #: frames whose character frame's heading jumped away and back (a flip): no character frame there
+    heading_flip_frames: int
+    #: per segment, frames whose rotation fitted to gap-filled markers the fill across them contradicted (made a
+    #: gap of its markers)
+    fit_refuted_frames: Mapping[str, int]
     # absent when the markerset has no head_centre marker: nothing is carried
     head_centre_carried_frames: int | None = absent_when("the markerset names no head_centre marker")
 

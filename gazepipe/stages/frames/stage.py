@@ -16,7 +16,8 @@ import numpy as np
 
 from gazepipe.errors import StageError
 from gazepipe.model import Markers, MarkerSet
-from gazepipe.stages.clean.filters import true_runs
+from gazepipe.stages.frames.continuity import JumpRule, flips
+from gazepipe.stages.frames.rotfill import SegmentMarkers, fill_rotation_gaps
 from gazepipe.stages.geometry import (
     frame_from_points,
     heading_frames,
@@ -60,6 +61,15 @@ class FramesParams:
         the second singular value of the centred reference subset must be at least this share of the first
         (the rotation about a line through the markers is undetermined when it is 0; at 0.2 it is still
         known to within a few times the noise of a full cluster).
+    jump_factor, min_jump_deg, max_flip_s : a segment's rotation (from its markers) or the character frame's
+        heading that jumps away and back within ``max_flip_s`` is a flip, and those frames are a gap of the
+        segment's markers (the rotation fill may then fill them) or frames without a character frame
+        (:func:`gazepipe.stages.frames.continuity.flips`). A jump is a step from one frame to the next that
+        departs from the local angular velocity (the running median of the steps over 0.25 s each side) by more
+        than ``jump_factor`` times the typical departure there and by at least ``min_jump_deg``; it comes back
+        when the rotation after it is where the measured speed would take the rotation before it. A missed
+        35 mm ghost on one of four chest markers turned the chest 14° for two frames; a left/right name exchange
+        on the head with its other markers gone flipped it 180° for 0.6 s. ``jump_factor`` 0 turns it off.
 
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
@@ -70,6 +80,9 @@ class FramesParams:
     min_plane_ratio: float = field(default=0.2, metadata={"min": 0, "max": 1})
     max_fill_error_deg: float = field(default=2.0, metadata={"min": 0})
     max_fit_uncertainty_deg: float = field(default=3.0, metadata={"min": 0})
+    jump_factor: float = field(default=4.0, metadata={"min": 0})
+    min_jump_deg: float = field(default=3.0, metadata={"min": 0})
+    max_flip_s: float = field(default=2.0, metadata={"min": 0})
 
 
 @dataclass
@@ -385,6 +398,10 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
     origin, cmat, fitted = fitted_character_frame(markers, markerset, root_ref, params.min_plane_ratio, path=path,
                                                   take=take)
     qc["heading_fitted_frames"] = int(fitted.sum())
+    rule = _jump_rule(params, markers.rate_hz)
+    qc["flip_frames"] = {}
+    heading_flip = flips(cmat, rule) if rule is not None else np.zeros(n, dtype=bool)
+    cmat[heading_flip] = np.nan
     has_char = np.isfinite(cmat).all(axis=(1, 2)) & np.isfinite(origin).all(axis=1)
     frames_of = []          # per source: (markers, origin, character matrices, has a character frame)
     for _, nm in sources:
@@ -402,6 +419,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
                   if ferr is not None and params.max_fit_uncertainty_deg > 0 else None)
     judge = sample_err is not None
     qc["fill_uncertain_frames"] = {}
+    fit_unc = np.zeros((n, ns))                 # how far the fills of a segment's markers may turn its rotation
+    seg_markers: list[SegmentMarkers | None] = [None] * ns
     for j, s in enumerate(segs):
         if len(s.markers) < 3:
             raise StageError(path, f"frames: segment {s.name!r} has {len(s.markers)} markers, needs three",
@@ -434,18 +453,29 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
         if s.name == markerset.root_segment.name and params.triangle == "rigid_fit":
             _root_segment_fit(raw, pts, npts, nok, n_origin, n_cmat, markers, chosen_markers,
                               markerset, params, unc, sample_err)
+        seg_meas = meas[:, cols]
         if judge:
-            unsure = (unc > params.max_fit_uncertainty_deg) & np.isfinite(raw).all(axis=(1, 2))
+            unsure = _refit_measured(raw, centres[s.name], unc, pts, seg_meas, ref, params)
             raw[unsure] = np.nan
             qc["fill_uncertain_frames"][s.name] = int(unsure[lead:].sum())
+        flip = flips(raw, rule) if rule is not None else np.zeros(n, dtype=bool)
+        raw[flip] = np.nan
+        qc["flip_frames"][s.name] = int(flip[lead:].sum())
         ok = has_char & np.isfinite(raw).all(axis=(1, 2))
         if ok.any():
             gmat[ok, j] = cmat_t[ok] @ raw[ok] @ calib
+        fit_unc[:, j] = unc
+        # the markers measured where the rotation is not known from them: a fill across is turned to meet them
+        seen = seg_meas & ~flip[:, None] & has_char[:, None]
+        seg_markers[j] = SegmentMarkers(body=ref - ref.mean(axis=0),
+                                        pos=np.einsum("tij,tkj->tki", cmat_t, np.where(seen[..., None], pts, np.nan)))
 
-    rot_filled = np.zeros((n, ns), dtype=bool)
+    rot_filled = refuted = np.zeros((n, ns), dtype=bool)
     if params.max_fill_error_deg > 0:
-        rot_filled, qc["rotation_gaps"] = fill_rotation_gaps(gmat, parents, has_char, params.max_fill_error_deg,
-                                                             window=int(round(10.0 * markers.rate_hz)))
+        rot_filled, qc["rotation_gaps"], refuted = fill_rotation_gaps(
+            gmat, parents, has_char, params.max_fill_error_deg, window=int(round(10.0 * markers.rate_hz)),
+            markers=seg_markers, fit_unc=fit_unc if judge else None)
+    qc["fit_refuted_frames"] = {s.name: int(refuted[lead:, j].sum()) for j, s in enumerate(segs)}
     if not any(qc["neutral_sources"].values()):
         raise StageError(path, f"frames: no segment has {params.min_neutral_frames} neutral frame(s) with every "
                          f"marker ({', '.join(lab for lab, _ in sources)})", take=take)
@@ -486,6 +516,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
         char_rot[has_char] = to_wxyz(Rotation.from_matrix(cmat[has_char]))
     k = slice(lead, None)                                     # the take's own frames
     qc["invalid_frames"] = int(np.sum(~valid[k]))
+    qc["heading_flip_frames"] = int(heading_flip[k].sum())
     qc["heading_fitted_frames"] = int(fitted[k].sum())
     for g in qc.get("rotation_gaps", []):
         g["start"], g["stop"] = g["start"] - lead, g["stop"] - lead
@@ -497,6 +528,22 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
                   char_origin=np.where(has_char[:, None], origin, np.nan)[k], char_rot=char_rot[k], valid=valid[k],
                   rate_hz=float(markers.rate_hz), first_frame=int(markers.first_frame) + lead, qc=qc,
                   rot_filled=rot_filled[k], rest_before=rest, rot_measured=rot_measured[k])
+
+
+#: seconds each side of a step over which :func:`_jump_rule`'s running medians run
+JUMP_WINDOW_S = 0.25
+#: a flip up to this long (s) needs no more than its two jumps and its coming back (a ghost, a one-frame flip)
+SHORT_FLIP_S = 0.1
+
+
+def _jump_rule(params: FramesParams, rate_hz: float) -> JumpRule | None:
+    """The continuity rule of ``params`` at ``rate_hz`` (None when ``jump_factor`` is 0)."""
+    if params.jump_factor <= 0:
+        return None
+    return JumpRule(factor=params.jump_factor, min_deg=params.min_jump_deg,
+                    window=max(3, int(round(JUMP_WINDOW_S * rate_hz))),
+                    max_frames=max(1, int(round(params.max_flip_s * rate_hz))),
+                    short_frames=max(1, int(round(SHORT_FLIP_S * rate_hz))))
 
 
 #: seconds at the end of the rest before the take over which :func:`rest_pose` averages the pose
@@ -531,223 +578,22 @@ def rest_pose(quat: np.ndarray, char_rot: np.ndarray, n_last: int,
             "frames": int(min(n_last, len(quat)))}
 
 
-#: known frames on each side a rotation gap is interpolated from (and that a hidden stretch keeps)
-_ROT_ANCHORS = 1
-
-
-def _slerp_across(local, start: int, stop: int):
-    """Rotations (stop − start) filling [start, stop) by slerp between the known rotations just before and just
-    after (``local``: a scipy Rotation stack over every frame). A cubic spline through two frames on each side
-    was measured too: its edge velocities carry the rotations' noise into the gap (0.4° of noise: 1.2° mean
-    error over 12 frames at 120 Hz and 4.7° over 30, against slerp's 0.3° and 0.3°)."""
-    from scipy.spatial.transform import Slerp
-
-    return Slerp([start - 1, stop], local[[start - 1, stop]])(np.arange(start, stop, dtype=float))
-
-
-#: training frames the neighbour model needs at least, and its ridge weight (a share of the features' energy)
-_MODEL_MIN_FRAMES = 30
-_MODEL_RIDGE = 1e-3
-
-
-def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window: int):
-    """Rotations (stop − start) filling [start, stop) of a segment from the rotation its neighbours span across
-    it (``span``: its parent's rotation to its child's, which moves with it; a scipy Rotation stack): a ridge
-    regression of the segment's parent-relative rotation on the span's (as rotation vectors about their means)
-    over the ``usable`` frames within ``window`` of the gap, corrected to meet the known rotations just before
-    and just after (the correction interpolated across). None with too few training frames.
-
-    Not used at a take's start or end: corrected from one side only, it was measured up to 7° off where the
-    hold-out beside the gap said 1.4° (a gaze shift's first frames, whose motion the frames after do not show)."""
-    from scipy.spatial.transform import Rotation
-
-    lo, hi = max(0, start - window), min(len(usable), stop + window)
-    train = np.flatnonzero(usable[lo:hi]) + lo
-    train = train[(train < start - 1) | (train > stop)]
-    if len(train) < _MODEL_MIN_FRAMES:
-        return None
-    ref, ref_s = local[train].mean(), span[train].mean()
-    x = np.column_stack([(ref_s.inv() * span[train]).as_rotvec(), np.ones(len(train))])
-    y = (ref.inv() * local[train]).as_rotvec()
-    gram = x.T @ x
-    w = np.linalg.solve(gram + _MODEL_RIDGE * np.trace(gram) / 4.0 * np.eye(4), x.T @ y)
-    frames = np.arange(start - 1, stop + 1)
-    xs = np.column_stack([(ref_s.inv() * span[frames]).as_rotvec(), np.ones(len(frames))])
-    pred = ref * Rotation.from_rotvec(xs @ w)
-    miss0 = (pred[0].inv() * local[start - 1]).as_rotvec()
-    miss1 = (pred[-1].inv() * local[stop]).as_rotvec()
-    f = ((np.arange(start, stop) - (start - 1)) / (stop - start + 1))[:, None]
-    return pred[1:-1] * Rotation.from_rotvec((1.0 - f) * miss0 + f * miss1)
-
-
-def _given(known: np.ndarray | None) -> np.ndarray:
-    """The frames where a span or neighbour is known: always passed along with the span or neighbour."""
-    assert known is not None
-    return known
-
-
-def _candidates(local, known: np.ndarray, span, span_ok: np.ndarray | None, start: int, stop: int,
-                window: int) -> dict:
-    """Each way of filling [start, stop) that applies: slerp, and the neighbour model where the span is known
-    from the frame before to the frame after (``known``, ``span_ok``: frames where the segment's rotation and the
-    span are known)."""
-    out = {"slerp": _slerp_across(local, start, stop)}
-    if span is not None and _given(span_ok)[start - 1:stop + 1].all():
-        model = _model_across(local, span, known & span_ok, start, stop, window)
-        if model is not None:
-            out["model"] = model
-    return out
-
-
-def _off_slerp_deg(nb, lo: int, hi: int) -> float:
-    """How far (deg, the largest over [lo, hi)) a rotation stack ``nb`` strays from the slerp between its
-    rotations at lo − 1 and hi: the motion inside a stretch that interpolation across it cannot see."""
-    return float(np.degrees((_slerp_across(nb, lo, hi) * nb[lo:hi].inv()).magnitude()).max())
-
-
-def _motion_deg(local, nb, nb_ok: np.ndarray | None, lo: int, hi: int) -> float:
-    """How much a stretch [lo, hi) moves, deg: the larger of the segment's own turn across it (its rotations at
-    lo − 1 and hi, known on both sides of a gap) and how far its neighbour ``nb`` strays from its own
-    interpolation inside it (where known; :func:`_off_slerp_deg`)."""
-    own = float(np.degrees((local[lo - 1].inv() * local[hi]).magnitude()))
-    if nb is None or not _given(nb_ok)[lo - 1:hi + 1].all():
-        return own
-    return max(own, _off_slerp_deg(nb, lo, hi))
-
-
-#: hold-out stretches that move like the gap: at most this many, beside the two next to the gap
-_MATCHED_STRETCHES = 2
-#: a stretch moves like a gap when it moves at least this share of the gap's amount (the amounts carry noise)
-_LIKE_SHARE = 0.8
-#: a stretch moves at least this much, deg (the rotations' own noise): a still stretch is not taken as frozen
-_MOTION_FLOOR_DEG = 1.0
-
-
-def _holdouts(local, nb, nb_ok: np.ndarray | None, loc_ok: np.ndarray, s: int, e: int, window: int, a: int
-              ) -> tuple[list[int], list[float], float, int]:
-    """Where to hide stretches of the gap's length to estimate a fill's error, with how much each moves.
-
-    The two stretches next to the gap, and up to :data:`_MATCHED_STRETCHES` within ``window`` frames that move
-    at least as much as the gap (:func:`_motion_deg`; the nearest such amounts first). Returns the stretches'
-    first frames (those beside the gap first), their motion and the gap's (deg), and how many are beside it."""
-    n, length = len(loc_ok), e - s
-    usable = [int(lo) for lo in np.arange(max(a + 1, s - window), min(n - length - a - 1, e + window) + 1,
-                                          max(1, length // 4))       # every quarter of the gap's length
-              if (lo + length + a <= s - a or lo - a >= e + a) and loc_ok[lo - a:lo + length + a].all()]
-    beside = [lo for lo in (s - a - length, e + a)
-              if lo - a >= 0 and lo + length + a <= n and loc_ok[lo - a:lo + length + a].all()]
-    gap = _motion_deg(local, nb, nb_ok, s, e)
-    moves = {lo: _motion_deg(local, nb, nb_ok, lo, lo + length) for lo in {*usable, *beside}}
-    like = sorted((abs(moves[lo] - gap), lo) for lo in usable if moves[lo] >= _LIKE_SHARE * gap and lo not in beside)
-    picked = beside + [lo for _, lo in like[:_MATCHED_STRETCHES]]
-    return picked, [moves[lo] for lo in picked], gap, len(beside)
-
-
-def _estimate(errors: list[float], amounts: list[float], gap: float, n_beside: int) -> float:
-    """A fill's estimated error from its mean misses on the hold-out stretches (deg; the first ``n_beside`` are
-    the stretches next to the gap; a stretch moves like the gap when it moves at least :data:`_LIKE_SHARE` of
-    its amount): the worst miss beside the gap when one of those moves like it; else, when stretches further
-    off do, the worse of the misses beside it and the mean miss on those (the evidence on the gap's kind of
-    motion); when none does, each miss scaled by how much more the gap moves than its stretch (a still stretch beside a
-    gap in which the head turns says little of it), the motion floored at :data:`_MOTION_FLOOR_DEG`."""
-    floor = _MOTION_FLOOR_DEG
-    beside = errors[:n_beside]
-    if any(m >= _LIKE_SHARE * gap for m in amounts[:n_beside]):
-        return max(beside)                     # the stretches next to the gap move like it: they are the evidence
-    like = [err for err, m in zip(errors, amounts, strict=True) if m >= _LIKE_SHARE * gap]
-    if like:
-        return max(max(beside, default=0.0), float(np.mean(like)))
-    return max(err * max(1.0, max(gap, floor) / max(m, floor)) for err, m in zip(errors, amounts, strict=True))
-
-
-def fill_rotation_gaps(gmat: np.ndarray, parents: np.ndarray, has_char: np.ndarray,
-                       max_error_deg: float, window: int = 300) -> tuple[np.ndarray, list[dict]]:
-    """Fill, in place, each segment's rotations (``gmat`` (N, S, 3, 3), character frame, NaN where its markers
-    stay unfilled) across gaps where the character frame and the parent's rotation exist: the parent-relative
-    rotation is interpolated by :func:`_slerp_across`, or predicted from its neighbours by :func:`_model_across`
-    (where its first child is known through the gap), and composed with the parent's (segments in chain order,
-    so a parent filled first carries its children). Each candidate is tried across stretches of the gap's length
-    hidden just before and after it, and across stretches that move at least as much as the gap
-    (:func:`_holdouts`, :func:`_motion_deg`: the segment's own turn across the stretch, and how far its
-    neighbour, the parent's rotation in the character frame or for the root its first child's, strays from its
-    own interpolation inside it); a candidate's estimate is its worst mean miss, each scaled by how much more
-    the gap moves than that stretch (:func:`_estimate`: the stretches beside a gap in which the head turns are
-    still, and slerp looks perfect there). The candidate with the smallest estimate fills the gap when that is at most
-    ``max_error_deg``; with no stretch to hide the gap stays open. ``window``: frames each side of a gap the
-    neighbour model learns from and the matched stretches are looked for in.
-
-    Returns the (N, S) mask of filled rotations and one record per gap (segment, start, stop, method, estimated
-    error in degrees, filled).
-    """
-    from scipy.spatial.transform import Rotation
-
-    n, ns = gmat.shape[:2]
-    filled = np.zeros((n, ns), dtype=bool)
-    records: list[dict] = []
-    a = _ROT_ANCHORS
-    ok_rot = np.isfinite(gmat).all(axis=(2, 3))
-    for j in range(ns):
-        p = int(parents[j])
-        known = ok_rot[:, j]
-        base = has_char & (ok_rot[:, p] if p >= 0 else True)
-        missing = base & ~known
-        if not missing.any():
-            continue
-        loc_ok = known & base
-        mats = np.where(loc_ok[:, None, None], gmat[:, j], np.eye(3))
-        if p >= 0:
-            mats = np.where(loc_ok[:, None, None], np.swapaxes(gmat[:, p], 1, 2) @ mats, np.eye(3))
-        local = Rotation.from_matrix(mats)                   # identity where unknown: never used there
-        children = np.flatnonzero(np.asarray(parents) == j)
-        span = span_ok = None
-        if len(children):
-            c = int(children[0])
-            span_ok = base & ok_rot[:, c]
-            sm = np.where(span_ok[:, None, None], gmat[:, c], np.eye(3))
-            if p >= 0:
-                sm = np.where(span_ok[:, None, None], np.swapaxes(gmat[:, p], 1, 2) @ sm, np.eye(3))
-            span = Rotation.from_matrix(sm)
-        # the neighbour whose motion says how the gap moves: the parent in the character frame, else a child
-        nb_seg = p if p >= 0 else (int(children[0]) if len(children) else -1)
-        nb = nb_ok = None
-        if nb_seg >= 0:
-            nb_ok = has_char & ok_rot[:, nb_seg]
-            nb = Rotation.from_matrix(np.where(nb_ok[:, None, None], gmat[:, nb_seg], np.eye(3)))
-
-        for s, e in true_runs(missing):
-            length = e - s
-            if s < a or e + a > n or not loc_ok[s - a:s].all() or not loc_ok[e:e + a].all():
-                records.append({"segment": j, "start": s, "stop": e, "method": None, "error_deg": None,
-                                "filled": False})
-                continue
-            stretches, amounts, gap_moves, n_beside = _holdouts(local, nb, nb_ok, loc_ok, s, e, window, a)
-            errs: dict[str, dict[int, float]] = {}            # method -> stretch index -> mean miss (deg)
-            for i, lo in enumerate(stretches):
-                hi = lo + length
-                for name, guess in _candidates(local, loc_ok, span, span_ok, lo, hi, window).items():
-                    errs.setdefault(name, {})[i] = float(np.degrees((guess * local[lo:hi].inv()).magnitude()).mean())
-            # a method is scored when it was tried beside the gap; the stretches further off where it could not be
-            # tried (the neighbour model needs its child there) count for the others only
-            scored = {k: _estimate([v[i] for i in sorted(v)], [amounts[i] for i in sorted(v)], gap_moves,
-                                   sum(i < n_beside for i in v))
-                      for k, v in errs.items() if all(i in v for i in range(n_beside))}
-            # the surest of the methods that apply across the gap itself (the neighbour model needs its child
-            # known through the gap, which the stretches it was tried on may have had)
-            at_gap = _candidates(local, loc_ok, span, span_ok, s, e, window)
-            scored = {k: v for k, v in scored.items() if k in at_gap}
-            best = min(scored, key=lambda k: (scored[k], k != "slerp")) if scored else None
-            fill = at_gap.get(best) if best else None
-            error = scored.get(best) if best else None
-            ok = fill is not None and error is not None and error <= max_error_deg
-            records.append({"segment": j, "start": s, "stop": e, "method": best, "error_deg": error,
-                            "filled": ok})
-            if fill is None or not ok:
-                continue
-            fill = fill.as_matrix()
-            gmat[s:e, j] = fill if p < 0 else gmat[s:e, p] @ fill
-            ok_rot[s:e, j] = True
-            filled[s:e, j] = True
-    return filled, records
+def _refit_measured(raw: np.ndarray, centre: np.ndarray, unc: np.ndarray, pts: np.ndarray, measured: np.ndarray,
+                    ref: np.ndarray, params: FramesParams) -> np.ndarray:
+    """Where the fills of a segment's markers may turn its fit by more than ``max_fit_uncertainty_deg``, the fit
+    to its measured markers alone when they can give one (at least three, not nearly collinear: a cluster of more
+    than three with some filled), in place in ``raw`` (T, 3, 3), ``centre`` (T, 3) and ``unc`` (T,; 0 there).
+    Returns the frames still unsure (T,)."""
+    unsure = (unc > params.max_fit_uncertainty_deg) & np.isfinite(raw).all(axis=(1, 2))
+    rows = np.flatnonzero(unsure)
+    if not len(rows) or pts.shape[1] <= 3:
+        return unsure
+    alt, alt_centre, _ = _marker_frames(np.where(measured[rows][..., None], pts[rows], np.nan), ref,
+                                        params.triangle, params.min_plane_ratio)
+    good = np.isfinite(alt).all(axis=(1, 2))
+    raw[rows[good]], centre[rows[good]], unc[rows[good]] = alt[good], alt_centre[good], 0.0
+    unsure[rows[good]] = False
+    return unsure
 
 
 def _root_segment_fit(raw: np.ndarray, pts: np.ndarray, npts: np.ndarray, nok: np.ndarray, n_origin: np.ndarray,

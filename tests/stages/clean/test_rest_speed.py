@@ -1,9 +1,11 @@
-"""The clean stage records the rest-speed trace its rests and crop were found on (``rest_speed``), so the report
-plots what the stage used instead of recomputing it (SPEC §7)."""
+"""The clean stage's rest speed: it records the trace its rests and crop were found on (``rest_speed``), so the
+report plots what the stage used instead of recomputing it (SPEC §7); a marker's leap from its rigid cluster (a
+label exchange, a ghost) is no speed, so crops survive every hazard at once."""
 
 from __future__ import annotations
 
 import io
+import json
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -29,3 +31,93 @@ def test_the_rest_speed_trace_is_the_subjects_speed_on_every_frame_of_the_take(t
     peak = 20 * 2 * np.pi * 0.3 * np.sqrt(1.25)
     assert abs(np.max(inner) - peak) < 0.1 * peak, (np.max(inner), peak)
     assert np.min(inner) < 0.3 * peak     # it slows down at each end of the sway
+
+
+def test_the_crop_survives_every_hazard_at_once(tmp_path):
+    """A generated 16 s gaze_follow take with every hazard at once (label swaps, occlusion bursts, a clapper
+    hazard, 1-3 s occlusions of trunk and neck markers, dense gaps, ghost spikes), cleaned alone (too short to
+    judge its swaps by itself: none is repaired): two chest markers exchange names inside the final rest, and
+    the leap of each no longer splits it (it ended the crop 57 frames late). Both crop bounds are within 3
+    frames of the truth."""
+    from gazepipe.io.capture import read_markers
+    from gazepipe.stages.clean.stage import CleanParams, clean_markers
+    from gazepipe.synth import SynthConfig, generate_session
+
+    cfg = SynthConfig(follow_poses=("standing",), follow_duration_s=16.0, shift_targets=(), neutral_s=2.0,
+                      face_takes=(), head_camera=False, spikes_per_marker_min=1.0, long_gaps=4,
+                      gaps_per_marker_min=3.0, label_swaps=2, occlusion_bursts=3, clap_hazards=1.0)
+    folder = generate_session(tmp_path / "s", seed=1, config=cfg)
+    session = load_session(folder / "session.toml")
+    take = session.take("follow_standing_01")
+    truth = np.load(folder / "truth" / "follow_standing_01.npz")
+    crop = json.loads((folder / "truth" / "truth.json").read_text())["takes"]["follow_standing_01"]["crop"]
+    assert len(truth["swaps"]) == 2 and truth["spike_mask"].any()
+    res = clean_markers(read_markers(take.mocap), session.markerset, take.kind, CleanParams(), take=take.id)
+    assert "swaps_not_checked" in res.qc
+    assert abs(res.crop[0] - crop[0]) <= 3 and abs(res.crop[1] - crop[1]) <= 3, (res.crop, crop)
+
+
+def test_a_markers_leap_from_its_cluster_is_no_speed():
+    """Two of a rigid cluster's four still markers exchange names for 20 frames (a leap of 120 mm each way, in
+    and out): their samples at the leaps are left out of the speed (position_jumps), so the subject's mean
+    speed stays still; without the cluster it leaps past the rest threshold."""
+    from gazepipe.stages.clean.rests import position_jumps, rest_speed
+
+    rng = np.random.default_rng(0)
+    ref = np.array([[60.0, 0, 0], [-60, 0, 0], [0, 80, 0], [0, 0, 90]])
+    xyz = np.broadcast_to(ref, (120, 4, 3)) + rng.normal(0.0, 0.5, (120, 4, 3))
+    xyz[50:70, [0, 1]] = xyz[50:70, [1, 0]]
+    present = np.ones((120, 4), bool)
+    jumps = position_jumps(xyz, present, [[0, 1, 2, 3]])
+    assert np.flatnonzero(jumps.any(axis=1)).tolist() == [50, 70] and jumps[[50, 70]][:, :2].all()
+    still, hidden = rest_speed(xyz, present, 30.0, 1.75, 6.0, clusters=[[0, 1, 2, 3]])
+    assert np.nanmax(still) < 6.0 and not hidden.any()
+    leapt, _ = rest_speed(xyz, present, 30.0, 1.75, 6.0)
+    assert np.nanmax(leapt) > 6.0
+
+
+def test_frames_filled_through_time_for_most_markers_are_hidden_but_keep_their_speed():
+    """Six still markers; over frames 40-80 four of them are filled through time (``seen`` False: a PCHIP or
+    linear fill across an occlusion of most of the body), the other two measured. Their speed stays what the fills give (a best guess: the rest goes on), but those frames
+    are hidden, and the crop bound that lies against them is said to be off by up to that many frames
+    (:func:`hidden_at`). Two of six filled through time is no hiding."""
+    from gazepipe.stages.clean.rests import hidden_at, rest_speed
+
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(-100.0, 100.0, (6, 3))
+    xyz = np.broadcast_to(ref, (120, 6, 3)) + rng.normal(0.0, 0.5, (120, 6, 3))
+    present = np.ones((120, 6), bool)
+    seen = present.copy()
+    seen[40:80, :4] = False
+    speed, hidden = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)
+    assert np.isfinite(speed).all() and np.nanmax(speed) < 6.0
+    assert np.flatnonzero(hidden).tolist() == list(range(40, 80))
+    assert hidden_at(hidden, 40) == 40 and hidden_at(hidden, 80) == 40 and hidden_at(hidden, 90) == 0
+    unseen, _ = rest_speed(xyz, present, 30.0, 1.75, 6.0)
+    np.testing.assert_array_equal(unseen, speed)
+    seen[40:80, 2:4] = True
+    assert not rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)[1].any()
+
+
+def test_a_motion_only_fills_through_time_show_is_hidden():
+    """Two of six markers filled through time (a PCHIP fill across an occlusion of the head) glide 60 mm over
+    frames 20-80 while the four seen stay still: the mean speed says the subject moves (about 10 mm/s, above
+    the 6 mm/s rest threshold), but only the fills say so, and those frames are hidden (the crop bound there
+    may be off). Seen markers moving the same way are motion, not hidden."""
+    from gazepipe.stages.clean.rests import rest_speed
+
+    rng = np.random.default_rng(2)
+    ref = rng.uniform(-100.0, 100.0, (6, 3))
+    xyz = np.broadcast_to(ref, (120, 6, 3)) + rng.normal(0.0, 0.3, (120, 6, 3))
+    glide = np.clip((np.arange(120) - 20) / 60.0, 0.0, 1.0) * 60.0
+    xyz[:, :2, 0] += glide[:, None]
+    present = np.ones((120, 6), bool)
+    seen = present.copy()
+    seen[10:90, :2] = False
+    speed, hidden = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=seen)
+    moving = np.flatnonzero(speed >= 6.0)
+    assert 25 <= moving.size and np.isin(moving, np.arange(15, 85)).all()
+    assert hidden[moving].all() and not hidden[:10].any() and not hidden[90:].any()
+    speed2, hidden2 = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=present)
+    np.testing.assert_array_equal(speed2, speed)
+    assert not hidden2.any()

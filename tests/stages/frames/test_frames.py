@@ -463,7 +463,8 @@ def test_segment_rotations_are_filled_across_open_gaps_when_the_hold_out_allows(
     gaps = {(g["segment"], g["start"]): g for g in j.qc["rotation_gaps"]}
     assert gaps[(1, 300)]["filled"] and gaps[(2, 400)]["filled"]
     assert not gaps[(2, 595)]["filled"] and not gaps[(1, 0)]["filled"]
-    assert gaps[(2, 400)]["method"] == "slerp"                  # the head has no child to span it
+    # the head has no child to span it; its two markers left turn the slerp to meet them
+    assert gaps[(2, 400)]["method"] == "slerp+markers"
     for seg, rows in ((1, np.r_[300:312]), (2, np.r_[400:430])):
         err = angles_deg(j.quat[rows, seg], rots[j.segments[seg]][rows])
         assert err.mean() <= gaps[(seg, rows[0])]["error_deg"] + 1.0 and err.max() < 3.0
@@ -547,8 +548,11 @@ def test_rotations_from_gap_filled_markers_are_not_measured(take):
     filled = Markers(labels=mk.labels, xyz=xyz, valid=rest.valid, rate_hz=RATE)
     rest_meas = np.ones(rest.valid.shape, bool)
     rest_meas[60:, mk.index("SPN3")] = False
-    honest = compute_frames(mk, markerset(), neutral, before=filled, before_measured=rest_meas)
-    fooled = compute_frames(mk, markerset(), neutral, before=filled)
+    # the offset fill jumps away and back at the take's first frame: the continuity check alone would make it a
+    # gap (test_a_flip_of_a_segment_becomes_a_gap_not_a_row); here the measured flags are what is tested
+    smooth = FramesParams(jump_factor=0.0)
+    honest = compute_frames(mk, markerset(), neutral, smooth, before=filled, before_measured=rest_meas)
+    fooled = compute_frames(mk, markerset(), neutral, smooth, before=filled)
     k = j.segments.index("spine")
     truth = still["spine"][0]
     assert angles_deg(np.array(fooled.rest_before["quat"][k]), truth) > 2.0
@@ -556,7 +560,7 @@ def test_rotations_from_gap_filled_markers_are_not_measured(take):
     np.testing.assert_array_equal(honest.quat, fooled.quat)     # the rotations themselves are the same
     never = np.ones(rest.valid.shape, bool)
     never[:, mk.index("SPN3")] = False
-    assert compute_frames(mk, markerset(), neutral, before=filled,
+    assert compute_frames(mk, markerset(), neutral, smooth, before=filled,
                           before_measured=never).rest_before["quat"][k] is None
 
 
@@ -619,3 +623,132 @@ def test_a_segment_on_uncertain_fills_is_unsure(take):
     assert not j.rot_measured[300:340, 1].any()
     off = np.r_[0:300, 340:mk.n_frames]
     np.testing.assert_array_equal(j.quat[off, 0], compute_frames(mk, ms, neutral, params).quat[off, 0])
+
+
+# ------------------------------------------------------------------------------------------------ continuity
+
+
+def _rows_of(j, lod: bool = True):
+    """gaze_rnn_lod-style rows (no eyes) of a Joints, through the joints table as the build reads it."""
+    from gazepipe.schemas.joints import joints_arrays, joints_to_table
+    from gazepipe.stages.build.gaze import rnn_rows
+
+    arrays = joints_arrays(joints_to_table(j, np.arange(j.n_frames)))
+    return rnn_rows(arrays, list(range(len(j.segments))), None)
+
+
+def test_a_flip_of_a_segment_becomes_a_gap_not_a_row(take):
+    """One frame's spine markers turned 150° about the spine's centre (a fit gone wrong for a frame: a marker
+    swapped, a ghost kept), and a 50 mm ghost on one of the five head markers for two frames: without the
+    continuity check they give rows 150° and ~8° off; with it those rotations are gaps of the segment's markers (QC
+    ``flip_frames``), filled across by the rotation fill within its estimate, and no row is more than a few
+    degrees off. A clean take has no flip."""
+    mk, neutral, rots, _ = take
+    xyz = mk.xyz.copy()
+    sp = [mk.index(n) for n in NAMES["spine"]]
+    c = xyz[250, sp].mean(axis=0)
+    turn = Rotation.from_rotvec([0.0, 0.0, np.radians(150.0)])
+    xyz[250, sp] = c + turn.apply(xyz[250, sp] - c)
+    xyz[400:402, mk.index("HFL")] += [0.0, 50.0, 0.0]
+    bad = Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=RATE)
+    off = compute_frames(bad, markerset(), neutral, FramesParams(jump_factor=0.0))
+    assert angles_deg(off.quat[250, 1], rots["spine"][250]) > 100.0
+    assert angles_deg(off.quat[400:402, 2], rots["head"][400:402]).min() > 7.0
+    j = compute_frames(bad, markerset(), neutral)
+    assert j.qc["flip_frames"] == {"pelvis": 0, "spine": 1, "head": 2} and j.qc["heading_flip_frames"] == 0
+    assert j.rot_filled[250, 1] and j.rot_filled[400:402, 2].all() and j.rot_filled.sum() == 3
+    assert not j.rot_measured[250, 1] and not j.rot_measured[400:402, 2].any()
+    rows = _rows_of(j)
+    six = rows.features["y"].reshape(rows.n_rows, 3, 6).astype(np.float64)
+    from gazepipe.stages.geometry import rotation_from_six
+    for s, name in enumerate(("pelvis", "spine", "head")):
+        got = rotation_from_six(six[:, s])
+        err = np.degrees((got * rots[name][rows.frame].inv()).magnitude())
+        assert err.max() < 4.0, name
+    clean = compute_frames(mk, markerset(), neutral)
+    assert sum(clean.qc["flip_frames"].values()) == 0 and clean.qc["heading_flip_frames"] == 0
+
+
+def test_a_flip_of_the_heading_leaves_the_frame_without_a_character_frame(take):
+    """The root segment's first two markers exchange names for one frame: the character frame's heading flips by
+    180° there (and the pelvis with it). That frame has no character frame (QC ``heading_flip_frames``), so it
+    gives no row and ends a run of rows; the frames beside it keep theirs."""
+    mk, neutral, _, truth = take
+    xyz = mk.xyz.copy()
+    a, b = mk.index("PEL1"), mk.index("PEL2")
+    xyz[300, [a, b]] = xyz[300, [b, a]]
+    bad = Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=RATE)
+    off = compute_frames(bad, markerset(), neutral, FramesParams(jump_factor=0.0))
+    turned = Rotation.from_matrix(truth["cmat"][300]).inv() * from_wxyz(off.char_rot[300])
+    assert np.degrees(turned.magnitude()) > 170.0
+    j = compute_frames(bad, markerset(), neutral)
+    assert j.qc["heading_flip_frames"] == 1
+    assert not j.valid[300] and np.isnan(j.char_rot[300]).all() and j.valid[299] and j.valid[301]
+    rows = _rows_of(j)
+    assert 300 not in rows.frame and 301 not in rows.frame and {299, 302} <= set(rows.frame.tolist())
+    assert rows.qc["dropped"]["no_character_frame"] == 1
+
+
+def _noisy_turn(n: int, seed: int, noise_deg: float = 0.3) -> np.ndarray:
+    """(n, 3, 3) rotations of a segment turning slowly (10°/s at 120 Hz about a tilted axis) with isotropic
+    noise of ``noise_deg`` RMS per axis."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 120.0
+    slow = Rotation.from_rotvec(np.radians(10.0) * t[:, None] * np.array([0.3, 0.2, 0.93]))
+    noise = Rotation.from_rotvec(np.radians(noise_deg) * rng.standard_normal((n, 3)))
+    return (slow * noise).as_matrix()
+
+
+def test_a_long_flip_is_a_gap_and_two_unrelated_noise_steps_are_not():
+    """:func:`~gazepipe.stages.frames.continuity.flips` at 120 Hz (the stage's rule there: 0.1 s short flips,
+    2 s at most). A 0.5 s run of a segment turned 25° off (a fit gone wrong the same way throughout) is a flip;
+    two steps past the threshold 1.5 s apart whose offsets do not match (3.8° each about axes 40° apart: 2.6°
+    between them, within the jump threshold, but most of the offset) leave the rotations between them alone
+    (they were a flip before :data:`~gazepipe.stages.frames.continuity._SAME`); nothing is found on the clean
+    rotations."""
+    from gazepipe.stages.frames.continuity import flips
+    from gazepipe.stages.frames.stage import _jump_rule
+
+    rule = _jump_rule(FramesParams(), 120.0)
+    assert rule is not None and rule.short_frames == 12 and rule.max_frames == 240
+    clean = _noisy_turn(900, 3)
+    assert not flips(clean, rule).any()
+    bad = clean.copy()
+    off = Rotation.from_rotvec(np.radians(25.0) * np.array([1.0, 0.0, 0.0]))
+    bad[300:360] = (Rotation.from_matrix(bad[300:360]) * off).as_matrix()
+    found = flips(bad, rule)
+    assert found[300:360].all() and found.sum() == 60
+    two = _noisy_turn(900, 0)
+    assert not flips(two, rule).any()
+    axis = np.array([np.cos(np.radians(40.0)), np.sin(np.radians(40.0)), 0.0])
+    two[400:] = (Rotation.from_matrix(two[400:]) * Rotation.from_rotvec(np.radians([3.8, 0.0, 0.0]))).as_matrix()
+    two[580:] = (Rotation.from_matrix(two[580:]) * Rotation.from_rotvec(np.radians(3.8) * axis).inv()).as_matrix()
+    assert not flips(two, rule).any()
+
+
+def test_a_fit_to_fills_the_fill_across_it_contradicts_becomes_a_gap(take):
+    """A spine marker gap-filled up to 14 mm off over 40 frames (meeting the marker at both ends) while its fill
+    claims 3.5 mm: the fit to it is turned up to ~7° while its own estimate says ~1.3°, and it has no jump for
+    the continuity check. The fill across those frames, from the rotations around them, says otherwise (QC
+    ``fit_refuted_frames``): they become a gap of the spine's markers, filled across within a couple of
+    degrees. Where the marker is where it should be (the fill honest) the fit is kept, weighed with the fill."""
+    mk, neutral, rots, _ = take
+    sp3 = mk.index("SPN3")
+    xyz = mk.xyz.copy()
+    drift = 14.0 * np.sin(np.pi * (np.arange(300, 340) - 299) / 41.0)     # a fill meets its ends, off between
+    xyz[300:340, sp3] += drift[:, None] * [0.0, 1.0, 0.0]
+    measured = np.ones(mk.valid.shape, bool)
+    measured[300:340, sp3] = False
+    claims = np.full(mk.valid.shape, np.nan)
+    claims[300:340, sp3] = 3.5
+    bad = Markers(labels=mk.labels, xyz=xyz, valid=mk.valid, rate_hz=RATE)
+    raw = compute_frames(bad, markerset(), neutral, FramesParams(max_fill_error_deg=0.0), measured=measured,
+                         fill_error_mm=claims)
+    assert angles_deg(raw.quat[300:340, 1], rots["spine"][300:340]).max() > 5.0
+    assert raw.qc["flip_frames"]["spine"] == 0                 # no jump: the continuity check sees nothing
+    j = compute_frames(bad, markerset(), neutral, measured=measured, fill_error_mm=claims)
+    assert j.qc["fit_refuted_frames"]["spine"] == 40 and j.rot_filled[300:340, 1].all()
+    assert angles_deg(j.quat[300:340, 1], rots["spine"][300:340]).max() < 2.5
+    honest = compute_frames(mk, markerset(), neutral, measured=measured, fill_error_mm=claims)
+    assert honest.qc["fit_refuted_frames"]["spine"] == 0 and not honest.rot_filled[300:340, 1].any()
+    assert angles_deg(honest.quat[300:340, 1], rots["spine"][300:340]).max() < 3.0
