@@ -23,7 +23,7 @@ from gazepipe.synth.video import LOOKS, SAMPLE_LOOK
 
 def test_the_command_line_sets_the_look_and_the_rate():
     a = argparse.Namespace(skeleton="ten", no_eyes=False, label_swaps=0, occlusion_bursts=0, clap_hazards=0.0,
-                           mocap_rate_hz=120.0, clapper_look="dim")
+                           mocap_rate_hz=120.0, clapper_look="dim", unlisted_markers=None, unlisted_motion=1.0)
     cfg = _config(a)
     assert cfg.rate_hz == 120.0 and cfg.clapper_look == LOOKS["dim"]
     plain = _config(argparse.Namespace(**{**vars(a), "mocap_rate_hz": None, "clapper_look": "sample"}))
