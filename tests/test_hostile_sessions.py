@@ -122,6 +122,7 @@ def test_filled_segment_rotations_are_close_to_the_truth(hostile_run, request):
         methods |= {g["method"] for g in rec["qc"]["rotation_gaps"] if g["filled"]}
     err = np.concatenate(errors) if errors else np.zeros(0)
     assert err.size == 0 or err.max() <= 5.0, err.max()
-    assert methods <= {"slerp", "model"}
+    # slerp or the neighbours' model, either one turned to meet the markers still measured in the gap
+    assert methods <= {"slerp", "model", "slerp+markers", "model+markers"}
     if "10seg" in request.node.callspec.id:
         assert len(err) > 50 and methods

@@ -142,7 +142,10 @@ def _unknown_name(key: str, known: dict[str, Any]) -> str:
     """The problem of an unknown parameter name, with the closest known name when there is one."""
     stage, _, name = key.partition(".")
     same_stage = [k.partition(".")[2] for k in known if k.partition(".")[0] == stage]
-    close = [f"{stage}.{n}" for n in difflib.get_close_matches(name, same_stage, n=1, cutoff=0.6)]
+    # of a known stage: the very name under another stage first (frames.max_gap_s is clean's), then a near name
+    # in the same stage; of an unknown stage (eye.min_confidence), the nearest whole name
+    elsewhere = [k for k in known if k.partition(".")[2] == name] if same_stage else []
+    close = elsewhere or [f"{stage}.{n}" for n in difflib.get_close_matches(name, same_stage, n=1, cutoff=0.6)]
     close = close or difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
     close = close or [k for k in known if k.partition(".")[2] == name]
     hint = f" (did you mean {close[0]}?)" if close else ""

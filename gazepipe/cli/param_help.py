@@ -115,6 +115,9 @@ USER_HELP: dict[str, str] = {
                                  "at most this, in degrees (0: off)",
     "frames.max_fit_uncertainty_deg": "a rotation fitted to filled markers more uncertain than this (degrees) is "
                                       "treated as a gap (0: never)",
+    "frames.jump_factor": "a step this many typical departures off the angular velocity is a jump (0: no flips)",
+    "frames.min_jump_deg": "the smallest departure from a segment's angular velocity that is a jump (degrees)",
+    "frames.max_flip_s": "the longest a rotation may stay away between a jump and its return to be a flip (s)",
     "face.k": "highest time derivative of the blendshapes to compute",
     "sync.window_s": "half-width, in s, of the video window searched around each expected clap",
     "sync.search_s": "how far into the video (s, from the start or the end) to look for the first clap",

@@ -61,16 +61,18 @@ class FramesParams:
         the second singular value of the centred reference subset must be at least this share of the first
         (the rotation about a line through the markers is undetermined when it is 0; at 0.2 it is still
         known to within a few times the noise of a full cluster).
-    jump_factor, min_jump_deg, max_flip_s : a segment's rotation (from its markers) or the character frame's
-        heading that jumps away and back within ``max_flip_s`` is a flip, and those frames are a gap of the
-        segment's markers (the rotation fill may then fill them) or frames without a character frame
-        (:func:`gazepipe.stages.frames.continuity.flips`). A jump is a step from one frame to the next that
-        departs from the local angular velocity (the running median of the steps over 0.25 s each side) by more
-        than ``jump_factor`` times the typical departure there and by at least ``min_jump_deg``; it comes back
-        when the rotation after it is where the measured speed would take the rotation before it. A missed
-        35 mm ghost on one of four chest markers turned the chest 14° for two frames; a left/right name exchange
-        on the head with its other markers gone flipped it 180° for 0.6 s. ``jump_factor`` 0 turns it off.
-
+    jump_factor : how far a step from one frame to the next must depart from the local angular velocity (the
+        running median of the steps over 0.25 s each side), in typical departures there, to be a jump; a segment's
+        rotation (from its markers) or the character frame's heading that jumps away and back within
+        ``max_flip_s`` is a flip, and those frames are a gap of the segment's markers (the rotation fill may then
+        fill them) or frames without a character frame (:func:`gazepipe.stages.frames.continuity.flips`). A jump
+        comes back when the rotation after it is where the measured speed would take the rotation before it. A
+        missed 35 mm ghost on one of four chest markers turned the chest 14° for two frames; a left/right name
+        exchange on the head with its other markers gone flipped it 180° for 0.6 s. 0 turns flips off.
+    min_jump_deg : the smallest departure from the local angular velocity, in degrees, that is a jump (see
+        ``jump_factor``).
+    max_flip_s : the longest a rotation may stay away, in seconds, between a jump and its way back, for the
+        stretch to be a flip (see ``jump_factor``).
     Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
     """
 
