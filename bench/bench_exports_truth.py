@@ -45,95 +45,16 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
-from scipy.spatial.transform import Rotation
 
 from gazepipe.dag import run_pipeline
 from gazepipe.io.session_toml import load_session
 from gazepipe.pipeline.events import EventLog
-from gazepipe.stages.geometry import from_wxyz, matrix_from_six
 from gazepipe.synth import SynthConfig, generate_session
-from gazepipe.synth.skeleton import FOUR_SEGMENTS, SEGMENTS
 
-LAYOUTS = {"10 segments, z up": (SEGMENTS, "z"), "4 segments, y up": (FOUR_SEGMENTS, "y")}
-
-
-def dataset_rows(out: Path, name: str) -> list[dict]:
-    """Unmirrored rows of a built dataset, per take: frames and the y features."""
-    root = out / "datasets" / name
-    if not (root / "_dataset.json").is_file():
-        return []
-    info = json.loads((root / "_dataset.json").read_text())
-    takes = []
-    for f in sorted(root.rglob("*.parquet")):
-        t = pq.read_table(f, columns=["take", "mirrored", "frame", "x", "y"])
-        keep = ~t.column("mirrored").to_numpy(zero_copy_only=False)
-        if not keep.any():
-            continue
-        y = t.column("y").combine_chunks().flatten().to_numpy().reshape(t.num_rows, -1)[keep]
-        x = t.column("x").combine_chunks().flatten().to_numpy().reshape(t.num_rows, -1)[keep]
-        takes.append({"take": t.column("take")[0].as_py(), "frame": t.column("frame").to_numpy()[keep], "y": y,
-                      "target": x[:, :3],
-                      "segments": info["sizes"], "names": info["features"]["y"]})
-    return takes
-
-
-def segment_errors(folder: Path, rows: list[dict]) -> np.ndarray:
-    """Angle (deg) between each row's segment rotations and the truth, (rows, segments) stacked over takes."""
-    out = []
-    for r in rows:
-        truth = np.load(folder / "truth" / f"{r['take']}.npz")
-        names = [n.split(".")[0] for n in r["names"][0::6]]
-        names = [n for n in names if n in list(truth["segments"])]
-        idx = [list(truth["segments"]).index(n) for n in names]
-        six = r["y"][:, :6 * len(names)].reshape(len(r["frame"]), len(names), 6).astype(np.float64)
-        got = Rotation.from_matrix(matrix_from_six(six.reshape(-1, 6)))
-        want = from_wxyz(truth["seg_quat_char"][r["frame"]][:, idx].reshape(-1, 4).astype(np.float64))
-        out.append(np.degrees((got * want.inv()).magnitude()).reshape(len(r["frame"]), len(names)))
-    return np.concatenate(out) if out else np.zeros((0, 1))
-
-
-def target_errors(folder: Path, rows: list[dict]) -> np.ndarray:
-    """Angle (deg) between each row's target direction (x's first three numbers) and the truth's."""
-    out = []
-    for r in rows:
-        want = np.load(folder / "truth" / f"{r['take']}.npz")["target_dir_char"][r["frame"]].astype(np.float64)
-        got = r["target"].astype(np.float64)
-        got = got / np.linalg.norm(got, axis=1, keepdims=True)
-        want = want / np.linalg.norm(want, axis=1, keepdims=True)
-        out.append(np.degrees(np.arccos(np.clip((got * want).sum(axis=1), -1.0, 1.0))))
-    return np.concatenate(out) if out else np.zeros(0)
-
-
-def coverage(folder: Path, out: Path, session_id: str, rows: list[dict], eyes: bool) -> tuple[int, int, int]:
-    """(rows, usable frames, usable frames whose target marker is hidden in a gap longer than a second): frames
-    inside the true crop of every gaze_follow take, with valid eyes when ``eyes``."""
-    truth = json.loads((folder / "truth" / "truth.json").read_text())["takes"]
-    got = {r["take"]: len(r["frame"]) for r in rows}
-    have = need = hidden = 0
-    for take, t in truth.items():
-        if t["kind"] != "gaze_follow" or not t.get("crop"):
-            continue
-        a, b = t["crop"]
-        frames = set(range(a, b))
-        if eyes:
-            path = out / "takes" / session_id / take / "eyes.parquet"
-            if path.is_file():
-                e = pq.read_table(path, columns=["frame", "valid"]).to_pydict()
-                frames &= {f for f, v in zip(e["frame"], e["valid"], strict=True) if v}
-        need += len(frames)
-        have += got.get(take, 0)
-        tr = np.load(folder / "truth" / f"{take}.npz")
-        labels = list(tr["labels"])
-        if "POLE" in labels:
-            gone = tr["gap_mask"][:, labels.index("POLE")]
-            long = np.zeros_like(gone)
-            rate = float(t.get("rate_hz", 29.97))
-            edges = np.flatnonzero(np.diff(np.concatenate([[0], gone.astype(np.int8), [0]])))
-            for a0, b0 in zip(edges[0::2], edges[1::2], strict=True):
-                if b0 - a0 > rate:
-                    long[a0:b0] = True
-            hidden += sum(1 for f in frames if long[f])
-    return have, need, hidden
+try:
+    from bench.bench_datasets_truth import LAYOUTS, coverage, dataset_rows, segment_errors, target_errors
+except ModuleNotFoundError:   # run as a script: its own folder is on the path
+    from bench_datasets_truth import LAYOUTS, coverage, dataset_rows, segment_errors, target_errors  # type: ignore
 
 
 def ingest_figures(folder: Path, out: Path, session_id: str) -> tuple[list[float], list[float], list[str]]:
