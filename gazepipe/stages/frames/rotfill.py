@@ -246,6 +246,34 @@ def _motion_deg(view: _Segment, lo: int, hi: int) -> float:
     return max([own] + [_off_slerp_deg(nb, lo, hi) for nb, ok in view.nbs if ok[lo - 1:hi + 1].all()])
 
 
+def _off_slerp_many(nb, starts: np.ndarray, length: int) -> np.ndarray:
+    """:func:`_off_slerp_deg` of the stretches [lo, lo + length) for every ``lo`` in ``starts`` at once (the same
+    operations on each rotation, so the same numbers as one stretch at a time)."""
+    from scipy.spatial.transform import Rotation
+
+    first, last = nb[starts - 1], nb[starts + length]
+    rotvec = (first.inv() * last).as_rotvec()
+    alpha = np.arange(1, length + 1, dtype=float) / float(length + 1)
+    row = np.repeat(np.arange(starts.size), length)
+    inside = (starts[:, None] + np.arange(length)).ravel()
+    interp = first[row] * Rotation.from_rotvec(rotvec[row] * np.tile(alpha, starts.size)[:, None])
+    off = np.degrees((interp * nb[inside].inv()).magnitude()).reshape(starts.size, length)
+    return off.max(axis=1)
+
+
+def _motions_deg(view: _Segment, starts: np.ndarray, length: int) -> np.ndarray:
+    """:func:`_motion_deg` of the stretches [lo, lo + length) for every ``lo`` in ``starts``, vectorised over the
+    stretches (a gap is judged on dozens of them)."""
+    own = np.degrees((view.local[starts - 1].inv() * view.local[starts + length]).magnitude())
+    out = own.astype(float)
+    for nb, ok in view.nbs:
+        known = np.concatenate([[0], np.cumsum(~np.asarray(ok, dtype=bool))])
+        whole = known[starts + length + 1] - known[starts - 1] == 0     # known from lo - 1 through lo + length
+        if whole.any():
+            out[whole] = np.maximum(out[whole], _off_slerp_many(nb, starts[whole], length))
+    return out
+
+
 def _holdouts(view: _Segment, s: int, e: int, window: int, a: int) -> tuple[list[int], list[float], float, int]:
     """Where to hide stretches of the gap's length to estimate a fill's error, with how much each moves.
 
@@ -260,7 +288,8 @@ def _holdouts(view: _Segment, s: int, e: int, window: int, a: int) -> tuple[list
     beside = [lo for lo in (s - a - length, e + a)
               if lo - a >= 0 and lo + length + a <= n and ok[lo - a:lo + length + a].all()]
     gap = _motion_deg(view, s, e)
-    moves = {lo: _motion_deg(view, lo, lo + length) for lo in {*usable, *beside}}
+    starts = np.array(sorted({*usable, *beside}), dtype=np.int64)
+    moves = dict(zip(starts.tolist(), _motions_deg(view, starts, length).tolist(), strict=True)) if starts.size else {}
     like = sorted((abs(moves[lo] - gap), lo) for lo in usable if moves[lo] >= _LIKE_SHARE * gap and lo not in beside)
     picked = beside + [lo for _, lo in like[:_MATCHED_STRETCHES]]
     return picked, [moves[lo] for lo in picked], gap, len(beside)
