@@ -65,14 +65,6 @@ def dataset_part_job(root: str, name: str, thresholds: C.Thresholds, parent_pid:
 
 # ------------------------------------------------------------------------------------------ the merge
 
-def _warm_up() -> None:
-    """Load, while the takes run, what the end of the run loads otherwise: pyarrow imports pandas (about half a
-    second) the first time it turns Python values into an array, which the report's take table does."""
-    import pyarrow as pa
-
-    pa.array([0])
-
-
 class ReportInBackground:
     """The report of a run that is going on, on its workers ``pool`` (a
     :class:`gazepipe.pipeline.engine.WorkerPool`; ``None``: everything is done by :meth:`finish`).
@@ -113,7 +105,9 @@ class ReportInBackground:
         self._in_flight = 0
         self._closing = False
         self._dispatcher: threading.Thread | None = None
-        threading.Thread(target=_warm_up, name="gazepipe-report-warm-up", daemon=True).start()
+        # nothing is imported in a thread beside the takes: a thread loading an extension module (holding the
+        # interpreter lock, waiting for the loader's) while a unit scans the loaded libraries for thread pools
+        # (holding the loader's lock, its callback waiting for the interpreter's) hangs the run
         if pool is not None:
             self._dispatcher = threading.Thread(target=self._dispatch, name="gazepipe-report-jobs", daemon=True)
             self._dispatcher.start()
