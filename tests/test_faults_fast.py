@@ -11,7 +11,6 @@ The cases are the bench's (same generators, same seed); they run two at a time.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import shutil
 from pathlib import Path
@@ -20,7 +19,6 @@ import pytest
 
 from bench.bench_faults import (
     QUOTA,
-    RUN_TIMEOUT_S,
     Runner,
     bomb_cases,
     mutation_cases,
@@ -98,10 +96,6 @@ def _picked(bases: dict[str, Path]) -> list:
         same = [c for c in found if c.mode == mode]
         chosen.append(same[0] if same else with_mode(found[0], mode, bases))
     bombs = [b for b in bomb_cases(SEED, bases) if b.mutation in BOMBS and b.mode == "inspect"]
-    # the suite runs these beside other tests on two cores: a run gets three times the bench's 60 s before it is
-    # called a hang (a run of these inputs takes about 2 s alone; a deadlock still fails)
-    chosen = [dataclasses.replace(c, timeout_s=3 * RUN_TIMEOUT_S) if c.mode == "run" and c.timeout_s is None else c
-              for c in chosen]
     return chosen + bombs
 
 
