@@ -2,24 +2,8 @@
 stated rate that is no NTSC rate, partly exported as Vicon Nexus CSV, with face tracking lost at times (the
 tables and rows ``bench_datasets_truth.py`` checks, with these exports).
 
-The gaze datasets built from hostile generated sessions, row by row against the ground truth.
-
-Sessions from ``gazepipe.synth`` with the hazards of real capture (ghost spikes on any marker, 1–3 s occlusions
-of trunk and neck markers inside the first rest and across the crop's edges, dense interior gaps), with the
-ten-segment marker layout in a z-up lab and the four-segment layout in a y-up lab, for ``--seeds`` seeds. Each is
-run through the whole pipeline (``gazepipe run``, serial). Printed per layout: takes that failed a stage; every
-segment rotation of every (unmirrored) ``gaze_rnn`` and ``gaze_rnn_lod`` row against the truth (median, p99, max
-degrees, and rows with a segment more than 5° off), and its target direction; the share of the frames with valid eyes inside the true crop
-that ``gaze_rnn`` holds, and of the crop's frames that ``gaze_rnn_lod`` holds (and again leaving out the frames whose
-target marker is hidden in a gap of more than a second: where the pole moves between goals, no fill can know it,
-and those frames have no input); the frames each dataset dropped, by reason.
-
-With ``--bursts N`` every mocap take gets N occlusion bursts (``SynthConfig.occlusion_bursts``: 30-80 % of the
-subject's markers, on one side, gone for 0.2-1.5 s). With ``--swaps N`` every mocap take also gets N label swaps (``SynthConfig.label_swaps``); ``--no-repair`` runs
-with ``clean.repair_swaps = false``, to see what the swaps cost without their repair.
-
-With ``--clap-hazards S`` that share of the gaze_follow takes gets one of the clapper's hazards (a weak clap, a
-hidden clap, dropped video frames, a clapper marker gap: ``SynthConfig.clap_hazards``).
+The sessions, hazards (``--bursts``, ``--swaps``, ``--no-repair``, ``--clap-hazards``) and the rows, errors and
+coverage printed per layout are ``bench_datasets_truth.py``'s (see its docstring).
 
 Exports as users have them (issue 46): ``--rate HZ`` captures the mocap at that rate (69.9 Hz is no NTSC rate:
 it must be read as 69.9 Hz, not 69.9301); ``--nexus-csv S`` exports that share of the mocap takes as Vicon Nexus
