@@ -287,3 +287,124 @@ def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand:
                 d[k, i] = np.sqrt((dx * dx + dy * dy) + dz * dz)
                 both[k, i] = True
     return d, both
+
+
+# ------------------------------------------------------------------------------------- swap references
+
+@_jit
+def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) -> float:
+    """Triple product of the directions from marker ``origin`` to markers ``a``, ``b``, ``c`` in frame ``s`` of
+    ``xyz`` (S, M, 3), as a share of the product of their lengths (in [−1, 1]; NaN where a length is 0 or a
+    position NaN): the arithmetic of :func:`gazepipe.stages.clean.swaps._volume`, in its order."""
+    u0 = xyz[s, a, 0] - xyz[s, origin, 0]
+    u1 = xyz[s, a, 1] - xyz[s, origin, 1]
+    u2 = xyz[s, a, 2] - xyz[s, origin, 2]
+    v0 = xyz[s, b, 0] - xyz[s, origin, 0]
+    v1 = xyz[s, b, 1] - xyz[s, origin, 1]
+    v2 = xyz[s, b, 2] - xyz[s, origin, 2]
+    w0 = xyz[s, c, 0] - xyz[s, origin, 0]
+    w1 = xyz[s, c, 1] - xyz[s, origin, 1]
+    w2 = xyz[s, c, 2] - xyz[s, origin, 2]
+    det = u0 * (v1 * w2 - v2 * w1) + u1 * (v2 * w0 - v0 * w2) + u2 * (v0 * w1 - v1 * w0)
+    return det / np.sqrt((u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2)
+                         * (w0 * w0 + w1 * w1 + w2 * w2))
+
+
+@_jit
+def _median_of(values: np.ndarray, n: int) -> float:
+    """Median of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): the lower and
+    upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
+    if n == 0:
+        return np.nan
+    v = np.partition(values[:n], ((n - 1) // 2, n // 2))     # the two middle order statistics in place
+    lo = v[(n - 1) // 2]
+    hi = lo if n % 2 == 1 else v[n // 2]
+    return 0.5 * (lo + hi)
+
+
+@_jit
+def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
+    """The ``q`` quantile of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): numpy's default
+    (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided interpolation."""
+    if n == 0:
+        return np.nan
+    virtual = (n - 1) * q
+    if virtual >= n - 1:
+        return np.max(values[:n])
+    below = np.floor(virtual)
+    i = int(below)
+    v = np.partition(values[:n], (i, i + 1))                # the two order statistics around the index
+    gamma = virtual - below
+    diff = v[i + 1] - v[i]
+    if gamma >= 0.5:
+        return v[i + 1] - diff * (1.0 - gamma)
+    return v[i] + diff * gamma
+
+
+@_jit
+def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.ndarray, q: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """How each reference triple ``tri`` (C, 3) columns tells marker ``m`` from its mirror image, over the
+    sample frames of ``xyz`` (S, M, 3) where ``ok`` (S, M) has ``m``: per triple, the frames where all four are
+    seen, the median of its volume (:func:`triple_volume`) there, the ``q`` quantile of the volume signed by the
+    median's sign (how near it comes to turning over) and, where marker ``twin`` (−1: none) is seen in at least
+    10 of those frames and is no corner, the ``q`` quantile of the smaller of that signed volume and the twin's
+    volume from the same corners, the other way (−inf where it cannot tell). Quantiles and medians leave NaN
+    out; each is NaN with no value."""
+    n_s = ok.shape[0]
+    n_c = tri.shape[0]
+    seen = np.zeros(n_c, dtype=np.int64)
+    median = np.full(n_c, np.nan)
+    low = np.full(n_c, np.nan)
+    tells = np.full(n_c, -np.inf)
+    rows = np.empty(n_s, dtype=np.int64)
+    n_r = 0
+    n_twin = 0
+    for s in range(n_s):
+        if ok[s, m]:
+            rows[n_r] = s
+            n_r += 1
+            if twin >= 0 and ok[s, twin]:
+                n_twin += 1
+    vol = np.empty(n_r)
+    buf = np.empty(n_r)
+    both = np.empty(n_r)
+    for k in range(n_c):
+        a, b, c = tri[k, 0], tri[k, 1], tri[k, 2]
+        n_v = 0
+        for i in range(n_r):
+            s = rows[i]
+            if ok[s, a] and ok[s, b] and ok[s, c]:
+                seen[k] += 1
+                vol[i] = triple_volume(xyz, s, m, a, b, c)
+                if not np.isnan(vol[i]):
+                    buf[n_v] = vol[i]
+                    n_v += 1
+            else:
+                vol[i] = np.nan
+        median[k] = _median_of(buf, n_v)
+        sign = _sign(median[k])
+        n_v = 0
+        for i in range(n_r):
+            signed = sign * vol[i]
+            if not np.isnan(signed):
+                buf[n_v] = signed
+                n_v += 1
+        low[k] = _quantile_of(buf, n_v, q)
+        if twin < 0 or n_twin < 10 or a == twin or b == twin or c == twin:
+            continue
+        n_b = 0
+        for i in range(n_r):
+            s = rows[i]
+            if not ok[s, twin]:
+                continue
+            signed = sign * vol[i]
+            other = -sign * triple_volume(xyz, s, twin, a, b, c)
+            smaller = signed if signed <= other else other
+            if not (np.isnan(signed) or np.isnan(other)):
+                both[n_b] = smaller
+                n_b += 1
+        value = _quantile_of(both, n_b, q)
+        if np.isfinite(value):
+            tells[k] = value
+    return seen, median, low, tells

@@ -244,6 +244,8 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
     keeps the other sign, by a clear share, as its own keeps its), then the others that keep their sign
     (:data:`CHIRAL_OUTLIERS`), farthest from turning over first; at most :data:`N_CHIRAL`. Corners are markers
     of rigid bodies only (the trunk, for a marker on no segment)."""
+    from gazepipe.stages.clean.kernels import chiral_triples     # numba: imported where first needed
+
     n_m, k = index.shape
     chiral = np.full((n_m, N_CHIRAL, 3), -1, dtype=np.int64)
     handedness = np.zeros((n_m, N_CHIRAL))
@@ -257,29 +259,21 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
     anchored = np.append((spread <= RIGID_SPREAD_MM).sum(axis=1) >= MIN_REFERENCES, False)    # index −1: none
     for m in range(n_m):
         usable = triples[(index[m][triples] >= 0).all(axis=1) & anchored[index[m][triples]].all(axis=1)]
-        rows = np.flatnonzero(ok[:, m])
-        if usable.size == 0 or rows.size < 10:
+        if usable.size == 0 or np.count_nonzero(ok[:, m]) < 10:
             continue
         tri = index[m][usable]                                                      # (C, 3) columns
-        corners = x[rows[:, None, None], tri[None]]                                 # (S, C, 3, 3)
-        vol = _volume(x[rows, m][:, None], corners[:, :, 0], corners[:, :, 1], corners[:, :, 2])
-        seen = ok[rows[:, None, None], tri[None]].all(axis=2)
-        vol[~seen] = np.nan
-        enough = seen.sum(axis=0) >= 10
+        seen, median, low, tells = chiral_triples(x, ok, m, int(twins[m]), tri, CHIRAL_OUTLIERS)
+        enough = seen >= 10
         if not enough.any():
             continue
-        tri, vol, corners = tri[enough], vol[:, enough], corners[:, enough]
-        median = _nanmedian(vol, axis=0)
+        tri, median, low, tells = tri[enough], median[enough], low[enough], tells[enough]
         sign = np.sign(median)
         rigid = np.maximum.reduce([spread[m, tri[:, 0]], spread[m, tri[:, 1]], spread[m, tri[:, 2]],
                                    spread[tri[:, 0], tri[:, 1]], spread[tri[:, 0], tri[:, 2]],
                                    spread[tri[:, 1], tri[:, 2]]]) <= RIGID_SPREAD_MM
-        # how near each triple comes to turning over: its signed volume's low quantile over the frames
-        low = np.nanquantile(sign[None] * vol, CHIRAL_OUTLIERS, axis=0)
         clear = np.abs(median) >= MIN_CHIRAL_VOLUME
         good = clear & (rigid | (low >= 0.5 * MIN_CHIRAL_VOLUME))
-        telling = good & ~rigid & (_tells_twin(x[rows], ok[rows], twins[m], tri, corners, sign, vol)
-                                   >= 0.5 * MIN_CHIRAL_VOLUME)
+        telling = good & ~rigid & (tells >= 0.5 * MIN_CHIRAL_VOLUME)
         # rigid first, then those telling the twin; the others only for a marker without either (a triple that
         # keeps its sign from the twin's place too outvotes the ones that turn when the two are exchanged)
         if (good & rigid).any() or telling.any():
@@ -309,27 +303,6 @@ def _twins(distance_all: np.ndarray, spread_all: np.ndarray) -> np.ndarray:
         if np.isfinite(score).any():
             out[m] = int(np.argmin(score))
     return out
-
-
-def _tells_twin(x: np.ndarray, ok: np.ndarray, twin: int, tri: np.ndarray, corners: np.ndarray, sign: np.ndarray,
-                vol: np.ndarray) -> np.ndarray:
-    """(C,) how clearly each triple ``tri`` (corners (S, C, 3, 3) in the frames ``x`` (S, M, 3) where the
-    marker is ``ok``) tells the marker from its ``twin`` (−1: none): the low quantile (:data:`CHIRAL_OUTLIERS`)
-    over the frames where both are seen of the smaller of the marker's signed volume (``vol``, its ``sign``)
-    and the twin's, the other way; −inf where it cannot tell (no twin, the twin a corner)."""
-    out = np.full(tri.shape[0], -np.inf)
-    if twin < 0:
-        return out
-    at = ok[:, twin]
-    if at.sum() < 10:
-        return out
-    other = _volume(x[at, twin][:, None], corners[at][:, :, 0], corners[at][:, :, 1], corners[at][:, :, 2])
-    both = np.minimum(sign[None] * vol[at], -sign[None] * other)
-    both[:, (tri == twin).any(axis=1)] = np.nan
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)          # a triple never seen with the twin: NaN
-        low = np.nanquantile(both, CHIRAL_OUTLIERS, axis=0)
-    return np.where(np.isfinite(low), low, -np.inf)
 
 
 def _spread_out(tri: np.ndarray, ranked: np.ndarray) -> np.ndarray:
