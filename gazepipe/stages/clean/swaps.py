@@ -32,7 +32,6 @@ Positions are (T, M, 3) float64 mm, NaN where not measured; ``valid`` is (T, M) 
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from itertools import combinations
@@ -244,7 +243,7 @@ def _handedness(x: np.ndarray, ok: np.ndarray, index: np.ndarray, spread_all: np
     keeps the other sign, by a clear share, as its own keeps its), then the others that keep their sign
     (:data:`CHIRAL_OUTLIERS`), farthest from turning over first; at most :data:`N_CHIRAL`. Corners are markers
     of rigid bodies only (the trunk, for a marker on no segment)."""
-    from gazepipe.stages.clean.kernels import chiral_triples     # numba: imported where first needed
+    from gazepipe.stages.clean.kernels import chiral_triples  # numba: imported where first needed
 
     n_m, k = index.shape
     chiral = np.full((n_m, N_CHIRAL, 3), -1, dtype=np.int64)
