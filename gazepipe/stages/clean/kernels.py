@@ -292,22 +292,28 @@ def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand:
 # ------------------------------------------------------------------------------------- swap references
 
 @_jit
-def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) -> float:
-    """Triple product of the directions from marker ``origin`` to markers ``a``, ``b``, ``c`` in frame ``s`` of
-    ``xyz`` (S, M, 3), as a share of the product of their lengths (in [−1, 1]; NaN where a length is 0 or a
-    position NaN): the arithmetic of :func:`gazepipe.stages.clean.swaps._volume`, in its order."""
-    u0 = xyz[s, a, 0] - xyz[s, origin, 0]
-    u1 = xyz[s, a, 1] - xyz[s, origin, 1]
-    u2 = xyz[s, a, 2] - xyz[s, origin, 2]
-    v0 = xyz[s, b, 0] - xyz[s, origin, 0]
-    v1 = xyz[s, b, 1] - xyz[s, origin, 1]
-    v2 = xyz[s, b, 2] - xyz[s, origin, 2]
-    w0 = xyz[s, c, 0] - xyz[s, origin, 0]
-    w1 = xyz[s, c, 1] - xyz[s, origin, 1]
-    w2 = xyz[s, c, 2] - xyz[s, origin, 2]
+def _volume_from(o0: float, o1: float, o2: float, xyz: np.ndarray, s: int, a: int, b: int, c: int) -> float:
+    """Triple product of the directions from the point ``(o0, o1, o2)`` to markers ``a``, ``b``, ``c`` in frame
+    ``s`` of ``xyz`` (S, M, 3), as a share of the product of their lengths (in [−1, 1]; NaN where a length is 0
+    or a position NaN): the arithmetic of :func:`gazepipe.stages.clean.swaps._volume`, in its order."""
+    u0 = xyz[s, a, 0] - o0
+    u1 = xyz[s, a, 1] - o1
+    u2 = xyz[s, a, 2] - o2
+    v0 = xyz[s, b, 0] - o0
+    v1 = xyz[s, b, 1] - o1
+    v2 = xyz[s, b, 2] - o2
+    w0 = xyz[s, c, 0] - o0
+    w1 = xyz[s, c, 1] - o1
+    w2 = xyz[s, c, 2] - o2
     det = u0 * (v1 * w2 - v2 * w1) + u1 * (v2 * w0 - v0 * w2) + u2 * (v0 * w1 - v1 * w0)
     return det / np.sqrt((u0 * u0 + u1 * u1 + u2 * u2) * (v0 * v0 + v1 * v1 + v2 * v2)
                          * (w0 * w0 + w1 * w1 + w2 * w2))
+
+
+@_jit
+def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) -> float:
+    """:func:`_volume_from` marker ``origin``'s place in frame ``s``."""
+    return _volume_from(xyz[s, origin, 0], xyz[s, origin, 1], xyz[s, origin, 2], xyz, s, a, b, c)
 
 
 @_jit
@@ -408,3 +414,87 @@ def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.n
         if np.isfinite(value):
             tells[k] = value
     return seen, median, low, tells
+
+
+@_jit
+def _is_flipped(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
+                hand: np.ndarray, exclude: int, clear: float) -> bool:
+    """Whether the point ``(p0, p1, p2)`` in frame ``s`` turns more of the chiral triples ``tri`` (J, 3) (−1:
+    none; those with ``exclude`` for a corner, with no handedness, or not all measured in ``valid`` are left
+    out) against their handedness ``hand`` (J,), by a volume of at least ``clear``, than it leaves with it."""
+    turned = 0
+    kept = 0
+    for j in range(tri.shape[0]):
+        a, b, c = tri[j, 0], tri[j, 1], tri[j, 2]
+        if a < 0 or b < 0 or c < 0 or hand[j] == 0.0 or a == exclude or b == exclude or c == exclude:
+            continue
+        if not (valid[s, a] and valid[s, b] and valid[s, c]):
+            continue
+        vol = _volume_from(p0, p1, p2, xyz, s, a, b, c)
+        sign = _sign(vol)
+        if np.abs(vol) >= clear and sign == -hand[j]:
+            turned += 1
+        if sign == hand[j]:
+            kept += 1
+    return turned > kept
+
+
+@_jit
+def flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
+            chiral: np.ndarray, hand: np.ndarray, clear: float) -> np.ndarray:
+    """(n, C) bool: ``points`` (n, C, 3) judged as markers ``as_marker`` (C,) turn more of their chiral triples
+    (``chiral`` (M, J, 3), ``hand`` (M, J); none with ``exclude[c]`` for a corner, −1: none) against their
+    handedness than they leave with it, in the frames of ``xyz`` (n, M, 3) where ``valid`` (n, M)."""
+    n, n_c = points.shape[0], points.shape[1]
+    out = np.zeros((n, n_c), dtype=np.bool_)
+    for s in range(n):
+        for c in range(n_c):
+            mk = as_marker[c]
+            out[s, c] = _is_flipped(points[s, c, 0], points[s, c, 1], points[s, c, 2], xyz, valid, s,
+                                    chiral[mk], hand[mk], exclude[c], clear)
+    return out
+
+
+@_jit
+def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
+            index: np.ndarray, distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray,
+            min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
+    """The largest and the lower-median deviation (n, C) of ``points`` (n, C, 3), each judged as marker
+    ``as_marker[c]`` against its references (``index`` (M, K) columns, −1: none; their ``distance`` and
+    ``spread`` (M, K) mm; ``exclude[c]`` left out) measured in the same frame of ``xyz`` (n, M, 3) where
+    ``valid`` (n, M): ``|d − distance| / spread``, the point's distance ``d`` to each reference as
+    :func:`gazepipe.stages.geometry.norm3` computes it. The largest is inf where the point is :func:`flipped`;
+    both NaN with fewer than ``min_references`` deviations."""
+    n, n_c = points.shape[0], points.shape[1]
+    n_k = index.shape[1]
+    worst = np.full((n, n_c), np.nan)
+    median = np.full((n, n_c), np.nan)
+    dev = np.empty(n_k)
+    for s in range(n):
+        for c in range(n_c):
+            mk = as_marker[c]
+            p0, p1, p2 = points[s, c, 0], points[s, c, 1], points[s, c, 2]
+            count = 0
+            for k in range(n_k):
+                r = index[mk, k]
+                if r < 0 or r == exclude[c] or not valid[s, r]:
+                    continue
+                dx = p0 - xyz[s, r, 0]
+                dy = p1 - xyz[s, r, 1]
+                dz = p2 - xyz[s, r, 2]
+                e = np.abs(np.sqrt((dx * dx + dy * dy) + dz * dz) - distance[mk, k]) / spread[mk, k]
+                if not np.isfinite(e):
+                    continue
+                at = count                                    # insertion: the few deviations kept sorted
+                while at > 0 and dev[at - 1] > e:
+                    dev[at] = dev[at - 1]
+                    at -= 1
+                dev[at] = e
+                count += 1
+            if count < min_references:
+                continue
+            median[s, c] = dev[(count - 1) // 2]
+            worst[s, c] = dev[count - 1]
+            if _is_flipped(p0, p1, p2, xyz, valid, s, chiral[mk], hand[mk], exclude[c], clear):
+                worst[s, c] = np.inf
+    return worst, median

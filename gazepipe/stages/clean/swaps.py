@@ -409,27 +409,30 @@ def _misfit(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     """Misfits (n, C) of ``points`` (n, C, 3), each judged as marker ``as_marker[c]`` against its references in
     the same frames (``xyz`` (n, M, 3), ``valid`` (n, M)); references equal to ``exclude[c]`` are left out.
     Two of them: the largest deviation (a swap of mirror-image markers is seen by the one or two references
-    off the mirror plane only), and the lower median (a marker most of its references disagree with: displaced
-    itself, not one of its references). NaN where fewer than :data:`MIN_REFERENCES` references are measured."""
-    idx = refs.index[as_marker]                                         # (C, K)
-    has = idx >= 0
-    if exclude is not None:
-        has &= idx != np.asarray(exclude)[:, None]
-    cols = np.where(has, idx, 0)
-    d = norm3(points[:, :, None, :] - xyz[:, cols])                     # (n, C, K)
-    dev = np.abs(d - refs.distance_mm[as_marker][None]) / refs.spread_mm[as_marker][None]
-    dev[~(has[None] & valid[:, cols])] = np.nan
-    count = np.isfinite(dev).sum(axis=2)
-    dev.sort(axis=2)                                                    # NaN last
-    at = np.maximum(count - 1, 0)[..., None]
-    worst = np.take_along_axis(dev, at, axis=2)[..., 0]
-    # the lower median: above the tolerance only where most of them disagree (of two, both: one astray and one
-    # agreeing cannot say which of the two markers is wrong)
-    median = np.take_along_axis(dev, at // 2, axis=2)[..., 0]
-    enough = count >= MIN_REFERENCES
-    # a mirror image of the marker keeps every distance and turns its chiral triple the other way
-    worst = np.where(_flipped(points, xyz, valid, as_marker, refs, exclude), np.inf, worst)
-    return np.where(enough, worst, np.nan), np.where(enough, median, np.nan)
+    off the mirror plane only; inf where the point turns the marker's chiral triples, :func:`_flipped`: a
+    mirror image of the marker keeps every distance), and the lower median (a marker most of its references
+    disagree with: displaced itself, not one of its references; above the tolerance only where most of them
+    disagree: of two, both, since one astray and one agreeing cannot say which of the two markers is wrong).
+    NaN where fewer than :data:`MIN_REFERENCES` references are measured."""
+    from gazepipe.stages.clean.kernels import misfits
+
+    chiral, hand = _chirality(refs)
+    return misfits(points, xyz, valid, np.asarray(as_marker, dtype=np.int64), _excluded(exclude, points.shape[1]),
+                   refs.index, refs.distance_mm, refs.spread_mm, chiral, hand, MIN_REFERENCES,
+                   0.5 * MIN_CHIRAL_VOLUME)
+
+
+def _chirality(refs: References) -> tuple[np.ndarray, np.ndarray]:
+    """``refs``' chiral triples (M, J, 3) and handedness (M, J), none (J = 0) when it has none."""
+    if refs.chiral is None or refs.handedness is None:
+        n_m = refs.index.shape[0]
+        return np.full((n_m, 0, 3), -1, dtype=np.int64), np.zeros((n_m, 0))
+    return refs.chiral, refs.handedness
+
+
+def _excluded(exclude: np.ndarray | None, n: int) -> np.ndarray:
+    """(n,) int64 columns left out of each judgement (−1: none)."""
+    return np.full(n, -1, dtype=np.int64) if exclude is None else np.asarray(exclude, dtype=np.int64)
 
 
 def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References,
@@ -437,8 +440,11 @@ def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: 
     """(n, C) bool: ``points`` judged as ``as_marker`` turn more of its chiral triples (all three measured there,
     and none of them ``exclude``) against their handedness, by a clear volume, than they leave with it: one
     corner astray turns the triples it is in only."""
-    vol, hand, seen = _chiral_volumes(points, xyz, valid, as_marker, refs, exclude)
-    return _turned(vol, hand[None], seen) if vol is not None else np.zeros(points.shape[:2], dtype=bool)
+    from gazepipe.stages.clean.kernels import flipped
+
+    chiral, hand = _chirality(refs)
+    return flipped(points, xyz, valid, np.asarray(as_marker, dtype=np.int64), _excluded(exclude, points.shape[1]),
+                   chiral, hand, 0.5 * MIN_CHIRAL_VOLUME)
 
 
 def _hand_kept(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References
