@@ -113,6 +113,8 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
     for kv in params or []:
         cmd += ["--param", kv]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    # as an installed package runs: Python keeps its caches beside the code (bytecode, the code digests' memo)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
@@ -164,12 +166,16 @@ def after_takes(run: dict, out: Path) -> dict[str, float] | None:
 
 
 def stage_times(out: Path, key: str = "duration_s") -> dict[str, float]:
-    """Seconds per stage summed over takes (unit records), and per dataset build: ``key`` ``duration_s`` (wall)
+    """Seconds per stage summed over takes (unit records), per session stage (``session:<name>``, summed over
+    sessions) and per dataset build: ``key`` ``duration_s`` (wall)
     or ``cpu_s`` (CPU; a record without it gives its ``duration_s``)."""
     per: dict[str, float] = defaultdict(float)
     for p in (out / ".gazepipe" / "units").glob("*/*/*.json"):
         rec = json.loads(p.read_text())
         per[rec["stage"]] += float(rec.get(key, rec.get("duration_s", 0.0)))
+    for p in (out / ".gazepipe" / "session_units").glob("*/*.json"):
+        rec = json.loads(p.read_text())
+        per[f"session:{p.stem}"] += float(rec.get(key, rec.get("duration_s", 0.0)))
     for p in (out / ".gazepipe" / "datasets").glob("*.json"):
         rec = json.loads(p.read_text())
         per[f"build:{p.stem}"] += float(rec.get(key, rec.get("duration_s", 0.0)))

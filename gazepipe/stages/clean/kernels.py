@@ -498,3 +498,41 @@ def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
             if _is_flipped(p0, p1, p2, xyz, valid, s, chiral[mk], hand[mk], exclude[c], clear):
                 worst[s, c] = np.inf
     return worst, median
+
+
+@_jit
+def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The median (mm) and the spread (1.4826 × the median absolute deviation, mm) over the frames of ``xyz``
+    (S, M, 3) of each body marker's distance to every other body marker (``body`` (M,) bool), from the frames
+    where ``ok`` (S, M) has both: (M, M) each, row ``m`` for the distances from marker ``m``, NaN where fewer
+    than ``max(10, half of m's frames)`` such frames hold a finite distance (or where a marker is no body
+    marker, and on the diagonal). Distances as :func:`gazepipe.stages.geometry.norm3` computes them."""
+    n_s, n_m = ok.shape
+    median = np.full((n_m, n_m), np.nan)
+    spread = np.full((n_m, n_m), np.nan)
+    buf = np.empty(n_s)
+    for m in range(n_m):
+        if not body[m]:
+            continue
+        need = max(10, np.count_nonzero(ok[:, m]) // 2)
+        for j in range(n_m):
+            if j == m or not body[j]:
+                continue
+            n = 0
+            for s in range(n_s):
+                if ok[s, m] and ok[s, j]:
+                    dx = xyz[s, m, 0] - xyz[s, j, 0]
+                    dy = xyz[s, m, 1] - xyz[s, j, 1]
+                    dz = xyz[s, m, 2] - xyz[s, j, 2]
+                    d = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                    if np.isfinite(d):
+                        buf[n] = d
+                        n += 1
+            if n < need:
+                continue
+            mid = _median_of(buf, n)
+            for i in range(n):
+                buf[i] = np.abs(buf[i] - mid)
+            median[m, j] = mid
+            spread[m, j] = 1.4826 * _median_of(buf, n)
+    return median, spread

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from gazepipe.stages.clean.filters import gaussian_runs, true_runs
+from gazepipe.stages.clean.spikes import _sorted_median
 
 #: a marker's speed is not its cluster's (:func:`mean_speed`) above this many times their median plus this (mm/s):
 #: a rigid cluster turning fast has its markers' speeds within a factor of two or three
@@ -48,7 +49,7 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
         sub = speed[:, idx]
         judged = np.isfinite(sub).sum(axis=1) >= 3
         if judged.any():
-            med = np.nanmedian(sub[judged], axis=1)
+            med = _median_across(sub[judged])
             odd = sub[judged] > OUTLIER_FACTOR * med[:, None] + OUTLIER_MM_S
             part = sub[judged]
             part[odd] = np.nan
@@ -59,6 +60,12 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
     enough = (n > 0) & (n >= min_share * cols.size)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(enough, total / np.maximum(n, 1), np.nan)
+
+
+def _median_across(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=-1)`` (the same values) of a few markers per frame: every line sorted at once,
+    without nanmedian's masked-array path for short lines."""
+    return _sorted_median(a, 1)[0]
 
 
 def _speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None) -> np.ndarray:
@@ -152,9 +159,9 @@ def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequ
             continue
         rows = np.flatnonzero(judged)
         s = step[rows]
-        med = np.nanmedian(s, axis=1)
+        med = _median_across(np.moveaxis(s, 1, -1))
         # the cluster's step length around each frame (a leap of most of its markers is one frame's)
-        length = ndimage.median_filter(np.nanmedian(np.linalg.norm(s, axis=2), axis=1), size=2 * _JUMP_SIDE + 1,
+        length = ndimage.median_filter(_median_across(np.linalg.norm(s, axis=2)), size=2 * _JUMP_SIDE + 1,
                                        mode="nearest")
         dev = np.linalg.norm(s - med[:, None, :], axis=2)
         jump = ok[rows] & (np.nan_to_num(dev) > JUMP_MM + JUMP_SPREAD * length[:, None])

@@ -138,6 +138,8 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
     (one take, or the frames of several takes of the subject stacked), among the columns ``markers`` (default
     all; the others get none: the target and the clapper are no part of the body); tolerances are left infinite
     (:func:`with_tolerances` sets them for a take)."""
+    from gazepipe.stages.clean.kernels import pair_distance_stats  # numba: imported where first needed
+
     n_t, n_m = valid.shape
     body = np.zeros(n_m, dtype=bool)
     body[np.arange(n_m) if markers is None else np.asarray(markers, dtype=np.int64)] = True
@@ -146,26 +148,16 @@ def steady_references(xyz: np.ndarray, valid: np.ndarray, markers: np.ndarray | 
     index = np.full((n_m, N_REFERENCES), -1, dtype=np.int64)
     distance = np.full((n_m, N_REFERENCES), np.nan)
     spread_mm = np.full((n_m, N_REFERENCES), np.nan)
-    distance_all = np.full((n_m, n_m), np.nan)
-    spread_all = np.full((n_m, n_m), np.nan)
+    distance_all, spread = pair_distance_stats(x, ok, body)                   # (M, M) medians, spreads
+    spread_all = np.maximum(spread, SPREAD_FLOOR_MM)
     for m in np.flatnonzero(body):
-        d = norm3(x[:, m:m + 1] - x)                                  # (S, M) distance to every marker
-        d[~(ok[:, m:m + 1] & ok)] = np.nan
-        enough = (np.isfinite(d).sum(axis=0) >= max(10, ok[:, m].sum() // 2)) & body
-        enough[m] = False
-        if not enough.any():
-            continue
-        median = _nanmedian(d[:, enough], axis=0)
-        spread = 1.4826 * _nanmedian(np.abs(d[:, enough] - median), axis=0)
-        cols = np.flatnonzero(enough)
-        distance_all[m, cols] = median
-        spread_all[m, cols] = np.maximum(spread, SPREAD_FLOOR_MM)
+        cols = np.flatnonzero(np.isfinite(distance_all[m]))
         # the steadiest distances: a marker rigid with too few others for the bound (a shoulder, an elbow: on no
         # segment) takes its steadiest others as well, each judged within its own spread
-        order = np.argsort(spread, kind="stable")[:N_REFERENCES]
-        index[m, :order.size] = cols[order]
-        distance[m, :order.size] = median[order]
-        spread_mm[m, :order.size] = np.maximum(spread[order], SPREAD_FLOOR_MM)
+        order = cols[np.argsort(spread[m, cols], kind="stable")[:N_REFERENCES]]
+        index[m, :order.size] = order
+        distance[m, :order.size] = distance_all[m, order]
+        spread_mm[m, :order.size] = spread_all[m, order]
     distance_all, spread_all = _known_distances(distance_all, spread_all)
     # the handedness from the samples that keep their distances only: a marker's own swaps (a large share of a
     # short take's frames) are no part of its body's shape

@@ -121,3 +121,18 @@ def test_a_motion_only_fills_through_time_show_is_hidden():
     speed2, hidden2 = rest_speed(xyz, present, 30.0, 1.75, 6.0, seen=present)
     np.testing.assert_array_equal(speed2, speed)
     assert not hidden2.any()
+
+
+def test_median_across_markers_is_nanmedians():
+    import warnings
+
+    from gazepipe.stages.clean.rests import _median_across
+
+    rng = np.random.default_rng(5)
+    for k in (2, 3, 4, 7):
+        a = rng.normal(size=(400, k))
+        a[rng.random(a.shape) < 0.35] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)        # all-NaN rows: NaN, as both give
+            expect = np.nanmedian(a, axis=1)
+        np.testing.assert_array_equal(_median_across(a), expect)

@@ -61,3 +61,26 @@ def test_a_twin_seen_too_rarely_tells_nothing():
     ok[9:, 5] = False                                  # the twin in 9 frames: fewer than 10
     tells = chiral_triples(xyz, ok, 0, 5, np.array([[1, 2, 3]], dtype=np.int64), 0.05)[3]
     assert np.isneginf(tells).all()
+
+
+def test_pair_distance_stats_match_numpys_medians():
+    from gazepipe.stages.clean.kernels import pair_distance_stats
+
+    rng = np.random.default_rng(11)
+    n_s, n_m = 300, 6
+    xyz = rng.normal(size=(1, n_m, 3)) * 200.0 + rng.normal(size=(n_s, n_m, 3)) * 5.0
+    ok = rng.random((n_s, n_m)) > 0.3
+    ok[:, 4] &= np.arange(n_s) < 40                  # marker 4 with marker 0 in fewer than half of 0's frames
+    body = np.array([True, True, True, True, True, False])
+    median, spread = pair_distance_stats(xyz, ok, body)
+    for m in range(5):
+        for j in range(5):
+            both = ok[:, m] & ok[:, j]
+            d = np.linalg.norm(xyz[both, m] - xyz[both, j], axis=1)
+            if j == m or both.sum() < max(10, ok[:, m].sum() // 2):
+                assert np.isnan(median[m, j])
+                continue
+            assert median[m, j] == pytest.approx(np.median(d), rel=1e-12)
+            assert spread[m, j] == pytest.approx(1.4826 * np.median(np.abs(d - np.median(d))), rel=1e-12)
+    assert np.isnan(median[:, 5]).all() and np.isnan(median[5]).all()      # no body marker: no distances
+    assert np.isnan(median[0, 4]) and np.isfinite(median[4, 0])             # judged from each end's frames
