@@ -102,18 +102,29 @@ def motion_energy(read_window: ReadWindow, start: int, stop: int, *, roi: tuple[
         if roi is not None:
             y0, y1, x0, x1 = roi
             frames = frames[:, y0:y1, x0:x1]
-        frames = frames.astype(np.int16)  # grey levels (colour: every channel counts) and their differences
         n += frames.shape[0]
         if prev is not None:
             frames = np.concatenate([prev[None], frames])
         if frames.shape[0] > 1:
-            diff = np.abs(np.diff(frames, axis=0))
-            out.append(diff.reshape(diff.shape[0], -1).mean(axis=1, dtype=np.float64))
+            out.append(_mean_abs_steps(frames))
         if frames.shape[0]:
             prev = frames[-1]
         if n < min(c0 + chunk, stop) - start:
             break  # end of the video
     return (np.concatenate(out) if out else np.zeros(0)), n
+
+
+def _mean_abs_steps(frames: np.ndarray) -> np.ndarray:
+    """(n − 1,) mean absolute difference of every pixel value (colour: every channel) between consecutive
+    ``frames`` (n, ...): the larger minus the smaller in the frames' own unsigned type (no wider copy of the
+    stack), summed exactly in integers, then divided by the count (the value numpy's float64 mean gives)."""
+    a, b = frames[:-1], frames[1:]
+    if np.issubdtype(frames.dtype, np.unsignedinteger):
+        step = np.maximum(a, b) - np.minimum(a, b)
+    else:
+        step = np.abs(b.astype(np.int64) - a)
+    step = step.reshape(step.shape[0], -1)
+    return step.sum(axis=1, dtype=np.int64) / step.shape[1]
 
 
 def _falling_edge(fts: np.ndarray, tm: np.ndarray, e: np.ndarray, p: int, post_n: int, exclude_s: float,

@@ -425,3 +425,23 @@ def test_a_wobble_on_the_open_plateau_keeps_the_displacement_refinement(monkeypa
     straddle = video.STRADDLE_FRAMES if root < 0.5 else 0.0    # the last moving frame may take in the contact
     assert t == pytest.approx((50 + root - straddle) / 60.0)
     assert sd == video.TIMING_FRAMES["displacement"]
+
+
+def test_motion_energy_is_the_mean_absolute_step_across_chunks():
+    from gazepipe.stages.sync.video import motion_energy
+
+    rng = np.random.default_rng(2)
+    frames = rng.integers(0, 256, size=(10, 6, 8), dtype=np.uint8)
+    frames[4] = 0
+    frames[5] = 255                                   # a full-range step: no wrap-around in uint8
+
+    def read_window(a, b):
+        return np.arange(a, b) / 30.0, frames[a:b]
+
+    energy, n = motion_energy(read_window, 0, 10, chunk=3)            # chunk edges inside the steps
+    expect = np.abs(np.diff(frames.astype(np.int64), axis=0)).mean(axis=(1, 2))
+    assert n == 10
+    np.testing.assert_array_equal(energy, expect)
+    assert energy[4] == 255.0
+    roi, _ = motion_energy(read_window, 2, 8, roi=(1, 4, 2, 6), chunk=4)
+    np.testing.assert_array_equal(roi, np.abs(np.diff(frames[2:8, 1:4, 2:6].astype(np.int64), axis=0)).mean(axis=(1, 2)))
