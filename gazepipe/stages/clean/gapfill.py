@@ -344,11 +344,14 @@ class Candidates:
     pca_stretches: list[tuple[int, int]] = field(default_factory=list)
 
 
-def hide_stretches(valid: np.ndarray, m: int, s: int, e: int, validate: bool) -> Hidden:
+def hide_stretches(valid: np.ndarray, m: int, s: int, e: int, validate: bool,
+                   valid_m: np.ndarray | None = None) -> Hidden:
     """The stretches beside gap ``[s, e)`` to hide (:func:`_validation_windows`; none without ``validate``).
     They also get the gap's occlusion pattern: a marker missing in the gap's i-th frame is treated as missing in
-    each stretch's i-th frame, so rigid and PCA are validated with the donors they will really have."""
-    valid_m = valid[:, m]
+    each stretch's i-th frame, so rigid and PCA are validated with the donors they will really have.
+    ``valid_m``: ``valid[:, m]`` as a contiguous array, when the caller holds one (copied far faster than the
+    column of ``valid``)."""
+    valid_m = valid[:, m] if valid_m is None else valid_m
     wins = _validation_windows(valid_m, s, e) if validate else []
     known = valid_m.copy()
     for a, b in wins:
@@ -730,6 +733,9 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
     stats = take_statistics(src, valid) if stats is None else stats
     limits, noise = stats.step_limit_mm, stats.noise_mm
     ever = np.any(valid, axis=0)
+    # each marker's measured samples as one contiguous row: a gap copies its neighbourhood's part of it (a
+    # column of ``valid`` is strided: copying it cost as much as the rest of a short gap at 10 kHz)
+    columns = np.ascontiguousarray(valid.T)
     # the small matrix products below run fastest, and give the same results everywhere, on one BLAS thread
     with one_blas_thread():
         for m in range(n_m):
@@ -749,7 +755,7 @@ def fill_gaps(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, *, clusters: l
                     record, fill = still_gap(src[lo:hi], near, m, s - lo, e - lo, float(limits[m]), limit, cfg)
                 else:
                     record, fill = _fill_gap(src[lo:hi], near, m, s - lo, e - lo, cluster_of.get(m),
-                                             float(limits[m]), limit, float(noise[m]), cfg)
+                                             float(limits[m]), limit, float(noise[m]), cfg, columns[m, lo:hi])
                 record.start, record.stop = s, e
                 records.append(record)
                 if fill is not None:
@@ -920,16 +926,18 @@ def _stretch_reach(max_len: int) -> int:
 
 
 def _fill_gap(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, cluster: list[int] | None,  # noqa: C901
-              step_limit: float, max_error: float | None, noise_mm: float, cfg: _GapSettings
-              ) -> tuple[GapRecord, np.ndarray | None]:
+              step_limit: float, max_error: float | None, noise_mm: float, cfg: _GapSettings,
+              valid_m: np.ndarray | None = None) -> tuple[GapRecord, np.ndarray | None]:
     """Fill gap ``[s, e)`` of marker ``m`` from its neighbourhood ``src`` (n, M, 3) mm, ``valid`` (n, M), frames
     relative to it: the candidates, their validation, the blend (or the frame-by-frame average), the checks.
-    ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`). Returns the gap's record and its
-    (e - s, 3) fill, or None when it stays unfilled (the record says why)."""
+    ``noise_mm``: the marker's noise floor (:func:`interpolation_noise_mm`); ``valid_m``: ``valid[:, m]`` as a
+    contiguous array, when the caller holds one. Returns the gap's record and its (e - s, 3) fill, or None when it
+    stays unfilled (the record says why)."""
     methods = cfg.methods
     own_mates = cluster                  # the segment's; ``cluster`` may become steady mates from other segments
-    hid = hide_stretches(valid, m, s, e, cfg.validation)
-    interp = interpolation_candidates(src[:, m], valid[:, m], s, e, hid, methods)
+    valid_m = valid[:, m] if valid_m is None else valid_m
+    hid = hide_stretches(valid, m, s, e, cfg.validation, valid_m)
+    interp = interpolation_candidates(src[:, m], valid_m, s, e, hid, methods)
     donors = _donor_errors(src, valid, m, s, e, interp, cfg.mates_window) if cfg.validation else {}
     found = _interpolation_suffices(src, valid, m, s, e, hid, interp, donors, noise_mm, cfg)
     if found is not None:
