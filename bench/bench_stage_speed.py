@@ -1,8 +1,8 @@
 """Time of the sync and eyes stages per take, on a generated corpus (default: Klein's, ``bench/_work/klein_x1``).
 
 The stages' inputs are the tables ``gazepipe run`` writes: when ``--out`` has none, the sessions are run once
-(serial) into it. Then, per take, the registered stages (``gazepipe.dag.takes`` ``run_sync`` and
-``run_eyes``) run on those tables ``--repeats`` times, with one BLAS thread as in a run, and the minimum is kept:
+(serial) into it. Then, per take, the registered stages (declared in ``gazepipe.dag.takes``; their runs
+``run_sync`` and ``run_eyes`` in ``gazepipe.dag.nodes``) run on those tables ``--repeats`` times, with one BLAS thread as in a run, and the minimum is kept:
 
 - ``sync``: the whole unit as the pipeline wires it (video probe, frame reading, clap search, table);
 - ``probe``: the video probe alone (part of ``sync``);

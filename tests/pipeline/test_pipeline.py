@@ -221,7 +221,8 @@ def test_an_interrupted_run_logs_how_far_it_got_and_keeps_finished_takes(tiny_se
 def test_a_file_rewritten_in_the_same_process_is_identified_afresh(tmp_path):
     """No cache keyed by path alone: a capture rewritten while the process runs (a broken capture mended between
     two runs of one process) has a new identity, so whether it is usable is looked at again."""
-    from gazepipe.dag.takes import _file_id, _usable_capture
+    from gazepipe.dag.nodes.common import file_id as _file_id
+    from gazepipe.dag.nodes.common import usable_capture as _usable_capture
 
     path = tmp_path / "t.c3d"
     path.write_bytes(b"not a capture")
