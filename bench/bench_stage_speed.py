@@ -145,8 +145,7 @@ class _Take:
         mk = table_to_markers(self.ctx_s.load("markers_raw"))[0]
         a, b = mk.labels.index(ms.clapper[0]), mk.labels.index(ms.clapper[1])
         self.sync_args = (mk.xyz[:, a], mk.xyz[:, b], mk.valid[:, a], mk.valid[:, b], mk.rate_hz, self.ts)
-        self.sync_kw = dict(window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
-                            min_confidence=p.min_confidence)
+        self.sync_params = p
         self.eye = read_openface(take.eyes)
         ja = joints_arrays(self.ctx_e.load("joints"))
         self.mocap_time_s = ja["time_s"]
@@ -161,11 +160,11 @@ class _Take:
     def _per_window(self):
         def rw(start: int, stop: int):
             return read_frames(self.video, start, stop, gray=True, scale=self.scale, timestamps_s=self.ts)
-        return sync_take(*self.sync_args, rw, **self.sync_kw)
+        return sync_take(*self.sync_args, rw, self.sync_params)
 
     def _one_reader(self):
         with FrameReader(self.video, gray=True, scale=self.scale, timestamps_s=self.ts) as rw:
-            return sync_take(*self.sync_args, rw, **self.sync_kw)
+            return sync_take(*self.sync_args, rw, self.sync_params)
 
     def _eyes_take(self):
         return eyes_take(self.eye, self.joints, self.mocap_time_s, self.clock, camera_rotation=self.camera,

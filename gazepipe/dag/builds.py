@@ -15,7 +15,6 @@ split) and places the take files (linked, not copied) with the side files.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections import Counter
 from typing import Any
@@ -35,6 +34,7 @@ from gazepipe.pipeline.registry import (
     Stage,
     UnitContext,
     UnitResult,
+    params_from,
     register,
     register_dataset,
     register_params,
@@ -104,7 +104,7 @@ def _rows_stage(name: str):
         layout = OutLayout(ctx.out_dir)
         tt = TakeTables(session=session.id, subject=session.subject, take=take, markerset=session.markerset,
                         loader=lambda: _take_inputs(layout, session.id, take.id, stages))
-        params = BuildParams(**registry.group_values("build", ctx.all_params))
+        params = params_from(BuildParams, registry.group_values("build", ctx.all_params))
         part = take_part(name, tt, params, known=stages)   # the units' fingerprints stand for those tables
         table = part.table if part.table is not None else NO_ROWS.empty_table()
         facts = pa.Table.from_arrays([pa.array([json.dumps(part.to_json(), sort_keys=True)], pa.string())],
@@ -145,7 +145,7 @@ def _part(ctx: DatasetContext, session: str, take: str, units: dict[str, str]) -
 def run_build(ctx: DatasetContext) -> DatasetResult:
     """Merge the takes' parts of dataset ``ctx.name``, then stage its files (each take's, made by its unit) and
     publish them whole; on any failure the staging folder is removed and nothing is published."""
-    params = BuildParams(**ctx.params)
+    params = params_from(BuildParams, ctx.params)
     check_dataset(ctx.name, params)
     takes = sorted(ctx.takes, key=lambda stu: (stu[0].id, stu[1].id))
     twice = sorted(k for k, c in Counter((s.id, t.id) for s, t, _ in takes).items() if c > 1)
@@ -187,13 +187,12 @@ def _feeds(name: str):
 
 
 register_params(ParamGroup(
-    name="build", params=BuildParams().to_dict(),
-    rules={f.name: dict(f.metadata) for f in dataclasses.fields(BuildParams)},
+    name="build", params_class=BuildParams,
     problems=lambda values: BuildParams(**values).problems(),
 ))
 for _name in DATASETS:
     register(Stage(
-        name=ROWS[_name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[_name]), params={},
+        name=ROWS[_name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[_name]),
         outputs=(ROWS[_name], PARTS[_name]),
         applies=_rows_applies(_name), sources=lambda s, t: [], run=_rows_stage(_name), groups=("build",),
         help=f"the take's rows of dataset {_name} (mirrored copies, its split) and their partial statistics",

@@ -2,7 +2,7 @@
 
 Each declaration names the tables a stage reads (``inputs``: of the same take; ``session_inputs``: of a session
 stage; the engine derives the stages it follows from them and refuses a load of any other) and writes
-(``outputs``), its parameters (defaults from its parameters dataclass), which takes it applies to, the raw files
+(``outputs``), its parameters dataclass (the one source of their defaults, value rules and help), which takes it applies to, the raw files
 it reads (content-hashed into its fingerprint) and its run. A run (:mod:`gazepipe.dag.nodes`) is glue: it reads
 files through :mod:`gazepipe.io` and tables through its context, calls its stage's pure function
 (:mod:`gazepipe.stages`) and returns the tables laid out by :mod:`gazepipe.schemas`. The runs import their
@@ -21,7 +21,6 @@ from gazepipe.dag.nodes.common import (
     has_mocap,
     has_subject,
     markerset_file,
-    params_of,
     subject_files,
     subject_take,
     sync_take,
@@ -39,12 +38,12 @@ from gazepipe.pipeline.registry import (
     Stage,
     register,
     register_session_stage,
-    rules_of,
     set_source_check,
     set_table_store,
 )
 from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.stages.eyes.params import EyesParams
+from gazepipe.stages.face.params import FaceParams
 from gazepipe.stages.frames.stage import FramesParams
 from gazepipe.stages.sync.stage import SyncParams
 
@@ -69,52 +68,47 @@ SESSION_STAGES: tuple[SessionStage, ...] = (
 #: the stages that run once per take, each after the stages whose tables it reads
 TAKE_STAGES: tuple[Stage, ...] = (
     Stage(
-        name="ingest", version="2", params={},
+        name="ingest", version="2",
         outputs=("markers_raw",), applies=has_mocap,
         sources=lambda s, t: [t.mocap, *markerset_file(s)],
         run=run_ingest,
         help="read the take's capture files into canonical tables",
     ),
     Stage(
-        name="clean", version="27", inputs=("markers_raw",), params=params_of(CleanParams),
+        name="clean", version="27", inputs=("markers_raw",), params_class=CleanParams,
         outputs=("markers", "neutral", "rest_speed"), applies=subject_take,
         # label swaps are judged against the subject's geometry from every subject capture of the session
         sources=lambda s, t: markerset_file(s), session_inputs=("subject_geometry",),
         run=run_clean,
         help="spikes, gap filling, root stabilisation, optional low-pass, rest cropping",
-        rules=rules_of(CleanParams),
     ),
     Stage(
-        name="frames", version="14", inputs=("markers", "neutral"), params=params_of(FramesParams),
+        name="frames", version="14", inputs=("markers", "neutral"), params_class=FramesParams,
         outputs=("joints",), applies=frames_take,
         sources=lambda s, t: markerset_file(s), session_inputs=("neutral_poses",),
         run=run_frames,
         help="segment orientations in the character frame, head centre, target direction",
-        rules=rules_of(FramesParams),
     ),
     Stage(
-        name="face", version="2", params={"k": 1},
+        name="face", version="2", params_class=FaceParams,
         outputs=("face",), applies=face_take,
         sources=lambda s, t: [t.tracked, t.clean],
         run=run_face,
         help="tracked and clean Live Link Face tracks aligned on timecode, dt and derivatives",
-        rules={"k": {"min": 1}},
     ),
     Stage(
-        name="sync", version="5", inputs=("markers_raw",), params=params_of(SyncParams),
+        name="sync", version="5", inputs=("markers_raw",), params_class=SyncParams,
         outputs=("sync",), applies=sync_take,
         sources=lambda s, t: [t.video, *markerset_file(s)],
         run=run_sync,
         help="clapper claps on the mocap and video clocks, the clock map between them",
-        rules=rules_of(SyncParams),
     ),
     Stage(
-        name="eyes", version="2", inputs=("joints", "sync"), params=params_of(EyesParams),
+        name="eyes", version="2", inputs=("joints", "sync"), params_class=EyesParams,
         outputs=("eyes",), applies=eyes_take,
         sources=lambda s, t: [t.eyes, *markerset_file(s)],
         run=run_eyes,
         help="OpenFace gaze gated, blink-masked, bridged and rotated into the character frame",
-        rules=rules_of(EyesParams),
     ),
 )
 

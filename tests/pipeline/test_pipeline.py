@@ -397,3 +397,19 @@ def test_a_stages_code_identity_depends_on_neither_the_folder_nor_the_hash_seed(
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads(res.stdout) == here
     assert len(set(here.values())) >= 5   # the stages' code differs
+
+
+def test_a_stages_parameters_are_its_dataclass_not_a_dict():
+    """A stage declares its parameters dataclass; the engine derives the defaults and rules from it and refuses
+    parameters given as a dict."""
+    import gazepipe.dag  # noqa: F401  (registers the stages)
+    from gazepipe.pipeline import registry
+    from gazepipe.stages.sync.stage import SyncParams
+
+    sync = registry.get("sync")
+    assert sync.params_class is SyncParams
+    assert sync.params == registry.defaults_of(SyncParams) and sync.rules == registry.rules_of(SyncParams)
+    assert "help" not in {k for rule in sync.rules.values() for k in rule}
+    with pytest.raises(ValueError, match="declare its parameters dataclass"):
+        registry.register(dataclasses.replace(sync, name="late", outputs=("late",), params_class=None,
+                                              requires=(), session_requires=()))

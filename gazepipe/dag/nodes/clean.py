@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import pyarrow as pa
 
 from gazepipe.dag.nodes.common import TakeContext, given
-from gazepipe.pipeline.registry import UnitResult
+from gazepipe.pipeline.registry import UnitResult, params_from
 
 if TYPE_CHECKING:
     from gazepipe.stages.clean.swaps import SubjectReferences
@@ -46,14 +46,13 @@ def _check_memory(ctx: TakeContext) -> None:
 
 
 def run_clean(ctx: TakeContext) -> UnitResult:
-    from gazepipe.dag.nodes.common import build_params
     from gazepipe.schemas.clean_tables import clean_tables
     from gazepipe.schemas.markers import table_to_markers
     from gazepipe.stages.clean.stage import CleanParams, clean_markers
 
     _check_memory(ctx)
     raw = table_to_markers(ctx.load("markers_raw"))[0]
-    params = build_params(CleanParams, ctx.params)
+    params = params_from(CleanParams, ctx.params)
     ms = given(ctx.session.markerset, "markerset")
     refs = subject_references(ctx.load_session("subject_geometry")) if params.repair_swaps else None
     res = clean_markers(raw, ms, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id, references=refs)

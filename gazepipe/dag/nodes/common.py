@@ -3,7 +3,6 @@ captures, and notes naming the file they are about."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 import stat as stat_mode
@@ -21,7 +20,6 @@ TakeContext = UnitContext[Session, Take]
 SessionUnitContext = SessionContext[Session]
 
 X = TypeVar("X")
-P = TypeVar("P")
 
 
 def given(value: X | None, what: str) -> X:
@@ -134,23 +132,3 @@ def subject_captures(session: Session) -> list[Take]:
 def subject_files(session: Session) -> list[str]:
     return [t.mocap for t in subject_captures(session) if t.mocap]
 
-
-# ------------------------------------------------------------------------------------------- parameters
-
-def params_of(cls: type) -> dict:
-    """A stage's parameter defaults from its parameters dataclass (tuples as lists, JSON-able)."""
-    out = {}
-    for f in dataclasses.fields(cls):
-        v = getattr(cls(), f.name)
-        out[f.name] = list(v) if isinstance(v, tuple) else v
-    return out
-
-
-def build_params(cls: type[P], values: dict) -> P:
-    """A stage's parameters dataclass from the unit's values (lists as tuples)."""
-    kw = {}
-    for f in dataclasses.fields(cls):   # type: ignore[arg-type]
-        if f.name in values:
-            v = values[f.name]
-            kw[f.name] = tuple(v) if isinstance(v, list) else v
-    return cls(**kw)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gazepipe.dag.nodes.common import TakeContext, build_params, file_notes, given
-from gazepipe.pipeline.registry import UnitResult
+from gazepipe.dag.nodes.common import TakeContext, file_notes, given
+from gazepipe.pipeline.registry import UnitResult, params_from
 
 
 def run_eyes(ctx: TakeContext) -> UnitResult:
@@ -36,7 +36,7 @@ def run_eyes(ctx: TakeContext) -> UnitResult:
         video = (take.video, seconds * clock.ratio, frames, fps)
     camera = None if ms.camera_rotation is None else np.asarray(ms.camera_rotation, dtype=np.float64)
     res = eyes_take(eye, joints, ja["time_s"], clock if take.video is not None else None,
-                    camera_rotation=camera, params=build_params(EyesParams, ctx.params), path=take.eyes,
+                    camera_rotation=camera, params=params_from(EyesParams, ctx.params), path=take.eyes,
                     take=take.id, video=video)
     table = eyes_to_table(ja, res.valid, filled_frames(res, ja["time_s"], clock), res.confidence,
                           res.eye_dir_char, res.eye_dir_head,

@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from gazepipe.dag.nodes.common import TakeContext, build_params, given
+from gazepipe.dag.nodes.common import TakeContext, given
 from gazepipe.model import FILL_CODES
-from gazepipe.pipeline.registry import UnitResult
+from gazepipe.pipeline.registry import UnitResult, params_from
 
 
 def _measured(fill: np.ndarray | None) -> np.ndarray | None:
@@ -45,7 +45,7 @@ def run_frames(ctx: TakeContext) -> UnitResult:
     take = _take_markers(ctx.load("markers"))
     poses = table_to_stack(ctx.load_session("neutral_poses"))
     joints, source = frames_with_fallback(take, _own_rest(ctx.load("neutral")), poses, ms, ctx.take.kind,
-                                          build_params(FramesParams, ctx.params), path=ctx.take.mocap,
+                                          params_from(FramesParams, ctx.params), path=ctx.take.mocap,
                                           take_id=ctx.take.id)
     qc = dict(joints.qc)
     qc["neutral_source"] = source

@@ -9,14 +9,13 @@ from typing import TYPE_CHECKING
 
 from gazepipe.dag.nodes.common import (
     SessionUnitContext,
-    build_params,
     given,
     neutral_take,
     read_capture,
     subject_take,
 )
 from gazepipe.model import MarkerSet, Take
-from gazepipe.pipeline.registry import UnitResult
+from gazepipe.pipeline.registry import UnitResult, params_from
 
 if TYPE_CHECKING:
     from gazepipe.stages.frames.neutral import Capture
@@ -36,8 +35,8 @@ def run_neutral_poses(ctx: SessionUnitContext) -> UnitResult:
 
     session = ctx.session
     ms = given(session.markerset, "markerset")
-    clean_params = build_params(CleanParams, ctx.params_of("clean"))
-    frames_params = build_params(FramesParams, ctx.params_of("frames"))
+    clean_params = params_from(CleanParams, ctx.params_of("clean"))
+    frames_params = params_from(FramesParams, ctx.params_of("frames"))
     refs = subject_references(ctx.load("subject_geometry")) if clean_params.repair_swaps else None
     neutral = neutral_take(session)
     others = (_capture(t, ms) for t in session.takes if t.kind != "neutral" and subject_take(session, t))

@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
-from gazepipe.dag.nodes.common import TakeContext, build_params, file_notes, given
-from gazepipe.pipeline.registry import UnitResult
+from gazepipe.dag.nodes.common import TakeContext, file_notes, given
+from gazepipe.pipeline.registry import UnitResult, params_from
 
 
 def run_sync(ctx: TakeContext) -> UnitResult:
@@ -17,7 +17,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
 
     take, ms = ctx.take, given(ctx.session.markerset, "markerset")
     video = given(take.video, "video")
-    p = build_params(SyncParams, ctx.params)
+    p = params_from(SyncParams, ctx.params)
     raw = table_to_markers(ctx.load("markers_raw"))[0]
     a, b = raw.index(ms.clapper[0]), raw.index(ms.clapper[1])
     probe = probe_video(video)
@@ -25,9 +25,7 @@ def run_sync(ctx: TakeContext) -> UnitResult:
     # one open capture for all of the take's windows, read forward
     with FrameReader(video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
         res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts,
-                        read_window, window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
-                        min_confidence=p.min_confidence,
-                        mocap_path=take.mocap, video_path=take.video, take=take.id)
+                        read_window, p, mocap_path=take.mocap, video_path=take.video, take=take.id)
         damage = read_window.damage_warning()
     table = sync_to_table(res, int(ts.size), probe.nominal_fps)
     qc = dict(res.qc)
