@@ -42,7 +42,7 @@ import numpy as np
 import pyarrow as pa
 from threadpoolctl import threadpool_limits
 
-import gazepipe.dag  # noqa: F401  (registers the stages)
+import gazepipe.dag
 from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import load_session
 from gazepipe.io.video import probe_video, read_frames
@@ -57,6 +57,8 @@ from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.eyes.stage import eyes_take
 from gazepipe.stages.sync.clock import ClockMap
 from gazepipe.stages.sync.stage import SyncParams, sync_take
+
+gazepipe.dag.declare()   # the stages run below
 
 try:
     from gazepipe.io.video import FrameReader

@@ -449,9 +449,11 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
 def params_cmd() -> None:
     """List every stage parameter once: what it does, its default and the values it accepts, as TOML that
     `--params` reads (set them with --param STAGE.NAME=VALUE or --params FILE)."""
-    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+    import gazepipe.dag
     from gazepipe.cli.param_help import user_help
     from gazepipe.pipeline.registry import allowed_values, default_params, param_rules, show_value
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     rules, meanings = param_rules(), user_help()
     # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is;

@@ -19,8 +19,10 @@ def documented_by() -> dict[str, type]:
     """Each parameter group (a stage, or ``build``) → its parameters dataclass, as the stages declare it
     (:attr:`gazepipe.pipeline.registry.Stage.params_class`): the one source of each parameter's default, value
     rule, one line of help (field metadata ``help``) and long meaning (the class docstring's entry)."""
-    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+    import gazepipe.dag
     from gazepipe.pipeline.registry import param_classes
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     return param_classes()
 

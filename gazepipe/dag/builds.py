@@ -1,4 +1,4 @@
-"""gazepipe's training datasets, registered with the engine: which takes feed each, which stages' tables it
+"""gazepipe's training datasets, declared for the engine (:func:`gazepipe.dag.declare` registers them): which takes feed each, which stages' tables it
 reads, the ``build`` parameters, each dataset's per-take stage that makes a take's rows, and the build that
 merges them and publishes the dataset (SPEC §3.6, §4, §7).
 
@@ -21,7 +21,6 @@ from typing import Any
 
 import pyarrow as pa
 
-import gazepipe.dag.takes  # noqa: F401  (the stages the datasets read from are registered first)
 from gazepipe.errors import StageError
 from gazepipe.io.dataset_files import StagedDatasetWriter
 from gazepipe.io.parquet import read_schema, read_table
@@ -35,9 +34,6 @@ from gazepipe.pipeline.registry import (
     UnitContext,
     UnitResult,
     params_from,
-    register,
-    register_dataset,
-    register_params,
 )
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas.base import read_meta
@@ -186,18 +182,19 @@ def _feeds(name: str):
     return applies
 
 
-register_params(ParamGroup(
-    name="build", params_class=BuildParams,
-    problems=lambda values: BuildParams(**values).problems(),
-))
-for _name in DATASETS:
-    register(Stage(
-        name=ROWS[_name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[_name]),
-        outputs=(ROWS[_name], PARTS[_name]),
-        applies=_rows_applies(_name), sources=lambda s, t: [], run=_rows_stage(_name), groups=("build",),
-        help=f"the take's rows of dataset {_name} (mirrored copies, its split) and their partial statistics",
-    ))
-for _name in DATASETS:
-    register_dataset(Dataset(name=_name, version=BUILD_VERSION, needs=(*NEEDS[_name], ROWS[_name]),
-                             optional=OPTIONAL.get(_name, ()), needs_any=NEEDS_ANY.get(_name, ()),
-                             applies=_feeds(_name), run=run_build, params="build"))
+#: the ``build`` parameters, which belong to no take stage
+PARAM_GROUPS: tuple[ParamGroup, ...] = (
+    ParamGroup(name="build", params_class=BuildParams, problems=lambda values: BuildParams(**values).problems()),
+)
+#: each dataset's per-take stage (after the take stages whose tables it reads)
+ROW_STAGES: tuple[Stage, ...] = tuple(
+    Stage(name=ROWS[name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[name]),
+          outputs=(ROWS[name], PARTS[name]),
+          applies=_rows_applies(name), sources=lambda s, t: [], run=_rows_stage(name), groups=("build",),
+          help=f"the take's rows of dataset {name} (mirrored copies, its split) and their partial statistics")
+    for name in DATASETS)
+#: the datasets, each built from its takes' rows after the takes ran
+DATASET_DECLARATIONS: tuple[Dataset, ...] = tuple(
+    Dataset(name=name, version=BUILD_VERSION, needs=(*NEEDS[name], ROWS[name]), optional=OPTIONAL.get(name, ()),
+            needs_any=NEEDS_ANY.get(name, ()), applies=_feeds(name), run=run_build, params="build")
+    for name in DATASETS)

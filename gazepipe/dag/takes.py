@@ -7,7 +7,8 @@ it reads (content-hashed into its fingerprint) and its run. A run (:mod:`gazepip
 files through :mod:`gazepipe.io` and tables through its context, calls its stage's pure function
 (:mod:`gazepipe.stages`) and returns the tables laid out by :mod:`gazepipe.schemas`. The runs import their
 readers and stage functions when they run: planning needs only these declarations, so a run with nothing to do
-never pays for importing scipy.signal, pandas or OpenCV.
+never pays for importing scipy.signal, pandas or OpenCV. Nothing is registered on import:
+:func:`gazepipe.dag.declare` hands these declarations to the engine.
 """
 
 from __future__ import annotations
@@ -32,15 +33,7 @@ from gazepipe.dag.nodes.ingest import run_ingest
 from gazepipe.dag.nodes.neutral import run_neutral_poses
 from gazepipe.dag.nodes.subject import run_subject_geometry
 from gazepipe.dag.nodes.sync import run_sync
-from gazepipe.dag.store import TABLE_STORE, check_source
-from gazepipe.pipeline.registry import (
-    SessionStage,
-    Stage,
-    register,
-    register_session_stage,
-    set_source_check,
-    set_table_store,
-)
+from gazepipe.pipeline.registry import SessionStage, Stage
 from gazepipe.stages.clean.stage import CleanParams
 from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.face.params import FaceParams
@@ -112,11 +105,3 @@ TAKE_STAGES: tuple[Stage, ...] = (
     ),
 )
 
-
-set_table_store(TABLE_STORE)
-set_source_check(check_source)
-# session stages first: take stages read their tables
-for _stage in SESSION_STAGES:
-    register_session_stage(_stage)
-for _take_stage in TAKE_STAGES:
-    register(_take_stage)

@@ -1,7 +1,9 @@
 """The engine's registry: the stages a DAG registers, the datasets built from them, their parameters, and how
 tables are read and written.
 
-The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers:
+The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers, when
+its ``declare()`` is called (never on import; :func:`declared_by` records it, so a worker started afresh calls it
+again, :func:`ensure`):
 
 - take stages (:func:`register`): a stage runs once per take (a *unit of work*); it declares the tables it
   reads (``inputs``) and writes (``outputs``), and the engine derives the stages it follows from them (kedro's
@@ -391,23 +393,42 @@ def source_check() -> Callable[[Path], None] | None:
 
 def _loaded() -> None:
     if not _STAGES or not _TABLES:
-        raise RuntimeError("no stages registered: import the module that registers them first (gazepipe.dag)")
+        raise RuntimeError("no stages registered: declare them first (gazepipe.dag.declare())")
+
+
+_DECLARED_BY: list[str] = []
+
+
+def declared_by(module: str) -> None:
+    """Record that the DAG module ``module`` registered what is registered, through its function ``declare()``
+    (:func:`ensure` calls it again in a worker started afresh)."""
+    if module not in _DECLARED_BY:
+        _DECLARED_BY.append(module)
+
+
+def declared(module: str) -> bool:
+    """Whether DAG module ``module`` has declared its stages in this process (:func:`declared_by`)."""
+    return module in _DECLARED_BY
 
 
 def modules() -> tuple[str, ...]:
-    """The modules whose functions the registered stages and datasets run, in registration order: importing
-    them registers the same stages and datasets in another process (:func:`ensure`)."""
+    """The DAG modules that declared what is registered (:func:`declared_by`), then the modules whose functions
+    the registered stages and datasets run, in registration order: importing them (and calling a DAG module's
+    ``declare()``) registers the same stages and datasets in another process (:func:`ensure`)."""
     runs = ([st.run for st in _SESSION_STAGES.values()] + [st.run for st in _STAGES.values()]
             + [ds.run for ds in _DATASETS.values()])
-    return tuple(dict.fromkeys(f.__module__ for f in runs))
+    return tuple(dict.fromkeys([*_DECLARED_BY, *(f.__module__ for f in runs)]))
 
 
 def ensure(names: Sequence[str]) -> None:
     """In a process where nothing is registered yet (a worker started afresh), import the modules
-    :func:`modules` named in the process that planned the run."""
+    :func:`modules` named in the process that planned the run, and call the ``declare()`` of each that has
+    one."""
     if not _STAGES:
         for name in names:
-            importlib.import_module(name)
+            declare = getattr(importlib.import_module(name), "declare", None)
+            if callable(declare):
+                declare()
 
 
 def stages() -> list[Stage]:

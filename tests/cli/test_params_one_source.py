@@ -14,8 +14,10 @@ from gazepipe.cli.main import cli
 
 @pytest.fixture(scope="module")
 def classes() -> dict[str, type]:
-    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+    import gazepipe.dag
     from gazepipe.pipeline.registry import param_classes
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     return param_classes()
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import gazepipe.dag
 from gazepipe.dag import run_pipeline
 from gazepipe.errors import StageError
 from gazepipe.io.session_toml import load_session
@@ -18,6 +19,8 @@ from gazepipe.model import Markers
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.events import EventLog
 from gazepipe.schemas.poses import PoseSource, stack_to_table, table_to_stack
+
+gazepipe.dag.declare()   # the stages, read from the registry below
 
 
 def _run(folder: Path, out: Path, **kw):
