@@ -82,7 +82,8 @@ class BuildParams:
         the take's row (its ``known`` entry False; SPEC §3.6).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
     train_frac: float = field(default=0.8, metadata={

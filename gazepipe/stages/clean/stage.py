@@ -119,7 +119,8 @@ class CleanParams:
     fill_unlabeled : also fill the gaps of unlabeled trajectories (Vicon ``*12``, ``Unlabeled 3``, ...:
         :func:`gazepipe.stages.clean.gapfill.unlabeled_markers`); off: their gaps stay, counted in QC.
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
     max_gap_s: float = field(default=3.0, metadata={

@@ -37,7 +37,8 @@ class EyesParams:
     min_target_spread_deg : below this RMS spread of the target directions the estimate is poorly conditioned
         (a warning in QC).
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
     min_confidence: float = field(default=0.8, metadata={

@@ -73,7 +73,8 @@ class FramesParams:
         ``jump_factor``).
     max_flip_s : the longest a rotation may stay away, in seconds, between a jump and its way back, for the
         stretch to be a flip (see ``jump_factor``).
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
     min_neutral_frames: int = field(default=3, metadata={

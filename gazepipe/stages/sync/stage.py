@@ -56,7 +56,8 @@ class SyncParams:
     min_confidence : video claps below this confidence count as not found.
     video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
     window_s: float = field(default=1.5, metadata={
