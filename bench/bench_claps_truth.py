@@ -68,12 +68,11 @@ def sync_one(folder: Path, take: str) -> tuple[dict | None, str | None]:
     video = folder / "video" / f"{take}.mp4"
     ts = probe_video(video).timestamps_s
     p = SyncParams()
-    kw = {k: getattr(p, k) for k in ("window_s", "search_s", "max_drift", "min_confidence")}
     try:
         with FrameReader(video, gray=True, scale=p.video_scale, timestamps_s=ts) as read_window:
             res = sync_take(raw.xyz[:, a], raw.xyz[:, b], raw.valid[:, a], raw.valid[:, b], raw.rate_hz, ts,
-                            read_window, mocap_path=str(folder / "mocap" / f"{take}.c3d"), video_path=str(video),
-                            take=take, **kw)
+                            read_window, p, mocap_path=str(folder / "mocap" / f"{take}.c3d"), video_path=str(video),
+                            take=take)
     except StageError as e:
         return None, str(e)
     return res.qc, None

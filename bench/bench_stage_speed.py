@@ -1,8 +1,8 @@
 """Time of the sync and eyes stages per take, on a generated corpus (default: Klein's, ``bench/_work/klein_x1``).
 
 The stages' inputs are the tables ``gazepipe run`` writes: when ``--out`` has none, the sessions are run once
-(serial) into it. Then, per take, the registered stages (``gazepipe.dag.takes`` ``run_sync`` and
-``run_eyes``) run on those tables ``--repeats`` times, with one BLAS thread as in a run, and the minimum is kept:
+(serial) into it. Then, per take, the registered stages (declared in ``gazepipe.dag.takes``; their runs
+``run_sync`` and ``run_eyes`` in ``gazepipe.dag.nodes``) run on those tables ``--repeats`` times, with one BLAS thread as in a run, and the minimum is kept:
 
 - ``sync``: the whole unit as the pipeline wires it (video probe, frame reading, clap search, table);
 - ``probe``: the video probe alone (part of ``sync``);
@@ -42,7 +42,7 @@ import numpy as np
 import pyarrow as pa
 from threadpoolctl import threadpool_limits
 
-import gazepipe.dag  # noqa: F401  (registers the stages)
+import gazepipe.dag
 from gazepipe.io.openface import read_openface
 from gazepipe.io.session_toml import load_session
 from gazepipe.io.video import probe_video, read_frames
@@ -57,6 +57,8 @@ from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.eyes.stage import eyes_take
 from gazepipe.stages.sync.clock import ClockMap
 from gazepipe.stages.sync.stage import SyncParams, sync_take
+
+gazepipe.dag.declare()   # the stages run below
 
 try:
     from gazepipe.io.video import FrameReader
@@ -145,8 +147,7 @@ class _Take:
         mk = table_to_markers(self.ctx_s.load("markers_raw"))[0]
         a, b = mk.labels.index(ms.clapper[0]), mk.labels.index(ms.clapper[1])
         self.sync_args = (mk.xyz[:, a], mk.xyz[:, b], mk.valid[:, a], mk.valid[:, b], mk.rate_hz, self.ts)
-        self.sync_kw = dict(window_s=p.window_s, search_s=p.search_s, max_drift=p.max_drift,
-                            min_confidence=p.min_confidence)
+        self.sync_params = p
         self.eye = read_openface(take.eyes)
         ja = joints_arrays(self.ctx_e.load("joints"))
         self.mocap_time_s = ja["time_s"]
@@ -161,11 +162,11 @@ class _Take:
     def _per_window(self):
         def rw(start: int, stop: int):
             return read_frames(self.video, start, stop, gray=True, scale=self.scale, timestamps_s=self.ts)
-        return sync_take(*self.sync_args, rw, **self.sync_kw)
+        return sync_take(*self.sync_args, rw, self.sync_params)
 
     def _one_reader(self):
         with FrameReader(self.video, gray=True, scale=self.scale, timestamps_s=self.ts) as rw:
-            return sync_take(*self.sync_args, rw, **self.sync_kw)
+            return sync_take(*self.sync_args, rw, self.sync_params)
 
     def _eyes_take(self):
         return eyes_take(self.eye, self.joints, self.mocap_time_s, self.clock, camera_rotation=self.camera,

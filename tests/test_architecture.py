@@ -187,3 +187,17 @@ def test_the_complexity_exceptions_can_only_shrink():
               for i, line in enumerate(path.read_text().splitlines(), 1) if mark.search(line)]
     assert len(marked) <= 20, marked
     assert marked   # found: the scan reads the sources
+
+
+def test_the_take_stages_module_is_a_list_of_declarations():
+    """``dag/takes.py`` declares the stages (under 250 lines, no run of its own): each stage's logic is in its
+    stage package, its run (glue) in ``dag/nodes/``."""
+    source = (PACKAGE / "dag" / "takes.py").read_text()
+    assert len(source.splitlines()) < 250
+    tree = ast.parse(source)
+    defined = [n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef)]
+    assert not [name for name in defined if name.startswith("run_")], defined
+    assert "def run_" not in source
+    declared = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") in
+                ("Stage", "SessionStage")]
+    assert len(declared) >= 8   # ingest, clean, frames, face, sync, eyes and the two session stages

@@ -133,8 +133,8 @@ def test_a_video_far_shorter_than_its_take_is_named():
 
 
 def test_the_sync_stage_notes_a_short_video():
-    from gazepipe.dag.takes import _short_video_note
+    from gazepipe.stages.sync.coverage import short_video_note
 
-    note = _short_video_note(np.arange(150) / 60.0, 23.6)
+    note = short_video_note(np.arange(150) / 60.0, 23.6)
     assert len(note) == 1 and "2.5 s" in note[0] and "23.6 s" in note[0]
-    assert _short_video_note(np.arange(1400) / 60.0, 23.6) == []
+    assert short_video_note(np.arange(1400) / 60.0, 23.6) == []

@@ -158,8 +158,10 @@ def parse_params(pairs: tuple[str, ...], params_file: str | None) -> dict[str, A
 
     Every problem is printed, one line each, before the last is raised (:class:`ConfigError`, exit 2).
     """
-    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+    import gazepipe.dag
     from gazepipe.pipeline.registry import allowed_values, default_params, param_problems, param_rules
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     known = default_params()
     stage_names = list(dict.fromkeys(k.partition(".")[0] for k in known))

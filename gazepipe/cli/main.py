@@ -20,6 +20,7 @@ from gazepipe.cli.common import (
     parse_params,
     run_options,
 )
+from gazepipe.cli.param_help import CleanParamOption, fill_params
 from gazepipe.cli.validate import DEFAULT_PLOT_TAKES
 from gazepipe.errors import ConfigError
 
@@ -225,9 +226,8 @@ _stage_command("build", "build", "Run every take stage (ingest, clean, frames, s
 @cli.command(epilog=FILE_EPILOG)
 @click.argument("src", metavar="IN", type=click.Path())
 @click.argument("dest", metavar="OUT", type=click.Path(dir_okay=False))
-@click.option("--max-gap-s", type=click.FloatRange(min=0), default=3.0, show_default=True,
-              help="Longest gap to fill, in seconds, as `gazepipe run`'s clean.max_gap_s (the same default); longer "
-                   "gaps stay gaps (0: fill nothing).")
+@click.option("--max-gap-s", cls=CleanParamOption, field="max_gap_s", type=click.FloatRange(min=0),
+              show_default=True, more="; 0: fill nothing.")
 @click.option("--rate-hz", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Rate for CSV files that do not carry one.")
 @click.option("--remove-spikes", is_flag=True, help="Turn spikes (ghosts of a frame or two off a marker's path or "
@@ -281,8 +281,11 @@ def fill(src: str, dest: str, max_gap_s: float, rate_hz: float | None, remove_sp
     # a text export is read once, with the layout its copy is written from
     text = None if fmt == "c3d" else read_text_export(src_p, fmt, rate_hz=rate_hz)
     markers = read_markers(src_p, rate_hz=rate_hz) if text is None else text[0]
-    filled, summary, removed = fill_capture(markers, max_gap_s=max_gap_s, spikes=remove_spikes, swaps=repair_swaps,
-                                            unlabeled=fill_unlabeled)
+    # the clean stage's parameters, built as `gazepipe run` builds them
+    p = fill_params(max_gap_s=max_gap_s, remove_spikes=remove_spikes, repair_swaps=repair_swaps,
+                    fill_unlabeled=fill_unlabeled)
+    filled, summary, removed = fill_capture(markers, max_gap_s=p.max_gap_s, methods=p.fill_methods,
+                                            spikes=p.remove_spikes, swaps=p.repair_swaps, unlabeled=p.fill_unlabeled)
     with atomic_path(dest_p, dest_p.parent, suffix=want) as tmp:
         if fmt == "c3d":
             res = write_filled_c3d(src_p, tmp, filled, removed=removed, original=markers)
@@ -446,9 +449,11 @@ def status(out: str, as_json: bool, params: tuple[str, ...], params_file: str | 
 def params_cmd() -> None:
     """List every stage parameter once: what it does, its default and the values it accepts, as TOML that
     `--params` reads (set them with --param STAGE.NAME=VALUE or --params FILE)."""
-    import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+    import gazepipe.dag
     from gazepipe.cli.param_help import user_help
     from gazepipe.pipeline.registry import allowed_values, default_params, param_rules, show_value
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     rules, meanings = param_rules(), user_help()
     # TOML (dotted keys; a parameter that is off by default is shown commented out): a --params file as is;

@@ -1,30 +1,30 @@
-"""What each stage parameter means, for ``gazepipe params``: the first sentence of its entry in the numpy-style
-docstring of the code that declares it (``name : meaning``, or ``a, b : meaning`` for several)."""
+"""What each stage parameter means, for ``gazepipe params`` and the options that expose one: its one line of help
+from its field's metadata (``help``), and the long form, the first sentence of its entry in the numpy-style
+docstring of its parameters dataclass (``name : meaning``, or ``a, b : meaning`` for several)."""
 
 from __future__ import annotations
 
 import inspect
 import re
-from collections.abc import Callable
 from typing import Any
+
+import click
 
 _ENTRY = re.compile(r"^([A-Za-z_]\w*(?:\s*,\s*[A-Za-z_]\w*)*)\s+:\s*(.*)$")
 _ROLE = re.compile(r":(?:func|meth):`~?(?:[\w.]*\.)?(\w+)`")
 _OTHER_ROLE = re.compile(r":\w+:`~?(?:[\w.]*\.)?([^`]+)`")
 
 
-def documented_by() -> dict[str, Callable[..., Any] | type]:
-    """Each parameter group (a stage, or ``build``) → the class or function whose docstring documents its
-    parameters. A group missing here has no meanings (the tests require every parameter to have one)."""
-    from gazepipe.stages.build.stage import BuildParams
-    from gazepipe.stages.clean.stage import CleanParams
-    from gazepipe.stages.eyes.params import EyesParams
-    from gazepipe.stages.face.stage import align_face
-    from gazepipe.stages.frames.stage import FramesParams
-    from gazepipe.stages.sync.stage import SyncParams
+def documented_by() -> dict[str, type]:
+    """Each parameter group (a stage, or ``build``) → its parameters dataclass, as the stages declare it
+    (:attr:`gazepipe.pipeline.registry.Stage.params_class`): the one source of each parameter's default, value
+    rule, one line of help (field metadata ``help``) and long meaning (the class docstring's entry)."""
+    import gazepipe.dag
+    from gazepipe.pipeline.registry import param_classes
 
-    return {"clean": CleanParams, "frames": FramesParams, "sync": SyncParams, "eyes": EyesParams,
-            "face": align_face, "build": BuildParams}
+    gazepipe.dag.declare()   # the stages and their parameters
+
+    return param_classes()
 
 
 def docstring_entries(doc: str) -> dict[str, str]:
@@ -77,86 +77,56 @@ def param_meanings() -> dict[str, str]:
     return out
 
 
-#: what ``gazepipe params`` says of each parameter: one short line for the person setting it (the meanings
-#: above, from the code's docstrings, are the long form)
-USER_HELP: dict[str, str] = {
-    "clean.max_gap_s": "longest gap, in s, that gets filled; longer gaps stay gaps",
-    "clean.max_fill_error_mm": "fill a gap only when its fill's estimated error is at most this, in mm",
-    "clean.max_target_fill_error_deg": "the same for the gaze target marker, as an angle seen from the head, "
-                                       "in degrees",
-    "clean.remove_spikes": "turn spikes (ghost samples, impossible jumps) into gaps before filling",
-    "clean.spike_residual_mm": "a sample this far (mm) from the median of its neighbours in time is a spike",
-    "clean.spike_step_factor":
-        "a sample farther from that median than this many times the marker's usual step is a spike",
-    "clean.spike_cluster_mm": "a sample whose distances to its segment's other markers are off by this (mm) "
-                              "is a spike",
-    "clean.spike_max_accel_mm_s2": "acceleration above this (mm/s², 50 g) is impossible: a spike",
-    "clean.spike_min_step_mm": "a jump between frames smaller than this (mm) is never a spike, whatever its acceleration",
-    "clean.spike_max_piece_s": "stretches shorter than this (s) cut off between spikes become gaps too",
-    "clean.fill_methods": "the gap-filling methods tried; the best one is chosen for each gap",
-    "clean.lowpass_hz": "cutoff, in Hz, of a zero-phase low-pass on the cleaned markers (off by default)",
-    "clean.lowpass_order": "order of that low-pass (2: a 4th-order filter forward and backward)",
-    "clean.rest_speed_mm_s": "the subject rests while the mean marker speed is below this, in mm/s",
-    "clean.rest_merge_s": "rests less than this apart (s) merge into one",
-    "clean.rest_min_s": "rests shorter than this (s) do not count",
-    "clean.rest_filter_hz": "low-pass, in Hz, of the positions the rest speed is measured on",
-    "clean.rest_refine": "move the end of each long rest to where the movement really starts",
-    "clean.remove_heading": "turn every frame so the subject faces the same way (lab +X to their left)",
-    "clean.repair_swaps": "find markers that swapped labels and put their samples back under their own names",
-    "clean.fill_unlabeled": "also fill unlabeled trajectories (*12, Unlabeled 3, ...); off: their gaps stay",
-    "clean.fill_still_gaps": "fill a longer gap too where its marker is still on both sides and its body through it",
-    "clean.swap_tolerance": "how far off (in spreads of a marker-to-marker distance) a sample is suspect of "
-                            "a swap",
-    "frames.min_neutral_frames": "fewest neutral-pose frames needed to calibrate a segment",
-    "frames.head_segment": "the head segment, which carries the eyes (default: the one named head, else the last)",
-    "frames.triangle": "how a three-marker segment's frame is built: rigid_fit or gram_schmidt",
-    "frames.min_plane_ratio": "fit a segment to some of its markers only when they are not nearly in a line",
-    "frames.max_fill_error_deg": "fill a segment's rotation across a marker gap when its estimated error is "
-                                 "at most this, in degrees (0: off)",
-    "frames.max_fit_uncertainty_deg": "a rotation fitted to filled markers more uncertain than this (degrees) is "
-                                      "treated as a gap (0: never)",
-    "frames.jump_factor": "a step this many typical departures off the angular velocity is a jump (0: no flips)",
-    "frames.min_jump_deg": "the smallest departure from a segment's angular velocity that is a jump (degrees)",
-    "frames.max_flip_s": "the longest a rotation may stay away between a jump and its return to be a flip (s)",
-    "face.k": "highest time derivative of the blendshapes to compute",
-    "sync.window_s": "half-width, in s, of the video window searched around each expected clap",
-    "sync.search_s": "how far into the video (s, from the start or the end) to look for the first clap",
-    "sync.max_drift": "largest clock-rate difference cameras show (0.001 = 0.1 %); claps beyond it are set aside",
-    "sync.min_confidence": "video claps below this confidence count as not found",
-    "sync.video_scale": "video frames are scaled by this before looking for claps (faster when smaller)",
-    "eyes.min_confidence": "OpenFace samples below this confidence are not used",
-    "eyes.max_eye_gap_s": "longest run of unusable eye samples, in s, bridged by interpolation",
-    "eyes.head_segment": "the head segment the gaze is measured from (default: the one named head, else the last)",
-    "eyes.smooth_s": "smoothing window, in s, of the gaze directions used to find fixations",
-    "eyes.max_target_speed_deg_s": "frames where the target moves faster than this (degrees/s) are not used "
-                                   "to find the camera rotation",
-    "eyes.max_gaze_speed_deg_s": "frames where the gaze moves faster than this (degrees/s) are not used either",
-    "eyes.settle_s": "frames this soon (s) after a fast target move are not used either",
-    "eyes.max_eccentricity_deg": "frames whose target is further than this (degrees) from straight ahead are not used",
-    "eyes.max_lag_s": "longest delay, in s, of the eyes behind the target that is searched",
-    "eyes.keep_percentile": "after each fit, frames whose error is above this percentile are left out",
-    "eyes.refit_iterations": "how many times the camera rotation is re-fitted without the worst frames",
-    "eyes.min_fixation_frames": "fewest usable frames needed to estimate the camera rotation",
-    "eyes.min_target_spread_deg": "warn when the targets looked at span less than this, in degrees",
-    "build.train_frac": "share of the takes in the training split",
-    "build.val_frac": "share of the takes in the validation split (the rest is the test split)",
-    "build.split_salt": "change it to draw another (still reproducible) assignment of takes to splits",
-    "build.mirror": "add a left-right mirrored copy of every row",
-    "build.rnn_window": "frames per training sequence of the gaze_rnn datasets",
-    "build.rnn_stride": "frames between the starts of two gaze_rnn sequences",
-    "build.face_window": "frames per training sequence of the face_clean dataset",
-    "build.face_stride": "frames between the starts of two face_clean sequences",
-    "build.start_speed_deg_s": "gaze_map: a joint starts moving when its speed passes this, in degrees/s",
-    "build.start_filter_hz": "gaze_map: low-pass, in Hz, of the rotations before measuring that speed",
-    "build.start_min_s": "gaze_map: the speed must stay above the threshold this long, in s",
-    "build.overshoot_window_s": "gaze_map: window, in s, each side of a peak that confirms an overshoot",
-    "build.max_bridge_s": "gaze_map: missing rotations up to this long, in s, are bridged; longer ones leave "
-                          "the event unknown",
-    "build.head_segment": "gaze_map: name of the head segment (default: the one named head, else the last)",
-}
-
-
 def user_help() -> dict[str, str]:
-    """``"group.param"`` → the short line ``gazepipe params`` prints; the docstring meaning where none is
-    written here."""
-    return {**param_meanings(), **USER_HELP}
+    """``"group.param"`` → the short line ``gazepipe params`` prints: its field's ``help``
+    (:func:`gazepipe.pipeline.registry.helps_of`), else the docstring meaning."""
+    from gazepipe.pipeline.registry import helps_of
+
+    out = param_meanings()
+    out.update({f"{group}.{name}": text for group, cls in documented_by().items()
+                for name, text in helps_of(cls).items()})
+    return out
+
+
+def param_help(group: str, name: str) -> str:
+    """The one line of help of parameter ``name`` of parameters dataclass ``group`` (``clean``…), read from the
+    dataclass itself: for a command that exposes a stage's parameter as an option (``gazepipe fill``)."""
+    return user_help()[f"{group}.{name}"]
+
+
+# ------------------------------------------------------------------------------- gazepipe fill's parameters
+
+#: the clean parameters ``gazepipe fill`` sets otherwise than ``gazepipe run``: a file filler keeps every measured
+#: sample unless asked (spikes are counted, not taken out; label swaps are left as they are)
+FILL_OVERRIDES: dict[str, Any] = {"remove_spikes": False, "repair_swaps": False}
+
+
+def fill_params(**given: Any) -> Any:
+    """The clean stage's parameters (:class:`~gazepipe.stages.clean.stage.CleanParams`) ``gazepipe fill`` fills
+    with, built as ``gazepipe run`` builds them (:func:`gazepipe.pipeline.registry.params_from`): the
+    dataclass's defaults, then :data:`FILL_OVERRIDES`, then the options ``given`` (by field name; None: not
+    given)."""
+    from gazepipe.pipeline.registry import defaults_of, params_from
+    from gazepipe.stages.clean.stage import CleanParams
+
+    values = {**defaults_of(CleanParams), **FILL_OVERRIDES, **{k: v for k, v in given.items() if v is not None}}
+    return params_from(CleanParams, values)
+
+
+class CleanParamOption(click.Option):
+    """An option of ``gazepipe fill`` that is a clean stage parameter (``field``): its default and its help's
+    first words come from :class:`~gazepipe.stages.clean.stage.CleanParams` (:func:`fill_params`,
+    :func:`param_help`), read when the option is parsed or shown (importing the stage with the command line
+    would load numpy before the command caps its BLAS threads); ``more``: what the option adds to the help."""
+
+    def __init__(self, *args: Any, field: str, more: str = "", **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.field, self.more = field, more
+
+    def get_default(self, ctx: click.Context, call: bool = True) -> Any:
+        return getattr(fill_params(), self.field)
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        text = param_help("clean", self.field)
+        self.help = f"{text[:1].upper()}{text[1:]} (as `gazepipe run`'s clean.{self.field}){self.more}"
+        return super().get_help_record(ctx)

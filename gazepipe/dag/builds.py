@@ -1,4 +1,4 @@
-"""gazepipe's training datasets, registered with the engine: which takes feed each, which stages' tables it
+"""gazepipe's training datasets, declared for the engine (:func:`gazepipe.dag.declare` registers them): which takes feed each, which stages' tables it
 reads, the ``build`` parameters, each dataset's per-take stage that makes a take's rows, and the build that
 merges them and publishes the dataset (SPEC §3.6, §4, §7).
 
@@ -15,14 +15,12 @@ split) and places the take files (linked, not copied) with the side files.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from collections import Counter
 from typing import Any
 
 import pyarrow as pa
 
-import gazepipe.dag.takes  # noqa: F401  (the stages the datasets read from are registered first)
 from gazepipe.errors import StageError
 from gazepipe.io.dataset_files import StagedDatasetWriter
 from gazepipe.io.parquet import read_schema, read_table
@@ -35,9 +33,7 @@ from gazepipe.pipeline.registry import (
     Stage,
     UnitContext,
     UnitResult,
-    register,
-    register_dataset,
-    register_params,
+    params_from,
 )
 from gazepipe.pipeline.state import OutLayout
 from gazepipe.schemas.base import read_meta
@@ -104,7 +100,7 @@ def _rows_stage(name: str):
         layout = OutLayout(ctx.out_dir)
         tt = TakeTables(session=session.id, subject=session.subject, take=take, markerset=session.markerset,
                         loader=lambda: _take_inputs(layout, session.id, take.id, stages))
-        params = BuildParams(**registry.group_values("build", ctx.all_params))
+        params = params_from(BuildParams, registry.group_values("build", ctx.all_params))
         part = take_part(name, tt, params, known=stages)   # the units' fingerprints stand for those tables
         table = part.table if part.table is not None else NO_ROWS.empty_table()
         facts = pa.Table.from_arrays([pa.array([json.dumps(part.to_json(), sort_keys=True)], pa.string())],
@@ -145,7 +141,7 @@ def _part(ctx: DatasetContext, session: str, take: str, units: dict[str, str]) -
 def run_build(ctx: DatasetContext) -> DatasetResult:
     """Merge the takes' parts of dataset ``ctx.name``, then stage its files (each take's, made by its unit) and
     publish them whole; on any failure the staging folder is removed and nothing is published."""
-    params = BuildParams(**ctx.params)
+    params = params_from(BuildParams, ctx.params)
     check_dataset(ctx.name, params)
     takes = sorted(ctx.takes, key=lambda stu: (stu[0].id, stu[1].id))
     twice = sorted(k for k, c in Counter((s.id, t.id) for s, t, _ in takes).items() if c > 1)
@@ -186,19 +182,19 @@ def _feeds(name: str):
     return applies
 
 
-register_params(ParamGroup(
-    name="build", params=BuildParams().to_dict(),
-    rules={f.name: dict(f.metadata) for f in dataclasses.fields(BuildParams)},
-    problems=lambda values: BuildParams(**values).problems(),
-))
-for _name in DATASETS:
-    register(Stage(
-        name=ROWS[_name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[_name]), params={},
-        outputs=(ROWS[_name], PARTS[_name]),
-        applies=_rows_applies(_name), sources=lambda s, t: [], run=_rows_stage(_name), groups=("build",),
-        help=f"the take's rows of dataset {_name} (mirrored copies, its split) and their partial statistics",
-    ))
-for _name in DATASETS:
-    register_dataset(Dataset(name=_name, version=BUILD_VERSION, needs=(*NEEDS[_name], ROWS[_name]),
-                             optional=OPTIONAL.get(_name, ()), needs_any=NEEDS_ANY.get(_name, ()),
-                             applies=_feeds(_name), run=run_build, params="build"))
+#: the ``build`` parameters, which belong to no take stage
+PARAM_GROUPS: tuple[ParamGroup, ...] = (
+    ParamGroup(name="build", params_class=BuildParams, problems=lambda values: BuildParams(**values).problems()),
+)
+#: each dataset's per-take stage (after the take stages whose tables it reads)
+ROW_STAGES: tuple[Stage, ...] = tuple(
+    Stage(name=ROWS[name], version=ROWS_VERSION, inputs=tuple(TABLE_OF[st] for st in NEEDS[name]),
+          outputs=(ROWS[name], PARTS[name]),
+          applies=_rows_applies(name), sources=lambda s, t: [], run=_rows_stage(name), groups=("build",),
+          help=f"the take's rows of dataset {name} (mirrored copies, its split) and their partial statistics")
+    for name in DATASETS)
+#: the datasets, each built from its takes' rows after the takes ran
+DATASET_DECLARATIONS: tuple[Dataset, ...] = tuple(
+    Dataset(name=name, version=BUILD_VERSION, needs=(*NEEDS[name], ROWS[name]), optional=OPTIONAL.get(name, ()),
+            needs_any=NEEDS_ANY.get(name, ()), applies=_feeds(name), run=run_build, params="build")
+    for name in DATASETS)

@@ -1,7 +1,9 @@
 """The engine's registry: the stages a DAG registers, the datasets built from them, their parameters, and how
 tables are read and written.
 
-The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers:
+The engine knows nothing of what a stage does. A DAG module (gazepipe's is :mod:`gazepipe.dag`) registers, when
+its ``declare()`` is called (never on import; :func:`declared_by` records it, so a worker started afresh calls it
+again, :func:`ensure`):
 
 - take stages (:func:`register`): a stage runs once per take (a *unit of work*); it declares the tables it
   reads (``inputs``) and writes (``outputs``), and the engine derives the stages it follows from them (kedro's
@@ -174,7 +176,11 @@ class Stage:
     name, version : bump ``version`` only for a change of its outputs that its code identity cannot see (a data
         file it reads beside its code, a library it reaches only through another): the code its ``run`` reaches
         is in every unit's code identity (:mod:`gazepipe.pipeline.codehash`).
-    params : the parameters it uses with their defaults; part of its fingerprint.
+    params_class : its parameters dataclass (None: it has none), the one source of their names, defaults, value
+        rules (field metadata) and help (metadata ``help``, else the class docstring's entry); its run gets the
+        values as a dict (``ctx.params``) and builds the dataclass whole with :func:`params_from`.
+    params : derived by :func:`register` from ``params_class``: the defaults (:func:`defaults_of`); part of
+        its fingerprint.
     outputs : table names it writes under ``takes/<session>/<take>/``; no other stage writes a table of
         that name.
     inputs : the tables of the same take it reads (:meth:`UnitContext.load` refuses any other), each written
@@ -184,8 +190,8 @@ class Stage:
     applies : which takes it runs on.
     sources : the raw input files it reads (content-hashed into its fingerprint).
     run : the work itself.
-    rules : the allowed values of its parameters, by name (see :func:`value_problem`); none = any value of
-        the default's type.
+    rules : derived by :func:`register` from ``params_class``: the allowed values of its parameters, by name
+        (see :func:`value_problem`); none = any value of the default's type.
     groups : parameter groups (:func:`register_params`) whose values it reads too (``ctx.all_params``); they
         are part of its fingerprint as its own parameters are.
     requires, session_requires : derived by :func:`register` from ``inputs`` and ``session_inputs``: the
@@ -194,12 +200,13 @@ class Stage:
 
     name: str
     version: str
-    params: Mapping[str, Any]
     outputs: tuple[str, ...]
     applies: Callable[[Any, Any], bool]
     sources: Callable[[Any, Any], Sequence[str]]
     run: Callable[[Any], UnitResult]
+    params_class: type | None = None
     help: str = ""
+    params: Mapping[str, Any] = field(default_factory=dict)
     rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     inputs: tuple[str, ...] = ()
     session_inputs: tuple[str, ...] = ()
@@ -269,14 +276,17 @@ class Dataset:
 
 @dataclass(frozen=True)
 class ParamGroup:
-    """Parameters that belong to no take stage (``"<name>.<param>"``), with their defaults and value rules, and
-    the rules between them: ``problems(values)`` gives one line per broken rule (values: every parameter of the
-    group, defaults overridden)."""
+    """Parameters that belong to no take stage (``"<name>.<param>"``), declared by their dataclass
+    (``params_class``: defaults, value rules and help, as :attr:`Stage.params_class`), and the rules between
+    them: ``problems(values)`` gives one line per broken rule (values: every parameter of the group, defaults
+    overridden)."""
 
     name: str
-    params: Mapping[str, Any]
-    rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    params_class: type
     problems: Callable[[dict[str, Any]], list[str]] | None = None
+    #: derived by :func:`register_params` from ``params_class``, as :attr:`Stage.params` and :attr:`Stage.rules`
+    params: Mapping[str, Any] = field(default_factory=dict)
+    rules: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 _STAGES: dict[str, Stage] = {}
@@ -315,6 +325,10 @@ def register(stage: Stage) -> Stage:
     for group in stage.groups:
         if group not in _GROUPS:
             raise ValueError(f"stage {stage.name} reads unknown parameter group {group}")
+    if stage.params_class is None and (stage.params or stage.rules):
+        raise ValueError(f"stage {stage.name}: declare its parameters dataclass (params_class), not a dict")
+    if stage.params_class is not None:
+        stage = dataclasses.replace(stage, params=defaults_of(stage.params_class), rules=rules_of(stage.params_class))
     stage = dataclasses.replace(stage, requires=_writers(stage.name, stage.inputs, list(_STAGES.values()), "tables"),
                                 session_requires=_writers(stage.name, stage.session_inputs,
                                                           list(_SESSION_STAGES.values()), "session tables"))
@@ -341,6 +355,7 @@ def register_params(group: ParamGroup) -> ParamGroup:
     """Add a parameter group that belongs to no take stage."""
     if group.name in _GROUPS or group.name in _STAGES:
         raise ValueError(f"parameter group {group.name} registered twice")
+    group = dataclasses.replace(group, params=defaults_of(group.params_class), rules=rules_of(group.params_class))
     _GROUPS[group.name] = group
     return group
 
@@ -378,23 +393,42 @@ def source_check() -> Callable[[Path], None] | None:
 
 def _loaded() -> None:
     if not _STAGES or not _TABLES:
-        raise RuntimeError("no stages registered: import the module that registers them first (gazepipe.dag)")
+        raise RuntimeError("no stages registered: declare them first (gazepipe.dag.declare())")
+
+
+_DECLARED_BY: list[str] = []
+
+
+def declared_by(module: str) -> None:
+    """Record that the DAG module ``module`` registered what is registered, through its function ``declare()``
+    (:func:`ensure` calls it again in a worker started afresh)."""
+    if module not in _DECLARED_BY:
+        _DECLARED_BY.append(module)
+
+
+def declared(module: str) -> bool:
+    """Whether DAG module ``module`` has declared its stages in this process (:func:`declared_by`)."""
+    return module in _DECLARED_BY
 
 
 def modules() -> tuple[str, ...]:
-    """The modules whose functions the registered stages and datasets run, in registration order: importing
-    them registers the same stages and datasets in another process (:func:`ensure`)."""
+    """The DAG modules that declared what is registered (:func:`declared_by`), then the modules whose functions
+    the registered stages and datasets run, in registration order: importing them (and calling a DAG module's
+    ``declare()``) registers the same stages and datasets in another process (:func:`ensure`)."""
     runs = ([st.run for st in _SESSION_STAGES.values()] + [st.run for st in _STAGES.values()]
             + [ds.run for ds in _DATASETS.values()])
-    return tuple(dict.fromkeys(f.__module__ for f in runs))
+    return tuple(dict.fromkeys([*_DECLARED_BY, *(f.__module__ for f in runs)]))
 
 
 def ensure(names: Sequence[str]) -> None:
     """In a process where nothing is registered yet (a worker started afresh), import the modules
-    :func:`modules` named in the process that planned the run."""
+    :func:`modules` named in the process that planned the run, and call the ``declare()`` of each that has
+    one."""
     if not _STAGES:
         for name in names:
-            importlib.import_module(name)
+            declare = getattr(importlib.import_module(name), "declare", None)
+            if callable(declare):
+                declare()
 
 
 def stages() -> list[Stage]:
@@ -466,9 +500,52 @@ def default_params() -> dict[str, Any]:
 # The kind of value comes from the default: true/false, a whole number, a number, a text, a list. A parameter
 # whose default is None (off) takes a number when its rule has bounds, else a text.
 
-def rules_of(cls) -> dict[str, Mapping[str, Any]]:
-    """The value rules a parameters dataclass declares in its fields' metadata, by field name."""
-    return {f.name: dict(f.metadata) for f in dataclasses.fields(cls) if f.metadata}
+#: the metadata key of a parameter's one line of help (the rest of its metadata is its value rule)
+HELP = "help"
+
+P = TypeVar("P")
+
+
+def rules_of(cls: type) -> dict[str, Mapping[str, Any]]:
+    """The value rules a parameters dataclass declares in its fields' metadata (but their ``help``), by field
+    name."""
+    out = {f.name: {k: v for k, v in f.metadata.items() if k != HELP} for f in dataclasses.fields(cls)}
+    return {k: v for k, v in out.items() if v}
+
+
+def helps_of(cls: type) -> dict[str, str]:
+    """The one line of help a parameters dataclass declares for each field (metadata ``help``), by field
+    name."""
+    return {f.name: f.metadata[HELP] for f in dataclasses.fields(cls) if HELP in f.metadata}
+
+
+def defaults_of(cls: type) -> dict[str, Any]:
+    """The defaults of a parameters dataclass, by field name, as JSON writes them (tuples as lists): a stage's
+    parameters as its units' fingerprints record them."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        v = getattr(cls(), f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def params_from(cls: type[P], values: Mapping[str, Any]) -> P:
+    """The parameters dataclass ``cls`` from a unit's values (its fields' names; lists as tuples; a field not
+    given keeps its default): how every stage's run, and the commands, build a stage's parameters."""
+    kw = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if f.name in values:
+            v = values[f.name]
+            kw[f.name] = tuple(v) if isinstance(v, list) else v
+    return cls(**kw)
+
+
+def param_classes() -> dict[str, type]:
+    """Each parameter group (a take stage with parameters, or a :class:`ParamGroup`) → its parameters
+    dataclass."""
+    out: dict[str, type] = {st.name: st.params_class for st in stages() if st.params_class is not None}
+    out.update({g.name: g.params_class for g in _GROUPS.values()})
+    return out
 
 
 def show_value(value: Any) -> str:

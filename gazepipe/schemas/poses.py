@@ -117,3 +117,15 @@ def table_to_arrays(table: pa.Table) -> dict[str, np.ndarray]:
                                         strict=True):
         out[name] = np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape).copy()
     return out
+
+
+def geometry_to_table(labels: list[str], arrays: dict[str, np.ndarray], takes: list[str]) -> pa.Table:
+    """The ``subject_geometry`` table: the subject's marker references as named arrays (none when no capture
+    could be read), the markers they are of (``labels``) and the takes they come from in the metadata."""
+    return arrays_to_table(arrays, {"takes": takes, "labels": labels})
+
+
+def table_to_geometry(table: pa.Table) -> tuple[list[str], dict[str, np.ndarray]]:
+    """Inverse of :func:`geometry_to_table`: the labels and the arrays (no labels: no references)."""
+    labels = list(read_meta(table).get("labels") or [])
+    return labels, (table_to_arrays(table) if labels else {})

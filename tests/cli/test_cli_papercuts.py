@@ -259,9 +259,11 @@ def test_a_trained_torch_model_is_saved_with_mode_0644(built, umask, tmp_path):
 
 def test_every_parameter_of_every_stage_has_a_meaning():
     """From the docstring of the class (or function) declaring it: a new undocumented parameter fails here."""
-    import gazepipe.dag  # noqa: F401
+    import gazepipe.dag
     from gazepipe.cli.param_help import param_meanings
     from gazepipe.pipeline.registry import default_params
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     meanings = param_meanings()
     missing = [k for k in default_params() if not meanings.get(k, "").strip()]
@@ -272,9 +274,11 @@ def test_every_parameter_of_every_stage_has_a_meaning():
 
 
 def test_params_prints_each_meaning_above_its_parameter():
-    import gazepipe.dag  # noqa: F401
+    import gazepipe.dag
     from gazepipe.cli.param_help import user_help
     from gazepipe.pipeline.registry import default_params
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     lines = invoke("params").stdout.splitlines()
     meanings = user_help()

@@ -63,6 +63,8 @@ def _fake_run(monkeypatch, gate: dict | None, exit_code: int = 0):
     import gazepipe.cli.main as main
     import gazepipe.dag
 
+    gazepipe.dag.declare()   # the stages and their parameters
+
     def run_pipeline(sessions, out, **kw):
         if gate is not None:
             (Path(out) / "qc").mkdir(parents=True, exist_ok=True)
@@ -100,8 +102,10 @@ def test_run_says_nothing_of_a_gate_that_passes(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------------------------- params
 
 def test_params_says_each_thing_once_in_words_for_users():
-    import gazepipe.dag  # noqa: F401
+    import gazepipe.dag
     from gazepipe.pipeline.registry import default_params
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     lines = invoke("params").stdout.splitlines()
     comments = [ln for ln, nxt in zip(lines, lines[1:] + [""], strict=True)

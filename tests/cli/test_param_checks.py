@@ -8,7 +8,7 @@ import dataclasses
 import pytest
 from click.testing import CliRunner
 
-import gazepipe.dag  # noqa: F401  (registers the stages and their parameters)
+import gazepipe.dag
 from gazepipe.cli.common import parse_params
 from gazepipe.cli.main import cli
 from gazepipe.errors import ConfigError
@@ -19,6 +19,8 @@ from gazepipe.stages.eyes.params import EyesParams
 from gazepipe.stages.frames.stage import FramesParams
 from gazepipe.stages.sync.stage import SyncParams
 from tests.helpers import SAMPLE
+
+gazepipe.dag.declare()   # the stages and their parameters
 
 
 def run(tmp_path, *args: str):

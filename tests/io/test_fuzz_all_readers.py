@@ -76,11 +76,14 @@ def run(case):
             if v.n_frames > 12:
                 read_frames(p, 10, 12, timestamps_s=v.timestamps_s)
     elif kind == "parquet":
-        import gazepipe.dag  # noqa: F401  (the table store the loader reads with)
+        import gazepipe.dag
         from gazepipe.pipeline.runner import _loader
         from gazepipe.pipeline.state import OutLayout
         from gazepipe.schemas.joints import joints_arrays
         from gazepipe.schemas.markers import table_to_markers
+
+        gazepipe.dag.declare()   # the stages and their parameters
+
         t = _loader(OutLayout(Path(case["out"])))(case["session"], case["take"], case["table"])
         if case["table"] in ("markers_raw", "markers", "neutral"):
             table_to_markers(t)

@@ -62,7 +62,7 @@ def test_planning_a_run_does_not_import_the_heavy_libraries():
     scipy, matplotlib, Dask or pyarrow.compute (scipy.spatial alone costs about 0.3 s, a third of the no-op re-run;
     pyarrow.compute 60 ms)."""
     code = ("import sys, gazepipe.cli.main, gazepipe.pipeline.engine, gazepipe.dag, "
-            "gazepipe.pipeline.registry as r; r.default_params(); "
+            "gazepipe.pipeline.registry as r; gazepipe.dag.declare(); r.default_params(); "
             "print(sorted(({m.split('.')[0] for m in sys.modules} & {'scipy', 'matplotlib', 'dask', 'distributed', "
             "'cv2', 'torch', 'pandas'}) | ({'pyarrow.compute'} & set(sys.modules))))")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -221,7 +221,8 @@ def test_an_interrupted_run_logs_how_far_it_got_and_keeps_finished_takes(tiny_se
 def test_a_file_rewritten_in_the_same_process_is_identified_afresh(tmp_path):
     """No cache keyed by path alone: a capture rewritten while the process runs (a broken capture mended between
     two runs of one process) has a new identity, so whether it is usable is looked at again."""
-    from gazepipe.dag.takes import _file_id, _usable_capture
+    from gazepipe.dag.nodes.common import file_id as _file_id
+    from gazepipe.dag.nodes.common import usable_capture as _usable_capture
 
     path = tmp_path / "t.c3d"
     path.write_bytes(b"not a capture")
@@ -326,8 +327,10 @@ def test_the_samples_outputs_never_change_under_an_unchanged_identity(sample_run
 def test_the_engine_derives_each_stages_upstream_from_the_tables_it_declares():
     """A stage declares the tables it reads; the engine derives the stages it follows from their writers, and
     refuses a table nobody writes before it, or stages named instead of tables."""
-    import gazepipe.dag  # noqa: F401  (registers the stages)
+    import gazepipe.dag
     from gazepipe.pipeline import registry
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     derived = {st.name: (st.requires, st.session_requires) for st in registry.stages()}
     assert derived["clean"] == (("ingest",), ("subject_geometry",))
@@ -348,11 +351,13 @@ def test_a_stage_that_loads_a_table_it_does_not_declare_fails_loudly(tiny_sessio
     unit, naming the table, before anything is read."""
     import io
 
-    import gazepipe.dag  # noqa: F401  (registers the stages)
+    import gazepipe.dag
     from gazepipe.io.session_toml import load_session
     from gazepipe.pipeline import registry
     from gazepipe.pipeline.engine import run_pipeline
     from gazepipe.pipeline.events import EventLog
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     frames = registry.get("frames")
     read: list[str] = []
@@ -380,14 +385,16 @@ def test_a_stages_code_identity_depends_on_neither_the_folder_nor_the_hash_seed(
     """The same code gives the same digests from another folder, under another hash seed, imported in another
     order (the DAG's modules before the engine's)."""
     import gazepipe
-    import gazepipe.dag  # noqa: F401  (registers the stages)
+    import gazepipe.dag
     from gazepipe.pipeline import registry
     from gazepipe.pipeline.codehash import code_of
+
+    gazepipe.dag.declare()   # the stages and their parameters
 
     here = {st.name: code_of(st.run).digest for st in registry.stages()}
     copy = tmp_path / "elsewhere"
     shutil.copytree(Path(gazepipe.__file__).parent, copy / "gazepipe", ignore=shutil.ignore_patterns("__pycache__"))
-    script = ("import json, gazepipe.dag.takes, gazepipe.dag\n"
+    script = ("import json, gazepipe.dag.takes, gazepipe.dag\ngazepipe.dag.declare()\n"
               "from gazepipe.pipeline import registry\nfrom gazepipe.pipeline.codehash import code_of\n"
               "print(json.dumps({st.name: code_of(st.run).digest for st in registry.stages()}))")
     env = {**os.environ, "PYTHONPATH": str(copy), "PYTHONHASHSEED": "12345"}
@@ -396,3 +403,38 @@ def test_a_stages_code_identity_depends_on_neither_the_folder_nor_the_hash_seed(
     assert res.returncode == 0, res.stderr[-2000:]
     assert json.loads(res.stdout) == here
     assert len(set(here.values())) >= 5   # the stages' code differs
+
+
+def test_a_stages_parameters_are_its_dataclass_not_a_dict():
+    """A stage declares its parameters dataclass; the engine derives the defaults and rules from it and refuses
+    parameters given as a dict."""
+    import gazepipe.dag
+    from gazepipe.pipeline import registry
+    from gazepipe.stages.sync.stage import SyncParams
+
+    gazepipe.dag.declare()   # the stages and their parameters
+
+    sync = registry.get("sync")
+    assert sync.params_class is SyncParams
+    assert sync.params == registry.defaults_of(SyncParams) and sync.rules == registry.rules_of(SyncParams)
+    assert "help" not in {k for rule in sync.rules.values() for k in rule}
+    with pytest.raises(ValueError, match="declare its parameters dataclass"):
+        registry.register(dataclasses.replace(sync, name="late", outputs=("late",), params_class=None,
+                                              requires=(), session_requires=()))
+
+
+def test_importing_the_dag_registers_nothing_until_it_is_declared():
+    """The registry fills on an explicit call (gazepipe.dag.declare(), once: a second call changes nothing), and a
+    worker started afresh fills it from the modules the planning process names (registry.ensure)."""
+    script = ("import gazepipe.dag\nfrom gazepipe.pipeline import registry\n"
+              "before = len(registry._STAGES)\n"
+              "gazepipe.dag.declare(); gazepipe.dag.declare()\n"
+              "print(before, len(registry.stages()), len(registry.datasets()), registry.modules()[0])")
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["0", "10", "4", "gazepipe.dag"]
+    worker = ("from gazepipe.pipeline import registry\nregistry.ensure(['gazepipe.dag'])\n"
+              "print(len(registry.stages()), len(registry.session_stages_for(registry.stages())))")
+    res = subprocess.run([sys.executable, "-c", worker], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.split() == ["10", "2"]

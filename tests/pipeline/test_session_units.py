@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import gazepipe.dag
 from gazepipe.dag import run_pipeline
 from gazepipe.errors import StageError
 from gazepipe.io.session_toml import load_session
@@ -18,6 +19,8 @@ from gazepipe.model import Markers
 from gazepipe.pipeline import registry
 from gazepipe.pipeline.events import EventLog
 from gazepipe.schemas.poses import PoseSource, stack_to_table, table_to_stack
+
+gazepipe.dag.declare()   # the stages, read from the registry below
 
 
 def _run(folder: Path, out: Path, **kw):
@@ -35,6 +38,7 @@ def _with_neutral_take(folder: Path) -> Path:
 
 def test_session_units_run_once_before_the_takes_and_are_then_up_to_date(tiny_session, tmp_path, monkeypatch):
     import gazepipe.stages.clean.stage as clean_stage
+    import gazepipe.stages.frames.neutral as neutral
 
     folder = _with_neutral_take(tiny_session)
     cleaned: list[str] = []
@@ -45,6 +49,7 @@ def test_session_units_run_once_before_the_takes_and_are_then_up_to_date(tiny_se
         return real(raw, ms, kind, *args, **kw)
 
     monkeypatch.setattr(clean_stage, "clean_markers", counting)
+    monkeypatch.setattr(neutral, "clean_markers", counting)   # the session's neutral poses clean through it
     out = tmp_path / "out"
     summary = _run(folder, out, until="frames")
     assert summary.exit_code == 0, [o.error for o in summary.failed]
@@ -135,7 +140,7 @@ def test_session_stages_are_registered_with_their_readers(name):
 def test_a_take_without_a_rest_has_an_empty_neutral_table_that_reads_back(tmp_path):
     """A take without a rest period writes a ``neutral`` table of no frames; read back from Parquet (its marker
     dictionary comes back empty) it must still pass the check that later units' loads make."""
-    from gazepipe.dag.takes import check_stored_table
+    from gazepipe.dag.store import check_stored_table
     from gazepipe.io.parquet import read_table, write_table
     from gazepipe.schemas.markers import MARKERS_CLEAN, markers_to_table
 

@@ -82,23 +82,39 @@ class BuildParams:
         the take's row (its ``known`` entry False; SPEC §3.6).
     head_segment : the head segment for gaze_map; ``None`` = the one named ``head``, else the last.
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
-    train_frac: float = field(default=0.8, metadata={"min": 0, "max": 1})
-    val_frac: float = field(default=0.1, metadata={"min": 0, "max": 1})
-    split_salt: str = ""
-    mirror: bool = True
-    rnn_window: int = field(default=120, metadata={"min": 1})
-    rnn_stride: int = field(default=30, metadata={"min": 1})
-    face_window: int = field(default=200, metadata={"min": 1})
-    face_stride: int = field(default=50, metadata={"min": 1})
-    start_speed_deg_s: float = field(default=18.0, metadata={"gt": 0})
-    start_filter_hz: float | None = field(default=2.0, metadata={"gt": 0})
-    start_min_s: float = field(default=1.0 / 15.0, metadata={"min": 0})
-    overshoot_window_s: float = field(default=0.1, metadata={"min": 0})
-    max_bridge_s: float = field(default=0.5, metadata={"min": 0})
-    head_segment: str | None = None
+    train_frac: float = field(default=0.8, metadata={
+        "min": 0, "max": 1, "help": "share of the takes in the training split"})
+    val_frac: float = field(default=0.1, metadata={
+        "min": 0, "max": 1, "help": "share of the takes in the validation split (the rest is the test "
+            "split)"})
+    split_salt: str = field(default="", metadata={
+        "help": "change it to draw another (still reproducible) assignment of takes to splits"})
+    mirror: bool = field(default=True, metadata={"help": "add a left-right mirrored copy of every row"})
+    rnn_window: int = field(default=120, metadata={
+        "min": 1, "help": "frames per training sequence of the gaze_rnn datasets"})
+    rnn_stride: int = field(default=30, metadata={
+        "min": 1, "help": "frames between the starts of two gaze_rnn sequences"})
+    face_window: int = field(default=200, metadata={
+        "min": 1, "help": "frames per training sequence of the face_clean dataset"})
+    face_stride: int = field(default=50, metadata={
+        "min": 1, "help": "frames between the starts of two face_clean sequences"})
+    start_speed_deg_s: float = field(default=18.0, metadata={
+        "gt": 0, "help": "gaze_map: a joint starts moving when its speed passes this, in degrees/s"})
+    start_filter_hz: float | None = field(default=2.0, metadata={
+        "gt": 0, "help": "gaze_map: low-pass, in Hz, of the rotations before measuring that speed"})
+    start_min_s: float = field(default=1.0 / 15.0, metadata={
+        "min": 0, "help": "gaze_map: the speed must stay above the threshold this long, in s"})
+    overshoot_window_s: float = field(default=0.1, metadata={
+        "min": 0, "help": "gaze_map: window, in s, each side of a peak that confirms an overshoot"})
+    max_bridge_s: float = field(default=0.5, metadata={
+        "min": 0, "help": "gaze_map: missing rotations up to this long, in s, are bridged; longer ones "
+            "leave the event unknown"})
+    head_segment: str | None = field(default=None, metadata={
+        "help": "gaze_map: name of the head segment (default: the one named head, else the last)"})
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -20,7 +20,8 @@ Read top-down, in the order :func:`clean_markers` (:mod:`.stage`) runs them:
 - :mod:`.rests`: rest periods from the subject's speed, and the crop the take's kind keeps.
 
 :mod:`.standalone` is the same spike removal and gap filling on any capture file, without a session
-(``gazepipe fill``).
+(``gazepipe fill``). :mod:`.subject` pools the subject's marker geometry from every capture of a session, that
+each take's label swaps are judged against.
 """
 
 from gazepipe.stages import lazy_exports

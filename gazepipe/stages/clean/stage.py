@@ -119,32 +119,61 @@ class CleanParams:
     fill_unlabeled : also fill the gaps of unlabeled trajectories (Vicon ``*12``, ``Unlabeled 3``, ...:
         :func:`gazepipe.stages.clean.gapfill.unlabeled_markers`); off: their gaps stay, counted in QC.
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
-    max_gap_s: float = field(default=3.0, metadata={"min": 0})
-    max_fill_error_mm: float = field(default=5.0, metadata={"gt": 0})
-    max_target_fill_error_deg: float = field(default=2.0, metadata={"min": 0, "max": 45})
-    remove_spikes: bool = True
-    spike_residual_mm: float = field(default=8.0, metadata={"gt": 0})
-    spike_step_factor: float = field(default=2.0, metadata={"min": 0})
-    spike_cluster_mm: float = field(default=5.0, metadata={"gt": 0})
-    spike_max_accel_mm_s2: float = field(default=50.0 * G_MM_S2, metadata={"gt": 0})
-    spike_min_step_mm: float = field(default=100.0, metadata={"min": 0})
-    spike_max_piece_s: float = field(default=0.5, metadata={"min": 0})
-    fill_methods: tuple[str, ...] = field(default=METHODS, metadata={"choices": METHODS})
-    lowpass_hz: float | None = field(default=None, metadata={"gt": 0})
-    lowpass_order: int = field(default=2, metadata={"min": 1})
-    rest_speed_mm_s: float = field(default=6.0, metadata={"gt": 0})
-    rest_merge_s: float = field(default=1.0 / 6.0, metadata={"min": 0})
-    rest_min_s: float = field(default=0.25, metadata={"min": 0})
-    rest_filter_hz: float = field(default=1.75, metadata={"gt": 0})
-    rest_refine: bool = True
-    remove_heading: bool = False
-    repair_swaps: bool = True
-    swap_tolerance: float = field(default=6.0, metadata={"gt": 0})
-    fill_unlabeled: bool = False
-    fill_still_gaps: bool = True
+    max_gap_s: float = field(default=3.0, metadata={
+        "min": 0, "help": "longest gap, in s, that gets filled; longer gaps stay gaps"})
+    max_fill_error_mm: float = field(default=5.0, metadata={
+        "gt": 0, "help": "fill a gap only when its fill's estimated error is at most this, in mm"})
+    max_target_fill_error_deg: float = field(default=2.0, metadata={
+        "min": 0, "max": 45, "help": "the same for the gaze target marker, as an angle seen from the head, "
+            "in degrees"})
+    remove_spikes: bool = field(default=True, metadata={
+        "help": "turn spikes (ghost samples, impossible jumps) into gaps before filling"})
+    spike_residual_mm: float = field(default=8.0, metadata={
+        "gt": 0, "help": "a sample this far (mm) from the median of its neighbours in time is a spike"})
+    spike_step_factor: float = field(default=2.0, metadata={
+        "min": 0, "help": "a sample farther from that median than this many times the marker's usual step "
+            "is a spike"})
+    spike_cluster_mm: float = field(default=5.0, metadata={
+        "gt": 0, "help": "a sample whose distances to its segment's other markers are off by this (mm) is a "
+            "spike"})
+    spike_max_accel_mm_s2: float = field(default=50.0 * G_MM_S2, metadata={
+        "gt": 0, "help": "acceleration above this (mm/s², 50 g) is impossible: a spike"})
+    spike_min_step_mm: float = field(default=100.0, metadata={
+        "min": 0, "help": "a jump between frames smaller than this (mm) is never a spike, whatever its "
+            "acceleration"})
+    spike_max_piece_s: float = field(default=0.5, metadata={
+        "min": 0, "help": "stretches shorter than this (s) cut off between spikes become gaps too"})
+    fill_methods: tuple[str, ...] = field(default=METHODS, metadata={
+        "choices": METHODS, "help": "the gap-filling methods tried; the best one is chosen for each gap"})
+    lowpass_hz: float | None = field(default=None, metadata={
+        "gt": 0, "help": "cutoff, in Hz, of a zero-phase low-pass on the cleaned markers (off by default)"})
+    lowpass_order: int = field(default=2, metadata={
+        "min": 1, "help": "order of that low-pass (2: a 4th-order filter forward and backward)"})
+    rest_speed_mm_s: float = field(default=6.0, metadata={
+        "gt": 0, "help": "the subject rests while the mean marker speed is below this, in mm/s"})
+    rest_merge_s: float = field(default=1.0 / 6.0, metadata={
+        "min": 0, "help": "rests less than this apart (s) merge into one"})
+    rest_min_s: float = field(default=0.25, metadata={
+        "min": 0, "help": "rests shorter than this (s) do not count"})
+    rest_filter_hz: float = field(default=1.75, metadata={
+        "gt": 0, "help": "low-pass, in Hz, of the positions the rest speed is measured on"})
+    rest_refine: bool = field(default=True, metadata={
+        "help": "move the end of each long rest to where the movement really starts"})
+    remove_heading: bool = field(default=False, metadata={
+        "help": "turn every frame so the subject faces the same way (lab +X to their left)"})
+    repair_swaps: bool = field(default=True, metadata={
+        "help": "find markers that swapped labels and put their samples back under their own names"})
+    swap_tolerance: float = field(default=6.0, metadata={
+        "gt": 0, "help": "how far off (in spreads of a marker-to-marker distance) a sample is suspect of a "
+            "swap"})
+    fill_unlabeled: bool = field(default=False, metadata={
+        "help": "also fill unlabeled trajectories (*12, Unlabeled 3, ...); off: their gaps stay"})
+    fill_still_gaps: bool = field(default=True, metadata={
+        "help": "fill a longer gap too where its marker is still on both sides and its body through it"})
 
 
 @dataclass

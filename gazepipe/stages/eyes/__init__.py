@@ -10,7 +10,8 @@ target, and warnings.
 Read top-down: :mod:`.stage` (:func:`eyes_take`) runs :mod:`.gate` (gating on success, confidence and blinks,
 short gaps bridged; the cyclopean direction), resamples onto mocap frames, then :mod:`.camera` (camera → head →
 character axes; the fixation rules and trimmed fit that estimate the camera rotation) and :mod:`.lag` (the lag
-searched with it). :mod:`.params` holds the parameters.
+searched with it). :mod:`.params` holds the parameters; :mod:`.mocap` reads the head's motion from the
+``joints`` table's arrays and marks the bridged frames.
 """
 
 from gazepipe.stages import lazy_exports

@@ -37,19 +37,36 @@ class EyesParams:
     min_target_spread_deg : below this RMS spread of the target directions the estimate is poorly conditioned
         (a warning in QC).
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
-    min_confidence: float = field(default=0.8, metadata={"min": 0, "max": 1})
-    max_eye_gap_s: float = field(default=0.1, metadata={"min": 0})
-    head_segment: str | None = None
-    smooth_s: float = field(default=0.2, metadata={"min": 0})
-    max_target_speed_deg_s: float = field(default=30.0, metadata={"gt": 0})
-    max_gaze_speed_deg_s: float = field(default=60.0, metadata={"gt": 0})
-    settle_s: float = field(default=0.15, metadata={"min": 0})
-    max_eccentricity_deg: float = field(default=50.0, metadata={"gt": 0, "max": 180})
-    max_lag_s: float = field(default=0.5, metadata={"min": 0})
-    keep_percentile: float = field(default=75.0, metadata={"gt": 0, "max": 100})
-    refit_iterations: int = field(default=3, metadata={"min": 0})
-    min_fixation_frames: int = field(default=30, metadata={"min": 1})
-    min_target_spread_deg: float = field(default=5.0, metadata={"min": 0})
+    min_confidence: float = field(default=0.8, metadata={
+        "min": 0, "max": 1, "help": "OpenFace samples below this confidence are not used"})
+    max_eye_gap_s: float = field(default=0.1, metadata={
+        "min": 0, "help": "longest run of unusable eye samples, in s, bridged by interpolation"})
+    head_segment: str | None = field(default=None, metadata={
+        "help": "the head segment the gaze is measured from (default: the one named head, else the last)"})
+    smooth_s: float = field(default=0.2, metadata={
+        "min": 0, "help": "smoothing window, in s, of the gaze directions used to find fixations"})
+    max_target_speed_deg_s: float = field(default=30.0, metadata={
+        "gt": 0, "help": "frames where the target moves faster than this (degrees/s) are not used to find "
+            "the camera rotation"})
+    max_gaze_speed_deg_s: float = field(default=60.0, metadata={
+        "gt": 0, "help": "frames where the gaze moves faster than this (degrees/s) are not used either"})
+    settle_s: float = field(default=0.15, metadata={
+        "min": 0, "help": "frames this soon (s) after a fast target move are not used either"})
+    max_eccentricity_deg: float = field(default=50.0, metadata={
+        "gt": 0, "max": 180, "help": "frames whose target is further than this (degrees) from straight "
+            "ahead are not used"})
+    max_lag_s: float = field(default=0.5, metadata={
+        "min": 0, "help": "longest delay, in s, of the eyes behind the target that is searched"})
+    keep_percentile: float = field(default=75.0, metadata={
+        "gt": 0, "max": 100, "help": "after each fit, frames whose error is above this percentile are left "
+            "out"})
+    refit_iterations: int = field(default=3, metadata={
+        "min": 0, "help": "how many times the camera rotation is re-fitted without the worst frames"})
+    min_fixation_frames: int = field(default=30, metadata={
+        "min": 1, "help": "fewest usable frames needed to estimate the camera rotation"})
+    min_target_spread_deg: float = field(default=5.0, metadata={
+        "min": 0, "help": "warn when the targets looked at span less than this, in degrees"})

@@ -19,6 +19,7 @@ import numpy as np
 from gazepipe.arkit import normalise_name
 from gazepipe.errors import StageError
 from gazepipe.model import FaceTrack
+from gazepipe.stages.face.params import FaceParams
 from gazepipe.stages.face.qc import FaceQC
 
 __all__ = ["FaceAligned", "align_face", "forward_derivatives"]
@@ -104,7 +105,7 @@ def _match(t_trk: np.ndarray, t_cln: np.ndarray, tol: float) -> tuple[np.ndarray
     return rows, c[rows], err[rows]
 
 
-def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
+def align_face(tracked: FaceTrack, clean: FaceTrack, params: FaceParams | None = None, *,
                paths: tuple[str | Path, str | Path] | None = None) -> FaceAligned:
     """Align a take's tracked and clean blendshapes on timecode and add forward derivatives (SPEC §3.6).
 
@@ -118,7 +119,7 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
     ----------
     tracked : raw tracking of the take.
     clean : the hand-cleaned animation of the same take.
-    k : highest derivative order (default 1).
+    params : the stage's parameters (default :class:`FaceParams`): ``k``, the highest derivative order.
     paths : the tracked and the clean file, named by the errors (None: errors name no file).
 
     Returns
@@ -129,6 +130,7 @@ def align_face(tracked: FaceTrack, clean: FaceTrack, *, k: int = 1,
     ------
     StageError : no or too few rows in common.
     """
+    k = (params or FaceParams()).k
     if k < 1:
         raise ValueError(f"derivative order k must be >= 1, got {k}")
     trk_path, cln_path = paths if paths is not None else (None, None)

@@ -6,7 +6,8 @@ each segment's global and parent-relative rotation (quaternions and the 6-number
 the unit direction to the target. Records in QC: the neutral frames used per segment, the frames without a
 character frame or a segment, where the neutral pose came from, and warnings.
 
-Everything is in :mod:`.stage` (:func:`compute_frames`), read top-down.
+Everything is in :mod:`.stage` (:func:`compute_frames`), read top-down; :mod:`.neutral` chooses the neutral
+poses a take is calibrated against (the session's, its own first rest, other takes' first rests).
 """
 
 from gazepipe.stages import lazy_exports

@@ -73,18 +73,35 @@ class FramesParams:
         ``jump_factor``).
     max_flip_s : the longest a rotation may stay away, in seconds, between a jump and its way back, for the
         stretch to be a flip (see ``jump_factor``).
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
-    min_neutral_frames: int = field(default=3, metadata={"min": 1})
-    head_segment: str | None = None
-    triangle: str = field(default="rigid_fit", metadata={"choices": ("rigid_fit", "gram_schmidt")})
-    min_plane_ratio: float = field(default=0.2, metadata={"min": 0, "max": 1})
-    max_fill_error_deg: float = field(default=2.0, metadata={"min": 0})
-    max_fit_uncertainty_deg: float = field(default=3.0, metadata={"min": 0})
-    jump_factor: float = field(default=4.0, metadata={"min": 0})
-    min_jump_deg: float = field(default=3.0, metadata={"min": 0})
-    max_flip_s: float = field(default=2.0, metadata={"min": 0})
+    min_neutral_frames: int = field(default=3, metadata={
+        "min": 1, "help": "fewest neutral-pose frames needed to calibrate a segment"})
+    head_segment: str | None = field(default=None, metadata={
+        "help": "the head segment, which carries the eyes (default: the one named head, else the last)"})
+    triangle: str = field(default="rigid_fit", metadata={
+        "choices": ("rigid_fit", "gram_schmidt"), "help": "how a three-marker segment's frame is built: "
+            "rigid_fit or gram_schmidt"})
+    min_plane_ratio: float = field(default=0.2, metadata={
+        "min": 0, "max": 1, "help": "fit a segment to some of its markers only when they are not nearly in "
+            "a line"})
+    max_fill_error_deg: float = field(default=2.0, metadata={
+        "min": 0, "help": "fill a segment's rotation across a marker gap when its estimated error is at "
+            "most this, in degrees (0: off)"})
+    max_fit_uncertainty_deg: float = field(default=3.0, metadata={
+        "min": 0, "help": "a rotation fitted to filled markers more uncertain than this (degrees) is "
+            "treated as a gap (0: never)"})
+    jump_factor: float = field(default=4.0, metadata={
+        "min": 0, "help": "a step this many typical departures off the angular velocity is a jump (0: no "
+            "flips)"})
+    min_jump_deg: float = field(default=3.0, metadata={
+        "min": 0, "help": "the smallest departure from a segment's angular velocity that is a jump "
+            "(degrees)"})
+    max_flip_s: float = field(default=2.0, metadata={
+        "min": 0, "help": "the longest a rotation may stay away between a jump and its return to be a flip "
+            "(s)"})
 
 
 @dataclass

@@ -8,7 +8,7 @@ offset and ratio, their drift and residual, frames decoded, mocap frames without
 Read top-down: :mod:`.stage` (:func:`sync_take`) pairs the claps found by :mod:`.clap` (the mocap side: the
 contact instant of the clapper's arms) and :mod:`.video` (the video side: the end of the closing burst of
 motion energy) and fits :mod:`.clock` (the clock map, and resampling video-clock signals onto mocap frames,
-which the eyes stage uses).
+which the eyes stage uses). :mod:`.coverage` notes a video far shorter than its take.
 """
 
 from gazepipe.stages import lazy_exports

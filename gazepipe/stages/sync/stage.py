@@ -56,14 +56,22 @@ class SyncParams:
     min_confidence : video claps below this confidence count as not found.
     video_scale : frames are scaled by this before motion energy (the clapper fills much of the view).
 
-    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`).
+    Each field's metadata gives its allowed values (:func:`gazepipe.pipeline.registry.value_problem`) and its one
+    line of help (``help``: what ``gazepipe params`` prints).
     """
 
-    window_s: float = field(default=1.5, metadata={"gt": 0})
-    search_s: float = field(default=20.0, metadata={"gt": 0})
-    max_drift: float = field(default=0.0012, metadata={"min": 0, "lt": 1})
-    min_confidence: float = field(default=0.05, metadata={"min": 0, "max": 1})
-    video_scale: float = field(default=0.5, metadata={"gt": 0, "max": 1})
+    window_s: float = field(default=1.5, metadata={
+        "gt": 0, "help": "half-width, in s, of the video window searched around each expected clap"})
+    search_s: float = field(default=20.0, metadata={
+        "gt": 0, "help": "how far into the video (s, from the start or the end) to look for the first clap"})
+    max_drift: float = field(default=0.0012, metadata={
+        "min": 0, "lt": 1, "help": "largest clock-rate difference cameras show (0.001 = 0.1 %); claps "
+            "beyond it are set aside"})
+    min_confidence: float = field(default=0.05, metadata={
+        "min": 0, "max": 1, "help": "video claps below this confidence count as not found"})
+    video_scale: float = field(default=0.5, metadata={
+        "gt": 0, "max": 1, "help": "video frames are scaled by this before looking for claps (faster when "
+            "smaller)"})
 
 
 @dataclass
@@ -89,9 +97,8 @@ class SyncResult:
 
 
 def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarray, valid_b: np.ndarray,
-              rate_hz: float, probe_timestamps: np.ndarray, read_window: ReadWindow, *,
-              offset_guess_s: float | None = None, ratio_guess: float = 1.0, window_s: float = 1.5,
-              search_s: float = 20.0, max_drift: float = 0.0012, min_confidence: float = 0.05,
+              rate_hz: float, probe_timestamps: np.ndarray, read_window: ReadWindow,
+              params: SyncParams | None = None, *, offset_guess_s: float | None = None, ratio_guess: float = 1.0,
               roi: tuple[int, int, int, int] | None = None, mocap_path: str | None = None,
               video_path: str | None = None, take: str | None = None,
               mocap_kw: dict | None = None, video_kw: dict | None = None) -> SyncResult:
@@ -106,11 +113,11 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     offset_guess_s, ratio_guess : prior t_mocap ≈ offset + ratio · t_video. Without one, the first mocap
         clap is looked for in the first ``search_s`` of the video (or, failing that, the last mocap clap in
         the last ``search_s``), and the other claps are predicted from that pair.
-    window_s : half-width of each video search window; windows predicted from a clap pair widen by
-        ``max_drift`` times the distance to that pair.
-    max_drift : largest |ratio − 1| cameras show: the ratio's prior, and how far claps may disagree
-        (:func:`choose_clock`).
-    min_confidence : video claps below this confidence count as not found.
+    params : the stage's parameters (default :class:`SyncParams`), of which it uses ``window_s``, the
+        half-width of each video search window (windows predicted from a clap pair widen by ``max_drift`` times
+        the distance to that pair), ``search_s``, ``max_drift``, the largest |ratio − 1| cameras show (the
+        ratio's prior, and how far claps may disagree: :func:`choose_clock`), and ``min_confidence``, below which
+        video claps count as not found.
     mocap_path, video_path, take : named in error messages.
     mocap_kw, video_kw : further parameters of :func:`mocap_claps` and :func:`match_clap`.
 
@@ -119,6 +126,8 @@ def sync_take(clap_a_xyz: np.ndarray, clap_b_xyz: np.ndarray, valid_a: np.ndarra
     StageError : no clap in the mocap, or no clap found in the video. Claps that disagree are set aside with a
         warning (never an error).
     """
+    p = params or SyncParams()
+    window_s, search_s, max_drift, min_confidence = p.window_s, p.search_s, p.max_drift, p.min_confidence
     mocap_kw = dict(mocap_kw or {})
     video_kw = dict(video_kw or {}, roi=roi)
     ts = np.asarray(probe_timestamps, dtype=np.float64)

@@ -14,6 +14,7 @@ from hypothesis.extra import numpy as hnp
 from gazepipe.arkit import ALL_NAMES, ARKIT_NAMES, EYE_NAMES, HEAD_NAMES, mirror_face
 from gazepipe.errors import StageError
 from gazepipe.io.livelinkface import read_livelinkface
+from gazepipe.stages.face.params import FaceParams
 from gazepipe.stages.face.stage import align_face, forward_derivatives
 
 RATE, TC_FPS = 30, 60
@@ -80,7 +81,7 @@ def test_alignment_and_first_derivative_by_hand(pair):
 
 def test_second_derivative_by_hand(pair):
     t, c, trk_all, _ = pair
-    fa = align_face(t, c, k=2)
+    fa = align_face(t, c, FaceParams(k=2))
     matched = [0, 1, 2, 3, 5, 6, 9, 11, 12, 13, 14]
     assert fa.n_frames == len(matched) - 2 and fa.qc["last_frames_dropped"] == 2
     x = trk_all.astype(np.float32).astype(float)
