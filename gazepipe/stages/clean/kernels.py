@@ -514,7 +514,7 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
     for m in range(n_m):
         if not body[m]:
             continue
-        need = max(10, np.count_nonzero(ok[:, m]) // 2)
+        need: int = max(10, int(np.count_nonzero(ok[:, m])) // 2)
         for j in range(n_m):
             if j == m or not body[j]:
                 continue
