@@ -13,13 +13,14 @@ Importing this package registers nothing: :func:`declare` hands the declarations
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 from gazepipe.dag import builds, takes
 from gazepipe.dag.store import TABLE_STORE, check_source
 from gazepipe.pipeline import registry, status
-from gazepipe.pipeline.engine import RunSummary
 from gazepipe.pipeline.engine import run_pipeline as _run_pipeline
 
 __all__ = ["collect_status", "declare", "run_pipeline"]
@@ -45,10 +46,24 @@ def declare() -> None:
     registry.declared_by(__name__)
 
 
-def run_pipeline(*args: Any, **kw: Any) -> RunSummary:
-    """:func:`gazepipe.pipeline.engine.run_pipeline` with gazepipe's stages and datasets declared."""
-    declare()
-    return _run_pipeline(*args, **kw)
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _declared(fn: Callable[P, R]) -> Callable[P, R]:
+    """``fn`` (an engine entry point) called with gazepipe's stages and datasets declared first; the same
+    signature, so its callers' arguments stay checked."""
+
+    @functools.wraps(fn)
+    def with_declarations(*args: P.args, **kw: P.kwargs) -> R:
+        declare()
+        return fn(*args, **kw)
+
+    return with_declarations
+
+
+#: :func:`gazepipe.pipeline.engine.run_pipeline` with gazepipe's stages and datasets declared
+run_pipeline = _declared(_run_pipeline)
 
 
 def collect_status(out: Path, params: dict[str, Any] | None = None) -> list[dict[str, Any]]:
