@@ -206,12 +206,23 @@ class Axes:
                 y, a, b = np.log10(y), np.log10(a), np.log10(b)
         return self.bottom - (y - a) * (self.height / (b - a))
 
-    def line(self, x: np.ndarray, y: np.ndarray, colour: str, lw: float, dashed: bool = False) -> None:
+    def line(self, x: np.ndarray, y: np.ndarray, colour: str, lw: float, dashed: bool = False,
+             alpha: float = 1.0, cap: str = "square") -> None:
         """A polyline in data coordinates, broken at NaNs (one path)."""
         d = polyline(self.px(x), self.py(y))
         if d:
+            opacity = f"; stroke-opacity: {num(alpha)}" if alpha != 1.0 else ""
             self.parts.append(f'<path d="{d}" clip-path="url(#{self.clip})" style="fill: none; stroke: {colour}; '
-                              f'stroke-width: {num(lw)}; stroke-linecap: square{dash_style(lw, dashed)}"/>')
+                              f'stroke-width: {num(lw)}; stroke-linecap: {cap}{opacity}{dash_style(lw, dashed)}"/>')
+
+    def dashes(self, x: np.ndarray, y: np.ndarray, colour: str, width: float, lw: float = 1.0) -> None:
+        """A horizontal mark ``width`` points wide centred on each point (matplotlib's ``_`` marker; one path)."""
+        px, py = self.px(x), self.py(y)
+        ok = np.isfinite(px) & np.isfinite(py)
+        if ok.any():
+            d = " ".join(np.char.add(np.char.add(np.char.add("M", _nums(px[ok] - width / 2)), " "),
+                                     np.char.add(_nums(py[ok]), f"h{num(width)}")))
+            self.parts.append(f'<path d="{d}" style="fill: none; stroke: {colour}; stroke-width: {num(lw)}"/>')
 
     def dots(self, x: np.ndarray, y: np.ndarray, colour: str, size: float) -> None:
         """A dot of diameter ``size`` points at each point (one path)."""
@@ -264,6 +275,22 @@ class Axes:
         y = self.bottom + TICK + PAD + 0.76 * TICK_SIZE
         self.parts.extend(text(x, y, s, TICK_SIZE, "middle") for x, s in zip(xs, labels, strict=True))
 
+    def names_below(self, x: Sequence[float], names: Sequence[str], size: float, rotate: float) -> None:
+        """Tick marks below the axes at ``x`` (data) with ``names`` rotated by ``rotate`` degrees (90 or less),
+        their right ends at the tick (matplotlib's ``ha="center"`` when upright, ``ha="right"`` otherwise)."""
+        xs = [float(v) for v in self.px(np.asarray(x, np.float64))] if len(x) else []
+        d = "".join(f"M{num(v)} {num(self.bottom)}v{num(TICK)}" for v in xs)
+        if d:
+            self.parts.append(f'<path d="{d}" style="stroke: #000000; stroke-width: 0.8"/>')
+        top = self.bottom + TICK + PAD
+        r = np.radians(rotate)
+        a, dsc = 0.76 * size, 0.24 * size
+        if rotate >= 90:    # upright: centred on the tick
+            dx, dy = (a - dsc) / 2, 0.0
+        else:               # slanted: the bounding box's top right corner at the tick
+            dx, dy = -dsc * np.sin(r), a * np.cos(r)
+        self.parts.extend(text(v + dx, top + dy, s, size, "end", rotate=-rotate) for v, s in zip(xs, names, strict=True))
+
     def yticks(self, ticks: Sequence[float], labels: Sequence[str], minor: Sequence[float] = ()) -> float:
         """Tick marks left of the axes at ``ticks`` (data) with their labels, and unlabelled ``minor`` ones;
         the width of the widest label."""
@@ -296,22 +323,22 @@ class Axes:
         below = TICK + PAD + 0.76 * TICK_SIZE + 1.5 * LABEL_SIZE if ticks_labelled else TICK + 4 + 0.76 * LABEL_SIZE
         self.parts.append(text(self.left + self.width / 2, self.bottom + below, s, LABEL_SIZE, "middle"))
 
-    def ylabel(self, s: str, labels_width: float) -> None:
-        x = self.left - TICK - PAD - labels_width - 4 - 0.24 * LABEL_SIZE
+    def ylabel(self, s: str, labels_width: float, size: float = LABEL_SIZE) -> None:
+        x = self.left - TICK - PAD - labels_width - 4 - 0.24 * size
         y = self.top + self.height / 2
-        self.parts.append(text(x, y, s, LABEL_SIZE, "middle", rotate=-90))
+        self.parts.append(text(x, y, s, size, "middle", rotate=-90))
 
-    def title(self, s: str, centred: bool = False) -> None:
+    def title(self, s: str, centred: bool = False, size: float = TITLE_SIZE) -> None:
         x = self.left + self.width / 2 if centred else self.left
-        self.parts.append(text(x, self.top - 6, s, TITLE_SIZE, "middle" if centred else "start"))
+        self.parts.append(text(x, self.top - 6, s, size, "middle" if centred else "start"))
 
 
 # --------------------------------------------------------------------------------------------- legend
 
 @dataclass(frozen=True)
 class Key:
-    """A legend entry: ``kind`` ``line`` (``dashed`` or not), ``patch`` (a filled box) or ``square`` (a
-    marker), its colour, line width, opacity and label."""
+    """A legend entry: ``kind`` ``line`` (``dashed`` or not), ``patch`` (a filled box), ``square`` or
+    ``dash`` (a marker), its colour, line width, opacity and label."""
 
     kind: str
     colour: str
@@ -322,22 +349,26 @@ class Key:
 
 
 def legend(keys: Sequence[Key], x: float, y: float, right: bool, below: bool, handle: float = 2.0,
-           spacing: float = 2.0) -> list[str]:
-    """One row of legend entries with no frame, laid out as matplotlib lays out ``legend(ncol=len(keys))``:
-    anchored at (``x``, ``y``) by its lower (``below``: upper) right (``right``) or left corner, 0.2 font sizes
-    away, 0.4 more inside; handles ``handle`` font sizes long, columns ``spacing`` apart."""
+           spacing: float = 2.0, ncol: int | None = None) -> list[str]:
+    """Legend entries with no frame in ``ncol`` columns (all in one row by default), laid out as matplotlib lays
+    out ``legend(ncol=...)``: anchored at (``x``, ``y``) by its lower (``below``: upper) right (``right``) or
+    left corner, 0.2 font sizes away, 0.4 more inside; handles ``handle`` font sizes long, columns ``spacing``
+    apart, filled column by column."""
     fs = LEGEND_SIZE
     hl, pad, sep = handle * fs, 0.8 * fs, spacing * fs
-    widths = [hl + pad + text_width(k.label, fs) for k in keys]
-    total = sum(widths) + sep * (len(keys) - 1)
+    cols = [c for c in np.array_split(np.arange(len(keys)), ncol or max(len(keys), 1)) if c.size]
+    widths = [max(hl + pad + text_width(keys[i].label, fs) for i in c) for c in cols]
+    total = sum(widths) + sep * (len(cols) - 1)
+    rows, pitch = max((c.size for c in cols), default=1), 1.47 * fs
     inset = 0.6 * fs
     x0 = x - inset - total if right else x + inset
-    base = y + inset + 0.76 * fs if below else y - inset - 0.24 * fs
-    mid = base - 0.35 * fs
+    base = y + inset + 0.76 * fs if below else y - inset - 0.24 * fs - (rows - 1) * pitch
     out: list[str] = []
-    for k, w in zip(keys, widths, strict=True):
-        out.append(_handle(k, x0, mid, hl, fs))
-        out.append(text(x0 + hl + pad, base, k.label, fs))
+    for c, w in zip(cols, widths, strict=True):
+        for r, i in enumerate(c.tolist()):
+            b = base + r * pitch
+            out.append(_handle(keys[i], x0, b - 0.35 * fs, hl, fs))
+            out.append(text(x0 + hl + pad, b, keys[i].label, fs))
         x0 += w + sep
     return out
 
@@ -348,6 +379,9 @@ def _handle(k: Key, x: float, mid: float, hl: float, fs: float) -> str:
         opacity = f"; opacity: {num(k.alpha)}" if k.alpha != 1.0 else ""
         return (f'<rect x="{num(x)}" y="{num(mid - h / 2)}" width="{num(hl)}" height="{num(h)}" '
                 f'style="fill: {k.colour}{opacity}"/>')
+    if k.kind == "dash":     # a ``_`` marker
+        return (f'<path d="M{num(x + hl / 2 - 3)} {num(mid)}h6" style="fill: none; stroke: {k.colour}; '
+                f'stroke-width: {num(k.lw)}"/>')
     if k.kind == "square":
         s = 6.0
         return (f'<rect x="{num(x + hl / 2 - s / 2)}" y="{num(mid - s / 2)}" width="{num(s)}" height="{num(s)}" '
@@ -366,6 +400,17 @@ class Canvas:
         self.salt = hashlib.sha256(salt.encode()).hexdigest()[:10]
         self.axes: list[Axes] = []
         self.parts: list[str] = []
+
+    def grid(self, rows: int, cols: int, left: float, right: float, bottom: float, top: float, wspace: float,
+             hspace: float) -> list[Axes]:
+        """``rows`` × ``cols`` axes, row by row, within margins (inches), ``wspace`` and ``hspace`` of an axes'
+        width and height apart (matplotlib's subplot grid)."""
+        x0, x1, y0, y1 = left * 72, self.w - right * 72, top * 72, self.h - bottom * 72
+        cw = (x1 - x0) / (cols + wspace * (cols - 1))
+        ch = (y1 - y0) / (rows + hspace * (rows - 1))
+        return [self.add_axes(x0 + j * cw * (1 + wspace), x0 + j * cw * (1 + wspace) + cw,
+                              y0 + i * ch * (1 + hspace) + ch, y0 + i * ch * (1 + hspace))
+                for i in range(rows) for j in range(cols)]
 
     def add_axes(self, left: float, right: float, bottom: float, top: float, **kw: Any) -> Axes:
         """An axes ``left`` … ``right`` (points from the left) × ``top`` … ``bottom`` (points from the top)."""

@@ -51,6 +51,12 @@ def _vlines(svg: str, stroke: str) -> list[float]:
     return [float(x) for x in re.findall(rf'<path d="M(-?[\d.]+) [\d.]+V[\d.]+"[^>]*stroke: {stroke};', svg)]
 
 
+def _bands(svg: str, stroke: str) -> list[np.ndarray]:
+    """The points of every range-bar path (butt caps) stroked with ``stroke``."""
+    return [np.array(re.findall(r"[ML](-?[\d.]+) (-?[\d.]+)", d), np.float64).reshape(-1, 2)
+            for d in re.findall(rf'<path d="([^"]+)"[^>]*stroke: {stroke}; [^"]*stroke-linecap: butt', svg)]
+
+
 def _texts(svg: str) -> list[str]:
     return re.findall(r">([^<>]+)</text>", svg)
 
@@ -173,3 +179,35 @@ def test_plots_are_byte_stable() -> None:
     d = np.linspace(10, 100, 500)
     assert P.clap_plot(d, 100.0, [2.0], [2.0], "x") == P.clap_plot(d.copy(), 100.0, [2.0], [2.0], "x")
     assert P.clap_plot(d, 100.0, [2.0], [2.0], "x") != P.clap_plot(d, 100.0, [2.0], [2.0], "y")   # clip ids
+
+
+def test_feature_plot_draws_each_poses_band_and_median() -> None:
+    from gazepipe.report import plots
+
+    rng = np.random.default_rng(0)
+    poses = np.repeat(np.array(["sit", "walk"]), 500)
+    values = np.column_stack([rng.uniform(0, 1, 1000), np.where(poses == "walk", 10.0, 0.0)])
+    svg = plots.feature_plot(values, poses, ["head.fwd.x", "head.fwd.y"], "t", "f", "mm")
+    bands = {c: _bands(svg, c) for c in ("#1f77b4", "#ff7f0e")}   # sit, walk
+    assert [len(b) for b in bands.values()] == [1, 1] and all(len(b[0]) == 4 for b in bands.values())
+    sit, walk = bands["#1f77b4"][0], bands["#ff7f0e"][0]
+    # element 0: the 5–95 % band of uniform values (0.05 … 0.95) for both; element 1: 0 for sit, 10 for walk
+    y0, y10 = sit[3, 1], walk[3, 1]
+    to_value = lambda y: 10 * (y0 - y) / (y0 - y10)   # noqa: E731 - SVG y → data
+    assert to_value(sit[0, 1]) == pytest.approx(0.05, abs=0.02) and to_value(sit[1, 1]) == pytest.approx(0.95, abs=0.02)
+    assert walk[0, 0] > sit[0, 0]                            # poses side by side, in order
+    medians = re.findall(r'<path d="M([\d. ]+)h6 M([\d. ]+)h6" style="fill: none; stroke: #1f77b4', svg)
+    assert len(medians) == 1
+    assert {"fwd.x", "fwd.y", "head", "sit (500 rows)", "walk (500 rows)", "t (mm)", "mm"} <= set(_texts(svg))
+
+
+def test_scalar_features_plot_has_a_panel_per_feature() -> None:
+    from gazepipe.report import plots
+
+    poses = np.repeat(np.array(["a", "b", "c"]), 100)
+    cols = {f"f{k}": np.arange(300, dtype=np.float64) * (k + 1) for k in range(7)}
+    svg = plots.scalar_features_plot(cols, poses, "s", {"f0": "mm"})
+    assert all(f"f{k}" in _texts(svg) for k in range(7)) and _texts(svg).count("a") == 7
+    assert len(re.findall(r"<clipPath", svg)) == 12         # two rows of six panels
+    assert len(_bands(svg, "#2ca02c")) == 7                  # pose c's band in every panel
+    assert "mm" in _texts(svg) and _texts(svg).count("value (no unit recorded)") == 6
