@@ -101,11 +101,12 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
             profile: Path | None = None, params: list[str] | None = None, tree: Path = REPO) -> dict:
     """``python -m gazepipe run`` of the package in ``tree`` in a fresh process (``params``: its ``--param``
     values); wall time, exit code, peak memory of the process tree."""
+    sessions, out = [Path(s).resolve() for s in sessions], Path(out).resolve()   # the run starts in ``tree``
     if fresh and out.exists():
         shutil.rmtree(out)
     cmd = [sys.executable]
     if profile is not None:
-        cmd += ["-m", "cProfile", "-o", str(profile)]
+        cmd += ["-m", "cProfile", "-o", str(Path(profile).resolve())]
     cmd += ["-m", "gazepipe", "run", *map(str, sessions), "--out", str(out), "--executor", executor,
             "--log-format", "json"]
     if jobs:
@@ -116,7 +117,9 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
-        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        # run in ``tree``: ``python -m`` puts the working directory first on the path, so from the repository
+        # root an old tree's run would import this tree's package (--against compared the new code with itself)
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=str(tree))
         mem = TreeMemory(proc.pid)
         rc = proc.wait()
     wall = time.perf_counter() - t0
