@@ -109,7 +109,8 @@ def text(x: float, y: float, s: str, size: float, anchor: str = "start", rotate:
 def tick_space(length_pt: float, along_x: bool) -> int:
     """matplotlib's number of ticks an axis has room for (``Axis.get_tick_space``; its automatic locators use
     at most 9)."""
-    return max(int(np.floor(length_pt / (TICK_SIZE * (3 if along_x else 2)))), 1)
+    # (a millionth of slack: an axes 2 inches tall measures 143.99999999999997 points after its margins)
+    return max(int(np.floor(length_pt / (TICK_SIZE * (3 if along_x else 2)) + 1e-6)), 1)
 
 
 def linear_ticks(lo: float, hi: float, length_pt: float, along_x: bool) -> tuple[list[float], list[str], str]:

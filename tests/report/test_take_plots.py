@@ -211,3 +211,13 @@ def test_scalar_features_plot_has_a_panel_per_feature() -> None:
     assert len(re.findall(r"<clipPath", svg)) == 12         # two rows of six panels
     assert len(_bands(svg, "#2ca02c")) == 7                  # pose c's band in every panel
     assert "mm" in _texts(svg) and _texts(svg).count("value (no unit recorded)") == 6
+
+
+def test_an_axes_of_whole_inches_has_matplotlibs_number_of_ticks() -> None:
+    # 2 inches less margins computed in points is 143.99999999999997: room for 9 y ticks, as matplotlib counts
+    assert S.tick_space(2.4 * 72 - 0.4 * 72, False) == S.tick_space(144.0, False) == 9
+    from gazepipe.report import plots
+
+    values = np.tile([[-1.0], [1.0]], (200, 30))           # bands from -1 to 1: limits ±1.1, 9 bins of 0.25
+    svg = plots.feature_plot(values, np.repeat(np.array(["a", "b"]), 200), [], "t", "x")
+    assert {"−1.00", "−0.75", "0.00", "0.25", "1.00"} <= set(_texts(svg))
