@@ -1,6 +1,6 @@
-"""The take plots written as SVG directly (:mod:`gazepipe.report.take_plots`): each draws every series with its
-data where it belongs (read back from the SVG: the raster's pixels, the paths' points), and its axes have the
-ticks and labels matplotlib gave them."""
+"""The report's plots written as SVG directly (:mod:`gazepipe.report.take_plots`, :mod:`gazepipe.report.plots`):
+each draws every series with its data where it belongs (read back from the SVG: the raster's pixels, the paths'
+points), and its axes have the ticks and labels matplotlib gave them."""
 
 from __future__ import annotations
 
