@@ -167,7 +167,9 @@ def autoscale(values: Sequence[np.ndarray], margin: float = 0.05, log: bool = Fa
         return (1.0, 10.0) if log else (-0.055, 0.055)
     lo, hi = float(flat.min()), float(flat.max())
     if log:
-        a, b = nonsingular(np.log10(lo), np.log10(hi), expander=0.05)
+        if lo == hi:    # a constant: the decades strictly below and above it (matplotlib's LogLocator.nonsingular)
+            lo, hi = 10.0 ** (np.ceil(np.log10(lo)) - 1), 10.0 ** (np.floor(np.log10(hi)) + 1)
+        a, b = float(np.log10(lo)), float(np.log10(hi))
         d = (b - a) * margin
         return 10 ** (a - d), 10 ** (b + d)
     a, b = nonsingular(lo, hi, expander=0.05)
@@ -254,6 +256,8 @@ class Axes:
     def image(self, codes: np.ndarray, colours: Sequence[str]) -> None:
         """``codes`` (rows top to bottom) filling the axes, one cell per pixel of a 100-dpi raster of the axes
         (nearest cell: what matplotlib's ``imshow(interpolation="nearest")`` embeds in an SVG)."""
+        if not codes.size:
+            return
         shape = (max(int(round(self.height / 72 * 100)), 1), max(int(round(self.width / 72 * 100)), 1))
         data = base64.b64encode(png(nearest(codes, shape), colours)).decode()
         self.parts.append(f'<image x="{num(self.left)}" y="{num(self.top)}" width="{num(self.width)}" '

@@ -67,7 +67,7 @@ def gap_timeline(labels: Sequence[str], n_frames: int, rate_hz: float, gaps: Seq
     names = sorted(FILL_CODES, key=FILL_CODES.__getitem__)
     t_end = n_frames / rate_hz
     c, ax = _frame(9.0, 1.2 + 0.11 * len(labels), salt, left=0.8, top=0.35)
-    ax.xlim, ax.ylim = (0.0, t_end), (len(labels) - 0.5, -0.5)
+    ax.xlim, ax.ylim = (0.0, t_end), (max(len(labels), 1) - 0.5, -0.5)
     ax.image(code, [FILL_COLOURS[n] for n in names])
     if crop is not None:
         a, b = crop[0] / rate_hz, crop[1] / rate_hz

@@ -221,3 +221,21 @@ def test_an_axes_of_whole_inches_has_matplotlibs_number_of_ticks() -> None:
     values = np.tile([[-1.0], [1.0]], (200, 30))           # bands from -1 to 1: limits ±1.1, 9 bins of 0.25
     svg = plots.feature_plot(values, np.repeat(np.array(["a", "b"]), 200), [], "t", "x")
     assert {"−1.00", "−0.75", "0.00", "0.25", "1.00"} <= set(_texts(svg))
+
+
+def test_limits_are_matplotlibs_for_a_constant_trace() -> None:
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    with matplotlib.rc_context({"font.size": S.TICK_SIZE}):
+        fig = Figure()
+        ax = fig.add_subplot(111)
+        ax.plot([0, 1, 2], [4.0, 4.0, 4.0])
+        ax.set_yscale("log")
+        log_lim = ax.get_ylim()
+        ax2 = fig.add_subplot(212)
+        ax2.plot([0, 1, 2], [4.0, 4.0, 4.0])
+        lin_lim = ax2.get_ylim()
+    assert S.autoscale([np.full(3, 4.0)], log=True) == pytest.approx(log_lim)
+    assert S.autoscale([np.full(3, 4.0)]) == pytest.approx(lin_lim)
+    assert S.autoscale([np.array([1.0, 30.0, np.nan])]) == pytest.approx((1.0 - 1.45, 30.0 + 1.45))
