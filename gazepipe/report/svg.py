@@ -1,11 +1,10 @@
-"""A few plot elements written straight as SVG text: the take plots' axes, lines, spans, rasters, ticks and
-legends, laid out as :mod:`gazepipe.report.plots` laid them out with matplotlib (same sizes, fonts, colours, tick
+"""A few plot elements written straight as SVG text: the report's axes, lines, spans, rasters, ticks and legends,
+laid out as the matplotlib figures that drew the plots before laid them out (same sizes, fonts, colours, tick
 positions and labels: matplotlib's own locators and formatters), without matplotlib's figure machinery, which
-made drawing a take's four plots cost a second (each tick and text several artists, each measured twice).
+made drawing a take's four plots cost half a CPU second (each tick and text several artists, each measured twice).
 
 Lengths are points (72 a inch), y downwards, as in matplotlib's SVGs. Text is kept as text (the browser sets it
-in DejaVu Sans or its fallback); legends are laid out from DejaVu Sans's advance widths.
-"""
+in DejaVu Sans or its fallback); legends are laid out from DejaVu Sans's advance widths."""
 
 from __future__ import annotations
 
