@@ -84,7 +84,8 @@ def _per_frame(mask: np.ndarray) -> list[np.ndarray]:
     """Per row of the (F, M) ``mask``, the columns where it holds (``np.flatnonzero`` of each row, from one
     ``nonzero`` of the whole)."""
     rows, cols = np.nonzero(mask)
-    return np.split(cols, np.cumsum(np.bincount(rows, minlength=mask.shape[0]))[:-1])
+    ends = np.cumsum(np.bincount(rows, minlength=mask.shape[0])).tolist()
+    return [cols[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]   # (np.split: a swapaxes call each)
 
 
 def _xyz(axes: np.ndarray) -> dict[str, Any]:
