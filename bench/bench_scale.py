@@ -300,6 +300,7 @@ def _cpu_total(run: dict) -> float:
 _REPORT_CHILD = """
 import os, shutil, sys, time
 import gazepipe.dag.takes, gazepipe.dag.builds, gazepipe.report.run_report
+import gazepipe.io.tracks, gazepipe.stages.geometry, pandas, scipy.spatial  # the takes' stages loaded them
 from gazepipe.report.validate import validate_output
 src, dst = sys.argv[1:3]
 shutil.rmtree(dst, ignore_errors=True)

@@ -193,6 +193,7 @@ class _Frames:
         gaze_ok = np.isfinite(gaze).all(axis=(0, 2))
         by_cat = [_per_frame(cats == c) for c in _POINT_CATS]
         held = _per_frame((cats == UNFILLED) & (held_rows >= 0))
+        held_pts = _f4(clean.xyz[np.maximum(held_rows, 0), self.columns])   # where each marker was last seen
 
         def frame(i: int) -> list[dict[str, Any]]:
             d = [_xyz(csticks[:, i])]
@@ -200,7 +201,7 @@ class _Frames:
                 sel = sels[i]
                 d.append({**_xyz(cpts[:, i, sel]), "text": self.clabels[sel].tolist()})
             sel = held[i]
-            d.append({**_xyz(_f4(clean.xyz[held_rows[i][sel], sel])), "text": self.clabels[sel].tolist()})
+            d.append({**_xyz(held_pts[:, i, sel]), "text": self.clabels[sel].tolist()})
             d.append(_xyz(gaze[:, i]) if gaze_ok[i] else {"x": [], "y": [], "z": []})
             return d
 
