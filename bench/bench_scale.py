@@ -25,7 +25,9 @@ With ``--against REV`` (e.g. ``ff48992``) it instead times serial runs of that c
 kept), and prints the CPU seconds of the whole run (its process tree), of each stage (the unit records'
 ``cpu_s``; a commit that did not record it gives its ``duration_s``, which a serial run on an idle machine spends
 on CPU), of the dataset builds and of the tail after the last take unit (the QC report), with the encode floor,
-and whether the two versions wrote the same bytes (every table under takes/ and datasets/).
+and whether the two versions wrote the same bytes (every table under takes/ and datasets/); then the report the
+run ends with timed alone (``validate_output`` on a copy of each version's run, its take checks cached, in fresh
+processes interleaved: the tail's main part without the sampling's blur).
 
 Work folders go under ``--work`` (default ``bench/_work/scale``), one per executor, recreated each time.
 """
@@ -101,11 +103,12 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
             profile: Path | None = None, params: list[str] | None = None, tree: Path = REPO) -> dict:
     """``python -m gazepipe run`` of the package in ``tree`` in a fresh process (``params``: its ``--param``
     values); wall time, exit code, peak memory of the process tree."""
+    sessions, out = [Path(s).resolve() for s in sessions], Path(out).resolve()   # the run starts in ``tree``
     if fresh and out.exists():
         shutil.rmtree(out)
     cmd = [sys.executable]
     if profile is not None:
-        cmd += ["-m", "cProfile", "-o", str(profile)]
+        cmd += ["-m", "cProfile", "-o", str(Path(profile).resolve())]
     cmd += ["-m", "gazepipe", "run", *map(str, sessions), "--out", str(out), "--executor", executor,
             "--log-format", "json"]
     if jobs:
@@ -118,7 +121,9 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
-        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env)
+        # run in ``tree``: ``python -m`` puts the working directory first on the path, so from the repository
+        # root an old tree's run would import this tree's package (--against compared the new code with itself)
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=str(tree))
         mem = TreeMemory(proc.pid)
         rc = proc.wait()
     wall = time.perf_counter() - t0
@@ -295,6 +300,40 @@ def _cpu_total(run: dict) -> float:
     return run["cpu"][-1][1] if run["cpu"] else float("nan")
 
 
+#: the report a serial run writes at its end, timed alone in a fresh process of one tree: on a copy of a finished
+#: run whose cached plots, replays and dataset parts are removed (its take checks kept, as the takes' workers
+#: leave them), after importing what a run has imported by then; prints the CPU seconds of ``validate_output``
+_REPORT_CHILD = """
+import os, shutil, sys, time
+import gazepipe.dag.takes, gazepipe.dag.builds, gazepipe.report.run_report
+import gazepipe.io.tracks, gazepipe.stages.geometry, pandas, scipy.spatial  # the takes' stages loaded them
+from gazepipe.report.validate import validate_output
+src, dst = sys.argv[1:3]
+shutil.rmtree(dst, ignore_errors=True)
+drop = {os.path.join(src, '.gazepipe', n) for n in ('report_plots', 'report_replays', 'report_datasets')}
+shutil.copytree(src, dst, ignore=lambda d, names: [n for n in names if os.path.join(d, n) in drop | {os.path.join(src, 'qc')}])
+t = time.process_time()
+validate_output(dst, lock=False)
+print(time.process_time() - t)
+"""
+
+
+def report_alone(trees: dict[str, Path], outs: dict[str, Path], work: Path, repeats: int) -> dict[str, float]:
+    """CPU seconds of the end-of-run report of each tree (:data:`_REPORT_CHILD` on its run's output ``outs``),
+    interleaved, the minimum of ``repeats``."""
+    best: dict[str, float] = {}
+    for _ in range(repeats):
+        for side, tree in trees.items():
+            env = dict(os.environ, PYTHONPATH=str(tree))
+            res = subprocess.run([sys.executable, "-c", _REPORT_CHILD, str(outs[side]), str(work / f"report_{side}")],
+                                 capture_output=True, text=True, env=env, cwd=str(tree))
+            if res.returncode == 0:
+                best[side] = min(best.get(side, float("inf")), float(res.stdout.split()[-1]))
+            else:
+                print(f"warning: the report of {side} failed: {res.stderr[-500:]}", file=sys.stderr)
+    return best
+
+
 def against(a: argparse.Namespace, sessions: list[Path], work: Path) -> int:
     """Serial runs of ``a.against`` and of this tree interleaved in fresh processes; CPU per stage, old vs new."""
     import compileall
@@ -326,6 +365,8 @@ def against(a: argparse.Namespace, sessions: list[Path], work: Path) -> int:
                                 key=lambda n: -max(old["stages"].get(n, 0.0), new["stages"].get(n, 0.0)))]
     rows.append(("after the last take unit", old["tail"].get("cpu_after_s", float("nan")),
                  new["tail"].get("cpu_after_s", float("nan"))))
+    alone = report_alone(trees, {side: work / f"against_{side}" for side in trees}, work, a.repeats)
+    rows.append(("  the QC report alone", alone.get("old", float("nan")), alone.get("new", float("nan"))))
     for label, o, n in rows:
         print(f"{label:<26}{o:9.2f}{n:9.2f}{n / o if o else float('nan'):9.2f}")
     print(f"encode floor (wall): {floor['total_s']:.2f} s; new run {new['cpu_s'] / floor['total_s']:.1f}x it")

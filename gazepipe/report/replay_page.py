@@ -14,7 +14,7 @@ the frame shown is kept in the plot's ``data-frame`` attribute and the page titl
 
 from __future__ import annotations
 
-import base64
+import binascii
 import json
 import re
 from collections.abc import Sequence
@@ -71,13 +71,21 @@ def _b64(values: np.ndarray) -> dict[str, str] | list:
     ``<f4``; NaN stays NaN (plotly leaves such a point out and breaks a line there)."""
     if values.size == 0:
         return []
-    return {"dtype": "f4", "bdata": base64.b64encode(np.ascontiguousarray(values).tobytes()).decode("ascii")}
+    return {"dtype": "f4", "bdata": binascii.b2a_base64(values.tobytes(), newline=False).decode("ascii")}
 
 
 def _f4(points: np.ndarray) -> np.ndarray:
     """(..., 3) positions rounded to 0.1 mm as little-endian float32, axes first: (3, ...)."""
     p = np.asarray(points, dtype=np.float64)
     return np.ascontiguousarray(np.moveaxis(np.round(p, 1).astype("<f4"), -1, 0))
+
+
+def _per_frame(mask: np.ndarray) -> list[np.ndarray]:
+    """Per row of the (F, M) ``mask``, the columns where it holds (``np.flatnonzero`` of each row, from one
+    ``nonzero`` of the whole)."""
+    rows, cols = np.nonzero(mask)
+    ends = np.cumsum(np.bincount(rows, minlength=mask.shape[0])).tolist()
+    return [cols[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]   # (np.split: a swapaxes call each)
 
 
 def _xyz(axes: np.ndarray) -> dict[str, Any]:
@@ -141,50 +149,72 @@ class _Frames:
 
     def data(self, frames: np.ndarray) -> list[list[dict[str, Any]]]:
         """The dynamic traces' data at each of the take's ``frames`` (in the order of :func:`_traces`),
-        computed for them all at once."""
+        computed for them all at once; each frame's markers of a category picked by one ``nonzero`` over all
+        the frames."""
         frames = np.asarray(frames, dtype=np.int64)
         clean, raw = self.inp.clean, self.inp.raw
         rows = self.row_of[frames]
         kept = rows >= 0
         k_rows = np.where(kept, rows, 0)
-        empty_pts = np.zeros((len(frames), 0, 3))
-        cxyz = clean.xyz[k_rows] if clean.n_frames else empty_pts
-        csticks = self._sticks(cxyz, clean.labels, self.cpath) if clean.n_frames else None
-        cpts = _f4(cxyz)
-        cats = self.cat[k_rows] if clean.n_frames else None
-        held_rows = self.held_row[k_rows] if clean.n_frames else None
-        gaze = _f4(np.stack([self.head[k_rows], self.target[k_rows]], axis=1)) if clean.n_frames else None
         rxyz = self.raw_at(frames)
         rsticks = self._sticks(rxyz.copy(), raw.labels, self.rpath)
         rpts = _f4(rxyz)
         r_ok = raw.valid[frames] & np.isfinite(rxyz).all(axis=2)
+        cleaned = self._cleaned(k_rows) if clean.n_frames else None
         empty: dict[str, Any] = {"x": [], "y": [], "z": []}
+        raw_pts = _per_frame(r_ok)
+        swapped = self._swapped(frames, r_ok)
         out: list[list[dict[str, Any]]] = []
         for i, f in enumerate(frames.tolist()):
-            d: list[dict[str, Any]] = []
-            if kept[i] and cats is not None and csticks is not None and held_rows is not None \
-                    and gaze is not None:
-                d.append(_xyz(csticks[:, i]))
-                cat = cats[i]
-                for c in _POINT_CATS:
-                    sel = np.flatnonzero(cat == c)
-                    d.append({**_xyz(cpts[:, i, sel]), "text": self.clabels[sel].tolist()})
-                hr = held_rows[i]
-                sel = np.flatnonzero((cat == UNFILLED) & (hr >= 0))
-                d.append({**_xyz(_f4(clean.xyz[hr[sel], sel])), "text": self.clabels[sel].tolist()})
-                g = gaze[:, i]
-                d.append(_xyz(g) if np.isfinite(g).all() else dict(empty))
+            if kept[i] and cleaned is not None:
+                d = cleaned(i)
             else:
-                d += [dict(empty)] + [{**empty, "text": []} for _ in range(len(_POINT_CATS) + 1)] + [dict(empty)]
+                d = [dict(empty)] + [{**empty, "text": []} for _ in range(len(_POINT_CATS) + 1)] + [dict(empty)]
             d.append(_xyz(rsticks[:, i]))
-            sel = np.flatnonzero(r_ok[i])
+            sel = raw_pts[i]
             d.append({**_xyz(rpts[:, i, sel]), "text": self.rlabels[sel].tolist()})
-            swapped = sorted({m for a, b, s0, s1 in self.swaps if s0 <= f < s1 for m in (a, b) if r_ok[i, m]})
-            d.append({**_xyz(rpts[:, i, swapped]), "text": self.rlabels[swapped].tolist()})
+            sw = swapped[i]
+            d.append({**_xyz(rpts[:, i, sw]), "text": self.rlabels[sw].tolist()})
             t = round(f / self.rate, 3)
             d.append({"x": [t, t], "y": [0, 1]})
             out.append(d)
         return out
+
+    def _cleaned(self, k_rows: np.ndarray) -> Any:
+        """The cleaned traces' data of the frame at position ``i`` of cleaned rows ``k_rows``, as a function of
+        ``i`` (what is computed for every frame at once is computed here)."""
+        clean = self.inp.clean
+        cxyz = clean.xyz[k_rows]
+        csticks = self._sticks(cxyz, clean.labels, self.cpath)
+        cpts = _f4(cxyz)
+        cats = self.cat[k_rows]
+        held_rows = self.held_row[k_rows]
+        gaze = _f4(np.stack([self.head[k_rows], self.target[k_rows]], axis=1))
+        gaze_ok = np.isfinite(gaze).all(axis=(0, 2))
+        by_cat = [_per_frame(cats == c) for c in _POINT_CATS]
+        held = _per_frame((cats == UNFILLED) & (held_rows >= 0))
+        held_pts = _f4(clean.xyz[np.maximum(held_rows, 0), self.columns])   # where each marker was last seen
+
+        def frame(i: int) -> list[dict[str, Any]]:
+            d = [_xyz(csticks[:, i])]
+            for sels in by_cat:
+                sel = sels[i]
+                d.append({**_xyz(cpts[:, i, sel]), "text": self.clabels[sel].tolist()})
+            sel = held[i]
+            d.append({**_xyz(held_pts[:, i, sel]), "text": self.clabels[sel].tolist()})
+            d.append(_xyz(gaze[:, i]) if gaze_ok[i] else {"x": [], "y": [], "z": []})
+            return d
+
+        return frame
+
+    def _swapped(self, frames: np.ndarray, r_ok: np.ndarray) -> list[list[int]]:
+        """Per frame, the raw markers (seen) of the label swaps going on, in order."""
+        on = np.zeros(r_ok.shape, bool)
+        for a, b, s0, s1 in self.swaps:
+            during = (frames >= s0) & (frames < s1)
+            on[during, a] = True
+            on[during, b] = True
+        return [sel.tolist() for sel in _per_frame(on & r_ok)]
 
     def frames(self, frames: np.ndarray, crop: tuple[int, int]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """The animation frame and the slider step of each of the take's ``frames``."""

@@ -176,7 +176,7 @@ def take_row(e: TakeEntry, checks: list[C.Check], severity: str) -> dict[str, An
 
 def take_figures(e: TakeEntry, tables: TakeTables, markerset: Any) -> tuple[list[Figure], list[str]]:
     """The take's plots and notes on plots that could not be drawn."""
-    from gazepipe.report import plots  # matplotlib: loaded only when something is drawn
+    from gazepipe.report import take_plots as plots
 
     figs: list[Figure] = []
     notes: list[str] = []

@@ -550,3 +550,15 @@ def test_validate_keeps_the_replays_of_unchanged_takes_it_does_not_draw(out_copy
     validate("--plot-take", "neutral")
     assert sorted(p.name for p in replay.glob("*.html")) == ["neutral.html", "shift_y000_p12.html",
                                                              "shift_y036_p12.html"]
+
+
+def test_per_frame_selection_is_each_rows_flatnonzero() -> None:
+    from gazepipe.report.replay_page import _per_frame
+
+    rng = np.random.default_rng(3)
+    mask = rng.random((40, 7)) < 0.3
+    mask[5] = False                                         # a frame with nothing to show
+    mask[-1] = False
+    got = _per_frame(mask)
+    assert len(got) == 40 and all(np.array_equal(g, np.flatnonzero(m)) for g, m in zip(got, mask, strict=True))
+    assert [g.size for g in _per_frame(np.zeros((3, 0), bool))] == [0, 0, 0]
