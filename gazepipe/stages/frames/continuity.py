@@ -52,11 +52,11 @@ def step_departures(mats: np.ndarray, rule: JumpRule):
     ``idx[k + 1]``): how far (deg) it departs from the local angular velocity (over a step across unknown
     frames, the velocity times their number), the jump threshold there (deg) and the local speed (deg per
     frame)."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     known = np.isfinite(mats).all(axis=(1, 2))
     idx = np.flatnonzero(known)
-    rot = Rotation.from_matrix(mats[idx]) if len(idx) else None
+    rot = Rot.from_matrix(mats[idx]) if len(idx) else None
     if len(idx) < 3:
         empty = np.zeros(max(0, len(idx) - 1))
         return idx, rot, empty, empty, empty

@@ -1,0 +1,248 @@
+"""The frames stage's compiled rotation kernels and :class:`Rot`, a stack of rotations built on them.
+
+The rotation fill and the continuity check compose, invert and measure stacks of a few to a few thousand rotations
+thousands of times per take; scipy's ``Rotation`` spends most of that in per-call dispatch (array-API promotion,
+checks, a new object per result). :class:`Rot` keeps the same scalar-last unit quaternions (``x, y, z, w``) in a
+plain (N, 4) array and runs each operation as one compiled loop written as scipy's own Cython loop is (the same
+operations in the same order, libm's ``sin``, ``cos`` and ``atan2``), so the results are the same bits.
+
+Each kernel is the one implementation of its step, compiled by numba on its first call in a process
+(``cache=True``, ``fastmath`` off, ``error_model="numpy"``; see :mod:`gazepipe.stages.clean.kernels`). Rows are
+rotations (usually frames of a take); angles are radians.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numba
+import numpy as np
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _jit(fn: F) -> F:
+    """``fn`` compiled on its first call, its machine code cached on disk where numba finds a writable place."""
+    try:
+        return cast(F, numba.njit(cache=True, error_model="numpy")(fn))
+    except RuntimeError:          # no writable cache directory at all: compiled once per process
+        return cast(F, numba.njit(cache=False, error_model="numpy")(fn))
+
+
+@_jit
+def compose(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of ``p * q`` (apply q, then p); p or q may have one row, which is broadcast.
+    scipy's ``Rotation.__mul__``: the Hamilton product, then each row divided by its norm."""
+    n = q.shape[0] if p.shape[0] == 1 else p.shape[0]
+    out = np.empty((n, 4))
+    for i in range(n):
+        a = p[0] if p.shape[0] == 1 else p[i]
+        b = q[0] if q.shape[0] == 1 else q[i]
+        c0 = a[1] * b[2] - a[2] * b[1]
+        c1 = a[2] * b[0] - a[0] * b[2]
+        c2 = a[0] * b[1] - a[1] * b[0]
+        x = a[3] * b[0] + b[3] * a[0] + c0
+        y = a[3] * b[1] + b[3] * a[1] + c1
+        z = a[3] * b[2] + b[3] * a[2] + c2
+        w = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]
+        norm = math.sqrt((x * x + y * y + z * z) + w * w)
+        out[i, 0] = x / norm
+        out[i, 1] = y / norm
+        out[i, 2] = z / norm
+        out[i, 3] = w / norm
+    return out
+
+
+@_jit
+def magnitude(q: np.ndarray) -> np.ndarray:
+    """Rotation angles (n,) in [0, π] of unit quaternions q (n, 4) (scipy's ``Rotation.magnitude``)."""
+    n = q.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = 2 * math.atan2(math.sqrt(q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2]),
+                                abs(q[i, 3]))
+    return out
+
+
+@_jit
+def as_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (n, 3) of unit quaternions q (n, 4), angle in [0, π] (scipy's ``Rotation.as_rotvec``)."""
+    n = q.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        if w < 0 or (w == 0 and x < 0) or (w == 0 and x == 0 and y < 0) or (w == 0 and x == 0 and y == 0
+                                                                                and z < 0):
+            x, y, z, w = -x, -y, -z, -w
+        angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+        if angle <= 1e-3:
+            angle2 = angle * angle
+            scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
+        else:
+            scale = angle / math.sin(angle / 2)
+        out[i, 0] = scale * x
+        out[i, 1] = scale * y
+        out[i, 2] = scale * z
+    return out
+
+
+@_jit
+def from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of rotation vectors v (n, 3) (scipy's ``Rotation.from_rotvec``)."""
+    n = v.shape[0]
+    out = np.empty((n, 4))
+    for i in range(n):
+        angle = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+        if angle <= 1e-3:
+            angle2 = angle * angle
+            scale = 0.5 - angle2 / 48 + angle2 * angle2 / 3840
+        else:
+            scale = math.sin(angle / 2) / angle
+        out[i, 0] = scale * v[i, 0]
+        out[i, 1] = scale * v[i, 1]
+        out[i, 2] = scale * v[i, 2]
+        out[i, 3] = math.cos(angle / 2)
+    return out
+
+
+@_jit
+def as_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of unit quaternions q (n, 4) (scipy's ``Rotation.as_matrix``)."""
+    n = q.shape[0]
+    m = np.empty((n, 3, 3))
+    for i in range(n):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+        xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+        m[i, 0, 0] = x2 - y2 - z2 + w2
+        m[i, 1, 0] = 2 * (xy + zw)
+        m[i, 2, 0] = 2 * (xz - yw)
+        m[i, 0, 1] = 2 * (xy - zw)
+        m[i, 1, 1] = - x2 + y2 - z2 + w2
+        m[i, 2, 1] = 2 * (yz + xw)
+        m[i, 0, 2] = 2 * (xz + yw)
+        m[i, 1, 2] = 2 * (yz - xw)
+        m[i, 2, 2] = - x2 - y2 + z2 + w2
+    return m
+
+
+@_jit
+def _from_orthogonal(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3) by scipy's method (the largest of the diagonal and
+    the trace picks the formula), and which rows pass scipy's checks (n,): a positive determinant and
+    m·mᵀ within ``isclose(·, I, atol=1e-12)``; rows that fail are left to scipy."""
+    n = m.shape[0]
+    out = np.empty((n, 4))
+    fine = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        good = True
+        for r in range(3):
+            for c in range(3):
+                g = m[i, r, 0] * m[i, c, 0] + m[i, r, 1] * m[i, c, 1] + m[i, r, 2] * m[i, c, 2]
+                e = 1.0 if r == c else 0.0
+                if not abs(g - e) <= 1e-12 + 1e-5 * abs(e):
+                    good = False
+        det = (m[i, 0, 0] * (m[i, 1, 1] * m[i, 2, 2] - m[i, 1, 2] * m[i, 2, 1])
+               - m[i, 0, 1] * (m[i, 1, 0] * m[i, 2, 2] - m[i, 1, 2] * m[i, 2, 0])
+               + m[i, 0, 2] * (m[i, 1, 0] * m[i, 2, 1] - m[i, 1, 1] * m[i, 2, 0]))
+        fine[i] = good and det > 0.5
+        d0, d1, d2 = m[i, 0, 0], m[i, 1, 1], m[i, 2, 2]
+        d3 = d0 + d1 + d2
+        choice, vmax = 0, d0
+        if d1 > vmax:
+            choice, vmax = 1, d1
+        if d2 > vmax:
+            choice, vmax = 2, d2
+        if d3 > vmax:
+            choice = 3
+        if choice != 3:
+            a = choice
+            b = (a + 1) % 3
+            c = (b + 1) % 3
+            out[i, a] = 1 - d3 + 2 * m[i, a, a]
+            out[i, b] = m[i, b, a] + m[i, a, b]
+            out[i, c] = m[i, c, a] + m[i, a, c]
+            out[i, 3] = m[i, c, b] - m[i, b, c]
+        else:
+            out[i, 0] = m[i, 2, 1] - m[i, 1, 2]
+            out[i, 1] = m[i, 0, 2] - m[i, 2, 0]
+            out[i, 2] = m[i, 1, 0] - m[i, 0, 1]
+            out[i, 3] = 1 + d3
+        norm = math.sqrt((out[i, 0] * out[i, 0] + out[i, 1] * out[i, 1] + out[i, 2] * out[i, 2])
+                         + out[i, 3] * out[i, 3])
+        for k in range(4):
+            out[i, k] /= norm
+    return out, fine
+
+
+def from_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3), as scipy's ``Rotation.from_matrix`` gives them
+    (rows not orthonormal to 1e-12, which scipy first orthonormalises, and rows it refuses go to scipy)."""
+    m = np.ascontiguousarray(m, dtype=np.float64)
+    q, fine = _from_orthogonal(m)
+    if not fine.all():
+        from scipy.spatial.transform import Rotation
+
+        q[~fine] = Rotation.from_matrix(m[~fine]).as_quat()
+    return q
+
+
+class Rot:
+    """A stack of rotations as unit quaternions ``x, y, z, w`` (n, 4): the part of scipy's ``Rotation`` the frames
+    stage uses (indexing, ``*``, ``inv``, ``magnitude``, ``as_rotvec``, ``as_matrix``, ``mean``), the same bits.
+    An integer index gives a single rotation, whose ``magnitude`` is a float and ``as_rotvec`` a (3,) vector."""
+
+    __slots__ = ("q", "single")
+
+    def __init__(self, q: np.ndarray, single: bool = False) -> None:
+        self.q = q
+        self.single = single
+
+    @classmethod
+    def from_matrix(cls, m: np.ndarray) -> Rot:
+        return cls(from_matrix(m))
+
+    @classmethod
+    def from_rotvec(cls, v: np.ndarray) -> Rot:
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim == 1:
+            return cls(from_rotvec(np.ascontiguousarray(v[None])), single=True)
+        return cls(from_rotvec(np.ascontiguousarray(v)))
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+    def __getitem__(self, idx: Any) -> Rot:
+        if isinstance(idx, (int, np.integer)):
+            return Rot(self.q[idx][None], single=True)
+        return Rot(self.q[idx])
+
+    def __mul__(self, other: Rot) -> Rot:
+        if len(self) != len(other) and 1 not in (len(self), len(other)):
+            raise ValueError(f"cannot compose {len(self)} rotations with {len(other)}")
+        return Rot(compose(self.q, other.q), single=self.single and other.single)
+
+    def inv(self) -> Rot:
+        q = self.q.copy()
+        q[:, :3] *= -1
+        return Rot(q, single=self.single)
+
+    def magnitude(self) -> Any:
+        out = magnitude(self.q)
+        return float(out[0]) if self.single else out
+
+    def as_rotvec(self) -> np.ndarray:
+        out = as_rotvec(self.q)
+        return out[0] if self.single else out
+
+    def as_matrix(self) -> np.ndarray:
+        out = as_matrix(self.q)
+        return out[0] if self.single else out
+
+    def mean(self) -> Rot:
+        """scipy's ``Rotation.mean`` of the stack (a single rotation)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rot(Rotation(self.q, normalize=False, copy=False).mean().as_quat()[None], single=True)

@@ -1,0 +1,52 @@
+"""The frames stage's rotation kernels give scipy's ``Rotation`` results bit for bit (the outputs' bytes rest on it)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from gazepipe.stages.frames.kernels import Rot
+
+
+def _rotations(seed: int) -> Rotation:
+    """Random rotations with the hard cases: tiny angles (the Taylor branch), angles near π, negative w, identity."""
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(200, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    return Rotation.concatenate([
+        Rotation.random(500, random_state=seed),
+        Rotation.from_rotvec(rng.normal(size=(200, 3)) * 1e-4),
+        Rotation.from_rotvec(axes * (np.pi - rng.uniform(0.0, 1e-6, 200))[:, None]),
+        Rotation.from_quat(-Rotation.random(100, random_state=seed + 1).as_quat()),
+        Rotation.identity(3),
+    ])
+
+
+def test_stack_operations_match_scipy_bit_for_bit():
+    a, b = _rotations(1), _rotations(2)
+    ra, rb = Rot(a.as_quat()), Rot(b.as_quat())
+    assert np.array_equal((ra * rb).q, (a * b).as_quat())
+    assert np.array_equal((ra[:1] * rb).q, (a[:1] * b).as_quat())
+    assert np.array_equal((ra.inv() * rb[3]).q, (a.inv() * b[3]).as_quat())
+    assert np.array_equal(ra.magnitude(), a.magnitude())
+    assert np.array_equal(ra.as_rotvec(), a.as_rotvec())
+    assert np.array_equal(ra.as_matrix(), a.as_matrix())
+    assert np.array_equal(Rot.from_rotvec(a.as_rotvec()).q, Rotation.from_rotvec(a.as_rotvec()).as_quat())
+    assert np.array_equal(ra[:300].mean().q[0], a[:300].mean().as_quat())
+
+
+def test_from_matrix_matches_scipy_including_matrices_it_orthonormalises():
+    m = (_rotations(3) * _rotations(4)).as_matrix()
+    m[:5] *= 1.001                                   # not orthonormal: scipy projects them first
+    assert np.array_equal(Rot.from_matrix(m).q, Rotation.from_matrix(m).as_quat())
+    with pytest.raises(ValueError):
+        Rot.from_matrix(-np.eye(3)[None])            # a reflection is refused, as by scipy
+
+
+def test_single_rotations_give_scalars_and_vectors():
+    a = _rotations(5)
+    r = Rot(a.as_quat())
+    assert isinstance((r[0].inv() * r[7]).magnitude(), float)
+    assert (r[0].inv() * r[7]).magnitude() == (a[0].inv() * a[7]).magnitude()
+    assert np.array_equal((r[0].inv() * r[7]).as_rotvec(), (a[0].inv() * a[7]).as_rotvec())
+    with pytest.raises(ValueError):
+        r[:3] * r[:4]
