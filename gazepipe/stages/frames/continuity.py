@@ -38,11 +38,12 @@ class JumpRule:
 
 
 def _median_rows(x: np.ndarray, half: int) -> np.ndarray:
-    """Running median along axis 0 over ``2·half + 1`` rows (edges repeat the end rows)."""
-    from scipy import ndimage
+    """Running median along axis 0 of a finite (n,) or (n, m) array over ``2·half + 1`` rows (edges repeat the end
+    rows; :func:`gazepipe.stages.frames.kernels.running_median`)."""
+    from gazepipe.stages.frames.kernels import running_median
 
-    size = (2 * half + 1,) + (1,) * (x.ndim - 1)
-    return ndimage.median_filter(x, size=size, mode="nearest")
+    x = np.asarray(x, dtype=np.float64)
+    return running_median(np.ascontiguousarray(x.reshape(len(x), -1)), half).reshape(x.shape)
 
 
 def step_departures(mats: np.ndarray, rule: JumpRule):

@@ -177,6 +177,37 @@ def _from_orthogonal(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out, fine
 
 
+@_jit
+def running_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Running median down the columns of x (n, m) over ``2·half + 1`` rows, the edges repeating the end rows
+    (``scipy.ndimage.median_filter(x, size=(2·half + 1, 1), mode="nearest")``; an odd count: the median is one of
+    the values, so the same numbers), x finite."""
+    n, m = x.shape
+    w = 2 * half + 1
+    out = np.empty((n, m))
+    buf = np.empty(w)                     # the window's values, sorted
+    for c in range(m):
+        for k in range(w):
+            buf[k] = x[min(max(k - half, 0), n - 1), c]
+        buf.sort()
+        out[0, c] = buf[half]
+        for i in range(1, n):
+            old = x[min(max(i - 1 - half, 0), n - 1), c]
+            new = x[min(i + half, n - 1), c]
+            j = 0
+            while buf[j] != old:          # the value leaving the window ...
+                j += 1
+            while j > 0 and buf[j - 1] > new:          # ... its slot taken by the one entering, kept sorted
+                buf[j] = buf[j - 1]
+                j -= 1
+            while j < w - 1 and buf[j + 1] < new:
+                buf[j] = buf[j + 1]
+                j += 1
+            buf[j] = new
+            out[i, c] = buf[half]
+    return out
+
+
 def from_matrix(m: np.ndarray) -> np.ndarray:
     """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3), as scipy's ``Rotation.from_matrix`` gives them
     (rows not orthonormal to 1e-12, which scipy first orthonormalises, and rows it refuses go to scipy)."""
@@ -239,6 +270,15 @@ class Rot:
 
     def as_matrix(self) -> np.ndarray:
         out = as_matrix(self.q)
+        return out[0] if self.single else out
+
+    def wxyz(self) -> np.ndarray:
+        """Quaternions ``w, x, y, z``, canonical (w ≥ 0; scipy's ``as_quat(canonical=True, scalar_first=True)``),
+        (n, 4), or (4,) for a single rotation."""
+        q = self.q
+        w, x, y, z = q[:, 3], q[:, 0], q[:, 1], q[:, 2]
+        flip = (w < 0) | ((w == 0) & ((x < 0) | ((x == 0) & ((y < 0) | ((y == 0) & (z < 0))))))
+        out = np.where(flip[:, None], -q, q)[:, [3, 0, 1, 2]]
         return out[0] if self.single else out
 
     def mean(self) -> Rot:

@@ -161,9 +161,11 @@ def _segment_view(gmat: np.ndarray, ok_rot: np.ndarray, parents: np.ndarray, has
         view.span_ok = base & ok_rot[:, c]
         view.span = rel(gmat[:, c], view.span_ok)
     # the neighbours whose motion says how a gap moves: the parent and the first child, in the character frame
-    for nb in ([p] if p >= 0 else []) + ([int(children[0])] if len(children) else []):
-        ok = has_char & ok_rot[:, nb]
-        view.nbs.append((rot(gmat[:, nb], ok), ok))
+    if p >= 0:                                   # the parent's known frames are ``base``: its stack is built once
+        view.nbs.append((view.parent, base))
+    if len(children):
+        ok = has_char & ok_rot[:, int(children[0])]
+        view.nbs.append((rot(gmat[:, int(children[0])], ok), ok))
     return view
 
 

@@ -24,7 +24,6 @@ from gazepipe.stages.geometry import (
     kabsch,
     mean_wxyz,
     six_from_matrix,
-    to_wxyz,
     up_vector,
 )
 
@@ -367,7 +366,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
     Raises :class:`~gazepipe.errors.StageError` when a marker is missing from the capture, a segment has fewer
     than three markers, or there is no neutral pose at all.
     """
-    from scipy.spatial.transform import Rotation  # here: planning a run imports this module
+    # here: planning a run imports this module, and numba is slow to load
+    from gazepipe.stages.frames.kernels import Rot
 
     params = params or FramesParams()
     if params.triangle not in ("rigid_fit", "gram_schmidt"):
@@ -447,7 +447,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
         # reference cluster for rigid fits: the neutral cluster's mean shape in character coordinates
         ref = _to_char(npts[nok], n_origin[nok], n_cmat[nok]).mean(axis=0)
         n_raw, _, _ = _marker_frames(npts[nok], ref, params.triangle)
-        n_glob = Rotation.from_matrix(n_cmat[nok].transpose(0, 2, 1) @ n_raw)
+        n_glob = Rot.from_matrix(n_cmat[nok].transpose(0, 2, 1) @ n_raw)
         calib = n_glob.mean().inv().as_matrix()   # right-multiplied: neutral mean → identity
         cols = [markers.index(m) for m in s.markers]
         err = None if sample_err is None else sample_err[:, cols]
@@ -490,16 +490,14 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
         ok = np.isfinite(gmat[:, j]).all(axis=(1, 2))
         if not ok.any():
             continue
-        g = Rotation.from_matrix(gmat[ok, j])
-        quat[ok, j] = to_wxyz(g)
+        quat[ok, j] = Rot.from_matrix(gmat[ok, j]).wxyz()
         p = parents[j]
         if p < 0:
             quat_local[ok, j] = quat[ok, j]
             continue
         okp = ok & np.isfinite(gmat[:, p]).all(axis=(1, 2))
         if okp.any():
-            loc = Rotation.from_matrix(gmat[okp, p].transpose(0, 2, 1) @ gmat[okp, j])
-            quat_local[okp, j] = to_wxyz(loc)
+            quat_local[okp, j] = Rot.from_matrix(gmat[okp, p].transpose(0, 2, 1) @ gmat[okp, j]).wxyz()
     six = six_from_matrix(gmat)
 
     head_centre = _head_centre(markers, markerset, params, origin, cmat, gmat, names, centres, qc, path,
@@ -515,7 +513,7 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
 
     char_rot = np.full((n, 4), np.nan)
     if has_char.any():
-        char_rot[has_char] = to_wxyz(Rotation.from_matrix(cmat[has_char]))
+        char_rot[has_char] = Rot.from_matrix(cmat[has_char]).wxyz()
     k = slice(lead, None)                                     # the take's own frames
     qc["invalid_frames"] = int(np.sum(~valid[k]))
     qc["heading_flip_frames"] = int(heading_flip[k].sum())

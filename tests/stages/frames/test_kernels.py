@@ -50,3 +50,16 @@ def test_single_rotations_give_scalars_and_vectors():
     assert np.array_equal((r[0].inv() * r[7]).as_rotvec(), (a[0].inv() * a[7]).as_rotvec())
     with pytest.raises(ValueError):
         r[:3] * r[:4]
+
+
+def test_running_median_matches_scipys_median_filter():
+    from scipy import ndimage
+
+    from gazepipe.stages.frames.continuity import _median_rows
+
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 9, 40, 300):
+        for x in (rng.normal(size=(n, 3)), np.round(rng.normal(size=n), 1)):     # ties too
+            for half in (1, 3, 8):
+                size = (2 * half + 1,) + (1,) * (x.ndim - 1)
+                assert np.array_equal(_median_rows(x, half), ndimage.median_filter(x, size=size, mode="nearest"))
