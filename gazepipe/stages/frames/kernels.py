@@ -208,6 +208,96 @@ def running_median(x: np.ndarray, half: int) -> np.ndarray:
     return out
 
 
+@_jit
+def _largest_eigvec4(a: np.ndarray) -> np.ndarray:
+    """Unit eigenvector (4,) of the largest eigenvalue of the symmetric 4×4 matrix ``a`` (overwritten): cyclic
+    Jacobi rotations until the off-diagonal part is below the rounding of the diagonal."""
+    v = np.eye(4)
+    for _ in range(50):
+        off = 0.0
+        scale = 0.0
+        for i in range(4):
+            scale += a[i, i] * a[i, i]
+            for j in range(i + 1, 4):
+                off += a[i, j] * a[i, j]
+        if off <= 1e-36 * scale or off == 0.0:
+            break
+        for p in range(3):
+            for r in range(p + 1, 4):
+                apr = a[p, r]
+                if apr == 0.0:
+                    continue
+                theta = (a[r, r] - a[p, p]) / (2.0 * apr)
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(4):                     # a ← Jᵀ a J, v ← v J (rows/columns p and r)
+                    akp, akr = a[k, p], a[k, r]
+                    a[k, p] = c * akp - s * akr
+                    a[k, r] = s * akp + c * akr
+                for k in range(4):
+                    apk, ark = a[p, k], a[r, k]
+                    a[p, k] = c * apk - s * ark
+                    a[r, k] = s * apk + c * ark
+                for k in range(4):
+                    vkp, vkr = v[k, p], v[k, r]
+                    v[k, p] = c * vkp - s * vkr
+                    v[k, r] = s * vkp + c * vkr
+    best = 0
+    for i in range(1, 4):
+        if a[i, i] > a[best, best]:
+            best = i
+    return v[:, best]
+
+
+@_jit
+def horn_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-squares rotations (N, 3, 3) with b[n] ≈ R[n] · a[n]: Horn's closed form (the unit quaternion is the
+    eigenvector of the largest eigenvalue of the symmetric 4×4 matrix of the clusters' cross-covariance).
+
+    ``a`` (N, K, 3) or (1, K, 3) shared: the reference clusters about their centroids; ``b`` (N, K, 3) the observed
+    ones about theirs. The same rotation as Kabsch's SVD with its sign correction (det R = +1), to rounding."""
+    n, k = b.shape[0], b.shape[1]
+    out = np.empty((n, 3, 3))
+    nmat = np.empty((4, 4))
+    for f in range(n):
+        ar = a[0] if a.shape[0] == 1 else a[f]
+        sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = 0.0
+        for i in range(k):
+            sxx += ar[i, 0] * b[f, i, 0]
+            sxy += ar[i, 0] * b[f, i, 1]
+            sxz += ar[i, 0] * b[f, i, 2]
+            syx += ar[i, 1] * b[f, i, 0]
+            syy += ar[i, 1] * b[f, i, 1]
+            syz += ar[i, 1] * b[f, i, 2]
+            szx += ar[i, 2] * b[f, i, 0]
+            szy += ar[i, 2] * b[f, i, 1]
+            szz += ar[i, 2] * b[f, i, 2]
+        nmat[0, 0] = sxx + syy + szz
+        nmat[0, 1] = nmat[1, 0] = syz - szy
+        nmat[0, 2] = nmat[2, 0] = szx - sxz
+        nmat[0, 3] = nmat[3, 0] = sxy - syx
+        nmat[1, 1] = sxx - syy - szz
+        nmat[1, 2] = nmat[2, 1] = sxy + syx
+        nmat[1, 3] = nmat[3, 1] = szx + sxz
+        nmat[2, 2] = -sxx + syy - szz
+        nmat[2, 3] = nmat[3, 2] = syz + szy
+        nmat[3, 3] = -sxx - syy + szz
+        q = _largest_eigvec4(nmat)
+        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        w, x, y, z = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+        out[f, 0, 0] = w * w + x * x - y * y - z * z
+        out[f, 0, 1] = 2 * (x * y - w * z)
+        out[f, 0, 2] = 2 * (x * z + w * y)
+        out[f, 1, 0] = 2 * (x * y + w * z)
+        out[f, 1, 1] = w * w - x * x + y * y - z * z
+        out[f, 1, 2] = 2 * (y * z - w * x)
+        out[f, 2, 0] = 2 * (x * z - w * y)
+        out[f, 2, 1] = 2 * (y * z + w * x)
+        out[f, 2, 2] = w * w - x * x - y * y + z * z
+    return out
+
+
 def from_matrix(m: np.ndarray) -> np.ndarray:
     """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3), as scipy's ``Rotation.from_matrix`` gives them
     (rows not orthonormal to 1e-12, which scipy first orthonormalises, and rows it refuses go to scipy)."""

@@ -21,7 +21,6 @@ from gazepipe.stages.frames.rotfill import SegmentMarkers, fill_rotation_gaps
 from gazepipe.stages.geometry import (
     frame_from_points,
     heading_frames,
-    kabsch,
     mean_wxyz,
     six_from_matrix,
     up_vector,
@@ -225,10 +224,24 @@ def fitted_character_frame(markers: Markers, markerset: MarkerSet, root_ref: np.
         if not _well_conditioned(root_ref[pat], min_plane_ratio):
             continue
         r = rows[inverse.reshape(-1) == p]
-        rot = kabsch(root_ref[pat], pts[r][:, pat])              # lab from the reference's character axes
+        rot = rigid_fit(root_ref[pat], pts[r][:, pat])           # lab from the reference's character axes
         cmat[r] = heading_frames(rot @ (root_ref[1] - root_ref[2]), up)
         fitted[r] = True
     return origin, cmat, fitted
+
+
+def rigid_fit(ref: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Least-squares rotations (N, 3, 3) with pts[n] − centroid ≈ R[n] · (ref − centroid(ref)): ``ref`` (K, 3) the
+    reference cluster (any origin), ``pts`` (N, K, 3) the observed clusters, every marker finite (mm).
+
+    Horn's closed form, compiled (:func:`gazepipe.stages.frames.kernels.horn_rotations`): the rotation of
+    :func:`gazepipe.stages.geometry.kabsch` to rounding (1e-14 on the sample's clusters), a few times faster
+    than a 3×3 SVD per frame."""
+    from gazepipe.stages.frames.kernels import horn_rotations
+
+    a = np.ascontiguousarray(ref - ref.mean(axis=0), dtype=np.float64)[None]
+    b = np.ascontiguousarray(pts - pts.mean(axis=1, keepdims=True), dtype=np.float64)
+    return horn_rotations(a, b)
 
 
 def _to_char(p: np.ndarray, origin: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -298,7 +311,7 @@ def _marker_frames(pts: np.ndarray, ref: np.ndarray | None, triangle: str = "rig
         if ref is None or (k == 3 and triangle == "gram_schmidt"):
             out[ok] = frame_from_points(pts[ok, 0], pts[ok, 1], pts[ok, 2])
         else:
-            out[ok] = kabsch(ref, pts[ok])
+            out[ok] = rigid_fit(ref, pts[ok])
         centre[ok] = pts[ok].mean(axis=1)
         if err is not None and ref is not None:
             unc[ok] = fit_uncertainty_deg(ref, err[ok])
@@ -315,7 +328,7 @@ def _marker_frames(pts: np.ndarray, ref: np.ndarray | None, triangle: str = "rig
         if not _well_conditioned(sub, min_plane_ratio):
             continue
         r = rows[inverse == p]
-        rot = kabsch(sub, pts[r][:, pat])
+        rot = rigid_fit(sub, pts[r][:, pat])
         out[r] = rot
         centre[r] = pts[r][:, pat].mean(axis=1) + rot @ (ref.mean(axis=0) - sub.mean(axis=0))
         if err is not None:

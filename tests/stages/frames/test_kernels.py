@@ -63,3 +63,21 @@ def test_running_median_matches_scipys_median_filter():
             for half in (1, 3, 8):
                 size = (2 * half + 1,) + (1,) * (x.ndim - 1)
                 assert np.array_equal(_median_rows(x, half), ndimage.median_filter(x, size=size, mode="nearest"))
+
+
+def test_horn_rigid_fit_is_kabschs_rotation():
+    """The frames' compiled closed-form fit recovers the true rotation of a noiseless cluster and gives Kabsch's
+    SVD rotation on noisy ones (3 to 6 markers, any rotation) to rounding."""
+    from gazepipe.stages.frames.stage import rigid_fit
+    from gazepipe.stages.geometry import kabsch
+
+    rng = np.random.default_rng(11)
+    truth = Rotation.random(400, random_state=3).as_matrix()
+    for k in (3, 4, 6):
+        ref = rng.normal(size=(k, 3)) * 60.0
+        clean = np.einsum("nij,kj->nki", truth, ref) + rng.normal(size=(400, 1, 3)) * 500.0
+        assert np.abs(rigid_fit(ref, clean) - truth).max() < 1e-12
+        noisy = clean + rng.normal(size=clean.shape) * 0.5
+        fit = rigid_fit(ref, noisy)
+        assert np.abs(fit - kabsch(ref, noisy)).max() < 1e-12
+        assert np.abs(np.linalg.det(fit) - 1.0).max() < 1e-12
