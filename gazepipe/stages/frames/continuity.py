@@ -49,7 +49,7 @@ def _median_rows(x: np.ndarray, half: int) -> np.ndarray:
 def step_departures(mats: np.ndarray, rule: JumpRule):
     """The steps between consecutive known rotations of ``mats`` (N, 3, 3), NaN where unknown.
 
-    Returns the known frames ``idx`` (K,), their rotations (a scipy stack), and per step k (from ``idx[k]`` to
+    Returns the known frames ``idx`` (K,), their rotations (a :class:`~gazepipe.stages.frames.kernels.Rot` stack), and per step k (from ``idx[k]`` to
     ``idx[k + 1]``): how far (deg) it departs from the local angular velocity (over a step across unknown
     frames, the velocity times their number), the jump threshold there (deg) and the local speed (deg per
     frame)."""

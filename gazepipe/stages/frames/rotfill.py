@@ -57,7 +57,7 @@ CHECK_FIT_DEG = 1.0
 
 def _slerp_across(local, start: int, stop: int):
     """Rotations (stop − start) filling [start, stop) by slerp between the known rotations just before and just
-    after (``local``: a scipy Rotation stack over every frame). A cubic spline through two frames on each side
+    after (``local``: a rotation stack over every frame, :class:`gazepipe.stages.frames.kernels.Rot`). A cubic spline through two frames on each side
     was measured too: its edge velocities carry the rotations' noise into the gap (0.4° of noise: 1.2° mean
     error over 12 frames at 120 Hz and 4.7° over 30, against slerp's 0.3° and 0.3°)."""
     from gazepipe.stages.frames.kernels import Rot
@@ -74,7 +74,7 @@ def _slerp_across(local, start: int, stop: int):
 
 def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window: int):
     """Rotations (stop − start) filling [start, stop) of a segment from the rotation its neighbours span across
-    it (``span``: its parent's rotation to its child's, which moves with it; a scipy Rotation stack): a ridge
+    it (``span``: its parent's rotation to its child's, which moves with it; a rotation stack): a ridge
     regression of the segment's parent-relative rotation on the span's (as rotation vectors about their means)
     over the ``usable`` frames within ``window`` of the gap, corrected to meet the known rotations just before
     and just after (the correction interpolated across). None with too few training frames.
@@ -119,8 +119,8 @@ def constrain(glob: np.ndarray, body: np.ndarray, pos: np.ndarray) -> np.ndarray
 
 @dataclass
 class _Segment:
-    """One segment's view for filling: parent-relative rotations and what else is known (scipy stacks, identity
-    where unknown)."""
+    """One segment's view for filling: parent-relative rotations and what else is known
+    (:class:`~gazepipe.stages.frames.kernels.Rot` stacks, identity where unknown)."""
 
     local: Any
     trust: np.ndarray                 # frames whose rotation may be hidden to test a fill (or anchor a check)
