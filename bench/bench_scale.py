@@ -108,9 +108,11 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
         shutil.rmtree(out)
     cmd = [sys.executable]
     if profile is not None:
-        cmd += ["-m", "cProfile", "-o", str(Path(profile).resolve())]
-    cmd += ["-m", "gazepipe", "run", *map(str, sessions), "--out", str(out), "--executor", executor,
-            "--log-format", "json"]
+        cmd += ["-m", "cProfile", "-o", str(profile.resolve())]
+    # absolute paths, and the run started in ``tree``: ``python -m`` puts its working directory first on the
+    # path, so a run started elsewhere in a checkout would import that checkout's package, not ``tree``'s
+    cmd += ["-m", "gazepipe", "run", *(str(Path(s).resolve()) for s in sessions), "--out", str(out.resolve()),
+            "--executor", executor, "--log-format", "json"]
     if jobs:
         cmd += ["-j", str(jobs)]
     for kv in params or []:
@@ -121,8 +123,6 @@ def run_cli(sessions: list[Path], out: Path, executor: str, jobs: int | None = N
     log = out.parent / f"{out.name}{'' if fresh else '.rerun'}.log"
     t0 = time.perf_counter()
     with open(log, "wb") as fh:
-        # run in ``tree``: ``python -m`` puts the working directory first on the path, so from the repository
-        # root an old tree's run would import this tree's package (--against compared the new code with itself)
         proc = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=env, cwd=str(tree))
         mem = TreeMemory(proc.pid)
         rc = proc.wait()

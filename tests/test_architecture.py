@@ -182,8 +182,9 @@ def test_the_complexity_exceptions_can_only_shrink():
     config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["ruff"]["lint"]
     assert "C901" in config["select"] and config["mccabe"]["max-complexity"] == 15
     mark = re.compile(r"\bdef \w+\(.*#\s*noqa:\s*C901\s*$")
+    # bench/_work holds benchmarks' scratch (older checkouts among them), ignored by git and by ruff alike
     marked = [f"{path.relative_to(root)}:{i}" for folder in ("gazepipe", "tests", "bench")
-              for path in sorted((root / folder).rglob("*.py"))
+              for path in sorted((root / folder).rglob("*.py")) if (root / "bench" / "_work") not in path.parents
               for i, line in enumerate(path.read_text().splitlines(), 1) if mark.search(line)]
     assert len(marked) <= 20, marked
     assert marked   # found: the scan reads the sources

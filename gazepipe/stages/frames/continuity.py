@@ -38,25 +38,26 @@ class JumpRule:
 
 
 def _median_rows(x: np.ndarray, half: int) -> np.ndarray:
-    """Running median along axis 0 over ``2·half + 1`` rows (edges repeat the end rows)."""
-    from scipy import ndimage
+    """Running median along axis 0 of a finite (n,) or (n, m) array over ``2·half + 1`` rows (edges repeat the end
+    rows; :func:`gazepipe.stages.frames.kernels.running_median`)."""
+    from gazepipe.stages.frames.kernels import running_median
 
-    size = (2 * half + 1,) + (1,) * (x.ndim - 1)
-    return ndimage.median_filter(x, size=size, mode="nearest")
+    x = np.asarray(x, dtype=np.float64)
+    return running_median(np.ascontiguousarray(x.reshape(len(x), -1)), half).reshape(x.shape)
 
 
 def step_departures(mats: np.ndarray, rule: JumpRule):
     """The steps between consecutive known rotations of ``mats`` (N, 3, 3), NaN where unknown.
 
-    Returns the known frames ``idx`` (K,), their rotations (a scipy stack), and per step k (from ``idx[k]`` to
+    Returns the known frames ``idx`` (K,), their rotations (a :class:`~gazepipe.stages.frames.kernels.Rot` stack), and per step k (from ``idx[k]`` to
     ``idx[k + 1]``): how far (deg) it departs from the local angular velocity (over a step across unknown
     frames, the velocity times their number), the jump threshold there (deg) and the local speed (deg per
     frame)."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     known = np.isfinite(mats).all(axis=(1, 2))
     idx = np.flatnonzero(known)
-    rot = Rotation.from_matrix(mats[idx]) if len(idx) else None
+    rot = Rot.from_matrix(mats[idx]) if len(idx) else None
     if len(idx) < 3:
         empty = np.zeros(max(0, len(idx) - 1))
         return idx, rot, empty, empty, empty

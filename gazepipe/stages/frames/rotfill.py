@@ -57,10 +57,10 @@ CHECK_FIT_DEG = 1.0
 
 def _slerp_across(local, start: int, stop: int):
     """Rotations (stop − start) filling [start, stop) by slerp between the known rotations just before and just
-    after (``local``: a scipy Rotation stack over every frame). A cubic spline through two frames on each side
+    after (``local``: a rotation stack over every frame, :class:`gazepipe.stages.frames.kernels.Rot`). A cubic spline through two frames on each side
     was measured too: its edge velocities carry the rotations' noise into the gap (0.4° of noise: 1.2° mean
     error over 12 frames at 120 Hz and 4.7° over 30, against slerp's 0.3° and 0.3°)."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     # scipy's Slerp between two rotations, written out (the same operations in the same order, so the same bits)
     # without building a Slerp object each time: this runs for every stretch a fill is judged on
@@ -69,19 +69,19 @@ def _slerp_across(local, start: int, stop: int):
     rotvec = (first.inv() * pair[1:]).as_rotvec()
     alpha = (np.arange(start, stop, dtype=float) - float(start - 1)) / float(stop - (start - 1))
     ind = np.zeros(alpha.shape[0], dtype=np.intp)
-    return first[ind] * Rotation.from_rotvec(rotvec[ind] * alpha[:, None])
+    return first[ind] * Rot.from_rotvec(rotvec[ind] * alpha[:, None])
 
 
 def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window: int):
     """Rotations (stop − start) filling [start, stop) of a segment from the rotation its neighbours span across
-    it (``span``: its parent's rotation to its child's, which moves with it; a scipy Rotation stack): a ridge
+    it (``span``: its parent's rotation to its child's, which moves with it; a rotation stack): a ridge
     regression of the segment's parent-relative rotation on the span's (as rotation vectors about their means)
     over the ``usable`` frames within ``window`` of the gap, corrected to meet the known rotations just before
     and just after (the correction interpolated across). None with too few training frames.
 
     Not used at a take's start or end: corrected from one side only, it was measured up to 7° off where the
     hold-out beside the gap said 1.4° (a gaze shift's first frames, whose motion the frames after do not show)."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     lo, hi = max(0, start - window), min(len(usable), stop + window)
     train = np.flatnonzero(usable[lo:hi]) + lo
@@ -95,11 +95,11 @@ def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window
     w = np.linalg.solve(gram + _MODEL_RIDGE * np.trace(gram) / 4.0 * np.eye(4), x.T @ y)
     frames = np.arange(start - 1, stop + 1)
     xs = np.column_stack([(ref_s.inv() * span[frames]).as_rotvec(), np.ones(len(frames))])
-    pred = ref * Rotation.from_rotvec(xs @ w)
+    pred = ref * Rot.from_rotvec(xs @ w)
     miss0 = (pred[0].inv() * local[start - 1]).as_rotvec()
     miss1 = (pred[-1].inv() * local[stop]).as_rotvec()
     f = ((np.arange(start, stop) - (start - 1)) / (stop - start + 1))[:, None]
-    return pred[1:-1] * Rotation.from_rotvec((1.0 - f) * miss0 + f * miss1)
+    return pred[1:-1] * Rot.from_rotvec((1.0 - f) * miss0 + f * miss1)
 
 
 def constrain(glob: np.ndarray, body: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -119,8 +119,8 @@ def constrain(glob: np.ndarray, body: np.ndarray, pos: np.ndarray) -> np.ndarray
 
 @dataclass
 class _Segment:
-    """One segment's view for filling: parent-relative rotations and what else is known (scipy stacks, identity
-    where unknown)."""
+    """One segment's view for filling: parent-relative rotations and what else is known
+    (:class:`~gazepipe.stages.frames.kernels.Rot` stacks, identity where unknown)."""
 
     local: Any
     trust: np.ndarray                 # frames whose rotation may be hidden to test a fill (or anchor a check)
@@ -138,14 +138,14 @@ def _segment_view(gmat: np.ndarray, ok_rot: np.ndarray, parents: np.ndarray, has
                   unc: np.ndarray, markers: SegmentMarkers | None) -> _Segment:
     """The :class:`_Segment` of segment ``j``; ``unc`` (N,) how far the fills of its markers may turn each of its
     rotations (deg): those above :data:`CHECK_FIT_DEG` are not trusted."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     p = int(parents[j])
     base = has_char & (ok_rot[:, p] if p >= 0 else True)
     known = ok_rot[:, j] & base
 
     def rot(mats: np.ndarray, ok: np.ndarray):
-        return Rotation.from_matrix(np.where(ok[:, None, None], mats, np.eye(3)))
+        return Rot.from_matrix(np.where(ok[:, None, None], mats, np.eye(3)))
 
     def rel(mats: np.ndarray, ok: np.ndarray):
         return rot(mats if p < 0 else np.swapaxes(gmat[:, p], 1, 2) @ np.where(ok[:, None, None], mats, np.eye(3)),
@@ -161,9 +161,11 @@ def _segment_view(gmat: np.ndarray, ok_rot: np.ndarray, parents: np.ndarray, has
         view.span_ok = base & ok_rot[:, c]
         view.span = rel(gmat[:, c], view.span_ok)
     # the neighbours whose motion says how a gap moves: the parent and the first child, in the character frame
-    for nb in ([p] if p >= 0 else []) + ([int(children[0])] if len(children) else []):
-        ok = has_char & ok_rot[:, nb]
-        view.nbs.append((rot(gmat[:, nb], ok), ok))
+    if p >= 0:                                   # the parent's known frames are ``base``: its stack is built once
+        view.nbs.append((view.parent, base))
+    if len(children):
+        ok = has_char & ok_rot[:, int(children[0])]
+        view.nbs.append((rot(gmat[:, int(children[0])], ok), ok))
     return view
 
 
@@ -176,12 +178,12 @@ def _noise_deg(local, ok: np.ndarray) -> float:
     strays from the midpoint of the two beside it (the median, over frames with both neighbours ``ok``), over
     √1.5 (the stray of independent noises n_t − (n_t−1 + n_t+1)/2); 0 with too few frames. The motion adds to
     the strays at a low frame rate, and the median keeps the quiet frames' noise."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     t = np.flatnonzero(ok[1:-1] & ok[:-2] & ok[2:]) + 1
     if len(t) < _NOISE_MIN_FRAMES:
         return 0.0
-    half = Rotation.from_rotvec(0.5 * (local[t - 1].inv() * local[t + 1]).as_rotvec())
+    half = Rot.from_rotvec(0.5 * (local[t - 1].inv() * local[t + 1]).as_rotvec())
     stray = np.degrees(((local[t - 1] * half).inv() * local[t]).magnitude())
     return float(np.median(stray) / np.sqrt(1.5))
 
@@ -199,7 +201,7 @@ def _constrained(view: _Segment, fill, lo: int, hi: int, patterns: np.ndarray):
     """``fill`` (parent-relative rotations over [lo, hi)) turned on each frame to meet the markers that are
     measured there among those ``patterns`` (hi − lo, K) allows (a gap's own, laid over a stretch hidden to test
     it: the stretch shows what the gap's markers would); None when no frame has two."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     assert view.markers is not None
     pos = view.markers.pos[lo:hi]
@@ -211,7 +213,7 @@ def _constrained(view: _Segment, fill, lo: int, hi: int, patterns: np.ndarray):
     for pat in np.unique(use[two], axis=0):
         rows = two & (use == pat).all(axis=1)
         glob[rows] = constrain(glob[rows], view.markers.body[pat], pos[rows][:, pat])
-    out = Rotation.from_matrix(glob)
+    out = Rot.from_matrix(glob)
     return out if view.parent is None else view.parent[lo:hi].inv() * out
 
 
@@ -249,14 +251,14 @@ def _motion_deg(view: _Segment, lo: int, hi: int) -> float:
 def _off_slerp_many(nb, starts: np.ndarray, length: int) -> np.ndarray:
     """:func:`_off_slerp_deg` of the stretches [lo, lo + length) for every ``lo`` in ``starts`` at once (the same
     operations on each rotation, so the same numbers as one stretch at a time)."""
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     first, last = nb[starts - 1], nb[starts + length]
     rotvec = (first.inv() * last).as_rotvec()
     alpha = np.arange(1, length + 1, dtype=float) / float(length + 1)
     row = np.repeat(np.arange(starts.size), length)
     inside = (starts[:, None] + np.arange(length)).ravel()
-    interp = first[row] * Rotation.from_rotvec(rotvec[row] * np.tile(alpha, starts.size)[:, None])
+    interp = first[row] * Rot.from_rotvec(rotvec[row] * np.tile(alpha, starts.size)[:, None])
     off = np.degrees((interp * nb[inside].inv()).magnitude()).reshape(starts.size, length)
     return off.max(axis=1)
 
@@ -361,7 +363,7 @@ def _check_fits(view: _Segment, window: int) -> tuple[np.ndarray, list[tuple[np.
     run as its frames and their parent-relative rotations): two independent estimates of the rotation, surer
     together.
     """
-    from scipy.spatial.transform import Rotation
+    from gazepipe.stages.frames.kernels import Rot
 
     out = np.zeros(len(view.trust), dtype=bool)
     blended: list[tuple[np.ndarray, Any]] = []
@@ -380,7 +382,7 @@ def _check_fits(view: _Segment, window: int) -> tuple[np.ndarray, list[tuple[np.
             out[s + rows] = True
             continue
         share = (1.0 / max(error, 1e-6) ** 2) / (1.0 / unc ** 2 + 1.0 / max(error, 1e-6) ** 2)
-        blended.append((s + rows, view.local[s + rows] * Rotation.from_rotvec(share[:, None] * diff)))
+        blended.append((s + rows, view.local[s + rows] * Rot.from_rotvec(share[:, None] * diff)))
     return out, blended
 
 

@@ -1,0 +1,378 @@
+"""The frames stage's compiled rotation kernels and :class:`Rot`, a stack of rotations built on them.
+
+The rotation fill and the continuity check compose, invert and measure stacks of a few to a few thousand rotations
+thousands of times per take; scipy's ``Rotation`` spends most of that in per-call dispatch (array-API promotion,
+checks, a new object per result). :class:`Rot` keeps the same scalar-last unit quaternions (``x, y, z, w``) in a
+plain (N, 4) array and runs each operation as one compiled loop written as scipy's own Cython loop is (the same
+operations in the same order, libm's ``sin``, ``cos`` and ``atan2``), so the results are the same bits.
+
+Each kernel is the one implementation of its step, compiled by numba on its first call in a process
+(``cache=True``, ``fastmath`` off, ``error_model="numpy"``; see :mod:`gazepipe.stages.clean.kernels`). Rows are
+rotations (usually frames of a take); angles are radians.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
+
+import numba
+import numpy as np
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _jit(fn: F) -> F:
+    """``fn`` compiled on its first call, its machine code cached on disk where numba finds a writable place."""
+    try:
+        return cast(F, numba.njit(cache=True, error_model="numpy")(fn))
+    except RuntimeError:          # no writable cache directory at all: compiled once per process
+        return cast(F, numba.njit(cache=False, error_model="numpy")(fn))
+
+
+@_jit
+def compose(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of ``p * q`` (apply q, then p); p or q may have one row, which is broadcast.
+    scipy's ``Rotation.__mul__``: the Hamilton product, then each row divided by its norm."""
+    n = q.shape[0] if p.shape[0] == 1 else p.shape[0]
+    out = np.empty((n, 4))
+    for i in range(n):
+        a = p[0] if p.shape[0] == 1 else p[i]
+        b = q[0] if q.shape[0] == 1 else q[i]
+        c0 = a[1] * b[2] - a[2] * b[1]
+        c1 = a[2] * b[0] - a[0] * b[2]
+        c2 = a[0] * b[1] - a[1] * b[0]
+        x = a[3] * b[0] + b[3] * a[0] + c0
+        y = a[3] * b[1] + b[3] * a[1] + c1
+        z = a[3] * b[2] + b[3] * a[2] + c2
+        w = a[3] * b[3] - a[0] * b[0] - a[1] * b[1] - a[2] * b[2]
+        norm = math.sqrt((x * x + y * y + z * z) + w * w)
+        out[i, 0] = x / norm
+        out[i, 1] = y / norm
+        out[i, 2] = z / norm
+        out[i, 3] = w / norm
+    return out
+
+
+@_jit
+def magnitude(q: np.ndarray) -> np.ndarray:
+    """Rotation angles (n,) in [0, π] of unit quaternions q (n, 4) (scipy's ``Rotation.magnitude``)."""
+    n = q.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = 2 * math.atan2(math.sqrt(q[i, 0] * q[i, 0] + q[i, 1] * q[i, 1] + q[i, 2] * q[i, 2]),
+                                abs(q[i, 3]))
+    return out
+
+
+@_jit
+def as_rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vectors (n, 3) of unit quaternions q (n, 4), angle in [0, π] (scipy's ``Rotation.as_rotvec``)."""
+    n = q.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        if w < 0 or (w == 0 and x < 0) or (w == 0 and x == 0 and y < 0) or (w == 0 and x == 0 and y == 0
+                                                                                and z < 0):
+            x, y, z, w = -x, -y, -z, -w
+        angle = 2 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+        if angle <= 1e-3:
+            angle2 = angle * angle
+            scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
+        else:
+            scale = angle / math.sin(angle / 2)
+        out[i, 0] = scale * x
+        out[i, 1] = scale * y
+        out[i, 2] = scale * z
+    return out
+
+
+@_jit
+def from_rotvec(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of rotation vectors v (n, 3) (scipy's ``Rotation.from_rotvec``)."""
+    n = v.shape[0]
+    out = np.empty((n, 4))
+    for i in range(n):
+        angle = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2])
+        if angle <= 1e-3:
+            angle2 = angle * angle
+            scale = 0.5 - angle2 / 48 + angle2 * angle2 / 3840
+        else:
+            scale = math.sin(angle / 2) / angle
+        out[i, 0] = scale * v[i, 0]
+        out[i, 1] = scale * v[i, 1]
+        out[i, 2] = scale * v[i, 2]
+        out[i, 3] = math.cos(angle / 2)
+    return out
+
+
+@_jit
+def as_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of unit quaternions q (n, 4) (scipy's ``Rotation.as_matrix``)."""
+    n = q.shape[0]
+    m = np.empty((n, 3, 3))
+    for i in range(n):
+        x, y, z, w = q[i, 0], q[i, 1], q[i, 2], q[i, 3]
+        x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+        xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+        m[i, 0, 0] = x2 - y2 - z2 + w2
+        m[i, 1, 0] = 2 * (xy + zw)
+        m[i, 2, 0] = 2 * (xz - yw)
+        m[i, 0, 1] = 2 * (xy - zw)
+        m[i, 1, 1] = - x2 + y2 - z2 + w2
+        m[i, 2, 1] = 2 * (yz + xw)
+        m[i, 0, 2] = 2 * (xz + yw)
+        m[i, 1, 2] = 2 * (yz - xw)
+        m[i, 2, 2] = - x2 - y2 + z2 + w2
+    return m
+
+
+@_jit
+def _from_orthogonal(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3) by scipy's method (the largest of the diagonal and
+    the trace picks the formula), and which rows pass scipy's checks (n,): a positive determinant and
+    m·mᵀ within ``isclose(·, I, atol=1e-12)``; rows that fail are left to scipy."""
+    n = m.shape[0]
+    out = np.empty((n, 4))
+    fine = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        good = True
+        for r in range(3):
+            for c in range(3):
+                g = m[i, r, 0] * m[i, c, 0] + m[i, r, 1] * m[i, c, 1] + m[i, r, 2] * m[i, c, 2]
+                e = 1.0 if r == c else 0.0
+                if not abs(g - e) <= 1e-12 + 1e-5 * abs(e):
+                    good = False
+        det = (m[i, 0, 0] * (m[i, 1, 1] * m[i, 2, 2] - m[i, 1, 2] * m[i, 2, 1])
+               - m[i, 0, 1] * (m[i, 1, 0] * m[i, 2, 2] - m[i, 1, 2] * m[i, 2, 0])
+               + m[i, 0, 2] * (m[i, 1, 0] * m[i, 2, 1] - m[i, 1, 1] * m[i, 2, 0]))
+        fine[i] = good and det > 0.5
+        d0, d1, d2 = m[i, 0, 0], m[i, 1, 1], m[i, 2, 2]
+        d3 = d0 + d1 + d2
+        choice, vmax = 0, d0
+        if d1 > vmax:
+            choice, vmax = 1, d1
+        if d2 > vmax:
+            choice, vmax = 2, d2
+        if d3 > vmax:
+            choice = 3
+        if choice != 3:
+            a = choice
+            b = (a + 1) % 3
+            c = (b + 1) % 3
+            out[i, a] = 1 - d3 + 2 * m[i, a, a]
+            out[i, b] = m[i, b, a] + m[i, a, b]
+            out[i, c] = m[i, c, a] + m[i, a, c]
+            out[i, 3] = m[i, c, b] - m[i, b, c]
+        else:
+            out[i, 0] = m[i, 2, 1] - m[i, 1, 2]
+            out[i, 1] = m[i, 0, 2] - m[i, 2, 0]
+            out[i, 2] = m[i, 1, 0] - m[i, 0, 1]
+            out[i, 3] = 1 + d3
+        norm = math.sqrt((out[i, 0] * out[i, 0] + out[i, 1] * out[i, 1] + out[i, 2] * out[i, 2])
+                         + out[i, 3] * out[i, 3])
+        for k in range(4):
+            out[i, k] /= norm
+    return out, fine
+
+
+@_jit
+def running_median(x: np.ndarray, half: int) -> np.ndarray:
+    """Running median down the columns of x (n, m) over ``2·half + 1`` rows, the edges repeating the end rows
+    (``scipy.ndimage.median_filter(x, size=(2·half + 1, 1), mode="nearest")``; an odd count: the median is one of
+    the values, so the same numbers), x finite."""
+    n, m = x.shape
+    w = 2 * half + 1
+    out = np.empty((n, m))
+    buf = np.empty(w)                     # the window's values, sorted
+    for c in range(m):
+        for k in range(w):
+            buf[k] = x[min(max(k - half, 0), n - 1), c]
+        buf.sort()
+        out[0, c] = buf[half]
+        for i in range(1, n):
+            old = x[min(max(i - 1 - half, 0), n - 1), c]
+            new = x[min(i + half, n - 1), c]
+            j = 0
+            while buf[j] != old:          # the value leaving the window ...
+                j += 1
+            while j > 0 and buf[j - 1] > new:          # ... its slot taken by the one entering, kept sorted
+                buf[j] = buf[j - 1]
+                j -= 1
+            while j < w - 1 and buf[j + 1] < new:
+                buf[j] = buf[j + 1]
+                j += 1
+            buf[j] = new
+            out[i, c] = buf[half]
+    return out
+
+
+@_jit
+def _largest_eigvec4(a: np.ndarray) -> np.ndarray:
+    """Unit eigenvector (4,) of the largest eigenvalue of the symmetric 4×4 matrix ``a`` (overwritten): cyclic
+    Jacobi rotations until the off-diagonal part is below the rounding of the diagonal."""
+    v = np.eye(4)
+    for _ in range(50):
+        off = 0.0
+        scale = 0.0
+        for i in range(4):
+            scale += a[i, i] * a[i, i]
+            for j in range(i + 1, 4):
+                off += a[i, j] * a[i, j]
+        if off <= 1e-36 * scale or off == 0.0:
+            break
+        for p in range(3):
+            for r in range(p + 1, 4):
+                apr = a[p, r]
+                if apr == 0.0:
+                    continue
+                theta = (a[r, r] - a[p, p]) / (2.0 * apr)
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(4):                     # a ← Jᵀ a J, v ← v J (rows/columns p and r)
+                    akp, akr = a[k, p], a[k, r]
+                    a[k, p] = c * akp - s * akr
+                    a[k, r] = s * akp + c * akr
+                for k in range(4):
+                    apk, ark = a[p, k], a[r, k]
+                    a[p, k] = c * apk - s * ark
+                    a[r, k] = s * apk + c * ark
+                for k in range(4):
+                    vkp, vkr = v[k, p], v[k, r]
+                    v[k, p] = c * vkp - s * vkr
+                    v[k, r] = s * vkp + c * vkr
+    best = 0
+    for i in range(1, 4):
+        if a[i, i] > a[best, best]:
+            best = i
+    return v[:, best]
+
+
+@_jit
+def horn_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least-squares rotations (N, 3, 3) with b[n] ≈ R[n] · a[n]: Horn's closed form (the unit quaternion is the
+    eigenvector of the largest eigenvalue of the symmetric 4×4 matrix of the clusters' cross-covariance).
+
+    ``a`` (N, K, 3) or (1, K, 3) shared: the reference clusters about their centroids; ``b`` (N, K, 3) the observed
+    ones about theirs. The same rotation as Kabsch's SVD with its sign correction (det R = +1), to rounding."""
+    n, k = b.shape[0], b.shape[1]
+    out = np.empty((n, 3, 3))
+    nmat = np.empty((4, 4))
+    for f in range(n):
+        ar = a[0] if a.shape[0] == 1 else a[f]
+        sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = 0.0
+        for i in range(k):
+            sxx += ar[i, 0] * b[f, i, 0]
+            sxy += ar[i, 0] * b[f, i, 1]
+            sxz += ar[i, 0] * b[f, i, 2]
+            syx += ar[i, 1] * b[f, i, 0]
+            syy += ar[i, 1] * b[f, i, 1]
+            syz += ar[i, 1] * b[f, i, 2]
+            szx += ar[i, 2] * b[f, i, 0]
+            szy += ar[i, 2] * b[f, i, 1]
+            szz += ar[i, 2] * b[f, i, 2]
+        nmat[0, 0] = sxx + syy + szz
+        nmat[0, 1] = nmat[1, 0] = syz - szy
+        nmat[0, 2] = nmat[2, 0] = szx - sxz
+        nmat[0, 3] = nmat[3, 0] = sxy - syx
+        nmat[1, 1] = sxx - syy - szz
+        nmat[1, 2] = nmat[2, 1] = sxy + syx
+        nmat[1, 3] = nmat[3, 1] = szx + sxz
+        nmat[2, 2] = -sxx + syy - szz
+        nmat[2, 3] = nmat[3, 2] = syz + szy
+        nmat[3, 3] = -sxx - syy + szz
+        q = _largest_eigvec4(nmat)
+        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        w, x, y, z = q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm
+        out[f, 0, 0] = w * w + x * x - y * y - z * z
+        out[f, 0, 1] = 2 * (x * y - w * z)
+        out[f, 0, 2] = 2 * (x * z + w * y)
+        out[f, 1, 0] = 2 * (x * y + w * z)
+        out[f, 1, 1] = w * w - x * x + y * y - z * z
+        out[f, 1, 2] = 2 * (y * z - w * x)
+        out[f, 2, 0] = 2 * (x * z - w * y)
+        out[f, 2, 1] = 2 * (y * z + w * x)
+        out[f, 2, 2] = w * w - x * x - y * y + z * z
+    return out
+
+
+def from_matrix(m: np.ndarray) -> np.ndarray:
+    """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3), as scipy's ``Rotation.from_matrix`` gives them
+    (rows not orthonormal to 1e-12, which scipy first orthonormalises, and rows it refuses go to scipy)."""
+    m = np.ascontiguousarray(m, dtype=np.float64)
+    q, fine = _from_orthogonal(m)
+    if not fine.all():
+        from scipy.spatial.transform import Rotation
+
+        q[~fine] = Rotation.from_matrix(m[~fine]).as_quat()
+    return q
+
+
+class Rot:
+    """A stack of rotations as unit quaternions ``x, y, z, w`` (n, 4): the part of scipy's ``Rotation`` the frames
+    stage uses (indexing, ``*``, ``inv``, ``magnitude``, ``as_rotvec``, ``as_matrix``, ``mean``), the same bits.
+    An integer index gives a single rotation, whose ``magnitude`` is a float and ``as_rotvec`` a (3,) vector."""
+
+    __slots__ = ("q", "single")
+
+    def __init__(self, q: np.ndarray, single: bool = False) -> None:
+        self.q = q
+        self.single = single
+
+    @classmethod
+    def from_matrix(cls, m: np.ndarray) -> Rot:
+        return cls(from_matrix(m))
+
+    @classmethod
+    def from_rotvec(cls, v: np.ndarray) -> Rot:
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim == 1:
+            return cls(from_rotvec(np.ascontiguousarray(v[None])), single=True)
+        return cls(from_rotvec(np.ascontiguousarray(v)))
+
+    def __len__(self) -> int:
+        return int(self.q.shape[0])
+
+    def __getitem__(self, idx: Any) -> Rot:
+        if isinstance(idx, (int, np.integer)):
+            return Rot(self.q[idx][None], single=True)
+        return Rot(self.q[idx])
+
+    def __mul__(self, other: Rot) -> Rot:
+        if len(self) != len(other) and 1 not in (len(self), len(other)):
+            raise ValueError(f"cannot compose {len(self)} rotations with {len(other)}")
+        return Rot(compose(self.q, other.q), single=self.single and other.single)
+
+    def inv(self) -> Rot:
+        q = self.q.copy()
+        q[:, :3] *= -1
+        return Rot(q, single=self.single)
+
+    def magnitude(self) -> Any:
+        out = magnitude(self.q)
+        return float(out[0]) if self.single else out
+
+    def as_rotvec(self) -> np.ndarray:
+        out = as_rotvec(self.q)
+        return out[0] if self.single else out
+
+    def as_matrix(self) -> np.ndarray:
+        out = as_matrix(self.q)
+        return out[0] if self.single else out
+
+    def wxyz(self) -> np.ndarray:
+        """Quaternions ``w, x, y, z``, canonical (w ≥ 0; scipy's ``as_quat(canonical=True, scalar_first=True)``),
+        (n, 4), or (4,) for a single rotation."""
+        q = self.q
+        w, x, y, z = q[:, 3], q[:, 0], q[:, 1], q[:, 2]
+        flip = (w < 0) | ((w == 0) & ((x < 0) | ((x == 0) & ((y < 0) | ((y == 0) & (z < 0))))))
+        out = np.where(flip[:, None], -q, q)[:, [3, 0, 1, 2]]
+        return out[0] if self.single else out
+
+    def mean(self) -> Rot:
+        """scipy's ``Rotation.mean`` of the stack (a single rotation)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rot(Rotation(self.q, normalize=False, copy=False).mean().as_quat()[None], single=True)
