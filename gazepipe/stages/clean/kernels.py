@@ -1,14 +1,14 @@
-"""The gap filler's compiled kernels: the loops over a gap's few samples, markers and candidates, where numpy's
-per-call cost (dispatch, temporaries) outweighs the arithmetic.
+"""The clean stage's compiled kernels: the gap filler's loops over a gap's few samples, markers and candidates, and
+the swap references' and swap repair's loops over frames, markers and reference triples, where numpy's per-call
+cost (dispatch, temporaries) outweighs the arithmetic.
 
-Each kernel is the one implementation of its step (no numpy twin), compiled by numba on its first call in a process
-(``cache=True``: the machine code is written beside this file, or in numba's user cache when this folder is
-read-only, so every later process and worker loads it instead of compiling; with no writable cache anywhere it is
-compiled once per process). ``fastmath`` is off and every operation is written in the order numpy would do it, so
-the results are the same bits as the array code they replaced (elementwise arithmetic; sums in numpy's order where
-a kernel sums); ``error_model="numpy"``: a division by zero gives inf or NaN as in numpy, never an exception.
+Each kernel is the one implementation of its step (no numpy twin), compiled as :mod:`gazepipe.stages.jit` says (on
+its first call, cached on disk for later processes and workers; ``fastmath`` off). Every operation is written in
+the order numpy would do it, so the results are the same bits as the array code they replaced (elementwise
+arithmetic; sums in numpy's order where a kernel sums; order statistics as numpy's median and linear quantile
+compute them).
 
-This module imports numba, which takes a few tenths of a second: the filler imports it where a kernel is first
+This module imports numba, which takes a few tenths of a second: the stage imports it where a kernel is first
 needed, so planning a run (which imports the clean stage's parameters) goes without it.
 
 Frames are rows; intervals are half-open ``[start, stop)``; positions are float64 mm.
@@ -16,26 +16,12 @@ Frames are rows; intervals are half-open ``[start, stop)``; positions are float6
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
-
-import numba
 import numpy as np
 
-F = TypeVar("F", bound=Callable[..., Any])
+from gazepipe.stages.jit import kernel
 
 
-def _jit(fn: F) -> F:
-    """``fn`` compiled on its first call, its machine code cached on disk where numba finds a writable place."""
-    try:
-        return cast(F, numba.njit(cache=True, error_model="numpy")(fn))
-    except RuntimeError:          # no writable cache directory at all: compiled once per process
-        return cast(F, numba.njit(cache=False, error_model="numpy")(fn))
-
-
-# ------------------------------------------------------------------------------------------- interpolation
-
-@_jit
+@kernel
 def _sign(x: float) -> float:
     """``np.sign`` of a float (NaN stays NaN)."""
     if x > 0.0:
@@ -47,7 +33,7 @@ def _sign(x: float) -> float:
     return x
 
 
-@_jit
+@kernel
 def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """PCHIP interpolant through knots ``x`` (n,) increasing, values ``y`` (n, k), evaluated at ``t`` (q,) inside
     ``[x[0], x[-1]]``: (q, k).
@@ -103,7 +89,7 @@ def pchip_eval(x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def interp_intervals(xyz_m: np.ndarray, known_m: np.ndarray, starts: np.ndarray, stops: np.ndarray,
                      pchip: bool, n_anchors: int) -> tuple[np.ndarray, np.ndarray]:
     """Linear or PCHIP interpolation of one marker, ``xyz_m`` (T, 3), over each interval ``[starts[i], stops[i])``
@@ -164,7 +150,7 @@ def interp_intervals(xyz_m: np.ndarray, known_m: np.ndarray, starts: np.ndarray,
 
 # ------------------------------------------------------------------------------------------------ searches
 
-@_jit
+@kernel
 def nearest_complete(known_m: np.ndarray, valid: np.ndarray, cols: np.ndarray, starts: np.ndarray,
                      stops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each interval ``[starts[i], stops[i])``, the nearest frame before it and the nearest at or after its
@@ -190,7 +176,7 @@ def nearest_complete(known_m: np.ndarray, valid: np.ndarray, cols: np.ndarray, s
     return before, after
 
 
-@_jit
+@kernel
 def _all_valid(valid: np.ndarray, f: int, cols: np.ndarray) -> bool:
     for c in cols:
         if not valid[f, c]:
@@ -200,7 +186,7 @@ def _all_valid(valid: np.ndarray, f: int, cols: np.ndarray) -> bool:
 
 # ------------------------------------------------------------------------------------------ edge correction
 
-@_jit
+@kernel
 def edge_correct(preds: np.ndarray, xyz_m: np.ndarray, lo: np.ndarray, hi: np.ndarray, a: np.ndarray,
                  b: np.ndarray, partial: np.ndarray, known_l: np.ndarray, known_r: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -251,19 +237,19 @@ def edge_correct(preds: np.ndarray, xyz_m: np.ndarray, lo: np.ndarray, hi: np.nd
     return filled, none
 
 
-@_jit
+@kernel
 def _any_nan(preds: np.ndarray, k: int, row: int) -> bool:
     return np.isnan(preds[k, row, 0]) or np.isnan(preds[k, row, 1]) or np.isnan(preds[k, row, 2])
 
 
-@_jit
+@kernel
 def _all_finite(preds: np.ndarray, k: int, row: int) -> bool:
     return np.isfinite(preds[k, row, 0]) and np.isfinite(preds[k, row, 1]) and np.isfinite(preds[k, row, 2])
 
 
 # ----------------------------------------------------------------------------------------- window statistics
 
-@_jit
+@kernel
 def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand: np.ndarray, lo: int, hi: int,
               step: int) -> tuple[np.ndarray, np.ndarray]:
     """The distance (mm) of each marker ``cand[k]`` of ``xyz`` (T, M, 3) to marker ``m`` in frames ``lo, lo +
@@ -291,7 +277,7 @@ def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand:
 
 # ------------------------------------------------------------------------------------- swap references
 
-@_jit
+@kernel
 def _volume_from(o0: float, o1: float, o2: float, xyz: np.ndarray, s: int, a: int, b: int, c: int) -> float:
     """Triple product of the directions from the point ``(o0, o1, o2)`` to markers ``a``, ``b``, ``c`` in frame
     ``s`` of ``xyz`` (S, M, 3), as a share of the product of their lengths (in [−1, 1]; NaN where a length is 0
@@ -310,13 +296,13 @@ def _volume_from(o0: float, o1: float, o2: float, xyz: np.ndarray, s: int, a: in
                          * (w0 * w0 + w1 * w1 + w2 * w2))
 
 
-@_jit
+@kernel
 def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) -> float:
     """:func:`_volume_from` marker ``origin``'s place in frame ``s``."""
     return _volume_from(xyz[s, origin, 0], xyz[s, origin, 1], xyz[s, origin, 2], xyz, s, a, b, c)
 
 
-@_jit
+@kernel
 def _median_of(values: np.ndarray, n: int) -> float:
     """Median of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): the lower and
     upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
@@ -328,7 +314,7 @@ def _median_of(values: np.ndarray, n: int) -> float:
     return 0.5 * (lo + hi)
 
 
-@_jit
+@kernel
 def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
     """The ``q`` quantile of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): numpy's default
     (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided interpolation."""
@@ -347,7 +333,7 @@ def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
     return v[i] + diff * gamma
 
 
-@_jit
+@kernel
 def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.ndarray, q: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """How each reference triple ``tri`` (C, 3) columns tells marker ``m`` from its mirror image, over the
@@ -416,7 +402,7 @@ def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.n
     return seen, median, low, tells
 
 
-@_jit
+@kernel
 def _is_flipped(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
                 hand: np.ndarray, exclude: int, clear: float) -> bool:
     """Whether the point ``(p0, p1, p2)`` in frame ``s`` turns more of the chiral triples ``tri`` (J, 3) (−1:
@@ -439,7 +425,7 @@ def _is_flipped(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndar
     return turned > kept
 
 
-@_jit
+@kernel
 def flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
             chiral: np.ndarray, hand: np.ndarray, clear: float) -> np.ndarray:
     """(n, C) bool: ``points`` (n, C, 3) judged as markers ``as_marker`` (C,) turn more of their chiral triples
@@ -455,7 +441,7 @@ def flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     return out
 
 
-@_jit
+@kernel
 def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
             index: np.ndarray, distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray,
             min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
@@ -500,7 +486,7 @@ def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     return worst, median
 
 
-@_jit
+@kernel
 def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The median (mm) and the spread (1.4826 × the median absolute deviation, mm) over the frames of ``xyz``
     (S, M, 3) of each body marker's distance to every other body marker (``body`` (M,) bool), from the frames

@@ -14,24 +14,14 @@ rotations (usually frames of a take); angles are radians.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any
 
-import numba
 import numpy as np
 
-F = TypeVar("F", bound=Callable[..., Any])
+from gazepipe.stages.jit import kernel
 
 
-def _jit(fn: F) -> F:
-    """``fn`` compiled on its first call, its machine code cached on disk where numba finds a writable place."""
-    try:
-        return cast(F, numba.njit(cache=True, error_model="numpy")(fn))
-    except RuntimeError:          # no writable cache directory at all: compiled once per process
-        return cast(F, numba.njit(cache=False, error_model="numpy")(fn))
-
-
-@_jit
+@kernel
 def compose(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Unit quaternions (n, 4) of ``p * q`` (apply q, then p); p or q may have one row, which is broadcast.
     scipy's ``Rotation.__mul__``: the Hamilton product, then each row divided by its norm."""
@@ -55,7 +45,7 @@ def compose(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def magnitude(q: np.ndarray) -> np.ndarray:
     """Rotation angles (n,) in [0, π] of unit quaternions q (n, 4) (scipy's ``Rotation.magnitude``)."""
     n = q.shape[0]
@@ -66,7 +56,7 @@ def magnitude(q: np.ndarray) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def as_rotvec(q: np.ndarray) -> np.ndarray:
     """Rotation vectors (n, 3) of unit quaternions q (n, 4), angle in [0, π] (scipy's ``Rotation.as_rotvec``)."""
     n = q.shape[0]
@@ -88,7 +78,7 @@ def as_rotvec(q: np.ndarray) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def from_rotvec(v: np.ndarray) -> np.ndarray:
     """Unit quaternions (n, 4) of rotation vectors v (n, 3) (scipy's ``Rotation.from_rotvec``)."""
     n = v.shape[0]
@@ -107,7 +97,7 @@ def from_rotvec(v: np.ndarray) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def as_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrices (n, 3, 3) of unit quaternions q (n, 4) (scipy's ``Rotation.as_matrix``)."""
     n = q.shape[0]
@@ -128,7 +118,7 @@ def as_matrix(q: np.ndarray) -> np.ndarray:
     return m
 
 
-@_jit
+@kernel
 def _from_orthogonal(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit quaternions (n, 4) of rotation matrices m (n, 3, 3) by scipy's method (the largest of the diagonal and
     the trace picks the formula), and which rows pass scipy's checks (n,): a positive determinant and
@@ -177,7 +167,7 @@ def _from_orthogonal(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return out, fine
 
 
-@_jit
+@kernel
 def running_median(x: np.ndarray, half: int) -> np.ndarray:
     """Running median down the columns of x (n, m) over ``2·half + 1`` rows, the edges repeating the end rows
     (``scipy.ndimage.median_filter(x, size=(2·half + 1, 1), mode="nearest")``; an odd count: the median is one of
@@ -208,7 +198,7 @@ def running_median(x: np.ndarray, half: int) -> np.ndarray:
     return out
 
 
-@_jit
+@kernel
 def _largest_eigvec4(a: np.ndarray) -> np.ndarray:
     """Unit eigenvector (4,) of the largest eigenvalue of the symmetric 4×4 matrix ``a`` (overwritten): cyclic
     Jacobi rotations until the off-diagonal part is below the rounding of the diagonal."""
@@ -250,7 +240,7 @@ def _largest_eigvec4(a: np.ndarray) -> np.ndarray:
     return v[:, best]
 
 
-@_jit
+@kernel
 def horn_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Least-squares rotations (N, 3, 3) with b[n] ≈ R[n] · a[n]: Horn's closed form (the unit quaternion is the
     eigenvector of the largest eigenvalue of the symmetric 4×4 matrix of the clusters' cross-covariance).
