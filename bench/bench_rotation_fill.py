@@ -27,6 +27,7 @@ import io
 import json
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -43,15 +44,23 @@ from gazepipe.synth.skeleton import FOUR_SEGMENTS, SEGMENTS
 LAYOUTS = {"10 segments, z up": (SEGMENTS, "z"), "4 segments, y up": (FOUR_SEGMENTS, "y")}
 
 
-def gap_errors(folder: Path, out: Path, session: str, take: str) -> list[dict]:
-    """Per filled rotation gap of a take: segment, frames, estimate, true mean and max error (deg)."""
+def _take_outputs(folder: Path, out: Path, session: str, take: str) -> tuple[dict, dict, Any] | None:
+    """A take's joints table (as arrays), its frames unit's QC record and its ground truth; None when the run
+    wrote no joints for it."""
     jpath = out / "takes" / session / take / "joints.parquet"
     qpath = out / ".gazepipe" / "units" / session / take / "frames.json"
     if not jpath.is_file() or not qpath.is_file():
-        return []
-    j = joints_arrays(pq.read_table(jpath))
+        return None
     qc = json.loads(qpath.read_text()).get("qc", {})
-    truth = np.load(folder / "truth" / f"{take}.npz")
+    return joints_arrays(pq.read_table(jpath)), qc, np.load(folder / "truth" / f"{take}.npz")
+
+
+def gap_errors(folder: Path, out: Path, session: str, take: str) -> list[dict]:
+    """Per filled rotation gap of a take: segment, frames, estimate, true mean and max error (deg)."""
+    got = _take_outputs(folder, out, session, take)
+    if got is None:
+        return []
+    j, qc, truth = got
     names = list(j["segments"])
     tnames = list(truth["segments"])
     frame = np.asarray(j["frame"], dtype=np.int64)
@@ -90,13 +99,10 @@ def refused_errors(folder: Path, out: Path, session: str, take: str) -> list[dic
     cost that a fill could have had."""
     from scipy.spatial.transform import Slerp
 
-    jpath = out / "takes" / session / take / "joints.parquet"
-    qpath = out / ".gazepipe" / "units" / session / take / "frames.json"
-    if not jpath.is_file() or not qpath.is_file():
+    got = _take_outputs(folder, out, session, take)
+    if got is None:
         return []
-    j = joints_arrays(pq.read_table(jpath))
-    qc = json.loads(qpath.read_text()).get("qc", {})
-    truth = np.load(folder / "truth" / f"{take}.npz")
+    j, qc, truth = got
     names, tnames = list(j["segments"]), list(truth["segments"])
     parents = [int(p) for p in j["meta"]["parents"]]
     frame = np.asarray(j["frame"], dtype=np.int64)

@@ -61,29 +61,11 @@ def _config(a: argparse.Namespace):
                                clap_hazards=a.clap_hazards)
 
 
-def _share(text: str) -> float:
+def _within(text: str, low: float, high: float, what: str, kind: type = float):
+    """``text`` as a ``kind`` (``float`` or ``int``) in ``[low, high]``, else the option's error naming it as
+    ``what`` (NaN is in no range)."""
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a share between 0 and 1") from None
-    if not 0.0 <= value <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text} is not a share between 0 and 1")
-    return value
-
-
-def _scale(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text[:40]!r} is not a scale (0 to 10)") from None
-    if not 0.0 <= value <= 10.0:
-        raise argparse.ArgumentTypeError(f"{text[:40]} is not a scale (0 to 10)")
-    return value
-
-
-def _whole(text: str, low: int, high: int, what: str) -> int:
-    try:
-        value = int(text.strip())
+        value = kind(text.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text[:40]!r} is not {what}") from None
     if not low <= value <= high:
@@ -91,17 +73,24 @@ def _whole(text: str, low: int, high: int, what: str) -> int:
     return value
 
 
+def _share(text: str) -> float:
+    return _within(text, 0.0, 1.0, "a share between 0 and 1")
+
+
+def _scale(text: str) -> float:
+    return _within(text, 0.0, 10.0, "a scale (0 to 10)")
+
+
+def _rate(text: str) -> float:
+    return _within(text, 10.0, 1000.0, "a mocap rate in Hz (10 to 1000)")
+
+
 def _count(text: str) -> int:
-    return _whole(text, 0, MAX_COUNT, f"a count (0 to {MAX_COUNT})")
+    return _within(text, 0, MAX_COUNT, f"a count (0 to {MAX_COUNT})", int)
 
 
 def _seed(text: str) -> int:
-    return _whole(text, 0, MAX_SEED, "a seed (a whole number, 0 or more, below 2^64)")
-def _rate(text: str) -> float:
-    value = float(text)
-    if not 10.0 <= value <= 1000.0:
-        raise argparse.ArgumentTypeError(f"{text} is not a mocap rate in Hz (10 to 1000)")
-    return value
+    return _within(text, 0, MAX_SEED, "a seed (a whole number, 0 or more, below 2^64)", int)
 
 
 def main(argv: list[str] | None = None) -> int:
