@@ -342,6 +342,8 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     """One :class:`PcaModel` of marker ``m`` per entry of ``frames`` (``(local_frame, frame markers or None)``),
     all on the training positions ``xt`` (n, P + 1, 3) (predictors then target, mm) and distances ``dist`` (n, P):
     the coordinates of every model, their means, Gram matrices and eigendecompositions as one stack."""
+    from gazepipe.stages.clean import pca_kernels
+
     n, n_c = xt.shape[0], 3 * xt.shape[1]
     d = dist.mean(axis=0)
     sigma = sigma_scale * max(_median(d), 1.0)
@@ -349,7 +351,7 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     coords = np.empty((len(frames), n, n_c))
     for i, (_, pick) in enumerate(frames):
         if pick is not None:
-            coords[i] = PcaModel._to_local(xt, xt[:, pick])[0].reshape(n, n_c)
+            coords[i] = pca_kernels.local_coords(xt, pick.astype(np.int64)).reshape(n, n_c)
         elif body_frame:
             # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
             coords[i] = (xt - xt[:, :-1].mean(axis=1, keepdims=True)).reshape(n, n_c)
@@ -407,65 +409,18 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     the same measured predictors share one QR factorisation, all of them done as one stack. The first ``k``
     columns of A = QR are Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading
     block (R is upper triangular), so one QR serves every ``k``."""
+    from gazepipe.stages.clean import pca_kernels
+
     kss = [mod.ks for mod in models] if kss is None else kss
     n = frames.size
     preds = models[0].predictors
-    n_p = preds.size
-    n_pc = 3 * n_p
-    pts = _flat(xyz)[frames][:, _cols3(preds)].reshape(n, n_p, 3)
-    seen_all = vis[:, preds]
+    pts = np.ascontiguousarray(_flat(xyz)[frames][:, _cols3(preds)].reshape(n, preds.size, 3), dtype=np.float64)
+    seen = np.ascontiguousarray(vis[:, preds])
     outs, ress = [], []
     for mod, ks in zip(models, kss, strict=True):
-        seen = seen_all
-        x = pts
-        if mod.frame is not None:
-            # into the moving frame; frames without all three frame markers cannot be predicted (they get a
-            # stand-in triangle)
-            seen = seen & seen[:, mod.frame].all(axis=1, keepdims=True)
-            fp = np.where(seen[:, mod.frame, None], pts[:, mod.frame], np.eye(3) * 100.0)
-            x, rot, origin = mod._to_local(pts, fp)
-        n_seen = seen.sum(axis=1)
-        ctr = np.zeros((n, 3))
-        if mod.body_frame:
-            # the frame's mean trajectory from the predictors measured, shifted by the training mean offset
-            # between the measured predictors' centroid and all predictors' centroid
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ctr = (np.where(seen[..., None], x, 0.0).sum(axis=1)
-                       - seen @ mod.mean[:n_pc].reshape(n_p, 3)) / n_seen[:, None]
-            x = x - ctr[:, None]
-        groups = row_patterns(seen)
-        patterns = np.array([g for g, _ in groups], dtype=np.float64).reshape(len(groups), n_p)
-        which = np.zeros(n, dtype=np.int64)
-        for i, (_, members) in enumerate(groups):
-            which[members] = i
-        rows = np.repeat(patterns, 3, axis=1)                             # (patterns, 3 P)
-        # NaN where a predictor is not measured: np.where, not a product with the mask
-        z = np.where(rows[which] > 0, (x.reshape(n, n_pc) - mod.mean[:n_pc]) * mod.w[:n_pc], 0.0)
-        q, r = np.linalg.qr(mod.v_all[None, :n_pc] * rows[:, :, None])
-        k_top = r.shape[-1]
-        diag = np.abs(np.diagonal(r, axis1=1, axis2=2))
-        good = diag > 1e-8 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
-        n_good = np.where(good.all(axis=1), k_top, np.argmin(good, axis=1))
-        inside = np.arange(k_top) < n_good[:, None]
-        rinv = np.linalg.inv(np.where(inside[:, :, None] & inside[:, None, :], r, np.eye(k_top)))
-        # every pattern's Qᵀ z for every frame (few patterns: cheaper than gathering Q per frame), then each
-        # frame's own
-        cols = np.arange(n)
-        qz = np.matmul(np.swapaxes(q, 1, 2), z.T)[which, :, cols]      # (n, k_top)
-        target = mod.v_all[n_pc:]
-        out = np.full((len(ks), n, 3), np.nan)
-        res = np.full((len(ks), n), np.nan)
-        for i, k in enumerate(ks):
-            ok = n_good[which] >= k
-            maps = target[:, :k] @ rinv[:, :k, :k]                    # (patterns, 3, k)
-            local = np.matmul(maps, qz[:, :k].T)[which, :, cols][ok]    # (frames predicted, 3)
-            out[i, ok] = local / mod.w[n_pc:] + mod.mean[n_pc:] + ctr[ok]
-            if residuals:
-                # |z|² minus the part the first k orthonormal columns explain
-                left = np.square(z[ok]).sum(axis=1) - np.square(qz[ok, :k]).sum(axis=1)
-                res[i, ok] = np.sqrt(np.maximum(left, 0.0) / (3 * n_seen[ok]))
-        if mod.frame is not None:
-            out = (rot @ out[..., None])[..., 0] + origin  # rot · local, per frame
+        pick = np.empty(0, dtype=np.int64) if mod.frame is None else np.asarray(mod.frame, dtype=np.int64)
+        out, res = pca_kernels.predict(pts, seen, pick, bool(mod.body_frame), mod.mean, mod.w, mod.v_all,
+                                       np.asarray(ks, dtype=np.int64))
         outs.append(out)
         ress.append(res)
     out_all = np.concatenate(outs)

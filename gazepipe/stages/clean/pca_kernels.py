@@ -1,0 +1,280 @@
+"""The PCA filler's compiled kernels: a model's moving-frame coordinates and its least-squares prediction of the
+target marker, frame by frame, where numpy's per-call cost on a gap's few frames outweighed the arithmetic.
+
+Unlike :mod:`gazepipe.stages.clean.kernels`, these do not reproduce numpy's bits: a frame's coordinates in the
+moving frame are plain three-term sums (BLAS's small products before), and each occlusion pattern's fit is a
+Householder QR of the pattern's own rows with back substitution per component count (LAPACK's QR of the masked
+matrix and an explicit inverse of R before). The results are the same least-squares solutions to the rounding
+of the arithmetic (~1e-12 mm on positions of ~1e3 mm); back substitution is the better-conditioned of the two.
+
+Compiled as :mod:`gazepipe.stages.jit` says; imported where a PCA model is first fitted. Positions are float64 mm,
+frames are rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gazepipe.stages.jit import kernel
+
+_EPS = 1e-12                 # a triangle's normal shorter than this leaves its frame undefined (NaN), as geometry's
+_GOOD_DIAG = 1e-8            # a column of R counts while |R_jj| exceeds this fraction of the largest
+
+
+@kernel
+def _triad(p: np.ndarray, i0: int, i1: int, i2: int, rot: np.ndarray, c: np.ndarray) -> None:
+    """The Gram–Schmidt frame of points ``p[i0], p[i1], p[i2]`` (rows of ``p`` (K, 3)) into ``rot`` (3, 3)
+    (columns: e1 along the first edge, e2, e3 along the normal; NaN when the points are collinear) and their
+    centroid into ``c`` (3,): :func:`gazepipe.stages.geometry.frame_from_points`."""
+    a0, a1, a2 = p[i1, 0] - p[i0, 0], p[i1, 1] - p[i0, 1], p[i1, 2] - p[i0, 2]
+    b0, b1, b2 = p[i2, 0] - p[i0, 0], p[i2, 1] - p[i0, 1], p[i2, 2] - p[i0, 2]
+    n0, n1, n2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    la = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    e10, e11, e12 = a0 / la, a1 / la, a2 / la
+    if nn > _EPS:
+        e30, e31, e32 = n0 / nn, n1 / nn, n2 / nn
+    else:
+        e30 = e31 = e32 = np.nan
+    rot[0, 0], rot[1, 0], rot[2, 0] = e10, e11, e12
+    rot[0, 1], rot[1, 1], rot[2, 1] = e31 * e12 - e32 * e11, e32 * e10 - e30 * e12, e30 * e11 - e31 * e10
+    rot[0, 2], rot[1, 2], rot[2, 2] = e30, e31, e32
+    for j in range(3):
+        c[j] = (p[i0, j] + p[i1, j] + p[i2, j]) / 3.0
+
+
+@kernel
+def _local_row(p: np.ndarray, rot: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
+    """Points ``p`` (K, 3) in the frame ``rot`` at ``c``: ``out[k] = rotᵀ (p[k] − c)``."""
+    for k in range(p.shape[0]):
+        d0, d1, d2 = p[k, 0] - c[0], p[k, 1] - c[1], p[k, 2] - c[2]
+        for j in range(3):
+            out[k, j] = d0 * rot[0, j] + d1 * rot[1, j] + d2 * rot[2, j]
+
+
+@kernel
+def local_coords(x: np.ndarray, pick: np.ndarray) -> np.ndarray:
+    """Points ``x`` (n, K, 3) in each frame's moving frame of its points ``pick`` (3 indices into K), (n, K, 3)."""
+    out = np.empty_like(x)
+    rot = np.empty((3, 3))
+    c = np.empty(3)
+    for f in range(x.shape[0]):
+        _triad(x[f], pick[0], pick[1], pick[2], rot, c)
+        _local_row(x[f], rot, c, out[f])
+    return out
+
+
+@kernel
+def _pattern_keys(seen: np.ndarray) -> np.ndarray:
+    """Each row of ``seen`` (n, P ≤ 62) as an integer (bit p set where predictor p is measured)."""
+    keys = np.zeros(seen.shape[0], dtype=np.int64)
+    for f in range(seen.shape[0]):
+        key = 0
+        for p in range(seen.shape[1]):
+            if seen[f, p]:
+                key |= np.int64(1) << p
+        keys[f] = key
+    return keys
+
+
+@kernel
+def _householder(a: np.ndarray, tau: np.ndarray) -> None:
+    """Householder QR of ``a`` (m, k) in place: R in its upper triangle, the reflector of column j below its
+    diagonal with an implicit leading 1 (LAPACK's layout, ``H_j = I − tau_j v vᵀ``), ``tau`` (min(m, k),)."""
+    m, k = a.shape
+    for j in range(min(m, k)):
+        scale = 0.0
+        for i in range(j, m):
+            scale = max(scale, abs(a[i, j]))
+        if scale == 0.0:
+            tau[j] = 0.0
+            continue
+        ss = 0.0
+        for i in range(j, m):
+            ss += (a[i, j] / scale) ** 2
+        norm = scale * np.sqrt(ss)
+        alpha = -norm if a[j, j] >= 0.0 else norm
+        v0 = a[j, j] - alpha
+        for i in range(j + 1, m):
+            a[i, j] /= v0
+        tau[j] = -v0 / alpha
+        a[j, j] = alpha
+        for col in range(j + 1, k):
+            s = a[j, col]
+            for i in range(j + 1, m):
+                s += a[i, j] * a[i, col]
+            s *= tau[j]
+            a[j, col] -= s
+            for i in range(j + 1, m):
+                a[i, col] -= s * a[i, j]
+
+
+@kernel
+def _apply_qt(a: np.ndarray, tau: np.ndarray, z: np.ndarray) -> None:
+    """``z`` (m,) ← Qᵀ z in place, Q the product of :func:`_householder`'s reflectors in ``a``."""
+    m = a.shape[0]
+    for j in range(tau.size):
+        if tau[j] == 0.0:
+            continue
+        s = z[j]
+        for i in range(j + 1, m):
+            s += a[i, j] * z[i]
+        s *= tau[j]
+        z[j] -= s
+        for i in range(j + 1, m):
+            z[i] -= s * a[i, j]
+
+
+@kernel
+def _good_columns(a: np.ndarray, k_top: int) -> int:
+    """How many leading columns of R (in ``a``'s upper triangle) are resolved: the first j with |R_jj| at most
+    ``_GOOD_DIAG`` of the largest |R_jj| (columns past R's rows are unresolved)."""
+    kk = min(a.shape[0], k_top)
+    top = 1e-300
+    for j in range(kk):
+        top = max(top, abs(a[j, j]))
+    for j in range(kk):
+        if not abs(a[j, j]) > _GOOD_DIAG * top:
+            return j
+    return kk
+
+
+@kernel
+def _solve_upper(a: np.ndarray, rhs: np.ndarray, k: int, y: np.ndarray) -> None:
+    """``y[:k]`` solving R[:k, :k] y = rhs[:k] by back substitution (R in ``a``'s upper triangle)."""
+    for i in range(k - 1, -1, -1):
+        s = rhs[i]
+        for col in range(i + 1, k):
+            s -= a[i, col] * y[col]
+        y[i] = s / a[i, i]
+
+
+@kernel
+def _body_centres(x: np.ndarray, seen: np.ndarray, mean: np.ndarray, n_seen: np.ndarray) -> np.ndarray:
+    """Each frame's mean trajectory of the measured predictors, shifted by the training offset between their
+    centroid and all predictors' centroid: (Σ measured x − Σ measured training means) / count, (n, 3)."""
+    n, n_p = seen.shape
+    ctr = np.zeros((n, 3))
+    for f in range(n):
+        for j in range(3):
+            s, t = 0.0, 0.0
+            for p in range(n_p):
+                if seen[f, p]:
+                    s += x[f, p, j]
+                    t += mean[3 * p + j]
+            ctr[f, j] = (s - t) / n_seen[f]
+    return ctr
+
+
+@kernel
+def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: bool, mean: np.ndarray,
+            w: np.ndarray, v_all: np.ndarray, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One PCA model's prediction of its target in each frame, for each component count in ``ks``.
+
+    Parameters
+    ----------
+    pts, seen_in : (n, P, 3) predictor positions (mm) and (n, P) whether each is measured, per frame.
+    pick : the model's three moving-frame predictors (indices into P), or an empty array for none; a frame
+        without all three is not predicted.
+    body_frame : positions relative to the measured predictors' mean (shifted by the training offset).
+    mean, w : (3 P + 3,) the training mean and weight of each coordinate (predictors', then the target's).
+    v_all : (3 P + 3, k_top) the components, largest first.
+    ks : component counts.
+
+    Returns
+    -------
+    out : (len(ks), n, 3) target positions, NaN where a frame's measured predictors resolve fewer than k
+        components (or the frame is not predicted).
+    res : (len(ks), n) RMS residual of each frame's fit to its weighted predictor coordinates (NaN likewise).
+    """
+    n, n_p = seen_in.shape
+    n_pc = 3 * n_p
+    k_top = v_all.shape[1]
+    seen = seen_in.copy()
+    x = pts.copy()
+    rots = np.zeros((n, 3, 3))
+    origins = np.zeros((n, 3))
+    if pick.size:
+        stand_in = np.eye(3) * 100.0
+        for f in range(n):
+            if not (seen[f, pick[0]] and seen[f, pick[1]] and seen[f, pick[2]]):
+                seen[f, :] = False
+                _triad(stand_in, 0, 1, 2, rots[f], origins[f])
+            else:
+                _triad(pts[f], pick[0], pick[1], pick[2], rots[f], origins[f])
+            _local_row(pts[f], rots[f], origins[f], x[f])
+    n_seen = np.zeros(n, dtype=np.int64)
+    for f in range(n):
+        for p in range(n_p):
+            n_seen[f] += seen[f, p]
+    ctr = _body_centres(x, seen, mean, n_seen) if body_frame else np.zeros((n, 3))
+    out = np.full((ks.size, n, 3), np.nan)
+    res = np.full((ks.size, n), np.nan)
+    keys = _pattern_keys(seen)
+    order = np.argsort(keys, kind="mergesort")
+    start = 0
+    while start < n:
+        stop = start + 1
+        while stop < n and keys[order[stop]] == keys[order[start]]:
+            stop += 1
+        _predict_pattern(x, seen, ctr, rots, origins, pick.size > 0, mean, w, v_all, ks, n_seen,
+                         order[start:stop], n_pc, k_top, out, res)
+        start = stop
+    return out, res
+
+
+@kernel
+def _predict_pattern(x: np.ndarray, seen: np.ndarray, ctr: np.ndarray, rots: np.ndarray, origins: np.ndarray,
+                     moving: bool, mean: np.ndarray, w: np.ndarray, v_all: np.ndarray, ks: np.ndarray,
+                     n_seen: np.ndarray, frames: np.ndarray, n_pc: int, k_top: int, out: np.ndarray,
+                     res: np.ndarray) -> None:
+    """:func:`predict` for ``frames``, which share one pattern of measured predictors: one QR of the
+    components' rows of those predictors, then each frame's scores and target."""
+    n_p = seen.shape[1]
+    first = frames[0]
+    sel = np.empty(n_pc, dtype=np.int64)
+    m_sel = 0
+    for p in range(n_p):
+        if seen[first, p]:
+            for j in range(3):
+                sel[m_sel] = 3 * p + j
+                m_sel += 1
+    if m_sel == 0:
+        return
+    a = np.empty((m_sel, k_top))
+    for i in range(m_sel):
+        for col in range(k_top):
+            a[i, col] = v_all[sel[i], col]
+    tau = np.zeros(min(m_sel, k_top))
+    _householder(a, tau)
+    n_good = _good_columns(a, k_top)
+    z = np.empty(m_sel)
+    y = np.empty(k_top)
+    local = np.empty(3)
+    for f in frames:
+        zz = 0.0
+        for i in range(m_sel):
+            p, j = sel[i] // 3, sel[i] % 3
+            z[i] = ((x[f, p, j] - ctr[f, j]) - mean[sel[i]]) * w[sel[i]]
+            zz += z[i] * z[i]
+        _apply_qt(a, tau, z)
+        for q in range(ks.size):
+            k = ks[q]
+            if k > n_good:
+                continue
+            _solve_upper(a, z, k, y)
+            explained = 0.0
+            for col in range(k):
+                explained += z[col] * z[col]
+            res[q, f] = np.sqrt(max(zz - explained, 0.0) / (3 * n_seen[f]))
+            for j in range(3):
+                s = 0.0
+                for col in range(k):
+                    s += v_all[n_pc + j, col] * y[col]
+                local[j] = s / w[n_pc + j] + mean[n_pc + j] + ctr[f, j]
+            for j in range(3):
+                if moving:
+                    out[q, f, j] = (rots[f, j, 0] * local[0] + rots[f, j, 1] * local[1] + rots[f, j, 2] * local[2]
+                                    + origins[f, j])
+                else:
+                    out[q, f, j] = local[j]
