@@ -420,7 +420,7 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     for mod, ks in zip(models, kss, strict=True):
         pick = np.empty(0, dtype=np.int64) if mod.frame is None else np.asarray(mod.frame, dtype=np.int64)
         out, res = pca_kernels.predict(pts, seen, pick, bool(mod.body_frame), mod.mean, mod.w, mod.v_all,
-                                       np.asarray(ks, dtype=np.int64))
+                                       np.asarray(ks, dtype=np.int64), residuals)
         outs.append(out)
         ress.append(res)
     out_all = np.concatenate(outs)

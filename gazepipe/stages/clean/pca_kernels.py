@@ -110,19 +110,25 @@ def _householder(a: np.ndarray, tau: np.ndarray) -> None:
 
 
 @kernel
-def _apply_qt(a: np.ndarray, tau: np.ndarray, z: np.ndarray) -> None:
-    """``z`` (m,) ← Qᵀ z in place, Q the product of :func:`_householder`'s reflectors in ``a``."""
-    m = a.shape[0]
-    for j in range(tau.size):
+def _form_q(a: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """The first ``tau.size`` columns of Q (m, tau.size), the product of :func:`_householder`'s reflectors in
+    ``a``, applied to the identity's columns from the last reflector to the first."""
+    m, kk = a.shape[0], tau.size
+    q = np.zeros((m, kk))
+    for i in range(kk):
+        q[i, i] = 1.0
+    for j in range(kk - 1, -1, -1):
         if tau[j] == 0.0:
             continue
-        s = z[j]
-        for i in range(j + 1, m):
-            s += a[i, j] * z[i]
-        s *= tau[j]
-        z[j] -= s
-        for i in range(j + 1, m):
-            z[i] -= s * a[i, j]
+        for col in range(j, kk):
+            s = q[j, col]
+            for i in range(j + 1, m):
+                s += a[i, j] * q[i, col]
+            s *= tau[j]
+            q[j, col] -= s
+            for i in range(j + 1, m):
+                q[i, col] -= s * a[i, j]
+    return q
 
 
 @kernel
@@ -140,13 +146,18 @@ def _good_columns(a: np.ndarray, k_top: int) -> int:
 
 
 @kernel
-def _solve_upper(a: np.ndarray, rhs: np.ndarray, k: int, y: np.ndarray) -> None:
-    """``y[:k]`` solving R[:k, :k] y = rhs[:k] by back substitution (R in ``a``'s upper triangle)."""
-    for i in range(k - 1, -1, -1):
-        s = rhs[i]
-        for col in range(i + 1, k):
-            s -= a[i, col] * y[col]
-        y[i] = s / a[i, i]
+def _target_maps(a: np.ndarray, target: np.ndarray, n_good: int) -> np.ndarray:
+    """``M`` (3, n_good) with M R[:n_good, :n_good] = ``target[:, :n_good]`` (forward substitution; R in ``a``'s
+    upper triangle). Column i depends only on columns up to i, so ``M[:, :k]`` is the map for the first k
+    components: target = M[:, :k] (Qᵀ z)[:k]."""
+    maps = np.empty((target.shape[0], n_good))
+    for j in range(target.shape[0]):
+        for i in range(n_good):
+            s = target[j, i]
+            for col in range(i):
+                s -= maps[j, col] * a[col, i]
+            maps[j, i] = s / a[i, i]
+    return maps
 
 
 @kernel
@@ -168,7 +179,7 @@ def _body_centres(x: np.ndarray, seen: np.ndarray, mean: np.ndarray, n_seen: np.
 
 @kernel
 def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: bool, mean: np.ndarray,
-            w: np.ndarray, v_all: np.ndarray, ks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            w: np.ndarray, v_all: np.ndarray, ks: np.ndarray, residuals: bool) -> tuple[np.ndarray, np.ndarray]:
     """One PCA model's prediction of its target in each frame, for each component count in ``ks``.
 
     Parameters
@@ -180,12 +191,14 @@ def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: 
     mean, w : (3 P + 3,) the training mean and weight of each coordinate (predictors', then the target's).
     v_all : (3 P + 3, k_top) the components, largest first.
     ks : component counts.
+    residuals : whether to compute ``res`` (NaN throughout otherwise).
 
     Returns
     -------
     out : (len(ks), n, 3) target positions, NaN where a frame's measured predictors resolve fewer than k
         components (or the frame is not predicted).
-    res : (len(ks), n) RMS residual of each frame's fit to its weighted predictor coordinates (NaN likewise).
+    res : (len(ks), n) RMS residual of each frame's fit to its weighted predictor coordinates (NaN likewise, and
+        throughout without ``residuals``).
     """
     n, n_p = seen_in.shape
     n_pc = 3 * n_p
@@ -218,7 +231,7 @@ def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: 
         while stop < n and keys[order[stop]] == keys[order[start]]:
             stop += 1
         _predict_pattern(x, seen, ctr, rots, origins, pick.size > 0, mean, w, v_all, ks, n_seen,
-                         order[start:stop], n_pc, k_top, out, res)
+                         order[start:stop], n_pc, k_top, residuals, out, res)
         start = stop
     return out, res
 
@@ -226,8 +239,8 @@ def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: 
 @kernel
 def _predict_pattern(x: np.ndarray, seen: np.ndarray, ctr: np.ndarray, rots: np.ndarray, origins: np.ndarray,
                      moving: bool, mean: np.ndarray, w: np.ndarray, v_all: np.ndarray, ks: np.ndarray,
-                     n_seen: np.ndarray, frames: np.ndarray, n_pc: int, k_top: int, out: np.ndarray,
-                     res: np.ndarray) -> None:
+                     n_seen: np.ndarray, frames: np.ndarray, n_pc: int, k_top: int, residuals: bool,
+                     out: np.ndarray, res: np.ndarray) -> None:
     """:func:`predict` for ``frames``, which share one pattern of measured predictors: one QR of the
     components' rows of those predictors, then each frame's scores and target."""
     n_p = seen.shape[1]
@@ -248,33 +261,54 @@ def _predict_pattern(x: np.ndarray, seen: np.ndarray, ctr: np.ndarray, rots: np.
     tau = np.zeros(min(m_sel, k_top))
     _householder(a, tau)
     n_good = _good_columns(a, k_top)
+    if n_good == 0:
+        return
+    maps = _target_maps(a, v_all[n_pc:], n_good)
+    q_cols = _form_q(a, tau)
+    # each k's target as weights on the frame's coordinates: M[:, :k] Q[:, :k]ᵀ (3, m_sel)
+    weights = np.zeros((ks.size, 3, m_sel))
+    for q in range(ks.size):
+        for j in range(3):
+            for col in range(min(ks[q], n_good)):
+                for i in range(m_sel):
+                    weights[q, j, i] += maps[j, col] * q_cols[i, col]
     z = np.empty(m_sel)
-    y = np.empty(k_top)
-    local = np.empty(3)
+    explained = np.zeros(n_good + 1)
     for f in frames:
-        zz = 0.0
         for i in range(m_sel):
             p, j = sel[i] // 3, sel[i] % 3
             z[i] = ((x[f, p, j] - ctr[f, j]) - mean[sel[i]]) * w[sel[i]]
-            zz += z[i] * z[i]
-        _apply_qt(a, tau, z)
+        if residuals:
+            _explained(q_cols, z, n_good, explained)
         for q in range(ks.size):
             k = ks[q]
             if k > n_good:
                 continue
-            _solve_upper(a, z, k, y)
-            explained = 0.0
-            for col in range(k):
-                explained += z[col] * z[col]
-            res[q, f] = np.sqrt(max(zz - explained, 0.0) / (3 * n_seen[f]))
+            if residuals:
+                res[q, f] = np.sqrt(max(explained[0] - explained[k], 0.0) / (3 * n_seen[f]))
             for j in range(3):
                 s = 0.0
-                for col in range(k):
-                    s += v_all[n_pc + j, col] * y[col]
-                local[j] = s / w[n_pc + j] + mean[n_pc + j] + ctr[f, j]
-            for j in range(3):
-                if moving:
-                    out[q, f, j] = (rots[f, j, 0] * local[0] + rots[f, j, 1] * local[1] + rots[f, j, 2] * local[2]
-                                    + origins[f, j])
-                else:
-                    out[q, f, j] = local[j]
+                for i in range(m_sel):
+                    s += weights[q, j, i] * z[i]
+                out[q, f, j] = s / w[n_pc + j] + mean[n_pc + j] + ctr[f, j]
+            if moving:
+                x0, x1, x2 = out[q, f, 0], out[q, f, 1], out[q, f, 2]
+                for j in range(3):
+                    out[q, f, j] = rots[f, j, 0] * x0 + rots[f, j, 1] * x1 + rots[f, j, 2] * x2 + origins[f, j]
+
+
+@kernel
+def _explained(q_cols: np.ndarray, z: np.ndarray, n_good: int, explained: np.ndarray) -> None:
+    """Into ``explained``: at 0, |z|²; at k = 1..n_good, the squared norm of z's projection on the first k
+    columns of Q."""
+    total = 0.0
+    for i in range(z.size):
+        total += z[i] * z[i]
+    explained[0] = total
+    acc = 0.0
+    for col in range(n_good):
+        c = 0.0
+        for i in range(z.size):
+            c += q_cols[i, col] * z[i]
+        acc += c * c
+        explained[col + 1] = acc
