@@ -348,21 +348,15 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     d = dist.mean(axis=0)
     sigma = sigma_scale * max(_median(d), 1.0)
     w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), _PCA_MIN_WEIGHT), [1.0]]), 3)
-    coords = np.empty((len(frames), n, n_c))
-    for i, (_, pick) in enumerate(frames):
-        if pick is not None:
-            coords[i] = pca_kernels.local_coords(xt, pick.astype(np.int64)).reshape(n, n_c)
-        elif body_frame:
-            # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
-            coords[i] = (xt - xt[:, :-1].mean(axis=1, keepdims=True)).reshape(n, n_c)
-        else:
-            coords[i] = xt.reshape(n, n_c)
-    mean = coords.mean(axis=1)
-    weights = np.broadcast_to(w, mean.shape).copy()
+    picks = np.array([[-1, -1, -1] if pick is None else pick for _, pick in frames], dtype=np.int64)
+    # Gløersen & Federolf's body frame for the models without a moving frame: the coordinates less the mean
+    # trajectory of the predictors (a frame moving with the body)
+    coords = pca_kernels.training_coords(np.ascontiguousarray(xt, dtype=np.float64), picks, body_frame)
+    weights = np.repeat(w[None], len(frames), axis=0)
     if unit_std:
         sd = coords.std(axis=1)
         weights /= np.where(sd > 1e-6, sd, 1.0)
-    z = (coords - mean[:, None]) * weights[:, None]
+    mean, z = pca_kernels.centred_weighted(coords, weights)
     evals, evecs = np.linalg.eigh(np.matmul(np.swapaxes(z, 1, 2), z))
     evals, evecs = evals[:, ::-1], evecs[:, :, ::-1]              # largest first
     # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:

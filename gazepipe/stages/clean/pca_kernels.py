@@ -65,6 +65,49 @@ def local_coords(x: np.ndarray, pick: np.ndarray) -> np.ndarray:
 
 
 @kernel
+def training_coords(xt: np.ndarray, picks: np.ndarray, body_frame: bool) -> np.ndarray:
+    """Each model's coordinates of the training positions ``xt`` (n, K, 3), (len(picks), n, 3 K): in the moving
+    frame of the model's three points (a row of ``picks``), or, for a row of -1s, relative to the mean of the
+    predictors (all but the last point) with ``body_frame``, else as they are (the lab frame)."""
+    n, n_k = xt.shape[0], xt.shape[1]
+    out = np.empty((picks.shape[0], n, 3 * n_k))
+    for i in range(picks.shape[0]):
+        if picks[i, 0] >= 0:
+            out[i] = local_coords(xt, picks[i]).reshape(n, 3 * n_k)
+            continue
+        for f in range(n):
+            for j in range(3):
+                centre = 0.0
+                if body_frame:
+                    for k in range(n_k - 1):
+                        centre += xt[f, k, j]
+                    centre /= n_k - 1
+                for k in range(n_k):
+                    out[i, f, 3 * k + j] = xt[f, k, j] - centre
+    return out
+
+
+@kernel
+def centred_weighted(coords: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each model's coordinate means over the training frames (F, C) and its centred, weighted coordinates
+    ``(coords − mean) · weights`` (F, n, C), from ``coords`` (F, n, C) and ``weights`` (F, C)."""
+    n_m, n, n_c = coords.shape
+    mean = np.zeros((n_m, n_c))
+    for i in range(n_m):
+        for f in range(n):
+            for c in range(n_c):
+                mean[i, c] += coords[i, f, c]
+        for c in range(n_c):
+            mean[i, c] /= n
+    z = np.empty_like(coords)
+    for i in range(n_m):
+        for f in range(n):
+            for c in range(n_c):
+                z[i, f, c] = (coords[i, f, c] - mean[i, c]) * weights[i, c]
+    return mean, z
+
+
+@kernel
 def _pattern_keys(seen: np.ndarray) -> np.ndarray:
     """Each row of ``seen`` (n, P ≤ 62) as an integer (bit p set where predictor p is measured)."""
     keys = np.zeros(seen.shape[0], dtype=np.int64)
