@@ -182,7 +182,7 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
                     intervals: list[tuple[int, int]], partial: bool = False) -> list[np.ndarray | None]:
     """:func:`rigid_fill` over each of ``intervals`` (the same ``valid`` and ``known_m``): occlusion patterns
     and the frames where each set of mates is complete are found once for all of them."""
-    from gazepipe.stages.clean import kernels
+    from gazepipe.stages.clean import model_kernels
 
     n_t = xyz.shape[0]
     cl = np.asarray(cluster, dtype=np.int64)
@@ -190,57 +190,11 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
     if others.size < 2:
         return [None] * len(intervals)
     spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b in intervals]
-    frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
-    which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
-    pred_all = np.full((frames_all.size, 3), np.nan)
-    starts = np.array([a for a, _ in intervals], dtype=np.int64)
-    stops = np.array([b for _, b in intervals], dtype=np.int64)
-    for pattern, rows in row_patterns(valid[frames_all][:, others]):
-        if pattern.sum() < 2:
-            continue
-        sub = others[pattern]
-        # each row's reference frames: the nearest complete frames (``known_m`` and every mate of the pattern
-        # measured) before and after its interval, -1 where none; searched outward from each interval
-        jobs_here = np.unique(which[rows])
-        b_job, a_job = kernels.nearest_complete(np.asarray(known_m, dtype=np.bool_),
-                                                np.asarray(valid, dtype=np.bool_), sub, starts[jobs_here],
-                                                stops[jobs_here])
-        at = np.searchsorted(jobs_here, which[rows])
-        before, after = b_job[at], a_job[at]
-        if (before < 0).all() and (after < 0).all():
-            continue
-        refs = np.unique(np.concatenate([before, after]))
-        refs = refs[refs >= 0]
-        ref_pts = xyz[refs][:, sub]
-        two = sub.size == 2
-        if two:
-            keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > _RIGID_MIN_SPREAD_MM
-        else:
-            # the mates must span a plane: second singular value of the centred set big enough
-            sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
-            keep = sv[:, 1] > np.maximum(_RIGID_MIN_SPREAD_MM, _RIGID_MIN_PLANE * sv[:, 0])
-        usable = np.zeros(n_t + 1, dtype=bool)  # index -1 (no reference) lands on the last, False, entry
-        usable[refs[keep]] = True
-        ok0, ok1 = usable[before], usable[after]
-        frames = frames_all[rows]
-        # the prediction from every usable (row, reference) pair at once
-        pair_rows = np.concatenate([np.flatnonzero(ok0), np.flatnonzero(ok1)])
-        pair_refs = np.concatenate([before[ok0], after[ok1]])
-        if pair_rows.size == 0:
-            continue
-        apply = min_rotation_apply if two else kabsch_apply
-        pair_pred = apply(xyz[pair_refs][:, sub], xyz[frames[pair_rows]][:, sub], xyz[pair_refs, m])
-        p0 = np.full((rows.size, 3), np.nan)
-        p1 = np.full((rows.size, 3), np.nan)
-        n0 = int(ok0.sum())
-        p0[ok0], p1[ok1] = pair_pred[:n0], pair_pred[n0:]
-        pred = np.where(ok0[:, None], p0, p1)
-        blend = ok0 & ok1
-        if blend.any():
-            b0, b1 = before[blend], after[blend]
-            w = np.clip((frames[blend] - b0) / (b1 - b0), 0.0, 1.0)[:, None]
-            pred[blend] = (1.0 - w) * p0[blend] + w * p1[blend]
-        pred_all[rows] = pred
+    pred_all = model_kernels.rigid_predict(
+        np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_), np.asarray(known_m, dtype=np.bool_),
+        m, others, np.array([a for a, _ in intervals], dtype=np.int64),
+        np.array([b for _, b in intervals], dtype=np.int64), np.array([lo for lo, _ in spans], dtype=np.int64),
+        np.array([hi for _, hi in spans], dtype=np.int64), _RIGID_MIN_SPREAD_MM, _RIGID_MIN_PLANE)
     jobs = [(a, b, known_m, partial) for a, b in intervals]
     return [r[0] for r in _unpack(*_edge_correct_packed(pred_all[None], xyz[:, m], spans, jobs), jobs)]
 
@@ -342,21 +296,21 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     """One :class:`PcaModel` of marker ``m`` per entry of ``frames`` (``(local_frame, frame markers or None)``),
     all on the training positions ``xt`` (n, P + 1, 3) (predictors then target, mm) and distances ``dist`` (n, P):
     the coordinates of every model, their means, Gram matrices and eigendecompositions as one stack."""
-    from gazepipe.stages.clean import pca_kernels
+    from gazepipe.stages.clean import model_kernels
 
-    n, n_c = xt.shape[0], 3 * xt.shape[1]
+    n = xt.shape[0]
     d = dist.mean(axis=0)
     sigma = sigma_scale * max(_median(d), 1.0)
     w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), _PCA_MIN_WEIGHT), [1.0]]), 3)
     picks = np.array([[-1, -1, -1] if pick is None else pick for _, pick in frames], dtype=np.int64)
     # Gløersen & Federolf's body frame for the models without a moving frame: the coordinates less the mean
     # trajectory of the predictors (a frame moving with the body)
-    coords = pca_kernels.training_coords(np.ascontiguousarray(xt, dtype=np.float64), picks, body_frame)
+    coords = model_kernels.training_coords(np.ascontiguousarray(xt, dtype=np.float64), picks, body_frame)
     weights = np.repeat(w[None], len(frames), axis=0)
     if unit_std:
         sd = coords.std(axis=1)
         weights /= np.where(sd > 1e-6, sd, 1.0)
-    mean, z = pca_kernels.centred_weighted(coords, weights)
+    mean, z = model_kernels.centred_weighted(coords, weights)
     evals, evecs = np.linalg.eigh(np.matmul(np.swapaxes(z, 1, 2), z))
     evals, evecs = evals[:, ::-1], evecs[:, :, ::-1]              # largest first
     # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
@@ -403,7 +357,7 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     the same measured predictors share one QR factorisation, all of them done as one stack. The first ``k``
     columns of A = QR are Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading
     block (R is upper triangular), so one QR serves every ``k``."""
-    from gazepipe.stages.clean import pca_kernels
+    from gazepipe.stages.clean import model_kernels
 
     kss = [mod.ks for mod in models] if kss is None else kss
     n = frames.size
@@ -413,7 +367,7 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     outs, ress = [], []
     for mod, ks in zip(models, kss, strict=True):
         pick = np.empty(0, dtype=np.int64) if mod.frame is None else np.asarray(mod.frame, dtype=np.int64)
-        out, res = pca_kernels.predict(pts, seen, pick, bool(mod.body_frame), mod.mean, mod.w, mod.v_all,
+        out, res = model_kernels.predict(pts, seen, pick, bool(mod.body_frame), mod.mean, mod.w, mod.v_all,
                                        np.asarray(ks, dtype=np.int64), residuals)
         outs.append(out)
         ress.append(res)

@@ -1,14 +1,16 @@
-"""The PCA filler's compiled kernels: a model's moving-frame coordinates and its least-squares prediction of the
-target marker, frame by frame, where numpy's per-call cost on a gap's few frames outweighed the arithmetic.
+"""The filler's model candidates compiled: the PCA models' moving-frame coordinates and least-squares
+predictions, and the rigid-cluster fill, frame by frame, where numpy's per-call cost on a gap's few frames
+outweighed the arithmetic.
 
 Unlike :mod:`gazepipe.stages.clean.kernels`, these do not reproduce numpy's bits: a frame's coordinates in the
-moving frame are plain three-term sums (BLAS's small products before), and each occlusion pattern's fit is a
-Householder QR of the pattern's own rows with back substitution per component count (LAPACK's QR of the masked
-matrix and an explicit inverse of R before). The results are the same least-squares solutions to the rounding
-of the arithmetic (~1e-12 mm on positions of ~1e3 mm); back substitution is the better-conditioned of the two.
+moving frame are plain three-term sums (BLAS's small products before); each occlusion pattern's PCA fit is a
+Householder QR of the pattern's own rows with the target mapped through R by substitution (LAPACK's QR of the
+masked matrix and an explicit inverse of R before); a rigid fit's rotation is one 3 x 3 SVD per frame and
+reference (a batched SVD before). The results are the same solutions to the rounding of the arithmetic
+(~1e-11 mm on positions of ~1e3 mm).
 
-Compiled as :mod:`gazepipe.stages.jit` says; imported where a PCA model is first fitted. Positions are float64 mm,
-frames are rows.
+Compiled as :mod:`gazepipe.stages.jit` says; imported where a model is first fitted. Positions are float64 mm,
+frames are rows, intervals half-open.
 """
 
 from __future__ import annotations
@@ -245,7 +247,6 @@ def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: 
     """
     n, n_p = seen_in.shape
     n_pc = 3 * n_p
-    k_top = v_all.shape[1]
     seen = seen_in.copy()
     x = pts.copy()
     rots = np.zeros((n, 3, 3))
@@ -274,70 +275,93 @@ def predict(pts: np.ndarray, seen_in: np.ndarray, pick: np.ndarray, body_frame: 
         while stop < n and keys[order[stop]] == keys[order[start]]:
             stop += 1
         _predict_pattern(x, seen, ctr, rots, origins, pick.size > 0, mean, w, v_all, ks, n_seen,
-                         order[start:stop], n_pc, k_top, residuals, out, res)
+                         order[start:stop], n_pc, residuals, out, res)
         start = stop
     return out, res
 
 
 @kernel
-def _predict_pattern(x: np.ndarray, seen: np.ndarray, ctr: np.ndarray, rots: np.ndarray, origins: np.ndarray,
-                     moving: bool, mean: np.ndarray, w: np.ndarray, v_all: np.ndarray, ks: np.ndarray,
-                     n_seen: np.ndarray, frames: np.ndarray, n_pc: int, k_top: int, residuals: bool,
-                     out: np.ndarray, res: np.ndarray) -> None:
-    """:func:`predict` for ``frames``, which share one pattern of measured predictors: one QR of the
-    components' rows of those predictors, then each frame's scores and target."""
-    n_p = seen.shape[1]
-    first = frames[0]
-    sel = np.empty(n_pc, dtype=np.int64)
+def _measured_coords(seen_row: np.ndarray) -> np.ndarray:
+    """The coordinate indices (3 p + axis) of the predictors measured in a row of ``seen``."""
+    sel = np.empty(3 * seen_row.size, dtype=np.int64)
     m_sel = 0
-    for p in range(n_p):
-        if seen[first, p]:
+    for p in range(seen_row.size):
+        if seen_row[p]:
             for j in range(3):
                 sel[m_sel] = 3 * p + j
                 m_sel += 1
-    if m_sel == 0:
-        return
-    a = np.empty((m_sel, k_top))
-    for i in range(m_sel):
+    return sel[:m_sel]
+
+
+@kernel
+def _pattern_fit(v_all: np.ndarray, sel: np.ndarray, n_pc: int, ks: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+    """The least-squares machinery of one pattern of measured coordinates ``sel``: Q's columns (m_sel, ·), the
+    number of resolved components, and for each k of ``ks`` (up to that number) the target as weights on the
+    frame's weighted coordinates, ``M[:, :k] Q[:, :k]ᵀ`` (len(ks), 3, m_sel)."""
+    k_top = v_all.shape[1]
+    a = np.empty((sel.size, k_top))
+    for i in range(sel.size):
         for col in range(k_top):
             a[i, col] = v_all[sel[i], col]
-    tau = np.zeros(min(m_sel, k_top))
+    tau = np.zeros(min(sel.size, k_top))
     _householder(a, tau)
     n_good = _good_columns(a, k_top)
-    if n_good == 0:
-        return
-    maps = _target_maps(a, v_all[n_pc:], n_good)
     q_cols = _form_q(a, tau)
-    # each k's target as weights on the frame's coordinates: M[:, :k] Q[:, :k]ᵀ (3, m_sel)
-    weights = np.zeros((ks.size, 3, m_sel))
+    weights = np.zeros((ks.size, 3, sel.size))
+    if n_good == 0:
+        return q_cols, weights, 0
+    maps = _target_maps(a, v_all[n_pc:], n_good)
     for q in range(ks.size):
         for j in range(3):
             for col in range(min(ks[q], n_good)):
-                for i in range(m_sel):
+                for i in range(sel.size):
                     weights[q, j, i] += maps[j, col] * q_cols[i, col]
-    z = np.empty(m_sel)
+    return q_cols, weights, n_good
+
+
+@kernel
+def _predict_pattern(x: np.ndarray, seen: np.ndarray, ctr: np.ndarray, rots: np.ndarray, origins: np.ndarray,
+                     moving: bool, mean: np.ndarray, w: np.ndarray, v_all: np.ndarray, ks: np.ndarray,
+                     n_seen: np.ndarray, frames: np.ndarray, n_pc: int, residuals: bool,
+                     out: np.ndarray, res: np.ndarray) -> None:
+    """:func:`predict` for ``frames``, which share one pattern of measured predictors: one QR of the
+    components' rows of those predictors (:func:`_pattern_fit`), then each frame's target and residual."""
+    sel = _measured_coords(seen[frames[0]])
+    if sel.size == 0:
+        return
+    q_cols, weights, n_good = _pattern_fit(v_all, sel, n_pc, ks)
+    if n_good == 0:
+        return
+    z = np.empty(sel.size)
     explained = np.zeros(n_good + 1)
     for f in frames:
-        for i in range(m_sel):
-            p, j = sel[i] // 3, sel[i] % 3
-            z[i] = ((x[f, p, j] - ctr[f, j]) - mean[sel[i]]) * w[sel[i]]
+        for i in range(sel.size):
+            z[i] = ((x[f, sel[i] // 3, sel[i] % 3] - ctr[f, sel[i] % 3]) - mean[sel[i]]) * w[sel[i]]
         if residuals:
             _explained(q_cols, z, n_good, explained)
         for q in range(ks.size):
-            k = ks[q]
-            if k > n_good:
+            if ks[q] > n_good:
                 continue
             if residuals:
-                res[q, f] = np.sqrt(max(explained[0] - explained[k], 0.0) / (3 * n_seen[f]))
-            for j in range(3):
-                s = 0.0
-                for i in range(m_sel):
-                    s += weights[q, j, i] * z[i]
-                out[q, f, j] = s / w[n_pc + j] + mean[n_pc + j] + ctr[f, j]
+                res[q, f] = np.sqrt(max(explained[0] - explained[ks[q]], 0.0) / (3 * n_seen[f]))
+            _target(weights[q], z, w, mean, ctr[f], n_pc, out[q, f])
             if moving:
-                x0, x1, x2 = out[q, f, 0], out[q, f, 1], out[q, f, 2]
+                local = out[q, f].copy()
                 for j in range(3):
-                    out[q, f, j] = rots[f, j, 0] * x0 + rots[f, j, 1] * x1 + rots[f, j, 2] * x2 + origins[f, j]
+                    out[q, f, j] = (rots[f, j, 0] * local[0] + rots[f, j, 1] * local[1] + rots[f, j, 2] * local[2]
+                                    + origins[f, j])
+
+
+@kernel
+def _target(weights: np.ndarray, z: np.ndarray, w: np.ndarray, mean: np.ndarray, ctr: np.ndarray, n_pc: int,
+            out: np.ndarray) -> None:
+    """The target (3,) in the model's coordinates from a frame's weighted coordinates ``z``, into ``out``."""
+    for j in range(3):
+        s = 0.0
+        for i in range(z.size):
+            s += weights[j, i] * z[i]
+        out[j] = s / w[n_pc + j] + mean[n_pc + j] + ctr[j]
 
 
 @kernel
@@ -355,3 +379,191 @@ def _explained(q_cols: np.ndarray, z: np.ndarray, n_good: int, explained: np.nda
             c += q_cols[i, col] * z[i]
         acc += c * c
         explained[col + 1] = acc
+
+
+# ------------------------------------------------------------------------------------------------ rigid fill
+
+@kernel
+def _nearest_complete(known_m: np.ndarray, valid: np.ndarray, cols: np.ndarray, n_cols: int, start: int,
+                      step: int) -> int:
+    """The first frame from ``start`` in direction ``step`` (±1) where ``known_m`` is set and the first
+    ``n_cols`` markers of ``cols`` are measured; -1 when none."""
+    f = start
+    while 0 <= f < known_m.size:
+        if known_m[f]:
+            for i in range(n_cols):
+                if not valid[f, cols[i]]:
+                    break
+            else:
+                return f
+        f += step
+    return -1
+
+
+@kernel
+def _centroid(xyz: np.ndarray, f: int, cols: np.ndarray, n_cols: int) -> np.ndarray:
+    """Mean position (3,) of the first ``n_cols`` markers of ``cols`` in frame ``f``."""
+    c = np.zeros(3)
+    for i in range(n_cols):
+        for j in range(3):
+            c[j] += xyz[f, cols[i], j]
+    return c / n_cols
+
+
+@kernel
+def _spread_enough(xyz: np.ndarray, r: int, cols: np.ndarray, n_cols: int, min_spread: float,
+                   min_plane: float) -> bool:
+    """Whether the mates (the first ``n_cols`` of ``cols``) fix a rotation in reference frame ``r``: two, farther
+    apart than ``min_spread`` mm; more, spanning a plane (the centred set's second singular value above
+    ``min_spread`` and ``min_plane`` times its first)."""
+    if n_cols == 2:
+        d = 0.0
+        for j in range(3):
+            d += (xyz[r, cols[1], j] - xyz[r, cols[0], j]) ** 2
+        return np.sqrt(d) > min_spread
+    c = _centroid(xyz, r, cols, n_cols)
+    pts = np.empty((n_cols, 3))
+    for i in range(n_cols):
+        for j in range(3):
+            pts[i, j] = xyz[r, cols[i], j] - c[j]
+    sv = np.linalg.svd(pts)[1]
+    return sv[1] > max(min_spread, min_plane * sv[0])
+
+
+@kernel
+def _carry(xyz: np.ndarray, r: int, f: int, m: int, cols: np.ndarray, n_cols: int, out: np.ndarray) -> None:
+    """Where marker ``m``, fixed to the mates (the first ``n_cols`` of ``cols``) as they were in frame ``r``, is in
+    frame ``f``: the least-squares rotation of the reference mates onto frame ``f``'s (Kabsch, det +1), or for two
+    mates the smallest rotation of their axis (no twist about it), about the centroids. Into ``out`` (3,)."""
+    c_ref = _centroid(xyz, r, cols, n_cols)
+    c_cur = _centroid(xyz, f, cols, n_cols)
+    rot = np.zeros((3, 3))
+    if n_cols == 2:
+        _axis_rotation(xyz, r, f, cols, rot)
+    else:
+        h = np.zeros((3, 3))
+        for i in range(n_cols):
+            for a in range(3):
+                for b in range(3):
+                    h[a, b] += (xyz[r, cols[i], a] - c_ref[a]) * (xyz[f, cols[i], b] - c_cur[b])
+        _kabsch_rotation(h, rot)
+    for a in range(3):
+        out[a] = c_cur[a]
+        for b in range(3):
+            out[a] += rot[a, b] * (xyz[r, m, b] - c_ref[b])
+
+
+@kernel
+def _kabsch_rotation(h: np.ndarray, rot: np.ndarray) -> None:
+    """The rotation (det +1) maximising tr(R H) for the cross-covariance ``h`` (3, 3) of a reference set (rows)
+    against a current one (columns), into ``rot``: Kabsch's SVD with its sign correction."""
+    u, _, vt = np.linalg.svd(h)
+    v = vt.T.copy()
+    if _det3(v) * _det3(u) < 0.0:
+        v[:, 2] *= -1.0
+    rot[:] = v @ u.T
+
+
+@kernel
+def _det3(a: np.ndarray) -> float:
+    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+
+
+@kernel
+def _axis_rotation(xyz: np.ndarray, r: int, f: int, cols: np.ndarray, rot: np.ndarray) -> None:
+    """The smallest rotation (3, 3) taking the axis between two mates in frame ``r`` onto theirs in frame ``f``
+    (Rodrigues; the identity when the axes agree), into ``rot``."""
+    u = xyz[r, cols[1]] - xyz[r, cols[0]]
+    v = xyz[f, cols[1]] - xyz[f, cols[0]]
+    u = u / np.sqrt(np.sum(u * u))
+    v = v / np.sqrt(np.sum(v * v))
+    k = np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+    sin = np.sqrt(np.sum(k * k))
+    cos = np.sum(u * v)
+    for a in range(3):
+        rot[a, a] = 1.0
+    if sin > 1e-12:
+        k /= sin
+        ang = np.arctan2(sin, cos)
+        c, s = np.cos(ang), np.sin(ang)
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        for a in range(3):
+            for b in range(3):
+                rot[a, b] = c * (1.0 if a == b else 0.0) + s * kx[a, b] + (1.0 - c) * k[a] * k[b]
+
+
+@kernel
+def _blend(p0: np.ndarray | None, p1: np.ndarray | None, f: int, b0: int, b1: int, out: np.ndarray) -> None:
+    """Frame ``f``'s prediction into ``out`` (3,): ``p0`` (from reference ``b0``) and ``p1`` (from ``b1``)
+    blended by time between them, or the one there is (None: none from that side)."""
+    if p0 is not None and p1 is not None:
+        w = min(max((f - b0) / (b1 - b0), 0.0), 1.0)
+        for j in range(3):
+            out[j] = (1.0 - w) * p0[j] + w * p1[j]
+    elif p0 is not None:
+        out[:] = p0
+    elif p1 is not None:
+        out[:] = p1
+
+
+@kernel
+def _mates_seen(valid: np.ndarray, f: int, mates: np.ndarray, sub: np.ndarray) -> tuple[int, np.int64]:
+    """The ``mates`` measured in frame ``f`` into the start of ``sub``: their count and their set as bits."""
+    n_sub = 0
+    key = np.int64(0)
+    for j in range(mates.size):
+        if valid[f, mates[j]]:
+            sub[n_sub] = mates[j]
+            n_sub += 1
+            key |= np.int64(1) << j
+    return n_sub, key
+
+
+@kernel
+def _reference(xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray, sub: np.ndarray, n_sub: int, start: int,
+               step: int, min_spread: float, min_plane: float) -> int:
+    """The reference frame searched from ``start`` in direction ``step`` (:func:`_nearest_complete`), or -1 when
+    there is none or its mates do not fix a rotation (:func:`_spread_enough`)."""
+    r = _nearest_complete(known_m, valid, sub, n_sub, start, step)
+    if r >= 0 and not _spread_enough(xyz, r, sub, n_sub, min_spread, min_plane):
+        return -1
+    return r
+
+
+@kernel
+def rigid_predict(xyz: np.ndarray, valid: np.ndarray, known_m: np.ndarray, m: int, mates: np.ndarray,
+                  starts: np.ndarray, stops: np.ndarray, lo: np.ndarray, hi: np.ndarray, min_spread: float,
+                  min_plane: float) -> np.ndarray:
+    """The rigid-cluster prediction of marker ``m`` over each interval's span ``[lo[i], hi[i])``, the spans one
+    after the other: (Σ (hi − lo), 3) mm, NaN where a frame cannot be predicted.
+
+    In each frame the ``mates`` measured there (at least two) are fitted to their positions in two reference
+    frames: the nearest before ``starts[i]`` and at or after ``stops[i]`` where ``known_m`` is set and those
+    mates are measured, each used only where the mates fix a rotation there (:func:`_spread_enough`). The two
+    predictions are blended by time across the interval; with one usable reference, it alone."""
+    total = 0
+    for i in range(lo.size):
+        total += hi[i] - lo[i]
+    out = np.full((total, 3), np.nan)
+    sub = np.empty(mates.size, dtype=np.int64)
+    p0 = np.empty(3)
+    p1 = np.empty(3)
+    row = 0
+    for i in range(lo.size):
+        key_before = np.int64(-1)
+        b0 = b1 = -1
+        for f in range(lo[i], hi[i]):
+            n_sub, key = _mates_seen(valid, f, mates, sub)
+            if n_sub >= 2:
+                if key != key_before:       # the references of this interval for this set of mates
+                    b0 = _reference(xyz, valid, known_m, sub, n_sub, starts[i] - 1, -1, min_spread, min_plane)
+                    b1 = _reference(xyz, valid, known_m, sub, n_sub, stops[i], 1, min_spread, min_plane)
+                    key_before = key
+                if b0 >= 0:
+                    _carry(xyz, b0, f, m, sub, n_sub, p0)
+                if b1 >= 0:
+                    _carry(xyz, b1, f, m, sub, n_sub, p1)
+                _blend(p0 if b0 >= 0 else None, p1 if b1 >= 0 else None, f, b0, b1, out[row])
+            row += 1
+    return out
