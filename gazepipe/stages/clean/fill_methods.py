@@ -17,7 +17,7 @@ from typing import Literal, overload
 
 import numpy as np
 
-from gazepipe.stages.geometry import cross3, frame_from_points, kabsch, norm3
+from gazepipe.stages.geometry import cross3, norm3
 
 # scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
 # plan a run, and a run with nothing to do should not pay for scipy.interpolate and scipy.linalg
@@ -110,58 +110,6 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
     offs = np.cumsum(bounds[:, 1] - bounds[:, 0]) - (bounds[:, 1] - bounds[:, 0])
     return [out[o:o + b - a] if ok else None
             for (a, b), o, ok in zip(intervals, offs.tolist(), good.tolist(), strict=True)]
-
-
-def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
-    least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.geometry.kabsch`).
-
-    ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
-    """
-    rot = kabsch(ref, cur)
-    return (rot @ (p - ref.mean(axis=1))[..., None])[..., 0] + cur.mean(axis=1)
-
-
-def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[i]`` fixed to two reference points ``ref[i]`` goes with the two points ``cur[i]``, taking
-    the smallest rotation of the reference axis onto the current one (the twist about the axis is not
-    observable and is taken as none).
-
-    ref, cur : (n, 2, 3); p : (n, 3). Returns (n, 3): ``rot(p - c_ref) + c_cur`` by Rodrigues' formula, with
-    ``c`` the two points' midpoint.
-    """
-    c_ref = ref.mean(axis=1)
-    c_cur = cur.mean(axis=1)
-    u = ref[:, 1] - ref[:, 0]
-    u = u / norm3(u)[:, None]
-    v = cur[:, 1] - cur[:, 0]
-    v = v / norm3(v)[:, None]
-    cross = cross3(u, v)
-    sin = norm3(cross)
-    turn = sin > 1e-12
-    ang = np.where(turn, np.arctan2(sin, (u * v).sum(axis=1)), 0.0)
-    k = np.where(turn[:, None], cross / np.maximum(sin, 1e-12)[:, None], 0.0)
-    q = p - c_ref
-    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    kq = (k * q).sum(axis=1, keepdims=True)
-    return c * q + s * cross3(k, q) + (1.0 - c) * kq * k + c_cur
-
-
-def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Distinct rows of a (n, k) bool array with the row indices having each: ``[(pattern, rows), ...]``."""
-    if vis.shape[0] == 0:
-        return []
-    if (vis == vis[0]).all():
-        return [(vis[0], np.arange(vis.shape[0]))]
-    if vis.shape[1] > 62:
-        patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
-    # each row as an integer, first column most significant: the order of np.unique(vis, axis=0), far cheaper
-    code = vis.astype(np.int64) @ (1 << np.arange(vis.shape[1] - 1, -1, -1, dtype=np.int64))
-    order = np.argsort(code, kind="stable")
-    cuts = np.flatnonzero(np.diff(code[order])) + 1
-    return [(vis[rows[0]], rows) for rows in np.split(order, cuts)]
 
 
 def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
@@ -262,16 +210,6 @@ class PcaModel:
                                body_frame=body_frame, unit_std=unit_std, var_fracs=var_fracs)[0]
         self.__dict__.update(fitted.__dict__)
 
-    @staticmethod
-    def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): the Gram–Schmidt triad ``rot``
-        (n, 3, 3) of the three points (:func:`gazepipe.stages.geometry.frame_from_points`) at their centroid
-        ``c`` (n, 3); returns ``(local, rot, c)``, ``local = rotᵀ (x − c)``. (As good as a least-squares fit of
-        the three for the PCA, which only needs the frame to move with them, and several times cheaper.)"""
-        rot = frame_from_points(frame_pts[:, 0], frame_pts[:, 1], frame_pts[:, 2])
-        c = frame_pts.mean(axis=1)
-        return np.matmul(x - c[:, None], rot), rot, c  # (x − c) · rot, row vectors; matmul: 2x einsum's speed
-
     def predict(self, xyz: np.ndarray, valid: np.ndarray | None, frames: np.ndarray,
                 ks: list[int] | None = None, vis: np.ndarray | None = None, *, residuals: bool = False
                 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -354,9 +292,10 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     (:func:`fit_pca_stack`). With ``residuals`` also the RMS residual (C, n) of each frame's fit.
 
     A frame's scores are the least-squares fit of the components to the predictors measured there; frames with
-    the same measured predictors share one QR factorisation, all of them done as one stack. The first ``k``
-    columns of A = QR are Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading
-    block (R is upper triangular), so one QR serves every ``k``."""
+    the same measured predictors share one QR factorisation of those predictors' rows
+    (:func:`gazepipe.stages.clean.model_kernels.predict`). The first ``k`` columns of A = QR are
+    Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading block (R is upper
+    triangular), so one QR serves every ``k``."""
     from gazepipe.stages.clean import model_kernels
 
     kss = [mod.ks for mod in models] if kss is None else kss
