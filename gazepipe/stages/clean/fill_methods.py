@@ -17,7 +17,7 @@ from typing import Literal, overload
 
 import numpy as np
 
-from gazepipe.stages.geometry import cross3, frame_from_points, kabsch, norm3
+from gazepipe.stages.geometry import cross3, norm3
 
 # scipy is imported where it is used: the engine imports this module (through the clean stage's parameters) to
 # plan a run, and a run with nothing to do should not pay for scipy.interpolate and scipy.linalg
@@ -112,58 +112,6 @@ def interp_fill(xyz_m: np.ndarray, known_m: np.ndarray, intervals: list[tuple[in
             for (a, b), o, ok in zip(intervals, offs.tolist(), good.tolist(), strict=True)]
 
 
-def kabsch_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[i]`` fixed to the reference points ``ref[i]`` goes with the points ``cur[i]``, by the
-    least-squares rigid transform of the reference onto them (:func:`gazepipe.stages.geometry.kabsch`).
-
-    ref, cur : (n, K, 3); p : (n, 3). Returns (n, 3).
-    """
-    rot = kabsch(ref, cur)
-    return (rot @ (p - ref.mean(axis=1))[..., None])[..., 0] + cur.mean(axis=1)
-
-
-def min_rotation_apply(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Where point ``p[i]`` fixed to two reference points ``ref[i]`` goes with the two points ``cur[i]``, taking
-    the smallest rotation of the reference axis onto the current one (the twist about the axis is not
-    observable and is taken as none).
-
-    ref, cur : (n, 2, 3); p : (n, 3). Returns (n, 3): ``rot(p - c_ref) + c_cur`` by Rodrigues' formula, with
-    ``c`` the two points' midpoint.
-    """
-    c_ref = ref.mean(axis=1)
-    c_cur = cur.mean(axis=1)
-    u = ref[:, 1] - ref[:, 0]
-    u = u / norm3(u)[:, None]
-    v = cur[:, 1] - cur[:, 0]
-    v = v / norm3(v)[:, None]
-    cross = cross3(u, v)
-    sin = norm3(cross)
-    turn = sin > 1e-12
-    ang = np.where(turn, np.arctan2(sin, (u * v).sum(axis=1)), 0.0)
-    k = np.where(turn[:, None], cross / np.maximum(sin, 1e-12)[:, None], 0.0)
-    q = p - c_ref
-    c, s = np.cos(ang)[:, None], np.sin(ang)[:, None]
-    kq = (k * q).sum(axis=1, keepdims=True)
-    return c * q + s * cross3(k, q) + (1.0 - c) * kq * k + c_cur
-
-
-def row_patterns(vis: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Distinct rows of a (n, k) bool array with the row indices having each: ``[(pattern, rows), ...]``."""
-    if vis.shape[0] == 0:
-        return []
-    if (vis == vis[0]).all():
-        return [(vis[0], np.arange(vis.shape[0]))]
-    if vis.shape[1] > 62:
-        patterns, inverse = np.unique(vis, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
-        return [(p, np.flatnonzero(inverse == i)) for i, p in enumerate(patterns)]
-    # each row as an integer, first column most significant: the order of np.unique(vis, axis=0), far cheaper
-    code = vis.astype(np.int64) @ (1 << np.arange(vis.shape[1] - 1, -1, -1, dtype=np.int64))
-    order = np.argsort(code, kind="stable")
-    cuts = np.flatnonzero(np.diff(code[order])) + 1
-    return [(vis[rows[0]], rows) for rows in np.split(order, cuts)]
-
-
 def rigid_fill(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[int], known_m: np.ndarray,
                a: int, b: int, partial: bool = False) -> np.ndarray | None:
     """Rigid-cluster fill of marker ``m`` over frames ``[a, b)``.
@@ -182,7 +130,7 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
                     intervals: list[tuple[int, int]], partial: bool = False) -> list[np.ndarray | None]:
     """:func:`rigid_fill` over each of ``intervals`` (the same ``valid`` and ``known_m``): occlusion patterns
     and the frames where each set of mates is complete are found once for all of them."""
-    from gazepipe.stages.clean import kernels
+    from gazepipe.stages.clean import model_kernels
 
     n_t = xyz.shape[0]
     cl = np.asarray(cluster, dtype=np.int64)
@@ -190,57 +138,11 @@ def rigid_fill_many(xyz: np.ndarray, valid: np.ndarray, m: int, cluster: list[in
     if others.size < 2:
         return [None] * len(intervals)
     spans = [(max(a - 1, 0), min(b + 1, n_t)) for a, b in intervals]
-    frames_all = np.concatenate([np.arange(lo, hi) for lo, hi in spans])
-    which = np.repeat(np.arange(len(spans)), [hi - lo for lo, hi in spans])
-    pred_all = np.full((frames_all.size, 3), np.nan)
-    starts = np.array([a for a, _ in intervals], dtype=np.int64)
-    stops = np.array([b for _, b in intervals], dtype=np.int64)
-    for pattern, rows in row_patterns(valid[frames_all][:, others]):
-        if pattern.sum() < 2:
-            continue
-        sub = others[pattern]
-        # each row's reference frames: the nearest complete frames (``known_m`` and every mate of the pattern
-        # measured) before and after its interval, -1 where none; searched outward from each interval
-        jobs_here = np.unique(which[rows])
-        b_job, a_job = kernels.nearest_complete(np.asarray(known_m, dtype=np.bool_),
-                                                np.asarray(valid, dtype=np.bool_), sub, starts[jobs_here],
-                                                stops[jobs_here])
-        at = np.searchsorted(jobs_here, which[rows])
-        before, after = b_job[at], a_job[at]
-        if (before < 0).all() and (after < 0).all():
-            continue
-        refs = np.unique(np.concatenate([before, after]))
-        refs = refs[refs >= 0]
-        ref_pts = xyz[refs][:, sub]
-        two = sub.size == 2
-        if two:
-            keep = norm3(ref_pts[:, 1] - ref_pts[:, 0]) > _RIGID_MIN_SPREAD_MM
-        else:
-            # the mates must span a plane: second singular value of the centred set big enough
-            sv = np.linalg.svd(ref_pts - ref_pts.mean(axis=1, keepdims=True), compute_uv=False)
-            keep = sv[:, 1] > np.maximum(_RIGID_MIN_SPREAD_MM, _RIGID_MIN_PLANE * sv[:, 0])
-        usable = np.zeros(n_t + 1, dtype=bool)  # index -1 (no reference) lands on the last, False, entry
-        usable[refs[keep]] = True
-        ok0, ok1 = usable[before], usable[after]
-        frames = frames_all[rows]
-        # the prediction from every usable (row, reference) pair at once
-        pair_rows = np.concatenate([np.flatnonzero(ok0), np.flatnonzero(ok1)])
-        pair_refs = np.concatenate([before[ok0], after[ok1]])
-        if pair_rows.size == 0:
-            continue
-        apply = min_rotation_apply if two else kabsch_apply
-        pair_pred = apply(xyz[pair_refs][:, sub], xyz[frames[pair_rows]][:, sub], xyz[pair_refs, m])
-        p0 = np.full((rows.size, 3), np.nan)
-        p1 = np.full((rows.size, 3), np.nan)
-        n0 = int(ok0.sum())
-        p0[ok0], p1[ok1] = pair_pred[:n0], pair_pred[n0:]
-        pred = np.where(ok0[:, None], p0, p1)
-        blend = ok0 & ok1
-        if blend.any():
-            b0, b1 = before[blend], after[blend]
-            w = np.clip((frames[blend] - b0) / (b1 - b0), 0.0, 1.0)[:, None]
-            pred[blend] = (1.0 - w) * p0[blend] + w * p1[blend]
-        pred_all[rows] = pred
+    pred_all = model_kernels.rigid_predict(
+        np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_), np.asarray(known_m, dtype=np.bool_),
+        m, others, np.array([a for a, _ in intervals], dtype=np.int64),
+        np.array([b for _, b in intervals], dtype=np.int64), np.array([lo for lo, _ in spans], dtype=np.int64),
+        np.array([hi for _, hi in spans], dtype=np.int64), _RIGID_MIN_SPREAD_MM, _RIGID_MIN_PLANE)
     jobs = [(a, b, known_m, partial) for a, b in intervals]
     return [r[0] for r in _unpack(*_edge_correct_packed(pred_all[None], xyz[:, m], spans, jobs), jobs)]
 
@@ -308,16 +210,6 @@ class PcaModel:
                                body_frame=body_frame, unit_std=unit_std, var_fracs=var_fracs)[0]
         self.__dict__.update(fitted.__dict__)
 
-    @staticmethod
-    def _to_local(x: np.ndarray, frame_pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points ``x`` (n, K, 3) in the moving frame of ``frame_pts`` (n, 3, 3): the Gram–Schmidt triad ``rot``
-        (n, 3, 3) of the three points (:func:`gazepipe.stages.geometry.frame_from_points`) at their centroid
-        ``c`` (n, 3); returns ``(local, rot, c)``, ``local = rotᵀ (x − c)``. (As good as a least-squares fit of
-        the three for the PCA, which only needs the frame to move with them, and several times cheaper.)"""
-        rot = frame_from_points(frame_pts[:, 0], frame_pts[:, 1], frame_pts[:, 2])
-        c = frame_pts.mean(axis=1)
-        return np.matmul(x - c[:, None], rot), rot, c  # (x − c) · rot, row vectors; matmul: 2x einsum's speed
-
     def predict(self, xyz: np.ndarray, valid: np.ndarray | None, frames: np.ndarray,
                 ks: list[int] | None = None, vis: np.ndarray | None = None, *, residuals: bool = False
                 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
@@ -342,25 +234,21 @@ def fit_pca_stack(m: int, predictors: np.ndarray, xt: np.ndarray, dist: np.ndarr
     """One :class:`PcaModel` of marker ``m`` per entry of ``frames`` (``(local_frame, frame markers or None)``),
     all on the training positions ``xt`` (n, P + 1, 3) (predictors then target, mm) and distances ``dist`` (n, P):
     the coordinates of every model, their means, Gram matrices and eigendecompositions as one stack."""
-    n, n_c = xt.shape[0], 3 * xt.shape[1]
+    from gazepipe.stages.clean import model_kernels
+
+    n = xt.shape[0]
     d = dist.mean(axis=0)
     sigma = sigma_scale * max(_median(d), 1.0)
     w = np.repeat(np.concatenate([np.maximum(np.exp(-(d ** 2) / (2.0 * sigma ** 2)), _PCA_MIN_WEIGHT), [1.0]]), 3)
-    coords = np.empty((len(frames), n, n_c))
-    for i, (_, pick) in enumerate(frames):
-        if pick is not None:
-            coords[i] = PcaModel._to_local(xt, xt[:, pick])[0].reshape(n, n_c)
-        elif body_frame:
-            # Gløersen & Federolf: subtract the mean trajectory of the predictors (a frame moving with the body)
-            coords[i] = (xt - xt[:, :-1].mean(axis=1, keepdims=True)).reshape(n, n_c)
-        else:
-            coords[i] = xt.reshape(n, n_c)
-    mean = coords.mean(axis=1)
-    weights = np.broadcast_to(w, mean.shape).copy()
+    picks = np.array([[-1, -1, -1] if pick is None else pick for _, pick in frames], dtype=np.int64)
+    # Gløersen & Federolf's body frame for the models without a moving frame: the coordinates less the mean
+    # trajectory of the predictors (a frame moving with the body)
+    coords = model_kernels.training_coords(np.ascontiguousarray(xt, dtype=np.float64), picks, body_frame)
+    weights = np.repeat(w[None], len(frames), axis=0)
     if unit_std:
         sd = coords.std(axis=1)
         weights /= np.where(sd > 1e-6, sd, 1.0)
-    z = (coords - mean[:, None]) * weights[:, None]
+    mean, z = model_kernels.centred_weighted(coords, weights)
     evals, evecs = np.linalg.eigh(np.matmul(np.swapaxes(z, 1, 2), z))
     evals, evecs = evals[:, ::-1], evecs[:, :, ::-1]              # largest first
     # eigenvalues at the rounding level of the data (a rigidly translating shape in the body frame) are zero:
@@ -404,68 +292,22 @@ def predict_stack(models: list[PcaModel], xyz: np.ndarray, frames: np.ndarray, v
     (:func:`fit_pca_stack`). With ``residuals`` also the RMS residual (C, n) of each frame's fit.
 
     A frame's scores are the least-squares fit of the components to the predictors measured there; frames with
-    the same measured predictors share one QR factorisation, all of them done as one stack. The first ``k``
-    columns of A = QR are Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading
-    block (R is upper triangular), so one QR serves every ``k``."""
+    the same measured predictors share one QR factorisation of those predictors' rows
+    (:func:`gazepipe.stages.clean.model_kernels.predict`). The first ``k`` columns of A = QR are
+    Q[:, :k] R[:k, :k], and the leading k × k block of R⁻¹ is the inverse of R's leading block (R is upper
+    triangular), so one QR serves every ``k``."""
+    from gazepipe.stages.clean import model_kernels
+
     kss = [mod.ks for mod in models] if kss is None else kss
     n = frames.size
     preds = models[0].predictors
-    n_p = preds.size
-    n_pc = 3 * n_p
-    pts = _flat(xyz)[frames][:, _cols3(preds)].reshape(n, n_p, 3)
-    seen_all = vis[:, preds]
+    pts = np.ascontiguousarray(_flat(xyz)[frames][:, _cols3(preds)].reshape(n, preds.size, 3), dtype=np.float64)
+    seen = np.ascontiguousarray(vis[:, preds])
     outs, ress = [], []
     for mod, ks in zip(models, kss, strict=True):
-        seen = seen_all
-        x = pts
-        if mod.frame is not None:
-            # into the moving frame; frames without all three frame markers cannot be predicted (they get a
-            # stand-in triangle)
-            seen = seen & seen[:, mod.frame].all(axis=1, keepdims=True)
-            fp = np.where(seen[:, mod.frame, None], pts[:, mod.frame], np.eye(3) * 100.0)
-            x, rot, origin = mod._to_local(pts, fp)
-        n_seen = seen.sum(axis=1)
-        ctr = np.zeros((n, 3))
-        if mod.body_frame:
-            # the frame's mean trajectory from the predictors measured, shifted by the training mean offset
-            # between the measured predictors' centroid and all predictors' centroid
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ctr = (np.where(seen[..., None], x, 0.0).sum(axis=1)
-                       - seen @ mod.mean[:n_pc].reshape(n_p, 3)) / n_seen[:, None]
-            x = x - ctr[:, None]
-        groups = row_patterns(seen)
-        patterns = np.array([g for g, _ in groups], dtype=np.float64).reshape(len(groups), n_p)
-        which = np.zeros(n, dtype=np.int64)
-        for i, (_, members) in enumerate(groups):
-            which[members] = i
-        rows = np.repeat(patterns, 3, axis=1)                             # (patterns, 3 P)
-        # NaN where a predictor is not measured: np.where, not a product with the mask
-        z = np.where(rows[which] > 0, (x.reshape(n, n_pc) - mod.mean[:n_pc]) * mod.w[:n_pc], 0.0)
-        q, r = np.linalg.qr(mod.v_all[None, :n_pc] * rows[:, :, None])
-        k_top = r.shape[-1]
-        diag = np.abs(np.diagonal(r, axis1=1, axis2=2))
-        good = diag > 1e-8 * np.maximum(diag.max(axis=1, keepdims=True), 1e-300)
-        n_good = np.where(good.all(axis=1), k_top, np.argmin(good, axis=1))
-        inside = np.arange(k_top) < n_good[:, None]
-        rinv = np.linalg.inv(np.where(inside[:, :, None] & inside[:, None, :], r, np.eye(k_top)))
-        # every pattern's Qᵀ z for every frame (few patterns: cheaper than gathering Q per frame), then each
-        # frame's own
-        cols = np.arange(n)
-        qz = np.matmul(np.swapaxes(q, 1, 2), z.T)[which, :, cols]      # (n, k_top)
-        target = mod.v_all[n_pc:]
-        out = np.full((len(ks), n, 3), np.nan)
-        res = np.full((len(ks), n), np.nan)
-        for i, k in enumerate(ks):
-            ok = n_good[which] >= k
-            maps = target[:, :k] @ rinv[:, :k, :k]                    # (patterns, 3, k)
-            local = np.matmul(maps, qz[:, :k].T)[which, :, cols][ok]    # (frames predicted, 3)
-            out[i, ok] = local / mod.w[n_pc:] + mod.mean[n_pc:] + ctr[ok]
-            if residuals:
-                # |z|² minus the part the first k orthonormal columns explain
-                left = np.square(z[ok]).sum(axis=1) - np.square(qz[ok, :k]).sum(axis=1)
-                res[i, ok] = np.sqrt(np.maximum(left, 0.0) / (3 * n_seen[ok]))
-        if mod.frame is not None:
-            out = (rot @ out[..., None])[..., 0] + origin  # rot · local, per frame
+        pick = np.empty(0, dtype=np.int64) if mod.frame is None else np.asarray(mod.frame, dtype=np.int64)
+        out, res = model_kernels.predict(pts, seen, pick, bool(mod.body_frame), mod.mean, mod.w, mod.v_all,
+                                       np.asarray(ks, dtype=np.int64), residuals)
         outs.append(out)
         ress.append(res)
     out_all = np.concatenate(outs)

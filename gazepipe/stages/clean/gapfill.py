@@ -854,8 +854,6 @@ _NOISE_ERROR_CV = 0.42
 #: most used (the relative standard error of a MAD from n samples is about 1.1 / √n: 2 % from 4,000)
 _NOISE_MIN_FRAMES = 20
 _NOISE_SAMPLES = 4000
-#: markers whose take statistics are computed in one call (when measured throughout)
-_STATS_MARKERS = 16
 
 
 def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -869,34 +867,18 @@ def interpolation_noise_mm(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
     its anchors about σ √(2/3) on average, so the error is a 3-D normal of σ √(5/3) per axis, whose mean length
     is 2 √(2/π) σ √(5/3) ≈ 2.06 σ.
     """
+    from gazepipe.stages.clean import kernels
+
     n_t, n_m = valid.shape
     if n_t < 4:
         return np.full(n_m, np.nan)
     # a few thousand differences per marker fix its MAD to a percent or so: evenly spaced frames, so a long take
     # costs no more than a short one
     step = max(1, (n_t - 3) // _NOISE_SAMPLES)
-    ok = np.logical_and.reduce([valid[i:n_t - 3 + i:step] for i in range(4)])
-    enough = ok.sum(axis=0) >= _NOISE_MIN_FRAMES
-
-    def d3(cols: np.ndarray | int | np.integer) -> np.ndarray:
-        lag = [xyz[i:n_t - 3 + i:step, cols] for i in range(4)]
-        return lag[3] - 3.0 * lag[2] + 3.0 * lag[1] - lag[0]
-
-    mad = np.full((n_m, 3), np.nan)
-    # as in step_limits: markers measured throughout a few at a time, the others one at a time
-    dense = np.flatnonzero(enough & ok.all(axis=0))
-    for lo in range(0, dense.size, _STATS_MARKERS):
-        cols = dense[lo:lo + _STATS_MARKERS]
-        mad[cols] = _mad(d3(cols))
-    for m in np.flatnonzero(enough & ~ok.all(axis=0)):
-        mad[m] = _mad(d3(m)[ok[:, m]])
+    mad = 1.4826 * kernels.third_difference_mads(np.asarray(xyz, dtype=np.float64),
+                                                 np.asarray(valid, dtype=np.bool_), step, _NOISE_MIN_FRAMES)
     sigma = np.sqrt(np.mean(np.square(mad), axis=1) / 20.0)
     return 2.0 * np.sqrt(2.0 / np.pi) * np.sqrt(5.0 / 3.0) * sigma
-
-
-def _mad(v: np.ndarray) -> np.ndarray:
-    """Median absolute deviation over the first axis, scaled to a normal's standard deviation."""
-    return 1.4826 * np.median(np.abs(v - np.median(v, axis=0)), axis=0)
 
 
 def _interpolation_suffices(src: np.ndarray, valid: np.ndarray, m: int, s: int, e: int, hid: Hidden,
@@ -1223,42 +1205,24 @@ def step_limits(xyz: np.ndarray, valid: np.ndarray, factor: float = _STEP_FACTOR
     nothing in the capture was seen to move (a linear fill across a marker that changed identity in the gap:
     42.7 mm per frame where the file's fastest measured step was 29.7 mm). ``valid`` should leave out the
     samples taken as spikes: a ghost's jump is not a speed the body reached."""
+    from gazepipe.stages.clean import kernels
+
     n_m = valid.shape[1]
     if valid.shape[0] < 2:
         return np.full(n_m, np.inf)
-    both = valid[1:] & valid[:-1]
-    enough = both.sum(axis=0) >= 10
-    if not enough.any():
+    count, p99, top = kernels.step_statistics(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_))
+    if not (count >= 10).any():
         return np.full(n_m, np.inf)
-    p99 = np.full(n_m, np.nan)
-    top = np.zeros(n_m)
-    # markers measured throughout, a few at a time (one call for many); the others one at a time (their own
-    # measured steps): either way the memory of a few trajectories, not of the take
-    dense = np.flatnonzero(both.all(axis=0))
-    for lo in range(0, dense.size, _STATS_MARKERS):
-        cols = dense[lo:lo + _STATS_MARKERS]
-        steps = norm3(xyz[1:, cols] - xyz[:-1, cols])
-        p99[cols] = np.percentile(steps, 99, axis=0)
-        top[cols] = steps.max(axis=0)
-    for m in np.flatnonzero(both.any(axis=0) & ~both.all(axis=0)):
-        steps = norm3(xyz[1:, m] - xyz[:-1, m])[both[:, m]]
-        top[m] = steps.max()
-        if enough[m]:
-            p99[m] = np.percentile(steps, 99)
     return np.fmin(np.fmax(factor * p99, factor_any * np.nanmax(p99)), top.max())
 
 
 def fastest_step(xyz: np.ndarray, valid: np.ndarray) -> float:
     """The fastest step (mm per frame) between consecutive measured frames of any marker of ``xyz`` (T, M, 3),
     ``valid`` (T, M); 0 when nothing was measured twice in a row."""
-    both = valid[1:] & valid[:-1]
-    cols = np.flatnonzero(both.any(axis=0))
-    top = 0.0
-    for lo in range(0, cols.size, _STATS_MARKERS):
-        c = cols[lo:lo + _STATS_MARKERS]
-        steps = norm3(xyz[1:, c] - xyz[:-1, c])
-        top = max(top, float(np.max(np.where(both[:, c], steps, 0.0))))
-    return top
+    from gazepipe.stages.clean import kernels
+
+    top = kernels.step_statistics(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_))[2]
+    return float(top.max()) if top.size else 0.0
 
 
 def _plausible_fill(xyz_m: np.ndarray, s: int, e: int, preds: dict[str, np.ndarray], weights: dict[str, float],

@@ -522,3 +522,60 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
             median[m, j] = mid
             spread[m, j] = 1.4826 * _median_of(buf, n)
     return median, spread
+
+
+# ------------------------------------------------------------------------------------------- take statistics
+
+@kernel
+def step_statistics(xyz: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each marker's steps (mm) between consecutive frames where ``valid`` (T, M) holds in both: their count
+    (M,), their 99th percentile (M,; numpy's linear method; NaN with fewer than 10) and their largest (M,; 0 with
+    none). A step is ``sqrt((dx² + dy²) + dz²)``, as :func:`gazepipe.stages.geometry.norm3`."""
+    n_t, n_m = valid.shape
+    count = np.zeros(n_m, dtype=np.int64)
+    p99 = np.full(n_m, np.nan)
+    top = np.zeros(n_m)
+    steps = np.empty(max(n_t - 1, 0))
+    for m in range(n_m):
+        n = 0
+        for f in range(n_t - 1):
+            if valid[f, m] and valid[f + 1, m]:
+                dx = xyz[f + 1, m, 0] - xyz[f, m, 0]
+                dy = xyz[f + 1, m, 1] - xyz[f, m, 1]
+                dz = xyz[f + 1, m, 2] - xyz[f, m, 2]
+                steps[n] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                n += 1
+        count[m] = n
+        if n:
+            top[m] = np.max(steps[:n])
+        if n >= 10:
+            p99[m] = _quantile_of(steps, n, 0.99)
+    return count, p99, top
+
+
+@kernel
+def third_difference_mads(xyz: np.ndarray, valid: np.ndarray, step: int, min_frames: int) -> np.ndarray:
+    """Each marker's median absolute deviation (unscaled, mm) per axis, (M, 3), of its third differences
+    ``((x₃ − 3 x₂) + 3 x₁) − x₀`` over the runs of four measured frames starting at frames ``0, step, 2 step, …
+    < T − 3``; NaN where fewer than ``min_frames`` runs. Medians as numpy's."""
+    n_t, n_m = valid.shape
+    out = np.full((n_m, 3), np.nan)
+    if n_t < 4:
+        return out
+    n_f = (n_t - 3 + step - 1) // step
+    d = np.empty(n_f)
+    for m in range(n_m):
+        for c in range(3):
+            n = 0
+            for i in range(n_f):
+                f = i * step
+                if valid[f, m] and valid[f + 1, m] and valid[f + 2, m] and valid[f + 3, m]:
+                    d[n] = ((xyz[f + 3, m, c] - 3.0 * xyz[f + 2, m, c]) + 3.0 * xyz[f + 1, m, c]) - xyz[f, m, c]
+                    n += 1
+            if n < min_frames:
+                break
+            med = _median_of(d, n)
+            for i in range(n):
+                d[i] = abs(d[i] - med)
+            out[m, c] = _median_of(d, n)
+    return out

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from gazepipe.model import FILL_CODES
 from gazepipe.stages.clean.gapfill import fill_gaps, find_gaps, find_rigid_clusters
 from gazepipe.stages.clean.spikes import remove_spikes
+from gazepipe.stages.geometry import frame_from_points
 from tests.helpers import TESTS
 from tests.helpers.captures import NOISE, RATE, body, hide
 
@@ -440,11 +441,24 @@ def test_pchip_eval_is_scipys_pchip_bit_for_bit():
             assert np.array_equal(pchip_eval(x, y, t), PchipInterpolator(x, y, axis=0)(t))
 
 
+def _carried(ref: np.ndarray, cur: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """The rigid fill's carry of point ``p`` fixed to mates ``ref`` (K, 3) onto each frame's mates ``cur``
+    (n, K, 3), through the compiled kernel: (n, 3)."""
+    from gazepipe.stages.clean.model_kernels import _carry
+
+    n, k = cur.shape[:2]
+    xyz = np.full((n + 1, k + 1, 3), np.nan)
+    xyz[0, :k], xyz[0, k] = ref, p                      # the reference frame, the point measured there
+    xyz[1:, :k] = cur
+    out = np.empty((n, 3))
+    for f in range(n):
+        _carry(xyz, 0, f + 1, k, np.arange(k), k, out[f])
+    return out
+
+
 def test_two_mate_rotation_moves_a_rigid_point():
     """With two mates the fill rotates the reference the least way onto each frame's axis: a point on a body
     turning about an axis perpendicular to the mates' axis, through their midpoint, is recovered exactly."""
-    from gazepipe.stages.clean.fill_methods import min_rotation_apply
-
     ref = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])
     p = np.array([50.0, 0.0, 80.0])  # above the midpoint, in the plane the rotation keeps
     ang = np.linspace(-2.5, 2.5, 41)
@@ -452,9 +466,25 @@ def test_two_mate_rotation_moves_a_rigid_point():
     shift = np.array([10.0, -20.0, 30.0])
     cur = np.stack([rot.apply(r - ref.mean(axis=0)) for r in ref], axis=1) + ref.mean(axis=0) + shift
     want = rot.apply(p - ref.mean(axis=0)) + ref.mean(axis=0) + shift
-    n = ang.size
-    got = min_rotation_apply(np.repeat(ref[None], n, axis=0), cur, np.repeat(p[None], n, axis=0))
-    assert np.abs(got - want).max() < 1e-9
+    assert np.abs(_carried(ref, cur, p) - want).max() < 1e-9
+
+
+def test_three_mates_carry_a_rigid_point_through_any_rotation():
+    """With three or more mates the carry is the least-squares rigid motion of the mates (det +1, never a
+    reflection): a point of a rigid body turned through random rotations, near half turns included, lands where
+    the body took it; with noisy mates it lands where the rigid fit of those mates (scipy's) takes it."""
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(-80.0, 80.0, (4, 3))
+    p = np.array([20.0, -30.0, 110.0])
+    rot = Rotation.random(200, random_state=4) * Rotation.from_rotvec([[0.0, 0.0, 0.0]] * 100
+                                                                       + [[0.0, 0.0, np.pi - 1e-6]] * 100)
+    shift = rng.normal(0.0, 500.0, (200, 3))
+    cur = np.stack([rot.apply(r) for r in ref], axis=1) + shift[:, None]
+    assert np.abs(_carried(ref, cur, p) - (rot.apply(p) + shift)).max() < 1e-9
+    noisy = cur + rng.normal(0.0, 2.0, cur.shape)
+    fits = [Rotation.align_vectors(c - c.mean(axis=0), ref - ref.mean(axis=0))[0] for c in noisy]
+    want = np.array([r.apply(p - ref.mean(axis=0)) for r in fits]) + noisy.mean(axis=1)
+    assert np.abs(_carried(ref, noisy, p) - want).max() < 1e-9
 
 
 def test_pca_local_frame_follows_a_turning_body_part():
@@ -584,7 +614,8 @@ def test_stacked_prediction_is_each_frames_least_squares_on_its_measured_predict
         pts = measured[f, preds]
         rot = origin = None
         if model.frame is not None:
-            rot, origin = model._to_local(pts[None], pts[None][:, model.frame])[1:]
+            fp = pts[model.frame]
+            rot, origin = frame_from_points(fp[None, 0], fp[None, 1], fp[None, 2]), fp.mean(axis=0)[None]
             pts = (pts - origin) @ rot[0]
         ctr = np.zeros(3)
         if model.body_frame:
