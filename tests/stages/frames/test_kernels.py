@@ -118,3 +118,18 @@ def test_adjugate4_is_det_times_inverse():
         det = _adjugate4(a, adj)
         assert det == pytest.approx(np.linalg.det(a), rel=1e-12)
         assert np.allclose(adj, np.linalg.det(a) * np.linalg.inv(a), rtol=1e-10, atol=1e-12)
+
+
+def test_wahba_rotations_are_the_svd_solution():
+    """Horn's closed form on a general matrix M gives the SVD's rotation U·diag(1, 1, det UVᵀ)·Vᵀ maximising
+    tr(RᵀM): from two markers and a weak prior (nearly rank one: the Jacobi side) to full clusters."""
+    from gazepipe.stages.frames.kernels import wahba_rotations
+
+    rng = np.random.default_rng(9)
+    prior = Rotation.random(500, random_state=4).as_matrix()
+    for k in (2, 3, 5):
+        m = rng.normal(size=(500, 3, k)) @ rng.normal(size=(500, k, 3)) * 50.0 + 1e-3 * prior
+        u, _, vt = np.linalg.svd(m)
+        d = np.ones((len(m), 3))
+        d[:, 2] = np.sign(np.linalg.det(u @ vt))
+        assert np.abs(wahba_rotations(m) - (u * d[:, None, :]) @ vt).max() < 1e-11
