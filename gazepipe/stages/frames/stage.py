@@ -503,8 +503,8 @@ def compute_frames(markers: Markers, markerset: MarkerSet,  # noqa: C901
         fit_unc[:, j] = unc
         # the markers measured where the rotation is not known from them: a fill across is turned to meet them
         seen = seg_meas & ~flip[:, None] & has_char[:, None]
-        seg_markers[j] = SegmentMarkers(body=ref - ref.mean(axis=0),
-                                        pos=np.einsum("tij,tkj->tki", cmat_t, np.where(seen[..., None], pts, np.nan)))
+        seg_markers[j] = SegmentMarkers(body=ref - ref.mean(axis=0),      # (Cᵀ·p as rows: p·C, a batched matmul)
+                                        pos=np.where(seen[..., None], pts, np.nan) @ cmat_t.transpose(0, 2, 1))
 
     rot_filled = refuted = np.zeros((n, ns), dtype=bool)
     if params.max_fill_error_deg > 0:
