@@ -357,21 +357,31 @@ def _horn_rotation(s: np.ndarray, e0: float, out: np.ndarray, nmat: np.ndarray, 
 
 
 @kernel
-def horn_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Least-squares rotations (N, 3, 3) with b[n] ≈ R[n] · a[n]: Horn's closed form (:func:`_horn_rotation`).
+def horn_rotations(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotations (N, 3, 3) with b[n] − centroid ≈ R[n] · a[n] (Horn's closed form,
+    :func:`_horn_rotation`), and the centroids (N, 3).
 
     ``a`` (N, K, 3) or (1, K, 3) shared: the reference clusters about their centroids; ``b`` (N, K, 3) the observed
-    ones about theirs. The same rotation as Kabsch's SVD with its sign correction (det R = +1), to rounding."""
+    ones, each centred here on its centroid (the markers summed in order, over K: numpy's ``mean(axis=1)``).
+    The same rotation as Kabsch's SVD with its sign correction (det R = +1), to rounding."""
     n, k = b.shape[0], b.shape[1]
     out = np.empty((n, 3, 3))
+    centre = np.empty((n, 3))
     s = np.empty((3, 3))
     nmat, work, adj = np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4))
     for f in range(n):
         ar = a[0] if a.shape[0] == 1 else a[f]
+        cx, cy, cz = b[f, 0, 0], b[f, 0, 1], b[f, 0, 2]
+        for i in range(1, k):
+            cx += b[f, i, 0]
+            cy += b[f, i, 1]
+            cz += b[f, i, 2]
+        cx, cy, cz = cx / k, cy / k, cz / k
+        centre[f, 0], centre[f, 1], centre[f, 2] = cx, cy, cz
         sxx = sxy = sxz = syx = syy = syz = szx = szy = szz = size = 0.0
         for i in range(k):
             ax, ay, az = ar[i, 0], ar[i, 1], ar[i, 2]
-            bx, by, bz = b[f, i, 0], b[f, i, 1], b[f, i, 2]
+            bx, by, bz = b[f, i, 0] - cx, b[f, i, 1] - cy, b[f, i, 2] - cz
             sxx += ax * bx
             sxy += ax * by
             sxz += ax * bz
@@ -386,7 +396,7 @@ def horn_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         s[1, 0], s[1, 1], s[1, 2] = syx, syy, syz
         s[2, 0], s[2, 1], s[2, 2] = szx, szy, szz
         _horn_rotation(s, 0.5 * size, out[f], nmat, work, adj)
-    return out
+    return out, centre
 
 
 @kernel
