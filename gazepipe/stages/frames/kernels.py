@@ -431,6 +431,10 @@ def from_matrix(m: np.ndarray) -> np.ndarray:
     return q
 
 
+#: a quaternion's conjugate (the inverse rotation): ``x, y, z`` negated
+_CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])
+
+
 class Rot:
     """A stack of rotations as unit quaternions ``x, y, z, w`` (n, 4): the part of scipy's ``Rotation`` the frames
     stage uses (indexing, ``*``, ``inv``, ``magnitude``, ``as_rotvec``, ``as_matrix``, ``mean``), the same bits.
@@ -467,9 +471,7 @@ class Rot:
         return Rot(compose(self.q, other.q), single=self.single and other.single)
 
     def inv(self) -> Rot:
-        q = self.q.copy()
-        q[:, :3] *= -1
-        return Rot(q, single=self.single)
+        return Rot(self.q * _CONJUGATE, single=self.single)
 
     def magnitude(self) -> Any:
         out = magnitude(self.q)

@@ -146,9 +146,8 @@ def _segment_view(gmat: np.ndarray, ok_rot: np.ndarray, parents: np.ndarray, has
     def rot(mats: np.ndarray, ok: np.ndarray):
         return Rot.from_matrix(np.where(ok[:, None, None], mats, np.eye(3)))
 
-    def rel(mats: np.ndarray, ok: np.ndarray):
-        return rot(mats if p < 0 else np.swapaxes(gmat[:, p], 1, 2) @ np.where(ok[:, None, None], mats, np.eye(3)),
-                   ok)
+    def rel(mats: np.ndarray, ok: np.ndarray):       # (rows not ``ok`` become the identity in ``rot``)
+        return rot(mats if p < 0 else np.swapaxes(gmat[:, p], 1, 2) @ mats, ok)
 
     local = rel(gmat[:, j], known)
     trust = known & (unc <= CHECK_FIT_DEG)
