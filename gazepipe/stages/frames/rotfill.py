@@ -105,16 +105,15 @@ def _model_across(local, span, usable: np.ndarray, start: int, stop: int, window
 def constrain(glob: np.ndarray, body: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """Rotations (F, 3, 3) closest to ``glob`` (F, 3, 3) that take the markers' ``body`` positions (k, 3), k ≥ 2,
     to their measured ``pos`` (F, k, 3) as well as a rotation can: Wahba's problem on the markers' positions
-    about their centroid, with the fill as a weak prior (weight :data:`_PRIOR_WEIGHT` of the markers' spread).
+    about their centroid, with the fill as a weak prior (weight :data:`_PRIOR_WEIGHT` of the markers' spread),
+    solved by Horn's closed form (:func:`gazepipe.stages.frames.kernels.wahba_rotations`).
     Two markers fix the rotation but for a turn about the line through them, which the fill keeps."""
+    from gazepipe.stages.frames.kernels import wahba_rotations
+
     c = body - body.mean(axis=0)
     b = pos - pos.mean(axis=1, keepdims=True)
     prior = _PRIOR_WEIGHT * float((c * c).sum())
-    m = np.einsum("fki,kj->fij", b, c) + prior * glob
-    u, _, vt = np.linalg.svd(m)
-    d = np.ones((len(m), 3))
-    d[:, 2] = np.sign(np.linalg.det(u @ vt))
-    return (u * d[:, None, :]) @ vt
+    return wahba_rotations(np.einsum("fki,kj->fij", b, c) + prior * glob)
 
 
 @dataclass
@@ -147,9 +146,8 @@ def _segment_view(gmat: np.ndarray, ok_rot: np.ndarray, parents: np.ndarray, has
     def rot(mats: np.ndarray, ok: np.ndarray):
         return Rot.from_matrix(np.where(ok[:, None, None], mats, np.eye(3)))
 
-    def rel(mats: np.ndarray, ok: np.ndarray):
-        return rot(mats if p < 0 else np.swapaxes(gmat[:, p], 1, 2) @ np.where(ok[:, None, None], mats, np.eye(3)),
-                   ok)
+    def rel(mats: np.ndarray, ok: np.ndarray):       # (rows not ``ok`` become the identity in ``rot``)
+        return rot(mats if p < 0 else np.swapaxes(gmat[:, p], 1, 2) @ mats, ok)
 
     local = rel(gmat[:, j], known)
     trust = known & (unc <= CHECK_FIT_DEG)

@@ -91,3 +91,45 @@ def test_horn_rigid_fit_is_kabschs_rotation():
         fit = rigid_fit(ref, noisy)
         assert np.abs(fit - kabsch(ref, noisy)).max() < 1e-12
         assert np.abs(np.linalg.det(fit) - 1.0).max() < 1e-12
+
+
+def test_horn_rigid_fit_keeps_its_digits_on_nearly_collinear_clusters():
+    """Where the closed form's eigenvalue is not well apart from the next (markers nearly in a line), the fit
+    still recovers the true rotation to what the cluster's shape allows, and a cluster of coincident markers
+    gives the identity (no NaN)."""
+    from gazepipe.stages.frames.stage import rigid_fit
+
+    truth = Rotation.random(300, random_state=5).as_matrix()
+    rng = np.random.default_rng(2)
+    line = np.array([[0.0, 0, 0], [100, 0, 0], [200, 0, 0], [50, 0, 0]])
+    for spread, tol in ((10.0, 1e-12), (1.0, 1e-10), (0.1, 1e-8)):
+        ref = line + rng.normal(size=line.shape) * spread
+        assert np.abs(rigid_fit(ref, np.einsum("nij,kj->nki", truth, ref)) - truth).max() < tol
+    assert np.array_equal(rigid_fit(np.zeros((3, 3)), np.ones((2, 3, 3))), np.broadcast_to(np.eye(3), (2, 3, 3)))
+
+
+def test_adjugate4_is_det_times_inverse():
+    from gazepipe.stages.frames.kernels import _adjugate4
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        a = rng.normal(size=(4, 4))
+        adj = np.empty((4, 4))
+        det = _adjugate4(a, adj)
+        assert det == pytest.approx(np.linalg.det(a), rel=1e-12)
+        assert np.allclose(adj, np.linalg.det(a) * np.linalg.inv(a), rtol=1e-10, atol=1e-12)
+
+
+def test_wahba_rotations_are_the_svd_solution():
+    """Horn's closed form on a general matrix M gives the SVD's rotation U·diag(1, 1, det UVᵀ)·Vᵀ maximising
+    tr(RᵀM): from two markers and a weak prior (nearly rank one: the Jacobi side) to full clusters."""
+    from gazepipe.stages.frames.kernels import wahba_rotations
+
+    rng = np.random.default_rng(9)
+    prior = Rotation.random(500, random_state=4).as_matrix()
+    for k in (2, 3, 5):
+        m = rng.normal(size=(500, 3, k)) @ rng.normal(size=(500, k, 3)) * 50.0 + 1e-3 * prior
+        u, _, vt = np.linalg.svd(m)
+        d = np.ones((len(m), 3))
+        d[:, 2] = np.sign(np.linalg.det(u @ vt))
+        assert np.abs(wahba_rotations(m) - (u * d[:, None, :]) @ vt).max() < 1e-11
