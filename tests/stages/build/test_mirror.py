@@ -281,16 +281,27 @@ def lab_axes(up: str) -> np.ndarray:
     return np.eye(3)
 
 
+def _wander(rng: np.random.Generator, n: int, amplitude: float) -> np.ndarray:
+    """A smooth random path (n,) within ±``amplitude``: a sinusoid of random amplitude, phase and period (60 to 200
+    frames)."""
+    period = rng.uniform(60.0, 200.0)
+    return rng.uniform(-amplitude, amplitude) * np.sin(2.0 * np.pi * np.arange(n) / period + rng.uniform(0, 6.3))
+
+
 def capture(rng: np.random.Generator, geo: dict, n: int, up: str, spread: float) -> Markers:
     """Markers in lab coordinates: random segment rotations (``spread`` rad; the pelvis stays upright enough
-    for a heading), random heading about the vertical, random translation, a random target, shuffled columns."""
+    for a heading), random heading about the vertical, random translation, a random target, shuffled columns.
+
+    The poses move as a body can (each angle and coordinate a random sinusoid over the frames, a few degrees a
+    frame at most): independent random poses per frame make heading jumps that the frames stage rightly drops as
+    flips."""
     c0 = lab_axes(up)
-    heading = Rotation.from_rotvec(rng.uniform(-np.pi, np.pi, n)[:, None] * c0[:, 1])
-    origin = rng.uniform(-2000, 2000, (n, 3))
+    heading = Rotation.from_rotvec((rng.uniform(-np.pi, np.pi) + _wander(rng, n, 0.6))[:, None] * c0[:, 1])
+    origin = rng.uniform(-2000, 2000, 3) + np.stack([_wander(rng, n, 300.0) for _ in range(3)], axis=1)
     pts: dict[str, np.ndarray] = {}
     rots = {}
     for k in SEGMENTS:
-        small = Rotation.from_rotvec(rng.normal(0, spread, (n, 3)))
+        small = Rotation.from_rotvec(np.stack([_wander(rng, n, spread) for _ in range(3)], axis=1))
         rots[k] = small if k != "pelvis" else Rotation.from_rotvec(np.clip(small.as_rotvec(), -0.5, 0.5))
         for name, off in zip(SEGMENTS[k][0], geo[k], strict=True):
             pts[name] = np.asarray(CENTRES[k]) + rots[k].apply(off)
