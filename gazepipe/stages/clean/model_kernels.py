@@ -5,8 +5,8 @@ outweighed the arithmetic.
 Unlike :mod:`gazepipe.stages.clean.kernels`, these do not reproduce numpy's bits: a frame's coordinates in the
 moving frame are plain three-term sums (BLAS's small products before); each occlusion pattern's PCA fit is a
 Householder QR of the pattern's own rows with the target mapped through R by substitution (LAPACK's QR of the
-masked matrix and an explicit inverse of R before); a rigid fit's rotation is one 3 x 3 SVD per frame and
-reference (a batched SVD before). The results are the same solutions to the rounding of the arithmetic
+masked matrix and an explicit inverse of R before); a rigid fit's rotation is Horn's closed form per frame and
+reference (:mod:`gazepipe.stages.rotation_kernels`; a batched Kabsch SVD before). The results are the same solutions to the rounding of the arithmetic
 (~1e-11 mm on positions of ~1e3 mm).
 
 Compiled as :mod:`gazepipe.stages.jit` says; imported where a model is first fitted. Positions are float64 mm,
@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from gazepipe.stages.jit import kernel
+from gazepipe.stages.rotation_kernels import horn_rotation
 
 _EPS = 1e-12                 # a triangle's normal shorter than this leaves its frame undefined (NaN), as geometry's
 _GOOD_DIAG = 1e-8            # a column of R counts while |R_jj| exceeds this fraction of the largest
@@ -433,7 +434,7 @@ def _spread_enough(xyz: np.ndarray, r: int, cols: np.ndarray, n_cols: int, min_s
 @kernel
 def _carry(xyz: np.ndarray, r: int, f: int, m: int, cols: np.ndarray, n_cols: int, out: np.ndarray) -> None:
     """Where marker ``m``, fixed to the mates (the first ``n_cols`` of ``cols``) as they were in frame ``r``, is in
-    frame ``f``: the least-squares rotation of the reference mates onto frame ``f``'s (Kabsch, det +1), or for two
+    frame ``f``: the least-squares rotation of the reference mates onto frame ``f``'s (Horn's, det +1), or for two
     mates the smallest rotation of their axis (no twist about it), about the centroids. Into ``out`` (3,)."""
     c_ref = _centroid(xyz, r, cols, n_cols)
     c_cur = _centroid(xyz, f, cols, n_cols)
@@ -441,33 +442,21 @@ def _carry(xyz: np.ndarray, r: int, f: int, m: int, cols: np.ndarray, n_cols: in
     if n_cols == 2:
         _axis_rotation(xyz, r, f, cols, rot)
     else:
-        h = np.zeros((3, 3))
+        # the cross-covariance S = Σ aᵢ bᵢᵀ of the centred reference (a) and current (b) mates, and half their
+        # summed squared sizes, which bounds the eigenvalue Horn's closed form starts from
+        s = np.zeros((3, 3))
+        size = 0.0
         for i in range(n_cols):
             for a in range(3):
+                da = xyz[r, cols[i], a] - c_ref[a]
+                size += da * da + (xyz[f, cols[i], a] - c_cur[a]) ** 2
                 for b in range(3):
-                    h[a, b] += (xyz[r, cols[i], a] - c_ref[a]) * (xyz[f, cols[i], b] - c_cur[b])
-        _kabsch_rotation(h, rot)
+                    s[a, b] += da * (xyz[f, cols[i], b] - c_cur[b])
+        horn_rotation(s, 0.5 * size, rot, np.empty((4, 4)), np.empty((4, 4)), np.empty((4, 4)))
     for a in range(3):
         out[a] = c_cur[a]
         for b in range(3):
             out[a] += rot[a, b] * (xyz[r, m, b] - c_ref[b])
-
-
-@kernel
-def _kabsch_rotation(h: np.ndarray, rot: np.ndarray) -> None:
-    """The rotation (det +1) maximising tr(R H) for the cross-covariance ``h`` (3, 3) of a reference set (rows)
-    against a current one (columns), into ``rot``: Kabsch's SVD with its sign correction."""
-    u, _, vt = np.linalg.svd(h)
-    v = vt.T.copy()
-    if _det3(v) * _det3(u) < 0.0:
-        v[:, 2] *= -1.0
-    rot[:] = v @ u.T
-
-
-@kernel
-def _det3(a: np.ndarray) -> float:
-    return (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
 
 
 @kernel

@@ -109,7 +109,7 @@ def test_horn_rigid_fit_keeps_its_digits_on_nearly_collinear_clusters():
 
 
 def test_adjugate4_is_det_times_inverse():
-    from gazepipe.stages.frames.kernels import _adjugate4
+    from gazepipe.stages.rotation_kernels import _adjugate4
 
     rng = np.random.default_rng(4)
     for _ in range(20):
