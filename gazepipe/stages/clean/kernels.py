@@ -442,6 +442,52 @@ def flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
 
 
 @kernel
+def _deviations_at(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, mk: int,
+                   exclude: int, index: np.ndarray, distance: np.ndarray, spread: np.ndarray, dev: np.ndarray
+                   ) -> int:
+    """The finite deviations ``|d − distance| / spread`` of the point ``(p0, p1, p2)`` in frame ``s`` judged as
+    marker ``mk`` against its references (``index`` (M, K), −1: none; ``exclude`` left out) measured there
+    (``valid``), into ``dev[:count]`` in reference order; returns ``count``. ``d`` as
+    :func:`gazepipe.stages.geometry.norm3` computes it."""
+    count = 0
+    for k in range(index.shape[1]):
+        r = index[mk, k]
+        if r < 0 or r == exclude or not valid[s, r]:
+            continue
+        dx = p0 - xyz[s, r, 0]
+        dy = p1 - xyz[s, r, 1]
+        dz = p2 - xyz[s, r, 2]
+        e = np.abs(np.sqrt((dx * dx + dy * dy) + dz * dz) - distance[mk, k]) / spread[mk, k]
+        if np.isfinite(e):
+            dev[count] = e
+            count += 1
+    return count
+
+
+@kernel
+def _lower_median(dev: np.ndarray, count: int) -> float:
+    """The lower median of ``dev[:count]`` (finite, ``count`` ≥ 1): the value of rank ``(count − 1) // 2``,
+    chosen by counting ranks (a handful of values: no branch on the data, which a sort mispredicts)."""
+    target = (count - 1) // 2
+    out = dev[0]
+    for i in range(count):
+        rank = 0
+        for j in range(count):
+            rank += (dev[j] < dev[i]) | ((dev[j] == dev[i]) & (j < i))
+        out = dev[i] if rank == target else out
+    return out
+
+
+@kernel
+def _largest(dev: np.ndarray, count: int) -> float:
+    """The largest of ``dev[:count]`` (finite, ``count`` ≥ 1)."""
+    out = dev[0]
+    for i in range(1, count):
+        out = max(out, dev[i])
+    return out
+
+
+@kernel
 def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
             index: np.ndarray, distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray,
             min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
@@ -452,38 +498,50 @@ def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     :func:`gazepipe.stages.geometry.norm3` computes it. The largest is inf where the point is :func:`flipped`;
     both NaN with fewer than ``min_references`` deviations."""
     n, n_c = points.shape[0], points.shape[1]
-    n_k = index.shape[1]
     worst = np.full((n, n_c), np.nan)
     median = np.full((n, n_c), np.nan)
-    dev = np.empty(n_k)
+    dev = np.empty(index.shape[1])
     for s in range(n):
         for c in range(n_c):
             mk = as_marker[c]
             p0, p1, p2 = points[s, c, 0], points[s, c, 1], points[s, c, 2]
-            count = 0
-            for k in range(n_k):
-                r = index[mk, k]
-                if r < 0 or r == exclude[c] or not valid[s, r]:
-                    continue
-                dx = p0 - xyz[s, r, 0]
-                dy = p1 - xyz[s, r, 1]
-                dz = p2 - xyz[s, r, 2]
-                e = np.abs(np.sqrt((dx * dx + dy * dy) + dz * dz) - distance[mk, k]) / spread[mk, k]
-                if not np.isfinite(e):
-                    continue
-                at = count                                    # insertion: the few deviations kept sorted
-                while at > 0 and dev[at - 1] > e:
-                    dev[at] = dev[at - 1]
-                    at -= 1
-                dev[at] = e
-                count += 1
+            count = _deviations_at(p0, p1, p2, xyz, valid, s, mk, exclude[c], index, distance, spread, dev)
             if count < min_references:
                 continue
-            median[s, c] = dev[(count - 1) // 2]
-            worst[s, c] = dev[count - 1]
+            median[s, c] = _lower_median(dev, count)
+            worst[s, c] = _largest(dev, count)
             if _is_flipped(p0, p1, p2, xyz, valid, s, chiral[mk], hand[mk], exclude[c], clear):
                 worst[s, c] = np.inf
     return worst, median
+
+
+@kernel
+def screen(xyz: np.ndarray, judged: np.ndarray, valid: np.ndarray, rows: np.ndarray, index: np.ndarray,
+           distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray, tolerance: np.ndarray,
+           min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
+    """(suspect, displaced) (n, M) bool in frames ``rows`` (n,) of ``xyz`` (T, M, 3): each ``judged`` (T, M)
+    sample whose :func:`misfits` against its own marker's references measured in ``valid`` (T, M), largest
+    or lower median, is above its marker's ``tolerance`` (M,). The same decisions as comparing
+    :func:`misfits` with the tolerances, without judging what cannot be suspect (a sample not judged, a
+    marker of infinite tolerance) nor the handedness of a sample already suspect by a distance."""
+    n, n_m = rows.size, judged.shape[1]
+    suspect = np.zeros((n, n_m), dtype=np.bool_)
+    displaced = np.zeros((n, n_m), dtype=np.bool_)
+    dev = np.empty(index.shape[1])
+    for i in range(n):
+        s = rows[i]
+        for c in range(n_m):
+            tol = tolerance[c]
+            if not judged[s, c] or tol == np.inf:
+                continue
+            p0, p1, p2 = xyz[s, c, 0], xyz[s, c, 1], xyz[s, c, 2]
+            count = _deviations_at(p0, p1, p2, xyz, valid, s, c, -1, index, distance, spread, dev)
+            if count < min_references:
+                continue
+            displaced[i, c] = _lower_median(dev, count) > tol
+            suspect[i, c] = _largest(dev, count) > tol or _is_flipped(p0, p1, p2, xyz, valid, s, chiral[c],
+                                                                        hand[c], -1, clear)
+    return suspect, displaced
 
 
 @kernel

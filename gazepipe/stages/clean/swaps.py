@@ -482,15 +482,17 @@ def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return turned.sum(axis=-1) > kept.sum(axis=-1)
 
 
-def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """(suspect, displaced) bool masks of frames ``rows``: a sample whose largest, or median, misfit is above
-    its marker's tolerance."""
-    n_m = usable.shape[1]
-    worst, median = _misfit(xyz[rows], xyz[rows], usable[rows], np.arange(n_m), refs, exclude=None)
-    ok = usable[rows]
-    with np.errstate(invalid="ignore"):
-        return ok & (worst > refs.tolerance[None]), ok & (median > refs.tolerance[None])
+def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice,
+            trusted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(suspect, displaced) bool masks of frames ``rows`` (of ``xyz`` (T, M, 3)): a ``usable`` sample whose
+    largest, or median, misfit (:func:`_misfit`) against its references measured in ``trusted`` (default
+    ``usable``) is above its marker's tolerance."""
+    from gazepipe.stages.clean.kernels import screen
+
+    at = np.arange(usable.shape[0])[rows] if isinstance(rows, slice) else np.asarray(rows, dtype=np.int64)
+    chiral, hand = _chirality(refs)
+    return screen(xyz, usable, usable if trusted is None else trusted, at, refs.index, refs.distance_mm,
+                  refs.spread_mm, chiral, hand, refs.tolerance, MIN_REFERENCES, 0.5 * MIN_CHIRAL_VOLUME)
 
 
 def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = TOLERANCE,
@@ -629,13 +631,13 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     for lo in range(0, n, _BLOCK_FRAMES):        # in blocks: a marker suspect all take long stays in bounds
         rows = slice(lo, lo + _BLOCK_FRAMES)
         # suspect against trusted references only: a marker suspect because its references were swapped is not
-        worst, median = _misfit(x[rows], x[rows], trusted[rows], np.arange(n_m), refs, exclude=None)
+        own[rows] = _screen(x, ok, refs, rows, trusted=trusted)[0]
+        worst, median = _misfit(x[rows, a:a + 1], x[rows], trusted[rows], np.array([a]), refs, exclude=None)
         with np.errstate(invalid="ignore"):
-            own[rows] = ok[rows] & (worst > refs.tolerance[None])
             # off by most references' reckoning, not one astray, or turned to its mirror image by most of its chiral
             # triples seen (a mirror twin, an elbow on the other side, stands as far from the trunk's mirror plane
             # as its own marker would: its side is what is wrong): what a sample handed to a missing partner needs
-            gone_wrong[rows] = ok[rows, a] & ((median[:, a] > refs.tolerance[a]) | np.isinf(worst[:, a]))
+            gone_wrong[rows] = ok[rows, a] & ((median[:, 0] > refs.tolerance[a]) | np.isinf(worst[:, 0]))
     # a partner is missing or suspect itself in the frame where a is suspect
     maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
     maybe[:, a] = False
