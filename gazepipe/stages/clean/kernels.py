@@ -544,6 +544,95 @@ def screen(xyz: np.ndarray, judged: np.ndarray, valid: np.ndarray, rows: np.ndar
     return suspect, displaced
 
 
+# ------------------------------------------------------------------------------------- rest speed and spikes
+
+@kernel
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """Sum of ``a[lo:lo + n]``, ``n`` at most 128, in numpy's order: one accumulator below 8 values, else eight
+    (one per position modulo 8) joined pairwise, then the rest one by one."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@kernel
+def _pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """Sum of ``a[lo:lo + n]`` in numpy's pairwise order (:func:`_block_sum` over blocks of up to 128; a longer
+    stretch halved, the first half a multiple of 8, and the halves' sums added): the bits ``np.sum`` gives
+    along a contiguous axis. The halving tree is walked with explicit stacks (a recursive kernel cannot be
+    cached)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    seg_lo = np.empty(128, dtype=np.int64)
+    seg_n = np.empty(128, dtype=np.int64)
+    split = np.zeros(128, dtype=np.bool_)            # a stretch whose halves are summed: add them
+    sums = np.empty(128)
+    top, n_sums = 1, 0
+    seg_lo[0], seg_n[0] = lo, n
+    while top > 0:
+        top -= 1
+        at, size = seg_lo[top], seg_n[top]
+        if split[top]:
+            sums[n_sums - 2] = sums[n_sums - 2] + sums[n_sums - 1]
+            n_sums -= 1
+        elif size <= 128:
+            sums[n_sums] = _block_sum(a, at, size)
+            n_sums += 1
+        else:
+            half = size // 2
+            half -= half % 8
+            split[top] = True                          # after both halves
+            seg_lo[top + 1], seg_n[top + 1], split[top + 1] = at + half, size - half, False
+            seg_lo[top + 2], seg_n[top + 2], split[top + 2] = at, half, False
+            top += 3
+    return sums[0]
+
+
+@kernel
+def onset_fit(shapes: np.ndarray, amp: np.ndarray, noise_sq: float, still: float, y: np.ndarray
+              ) -> tuple[int, int, int]:
+    """The exhaustive least-squares fit of :func:`gazepipe.stages.clean.rests.refine_onset`: of every onset
+    shape ``shapes`` (K, T0, F) (each τ's smoothed shape at each onset t0, at the F fitted frames) times every
+    amplitude ``amp`` (A,) (mm/s), the one whose speed ``√(g² + noise_sq) + still`` is nearest ``y`` (F,) mm/s in
+    squared error (summed in numpy's order). Returns its (shape, amplitude, onset) indices, the first in that
+    order at the least error (0, 0, 0 when none is finite)."""
+    n_k, n_t0, n_f = shapes.shape
+    best, bk, ba, bt = np.inf, 0, 0, 0
+    buf = np.empty(n_f)
+    for k in range(n_k):
+        for ia in range(amp.size):
+            a = amp[ia]
+            for it in range(n_t0):
+                for f in range(n_f):
+                    g = a * shapes[k, it, f]
+                    v = (np.sqrt(g * g + noise_sq) + still) - y[f]
+                    buf[f] = v * v
+                sse = _pairwise_sum(buf, 0, n_f)
+                if sse < best:
+                    best, bk, ba, bt = sse, k, ia, it
+    return bk, ba, bt
+
+
 @kernel
 def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The median (mm) and the spread (1.4826 × the median absolute deviation, mm) over the frames of ``xyz``

@@ -312,14 +312,10 @@ def refine_onset(speed: np.ndarray, b: int, sigma: float, threshold: float, lo: 
     xd = (frames[None, :] - t0[:, None]) / sigma                             # (T0, F), in σ
     xs, prof = _onset_profiles(float(xd.max()))
     amp = threshold * np.geomspace(1e-3, 1e3, 161)                           # A, 4.4 % steps
-    best = (np.inf, 0, 0, 0)
-    for ik, p in enumerate(prof):
-        g = amp[:, None, None] * np.interp(xd, xs, p)[None]                  # (A, T0, F)
-        sse = np.sum((np.sqrt(g * g + (q * floor) ** 2) + (1.0 - q) * floor - y) ** 2, axis=-1)
-        ia, it = np.unravel_index(int(np.argmin(sse)), sse.shape)
-        if sse[ia, it] < best[0]:
-            best = (float(sse[ia, it]), int(ia), ik, int(it))
-    _, best_a, best_k, best_t = best
+    from gazepipe.stages.clean.kernels import onset_fit  # numba: imported where first needed
+
+    shapes = np.stack([np.interp(xd, xs, p) for p in prof])                  # (τ, T0, F)
+    best_k, best_a, best_t = onset_fit(shapes, amp, (q * floor) ** 2, (1.0 - q) * floor, y.astype(np.float64))
     a, tau = amp[best_a], _ONSET_TAUS[best_k]
     if a * tau * tau >= threshold:
         d_c = np.sqrt(threshold / a)
