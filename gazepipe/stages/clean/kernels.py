@@ -634,6 +634,110 @@ def onset_fit(shapes: np.ndarray, amp: np.ndarray, noise_sq: float, still: float
 
 
 @kernel
+def _sorted_middle(buf: np.ndarray, w: int, min_count: int) -> tuple[float, int]:
+    """:func:`_nan_median_of` by sorting ``buf[:w]`` in place by insertion, NaN last (numpy's order: ``a < b``,
+    or ``b`` NaN and ``a`` not), and averaging the two middle values of the finite count."""
+    for i in range(1, w):
+        v = buf[i]
+        j = i
+        while j > 0 and (v < buf[j - 1] or (buf[j - 1] != buf[j - 1] and v == v)):
+            buf[j] = buf[j - 1]
+            j -= 1
+        buf[j] = v
+    count = 0
+    for i in range(w):
+        if np.isfinite(buf[i]):
+            count += 1
+    lo = buf[max(count - 1, 0) // 2]
+    hi = lo if (w == 1 or count % 2 == 1) else buf[count // 2]
+    if count < max(min_count, 1):
+        return np.nan, count
+    return 0.5 * (lo + hi), count
+
+
+@kernel
+def _nan_median_of(buf: np.ndarray, w: int, min_count: int) -> tuple[float, int]:
+    """Median of the finite values among ``buf[:w]`` (a short window, reordered in place; NaN left out) and
+    their count: the two middle values of the window sorted NaN last, averaged as
+    :func:`gazepipe.stages.clean.spikes._sorted_median` does; NaN with fewer than ``max(min_count, 1)`` finite
+    values. Without an infinite value the two middle values are found by counting ranks among the finite
+    values (no branch on the data, which a sort mispredicts); with one, by sorting (:func:`_sorted_middle`)."""
+    for i in range(w):
+        if np.isinf(buf[i]):
+            return _sorted_middle(buf, w, min_count)
+    count = 0
+    for i in range(w):
+        v = buf[i]
+        if v == v:
+            buf[count] = v                         # the finite values first
+            count += 1
+    if count < max(min_count, 1):
+        return np.nan, count
+    lo_rank, hi_rank = (count - 1) // 2, count // 2
+    lo, hi = buf[0], buf[0]
+    for i in range(count):
+        rank = 0
+        for j in range(count):
+            rank += (buf[j] < buf[i]) | ((buf[j] == buf[i]) & (j < i))
+        lo = buf[i] if rank == lo_rank else lo
+        hi = buf[i] if rank == hi_rank else hi
+    return 0.5 * (lo + hi), count
+
+
+@kernel
+def nan_medians(lines: np.ndarray, min_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Median (NaN left out) and finite count of each row of ``lines`` (N, W) (:func:`_nan_median_of`)."""
+    n, w = lines.shape
+    med = np.empty(n)
+    count = np.empty(n, dtype=np.int64)
+    buf = np.empty(w)
+    for i in range(n):
+        buf[:] = lines[i]
+        med[i], count[i] = _nan_median_of(buf, w, min_count)
+    return med, count
+
+
+@kernel
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two floats (NaN wins)."""
+    return a if (a < b or a != a) else b
+
+
+@kernel
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (NaN wins)."""
+    return a if (a > b or a != a) else b
+
+
+@kernel
+def running_medians(padded: np.ndarray, half: int, min_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Median (NaN left out) and finite count over the ``2·half + 1`` rows of ``padded`` (T + 2·half, K) from
+    each row on: (T, K) each (:func:`_nan_median_of`). Five-row windows take a min/max network first (the sort
+    where it gives no finite value), as the
+    array code did (median3 of the fifth value and the max of the pairs' minima and the min of their maxima)."""
+    n = padded.shape[0] - 2 * half
+    k_cols = padded.shape[1]
+    w = 2 * half + 1
+    med = np.empty((max(n, 0), k_cols))
+    count = np.empty((max(n, 0), k_cols), dtype=np.int64)
+    buf = np.empty(w)
+    for t in range(n):
+        for k in range(k_cols):
+            if w == 5:
+                a, b, c, d, e = padded[t, k], padded[t + 1, k], padded[t + 2, k], padded[t + 3, k], padded[t + 4, k]
+                f = _nan_max(_nan_min(a, b), _nan_min(c, d))
+                g = _nan_min(_nan_max(a, b), _nan_max(c, d))
+                fast = _nan_max(_nan_min(f, g), _nan_min(e, _nan_max(f, g)))
+                if np.isfinite(fast):
+                    med[t, k], count[t, k] = fast, 5
+                    continue
+            for i in range(w):
+                buf[i] = padded[t + i, k]
+            med[t, k], count[t, k] = _nan_median_of(buf, w, min_count)
+    return med, count
+
+
+@kernel
 def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The median (mm) and the spread (1.4826 × the median absolute deviation, mm) over the frames of ``xyz``
     (S, M, 3) of each body marker's distance to every other body marker (``body`` (M,) bool), from the frames
