@@ -743,17 +743,21 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
     (S, M, 3) of each body marker's distance to every other body marker (``body`` (M,) bool), from the frames
     where ``ok`` (S, M) has both: (M, M) each, row ``m`` for the distances from marker ``m``, NaN where fewer
     than ``max(10, half of m's frames)`` such frames hold a finite distance (or where a marker is no body
-    marker, and on the diagonal). Distances as :func:`gazepipe.stages.geometry.norm3` computes them."""
+    marker, and on the diagonal). Distances as :func:`gazepipe.stages.geometry.norm3` computes it: the same
+    bits from either end, so each pair is measured once and its statistics given to both ends that have
+    enough frames."""
     n_s, n_m = ok.shape
     median = np.full((n_m, n_m), np.nan)
     spread = np.full((n_m, n_m), np.nan)
     buf = np.empty(n_s)
+    need = np.empty(n_m, dtype=np.int64)
+    for m in range(n_m):
+        need[m] = max(10, int(np.count_nonzero(ok[:, m])) // 2)
     for m in range(n_m):
         if not body[m]:
             continue
-        need: int = max(10, int(np.count_nonzero(ok[:, m])) // 2)
-        for j in range(n_m):
-            if j == m or not body[j]:
+        for j in range(m + 1, n_m):
+            if not body[j]:
                 continue
             n = 0
             for s in range(n_s):
@@ -765,11 +769,14 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
                     if np.isfinite(d):
                         buf[n] = d
                         n += 1
-            if n < need:
+            if n < need[m] and n < need[j]:
                 continue
             mid = _median_of(buf, n)
             for i in range(n):
                 buf[i] = np.abs(buf[i] - mid)
-            median[m, j] = mid
-            spread[m, j] = 1.4826 * _median_of(buf, n)
+            mad = 1.4826 * _median_of(buf, n)
+            if n >= need[m]:
+                median[m, j], spread[m, j] = mid, mad
+            if n >= need[j]:
+                median[j, m], spread[j, m] = mid, mad
     return median, spread
