@@ -403,6 +403,36 @@ def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.n
 
 
 @kernel
+def twin_scores(distance_all: np.ndarray, known: np.ndarray, min_references: int) -> np.ndarray:
+    """(M, M) how unlike each marker ``m``'s distances to the others (``distance_all`` (M, M) mm, where
+    ``known``) are to marker ``q``'s: the median absolute difference of the two sorted (over the markers
+    known from both, neither of the two), inf where fewer than ``min_references`` are (or ``q`` not known from
+    ``m``). :func:`gazepipe.stages.clean.swaps._twins`' score, with numpy's median."""
+    n_m = distance_all.shape[0]
+    score = np.full((n_m, n_m), np.inf)
+    mine = np.empty(n_m)
+    theirs = np.empty(n_m)
+    for m in range(n_m):
+        for q in range(n_m):
+            if not known[m, q]:
+                continue
+            n = 0
+            for j in range(n_m):
+                if known[m, j] and known[q, j] and j != m and j != q:
+                    mine[n] = distance_all[m, j]
+                    theirs[n] = distance_all[q, j]
+                    n += 1
+            if n < min_references:
+                continue
+            a = np.sort(mine[:n])
+            b = np.sort(theirs[:n])
+            for i in range(n):
+                a[i] = np.abs(a[i] - b[i])
+            score[m, q] = _median_of(a, n)
+    return score
+
+
+@kernel
 def _is_flipped(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
                 hand: np.ndarray, exclude: int, clear: float) -> bool:
     """Whether the point ``(p0, p1, p2)`` in frame ``s`` turns more of the chiral triples ``tri`` (J, 3) (−1:

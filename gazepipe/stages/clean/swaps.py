@@ -280,20 +280,12 @@ def _twins(distance_all: np.ndarray, spread_all: np.ndarray) -> np.ndarray:
     own sorted (the median difference, mm): its mirror image across the body (the left and the right shoulder
     stand as far from the trunk, each from its own side), which distances to the markers on the mirror plane
     cannot tell from it."""
-    n_m = distance_all.shape[0]
-    out = np.full(n_m, -1, dtype=np.int64)
+    from gazepipe.stages.clean.kernels import twin_scores  # numba: imported where first needed
+
     known = np.isfinite(distance_all) & np.isfinite(spread_all)
-    for m in range(n_m):
-        score = np.full(n_m, np.inf)
-        for q in np.flatnonzero(known[m]):
-            both = known[m] & known[q]
-            both[[m, q]] = False
-            if both.sum() < MIN_REFERENCES:
-                continue
-            score[q] = float(np.median(np.abs(np.sort(distance_all[m, both]) - np.sort(distance_all[q, both]))))
-        if np.isfinite(score).any():
-            out[m] = int(np.argmin(score))
-    return out
+    score = twin_scores(distance_all, known, MIN_REFERENCES)
+    some = np.isfinite(score).any(axis=1)
+    return np.where(some, np.argmin(score, axis=1), -1).astype(np.int64)
 
 
 def _spread_out(tri: np.ndarray, ranked: np.ndarray) -> np.ndarray:
