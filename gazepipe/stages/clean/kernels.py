@@ -574,6 +574,63 @@ def screen(xyz: np.ndarray, judged: np.ndarray, valid: np.ndarray, rows: np.ndar
     return suspect, displaced
 
 
+@kernel
+def _hand_kept_at(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
+                  hand: np.ndarray, clear: float) -> bool:
+    """Whether the point ``(p0, p1, p2)`` in frame ``s`` leaves one of the chiral triples ``tri`` (J, 3) (−1:
+    none; those without a handedness ``hand`` (J,) left out) with all three corners measured in ``valid`` with
+    its handedness, by a volume of at least ``clear``."""
+    for j in range(tri.shape[0]):
+        a, b, c = tri[j, 0], tri[j, 1], tri[j, 2]
+        if a < 0 or b < 0 or c < 0 or hand[j] == 0.0:
+            continue
+        if not (valid[s, a] and valid[s, b] and valid[s, c]):
+            continue
+        vol = _volume_from(p0, p1, p2, xyz, s, a, b, c)
+        if np.abs(vol) >= clear and _sign(vol) == hand[j]:
+            return True
+    return False
+
+
+@kernel
+def vouched(xyz: np.ndarray, seen: np.ndarray, cols: np.ndarray, pair: np.ndarray, index: np.ndarray,
+            distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray, tolerance: np.ndarray,
+            min_references: int, clear: float, steady_mm: float) -> np.ndarray:
+    """(n, K) bool: the markers ``cols`` (K,) that their references ``seen`` (n, M) in each frame of ``xyz``
+    (n, M, 3) put where they are: their largest :func:`misfits` there at most their ``tolerance`` (not
+    suspect by distance nor handedness), and either within tolerance (``|d − distance| ≤ tolerance ×
+    spread``) of at least ``min_references`` seen references whose spread is at most ``steady_mm`` and that
+    are neither marker of ``pair``, or with one chiral triple seen and kept (:func:`_hand_kept_at`).
+    :func:`gazepipe.stages.clean.swaps._vouched_for`'s test, frame by frame."""
+    n, n_k = seen.shape[0], cols.size
+    out = np.zeros((n, n_k), dtype=np.bool_)
+    dev = np.empty(index.shape[1])
+    for s in range(n):
+        for k in range(n_k):
+            mk = cols[k]
+            tol = tolerance[mk]
+            p0, p1, p2 = xyz[s, mk, 0], xyz[s, mk, 1], xyz[s, mk, 2]
+            count = _deviations_at(p0, p1, p2, xyz, seen, s, mk, -1, index, distance, spread, dev)
+            if count < min_references or not _largest(dev, count) <= tol:
+                continue
+            if tol != np.inf and _is_flipped(p0, p1, p2, xyz, seen, s, chiral[mk], hand[mk], -1, clear):
+                continue                                  # its largest misfit inf: beyond a finite tolerance
+            placed = 0
+            for r in range(index.shape[1]):
+                ref = index[mk, r]
+                if ref < 0 or not spread[mk, r] <= steady_mm or ref == pair[0] or ref == pair[1] or not seen[s, ref]:
+                    continue
+                dx = p0 - xyz[s, ref, 0]
+                dy = p1 - xyz[s, ref, 1]
+                dz = p2 - xyz[s, ref, 2]
+                d = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                if np.abs(d - distance[mk, r]) <= tol * spread[mk, r]:
+                    placed += 1
+            out[s, k] = placed >= min_references or _hand_kept_at(p0, p1, p2, xyz, seen, s, chiral[mk], hand[mk],
+                                                                  clear)
+    return out
+
+
 # ------------------------------------------------------------------------------------- rest speed and spikes
 
 @kernel

@@ -431,40 +431,6 @@ def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: 
                    chiral, hand, 0.5 * MIN_CHIRAL_VOLUME)
 
 
-def _hand_kept(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References
-               ) -> np.ndarray:
-    """(n, C) bool: ``points`` judged as ``as_marker`` leave one of its chiral triples seen there (all three
-    measured) with its handedness, by a clear volume."""
-    vol, hand, seen = _chiral_volumes(points, xyz, valid, as_marker, refs, None)
-    if vol is None:
-        return np.zeros(points.shape[:2], dtype=bool)
-    with np.errstate(invalid="ignore"):
-        return (seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == hand[None])).any(axis=-1)
-
-
-def _chiral_volumes(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray,
-                    refs: References, exclude: np.ndarray | None
-                    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
-    """The volumes (n, C, J) of ``points`` (n, C, 3) judged as ``as_marker`` (C,) against its chiral triples
-    (none of them ``exclude``; NaN where unused), their handedness (C, J) and where all three corners are
-    measured (n, C, J); volumes None when no triple can be used."""
-    if refs.chiral is None or refs.handedness is None:
-        return None, np.zeros(0), np.zeros(0, dtype=bool)
-    tri = refs.chiral[as_marker]                                        # (C, J, 3)
-    hand = refs.handedness[as_marker]                                   # (C, J)
-    usable = (tri >= 0).all(axis=2) & (hand != 0)
-    if exclude is not None:
-        usable &= ~(tri == np.asarray(exclude)[:, None, None]).any(axis=2)
-    if not usable.any():
-        return None, hand, np.zeros(0, dtype=bool)
-    c, j = np.nonzero(usable)                       # the triples there are only (most markers have fewer)
-    vol = np.full((points.shape[0],) + usable.shape, np.nan)
-    vol[:, c, j] = _volume(points[:, c], xyz[:, tri[c, j, 0]], xyz[:, tri[c, j, 1]], xyz[:, tri[c, j, 2]])
-    seen = np.zeros(vol.shape, dtype=bool)
-    seen[:, c, j] = valid[:, tri[c, j]].all(axis=2)
-    return vol, hand, seen
-
-
 def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(...) bool from (..., J) volumes, their usual handedness and where they are seen: more of them turned
     against it by a clear volume than left with it."""
@@ -825,19 +791,14 @@ def _vouched_for(x: np.ndarray, trusted: np.ndarray, refs: References, cols: np.
     tolerance of at least :data:`MIN_REFERENCES` of them that are steady (a spread within
     :data:`MAX_REFERENCE_SPREAD_MM`: a loose distance fits a marker anywhere near its place) or with one of its
     chiral triples seen and kept (the side of the trunk it is on)."""
+    from gazepipe.stages.clean.kernels import vouched
+
     seen = trusted.copy()
     seen[:, pair] = False
-    worst = _misfit(x[:, cols], x, seen, cols, refs, exclude=None)[0]
-    idx = refs.index[cols]                                                      # (K, R)
-    steady = (idx >= 0) & (refs.spread_mm[cols] <= MAX_REFERENCE_SPREAD_MM) & ~np.isin(idx, pair)
-    at = np.where(steady, idx, 0)
-    d = norm3(x[:, cols][:, :, None] - x[:, at])                                # (n, K, R)
-    with np.errstate(invalid="ignore"):
-        within = np.abs(d - refs.distance_mm[cols][None]) <= refs.tolerance[cols][None, :, None] \
-            * refs.spread_mm[cols][None]
-        placed = ((within & steady[None] & seen[:, at]).sum(axis=2) >= MIN_REFERENCES) \
-            | _hand_kept(x[:, cols], x, seen, cols, refs)
-        return (worst <= refs.tolerance[cols][None]) & placed
+    chiral, hand = _chirality(refs)
+    return vouched(x, seen, np.asarray(cols, dtype=np.int64), np.array(pair, dtype=np.int64), refs.index,
+                   refs.distance_mm, refs.spread_mm, chiral, hand, refs.tolerance, MIN_REFERENCES,
+                   0.5 * MIN_CHIRAL_VOLUME, MAX_REFERENCE_SPREAD_MM)
 
 
 def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray,
