@@ -785,6 +785,95 @@ def nan_medians(lines: np.ndarray, min_count: int) -> tuple[np.ndarray, np.ndarr
 
 
 @kernel
+def _rank_select(buf: np.ndarray, w: int, rank: int) -> float:
+    """The value of ``rank`` (0: the smallest) among ``buf[:w]`` (no NaN), by counting ranks."""
+    out = buf[0]
+    for i in range(w):
+        r = 0
+        for j in range(w):
+            r += (buf[j] < buf[i]) | ((buf[j] == buf[i]) & (j < i))
+        out = buf[i] if r == rank else out
+    return out
+
+
+@kernel
+def _judged_steps(xyz: np.ndarray, present: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The frames ``t`` (n,) where at least two of the markers ``cols`` (K,) are ``present`` at ``t`` and
+    ``t + 1``, and those markers' steps from ``t`` to ``t + 1`` there (n, K, 3) mm (NaN where not both)."""
+    n_t, n_k = xyz.shape[0], cols.size
+    rows = np.empty(max(n_t - 1, 0), dtype=np.int64)
+    n = 0
+    for t in range(n_t - 1):
+        seen = 0
+        for k in range(n_k):
+            seen += present[t + 1, cols[k]] and present[t, cols[k]]
+        if seen >= 2:
+            rows[n] = t
+            n += 1
+    step = np.full((n, n_k, 3), np.nan)
+    for i in range(n):
+        t = rows[i]
+        for k in range(n_k):
+            c = cols[k]
+            if present[t + 1, c] and present[t, c]:
+                for d in range(3):
+                    step[i, k, d] = xyz[t + 1, c, d] - xyz[t, c, d]
+    return rows[:n], step
+
+
+@kernel
+def _median_steps(step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame of ``step`` (n, K, 3), the component-wise median step (n, 3) and the median step length (n,)
+    over the markers (NaN left out; lengths as ``np.linalg.norm`` computes them)."""
+    n, n_k = step.shape[0], step.shape[1]
+    med = np.empty((n, 3))
+    length = np.empty(n)
+    buf = np.empty(n_k)
+    for i in range(n):
+        for d in range(3):
+            for k in range(n_k):
+                buf[k] = step[i, k, d]
+            med[i, d] = _nan_median_of(buf, n_k, 1)[0]
+        for k in range(n_k):
+            s0, s1, s2 = step[i, k, 0], step[i, k, 1], step[i, k, 2]
+            buf[k] = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        length[i] = _nan_median_of(buf, n_k, 1)[0]
+    return med, length
+
+
+@kernel
+def cluster_jumps(xyz: np.ndarray, present: np.ndarray, cols: np.ndarray, jump_mm: float, spread: float,
+                  side: int) -> np.ndarray:
+    """(T, K) bool: the samples of the cluster's markers ``cols`` (K,) whose step from the frame before
+    departs from the cluster's median step by more than ``jump_mm + spread ×`` its step length
+    (:func:`gazepipe.stages.clean.rests.position_jumps`): over the frames where at least two of them are
+    ``present`` in both (:func:`_judged_steps`), the median step and step length (:func:`_median_steps`), that
+    length's running median over ``side`` frames each side of those frames (the ends repeated, as
+    ``scipy.ndimage.median_filter(mode="nearest")``), and each sample's distance from the median step (NaN
+    as 0, inf as the largest float: ``np.nan_to_num``). Positions (T, M, 3) mm."""
+    out = np.zeros((xyz.shape[0], cols.size), dtype=np.bool_)
+    rows, step = _judged_steps(xyz, present, cols)
+    med, length = _median_steps(step)
+    n, w = rows.size, 2 * side + 1
+    buf = np.empty(w)
+    for i in range(n):
+        for j in range(w):
+            buf[j] = length[min(max(i + j - side, 0), n - 1)]
+        bound = jump_mm + spread * _rank_select(buf, w, side)
+        for k in range(cols.size):
+            if not (present[rows[i] + 1, cols[k]] and present[rows[i], cols[k]]):
+                continue
+            e0, e1, e2 = step[i, k, 0] - med[i, 0], step[i, k, 1] - med[i, 1], step[i, k, 2] - med[i, 2]
+            dev = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
+            if np.isnan(dev):
+                dev = 0.0
+            elif dev == np.inf:
+                dev = 1.7976931348623157e308
+            out[rows[i] + 1, k] = dev > bound
+    return out
+
+
+@kernel
 def _nan_min(a: float, b: float) -> float:
     """``np.minimum`` of two floats (NaN wins)."""
     return a if (a < b or a != a) else b

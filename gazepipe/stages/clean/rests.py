@@ -142,30 +142,16 @@ def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequ
     together; a marker that leaps away from its mates has not moved: its name or its position changed (a label
     exchange, a ghost the spike filter left). With two markers present a leap of one marks both (the median
     is their mean): leaving a sample out of the speed costs nothing."""
-    from scipy import ndimage
+    from gazepipe.stages.clean.kernels import cluster_jumps  # numba: imported where first needed
 
     out = np.zeros(present.shape, dtype=bool)
     if len(xyz) < 2:
         return out
-    both = present[1:] & present[:-1]
     for c in clusters:
         cols = np.asarray(c, dtype=np.int64)
         if cols.size < 2:
             continue
-        ok = both[:, cols]
-        step = np.where(ok[..., None], xyz[1:, cols] - xyz[:-1, cols], np.nan)
-        judged = ok.sum(axis=1) >= 2
-        if not judged.any():
-            continue
-        rows = np.flatnonzero(judged)
-        s = step[rows]
-        med = _median_across(np.moveaxis(s, 1, -1))
-        # the cluster's step length around each frame (a leap of most of its markers is one frame's)
-        length = ndimage.median_filter(_median_across(np.linalg.norm(s, axis=2)), size=2 * _JUMP_SIDE + 1,
-                                       mode="nearest")
-        dev = np.linalg.norm(s - med[:, None, :], axis=2)
-        jump = ok[rows] & (np.nan_to_num(dev) > JUMP_MM + JUMP_SPREAD * length[:, None])
-        out[1 + rows[:, None], cols[None, :]] |= jump
+        out[:, cols] |= cluster_jumps(xyz, present, cols, JUMP_MM, JUMP_SPREAD, _JUMP_SIDE)
     return out
 
 
