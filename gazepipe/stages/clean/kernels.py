@@ -874,6 +874,53 @@ def cluster_jumps(xyz: np.ndarray, present: np.ndarray, cols: np.ndarray, jump_m
 
 
 @kernel
+def pair_distances(xyz: np.ndarray, valid: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(T, P) the distance (mm) in each frame of ``xyz`` (T, M, 3) between markers ``first[p]`` and
+    ``second[p]``, NaN where either is not ``valid`` (T, M); as :func:`gazepipe.stages.geometry.norm3`
+    computes it."""
+    n_t, n_p = valid.shape[0], first.size
+    out = np.empty((n_t, n_p))
+    for t in range(n_t):
+        for p in range(n_p):
+            i, j = first[p], second[p]
+            if valid[t, i] and valid[t, j]:
+                dx = xyz[t, i, 0] - xyz[t, j, 0]
+                dy = xyz[t, i, 1] - xyz[t, j, 1]
+                dz = xyz[t, i, 2] - xyz[t, j, 2]
+                out[t, p] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+            else:
+                out[t, p] = np.nan
+    return out
+
+
+@kernel
+def least_pair_deviation(pairs: np.ndarray, typical: np.ndarray, first: np.ndarray, second: np.ndarray,
+                         n_k: int) -> np.ndarray:
+    """(T, K) for each of ``n_k`` markers, the smallest ``|pairs − typical|`` (``pairs`` (T, P) between markers
+    ``first[p]`` and ``second[p]``, 0 ≤ index < K; NaN left out) over the pairs it is in, NaN where fewer than
+    two of those are finite: :func:`gazepipe.stages.clean.spikes.cluster_deviation`'s reduction."""
+    n_t, n_p = pairs.shape
+    out = np.empty((n_t, n_k))
+    best = np.empty(n_k)
+    count = np.empty(n_k, dtype=np.int64)
+    for t in range(n_t):
+        best[:] = np.nan
+        count[:] = 0
+        for p in range(n_p):
+            e = np.abs(pairs[t, p] - typical[p])
+            if e != e:
+                continue
+            for end in (first[p], second[p]):
+                if best[end] != best[end] or e < best[end]:
+                    best[end] = e
+                if np.isfinite(e):
+                    count[end] += 1
+        for k in range(n_k):
+            out[t, k] = best[k] if count[k] >= 2 else np.nan
+    return out
+
+
+@kernel
 def _nan_min(a: float, b: float) -> float:
     """``np.minimum`` of two floats (NaN wins)."""
     return a if (a < b or a != a) else b

@@ -71,27 +71,16 @@ def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Seq
     the smallest deviation over the mates measured in that frame (a mate's own glitch moves one distance, the
     marker's glitch moves all of them). (T, M); NaN for markers in no cluster of three or more and where fewer
     than two mates are measured (one mate's glitch would look like the marker's own)."""
-    n_t = valid.shape[0]
+    from gazepipe.stages.clean.kernels import least_pair_deviation, pair_distances  # numba: first needed here
+
     dev = np.full(valid.shape, np.nan)
     for cluster in clusters:
         idx = np.asarray(cluster, dtype=np.int64)
         if idx.size < 3:
             continue
         iu, ju = np.triu_indices(idx.size, 1)
-        pairs = np.empty((n_t, iu.size))                                          # (T, pairs) mm
-        for lo in range(0, n_t, _BLOCK_FRAMES):           # in blocks: the pair differences stay small
-            rows = slice(lo, lo + _BLOCK_FRAMES)
-            pairs[rows] = norm3(xyz[rows, idx[iu]] - xyz[rows, idx[ju]])
-        pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan                    # NaN: unmeasured
-        typical = _nanmedian(pairs, axis=0)[None]
-        for lo in range(0, n_t, _BLOCK_FRAMES):
-            rows = slice(lo, lo + _BLOCK_FRAMES)
-            e_pairs = np.abs(pairs[rows] - typical)
-            e = np.full((e_pairs.shape[0], idx.size, idx.size), np.nan)              # NaN: not its own mate
-            e[:, iu, ju] = e_pairs
-            e[:, ju, iu] = e_pairs
-            best = np.fmin.reduce(e, axis=2)                                       # NaN only where all are
-            dev[rows, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, best, np.nan)
+        pairs = pair_distances(xyz, valid, idx[iu], idx[ju])                    # (T, pairs) mm, NaN: unmeasured
+        dev[:, idx] = least_pair_deviation(pairs, _nanmedian(pairs, axis=0), iu, ju, idx.size)
     return dev
 
 

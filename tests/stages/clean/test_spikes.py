@@ -215,3 +215,33 @@ def test_line_medians_are_the_sorted_lines_median(width):
     expect, expect_count = _medians_by_sorting(a, 2)
     np.testing.assert_array_equal(med, expect)
     np.testing.assert_array_equal(count, expect_count)
+
+
+def test_cluster_deviation_matches_an_array_reading():
+    """Each marker's smallest departure of its distances to its cluster mates from their take medians
+    (:func:`_nanmedian`; at least two mates measured), as (T, K, K) array code reads it, infinities and missing
+    samples included."""
+    import warnings
+
+    from gazepipe.stages.clean.spikes import _nanmedian, cluster_deviation
+
+    rng = np.random.default_rng(4)
+    n_t, n_m = 300, 9
+    xyz = rng.normal(size=(1, n_m, 3)) * 100.0 + rng.normal(size=(n_t, n_m, 3))
+    valid = rng.random((n_t, n_m)) > 0.3
+    xyz[rng.random((n_t, n_m)) < 0.01] = np.inf
+    clusters = [[0, 1, 2, 3], [4, 5], [6, 7, 8, 1]]
+    expect = np.full((n_t, n_m), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for c in clusters[0], clusters[2]:
+            idx = np.array(c)
+            iu, ju = np.triu_indices(idx.size, 1)
+            pairs = np.linalg.norm(xyz[:, idx[iu]] - xyz[:, idx[ju]], axis=2)
+            pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan
+            e = np.full((n_t, idx.size, idx.size), np.nan)
+            e[:, iu, ju] = e[:, ju, iu] = np.abs(pairs - _nanmedian(pairs, axis=0))
+            expect[:, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, np.fmin.reduce(e, axis=2), np.nan)
+    got = cluster_deviation(xyz, valid, clusters)
+    np.testing.assert_array_equal(got, expect)
+    assert np.isfinite(got).any() and np.isnan(got[:, [4, 5]]).all()
