@@ -303,21 +303,55 @@ def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) 
 
 
 @kernel
+def _select(values: np.ndarray, n: int, k: int) -> tuple[float, float]:
+    """The ``k``-th and ``(k + 1)``-th smallest of ``values[:n]`` (no NaN; the ``k``-th twice when ``k`` is the
+    last), ``values[:n]`` reordered in place: a quickselect (Hoare's partition about the median of three),
+    then the least of what lies beyond ``k``. An order statistic is one value whatever finds it: the values
+    numpy's partition gives."""
+    lo, hi = 0, n - 1
+    while lo < hi:
+        a, b, c = values[lo], values[(lo + hi) // 2], values[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break                                   # k among the values equal to the pivot
+    kth = values[k]
+    nxt = values[k + 1] if k + 1 < n else kth
+    for i in range(k + 2, n):
+        nxt = min(nxt, values[i])
+    return kth, nxt
+
+
+@kernel
 def _median_of(values: np.ndarray, n: int) -> float:
-    """Median of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): the lower and
-    upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
+    """Median of the first ``n`` entries of ``values`` (no NaN; reordered in place; NaN when ``n`` is 0): the
+    lower and upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
     if n == 0:
         return np.nan
-    v = np.partition(values[:n], ((n - 1) // 2, n // 2))     # the two middle order statistics in place
-    lo = v[(n - 1) // 2]
-    hi = lo if n % 2 == 1 else v[n // 2]
+    lo, hi = _select(values, n, (n - 1) // 2)
+    if n % 2 == 1:
+        hi = lo
     return 0.5 * (lo + hi)
 
 
 @kernel
 def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
-    """The ``q`` quantile of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): numpy's default
-    (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided interpolation."""
+    """The ``q`` quantile of the first ``n`` entries of ``values`` (no NaN; reordered in place; NaN when ``n``
+    is 0): numpy's default (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided
+    interpolation."""
     if n == 0:
         return np.nan
     virtual = (n - 1) * q
@@ -325,12 +359,12 @@ def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
         return np.max(values[:n])
     below = np.floor(virtual)
     i = int(below)
-    v = np.partition(values[:n], (i, i + 1))                # the two order statistics around the index
+    low, high = _select(values, n, i)                # the two order statistics around the index
     gamma = virtual - below
-    diff = v[i + 1] - v[i]
+    diff = high - low
     if gamma >= 0.5:
-        return v[i + 1] - diff * (1.0 - gamma)
-    return v[i] + diff * gamma
+        return high - diff * (1.0 - gamma)
+    return low + diff * gamma
 
 
 @kernel

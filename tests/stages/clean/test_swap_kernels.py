@@ -206,3 +206,14 @@ def test_twins_scores_are_the_median_difference_of_sorted_distances():
                 assert np.isposinf(score[m, q])
             else:
                 assert score[m, q] == np.median(np.abs(np.sort(d[m, both]) - np.sort(d[q, both])))
+
+
+@pytest.mark.parametrize("kind", ["ties", "sorted", "reversed", "long"])
+def test_order_statistics_of_awkward_orders_are_numpys(kind):
+    rng = np.random.default_rng(len(kind))
+    for n in (1, 2, 3, 8, 33) if kind != "long" else (999, 2000):
+        values = {"ties": rng.integers(0, 3, size=n).astype(float), "sorted": np.sort(rng.normal(size=n)),
+                  "reversed": np.sort(rng.normal(size=n))[::-1].copy(), "long": rng.normal(size=n)}[kind]
+        assert _median_of(values.copy(), n) == np.median(values)
+        for q in (0.0, 0.05, 0.5, 0.95, 1.0):
+            assert _quantile_of(values.copy(), n, q) == np.quantile(values, q)
