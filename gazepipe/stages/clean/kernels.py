@@ -303,21 +303,55 @@ def triple_volume(xyz: np.ndarray, s: int, origin: int, a: int, b: int, c: int) 
 
 
 @kernel
+def _select(values: np.ndarray, n: int, k: int) -> tuple[float, float]:
+    """The ``k``-th and ``(k + 1)``-th smallest of ``values[:n]`` (no NaN; the ``k``-th twice when ``k`` is the
+    last), ``values[:n]`` reordered in place: a quickselect (Hoare's partition about the median of three),
+    then the least of what lies beyond ``k``. An order statistic is one value whatever finds it: the values
+    numpy's partition gives."""
+    lo, hi = 0, n - 1
+    while lo < hi:
+        a, b, c = values[lo], values[(lo + hi) // 2], values[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break                                   # k among the values equal to the pivot
+    kth = values[k]
+    nxt = values[k + 1] if k + 1 < n else kth
+    for i in range(k + 2, n):
+        nxt = min(nxt, values[i])
+    return kth, nxt
+
+
+@kernel
 def _median_of(values: np.ndarray, n: int) -> float:
-    """Median of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): the lower and
-    upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
+    """Median of the first ``n`` entries of ``values`` (no NaN; reordered in place; NaN when ``n`` is 0): the
+    lower and upper middle averaged, as :func:`gazepipe.stages.clean.spikes._sorted_median`."""
     if n == 0:
         return np.nan
-    v = np.partition(values[:n], ((n - 1) // 2, n // 2))     # the two middle order statistics in place
-    lo = v[(n - 1) // 2]
-    hi = lo if n % 2 == 1 else v[n // 2]
+    lo, hi = _select(values, n, (n - 1) // 2)
+    if n % 2 == 1:
+        hi = lo
     return 0.5 * (lo + hi)
 
 
 @kernel
 def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
-    """The ``q`` quantile of the first ``n`` entries of ``values`` (NaN when ``n`` is 0): numpy's default
-    (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided interpolation."""
+    """The ``q`` quantile of the first ``n`` entries of ``values`` (no NaN; reordered in place; NaN when ``n``
+    is 0): numpy's default (linear) method with its arithmetic, virtual index ``(n − 1) q`` and its two-sided
+    interpolation."""
     if n == 0:
         return np.nan
     virtual = (n - 1) * q
@@ -325,12 +359,12 @@ def _quantile_of(values: np.ndarray, n: int, q: float) -> float:
         return np.max(values[:n])
     below = np.floor(virtual)
     i = int(below)
-    v = np.partition(values[:n], (i, i + 1))                # the two order statistics around the index
+    low, high = _select(values, n, i)                # the two order statistics around the index
     gamma = virtual - below
-    diff = v[i + 1] - v[i]
+    diff = high - low
     if gamma >= 0.5:
-        return v[i + 1] - diff * (1.0 - gamma)
-    return v[i] + diff * gamma
+        return high - diff * (1.0 - gamma)
+    return low + diff * gamma
 
 
 @kernel
@@ -403,6 +437,36 @@ def chiral_triples(xyz: np.ndarray, ok: np.ndarray, m: int, twin: int, tri: np.n
 
 
 @kernel
+def twin_scores(distance_all: np.ndarray, known: np.ndarray, min_references: int) -> np.ndarray:
+    """(M, M) how unlike each marker ``m``'s distances to the others (``distance_all`` (M, M) mm, where
+    ``known``) are to marker ``q``'s: the median absolute difference of the two sorted (over the markers
+    known from both, neither of the two), inf where fewer than ``min_references`` are (or ``q`` not known from
+    ``m``). :func:`gazepipe.stages.clean.swaps._twins`' score, with numpy's median."""
+    n_m = distance_all.shape[0]
+    score = np.full((n_m, n_m), np.inf)
+    mine = np.empty(n_m)
+    theirs = np.empty(n_m)
+    for m in range(n_m):
+        for q in range(n_m):
+            if not known[m, q]:
+                continue
+            n = 0
+            for j in range(n_m):
+                if known[m, j] and known[q, j] and j != m and j != q:
+                    mine[n] = distance_all[m, j]
+                    theirs[n] = distance_all[q, j]
+                    n += 1
+            if n < min_references:
+                continue
+            a = np.sort(mine[:n])
+            b = np.sort(theirs[:n])
+            for i in range(n):
+                a[i] = np.abs(a[i] - b[i])
+            score[m, q] = _median_of(a, n)
+    return score
+
+
+@kernel
 def _is_flipped(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
                 hand: np.ndarray, exclude: int, clear: float) -> bool:
     """Whether the point ``(p0, p1, p2)`` in frame ``s`` turns more of the chiral triples ``tri`` (J, 3) (−1:
@@ -442,6 +506,52 @@ def flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
 
 
 @kernel
+def _deviations_at(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, mk: int,
+                   exclude: int, index: np.ndarray, distance: np.ndarray, spread: np.ndarray, dev: np.ndarray
+                   ) -> int:
+    """The finite deviations ``|d − distance| / spread`` of the point ``(p0, p1, p2)`` in frame ``s`` judged as
+    marker ``mk`` against its references (``index`` (M, K), −1: none; ``exclude`` left out) measured there
+    (``valid``), into ``dev[:count]`` in reference order; returns ``count``. ``d`` as
+    :func:`gazepipe.stages.geometry.norm3` computes it."""
+    count = 0
+    for k in range(index.shape[1]):
+        r = index[mk, k]
+        if r < 0 or r == exclude or not valid[s, r]:
+            continue
+        dx = p0 - xyz[s, r, 0]
+        dy = p1 - xyz[s, r, 1]
+        dz = p2 - xyz[s, r, 2]
+        e = np.abs(np.sqrt((dx * dx + dy * dy) + dz * dz) - distance[mk, k]) / spread[mk, k]
+        if np.isfinite(e):
+            dev[count] = e
+            count += 1
+    return count
+
+
+@kernel
+def _lower_median(dev: np.ndarray, count: int) -> float:
+    """The lower median of ``dev[:count]`` (finite, ``count`` ≥ 1): the value of rank ``(count − 1) // 2``,
+    chosen by counting ranks (a handful of values: no branch on the data, which a sort mispredicts)."""
+    target = (count - 1) // 2
+    out = dev[0]
+    for i in range(count):
+        rank = 0
+        for j in range(count):
+            rank += (dev[j] < dev[i]) | ((dev[j] == dev[i]) & (j < i))
+        out = dev[i] if rank == target else out
+    return out
+
+
+@kernel
+def _largest(dev: np.ndarray, count: int) -> float:
+    """The largest of ``dev[:count]`` (finite, ``count`` ≥ 1)."""
+    out = dev[0]
+    for i in range(1, count):
+        out = max(out, dev[i])
+    return out
+
+
+@kernel
 def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, exclude: np.ndarray,
             index: np.ndarray, distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray,
             min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
@@ -452,38 +562,436 @@ def misfits(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: n
     :func:`gazepipe.stages.geometry.norm3` computes it. The largest is inf where the point is :func:`flipped`;
     both NaN with fewer than ``min_references`` deviations."""
     n, n_c = points.shape[0], points.shape[1]
-    n_k = index.shape[1]
     worst = np.full((n, n_c), np.nan)
     median = np.full((n, n_c), np.nan)
-    dev = np.empty(n_k)
+    dev = np.empty(index.shape[1])
     for s in range(n):
         for c in range(n_c):
             mk = as_marker[c]
             p0, p1, p2 = points[s, c, 0], points[s, c, 1], points[s, c, 2]
-            count = 0
-            for k in range(n_k):
-                r = index[mk, k]
-                if r < 0 or r == exclude[c] or not valid[s, r]:
-                    continue
-                dx = p0 - xyz[s, r, 0]
-                dy = p1 - xyz[s, r, 1]
-                dz = p2 - xyz[s, r, 2]
-                e = np.abs(np.sqrt((dx * dx + dy * dy) + dz * dz) - distance[mk, k]) / spread[mk, k]
-                if not np.isfinite(e):
-                    continue
-                at = count                                    # insertion: the few deviations kept sorted
-                while at > 0 and dev[at - 1] > e:
-                    dev[at] = dev[at - 1]
-                    at -= 1
-                dev[at] = e
-                count += 1
+            count = _deviations_at(p0, p1, p2, xyz, valid, s, mk, exclude[c], index, distance, spread, dev)
             if count < min_references:
                 continue
-            median[s, c] = dev[(count - 1) // 2]
-            worst[s, c] = dev[count - 1]
+            median[s, c] = _lower_median(dev, count)
+            worst[s, c] = _largest(dev, count)
             if _is_flipped(p0, p1, p2, xyz, valid, s, chiral[mk], hand[mk], exclude[c], clear):
                 worst[s, c] = np.inf
     return worst, median
+
+
+@kernel
+def screen(xyz: np.ndarray, judged: np.ndarray, valid: np.ndarray, rows: np.ndarray, index: np.ndarray,
+           distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray, tolerance: np.ndarray,
+           min_references: int, clear: float) -> tuple[np.ndarray, np.ndarray]:
+    """(suspect, displaced) (n, M) bool in frames ``rows`` (n,) of ``xyz`` (T, M, 3): each ``judged`` (T, M)
+    sample whose :func:`misfits` against its own marker's references measured in ``valid`` (T, M), largest
+    or lower median, is above its marker's ``tolerance`` (M,). The same decisions as comparing
+    :func:`misfits` with the tolerances, without judging what cannot be suspect (a sample not judged, a
+    marker of infinite tolerance) nor the handedness of a sample already suspect by a distance."""
+    n, n_m = rows.size, judged.shape[1]
+    suspect = np.zeros((n, n_m), dtype=np.bool_)
+    displaced = np.zeros((n, n_m), dtype=np.bool_)
+    dev = np.empty(index.shape[1])
+    for i in range(n):
+        s = rows[i]
+        for c in range(n_m):
+            tol = tolerance[c]
+            if not judged[s, c] or tol == np.inf:
+                continue
+            p0, p1, p2 = xyz[s, c, 0], xyz[s, c, 1], xyz[s, c, 2]
+            count = _deviations_at(p0, p1, p2, xyz, valid, s, c, -1, index, distance, spread, dev)
+            if count < min_references:
+                continue
+            displaced[i, c] = _lower_median(dev, count) > tol
+            suspect[i, c] = _largest(dev, count) > tol or _is_flipped(p0, p1, p2, xyz, valid, s, chiral[c],
+                                                                        hand[c], -1, clear)
+    return suspect, displaced
+
+
+@kernel
+def _hand_kept_at(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.ndarray, s: int, tri: np.ndarray,
+                  hand: np.ndarray, clear: float) -> bool:
+    """Whether the point ``(p0, p1, p2)`` in frame ``s`` leaves one of the chiral triples ``tri`` (J, 3) (−1:
+    none; those without a handedness ``hand`` (J,) left out) with all three corners measured in ``valid`` with
+    its handedness, by a volume of at least ``clear``."""
+    for j in range(tri.shape[0]):
+        a, b, c = tri[j, 0], tri[j, 1], tri[j, 2]
+        if a < 0 or b < 0 or c < 0 or hand[j] == 0.0:
+            continue
+        if not (valid[s, a] and valid[s, b] and valid[s, c]):
+            continue
+        vol = _volume_from(p0, p1, p2, xyz, s, a, b, c)
+        if np.abs(vol) >= clear and _sign(vol) == hand[j]:
+            return True
+    return False
+
+
+@kernel
+def vouched(xyz: np.ndarray, seen: np.ndarray, cols: np.ndarray, pair: np.ndarray, index: np.ndarray,
+            distance: np.ndarray, spread: np.ndarray, chiral: np.ndarray, hand: np.ndarray, tolerance: np.ndarray,
+            min_references: int, clear: float, steady_mm: float) -> np.ndarray:
+    """(n, K) bool: the markers ``cols`` (K,) that their references ``seen`` (n, M) in each frame of ``xyz``
+    (n, M, 3) put where they are: their largest :func:`misfits` there at most their ``tolerance`` (not
+    suspect by distance nor handedness), and either within tolerance (``|d − distance| ≤ tolerance ×
+    spread``) of at least ``min_references`` seen references whose spread is at most ``steady_mm`` and that
+    are neither marker of ``pair``, or with one chiral triple seen and kept (:func:`_hand_kept_at`).
+    :func:`gazepipe.stages.clean.swaps._vouched_for`'s test, frame by frame."""
+    n, n_k = seen.shape[0], cols.size
+    out = np.zeros((n, n_k), dtype=np.bool_)
+    dev = np.empty(index.shape[1])
+    for s in range(n):
+        for k in range(n_k):
+            mk = cols[k]
+            tol = tolerance[mk]
+            p0, p1, p2 = xyz[s, mk, 0], xyz[s, mk, 1], xyz[s, mk, 2]
+            count = _deviations_at(p0, p1, p2, xyz, seen, s, mk, -1, index, distance, spread, dev)
+            if count < min_references or not _largest(dev, count) <= tol:
+                continue
+            if tol != np.inf and _is_flipped(p0, p1, p2, xyz, seen, s, chiral[mk], hand[mk], -1, clear):
+                continue                                  # its largest misfit inf: beyond a finite tolerance
+            placed = 0
+            for r in range(index.shape[1]):
+                ref = index[mk, r]
+                if ref < 0 or not spread[mk, r] <= steady_mm or ref == pair[0] or ref == pair[1] or not seen[s, ref]:
+                    continue
+                dx = p0 - xyz[s, ref, 0]
+                dy = p1 - xyz[s, ref, 1]
+                dz = p2 - xyz[s, ref, 2]
+                d = np.sqrt((dx * dx + dy * dy) + dz * dz)
+                if np.abs(d - distance[mk, r]) <= tol * spread[mk, r]:
+                    placed += 1
+            out[s, k] = placed >= min_references or _hand_kept_at(p0, p1, p2, xyz, seen, s, chiral[mk], hand[mk],
+                                                                  clear)
+    return out
+
+
+# ------------------------------------------------------------------------------------- rest speed and spikes
+
+@kernel
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """Sum of ``a[lo:lo + n]``, ``n`` at most 128, in numpy's order: one accumulator below 8 values, else eight
+    (one per position modulo 8) joined pairwise, then the rest one by one."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@kernel
+def _pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """Sum of ``a[lo:lo + n]`` in numpy's pairwise order (:func:`_block_sum` over blocks of up to 128; a longer
+    stretch halved, the first half a multiple of 8, and the halves' sums added): the bits ``np.sum`` gives
+    along a contiguous axis. The halving tree is walked with explicit stacks (a recursive kernel cannot be
+    cached)."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    seg_lo = np.empty(128, dtype=np.int64)
+    seg_n = np.empty(128, dtype=np.int64)
+    split = np.zeros(128, dtype=np.bool_)            # a stretch whose halves are summed: add them
+    sums = np.empty(128)
+    top, n_sums = 1, 0
+    seg_lo[0], seg_n[0] = lo, n
+    while top > 0:
+        top -= 1
+        at, size = seg_lo[top], seg_n[top]
+        if split[top]:
+            sums[n_sums - 2] = sums[n_sums - 2] + sums[n_sums - 1]
+            n_sums -= 1
+        elif size <= 128:
+            sums[n_sums] = _block_sum(a, at, size)
+            n_sums += 1
+        else:
+            half = size // 2
+            half -= half % 8
+            split[top] = True                          # after both halves
+            seg_lo[top + 1], seg_n[top + 1], split[top + 1] = at + half, size - half, False
+            seg_lo[top + 2], seg_n[top + 2], split[top + 2] = at, half, False
+            top += 3
+    return sums[0]
+
+
+@kernel
+def onset_fit(shapes: np.ndarray, amp: np.ndarray, noise_sq: float, still: float, y: np.ndarray
+              ) -> tuple[int, int, int]:
+    """The exhaustive least-squares fit of :func:`gazepipe.stages.clean.rests.refine_onset`: of every onset
+    shape ``shapes`` (K, T0, F) (each τ's smoothed shape at each onset t0, at the F fitted frames) times every
+    amplitude ``amp`` (A,) (mm/s), the one whose speed ``√(g² + noise_sq) + still`` is nearest ``y`` (F,) mm/s in
+    squared error (summed in numpy's order). Returns its (shape, amplitude, onset) indices, the first in that
+    order at the least error (0, 0, 0 when none is finite)."""
+    n_k, n_t0, n_f = shapes.shape
+    best, bk, ba, bt = np.inf, 0, 0, 0
+    buf = np.empty(n_f)
+    for k in range(n_k):
+        for ia in range(amp.size):
+            a = amp[ia]
+            for it in range(n_t0):
+                for f in range(n_f):
+                    g = a * shapes[k, it, f]
+                    v = (np.sqrt(g * g + noise_sq) + still) - y[f]
+                    buf[f] = v * v
+                sse = _pairwise_sum(buf, 0, n_f)
+                if sse < best:
+                    best, bk, ba, bt = sse, k, ia, it
+    return bk, ba, bt
+
+
+@kernel
+def _sorted_middle(buf: np.ndarray, w: int, min_count: int) -> tuple[float, int]:
+    """:func:`_nan_median_of` by sorting ``buf[:w]`` in place by insertion, NaN last (numpy's order: ``a < b``,
+    or ``b`` NaN and ``a`` not), and averaging the two middle values of the finite count."""
+    for i in range(1, w):
+        v = buf[i]
+        j = i
+        while j > 0 and (v < buf[j - 1] or (buf[j - 1] != buf[j - 1] and v == v)):
+            buf[j] = buf[j - 1]
+            j -= 1
+        buf[j] = v
+    count = 0
+    for i in range(w):
+        if np.isfinite(buf[i]):
+            count += 1
+    lo = buf[max(count - 1, 0) // 2]
+    hi = lo if (w == 1 or count % 2 == 1) else buf[count // 2]
+    if count < max(min_count, 1):
+        return np.nan, count
+    return 0.5 * (lo + hi), count
+
+
+@kernel
+def _nan_median_of(buf: np.ndarray, w: int, min_count: int) -> tuple[float, int]:
+    """Median of the finite values among ``buf[:w]`` (a short window, reordered in place; NaN left out) and
+    their count: the two middle values of the window sorted NaN last, averaged as
+    :func:`gazepipe.stages.clean.spikes._sorted_median` does; NaN with fewer than ``max(min_count, 1)`` finite
+    values. Without an infinite value the two middle values are found by counting ranks among the finite
+    values (no branch on the data, which a sort mispredicts); with one, by sorting (:func:`_sorted_middle`)."""
+    for i in range(w):
+        if np.isinf(buf[i]):
+            return _sorted_middle(buf, w, min_count)
+    count = 0
+    for i in range(w):
+        v = buf[i]
+        if v == v:
+            buf[count] = v                         # the finite values first
+            count += 1
+    if count < max(min_count, 1):
+        return np.nan, count
+    lo_rank, hi_rank = (count - 1) // 2, count // 2
+    lo, hi = buf[0], buf[0]
+    for i in range(count):
+        rank = 0
+        for j in range(count):
+            rank += (buf[j] < buf[i]) | ((buf[j] == buf[i]) & (j < i))
+        lo = buf[i] if rank == lo_rank else lo
+        hi = buf[i] if rank == hi_rank else hi
+    return 0.5 * (lo + hi), count
+
+
+@kernel
+def nan_medians(lines: np.ndarray, min_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Median (NaN left out) and finite count of each row of ``lines`` (N, W) (:func:`_nan_median_of`)."""
+    n, w = lines.shape
+    med = np.empty(n)
+    count = np.empty(n, dtype=np.int64)
+    buf = np.empty(w)
+    for i in range(n):
+        buf[:] = lines[i]
+        med[i], count[i] = _nan_median_of(buf, w, min_count)
+    return med, count
+
+
+@kernel
+def _rank_select(buf: np.ndarray, w: int, rank: int) -> float:
+    """The value of ``rank`` (0: the smallest) among ``buf[:w]`` (no NaN), by counting ranks."""
+    out = buf[0]
+    for i in range(w):
+        r = 0
+        for j in range(w):
+            r += (buf[j] < buf[i]) | ((buf[j] == buf[i]) & (j < i))
+        out = buf[i] if r == rank else out
+    return out
+
+
+@kernel
+def _judged_steps(xyz: np.ndarray, present: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The frames ``t`` (n,) where at least two of the markers ``cols`` (K,) are ``present`` at ``t`` and
+    ``t + 1``, and those markers' steps from ``t`` to ``t + 1`` there (n, K, 3) mm (NaN where not both)."""
+    n_t, n_k = xyz.shape[0], cols.size
+    rows = np.empty(max(n_t - 1, 0), dtype=np.int64)
+    n = 0
+    for t in range(n_t - 1):
+        seen = 0
+        for k in range(n_k):
+            seen += present[t + 1, cols[k]] and present[t, cols[k]]
+        if seen >= 2:
+            rows[n] = t
+            n += 1
+    step = np.full((n, n_k, 3), np.nan)
+    for i in range(n):
+        t = rows[i]
+        for k in range(n_k):
+            c = cols[k]
+            if present[t + 1, c] and present[t, c]:
+                for d in range(3):
+                    step[i, k, d] = xyz[t + 1, c, d] - xyz[t, c, d]
+    return rows[:n], step
+
+
+@kernel
+def _median_steps(step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame of ``step`` (n, K, 3), the component-wise median step (n, 3) and the median step length (n,)
+    over the markers (NaN left out; lengths as ``np.linalg.norm`` computes them)."""
+    n, n_k = step.shape[0], step.shape[1]
+    med = np.empty((n, 3))
+    length = np.empty(n)
+    buf = np.empty(n_k)
+    for i in range(n):
+        for d in range(3):
+            for k in range(n_k):
+                buf[k] = step[i, k, d]
+            med[i, d] = _nan_median_of(buf, n_k, 1)[0]
+        for k in range(n_k):
+            s0, s1, s2 = step[i, k, 0], step[i, k, 1], step[i, k, 2]
+            buf[k] = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        length[i] = _nan_median_of(buf, n_k, 1)[0]
+    return med, length
+
+
+@kernel
+def cluster_jumps(xyz: np.ndarray, present: np.ndarray, cols: np.ndarray, jump_mm: float, spread: float,
+                  side: int) -> np.ndarray:
+    """(T, K) bool: the samples of the cluster's markers ``cols`` (K,) whose step from the frame before
+    departs from the cluster's median step by more than ``jump_mm + spread ×`` its step length
+    (:func:`gazepipe.stages.clean.rests.position_jumps`): over the frames where at least two of them are
+    ``present`` in both (:func:`_judged_steps`), the median step and step length (:func:`_median_steps`), that
+    length's running median over ``side`` frames each side of those frames (the ends repeated, as
+    ``scipy.ndimage.median_filter(mode="nearest")``), and each sample's distance from the median step (NaN
+    as 0, inf as the largest float: ``np.nan_to_num``). Positions (T, M, 3) mm."""
+    out = np.zeros((xyz.shape[0], cols.size), dtype=np.bool_)
+    rows, step = _judged_steps(xyz, present, cols)
+    med, length = _median_steps(step)
+    n, w = rows.size, 2 * side + 1
+    buf = np.empty(w)
+    for i in range(n):
+        for j in range(w):
+            buf[j] = length[min(max(i + j - side, 0), n - 1)]
+        bound = jump_mm + spread * _rank_select(buf, w, side)
+        for k in range(cols.size):
+            if not (present[rows[i] + 1, cols[k]] and present[rows[i], cols[k]]):
+                continue
+            e0, e1, e2 = step[i, k, 0] - med[i, 0], step[i, k, 1] - med[i, 1], step[i, k, 2] - med[i, 2]
+            dev = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
+            if np.isnan(dev):
+                dev = 0.0
+            elif dev == np.inf:
+                dev = 1.7976931348623157e308
+            out[rows[i] + 1, k] = dev > bound
+    return out
+
+
+@kernel
+def pair_distances(xyz: np.ndarray, valid: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """(T, P) the distance (mm) in each frame of ``xyz`` (T, M, 3) between markers ``first[p]`` and
+    ``second[p]``, NaN where either is not ``valid`` (T, M); as :func:`gazepipe.stages.geometry.norm3`
+    computes it."""
+    n_t, n_p = valid.shape[0], first.size
+    out = np.empty((n_t, n_p))
+    for t in range(n_t):
+        for p in range(n_p):
+            i, j = first[p], second[p]
+            if valid[t, i] and valid[t, j]:
+                dx = xyz[t, i, 0] - xyz[t, j, 0]
+                dy = xyz[t, i, 1] - xyz[t, j, 1]
+                dz = xyz[t, i, 2] - xyz[t, j, 2]
+                out[t, p] = np.sqrt((dx * dx + dy * dy) + dz * dz)
+            else:
+                out[t, p] = np.nan
+    return out
+
+
+@kernel
+def least_pair_deviation(pairs: np.ndarray, typical: np.ndarray, first: np.ndarray, second: np.ndarray,
+                         n_k: int) -> np.ndarray:
+    """(T, K) for each of ``n_k`` markers, the smallest ``|pairs − typical|`` (``pairs`` (T, P) between markers
+    ``first[p]`` and ``second[p]``, 0 ≤ index < K; NaN left out) over the pairs it is in, NaN where fewer than
+    two of those are finite: :func:`gazepipe.stages.clean.spikes.cluster_deviation`'s reduction."""
+    n_t, n_p = pairs.shape
+    out = np.empty((n_t, n_k))
+    best = np.empty(n_k)
+    count = np.empty(n_k, dtype=np.int64)
+    for t in range(n_t):
+        best[:] = np.nan
+        count[:] = 0
+        for p in range(n_p):
+            e = np.abs(pairs[t, p] - typical[p])
+            if e != e:
+                continue
+            for end in (first[p], second[p]):
+                if best[end] != best[end] or e < best[end]:
+                    best[end] = e
+                if np.isfinite(e):
+                    count[end] += 1
+        for k in range(n_k):
+            out[t, k] = best[k] if count[k] >= 2 else np.nan
+    return out
+
+
+@kernel
+def _nan_min(a: float, b: float) -> float:
+    """``np.minimum`` of two floats (NaN wins)."""
+    return a if (a < b or a != a) else b
+
+
+@kernel
+def _nan_max(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (NaN wins)."""
+    return a if (a > b or a != a) else b
+
+
+@kernel
+def running_medians(padded: np.ndarray, half: int, min_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Median (NaN left out) and finite count over the ``2·half + 1`` rows of ``padded`` (T + 2·half, K) from
+    each row on: (T, K) each (:func:`_nan_median_of`). Five-row windows take a min/max network first (the sort
+    where it gives no finite value), as the
+    array code did (median3 of the fifth value and the max of the pairs' minima and the min of their maxima)."""
+    n = padded.shape[0] - 2 * half
+    k_cols = padded.shape[1]
+    w = 2 * half + 1
+    med = np.empty((max(n, 0), k_cols))
+    count = np.empty((max(n, 0), k_cols), dtype=np.int64)
+    buf = np.empty(w)
+    for t in range(n):
+        for k in range(k_cols):
+            if w == 5:
+                a, b, c, d, e = padded[t, k], padded[t + 1, k], padded[t + 2, k], padded[t + 3, k], padded[t + 4, k]
+                f = _nan_max(_nan_min(a, b), _nan_min(c, d))
+                g = _nan_min(_nan_max(a, b), _nan_max(c, d))
+                fast = _nan_max(_nan_min(f, g), _nan_min(e, _nan_max(f, g)))
+                if np.isfinite(fast):
+                    med[t, k], count[t, k] = fast, 5
+                    continue
+            for i in range(w):
+                buf[i] = padded[t + i, k]
+            med[t, k], count[t, k] = _nan_median_of(buf, w, min_count)
+    return med, count
 
 
 @kernel
@@ -492,17 +1000,21 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
     (S, M, 3) of each body marker's distance to every other body marker (``body`` (M,) bool), from the frames
     where ``ok`` (S, M) has both: (M, M) each, row ``m`` for the distances from marker ``m``, NaN where fewer
     than ``max(10, half of m's frames)`` such frames hold a finite distance (or where a marker is no body
-    marker, and on the diagonal). Distances as :func:`gazepipe.stages.geometry.norm3` computes them."""
+    marker, and on the diagonal). Distances as :func:`gazepipe.stages.geometry.norm3` computes it: the same
+    bits from either end, so each pair is measured once and its statistics given to both ends that have
+    enough frames."""
     n_s, n_m = ok.shape
     median = np.full((n_m, n_m), np.nan)
     spread = np.full((n_m, n_m), np.nan)
     buf = np.empty(n_s)
+    need = np.empty(n_m, dtype=np.int64)
+    for m in range(n_m):
+        need[m] = max(10, int(np.count_nonzero(ok[:, m])) // 2)
     for m in range(n_m):
         if not body[m]:
             continue
-        need: int = max(10, int(np.count_nonzero(ok[:, m])) // 2)
-        for j in range(n_m):
-            if j == m or not body[j]:
+        for j in range(m + 1, n_m):
+            if not body[j]:
                 continue
             n = 0
             for s in range(n_s):
@@ -514,13 +1026,16 @@ def pair_distance_stats(xyz: np.ndarray, ok: np.ndarray, body: np.ndarray) -> tu
                     if np.isfinite(d):
                         buf[n] = d
                         n += 1
-            if n < need:
+            if n < need[m] and n < need[j]:
                 continue
             mid = _median_of(buf, n)
             for i in range(n):
                 buf[i] = np.abs(buf[i] - mid)
-            median[m, j] = mid
-            spread[m, j] = 1.4826 * _median_of(buf, n)
+            mad = 1.4826 * _median_of(buf, n)
+            if n >= need[m]:
+                median[m, j], spread[m, j] = mid, mad
+            if n >= need[j]:
+                median[j, m], spread[j, m] = mid, mad
     return median, spread
 
 

@@ -20,14 +20,14 @@ from gazepipe.stages.clean.spikes import _sorted_median
 OUTLIER_FACTOR = 3.0
 OUTLIER_MM_S = 20.0
 
-#: markers whose speeds are computed at once by :func:`mean_speed`: the smoothed positions and velocities of
+#: markers whose speeds are computed at once by :func:`marker_speeds`: the smoothed positions and velocities of
 #: that many markers are held, not those of the whole take (about 100 bytes per marker sample otherwise)
 _SPEED_MARKERS = 4
 
 
 def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None,
                min_share: float = 0.0, markers: np.ndarray | Sequence[int] | None = None,
-               clusters: Sequence[Sequence[int]] = ()) -> np.ndarray:
+               clusters: Sequence[Sequence[int]] = (), speeds: np.ndarray | None = None) -> np.ndarray:
     """Per-frame mean over markers (``markers``, columns of ``xyz`` and ``valid``; default all) of the speed
     (mm/s) by central differences, (T,); NaN (unknown) where no marker, or fewer than ``min_share`` of them, has
     a speed. Positions are first smoothed by :func:`gaussian_runs` at ``filter_hz`` when it is given.
@@ -35,12 +35,11 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
     ``clusters`` (column lists of markers that move rigidly together): on a frame where at least three of a
     cluster's markers have a speed, one faster than :data:`OUTLIER_FACTOR` × their median +
     :data:`OUTLIER_MM_S` is left out (it is not moving with its cluster: a leap of its name or position).
+
+    ``speeds`` (T, K): the markers' own speeds (:func:`marker_speeds` of the same arguments), when known.
     """
     cols = np.arange(valid.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
-    speed = np.full((valid.shape[0], cols.size), np.nan)
-    for lo in range(0, cols.size, _SPEED_MARKERS):
-        part = cols[lo:lo + _SPEED_MARKERS]
-        speed[:, lo:lo + part.size] = _speeds(xyz[:, part], valid[:, part], rate_hz, filter_hz)
+    speed = marker_speeds(xyz, valid, rate_hz, filter_hz, cols) if speeds is None else speeds.copy()
     where = {int(c): i for i, c in enumerate(cols)}
     for c in clusters:
         idx = [where[int(m)] for m in c if int(m) in where]
@@ -60,6 +59,23 @@ def mean_speed(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: fl
     enough = (n > 0) & (n >= min_share * cols.size)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(enough, total / np.maximum(n, 1), np.nan)
+
+
+def marker_speeds(xyz: np.ndarray, valid: np.ndarray, rate_hz: float, filter_hz: float | None, cols: np.ndarray,
+                  reuse: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Each marker of ``cols`` (K,)'s own speed (T, K) mm/s for :func:`mean_speed` (:func:`_speeds`, a few
+    markers at a time). ``reuse`` (``valid`` (T, M), speeds (T, K)) of an earlier call: a marker whose samples
+    are the same there keeps its speed (a marker's speed depends on its own samples only)."""
+    speed = np.full((valid.shape[0], cols.size), np.nan)
+    todo = np.arange(cols.size)
+    if reuse is not None:
+        same = (valid[:, cols] == reuse[0][:, cols]).all(axis=0)
+        speed[:, same] = reuse[1][:, same]
+        todo = todo[~same]
+    for lo in range(0, todo.size, _SPEED_MARKERS):
+        at = todo[lo:lo + _SPEED_MARKERS]
+        speed[:, at] = _speeds(xyz[:, cols[at]], valid[:, cols[at]], rate_hz, filter_hz)
+    return speed
 
 
 def _median_across(a: np.ndarray) -> np.ndarray:
@@ -142,30 +158,16 @@ def position_jumps(xyz: np.ndarray, present: np.ndarray, clusters: Sequence[Sequ
     together; a marker that leaps away from its mates has not moved: its name or its position changed (a label
     exchange, a ghost the spike filter left). With two markers present a leap of one marks both (the median
     is their mean): leaving a sample out of the speed costs nothing."""
-    from scipy import ndimage
+    from gazepipe.stages.clean.kernels import cluster_jumps  # numba: imported where first needed
 
     out = np.zeros(present.shape, dtype=bool)
     if len(xyz) < 2:
         return out
-    both = present[1:] & present[:-1]
     for c in clusters:
         cols = np.asarray(c, dtype=np.int64)
         if cols.size < 2:
             continue
-        ok = both[:, cols]
-        step = np.where(ok[..., None], xyz[1:, cols] - xyz[:-1, cols], np.nan)
-        judged = ok.sum(axis=1) >= 2
-        if not judged.any():
-            continue
-        rows = np.flatnonzero(judged)
-        s = step[rows]
-        med = _median_across(np.moveaxis(s, 1, -1))
-        # the cluster's step length around each frame (a leap of most of its markers is one frame's)
-        length = ndimage.median_filter(_median_across(np.linalg.norm(s, axis=2)), size=2 * _JUMP_SIDE + 1,
-                                       mode="nearest")
-        dev = np.linalg.norm(s - med[:, None, :], axis=2)
-        jump = ok[rows] & (np.nan_to_num(dev) > JUMP_MM + JUMP_SPREAD * length[:, None])
-        out[1 + rows[:, None], cols[None, :]] |= jump
+        out[:, cols] |= cluster_jumps(xyz, present, cols, JUMP_MM, JUMP_SPREAD, _JUMP_SIDE)
     return out
 
 
@@ -198,28 +200,35 @@ def rest_speed(xyz: np.ndarray, present: np.ndarray, rate_hz: float, filter_hz: 
     Returns the speed and the frames (T,) whose speed the markers do not give (hidden: set by the motion across
     them, unknown, or from fills through time)."""
     present = present & ~position_jumps(xyz, present, clusters)
-    speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=markers,
-                       clusters=clusters)
+    cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
+    own = marker_speeds(xyz, present, rate_hz, filter_hz, cols)
+    speed = mean_speed(xyz, present, rate_hz, filter_hz, min_share=PRESENT_SHARE, markers=cols,
+                       clusters=clusters, speeds=own)
     hidden = np.isnan(speed)
     if seen is not None:
-        hidden |= _told_by_time(speed, xyz, present, seen, rate_hz, filter_hz, threshold, markers, clusters)
+        hidden |= _told_by_time(speed, xyz, present, seen, rate_hz, filter_hz, threshold, cols, clusters,
+                                (present, own))
     return moved_across_unknown(speed, xyz, present, rate_hz, threshold, markers), hidden
 
 
 def _told_by_time(speed: np.ndarray, xyz: np.ndarray, present: np.ndarray, seen: np.ndarray, rate_hz: float,
                   filter_hz: float | None, threshold: float, markers: np.ndarray | Sequence[int] | None,
-                  clusters: Sequence[Sequence[int]]) -> np.ndarray:
+                  clusters: Sequence[Sequence[int]], known: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> np.ndarray:
     """(T,) bool: frames whose rest or motion the fills through time decide (:func:`rest_speed`'s ``seen``):
     fewer than :data:`PRESENT_SHARE` of the markers present are seen, or the frame moves (``speed`` at or
     above ``threshold``) only with the fills' speed (the seen markers' mean speed stays below it: a PCHIP fill
     across an occlusion of the head ramps from the occlusion's start, and the motion read from it began 8
-    frames early)."""
+    frames early). ``known``: ``present`` and its markers' own speeds (:func:`marker_speeds`), reused for the
+    markers every sample of which is seen."""
     cols = np.arange(present.shape[1]) if markers is None else np.asarray(markers, dtype=np.int64)
     if cols.size == 0:
         return np.zeros(len(speed), dtype=bool)
     n_present = present[:, cols].sum(axis=1)
     few = (seen[:, cols] & present[:, cols]).sum(axis=1) < PRESENT_SHARE * np.maximum(n_present, 1)
-    part = mean_speed(xyz, seen & present, rate_hz, filter_hz, markers=cols, clusters=clusters)
+    both = seen & present
+    part = mean_speed(xyz, both, rate_hz, filter_hz, markers=cols, clusters=clusters,
+                      speeds=marker_speeds(xyz, both, rate_hz, filter_hz, cols, reuse=known))
     moves = np.nan_to_num(speed, nan=-np.inf) >= threshold
     return few | (moves & (np.nan_to_num(part) < threshold))
 
@@ -312,14 +321,10 @@ def refine_onset(speed: np.ndarray, b: int, sigma: float, threshold: float, lo: 
     xd = (frames[None, :] - t0[:, None]) / sigma                             # (T0, F), in σ
     xs, prof = _onset_profiles(float(xd.max()))
     amp = threshold * np.geomspace(1e-3, 1e3, 161)                           # A, 4.4 % steps
-    best = (np.inf, 0, 0, 0)
-    for ik, p in enumerate(prof):
-        g = amp[:, None, None] * np.interp(xd, xs, p)[None]                  # (A, T0, F)
-        sse = np.sum((np.sqrt(g * g + (q * floor) ** 2) + (1.0 - q) * floor - y) ** 2, axis=-1)
-        ia, it = np.unravel_index(int(np.argmin(sse)), sse.shape)
-        if sse[ia, it] < best[0]:
-            best = (float(sse[ia, it]), int(ia), ik, int(it))
-    _, best_a, best_k, best_t = best
+    from gazepipe.stages.clean.kernels import onset_fit  # numba: imported where first needed
+
+    shapes = np.stack([np.interp(xd, xs, p) for p in prof])                  # (τ, T0, F)
+    best_k, best_a, best_t = onset_fit(shapes, amp, (q * floor) ** 2, (1.0 - q) * floor, y.astype(np.float64))
     a, tau = amp[best_a], _ONSET_TAUS[best_k]
     if a * tau * tau >= threshold:
         d_c = np.sqrt(threshold / a)

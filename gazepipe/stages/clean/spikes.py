@@ -29,49 +29,41 @@ _CLUSTER_K = 6.0
 #: residual median's half-width), so the result is the same bits whatever the block size
 _BLOCK_FRAMES = 8192
 _BLOCK_MARGIN = _STEP_HALF + 1 + _MEDIAN_HALF + 1
+#: lines at most this long (windows; a few markers of a frame) take the compiled median, longer ones numpy's sort
+_SHORT_WINDOW = 16
 #: trajectories (a marker's or a pair's, the whole take) sorted at a time for their medians
 _MEDIAN_LINES = 8
 
 
-def _median5(w: np.ndarray) -> np.ndarray:
-    """Median of the last axis (of 5) by a min/max network: median3(e, max(min(a, b), min(c, d)),
-    min(max(a, b), max(c, d))); NaN wherever a value is NaN. Several times faster than sorting the windows."""
-    a, b, c, d, e = (w[..., k] for k in range(5))
-    f = np.maximum(np.minimum(a, b), np.minimum(c, d))
-    g = np.minimum(np.maximum(a, b), np.maximum(c, d))
-    lo, hi = np.minimum(f, g), np.maximum(f, g)
-    return np.maximum(lo, np.minimum(e, hi))
-
-
 def running_median(a: np.ndarray, half: int, min_count: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Median over the ``2·half + 1`` rows centred on each row of ``a`` (T, ...), NaNs left out, and the count
-    of finite values it used; NaN where fewer than ``min_count`` are finite. Sorting each short window is
-    vectorised (NaN sorts last), so a take costs a few array passes; five-row windows with every value
-    finite (nearly all of them) take a min/max network instead."""
+    of finite values it used; NaN where fewer than ``min_count`` are finite. Compiled
+    (:func:`gazepipe.stages.clean.kernels.running_medians`): each window sorted, NaN last; five-row windows
+    with every value finite (nearly all of them) take a min/max network instead."""
+    from gazepipe.stages.clean.kernels import running_medians  # numba: imported where first needed
+
     pad = np.full((half, *a.shape[1:]), np.nan)
-    win = sliding_window_view(np.concatenate([pad, a, pad]), 2 * half + 1, axis=0)
-    if half == 2:
-        fast = _median5(win)
-        holed = ~np.isfinite(fast)
-        if not holed.any():
-            return fast, np.full(fast.shape, 5)
-        med, count = _sorted_median(win[holed], min_count)
-        fast[holed] = med
-        full_count = np.full(fast.shape, 5)
-        full_count[holed] = count
-        return fast, full_count
-    return _sorted_median(win, min_count)
+    padded = np.concatenate([pad, np.asarray(a, dtype=np.float64), pad])
+    med, count = running_medians(padded.reshape(padded.shape[0], -1), half, min_count)
+    return med.reshape(a.shape), count.reshape(a.shape)
 
 
 def _sorted_median(win: np.ndarray, min_count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Median and finite count over the last axis of ``win``, NaNs left out (see :func:`running_median`)."""
-    win = np.sort(win, axis=-1)
-    count = np.isfinite(win).sum(axis=-1)
-    lo = np.take_along_axis(win, np.maximum(count - 1, 0)[..., None] // 2, axis=-1)[..., 0]
-    hi = np.take_along_axis(win, count[..., None] // 2, axis=-1)[..., 0] if win.shape[-1] > 1 else lo
-    hi = np.where(count % 2 == 1, lo, hi)
-    med = np.where(count >= max(min_count, 1), 0.5 * (lo + hi), np.nan)
-    return med, count
+    """Median and finite count over the last axis of ``win``, NaNs left out (see :func:`running_median`):
+    the two middle values of the sorted line (NaN last) averaged; NaN with fewer than ``max(min_count, 1)``
+    finite values."""
+    if win.shape[-1] > _SHORT_WINDOW:         # a long line (a marker's whole take): numpy's sort is the faster
+        win = np.sort(win, axis=-1)
+        count = np.isfinite(win).sum(axis=-1)
+        lo = np.take_along_axis(win, np.maximum(count - 1, 0)[..., None] // 2, axis=-1)[..., 0]
+        hi = np.take_along_axis(win, count[..., None] // 2, axis=-1)[..., 0]
+        hi = np.where(count % 2 == 1, lo, hi)
+        return np.where(count >= max(min_count, 1), 0.5 * (lo + hi), np.nan), count
+    from gazepipe.stages.clean.kernels import nan_medians  # numba: imported where first needed
+
+    lines = np.ascontiguousarray(win, dtype=np.float64).reshape(-1, win.shape[-1])
+    med, count = nan_medians(lines, min_count)
+    return med.reshape(win.shape[:-1]), count.reshape(win.shape[:-1])
 
 
 def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Sequence[int]]) -> np.ndarray:
@@ -79,27 +71,16 @@ def cluster_deviation(xyz: np.ndarray, valid: np.ndarray, clusters: Sequence[Seq
     the smallest deviation over the mates measured in that frame (a mate's own glitch moves one distance, the
     marker's glitch moves all of them). (T, M); NaN for markers in no cluster of three or more and where fewer
     than two mates are measured (one mate's glitch would look like the marker's own)."""
-    n_t = valid.shape[0]
+    from gazepipe.stages.clean.kernels import least_pair_deviation, pair_distances  # numba: first needed here
+
     dev = np.full(valid.shape, np.nan)
     for cluster in clusters:
         idx = np.asarray(cluster, dtype=np.int64)
         if idx.size < 3:
             continue
         iu, ju = np.triu_indices(idx.size, 1)
-        pairs = np.empty((n_t, iu.size))                                          # (T, pairs) mm
-        for lo in range(0, n_t, _BLOCK_FRAMES):           # in blocks: the pair differences stay small
-            rows = slice(lo, lo + _BLOCK_FRAMES)
-            pairs[rows] = norm3(xyz[rows, idx[iu]] - xyz[rows, idx[ju]])
-        pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan                    # NaN: unmeasured
-        typical = _nanmedian(pairs, axis=0)[None]
-        for lo in range(0, n_t, _BLOCK_FRAMES):
-            rows = slice(lo, lo + _BLOCK_FRAMES)
-            e_pairs = np.abs(pairs[rows] - typical)
-            e = np.full((e_pairs.shape[0], idx.size, idx.size), np.nan)              # NaN: not its own mate
-            e[:, iu, ju] = e_pairs
-            e[:, ju, iu] = e_pairs
-            best = np.fmin.reduce(e, axis=2)                                       # NaN only where all are
-            dev[rows, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, best, np.nan)
+        pairs = pair_distances(xyz, valid, idx[iu], idx[ju])                    # (T, pairs) mm, NaN: unmeasured
+        dev[:, idx] = least_pair_deviation(pairs, _nanmedian(pairs, axis=0), iu, ju, idx.size)
     return dev
 
 

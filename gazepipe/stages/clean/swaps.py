@@ -280,20 +280,12 @@ def _twins(distance_all: np.ndarray, spread_all: np.ndarray) -> np.ndarray:
     own sorted (the median difference, mm): its mirror image across the body (the left and the right shoulder
     stand as far from the trunk, each from its own side), which distances to the markers on the mirror plane
     cannot tell from it."""
-    n_m = distance_all.shape[0]
-    out = np.full(n_m, -1, dtype=np.int64)
+    from gazepipe.stages.clean.kernels import twin_scores  # numba: imported where first needed
+
     known = np.isfinite(distance_all) & np.isfinite(spread_all)
-    for m in range(n_m):
-        score = np.full(n_m, np.inf)
-        for q in np.flatnonzero(known[m]):
-            both = known[m] & known[q]
-            both[[m, q]] = False
-            if both.sum() < MIN_REFERENCES:
-                continue
-            score[q] = float(np.median(np.abs(np.sort(distance_all[m, both]) - np.sort(distance_all[q, both]))))
-        if np.isfinite(score).any():
-            out[m] = int(np.argmin(score))
-    return out
+    score = twin_scores(distance_all, known, MIN_REFERENCES)
+    some = np.isfinite(score).any(axis=1)
+    return np.where(some, np.argmin(score, axis=1), -1).astype(np.int64)
 
 
 def _spread_out(tri: np.ndarray, ranked: np.ndarray) -> np.ndarray:
@@ -439,40 +431,6 @@ def _flipped(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: 
                    chiral, hand, 0.5 * MIN_CHIRAL_VOLUME)
 
 
-def _hand_kept(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray, refs: References
-               ) -> np.ndarray:
-    """(n, C) bool: ``points`` judged as ``as_marker`` leave one of its chiral triples seen there (all three
-    measured) with its handedness, by a clear volume."""
-    vol, hand, seen = _chiral_volumes(points, xyz, valid, as_marker, refs, None)
-    if vol is None:
-        return np.zeros(points.shape[:2], dtype=bool)
-    with np.errstate(invalid="ignore"):
-        return (seen & (np.abs(vol) >= 0.5 * MIN_CHIRAL_VOLUME) & (np.sign(vol) == hand[None])).any(axis=-1)
-
-
-def _chiral_volumes(points: np.ndarray, xyz: np.ndarray, valid: np.ndarray, as_marker: np.ndarray,
-                    refs: References, exclude: np.ndarray | None
-                    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
-    """The volumes (n, C, J) of ``points`` (n, C, 3) judged as ``as_marker`` (C,) against its chiral triples
-    (none of them ``exclude``; NaN where unused), their handedness (C, J) and where all three corners are
-    measured (n, C, J); volumes None when no triple can be used."""
-    if refs.chiral is None or refs.handedness is None:
-        return None, np.zeros(0), np.zeros(0, dtype=bool)
-    tri = refs.chiral[as_marker]                                        # (C, J, 3)
-    hand = refs.handedness[as_marker]                                   # (C, J)
-    usable = (tri >= 0).all(axis=2) & (hand != 0)
-    if exclude is not None:
-        usable &= ~(tri == np.asarray(exclude)[:, None, None]).any(axis=2)
-    if not usable.any():
-        return None, hand, np.zeros(0, dtype=bool)
-    c, j = np.nonzero(usable)                       # the triples there are only (most markers have fewer)
-    vol = np.full((points.shape[0],) + usable.shape, np.nan)
-    vol[:, c, j] = _volume(points[:, c], xyz[:, tri[c, j, 0]], xyz[:, tri[c, j, 1]], xyz[:, tri[c, j, 2]])
-    seen = np.zeros(vol.shape, dtype=bool)
-    seen[:, c, j] = valid[:, tri[c, j]].all(axis=2)
-    return vol, hand, seen
-
-
 def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(...) bool from (..., J) volumes, their usual handedness and where they are seen: more of them turned
     against it by a clear volume than left with it."""
@@ -482,15 +440,17 @@ def _turned(vol: np.ndarray, hand: np.ndarray, seen: np.ndarray) -> np.ndarray:
     return turned.sum(axis=-1) > kept.sum(axis=-1)
 
 
-def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """(suspect, displaced) bool masks of frames ``rows``: a sample whose largest, or median, misfit is above
-    its marker's tolerance."""
-    n_m = usable.shape[1]
-    worst, median = _misfit(xyz[rows], xyz[rows], usable[rows], np.arange(n_m), refs, exclude=None)
-    ok = usable[rows]
-    with np.errstate(invalid="ignore"):
-        return ok & (worst > refs.tolerance[None]), ok & (median > refs.tolerance[None])
+def _screen(xyz: np.ndarray, usable: np.ndarray, refs: References, rows: np.ndarray | slice,
+            trusted: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(suspect, displaced) bool masks of frames ``rows`` (of ``xyz`` (T, M, 3)): a ``usable`` sample whose
+    largest, or median, misfit (:func:`_misfit`) against its references measured in ``trusted`` (default
+    ``usable``) is above its marker's tolerance."""
+    from gazepipe.stages.clean.kernels import screen
+
+    at = np.arange(usable.shape[0])[rows] if isinstance(rows, slice) else np.asarray(rows, dtype=np.int64)
+    chiral, hand = _chirality(refs)
+    return screen(xyz, usable, usable if trusted is None else trusted, at, refs.index, refs.distance_mm,
+                  refs.spread_mm, chiral, hand, refs.tolerance, MIN_REFERENCES, 0.5 * MIN_CHIRAL_VOLUME)
 
 
 def repair_swaps(xyz: np.ndarray, valid: np.ndarray, tolerance: float = TOLERANCE,
@@ -629,13 +589,13 @@ def _best_partner(xyz: np.ndarray, valid: np.ndarray, displaced: np.ndarray, ref
     for lo in range(0, n, _BLOCK_FRAMES):        # in blocks: a marker suspect all take long stays in bounds
         rows = slice(lo, lo + _BLOCK_FRAMES)
         # suspect against trusted references only: a marker suspect because its references were swapped is not
-        worst, median = _misfit(x[rows], x[rows], trusted[rows], np.arange(n_m), refs, exclude=None)
+        own[rows] = _screen(x, ok, refs, rows, trusted=trusted)[0]
+        worst, median = _misfit(x[rows, a:a + 1], x[rows], trusted[rows], np.array([a]), refs, exclude=None)
         with np.errstate(invalid="ignore"):
-            own[rows] = ok[rows] & (worst > refs.tolerance[None])
             # off by most references' reckoning, not one astray, or turned to its mirror image by most of its chiral
             # triples seen (a mirror twin, an elbow on the other side, stands as far from the trunk's mirror plane
             # as its own marker would: its side is what is wrong): what a sample handed to a missing partner needs
-            gone_wrong[rows] = ok[rows, a] & ((median[:, a] > refs.tolerance[a]) | np.isinf(worst[:, a]))
+            gone_wrong[rows] = ok[rows, a] & ((median[:, 0] > refs.tolerance[a]) | np.isinf(worst[:, 0]))
     # a partner is missing or suspect itself in the frame where a is suspect
     maybe = (own | ~ok) & own[:, a:a + 1] & np.isfinite(refs.tolerance)[None]
     maybe[:, a] = False
@@ -831,19 +791,14 @@ def _vouched_for(x: np.ndarray, trusted: np.ndarray, refs: References, cols: np.
     tolerance of at least :data:`MIN_REFERENCES` of them that are steady (a spread within
     :data:`MAX_REFERENCE_SPREAD_MM`: a loose distance fits a marker anywhere near its place) or with one of its
     chiral triples seen and kept (the side of the trunk it is on)."""
+    from gazepipe.stages.clean.kernels import vouched
+
     seen = trusted.copy()
     seen[:, pair] = False
-    worst = _misfit(x[:, cols], x, seen, cols, refs, exclude=None)[0]
-    idx = refs.index[cols]                                                      # (K, R)
-    steady = (idx >= 0) & (refs.spread_mm[cols] <= MAX_REFERENCE_SPREAD_MM) & ~np.isin(idx, pair)
-    at = np.where(steady, idx, 0)
-    d = norm3(x[:, cols][:, :, None] - x[:, at])                                # (n, K, R)
-    with np.errstate(invalid="ignore"):
-        within = np.abs(d - refs.distance_mm[cols][None]) <= refs.tolerance[cols][None, :, None] \
-            * refs.spread_mm[cols][None]
-        placed = ((within & steady[None] & seen[:, at]).sum(axis=2) >= MIN_REFERENCES) \
-            | _hand_kept(x[:, cols], x, seen, cols, refs)
-        return (worst <= refs.tolerance[cols][None]) & placed
+    chiral, hand = _chirality(refs)
+    return vouched(x, seen, np.asarray(cols, dtype=np.int64), np.array(pair, dtype=np.int64), refs.index,
+                   refs.distance_mm, refs.spread_mm, chiral, hand, refs.tolerance, MIN_REFERENCES,
+                   0.5 * MIN_CHIRAL_VOLUME, MAX_REFERENCE_SPREAD_MM)
 
 
 def _told_apart(x: np.ndarray, trusted: np.ndarray, refs: References, a: int, b: int, cols: np.ndarray,

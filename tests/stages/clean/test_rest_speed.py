@@ -9,6 +9,7 @@ import json
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from gazepipe.dag import run_pipeline
 from gazepipe.io.session_toml import load_session
@@ -136,3 +137,80 @@ def test_median_across_markers_is_nanmedians():
             warnings.simplefilter("ignore", RuntimeWarning)        # all-NaN rows: NaN, as both give
             expect = np.nanmedian(a, axis=1)
         np.testing.assert_array_equal(_median_across(a), expect)
+
+
+@pytest.mark.parametrize("n", [1, 3, 7, 8, 9, 16, 127, 128, 129, 300, 1031])
+def test_the_compiled_sum_is_numpys_pairwise_sum_to_the_bit(n):
+    from gazepipe.stages.clean.kernels import _pairwise_sum
+
+    rng = np.random.default_rng(n)
+    rows = rng.normal(size=(6, n)) * 10.0 ** rng.integers(-6, 6, size=(6, n))
+    for row, expect in zip(rows, np.sum(rows, axis=-1), strict=True):
+        assert _pairwise_sum(np.r_[7.0, row], 1, n) == expect
+
+
+def test_the_onset_fit_is_the_exhaustive_array_search():
+    """:func:`onset_fit` picks the shape, amplitude and onset numpy's per-shape argmin and strict comparison
+    across shapes picked (the first at the least squared error), ties included."""
+    from gazepipe.stages.clean.kernels import onset_fit
+
+    rng = np.random.default_rng(2)
+    shapes = np.abs(rng.normal(size=(4, 9, 13))) * 3.0
+    shapes[2] = shapes[1]                                   # a tie across shapes: the first one wins
+    amp = 6.0 * np.geomspace(1e-2, 1e2, 21)
+    y = np.abs(rng.normal(size=13)) * 20.0
+    q, floor = 0.3, 1.7
+    best = (np.inf, 0, 0, 0)
+    for ik, p in enumerate(shapes):
+        g = amp[:, None, None] * p[None]
+        sse = np.sum((np.sqrt(g * g + (q * floor) ** 2) + (1.0 - q) * floor - y) ** 2, axis=-1)
+        ia, it = np.unravel_index(int(np.argmin(sse)), sse.shape)
+        if sse[ia, it] < best[0]:
+            best = (float(sse[ia, it]), int(ia), ik, int(it))
+    assert onset_fit(shapes, amp, (q * floor) ** 2, (1.0 - q) * floor, y) == (best[2], best[1], best[3])
+    shapes[:] = shapes[best[2]]                             # every shape the best: the first one
+    assert onset_fit(shapes, amp, (q * floor) ** 2, (1.0 - q) * floor, y) == (0, best[1], best[3])
+
+
+def _jumps_by_arrays(xyz, present, clusters):
+    """:func:`position_jumps` as array code: numpy's nanmedian, norm and scipy's median filter."""
+    import warnings
+
+    from scipy import ndimage
+
+    from gazepipe.stages.clean.rests import _JUMP_SIDE, JUMP_MM, JUMP_SPREAD
+
+    out = np.zeros(present.shape, dtype=bool)
+    both = present[1:] & present[:-1]
+    for c in clusters:
+        cols = np.asarray(c)
+        ok = both[:, cols]
+        rows = np.flatnonzero(ok.sum(axis=1) >= 2)
+        if cols.size < 2 or rows.size == 0:
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            s = np.where(ok[..., None], xyz[1:, cols] - xyz[:-1, cols], np.nan)[rows]
+            med = np.nanmedian(s, axis=1)
+            length = ndimage.median_filter(np.nanmedian(np.linalg.norm(s, axis=2), axis=1),
+                                           size=2 * _JUMP_SIDE + 1, mode="nearest")
+            dev = np.linalg.norm(s - med[:, None, :], axis=2)
+        out[1 + rows[:, None], cols[None, :]] |= ok[rows] & (np.nan_to_num(dev) > JUMP_MM + JUMP_SPREAD
+                                                              * length[:, None])
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_position_jumps_match_an_array_reading(seed):
+    from gazepipe.stages.clean.rests import position_jumps
+
+    rng = np.random.default_rng(seed)
+    n_t, n_m = 300, 9
+    xyz = np.cumsum(rng.normal(size=(n_t, 1, 3)) * 4.0, axis=0) + rng.normal(size=(n_t, n_m, 3))
+    leap = rng.random((n_t, n_m)) < 0.03
+    xyz[leap] += rng.normal(size=(int(leap.sum()), 3)) * 100.0
+    present = rng.random((n_t, n_m)) > 0.2 * seed
+    clusters = [[0, 1, 2, 3], [4, 5], [6, 7, 8], [2]]
+    got = position_jumps(xyz, present, clusters)
+    np.testing.assert_array_equal(got, _jumps_by_arrays(xyz, present, clusters))
+    assert got.any()

@@ -157,3 +157,91 @@ def test_spike_search_in_blocks_of_frames_is_the_same_bits(spiky_session, monkey
         assert np.array_equal(spikes.path_excess_mm(mk.xyz, valid, 8.0, 2.0), excess, equal_nan=True)
         assert np.array_equal(spikes.cluster_deviation(mk.xyz, valid, clusters), deviation, equal_nan=True)
         assert whole.any()                                   # the takes do have spikes to find
+
+
+def _medians_by_sorting(win, min_count):
+    """Median and finite count over the last axis by numpy's sort (NaN last): the two middle values of the
+    finite count averaged; NaN with fewer than ``min_count`` finite values."""
+    win = np.sort(win, axis=-1)
+    count = np.isfinite(win).sum(axis=-1)
+    lo = np.take_along_axis(win, np.maximum(count - 1, 0)[..., None] // 2, axis=-1)[..., 0]
+    hi = np.take_along_axis(win, count[..., None] // 2, axis=-1)[..., 0] if win.shape[-1] > 1 else lo
+    hi = np.where(count % 2 == 1, lo, hi)
+    return np.where(count >= max(min_count, 1), 0.5 * (lo + hi), np.nan), count
+
+
+def _median5_network(w):
+    """The five-value min/max network the running median takes first: median3(e, max(min(a, b), min(c, d)),
+    min(max(a, b), max(c, d)))."""
+    a, b, c, d, e = (w[..., k] for k in range(5))
+    f = np.maximum(np.minimum(a, b), np.minimum(c, d))
+    g = np.minimum(np.maximum(a, b), np.maximum(c, d))
+    return np.maximum(np.minimum(f, g), np.minimum(e, np.maximum(f, g)))
+
+
+@pytest.mark.parametrize("half", [0, 1, 2, 3, 5])
+def test_running_median_is_the_sorted_windows_median_with_nans_and_infinities(half):
+    rng = np.random.default_rng(half)
+    a = rng.normal(size=(200, 4, 3)) * 10.0
+    r = rng.random(a.shape)
+    a[r < 0.15] = np.nan
+    a[r > 0.98] = np.inf
+    a[(r > 0.96) & (r < 0.97)] = -np.inf
+    padded = np.concatenate([np.full((half, 4, 3), np.nan), a, np.full((half, 4, 3), np.nan)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1, axis=0)
+    for min_count in (1, 3):
+        med, count = running_median(a, half, min_count)
+        expect, expect_count = _medians_by_sorting(windows, min_count)
+        if half == 2:       # the network's finite middle where it finds one (an infinity among five values)
+            fast = _median5_network(windows)
+            expect = np.where(np.isfinite(fast), fast, expect)
+            expect_count = np.where(np.isfinite(fast), 5, expect_count)
+            assert (np.isfinite(fast) & ~np.isfinite(windows).all(axis=-1)).any()
+        np.testing.assert_array_equal(med, expect)
+        np.testing.assert_array_equal(count, expect_count)
+    assert np.isnan(med).any() and np.isfinite(med).any() or half == 0     # one value cannot make three
+
+
+@pytest.mark.parametrize("width", [1, 2, 4, 7, 16, 17, 300])
+def test_line_medians_are_the_sorted_lines_median(width):
+    from gazepipe.stages.clean.spikes import _sorted_median
+
+    rng = np.random.default_rng(width)
+    a = rng.normal(size=(50, width))
+    r = rng.random(a.shape)
+    a[r < 0.3] = np.nan
+    a[r > 0.97] = np.inf
+    med, count = _sorted_median(a, 2)
+    expect, expect_count = _medians_by_sorting(a, 2)
+    np.testing.assert_array_equal(med, expect)
+    np.testing.assert_array_equal(count, expect_count)
+
+
+def test_cluster_deviation_matches_an_array_reading():
+    """Each marker's smallest departure of its distances to its cluster mates from their take medians
+    (:func:`_nanmedian`; at least two mates measured), as (T, K, K) array code reads it, infinities and missing
+    samples included."""
+    import warnings
+
+    from gazepipe.stages.clean.spikes import _nanmedian, cluster_deviation
+
+    rng = np.random.default_rng(4)
+    n_t, n_m = 300, 9
+    xyz = rng.normal(size=(1, n_m, 3)) * 100.0 + rng.normal(size=(n_t, n_m, 3))
+    valid = rng.random((n_t, n_m)) > 0.3
+    xyz[rng.random((n_t, n_m)) < 0.01] = np.inf
+    clusters = [[0, 1, 2, 3], [4, 5], [6, 7, 8, 1]]
+    expect = np.full((n_t, n_m), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for c in clusters[0], clusters[2]:
+            idx = np.array(c)
+            iu, ju = np.triu_indices(idx.size, 1)
+            pairs = np.linalg.norm(xyz[:, idx[iu]] - xyz[:, idx[ju]], axis=2)
+            pairs[~(valid[:, idx[iu]] & valid[:, idx[ju]])] = np.nan
+            e = np.full((n_t, idx.size, idx.size), np.nan)
+            e[:, iu, ju] = e[:, ju, iu] = np.abs(pairs - _nanmedian(pairs, axis=0))
+            expect[:, idx] = np.where(np.isfinite(e).sum(axis=2) >= 2, np.fmin.reduce(e, axis=2), np.nan)
+    got = cluster_deviation(xyz, valid, clusters)
+    np.testing.assert_array_equal(got, expect)
+    assert np.isfinite(got).any() and np.isnan(got[:, [4, 5]]).all()
