@@ -233,13 +233,18 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
 
 
 def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
-          references: SubjectReferences | None
+          references: SubjectReferences | None, in_place: bool = False
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
     """Label swaps repaired, spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's
-    gap records)."""
+    gap records); ``in_place``: ``xyz`` is ``markers.xyz`` itself, else a copy."""
     valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
-    # the stage's one working copy of the positions: every step below writes into it
-    xyz = np.where(valid[..., None], markers.xyz, np.nan)
+    # the stage's one working array of positions (the caller's own when in place): every step below writes
+    # into it
+    if in_place:
+        xyz = markers.xyz
+        xyz[~valid] = np.nan
+    else:
+        xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
     swapped = _repair_swaps(xyz, valid, markers.labels, markers.rate_hz, markerset, params, qc, references)
@@ -388,8 +393,12 @@ def _rigid_groups(markerset: MarkerSet, labels: list[str]) -> list[list[int]]:
 
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
                   *, path: str | None = None, take: str | None = None,
-                  references: SubjectReferences | None = None) -> CleanResult:
+                  references: SubjectReferences | None = None, in_place: bool = False) -> CleanResult:
     """Clean one take's markers (SPEC §3.2).
+
+    ``in_place``: ``markers.xyz`` is the caller's to give up: the stage cleans it in place instead of a copy
+    of the take (a long take's positions are held once), and the result's markers are rows of it; the
+    caller must not read it afterwards.
 
     ``references``: the subject's marker geometry from all of the session's takes
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), against which label swaps are judged; without
@@ -424,7 +433,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references)
+    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references, in_place)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     clusters = _rigid_groups(markerset, labels)
