@@ -6,7 +6,7 @@ minute, 2-40 frames; seeded). Each length runs in a fresh process, so its peak r
 
 Prints per length: frames, marker samples, CPU seconds, CPU microseconds per sample, peak resident memory (MB)
 and what cleaning added to the process's memory (peak less the resident size once the take was in memory), per
-sample; with ``--against REV`` the same for that commit, interleaved (see ``bench_fill_speed.py``).
+sample (the stage cleans the take in place, as the clean unit has it do, where the tree's stage can); with ``--against REV`` the same for that commit, interleaved (see ``bench_fill_speed.py``).
 Linear time shows as a constant time per sample.
 
 The issue's figure, one hour at 120 Hz with 60 markers against two: ``--minutes 60,120 --rate-hz 120 --markers 60``.
@@ -26,6 +26,7 @@ Usage: ``PYTHONPATH=. python bench/bench_clean_length.py [--minutes 5,10,20] [--
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import resource
@@ -106,10 +107,12 @@ def child(minutes: float, rate_hz: float | None, n_markers: int | None) -> None:
     from gazepipe.stages.clean.stage import clean_markers
 
     markers, ms = long_take(minutes, rate_hz, n_markers)
+    # the stage as the clean unit runs it: in place where it can be (the take's positions held once)
+    in_place = {"in_place": True} if "in_place" in inspect.signature(clean_markers).parameters else {}
     before = int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     c0 = time.process_time()
     try:
-        clean_markers(markers, ms, "gaze_follow")
+        clean_markers(markers, ms, "gaze_follow", **in_place)
     except StageError:           # no rests: timed all the same
         pass
     cpu = time.process_time() - c0
