@@ -236,14 +236,16 @@ def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
           references: SubjectReferences | None, in_place: bool = False
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
     """Label swaps repaired, spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's
-    gap records); ``in_place``: ``xyz`` is ``markers.xyz`` itself, else a copy."""
-    valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
-    # the stage's one working array of positions (the caller's own when in place): every step below writes
-    # into it
+    gap records); ``in_place``: ``xyz`` is ``markers.xyz`` itself (and the mask ``markers.valid``), else a
+    copy."""
+    # the stage's one working array of positions and mask (the caller's own when in place): every step below
+    # writes into them
     if in_place:
-        xyz = markers.xyz
+        valid, xyz = markers.valid, markers.xyz
+        valid &= np.isfinite(xyz).all(axis=2)
         xyz[~valid] = np.nan
     else:
+        valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
         xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
@@ -396,9 +398,9 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
                   references: SubjectReferences | None = None, in_place: bool = False) -> CleanResult:
     """Clean one take's markers (SPEC §3.2).
 
-    ``in_place``: ``markers.xyz`` is the caller's to give up: the stage cleans it in place instead of a copy
-    of the take (a long take's positions are held once), and the result's markers are rows of it; the
-    caller must not read it afterwards.
+    ``in_place``: ``markers.xyz`` and ``markers.valid`` are the caller's to give up: the stage cleans them in
+    place instead of a copy of the take (a long take's positions are held once), and the result's markers are
+    rows of them; the caller must not read them afterwards.
 
     ``references``: the subject's marker geometry from all of the session's takes
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), against which label swaps are judged; without

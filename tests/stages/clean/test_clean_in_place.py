@@ -18,9 +18,10 @@ def test_cleaning_in_place_gives_the_same_result_as_on_a_copy():
     take = next(t for t in ses.takes if t.id == "follow_standing_01")
     raw = read_markers(take.mocap)
     raw.xyz[5:9, 2] = np.inf                     # not finite though marked valid: made a gap either way
-    given = raw.xyz.copy()
-    ref = clean_markers(replace(raw, xyz=raw.xyz.copy(), valid=raw.valid.copy()), ses.markerset, take.kind)
-    np.testing.assert_array_equal(raw.xyz, given, "without in_place the caller's positions are not touched")
+    given = replace(raw, xyz=raw.xyz.copy(), valid=raw.valid.copy())
+    ref = clean_markers(raw, ses.markerset, take.kind)
+    np.testing.assert_array_equal(raw.xyz, given.xyz, "without in_place the caller's positions are not touched")
+    np.testing.assert_array_equal(raw.valid, given.valid)
     work = replace(raw, xyz=raw.xyz.copy(), valid=raw.valid.copy())
     res = clean_markers(work, ses.markerset, take.kind, in_place=True)
     assert np.shares_memory(res.markers.xyz, work.xyz), "the result's rows are the caller's array"
