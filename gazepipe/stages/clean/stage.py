@@ -368,18 +368,22 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
     return ErrorLimits(params.max_fill_error_mm, {t: np.fmax(params.max_fill_error_mm, angular)})
 
 
-#: peak memory of the clean stage per marker sample, bytes: the raw table as read and as markers, the tables
-#: written, and :func:`clean_markers`' own peak (its steps work in blocks of frames or a few markers at a time;
-#: the filler's copy of the take and the results remain). Measured on whole ``gazepipe clean`` runs of generated
-#: takes of 1.02 and 2.49 million samples (27,000 and 65,535 frames of 38 markers): 400 and 723 MB at their
-#: peaks, 220 bytes per sample more for the longer (316 before the blocks, when this was 400); with a margin
-CLEAN_BYTES_PER_SAMPLE = 300
+#: peak memory of the clean unit, bytes: a fixed part (the stage's modules and compiled kernels, a row group read
+#: or written, the spike tests' blocks of frames) and a part per marker sample: the take's positions and masks,
+#: held once (the raw table is read a row group at a time into the arrays the stage cleans in place, and the
+#: cleaned table written a row group at a time as it is made), the fill codes and errors, and the take-long
+#: temporaries of the swap repair and the rest speed (about 20 bytes each). Measured with
+#: ``bench/bench_clean_length.py --unit`` on generated takes of 1 and 2 hours at 120 Hz with 60 markers (25.9 and
+#: 51.8 million samples): 1.67 and 3.06 GB added to the process at their peaks (1.84 and 3.23 GB peak resident),
+#: 53.5 bytes per sample and 287 MB besides; with a margin
+CLEAN_BYTES_FIXED = 300 * 2**20
+CLEAN_BYTES_PER_SAMPLE = 60
 
 
 def clean_memory_bytes(n_samples: int) -> int:
     """About how much memory cleaning a take of ``n_samples`` marker samples (frames x markers) takes at its
-    peak, bytes."""
-    return int(n_samples) * CLEAN_BYTES_PER_SAMPLE
+    peak, bytes (:data:`CLEAN_BYTES_FIXED` and :data:`CLEAN_BYTES_PER_SAMPLE`)."""
+    return CLEAN_BYTES_FIXED + int(n_samples) * CLEAN_BYTES_PER_SAMPLE
 
 
 def _rigid_groups(markerset: MarkerSet, labels: list[str]) -> list[list[int]]:
