@@ -6,23 +6,33 @@ minute, 2-40 frames; seeded). Each length runs in a fresh process, so its peak r
 
 Prints per length: frames, marker samples, CPU seconds, CPU microseconds per sample, peak resident memory (MB)
 and what cleaning added to the process's memory (peak less the resident size once the take was in memory), per
-sample; with ``--against REV`` the same for that commit, interleaved (see ``bench_fill_speed.py``).
+sample (the stage cleans the take in place, as the clean unit has it do, where the tree's stage can); with ``--against REV`` the same for that commit, interleaved (see ``bench_fill_speed.py``).
 Linear time shows as a constant time per sample.
 
 The issue's figure, one hour at 120 Hz with 60 markers against two: ``--minutes 60,120 --rate-hz 120 --markers 60``.
 
+``--unit`` measures the whole ``clean`` unit as ``gazepipe run`` runs it instead of the stage alone: the take's
+``markers_raw`` table is first written as the ingest stage writes it (by a process of its own, the same file for
+both sides), then a fresh process runs the unit through the engine (:func:`gazepipe.pipeline.runner.run_take_job`:
+the node reads the table, cleans the take and the engine writes its tables atomically), the session's
+``subject_geometry`` empty (no references: the take judges its swaps by its own frames). Its peak resident memory
+and what the unit added to the process's (peak less the resident size before the unit); the unit's Parquet files'
+SHA-256, which must be the same on both sides.
+
 Usage: ``PYTHONPATH=. python bench/bench_clean_length.py [--minutes 5,10,20] [--rate-hz HZ] [--markers N]
-[--against REV]``
+[--unit] [--against REV]``
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -97,10 +107,12 @@ def child(minutes: float, rate_hz: float | None, n_markers: int | None) -> None:
     from gazepipe.stages.clean.stage import clean_markers
 
     markers, ms = long_take(minutes, rate_hz, n_markers)
+    # the stage as the clean unit runs it: in place where it can be (the take's positions held once)
+    in_place = {"in_place": True} if "in_place" in inspect.signature(clean_markers).parameters else {}
     before = int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     c0 = time.process_time()
     try:
-        clean_markers(markers, ms, "gaze_follow")
+        clean_markers(markers, ms, "gaze_follow", **in_place)
     except StageError:           # no rests: timed all the same
         pass
     cpu = time.process_time() - c0
@@ -110,16 +122,88 @@ def child(minutes: float, rate_hz: float | None, n_markers: int | None) -> None:
                                   "added_bytes": peak - before}))
 
 
+def _session(ms, take_id: str):
+    """The sample session with the long take's markerset and one take of the sample's, named ``take_id``."""
+    from dataclasses import replace
+
+    from gazepipe.io.session_toml import load_session
+
+    session = load_session(SAMPLE)
+    take = replace(next(t for t in session.takes if t.id == "follow_standing_01"), id=take_id)
+    return replace(session, markerset=ms, takes=[take]), take
+
+
+def prepare_unit(minutes: float, rate_hz: float | None, n_markers: int | None, out: Path) -> None:
+    """Write the long take's ``markers_raw`` (as ingest writes it) and an empty ``subject_geometry`` under
+    ``out``, as a run's earlier units would have."""
+    from gazepipe.io.parquet import write_table
+    from gazepipe.pipeline.state import OutLayout
+    from gazepipe.schemas.markers import MARKERS_RAW, markers_to_table
+    from gazepipe.schemas.poses import ARRAYS, geometry_to_table
+
+    markers, ms = long_take(minutes, rate_hz, n_markers)
+    session, take = _session(ms, "long")
+    layout = OutLayout(out)
+    raw = layout.table(session.id, take.id, "markers_raw")
+    raw.parent.mkdir(parents=True, exist_ok=True)
+    write_table(markers_to_table(markers), raw, MARKERS_RAW)
+    geometry = layout.session_table(session.id, "subject_geometry")
+    geometry.parent.mkdir(parents=True, exist_ok=True)
+    write_table(geometry_to_table([], {}, []), geometry, ARRAYS)
+
+
+def child_unit(minutes: float, rate_hz: float | None, n_markers: int | None, out: Path) -> None:
+    """Run the ``clean`` unit on the take :func:`prepare_unit` wrote, through the engine, and print its figures."""
+    import hashlib
+
+    from gazepipe import dag
+    from gazepipe.io.parquet import count_rows, read_schema
+    from gazepipe.pipeline import registry
+    from gazepipe.pipeline.runner import TakeJob, UnitPlan, run_take_job
+    from gazepipe.pipeline.state import OutLayout
+    from gazepipe.schemas.base import read_meta
+
+    dag.declare()
+    _, ms = long_take(0.05, rate_hz, n_markers)          # the markerset only: the take is read from its table
+    session, take = _session(ms, "long")
+    layout = OutLayout(out)
+    raw = layout.table(session.id, take.id, "markers_raw")
+    samples, frames = count_rows(raw), read_meta(read_schema(raw))["n_frames"]
+    import gc
+
+    gc.collect()
+    before = int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    plan = UnitPlan(session.id, take.id, "clean", "bench", {}, True, "bench")
+    c0 = time.process_time()
+    [outcome] = run_take_job(TakeJob(str(out), session, take, [plan], {}, dag=registry.modules()))
+    cpu = time.process_time() - c0
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    digests = {name: hashlib.sha256(layout.table(session.id, take.id, name).read_bytes()).hexdigest()[:16]
+               for name in ("markers", "neutral", "rest_speed") if layout.table(session.id, take.id, name).exists()}
+    print("RESULT " + json.dumps({"frames": frames, "samples": samples, "cpu_s": cpu, "peak_bytes": peak,
+                                  "added_bytes": peak - before, "status": outcome.status,
+                                  "error": outcome.error, "sha256": digests}))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", default="5,10,20")
     ap.add_argument("--rate-hz", type=float, help="resample the take to this rate (default: the sample's 30 Hz)")
     ap.add_argument("--markers", type=int, help="add markers on the segments up to this many (default: 36)")
     ap.add_argument("--against", metavar="REV")
+    ap.add_argument("--unit", action="store_true", help="the whole clean unit through the engine, not the stage")
     ap.add_argument("--child", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--prepare", type=float, help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.prepare is not None:
+        prepare_unit(args.prepare, args.rate_hz, args.markers, args.out)
+        return 0
     if args.child is not None:
-        child(args.child, args.rate_hz, args.markers)
+        if args.unit:
+            child_unit(args.child, args.rate_hz, args.markers, args.out)
+        else:
+            child(args.child, args.rate_hz, args.markers)
         return 0
     shape = [f"--rate-hz={args.rate_hz}"] * bool(args.rate_hz) + [f"--markers={args.markers}"] * bool(args.markers)
     sys.path.insert(0, str(ROOT / "bench"))
@@ -127,21 +211,39 @@ def main(argv: list[str] | None = None) -> int:
 
     trees = {"new": ROOT} if not args.against else {"old": checkout(args.against), "new": ROOT}
     rows = []
-    for minutes in [float(x) for x in args.minutes.split(",")]:
-        for side, tree in trees.items():
-            env = dict(os.environ, PYTHONPATH=str(tree))
-            run = subprocess.run([sys.executable, __file__, "--child", str(minutes), *shape], env=env, cwd=ROOT,
-                                 capture_output=True, text=True, check=True)
-            r = json.loads(next(x for x in run.stdout.splitlines() if x.startswith("RESULT "))[7:])
-            rows.append((minutes, side, r))
-    print(f"{'minutes':>7} {'side':>4} {'frames':>8} {'samples':>10} {'CPU s':>7} {'us/sample':>9} "
-          f"{'peak MB':>8} {'added B/sample':>14}")
-    for minutes, side, r in rows:
-        print(f"{minutes:7g} {side:>4} {r['frames']:8d} {r['samples']:10d} {r['cpu_s']:7.2f} "
-              f"{1e6 * r['cpu_s'] / r['samples']:9.2f} {r['peak_bytes'] / 2**20:8.0f} "
-              f"{r['added_bytes'] / r['samples']:14.0f}")
+    with tempfile.TemporaryDirectory(prefix="bench_clean_length_") as tmp:
+        for minutes in [float(x) for x in args.minutes.split(",")]:
+            unit = []
+            if args.unit:
+                unit = ["--unit", f"--out={tmp}"]
+                subprocess.run([sys.executable, __file__, "--prepare", str(minutes), *shape, f"--out={tmp}"],
+                               env=dict(os.environ, PYTHONPATH=str(ROOT)), cwd=ROOT, check=True)
+            for side, tree in trees.items():
+                env = dict(os.environ, PYTHONPATH=str(tree))
+                run = subprocess.run([sys.executable, __file__, "--child", str(minutes), *shape, *unit], env=env,
+                                     cwd=ROOT, capture_output=True, text=True, check=True)
+                r = json.loads(next(x for x in run.stdout.splitlines() if x.startswith("RESULT "))[7:])
+                rows.append((minutes, side, r))
+    _print(rows, args.unit)
     return 0
 
+
+def _print(rows: list, unit: bool) -> None:
+    print(f"{'minutes':>7} {'side':>4} {'frames':>8} {'samples':>10} {'CPU s':>7} {'us/sample':>9} "
+          f"{'peak MB':>8} {'added B/sample':>14}" + "  unit's files (SHA-256)" * unit)
+    for minutes, side, r in rows:
+        files = " ".join(f"{k}={v}" for k, v in sorted(r.get("sha256", {}).items()))
+        status = f" {r['status']}: {r['error']}" if unit and r["status"] != "ok" else ""
+        print(f"{minutes:7g} {side:>4} {r['frames']:8d} {r['samples']:10d} {r['cpu_s']:7.2f} "
+              f"{1e6 * r['cpu_s'] / r['samples']:9.2f} {r['peak_bytes'] / 2**20:8.0f} "
+              f"{r['added_bytes'] / r['samples']:14.0f}" + f"  {files}{status}" * unit)
+    by = {(m, side): r for m, side, r in rows}
+    lengths = sorted({m for m, _, _ in rows})
+    for side in dict.fromkeys(side for _, side, _ in rows):
+        for a, b in zip(lengths, lengths[1:], strict=False):
+            ra, rb = by[(a, side)], by[(b, side)]
+            print(f"{side}: {b:g} min against {a:g} min: CPU {rb['cpu_s'] / ra['cpu_s']:.2f}x, "
+                  f"peak memory {rb['peak_bytes'] / ra['peak_bytes']:.2f}x")
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -27,7 +27,7 @@ import dataclasses
 import importlib
 import json
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Protocol, TypeVar
@@ -67,18 +67,35 @@ TakeT = TypeVar("TakeT", bound=TakeLike)
 
 
 @dataclass(frozen=True)
+class TableBatches:
+    """A table given as its record batches, for one too long to hold whole beside the arrays it is made from
+    or read into: ``schema`` (with its metadata), ``num_rows`` in all, and ``batches`` (an iterator of the rows
+    in order, each batch of ``schema``'s fields; read once). A stage returns one in place of a ``pa.Table``; the
+    store writes it a batch (a row group) at a time; :meth:`UnitContext.load_batches` reads one."""
+
+    schema: pa.Schema
+    num_rows: int
+    batches: Iterator[pa.RecordBatch]
+
+
+@dataclass(frozen=True)
 class TableStore:
     """How the engine writes a stage's tables and reads them back.
 
-    write(table, path, schema) : write ``table`` to ``path``, checked against ``schema``.
+    write(table, path, schema) : write ``table`` (whole, or :class:`TableBatches`) to ``path``, checked against
+        ``schema``.
     read(path) : the table at ``path``.
     check(table, path, name) : raise when table ``name`` (read from, or just written to, ``path``) is not what
         a table of that name must be.
+    read_batches(path, name) : the table at ``path`` as :class:`TableBatches`, a row group at a time, each
+        batch checked as it is read (its schema before any); ``None``: the whole table is read and checked,
+        then handed out in batches.
     """
 
-    write: Callable[[pa.Table, Path, pa.Schema], None]
+    write: Callable[[pa.Table | TableBatches, Path, pa.Schema], None]
     read: Callable[[Path], pa.Table]
     check: Callable[[pa.Table, Path, str], None]
+    read_batches: Callable[[Path, str], TableBatches] | None = None
 
 
 @dataclass
@@ -90,7 +107,7 @@ class UnitResult:
     re-runs the unit when one of them changed.
     """
 
-    tables: dict[str, tuple[pa.Table, pa.Schema]] = field(default_factory=dict)
+    tables: dict[str, tuple[pa.Table | TableBatches, pa.Schema]] = field(default_factory=dict)
     qc: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     read: list[str] = field(default_factory=list)
@@ -109,6 +126,8 @@ class UnitContext(Generic[SessionT, TakeT]):
     all_params: dict[str, Any] = field(default_factory=dict)
     #: reads a session stage's table: ``(session id, table name)``
     session_loader: Callable[[str, str], pa.Table] | None = None
+    #: reads a take's table as batches, like ``loader``; None: from ``loader``'s whole table
+    batch_loader: Callable[[str, str, str], TableBatches] | None = None
 
     def params_of(self, stage: str) -> dict[str, Any]:
         """Another stage's parameter values (defaults overridden), for a stage that repeats its work."""
@@ -124,6 +143,15 @@ class UnitContext(Generic[SessionT, TakeT]):
         stage does not declare among its inputs is refused (:class:`UndeclaredLoad`)."""
         _check_declared(table, self.inputs, "inputs")
         return self.loader(self.session.id, take_id or self.take.id, table)
+
+    def load_batches(self, table: str) -> TableBatches:
+        """:meth:`load` of this take's table a row group at a time (:class:`TableBatches`), for a table too long
+        to hold whole beside the arrays read from it; each batch is checked as it is read."""
+        _check_declared(table, self.inputs, "inputs")
+        if self.batch_loader is None:
+            whole = self.loader(self.session.id, self.take.id, table)
+            return TableBatches(whole.schema, whole.num_rows, iter(whole.to_batches()))
+        return self.batch_loader(self.session.id, self.take.id, table)
 
     def load_session(self, table: str) -> pa.Table:
         """Read a table of one of the stage's ``session_inputs`` (this take's session), schema-checked."""

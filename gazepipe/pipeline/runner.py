@@ -34,6 +34,7 @@ from gazepipe.pipeline.registry import (
     SessionLike,
     SessionStage,
     Stage,
+    TableBatches,
     TakeLike,
     UnitContext,
     UnitResult,
@@ -303,6 +304,35 @@ def _loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None) -> C
     return load
 
 
+def _batch_loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None
+                  ) -> Callable[[str, str, str], TableBatches]:
+    """:func:`_loader` a row group at a time (:class:`TableBatches`): by the table store's ``read_batches``,
+    each batch checked as it is read; a table this process just wrote (``written``), or with a store that reads
+    only whole tables, checked whole and handed out in batches."""
+    def load(session_id: str, take_id: str, name: str) -> TableBatches:
+        path = layout.table(session_id, take_id, name)
+        store = registry.table_store()
+        if store.read_batches is None or (written and path in written):
+            whole = _read_checked(path, name, written)
+            return TableBatches(whole.schema, whole.num_rows, iter(whole.to_batches()))
+        return store.read_batches(path, name)
+    return load
+
+
+#: tables a process keeps after writing them, for the take's later units to read without reading the file
+#: back, up to this size each (bytes in memory): a longer one (a long take's markers) is read back, so a unit
+#: does not carry an earlier unit's whole table beside its own arrays
+WRITTEN_MAX_BYTES = 64 * 2**20
+
+
+def _remember(written: dict[Path, pa.Table], tables: dict[Path, pa.Table | TableBatches]) -> None:
+    """Keep the tables just written that later units may take from memory (:data:`WRITTEN_MAX_BYTES`)."""
+    for path, table in tables.items():
+        written.pop(path, None)
+        if isinstance(table, pa.Table) and table.nbytes <= WRITTEN_MAX_BYTES:
+            written[path] = table
+
+
 def _session_loader(layout: OutLayout, written: dict[Path, pa.Table] | None = None) -> Callable[[str, str], pa.Table]:
     """A function reading a session stage's table by name, schema-checked (see :func:`_loader`)."""
     def load(session_id: str, name: str) -> pa.Table:
@@ -357,7 +387,8 @@ def run_take_job(job: TakeJob) -> list[UnitOutcome]:
             continue
         ctx: UnitContext[Any, Any] = UnitContext(
             job.session, job.take, stage_params(st, job.params), layout.root, _loader(layout, written), job.params,
-            session_loader=_session_loader(layout), inputs=frozenset(st.inputs),
+            session_loader=_session_loader(layout), batch_loader=_batch_loader(layout, written),
+            inputs=frozenset(st.inputs),
             session_inputs=frozenset(st.session_inputs))
         out = _run_unit(st.name, st.outputs, functools.partial(st.run, ctx), plan, job.session, _files_of(job),
                         layout, written)
@@ -412,7 +443,7 @@ def _unit_paths(layout: OutLayout, plan: UnitPlan) -> tuple[Callable[[str], Path
             f"take {plan.session}/{plan.take}")
 
 
-def _write_tables(tables: dict[str, tuple[pa.Table, Any]], table_path: Callable[[str], Path], tmp_dir: Path,
+def _write_tables(tables: dict[str, tuple[pa.Table | TableBatches, Any]], table_path: Callable[[str], Path], tmp_dir: Path,
                   store: registry.TableStore, writing: list[Path]) -> dict[str, int]:
     """Write a unit's ``tables`` (name → (table, schema)) to their paths: every one written first, then fsynced
     and renamed together, their folder fsynced once. Returns each file's size by file name; ``writing`` ends
@@ -450,7 +481,7 @@ def _run_unit(stage: str, outputs: Sequence[str], run: Callable[[], UnitResult],
             raise RuntimeError(f"stage {stage} produced no {missing}")
         sizes = _write_tables(result.tables, table_path, layout.tmp, store, writing)
         if written is not None:
-            written.update({table_path(name): table for name, (table, _) in result.tables.items()})
+            _remember(written, {table_path(name): table for name, (table, _) in result.tables.items()})
         record.update(status="ok", outputs=sizes, qc=result.qc, warnings=result.warnings,
                       read={os.path.relpath(p, session.root): sha256_file(p) for p in sorted(set(result.read))})
         outcome.warnings = list(result.warnings)

@@ -10,7 +10,8 @@ marker's noise; readers get float64 (:func:`table_to_markers`).
 
 from __future__ import annotations
 
-from typing import Any, cast
+from collections.abc import Iterable, Iterator
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import pyarrow as pa
@@ -43,6 +44,12 @@ MARKERS_CLEAN = with_identity(
     "markers", CLEAN_SCHEMA_VERSION)
 
 
+#: rows per record batch of :func:`markers_batches` (any size writes the same file: the writer cuts row groups
+#: of its own size, :func:`gazepipe.io.parquet.write_batches`; a table of :func:`markers_to_table` has a chunk
+#: per row group, whose bytes ``pq.write_table`` writes)
+BATCH_ROWS = 1024 * 1024
+
+
 def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill_code: np.ndarray | None = None,
                      spike: np.ndarray | None = None, fill_error_mm: np.ndarray | None = None,
                      meta: dict[str, Any] | None = None) -> pa.Table:
@@ -58,33 +65,30 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
         where measured, unfilled or without an estimate; default none).
     meta : extra table-level facts stored with the rate, labels and source information.
     """
+    # made a batch at a time (a long take's temporaries stay within a batch), one chunk per batch
+    schema, _, batches = markers_batches(markers, frames=frames, fill_code=fill_code, spike=spike,
+                                         fill_error_mm=fill_error_mm, meta=meta)
+    return pa.Table.from_batches(list(batches), schema)
+
+
+class MarkersBatches(NamedTuple):
+    """A markers table as its record batches (:func:`markers_batches`): its schema with its metadata, its rows
+    in all and the batches, made as they are read (the engine's ``TableBatches``)."""
+
+    schema: pa.Schema
+    num_rows: int
+    batches: Iterator[pa.RecordBatch]
+
+
+def markers_batches(markers: Markers, *, frames: np.ndarray | None = None, fill_code: np.ndarray | None = None,
+                    spike: np.ndarray | None = None, fill_error_mm: np.ndarray | None = None,
+                    meta: dict[str, Any] | None = None, rows: int | None = BATCH_ROWS) -> MarkersBatches:
+    """:func:`markers_to_table` a batch of ``rows`` rows at a time (None: one batch): ``(schema with its
+    metadata, rows in all, the batches)``, made as they are read, so a long take's table is never held whole.
+    The arrays must stay unchanged until the batches are read."""
     T, M = markers.valid.shape
     frames = np.arange(T, dtype=np.int32) if frames is None else np.asarray(frames, dtype=np.int32)
-    valid = markers.valid.T.reshape(-1)
-    invalid = ~valid
-    # one coordinate at a time, marker-major: a long take's positions are not copied whole once more
-    pos_masked = [pa.array(np.ascontiguousarray(markers.xyz[:, :, k].T, dtype=np.float32).reshape(-1),
-                           mask=invalid) for k in range(3)]
-    marker_idx = np.repeat(np.arange(M, dtype=np.int32), T)
-    cols: dict[str, pa.Array] = {
-        "marker": pa.DictionaryArray.from_arrays(pa.array(marker_idx, pa.int32()), pa.array(markers.labels, pa.string())),
-        "frame": pa.array(np.tile(frames, M)),
-        "source_frame": pa.array(np.tile(frames.astype(np.int64) + markers.first_frame, M)),
-        "time_s": pa.array(np.tile(frames / markers.rate_hz, M)),
-        "x": pos_masked[0], "y": pos_masked[1], "z": pos_masked[2],
-        "valid": pa.array(valid),
-    }
-    schema = MARKERS_RAW
-    if fill_code is not None:
-        codes = np.asarray(fill_code, dtype=np.int8).T.reshape(-1)
-        cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes, pa.int8()), pa.array(FILL_NAMES, pa.string()))
-        cols["spike"] = pa.array(np.zeros(M * T, dtype=bool) if spike is None
-                                 else np.asarray(spike, dtype=bool).T.reshape(-1))
-        err = (np.full(M * T, np.nan) if fill_error_mm is None
-               else np.asarray(fill_error_mm, dtype=np.float64).T.reshape(-1)).astype(np.float32)
-        cols["fill_error_mm"] = pa.array(err, mask=~np.isfinite(err))
-        schema = MARKERS_CLEAN
-    table = pa.Table.from_pydict(cols, schema=schema)
+    schema = MARKERS_RAW if fill_code is None else MARKERS_CLEAN
     info = {
         "labels": list(markers.labels), "rate_hz": markers.rate_hz, "first_frame": int(markers.first_frame),
         "units_found": markers.units, "source_format": markers.source_format,
@@ -92,14 +96,61 @@ def markers_to_table(markers: Markers, *, frames: np.ndarray | None = None, fill
         "n_frames": int(T),
     }
     info.update(meta or {})
-    return attach_meta(table, info)
+    schema = attach_meta(schema.empty_table(), info).schema
+    step = max(1, rows or M * T)
+    batches = (_markers_batch(schema, markers, frames, fill_code, spike, fill_error_mm, lo, min(M * T, lo + step))
+               for lo in range(0, max(M * T, 1), step))
+    return MarkersBatches(schema, M * T, batches)
+
+
+def _markers_batch(schema: pa.Schema, markers: Markers, frames: np.ndarray, fill_code: np.ndarray | None,
+                   spike: np.ndarray | None, fill_error_mm: np.ndarray | None, lo: int, hi: int) -> pa.RecordBatch:
+    """Rows ``lo:hi`` of :func:`markers_to_table` (marker-major: row ``r`` is frame ``r % T`` of marker
+    ``r // T``)."""
+    T, M = markers.valid.shape
+    r = np.arange(lo, hi, dtype=np.int64)
+    m, t = (r // T, r % T) if T else (r, r)
+    f = frames[t]
+    valid = markers.valid[t, m]
+    invalid = ~valid
+    pos = [pa.array(markers.xyz[t, m, k].astype(np.float32), mask=invalid) for k in range(3)]
+    cols: dict[str, pa.Array] = {
+        "marker": pa.DictionaryArray.from_arrays(pa.array(m.astype(np.int32), pa.int32()),
+                                                 pa.array(markers.labels, pa.string())),
+        "frame": pa.array(f),
+        "source_frame": pa.array(f.astype(np.int64) + markers.first_frame),
+        "time_s": pa.array(f / markers.rate_hz),
+        "x": pos[0], "y": pos[1], "z": pos[2],
+        "valid": pa.array(valid),
+    }
+    if fill_code is not None:
+        codes = np.asarray(fill_code, dtype=np.int8)[t, m]
+        cols["fill"] = pa.DictionaryArray.from_arrays(pa.array(codes, pa.int8()), pa.array(FILL_NAMES, pa.string()))
+        cols["spike"] = pa.array(np.zeros(r.size, dtype=bool) if spike is None else np.asarray(spike, dtype=bool)[t, m])
+        err = (np.full(r.size, np.nan) if fill_error_mm is None
+               else np.asarray(fill_error_mm, dtype=np.float64)[t, m]).astype(np.float32)
+        cols["fill_error_mm"] = pa.array(err, mask=~np.isfinite(err))
+    return pa.RecordBatch.from_pydict(cols, schema=schema)
 
 
 def check_markers_meta(table: pa.Table, path: str | None = None) -> None:
     """Raise :class:`SchemaError` unless the table's metadata agrees with its rows (labels × frames, marker-major,
     a known rate): a table can match its schema and still be cut short or carry edited metadata."""
+    m, t = _checked_shape(table.schema, table.num_rows, path)
+    marker = cast(pa.DictionaryArray, table.column("marker").combine_chunks())   # checked against the schema
+    idx = marker.indices.to_numpy(zero_copy_only=False) if t else np.zeros(0, np.int64)
+    # a table of no frames (a take without a rest) comes back from Parquet with an empty dictionary
+    if (t and len(marker.dictionary) != m) or not np.array_equal(idx, np.repeat(np.arange(m), t)):
+        raise SchemaError(path, "rows are not marker-major in the order of the metadata's labels")
+    frames = table.column("frame").to_numpy()
+    if t and not np.array_equal(frames.reshape(m, t), np.broadcast_to(frames[:t], (m, t))):
+        raise SchemaError(path, "markers do not share the same frames")
+
+
+def _checked_shape(schema: pa.Schema, num_rows: int, path: str | None) -> tuple[int, int]:
+    """``(markers, frames)`` of a markers table of ``num_rows`` rows whose metadata (in ``schema``) is checked."""
     try:
-        meta = read_meta(table)
+        meta = read_meta(schema)
     except ValueError:
         raise SchemaError(path, "unreadable gazepipe metadata") from None
     labels = meta.get("labels")
@@ -111,17 +162,41 @@ def check_markers_meta(table: pa.Table, path: str | None = None) -> None:
     if not isinstance(meta.get("first_frame"), int) or isinstance(meta.get("first_frame"), bool):
         raise SchemaError(path, "metadata 'first_frame' is not a whole number")
     m = len(labels)
-    if m == 0 or table.num_rows % m:
-        raise SchemaError(path, f"{table.num_rows} rows do not make {m} markers x whole frames")
-    t = table.num_rows // m
-    marker = cast(pa.DictionaryArray, table.column("marker").combine_chunks())   # checked against the schema
-    idx = marker.indices.to_numpy(zero_copy_only=False) if t else np.zeros(0, np.int64)
-    # a table of no frames (a take without a rest) comes back from Parquet with an empty dictionary
-    if (t and len(marker.dictionary) != m) or not np.array_equal(idx, np.repeat(np.arange(m), t)):
-        raise SchemaError(path, "rows are not marker-major in the order of the metadata's labels")
-    frames = table.column("frame").to_numpy()
-    if t and not np.array_equal(frames.reshape(m, t), np.broadcast_to(frames[:t], (m, t))):
-        raise SchemaError(path, "markers do not share the same frames")
+    if m == 0 or num_rows % m:
+        raise SchemaError(path, f"{num_rows} rows do not make {m} markers x whole frames")
+    return m, num_rows // m
+
+
+def checked_markers_batches(schema: pa.Schema, num_rows: int, batches: Iterable[pa.RecordBatch],
+                            path: str | None = None) -> Iterator[pa.RecordBatch]:
+    """:func:`check_markers_meta` of a table read a batch at a time: its metadata at once (a
+    :class:`SchemaError` before any batch), each batch's rows as it passes (the first marker's rows give the
+    frames every other marker must share), and the rows' count at the end."""
+    m, t = _checked_shape(schema, num_rows, path)
+    return _checked_rows(pa.array(read_meta(schema)["labels"], pa.string()), t, num_rows, batches, path)
+
+
+def _checked_rows(labels: pa.Array, t: int, num_rows: int, batches: Iterable[pa.RecordBatch],
+                  path: str | None) -> Iterator[pa.RecordBatch]:
+    m = len(labels)
+    frames = np.zeros(t, np.int64)
+    lo = 0
+    for batch in batches:
+        r = np.arange(lo, lo + batch.num_rows, dtype=np.int64)
+        if r.size:
+            marker = cast(pa.DictionaryArray, batch.column("marker"))
+            if (r[-1] >= m * t or not marker.dictionary.equals(labels)
+                    or not np.array_equal(marker.indices.to_numpy(zero_copy_only=False), r // t)):
+                raise SchemaError(path, "rows are not marker-major in the order of the metadata's labels")
+            f = batch.column("frame").to_numpy(zero_copy_only=False)
+            first = r < t
+            frames[r[first]] = f[first]
+            if not np.array_equal(f, frames[r % t]):
+                raise SchemaError(path, "markers do not share the same frames")
+        lo += batch.num_rows
+        yield batch
+    if lo != num_rows:
+        raise SchemaError(path, f"{lo} rows read of the {num_rows} the file holds")
 
 
 def fill_codes(table: pa.Table) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -152,11 +227,39 @@ def table_to_markers(table: pa.Table) -> tuple[Markers, np.ndarray, np.ndarray |
     if "fill" in table.column_names:
         codes = cast(pa.DictionaryArray, table.column("fill").combine_chunks()).indices
         fill = codes.to_numpy(zero_copy_only=False).astype(np.int8).reshape(M, T).T
-    markers = Markers(labels=labels, xyz=xyz, valid=valid, rate_hz=float(meta["rate_hz"]),
-                      first_frame=int(meta["first_frame"]), units=meta.get("units_found"),
-                      source_format=meta.get("source_format", ""), model_outputs=list(meta.get("model_outputs", [])),
-                      warnings=list(meta.get("warnings", [])))
-    return markers, frames, fill, meta
+    return _markers(meta, xyz, valid), frames, fill, meta
+
+
+def batches_to_markers(schema: pa.Schema, num_rows: int, batches: Iterable[pa.RecordBatch]
+                       ) -> tuple[Markers, np.ndarray]:
+    """:func:`table_to_markers` of a table given a batch at a time (``schema`` with its metadata,
+    ``num_rows`` rows in all): ``(markers, frames)``, the same arrays, without the table ever held whole (its
+    fill codes are not read)."""
+    meta = read_meta(schema)
+    M = len(meta["labels"])
+    T = num_rows // M if M else 0
+    frames = np.zeros(T, np.int64)
+    xyz = np.empty((T, M, 3))
+    valid = np.zeros((T, M), dtype=bool)
+    lo = 0
+    for batch in batches:
+        r = np.arange(lo, lo + batch.num_rows, dtype=np.int64)
+        m, t = r // max(T, 1), r % max(T, 1)
+        first = r < T
+        frames[t[first]] = batch.column("frame").to_numpy(zero_copy_only=False)[first]
+        for k, axis in enumerate("xyz"):
+            xyz[t, m, k] = batch.column(axis).to_numpy(zero_copy_only=False)
+        valid[t, m] = batch.column("valid").to_numpy(zero_copy_only=False)
+        lo += batch.num_rows
+    xyz[~valid] = np.nan
+    return _markers(meta, xyz, valid), frames
+
+
+def _markers(meta: dict[str, Any], xyz: np.ndarray, valid: np.ndarray) -> Markers:
+    return Markers(labels=list(meta["labels"]), xyz=xyz, valid=valid, rate_hz=float(meta["rate_hz"]),
+                   first_frame=int(meta["first_frame"]), units=meta.get("units_found"),
+                   source_format=meta.get("source_format", ""), model_outputs=list(meta.get("model_outputs", [])),
+                   warnings=list(meta.get("warnings", [])))
 
 
 #: the clean stage's rest-speed trace: the subject's mean marker speed per frame of the uncropped take (mm/s, NaN

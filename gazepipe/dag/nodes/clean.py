@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import pyarrow as pa
 
 from gazepipe.dag.nodes.common import TakeContext, given
-from gazepipe.pipeline.registry import UnitResult, params_from
+from gazepipe.pipeline.registry import TableBatches, UnitResult, params_from
 
 if TYPE_CHECKING:
     from gazepipe.stages.clean.swaps import SubjectReferences
@@ -47,16 +47,23 @@ def _check_memory(ctx: TakeContext) -> None:
 
 def run_clean(ctx: TakeContext) -> UnitResult:
     from gazepipe.schemas.clean_tables import clean_tables
-    from gazepipe.schemas.markers import table_to_markers
+    from gazepipe.schemas.markers import MarkersBatches, batches_to_markers
     from gazepipe.stages.clean.stage import CleanParams, clean_markers
 
     _check_memory(ctx)
-    raw = table_to_markers(ctx.load("markers_raw"))[0]
     params = params_from(CleanParams, ctx.params)
     ms = given(ctx.session.markerset, "markerset")
     refs = subject_references(ctx.load_session("subject_geometry")) if params.repair_swaps else None
-    res = clean_markers(raw, ms, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id, references=refs)
-    # the raw positions are not needed any more: a long take's are let go before the tables are built
+    # the raw table read a row group at a time into the take's arrays, which the stage then cleans in place:
+    # a long take's positions are held once, never beside its whole table
+    stored = ctx.load_batches("markers_raw")
+    raw = batches_to_markers(stored.schema, stored.num_rows, stored.batches)[0]
+    res = clean_markers(raw, ms, ctx.take.kind, params, path=ctx.take.mocap, take=ctx.take.id, references=refs,
+                        in_place=True)
+    # the raw markers' arrays are the stage's now: only their labels, rate and first frame are read below
     raw = dataclasses.replace(raw, xyz=raw.xyz[:0].copy(), valid=raw.valid[:0].copy())
     qc = dict(res.qc)
-    return UnitResult(tables=clean_tables(res, raw), qc=qc, warnings=list(qc.get("warnings", [])))
+    # a long take's markers table is written as its batches are made: never whole beside the stage's arrays
+    tables = {name: (TableBatches(*table) if isinstance(table, MarkersBatches) else table, schema)
+              for name, (table, schema) in clean_tables(res, raw).items()}
+    return UnitResult(tables=tables, qc=qc, warnings=list(qc.get("warnings", [])))

@@ -233,13 +233,20 @@ def _marker_qc(fill_code: np.ndarray, valid_in: np.ndarray, labels: list[str], r
 
 
 def _fill(markers: Markers, markerset: MarkerSet, params: CleanParams, qc: dict,
-          references: SubjectReferences | None
+          references: SubjectReferences | None, in_place: bool = False
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[GapRecord]]:
     """Label swaps repaired, spikes → gaps, then gap filling. Returns (xyz, fill_code, spike mask, the filler's
-    gap records)."""
-    valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
-    # the stage's one working copy of the positions: every step below writes into it
-    xyz = np.where(valid[..., None], markers.xyz, np.nan)
+    gap records); ``in_place``: ``xyz`` is ``markers.xyz`` itself (and the mask ``markers.valid``), else a
+    copy."""
+    # the stage's one working array of positions and mask (the caller's own when in place): every step below
+    # writes into them
+    if in_place:
+        valid, xyz = markers.valid, markers.xyz
+        valid &= np.isfinite(xyz).all(axis=2)
+        xyz[~valid] = np.nan
+    else:
+        valid = markers.valid & np.isfinite(markers.xyz).all(axis=2)
+        xyz = np.where(valid[..., None], markers.xyz, np.nan)
     pos = {lab: i for i, lab in enumerate(markers.labels)}
     clusters = [[pos[n] for n in s.markers if n in pos] for s in markerset.segments]
     swapped = _repair_swaps(xyz, valid, markers.labels, markers.rate_hz, markerset, params, qc, references)
@@ -361,18 +368,22 @@ def _error_limits(xyz: np.ndarray, labels: list[str], markerset: MarkerSet,
     return ErrorLimits(params.max_fill_error_mm, {t: np.fmax(params.max_fill_error_mm, angular)})
 
 
-#: peak memory of the clean stage per marker sample, bytes: the raw table as read and as markers, the tables
-#: written, and :func:`clean_markers`' own peak (its steps work in blocks of frames or a few markers at a time;
-#: the filler's copy of the take and the results remain). Measured on whole ``gazepipe clean`` runs of generated
-#: takes of 1.02 and 2.49 million samples (27,000 and 65,535 frames of 38 markers): 400 and 723 MB at their
-#: peaks, 220 bytes per sample more for the longer (316 before the blocks, when this was 400); with a margin
-CLEAN_BYTES_PER_SAMPLE = 300
+#: peak memory of the clean unit, bytes: a fixed part (the stage's modules and compiled kernels, a row group read
+#: or written, the spike tests' blocks of frames) and a part per marker sample: the take's positions and masks,
+#: held once (the raw table is read a row group at a time into the arrays the stage cleans in place, and the
+#: cleaned table written a row group at a time as it is made), the fill codes and errors, and the take-long
+#: temporaries of the swap repair and the rest speed (about 20 bytes each). Measured with
+#: ``bench/bench_clean_length.py --unit`` on generated takes of 1 and 2 hours at 120 Hz with 60 markers (25.9 and
+#: 51.8 million samples): 1.67 and 3.06 GB added to the process at their peaks (1.84 and 3.23 GB peak resident),
+#: 53.5 bytes per sample and 287 MB besides; with a margin
+CLEAN_BYTES_FIXED = 300 * 2**20
+CLEAN_BYTES_PER_SAMPLE = 60
 
 
 def clean_memory_bytes(n_samples: int) -> int:
     """About how much memory cleaning a take of ``n_samples`` marker samples (frames x markers) takes at its
-    peak, bytes."""
-    return int(n_samples) * CLEAN_BYTES_PER_SAMPLE
+    peak, bytes (:data:`CLEAN_BYTES_FIXED` and :data:`CLEAN_BYTES_PER_SAMPLE`)."""
+    return CLEAN_BYTES_FIXED + int(n_samples) * CLEAN_BYTES_PER_SAMPLE
 
 
 def _rigid_groups(markerset: MarkerSet, labels: list[str]) -> list[list[int]]:
@@ -388,8 +399,12 @@ def _rigid_groups(markerset: MarkerSet, labels: list[str]) -> list[list[int]]:
 
 def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: CleanParams | None = None,
                   *, path: str | None = None, take: str | None = None,
-                  references: SubjectReferences | None = None) -> CleanResult:
+                  references: SubjectReferences | None = None, in_place: bool = False) -> CleanResult:
     """Clean one take's markers (SPEC §3.2).
+
+    ``in_place``: ``markers.xyz`` and ``markers.valid`` are the caller's to give up: the stage cleans them in
+    place instead of a copy of the take (a long take's positions are held once), and the result's markers are
+    rows of them; the caller must not read them afterwards.
 
     ``references``: the subject's marker geometry from all of the session's takes
     (:func:`gazepipe.stages.clean.swaps.pooled_references`), against which label swaps are judged; without
@@ -424,7 +439,7 @@ def clean_markers(markers: Markers, markerset: MarkerSet, kind: str, params: Cle
     root = labels.index(markerset.root)
     rate = float(markers.rate_hz)
 
-    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references)
+    xyz, code, spike, gap_records = _fill(markers, markerset, params, qc, references, in_place)
     # rests are the subject standing still in the room: speeds on lab positions, before stabilisation
     subj = [labels.index(n) for n in markerset.subject_markers if n in labels]
     clusters = _rigid_groups(markerset, labels)
