@@ -115,7 +115,7 @@ def _pattern_keys(seen: np.ndarray) -> np.ndarray:
     """Each row of ``seen`` (n, P ≤ 62) as an integer (bit p set where predictor p is measured)."""
     keys = np.zeros(seen.shape[0], dtype=np.int64)
     for f in range(seen.shape[0]):
-        key = 0
+        key = np.int64(0)
         for p in range(seen.shape[1]):
             if seen[f, p]:
                 key |= np.int64(1) << p
