@@ -554,15 +554,9 @@ def distance_stats(xyz: np.ndarray, valid: np.ndarray, m: int, cand: np.ndarray,
     n_t = valid.shape[0]
     lo, hi = max(0, s - window), min(n_t, e + window)
     own = valid[:, m] if known_m is None else known_m
-    d, both = kernels.distances(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_),
-                                np.asarray(own, dtype=np.bool_), m, np.asarray(cand, dtype=np.int64), lo, hi,
-                                sample_step(hi - lo, WINDOW_SAMPLES))
-    # (frames, markers) with the frames contiguous, as the array code laid them out: its sums' order, its bits
-    d, both = d.T, both.T
-    n = both.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mu = np.where(both, d, 0.0).sum(axis=0) / n
-        sd = np.sqrt(np.where(both, (d - mu) ** 2, 0.0).sum(axis=0) / n)
+    n, mu, sd = kernels.distance_moments(np.asarray(xyz, dtype=np.float64), np.asarray(valid, dtype=np.bool_),
+                                         np.asarray(own, dtype=np.bool_), m, np.asarray(cand, dtype=np.int64), lo,
+                                         hi, sample_step(hi - lo, WINDOW_SAMPLES))
     sd[(n < 10) | ~np.isfinite(sd)] = np.inf
     return mu, sd
 

@@ -275,6 +275,28 @@ def distances(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand:
     return d, both
 
 
+
+@kernel
+def distance_moments(xyz: np.ndarray, valid: np.ndarray, own: np.ndarray, m: int, cand: np.ndarray, lo: int,
+                     hi: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each marker ``cand[k]``'s distance to marker ``m`` over the frames of :func:`distances`: how many frames
+    count, the mean and the standard deviation (K,) each (NaN with none), summed as numpy sums a contiguous
+    row (:func:`_pairwise_sum`), so the bits of the array code's ``sum(axis=0)`` over frames."""
+    d, both = distances(xyz, valid, own, m, cand, lo, hi, step)
+    n_k, n_f = d.shape
+    count = np.zeros(n_k, dtype=np.int64)
+    mu = np.empty(n_k)
+    sd = np.empty(n_k)
+    dev = np.empty(n_f)
+    for k in range(n_k):
+        for i in range(n_f):
+            count[k] += both[k, i]
+        mu[k] = _pairwise_sum(d[k], 0, n_f) / count[k]        # d is 0 where not both
+        for i in range(n_f):
+            dev[i] = (d[k, i] - mu[k]) ** 2 if both[k, i] else 0.0
+        sd[k] = np.sqrt(_pairwise_sum(dev, 0, n_f) / count[k])
+    return count, mu, sd
+
 # ------------------------------------------------------------------------------------- swap references
 
 @kernel

@@ -92,3 +92,27 @@ def test_third_difference_mads_are_numpys_to_the_bit(step):
             assert np.isnan(mads[m]).all()
         else:
             assert np.array_equal(mads[m], np.median(np.abs(d3 - np.median(d3, axis=0)), axis=0))
+
+
+@pytest.mark.parametrize(("n_t", "step"), [(15, 1), (700, 1), (3000, 2), (9000, 7)])
+def test_distance_moments_are_the_array_codes_to_the_bit(n_t, step):
+    """Count, mean and spread of each candidate's distance to the marker over the frames where both count, as
+    the array code summed them (frames contiguous: numpy's pairwise sum) — the mates and links chosen from them
+    hinge on exact ties."""
+    from gazepipe.stages.clean.kernels import distance_moments, distances
+
+    xyz, valid = _gappy(3, n_t=n_t, n_m=6)
+    own = valid[:, 3] & (np.arange(n_t) % 5 != 0)
+    cand = np.array([0, 1, 2, 4, 5], dtype=np.int64)
+    lo, hi = 3, n_t - 2
+    count, mu, sd = distance_moments(xyz, valid, own, 3, cand, lo, hi, step)
+    d, both = distances(xyz, valid, own, 3, cand, lo, hi, step)
+    d, both = d.T, both.T
+    n = both.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        want_mu = np.where(both, d, 0.0).sum(axis=0) / n
+        want_sd = np.sqrt(np.where(both, (d - want_mu) ** 2, 0.0).sum(axis=0) / n)
+    assert np.array_equal(count, n)
+    assert np.array_equal(mu, want_mu, equal_nan=True)
+    assert np.array_equal(sd, want_sd, equal_nan=True)
+    assert np.isnan(mu[cand == 2]).all() == (n[cand == 2] == 0).all()
