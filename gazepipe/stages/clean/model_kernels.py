@@ -146,13 +146,7 @@ def _householder(a: np.ndarray, tau: np.ndarray) -> None:
         tau[j] = -v0 / alpha
         a[j, j] = alpha
         for col in range(j + 1, k):
-            s = a[j, col]
-            for i in range(j + 1, m):
-                s += a[i, j] * a[i, col]
-            s *= tau[j]
-            a[j, col] -= s
-            for i in range(j + 1, m):
-                a[i, col] -= s * a[i, j]
+            _reflect(a, j, tau[j], a, col)
 
 
 @kernel
@@ -167,14 +161,21 @@ def _form_q(a: np.ndarray, tau: np.ndarray) -> np.ndarray:
         if tau[j] == 0.0:
             continue
         for col in range(j, kk):
-            s = q[j, col]
-            for i in range(j + 1, m):
-                s += a[i, j] * q[i, col]
-            s *= tau[j]
-            q[j, col] -= s
-            for i in range(j + 1, m):
-                q[i, col] -= s * a[i, j]
+            _reflect(a, j, tau[j], q, col)
     return q
+
+
+@kernel
+def _reflect(a: np.ndarray, j: int, tau_j: float, c: np.ndarray, col: int) -> None:
+    """Column ``col`` of ``c`` ← H_j times it, H_j = I − tau_j v vᵀ the reflector stored below the diagonal of
+    column j of ``a`` (implicit leading 1). ``c`` may be ``a`` itself for a column other than j."""
+    s = c[j, col]
+    for i in range(j + 1, a.shape[0]):
+        s += a[i, j] * c[i, col]
+    s *= tau_j
+    c[j, col] -= s
+    for i in range(j + 1, a.shape[0]):
+        c[i, col] -= s * a[i, j]
 
 
 @kernel
