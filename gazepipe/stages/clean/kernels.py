@@ -553,15 +553,9 @@ def _deviations_at(p0: float, p1: float, p2: float, xyz: np.ndarray, valid: np.n
 @kernel
 def _lower_median(dev: np.ndarray, count: int) -> float:
     """The lower median of ``dev[:count]`` (finite, ``count`` ≥ 1): the value of rank ``(count − 1) // 2``,
-    chosen by counting ranks (a handful of values: no branch on the data, which a sort mispredicts)."""
-    target = (count - 1) // 2
-    out = dev[0]
-    for i in range(count):
-        rank = 0
-        for j in range(count):
-            rank += (dev[j] < dev[i]) | ((dev[j] == dev[i]) & (j < i))
-        out = dev[i] if rank == target else out
-    return out
+    chosen by counting ranks (:func:`_rank_select`: a handful of values, no branch on the data, which a sort
+    mispredicts)."""
+    return _rank_select(dev, count, (count - 1) // 2)
 
 
 @kernel
